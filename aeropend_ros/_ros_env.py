@@ -16,7 +16,7 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ['ensure_ros_environment', 'ament_prefixes', 'local_ros_environment']
+__all__ = ['ament_prefixes', 'ensure_ros_environment', 'local_ros_environment']
 
 
 def ament_prefixes() -> list[Path]:

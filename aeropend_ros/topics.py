@@ -123,4 +123,4 @@ def msg_to_sample(msg) -> Sample:
             from error
     stamp_ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
     return Sample(stamp_ns, values['angle'], values['armature_voltage'], values['armature_current'],
-                  values['duty'], int(round(values['sequence'])))
+                  values['duty'], round(values['sequence']))

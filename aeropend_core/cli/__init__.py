@@ -17,6 +17,7 @@ VERBS: dict[str, tuple[str, str]] = {
     'identify': ('aeropend_core.cli.identify', 'identify the rig equations with weak SINDy from CSV or MCAP'),
     'diagnose': ('aeropend_core.cli.diagnose', 'compare model and data, find the missing physical effect'),
     'effects': ('aeropend_core.cli.effects', 'list the catalog of physical effects'),
+    'bag-recover': ('aeropend_core.cli.bag_recover', 'repair a bag whose recorder was killed'),
     'run': ('aeropend_ros.cli_run', 'start the node graph (sim or rig), record, identify, diagnose'),
     'monitor': ('aeropend_ros.cli_monitor', 'show live identified parameters in the terminal'),
 }

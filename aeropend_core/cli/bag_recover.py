@@ -1,0 +1,32 @@
+"""Repair an MCAP bag whose recorder was killed (SIGKILL, power loss, full disk).
+
+A killed recording keeps every chunk that reached the disk, but its files end without a summary and footer and
+its metadata.yaml may be stale, so `ros2 bag`, rosbags and some viewers refuse it. This command rewrites each cut
+.mcap file with everything up to its last complete chunk (messages after it were never written and are lost),
+adds the summary, footer and rosbag2 metadata record, and regenerates metadata.yaml. Intact files are untouched.
+
+Example:
+  aeropend bag-recover bags/run_2026_11_21
+"""
+from __future__ import annotations
+
+import argparse
+
+from aeropend_core.bag import recover_bag
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('bag', help='bag folder (with *.mcap and metadata.yaml) or one of its .mcap files')
+    parser.add_argument('--keep-original', action='store_true',
+                        help='keep each cut file as <file>.orig next to the repaired one')
+
+
+def main(args: argparse.Namespace) -> int:
+    report = recover_bag(args.bag, keep_original=args.keep_original)
+    for note in report.notes:
+        print(f'repaired {note}')
+    if not report.repaired:
+        print(f'{report.folder}: all {len(report.intact)} file(s) intact; metadata.yaml regenerated')
+    print(f'{report.folder}: {report.message_count} messages in {len(report.repaired) + len(report.intact)} '
+          f'file(s)')
+    return 0
