@@ -1,0 +1,439 @@
+/*
+ * aeropend firmware for the Arduino Mega 2560 + Arduino Motor Shield Rev3 (paper section 3).
+ *
+ * - Timer1 drives the motor PWM on OC1A (D11) at 490.196 Hz, prescaler 64:
+ *     default (real chip): phase-correct PWM, mode 10, TOP = ICR1 = 255  -> 16 MHz / (2 * 64 * 255);
+ *     -DAEROPEND_FAST_PWM=1 (simavr 1.6 lacks phase-correct PWM): fast PWM, mode 14, TOP = ICR1 = 509
+ *                                                                         -> 16 MHz / (64 * 510).
+ *   Both give Ts = 2.04 ms. The Timer1 overflow interrupt fires while the output is high (at BOTTOM, the centre of
+ *   the pulse, in phase-correct mode; at the start of the pulse in fast mode) and starts the sample: ADC
+ *   conversions of current, angle and voltage chained through the ADC interrupt, then one SAMPLE frame.
+ * - ADC (AVCC = 5 V reference, 10 bit, 125 kHz ADC clock):
+ *     current: shield channel A sense on A0 (channel B: A1), 3.3 V <-> 2 A;
+ *     angle:   A2, the AS5040's PWM output through a 2nd-order RC low-pass (R >= 4.7 kOhm, C >= 1 uF);
+ *     voltage: A3, optional armature voltage divider (reads 0 when not fitted; the host then uses eq (8)).
+ * - Shield channel A (default, as in the paper): DIR A = D12, BRAKE A = D9, sense A0. On the Mega the shield's
+ *   PWM A pin (D3) is not a Timer1 output: bend the shield's D3 pin out and jumper D11 to it. Channel B
+ *   (-DAEROPEND_SHIELD_CHANNEL_B=1) needs no jumper (PWM B = D11 = OC1A, DIR B = D13, BRAKE B = D8, sense A1).
+ * - Serial: USART0 (USB), 250000 baud 8N1 (exact at 16 MHz), interrupt driven. Frame format: aeropend_protocol.h
+ *   and aeropend_core/protocol.py.
+ * - Watchdog: when no valid command arrives for watchdog_ms (default 500 ms), the duty is cut to zero until the
+ *   next SET_DUTY. Maximum duty default 0.70 (the paper's cap: the rod stays below 90 degrees).
+ *
+ * Builds with the Arduino IDE / arduino-cli (board "Arduino Mega or Mega 2560") or with plain avr-gcc (Makefile).
+ */
+#include <avr/interrupt.h>
+#include <avr/io.h>
+#include <avr/sleep.h>
+#include <util/atomic.h>
+
+#include "aeropend_protocol.h"
+
+#ifndef F_CPU
+#define F_CPU 16000000UL
+#endif
+#ifndef AEROPEND_BAUD
+#define AEROPEND_BAUD 250000UL
+#endif
+#ifndef AEROPEND_FAST_PWM
+#define AEROPEND_FAST_PWM 0
+#endif
+#ifndef AEROPEND_SIMAVR
+#define AEROPEND_SIMAVR 0
+#endif
+#ifndef AEROPEND_SHIELD_CHANNEL_B
+#define AEROPEND_SHIELD_CHANNEL_B 0
+#endif
+#ifndef AEROPEND_DEFAULT_MAX_DUTY_Q16
+#define AEROPEND_DEFAULT_MAX_DUTY_Q16 45875U /* 0.70 * 65535 */
+#endif
+#ifndef AEROPEND_DEFAULT_WATCHDOG_MS
+#define AEROPEND_DEFAULT_WATCHDOG_MS 500U
+#endif
+
+#if AEROPEND_FAST_PWM
+#define PWM_TOP 509U
+#define PWM_MODE AP_PWM_FAST
+#else
+#define PWM_TOP 255U
+#define PWM_MODE AP_PWM_PHASE_CORRECT
+#endif
+#define SAMPLE_PERIOD_US 2040UL /* 64 * 510 / 16 MHz */
+#define STATUS_EVERY_SAMPLES 490U
+
+#if AEROPEND_SHIELD_CHANNEL_B
+#define CURRENT_ADC_CHANNEL 1
+#define DIR_DDR DDRB
+#define DIR_PORT PORTB
+#define DIR_BIT PB7 /* D13 */
+#define BRAKE_DDR DDRH
+#define BRAKE_PORT PORTH
+#define BRAKE_BIT PH5 /* D8 */
+#else
+#define CURRENT_ADC_CHANNEL 0
+#define DIR_DDR DDRB
+#define DIR_PORT PORTB
+#define DIR_BIT PB6 /* D12 (OC1B, used as a plain output) */
+#define BRAKE_DDR DDRH
+#define BRAKE_PORT PORTH
+#define BRAKE_BIT PH6 /* D9 */
+#endif
+#define ANGLE_ADC_CHANNEL 2
+#define VOLTAGE_ADC_CHANNEL 3
+
+static const uint8_t adc_channels[3] = {CURRENT_ADC_CHANNEL, ANGLE_ADC_CHANNEL, VOLTAGE_ADC_CHANNEL};
+
+/* ---- state shared between interrupts and the main loop ---- */
+static volatile uint32_t sequence;              /* Timer1 overflows since reset */
+static volatile uint16_t commanded_duty_q16;    /* after clamping; 0 when the watchdog tripped */
+static volatile uint16_t applied_duty_q16;      /* the duty of the PWM period being sampled */
+static volatile uint16_t max_duty_q16 = AEROPEND_DEFAULT_MAX_DUTY_Q16;
+static volatile uint16_t watchdog_ms = AEROPEND_DEFAULT_WATCHDOG_MS;
+static volatile uint16_t watchdog_ticks_left;   /* 0 = not armed (no command yet) */
+static volatile uint8_t flags;                  /* AP_FLAG_* */
+static volatile uint16_t rx_bad_frames;
+static volatile uint16_t tx_dropped_frames;
+
+/* sample being converted by the ADC chain */
+static volatile uint8_t adc_index;
+static volatile uint16_t adc_result[3];
+static volatile uint32_t adc_sequence;
+static volatile uint16_t adc_duty;
+
+/* finished sample handed to the main loop */
+static volatile uint8_t sample_ready;
+static volatile uint32_t ready_sequence;
+static volatile uint16_t ready_adc[3];
+static volatile uint16_t ready_duty;
+static volatile uint8_t status_due = 1;
+
+/* ---- UART rings ---- */
+#define TX_SIZE 256 /* power of two; uint8_t indices wrap */
+static volatile uint8_t tx_buffer[TX_SIZE];
+static volatile uint8_t tx_head, tx_tail;
+#define RX_SIZE 64
+static volatile uint8_t rx_buffer[RX_SIZE];
+static volatile uint8_t rx_head, rx_tail;
+
+static uint16_t watchdog_ticks(uint16_t ms)
+{
+    uint32_t ticks = ((uint32_t)ms * 1000UL + SAMPLE_PERIOD_US - 1) / SAMPLE_PERIOD_US;
+    return ticks ? (uint16_t)ticks : 1;
+}
+
+/* Write the PWM compare value for `q16` (duty fraction * 65535); returns the duty the pin really gets. */
+static uint16_t pwm_write(uint16_t q16)
+{
+#if AEROPEND_FAST_PWM
+    /* Fast PWM, non-inverting: duty = (OCR1A + 1) / (TOP + 1); OCR1A = 0 would still give a 1-tick pulse, so
+     * duty 0 disconnects the pin (held low by PORTB). */
+    uint16_t high = (uint16_t)(((uint32_t)q16 * (PWM_TOP + 1) + 32767UL) / 65535UL);
+    if (high == 0) {
+        if (TCCR1A & _BV(COM1A1)) {
+            TCCR1A &= (uint8_t)~_BV(COM1A1);
+#if AEROPEND_SIMAVR
+            /* simavr 1.6 keeps the pin at the timer's last level after disconnection; a PORT write updates it
+             * (on the chip the pin already follows PORTB5 = 0; this pulse would last one CPU cycle). */
+            PORTB |= _BV(PB5);
+            PORTB &= (uint8_t)~_BV(PB5);
+#endif
+        }
+        return 0;
+    }
+    OCR1A = high - 1;
+    TCCR1A |= _BV(COM1A1);
+    return (uint16_t)(((uint32_t)high * 65535UL) / (PWM_TOP + 1));
+#else
+    /* Phase-correct PWM, non-inverting: duty = OCR1A / TOP exactly (0 = always low, TOP = always high). */
+    uint16_t ocr = (uint16_t)(((uint32_t)q16 * PWM_TOP + 32767UL) / 65535UL);
+    OCR1A = ocr;
+    return (uint16_t)(((uint32_t)ocr * 65535UL) / PWM_TOP);
+#endif
+}
+
+static void tx_push(const uint8_t *data, uint8_t length)
+{
+    uint8_t used = (uint8_t)(tx_head - tx_tail);
+    if ((uint16_t)used + length >= TX_SIZE) {
+        /* No room for the whole frame: drop it (the host sees the sequence gap) and flag the next sample. */
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+            tx_dropped_frames++;
+            flags |= AP_FLAG_SAMPLES_DROPPED;
+        }
+        return;
+    }
+    for (uint8_t i = 0; i < length; i++)
+        tx_buffer[(uint8_t)(tx_head + i)] = data[i];
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        tx_head = (uint8_t)(tx_head + length);
+        UCSR0B |= _BV(UDRIE0);
+    }
+}
+
+ISR(USART0_UDRE_vect)
+{
+    if (tx_head == tx_tail) {
+        UCSR0B &= (uint8_t)~_BV(UDRIE0);
+        return;
+    }
+    UDR0 = tx_buffer[tx_tail];
+    tx_tail = (uint8_t)(tx_tail + 1);
+}
+
+ISR(USART0_RX_vect)
+{
+    uint8_t status = UCSR0A;
+    uint8_t byte = UDR0;
+    uint8_t next = (uint8_t)((rx_head + 1) % RX_SIZE);
+    if (status & (_BV(FE0) | _BV(DOR0)))
+        byte = 0xFF; /* corrupts the current command: its CRC fails */
+    if (next != rx_tail) {
+        rx_buffer[rx_head] = byte;
+        rx_head = next;
+    }
+}
+
+/* Sample trigger: Timer1 overflow (the PWM output is high here). */
+ISR(TIMER1_OVF_vect)
+{
+    uint32_t seq = sequence;
+    sequence = seq + 1;
+    adc_sequence = seq;
+    adc_duty = applied_duty_q16;
+    /* Watchdog: count down while armed; on expiry cut the motor. */
+    if (watchdog_ticks_left) {
+        if (--watchdog_ticks_left == 0) {
+            commanded_duty_q16 = 0;
+            flags |= AP_FLAG_WATCHDOG_TRIPPED;
+        }
+    }
+    /* The compare value written now takes effect from the next period on (double-buffered OCR1A). */
+    applied_duty_q16 = pwm_write(commanded_duty_q16);
+    adc_index = 0;
+    ADMUX = _BV(REFS0) | adc_channels[0];
+    ADCSRA |= _BV(ADSC);
+}
+
+ISR(ADC_vect)
+{
+    uint8_t i = adc_index;
+    adc_result[i] = ADC;
+    i++;
+    if (i < 3) {
+        adc_index = i;
+        ADMUX = _BV(REFS0) | adc_channels[i];
+        ADCSRA |= _BV(ADSC);
+        return;
+    }
+    ready_sequence = adc_sequence;
+    ready_duty = adc_duty;
+    ready_adc[0] = adc_result[0];
+    ready_adc[1] = adc_result[1];
+    ready_adc[2] = adc_result[2];
+    sample_ready = 1;
+}
+
+static void send_sample(void)
+{
+    uint8_t payload[AP_SAMPLE_PAYLOAD];
+    uint8_t wire[AP_SAMPLE_PAYLOAD + 5];
+    uint32_t seq;
+    uint16_t adc0, adc1, adc2, duty;
+    uint8_t f;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        seq = ready_sequence;
+        adc0 = ready_adc[0];
+        adc1 = ready_adc[1];
+        adc2 = ready_adc[2];
+        duty = ready_duty;
+        f = flags;
+        flags = f & (uint8_t)~AP_FLAG_SAMPLES_DROPPED;
+        sample_ready = 0;
+    }
+    payload[0] = AP_MSG_SAMPLE;
+    ap_put_u32(payload + 1, seq);
+    ap_put_u16(payload + 5, adc0);
+    ap_put_u16(payload + 7, adc1);
+    ap_put_u16(payload + 9, adc2);
+    ap_put_u16(payload + 11, duty);
+    payload[13] = f;
+    tx_push(wire, ap_frame(payload, AP_SAMPLE_PAYLOAD, wire));
+    if (seq % STATUS_EVERY_SAMPLES == STATUS_EVERY_SAMPLES - 1)
+        status_due = 1;
+}
+
+static void send_status(void)
+{
+    uint8_t payload[AP_STATUS_PAYLOAD];
+    uint8_t wire[AP_STATUS_PAYLOAD + 5];
+    static uint8_t booted;
+    uint8_t f;
+    uint32_t seq;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        f = flags;
+        seq = sequence;
+        status_due = 0;
+    }
+    if (!booted) {
+        f |= AP_FLAG_BOOT;
+        booted = 1;
+    }
+    payload[0] = AP_MSG_STATUS;
+    payload[1] = AP_PROTOCOL_VERSION;
+    payload[2] = PWM_MODE;
+    payload[3] = f;
+    ap_put_u16(payload + 4, PWM_TOP);
+    ap_put_u16(payload + 6, max_duty_q16);
+    ap_put_u16(payload + 8, watchdog_ms);
+    ap_put_u16(payload + 10, rx_bad_frames);
+    ap_put_u16(payload + 12, tx_dropped_frames);
+    ap_put_u32(payload + 14, seq);
+    tx_push(wire, ap_frame(payload, AP_STATUS_PAYLOAD, wire));
+}
+
+static void handle_command(uint8_t kind, uint16_t value)
+{
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        switch (kind) {
+        case AP_CMD_SET_DUTY:
+            if (value > max_duty_q16) {
+                value = max_duty_q16;
+                flags |= AP_FLAG_DUTY_CLAMPED;
+            } else {
+                flags &= (uint8_t)~AP_FLAG_DUTY_CLAMPED;
+            }
+            commanded_duty_q16 = value;
+            flags &= (uint8_t)~AP_FLAG_WATCHDOG_TRIPPED;
+            break;
+        case AP_CMD_SET_MAX_DUTY:
+            max_duty_q16 = value;
+            if (commanded_duty_q16 > value) {
+                commanded_duty_q16 = value;
+                flags |= AP_FLAG_DUTY_CLAMPED;
+            }
+            status_due = 1;
+            break;
+        case AP_CMD_SET_WATCHDOG:
+            if (value < 10 || value > 60000) {
+                rx_bad_frames++;
+                status_due = 1;
+                return; /* rejected: does not feed the watchdog */
+            }
+            watchdog_ms = value;
+            status_due = 1;
+            break;
+        case AP_CMD_REQUEST_STATUS:
+            status_due = 1;
+            break;
+        default:
+            rx_bad_frames++;
+            return;
+        }
+        watchdog_ticks_left = watchdog_ticks(watchdog_ms); /* every valid command feeds the watchdog */
+    }
+}
+
+static uint8_t command_buffer[AP_MAX_WIRE];
+static uint8_t command_length;
+static uint8_t command_overflow;
+
+static void receive_byte(uint8_t byte)
+{
+    if (byte != 0) {
+        if (command_length < sizeof(command_buffer))
+            command_buffer[command_length++] = byte;
+        else
+            command_overflow = 1;
+        return;
+    }
+    /* delimiter: decode what came before it (empty chunks are the gap between two messages) */
+    if (command_length == 0 && !command_overflow)
+        return;
+    int16_t n = command_overflow ? -1 : ap_cobs_decode(command_buffer, command_length);
+    command_length = 0;
+    command_overflow = 0;
+    if (n != AP_COMMAND_PAYLOAD + 2) {
+        rx_bad_frames++;
+        return;
+    }
+    uint16_t crc = (uint16_t)command_buffer[3] | ((uint16_t)command_buffer[4] << 8);
+    if (ap_crc16(command_buffer, AP_COMMAND_PAYLOAD) != crc) {
+        rx_bad_frames++;
+        return;
+    }
+    handle_command(command_buffer[0], (uint16_t)command_buffer[1] | ((uint16_t)command_buffer[2] << 8));
+}
+
+void setup(void)
+{
+    cli();
+    /* Motor shield: direction forward, brake released, PWM pin D11 = PB5 = OC1A low until enabled. */
+    DIR_DDR |= _BV(DIR_BIT);
+    DIR_PORT &= (uint8_t)~_BV(DIR_BIT);
+    BRAKE_DDR |= _BV(BRAKE_BIT);
+    BRAKE_PORT &= (uint8_t)~_BV(BRAKE_BIT);
+    DDRB |= _BV(PB5);
+    PORTB &= (uint8_t)~_BV(PB5);
+
+    /* Timer1: stop, configure, start (prescaler 64). COM1B/COM1C stay 0 so D12/D13 remain plain outputs. */
+    TCCR1B = 0;
+#if AEROPEND_FAST_PWM
+    TCCR1A = _BV(WGM11);                          /* mode 14: fast PWM, TOP = ICR1 (pin connected when duty > 0) */
+    TCCR1B = _BV(WGM13) | _BV(WGM12);
+#else
+    TCCR1A = _BV(COM1A1) | _BV(WGM11);            /* mode 10: phase-correct PWM, TOP = ICR1 */
+    TCCR1B = _BV(WGM13);
+#endif
+    TCNT1 = 0;
+    ICR1 = PWM_TOP;
+    OCR1A = 0;
+    TCCR1B |= _BV(CS11) | _BV(CS10);              /* start: prescaler 64 */
+    TIFR1 = _BV(TOV1);
+    TIMSK1 = _BV(TOIE1);
+
+    /* ADC: AVCC reference, prescaler 128 (125 kHz), interrupt on completion. */
+    ADMUX = _BV(REFS0) | adc_channels[0];
+    ADCSRB = 0;
+    ADCSRA = _BV(ADEN) | _BV(ADIE) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0);
+    DIDR0 = _BV(ADC0D) | _BV(ADC1D) | _BV(ADC2D) | _BV(ADC3D);
+
+    /* USART0: 250000 baud with U2X (UBRR = 7, exact), 8N1, RX interrupt. */
+    UCSR0A = _BV(U2X0);
+    UBRR0 = (uint16_t)(F_CPU / (8UL * AEROPEND_BAUD) - 1);
+    UCSR0C = _BV(UCSZ01) | _BV(UCSZ00);
+    UCSR0B = _BV(RXEN0) | _BV(TXEN0) | _BV(RXCIE0);
+
+    set_sleep_mode(SLEEP_MODE_IDLE);
+    sei();
+}
+
+void loop(void)
+{
+    while (rx_tail != rx_head) {
+        uint8_t byte = rx_buffer[rx_tail];
+        rx_tail = (uint8_t)((rx_tail + 1) % RX_SIZE);
+        receive_byte(byte);
+    }
+    if (sample_ready)
+        send_sample();
+    if (status_due)
+        send_status();
+    /* Sleep until the next interrupt unless one already left work for us. */
+    cli();
+    if (!sample_ready && !status_due && rx_tail == rx_head) {
+        sleep_enable();
+        sei();
+        sleep_cpu();
+        sleep_disable();
+    }
+    sei();
+}
+
+#ifndef ARDUINO
+int main(void)
+{
+    setup();
+    for (;;)
+        loop();
+}
+#endif

@@ -1,0 +1,325 @@
+/*
+ * aeropend_harness: run the aeropend firmware in simavr, in real time, with its UART0 on a pseudo-terminal.
+ *
+ *   aeropend_harness FIRMWARE.elf [--link PATH] [--adc CH=MILLIVOLTS]... [--pwm-to-adc CH] [--speed FACTOR]
+ *
+ * - Opens its own pty with openpty() (no fixed /tmp/simavr-uart0 symlink, so several harnesses can run at once),
+ *   prints "pty <slave path>" on stdout, and optionally makes PATH a symlink to the slave (a stable device name
+ *   such as /dev/serial/by-id/... on the rig). The harness keeps the slave open itself, so a reader can close and
+ *   reopen the port.
+ * - Bridges the firmware's UART0 both ways: bytes written by the firmware go to the pty master (dropped when
+ *   nobody reads and the pty is full, like a USB CDC link), bytes from the host are fed into the UART receiver
+ *   while it signals XON.
+ * - Drives the ADC inputs: --adc CH=MV holds analog input CH at MV millivolts (AVCC = 5000 mV). At run time, lines
+ *   "adc CH MV" on stdin change them; "quit", SIGTERM/SIGINT or the end of a piped stdin end the simulation.
+ * - Measures the PWM on OC1A (PB5, Arduino D11) edge by edge and prints "pwm <sim_time_s> <duty> <freq_hz>" every
+ *   0.5 s of simulated time (duty over the last 0.5 s). --pwm-to-adc CH also feeds that duty (times 5000 mV) into
+ *   analog input CH, standing in for an RC-filtered armature-voltage divider.
+ * - Paces the simulation to the wall clock (FACTOR 1 = real time; 0 = as fast as possible).
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <pty.h>
+#include <signal.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "avr_adc.h"
+#include "avr_ioport.h"
+#include "avr_uart.h"
+#include "sim_avr.h"
+#include "sim_elf.h"
+#include "sim_irq.h"
+
+static volatile sig_atomic_t stop_requested;
+static void on_signal(int sig) { (void)sig; stop_requested = 1; }
+
+/* firmware -> host bytes waiting to be written to the pty master */
+static uint8_t out_buffer[1 << 16];
+static size_t out_length;
+static unsigned long out_dropped;
+/* host -> firmware bytes waiting for the UART */
+static uint8_t in_buffer[4096];
+static size_t in_start, in_length;
+static int uart_xon = 1;
+
+static void uart_output_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    if (out_length < sizeof(out_buffer))
+        out_buffer[out_length++] = (uint8_t)value;
+    else
+        out_dropped++;
+}
+static void uart_xon_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)value; (void)param;
+    uart_xon = 1;
+}
+static void uart_xoff_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)value; (void)param;
+    uart_xon = 0;
+}
+
+/* PWM measurement on PB5 */
+static avr_t *avr;
+static int pwm_level;
+static avr_cycle_count_t pwm_last_edge, pwm_high_cycles, pwm_window_start;
+static unsigned long pwm_rising_edges;
+static int pwm_adc_channel = -1;
+static avr_irq_t *adc_irq_base;
+
+static void pwm_pin_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    int level = value ? 1 : 0;
+    if (level == pwm_level)
+        return;
+    avr_cycle_count_t now = avr->cycle;
+    if (pwm_level)
+        pwm_high_cycles += now - pwm_last_edge;
+    else
+        pwm_rising_edges++;
+    pwm_last_edge = now;
+    pwm_level = level;
+}
+
+static void pwm_report(void)
+{
+    avr_cycle_count_t now = avr->cycle;
+    avr_cycle_count_t span = now - pwm_window_start;
+    if (span == 0)
+        return;
+    avr_cycle_count_t high = pwm_high_cycles + (pwm_level ? now - pwm_last_edge : 0);
+    double duty = (double)high / (double)span;
+    double seconds = (double)span / avr->frequency;
+    printf("pwm %.6f %.6f %.3f\n", (double)now / avr->frequency, duty, pwm_rising_edges / seconds);
+    fflush(stdout);
+    if (pwm_adc_channel >= 0)
+        avr_raise_irq(adc_irq_base + pwm_adc_channel, (uint32_t)(duty * 5000.0 + 0.5));
+    pwm_window_start = now;
+    pwm_last_edge = now;
+    pwm_high_cycles = 0;
+    pwm_rising_edges = 0;
+}
+
+static void sleep_hook(avr_t *a, avr_cycle_count_t how_long)
+{
+    (void)a; (void)how_long; /* pacing is done in the main loop */
+}
+
+static double wall_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
+static void set_adc(int channel, long millivolts)
+{
+    if (channel < 0 || channel > 15 || millivolts < 0 || millivolts > 5000) {
+        fprintf(stderr, "harness: ignoring adc %d %ld (channel 0..15, 0..5000 mV)\n", channel, millivolts);
+        return;
+    }
+    avr_raise_irq(adc_irq_base + channel, (uint32_t)millivolts);
+}
+
+static void handle_stdin_line(char *line)
+{
+    int channel;
+    long millivolts;
+    if (sscanf(line, "adc %d %ld", &channel, &millivolts) == 2)
+        set_adc(channel, millivolts);
+    else if (strncmp(line, "quit", 4) == 0)
+        stop_requested = 1;
+    else if (line[0] != '\0' && line[0] != '\n')
+        fprintf(stderr, "harness: unknown command: %s", line);
+}
+
+static void usage(const char *name)
+{
+    fprintf(stderr, "usage: %s FIRMWARE.elf [--link PATH] [--adc CH=MV]... [--pwm-to-adc CH] [--speed FACTOR]\n",
+            name);
+    exit(2);
+}
+
+int main(int argc, char **argv)
+{
+    const char *firmware_path = NULL, *link_path = NULL;
+    double speed = 1.0;
+    int adc_channels[16];
+    long adc_values[16];
+    int adc_count = 0;
+
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--link") && i + 1 < argc) {
+            link_path = argv[++i];
+        } else if (!strcmp(argv[i], "--adc") && i + 1 < argc && adc_count < 16) {
+            if (sscanf(argv[++i], "%d=%ld", &adc_channels[adc_count], &adc_values[adc_count]) != 2)
+                usage(argv[0]);
+            adc_count++;
+        } else if (!strcmp(argv[i], "--pwm-to-adc") && i + 1 < argc) {
+            pwm_adc_channel = atoi(argv[++i]);
+        } else if (!strcmp(argv[i], "--speed") && i + 1 < argc) {
+            speed = atof(argv[++i]);
+        } else if (argv[i][0] == '-' || firmware_path) {
+            usage(argv[0]);
+        } else {
+            firmware_path = argv[i];
+        }
+    }
+    if (!firmware_path)
+        usage(argv[0]);
+
+    elf_firmware_t firmware;
+    memset(&firmware, 0, sizeof(firmware));
+    if (elf_read_firmware(firmware_path, &firmware) != 0) {
+        fprintf(stderr, "harness: cannot read firmware %s\n", firmware_path);
+        return 1;
+    }
+    if (!firmware.mmcu[0])
+        strcpy(firmware.mmcu, "atmega2560");
+    if (!firmware.frequency)
+        firmware.frequency = 16000000;
+    avr = avr_make_mcu_by_name(firmware.mmcu);
+    if (!avr) {
+        fprintf(stderr, "harness: unknown MCU %s\n", firmware.mmcu);
+        return 1;
+    }
+    avr_init(avr);
+    avr_load_firmware(avr, &firmware);
+    avr->vcc = avr->avcc = avr->aref = 5000;
+    avr->sleep = sleep_hook;
+    avr->log = LOG_WARNING;
+
+    /* UART0 <-> pty */
+    uint32_t uart_flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &uart_flags);
+    uart_flags &= ~(AVR_UART_FLAG_STDIO | AVR_UART_FLAG_POLL_SLEEP);
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &uart_flags);
+    avr_irq_t *uart_irq = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), uart_output_hook,
+                            NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XON), uart_xon_hook, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), uart_xoff_hook,
+                            NULL);
+
+    adc_irq_base = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0);
+    for (int i = 0; i < adc_count; i++)
+        set_adc(adc_channels[i], adc_values[i]);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 5), pwm_pin_hook, NULL);
+
+    int master = -1, slave = -1;
+    char slave_name[256];
+    if (openpty(&master, &slave, slave_name, NULL, NULL) != 0) {
+        perror("harness: openpty");
+        return 1;
+    }
+    struct termios tio;
+    tcgetattr(slave, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(slave, TCSANOW, &tio);
+    fcntl(master, F_SETFL, fcntl(master, F_GETFL) | O_NONBLOCK);
+    fcntl(STDIN_FILENO, F_SETFL, fcntl(STDIN_FILENO, F_GETFL) | O_NONBLOCK);
+    if (link_path) {
+        unlink(link_path);
+        if (symlink(slave_name, link_path) != 0) {
+            perror("harness: symlink");
+            return 1;
+        }
+    }
+    signal(SIGTERM, on_signal);
+    signal(SIGINT, on_signal);
+    signal(SIGPIPE, SIG_IGN);
+    printf("\npty %s\n", slave_name);
+    fflush(stdout);
+
+    const avr_cycle_count_t poll_cycles = avr->frequency / 10000;     /* host I/O every 100 us */
+    const avr_cycle_count_t report_cycles = avr->frequency / 2;       /* PWM report every 0.5 s */
+    avr_cycle_count_t next_poll = 0, next_report = report_cycles;
+    double wall_start = wall_seconds();
+    char line[256];
+    size_t line_length = 0;
+    int state = cpu_Running;
+    struct stat stdin_stat;
+    int stdin_open = 1;
+    int stdin_is_pipe = fstat(STDIN_FILENO, &stdin_stat) == 0 && S_ISFIFO(stdin_stat.st_mode);
+
+    while (!stop_requested && state != cpu_Done && state != cpu_Crashed) {
+        state = avr_run(avr);
+        if (avr->cycle < next_poll)
+            continue;
+        next_poll = avr->cycle + poll_cycles;
+
+        /* firmware -> pty */
+        if (out_length) {
+            ssize_t n = write(master, out_buffer, out_length);
+            if (n > 0) {
+                memmove(out_buffer, out_buffer + n, out_length - (size_t)n);
+                out_length -= (size_t)n;
+            } else if (n < 0 && errno == EAGAIN && out_length > 4096) {
+                out_dropped += out_length; /* nobody reads: drop like a USB link without a host */
+                out_length = 0;
+            }
+        }
+        /* pty -> firmware */
+        if (in_length == 0) {
+            ssize_t n = read(master, in_buffer, sizeof(in_buffer));
+            if (n > 0) {
+                in_start = 0;
+                in_length = (size_t)n;
+            }
+        }
+        if (in_length && uart_xon) {
+            /* a few bytes per poll; the UART's own FIFO paces them at the baud rate */
+            for (int k = 0; k < 4 && in_length && uart_xon; k++) {
+                avr_raise_irq(uart_irq, in_buffer[in_start++]);
+                in_length--;
+            }
+        }
+        /* control lines on stdin */
+        ssize_t n = stdin_open ? read(STDIN_FILENO, line + line_length, sizeof(line) - 1 - line_length) : -1;
+        if (n == 0) {
+            stdin_open = 0;
+            if (stdin_is_pipe)
+                stop_requested = 1; /* the controlling process went away */
+        } else if (n > 0) {
+            line_length += (size_t)n;
+            line[line_length] = '\0';
+            char *newline;
+            while ((newline = strchr(line, '\n')) != NULL) {
+                *newline = '\0';
+                handle_stdin_line(line);
+                size_t used = (size_t)(newline - line) + 1;
+                memmove(line, line + used, line_length - used + 1);
+                line_length -= used;
+            }
+            if (line_length >= sizeof(line) - 1)
+                line_length = 0;
+        }
+        if (avr->cycle >= next_report) {
+            next_report += report_cycles;
+            pwm_report();
+        }
+        /* real-time pacing */
+        if (speed > 0) {
+            double ahead = (double)avr->cycle / avr->frequency / speed - (wall_seconds() - wall_start);
+            if (ahead > 0.0005)
+                usleep((useconds_t)(ahead * 1e6));
+        }
+    }
+    if (link_path)
+        unlink(link_path);
+    fprintf(stderr, "harness: stopped at %.3f s simulated (state %d), %lu bytes dropped\n",
+            (double)avr->cycle / avr->frequency, state, out_dropped);
+    fflush(stderr);
+    _exit(state == cpu_Crashed ? 1 : 0);
+}
