@@ -1,0 +1,400 @@
+"""Aeropendulum identification with weak SINDy: the live-rig pendulum fit and the paper's full-state fit.
+
+Two problem shapes (paper eqs (1)–(7); :mod:`aeropend_core.wsindy` does the regression):
+
+**Live rig** (:func:`identify_pendulum`) — only the armature voltage Va, current Ia and angle y are measured. The
+pendulum equation is second order in y, with the thrust of eq (5) written in the measured signals::
+
+    d²y/dt² = −(mgd/J)·sin y − (c/J)·dy/dt + θ1·Va² + θ2·Va·Ia + θ3·Ia²
+
+The weak form integrates by parts twice (∫φ ÿ = ∫φ'' y; the damping term ∫φ ẏ = −∫φ' y), so neither the rate nor
+the acceleration is differentiated from data. Derived: mgd/J [1/s²], c/J [1/s], the voltage-thrust acceleration
+coefficient k_v = θ1 = (L/J)·Kq / (N1/N2 · Kω)² [rad/s² per V²] (the model's ``thrust_acceleration_coefficient``:
+ω2 = ω1·N2/N1 as in eq (4); eq (5) prints the gear ratio inverted), and Ra = −θ2/(2θ1) [Ω] (also √(θ3/θ1)).
+
+*Step transients.* Eq (5) assumes Kω·ω1 = Va − Ra·Ia, neglecting La·dIa/dt. With La/Ra ≈ 2 ms ≈ one sample, the
+sample right after a duty step sees the new Va but the old Ia, and the quasi-static thrust gets a spurious kick.
+Default handling (``step_handling='invert'``): Va is held over each sample interval [t_k, t_k+1) and ω1 barely
+changes within it, so the current relaxes exponentially towards (Va − Kω·ω1)/Ra; the interval-equivalent current
+``Ĩa_k = (Ia_k+1 − a·Ia_k)/(1 − a)``, a = exp(−Ts·Ra/La), satisfies Va_k − Ra·Ĩa_k = Kω·ω̄1 exactly. Only the
+electrical time constant La/Ra is needed (the paper measured it: 2.04 ms); Ra itself stays a fitted quantity. The
+thrust terms are then interval quantities and enter the weak form with midpoint (zero-order-hold) quadrature. The
+alternative ``'mask'`` drops every test function whose support covers the first ``mask_samples`` samples after a
+step; ``'none'`` uses the raw samples (biased).
+
+**Full state** (:func:`identify_full_state`, the paper's case) — X = [Va, Ia, ω1, y, Ω] all available (simulation):
+first-order equations dIa/dt, dω1/dt, dy/dt, dΩ/dt over a library of the states' linear terms, products and
+squares, sin y, cos y and a constant; the input Va enters only linearly (no spurious sin(Va)). Kq follows from the
+ω1² coefficient of dΩ/dt, (L/J)·Kq/(N1/N2)², with L/J and the gear known.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aeropend_core import library as lib
+from aeropend_core.effects import get_effect
+from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.model import DEFAULT_PARAMETERS, RigParameters
+from aeropend_core.recording import Recording
+from aeropend_core.wsindy import Equation, WeakSindyResult, fit_weak_sindy
+
+#: Units of the derived parameters.
+PARAMETER_UNITS = {
+    'gravity_stiffness': '1/s^2', 'damping': '1/s', 'thrust_acceleration_coefficient': 'rad/s^2/V^2',
+    'armature_resistance': 'ohm', 'armature_resistance_from_current_square': 'ohm', 'thrust_coefficient': 'N s^2',
+    'cable_stiffness': '1/s^2', 'angle_offset': 'rad', 'armature_inductance': 'H', 'back_emf_constant': 'V s/rad',
+    'motor_inertia_per_torque_constant': 'kg m^2/(N m/A)', 'lever_per_inertia_times_thrust_coefficient': '1/(kg m) N s^2',
+}
+#: Units of each signal, for printing equations.
+SIGNAL_UNITS = {'angle': 'rad', 'armature_voltage': 'V', 'armature_current': 'A', 'motor_speed': 'rad/s',
+                'angular_rate': 'rad/s'}
+
+#: Catalog effects that the angle-only weak form can carry as an extra library term: effect -> term.
+_EFFECT_TERMS = {
+    'cable_torque': lambda: lib.variable('angle'),
+    'angle_offset': lambda: lib.cosine('angle'),
+}
+
+_SIN, _RATE, _VV, _VI, _II = ('sin(angle)', 'dangle/dt', 'armature_voltage^2',
+                             'armature_voltage*armature_current', 'armature_current^2')
+
+
+@dataclass(frozen=True, eq=False)
+class PendulumFit:
+    """Result of :func:`identify_pendulum`.
+
+    Attributes
+    ----------
+    parameters : dict
+        Derived physical parameters, SI (see :data:`PARAMETER_UNITS`): ``gravity_stiffness`` mgd/J [1/s²],
+        ``damping`` c/J [1/s], ``thrust_acceleration_coefficient`` k_v [rad/s²/V²], ``armature_resistance`` Ra [Ω],
+        ``armature_resistance_from_current_square`` √(θ3/θ1) [Ω], ``thrust_coefficient`` Kq [N s²] (from k_v with
+        the known gear, Kω and L/J), plus ``cable_stiffness`` / ``angle_offset`` when those effects were asked for.
+    standard_errors : dict
+        1σ of each parameter (delta method on the coefficient covariance).
+    result : WeakSindyResult
+        The regression itself (coefficients of d²angle/dt², their standard errors, support, residual).
+    step_handling : str
+        How duty-step transients were handled.
+    """
+
+    parameters: dict[str, float]
+    standard_errors: dict[str, float]
+    result: WeakSindyResult = field(repr=False)
+    step_handling: str = 'invert'
+
+    @property
+    def equation(self):
+        return self.result.equations[0]
+
+    def format(self) -> str:
+        lines = [f'{self.equation.name} [rad/s^2] = '
+                 + _format_terms(self.equation.coefficients, self.equation.standard_errors)]
+        lines += [f'  {k} = {v:.6g} ± {self.standard_errors.get(k, float("nan")):.2g} {PARAMETER_UNITS.get(k, "")}'
+                  for k, v in self.parameters.items()]
+        return '\n'.join(lines)
+
+
+@dataclass(frozen=True, eq=False)
+class FullStateFit:
+    """Result of :func:`identify_full_state`: ``parameters``/``standard_errors`` (SI) and the regression."""
+
+    parameters: dict[str, float]
+    standard_errors: dict[str, float]
+    result: WeakSindyResult = field(repr=False)
+
+    def format(self) -> str:
+        lines = [f'{eq.name} = ' + _format_terms(eq.coefficients, eq.standard_errors) for eq in self.result.equations]
+        lines += [f'  {k} = {v:.6g} ± {self.standard_errors.get(k, float("nan")):.2g} {PARAMETER_UNITS.get(k, "")}'
+                  for k, v in self.parameters.items()]
+        return '\n'.join(lines)
+
+
+def _format_terms(coefficients: Mapping[str, float], errors: Mapping[str, float]) -> str:
+    if not coefficients:
+        return '0'
+    return ' + '.join(f'({c:+.6g} ± {errors.get(k, float("nan")):.2g})·{k}' for k, c in coefficients.items())
+
+
+# ------------------------------------------------------------------------------------------------ helpers
+def _segments(*arrays):
+    """Normalise (time, signals...) given either as arrays or as equal-length sequences of arrays."""
+    first = arrays[0]
+    if isinstance(first, np.ndarray) and first.ndim == 1 or (
+            isinstance(first, Sequence) and len(first) and np.isscalar(first[0])):
+        return [tuple(np.asarray(a, float) for a in arrays)]
+    lists = [list(a) for a in arrays]
+    if len({len(x) for x in lists}) != 1:
+        raise AeropendError('give the same number of segments for time, voltage, current and angle')
+    return [tuple(np.asarray(a[i], float) for a in lists) for i in range(len(lists[0]))]
+
+
+def _check_finite(names, arrays, label):
+    for name, x in zip(names, arrays):
+        bad = ~np.isfinite(x)
+        if bad.any():
+            raise InsufficientDataError(
+                f'{label}{name} has {int(bad.sum())} NaN/inf value(s), first at sample {int(np.argmax(bad))}; '
+                'remove or interpolate them, or split the record into clean segments')
+        if x.shape != arrays[0].shape:
+            raise AeropendError(f'{label}{name} has shape {x.shape}, time has {arrays[0].shape}')
+
+
+def step_indices(armature_voltage: np.ndarray, threshold: float | None = None) -> np.ndarray:
+    """Indices k where Va[k] differs from Va[k−1] by more than ``threshold`` [V] (default: 20 noise σ, ≥ 10 mV)."""
+    v = np.asarray(armature_voltage, float)
+    jump = np.abs(np.diff(v))
+    if threshold is None:
+        noise = 1.4826 * float(np.median(np.abs(jump - np.median(jump)))) / math.sqrt(2.0)
+        threshold = max(20.0 * noise, 0.01)
+    return np.flatnonzero(jump > threshold) + 1
+
+
+def interval_current(armature_current: np.ndarray, sample_time: float, electrical_time_constant: float):
+    """Ĩa_k = (Ia_k+1 − a·Ia_k)/(1 − a), a = exp(−Ts/τe): the current for which Va_k − Ra·Ĩa_k = Kω·ω̄1 over
+    [t_k, t_k+1) under a held Va (shape (n − 1,), A). See the module docstring."""
+    a = math.exp(-sample_time / electrical_time_constant)
+    i = np.asarray(armature_current, float)
+    return (i[1:] - a * i[:-1]) / (1.0 - a)
+
+
+def _delta(grad: Mapping[str, float], cov: np.ndarray, names: Sequence[str]) -> float:
+    g = np.array([grad.get(n, 0.0) for n in names])
+    return float(math.sqrt(max(g @ cov @ g, 0.0)))
+
+
+# ------------------------------------------------------------------------------------------- live-rig fit
+def identify_pendulum(time, armature_voltage, armature_current, angle, *,
+                      effects: Sequence[str] = (),
+                      step_handling: str = 'invert',
+                      parameters: RigParameters = DEFAULT_PARAMETERS,
+                      electrical_time_constant: float | None = None,
+                      mask_samples: int = 4,
+                      half_width: int | None = None,
+                      min_voltage_range: float = 0.05,
+                      **wsindy_options) -> PendulumFit:
+    """Identify the pendulum equation from the rig's measured signals only (fast; safe to call on windows).
+
+    Parameters
+    ----------
+    time : ndarray, shape (n,) [s], uniformly sampled — or a sequence of such arrays (segments fitted together).
+    armature_voltage : ndarray, shape (n,) [V] (or sequence). Held over each sample interval (duty via eq (8)).
+    armature_current : ndarray, shape (n,) [A] (or sequence), sampled at t_k.
+    angle : ndarray, shape (n,) [rad] (or sequence).
+    effects : sequence of str
+        Catalog effects to add as candidate terms (thresholded by MSTLS; the nominal terms are always kept):
+        ``cable_torque`` (term angle → ``cable_stiffness`` Kc [1/s²]) and ``angle_offset`` (term cos(angle) →
+        ``angle_offset`` [rad]). Effects needing the angular rate inside a nonlinearity (friction, drag) or the
+        thrust history (lag, dead zone) cannot be written in this weak form: use the output-error diagnosis.
+    step_handling : {'invert', 'mask', 'none'}
+        Duty-step transient handling (module docstring).
+    parameters : RigParameters
+        Known values used for derived quantities: gear ratio, Kω, L/J (for Kq) and La/Ra (for 'invert').
+    electrical_time_constant : float, optional
+        La/Ra [s] for 'invert'; default ``parameters.electrical_time_constant``.
+    mask_samples : int
+        Samples after each step excluded with 'mask'.
+    half_width : int, optional
+        Test-function half-width [samples]; default from the angle's spectrum.
+    min_voltage_range : float
+        Required peak-to-peak armature voltage [V]; less means no excitation and raises.
+    **wsindy_options
+        Passed to :func:`aeropend_core.wsindy.fit_weak_sindy` (e.g. ``threshold``, ``ridge``).
+
+    Returns
+    -------
+    PendulumFit
+
+    Raises
+    ------
+    InsufficientDataError
+        NaN/inf, a window shorter than the test-function support, or no excitation (constant voltage).
+    UnknownEffectError, AeropendError
+        Unknown effect name, an effect this fit cannot express, bad options.
+    """
+    if step_handling not in ('invert', 'mask', 'none'):
+        raise AeropendError(f"step_handling must be 'invert', 'mask' or 'none', got {step_handling!r}")
+    extra = []
+    for name in effects:
+        get_effect(name)            # unknown name -> UnknownEffectError listing the catalog
+        if name not in _EFFECT_TERMS:
+            raise AeropendError(f'effect {name!r} cannot be written as a term of the angle-only weak form; '
+                                f'identify_pendulum supports {sorted(_EFFECT_TERMS)} (use the diagnosis for others)')
+        extra.append((name, _EFFECT_TERMS[name]()))
+    segments = _segments(time, armature_voltage, armature_current, angle)
+    tau = float(electrical_time_constant or parameters.electrical_time_constant)
+    times, signals, excludes = [], [], []
+    v_range = 0.0
+    for i, (t, va, ia, y) in enumerate(segments):
+        label = f'segment {i}: ' if len(segments) > 1 else ''
+        _check_finite(('time', 'armature_voltage', 'armature_current', 'angle'), (t, va, ia, y), label)
+        if t.size < 8:
+            raise InsufficientDataError(f'{label}only {t.size} samples; identify_pendulum needs a window of data')
+        v_range = max(v_range, float(np.ptp(va)))
+        exclude = None
+        if step_handling == 'invert':
+            dt = float(np.median(np.diff(t)))
+            ia_eff = interval_current(ia, dt, tau)
+            t, va, y = t[:-1], va[:-1], y[:-1]
+        else:
+            ia_eff = ia
+            if step_handling == 'mask':
+                exclude = np.zeros(t.size, bool)
+                for k in step_indices(va):
+                    exclude[k:k + mask_samples] = True
+        times.append(t)
+        signals.append({'angle': y, 'armature_voltage': va, 'armature_current': ia_eff})
+        excludes.append(exclude)
+    if v_range < min_voltage_range:
+        raise InsufficientDataError(
+            f'no excitation: the armature voltage varies by only {v_range:.3g} V (< {min_voltage_range:g} V) in the '
+            'window, so thrust cannot be told from gravity; apply duty steps (e.g. the Latin-hypercube excitation)')
+    terms = [lib.sine('angle'), lib.derivative('angle'),
+             lib.product('armature_voltage', 'armature_voltage', hold=True),
+             lib.product('armature_voltage', 'armature_current', hold=True),
+             lib.product('armature_current', 'armature_current', hold=True)]
+    nominal = tuple(t.name for t in terms)
+    terms += [term for _, term in extra]
+    options = dict(threshold='auto' if extra else None)
+    options.update(wsindy_options)
+    equation = Equation('angle', tuple(terms), order=2, keep=nominal)
+    result = fit_weak_sindy(times if len(times) > 1 else times[0], signals if len(signals) > 1 else signals[0],
+                            [equation], half_width=half_width,
+                            exclude=excludes if any(e is not None for e in excludes) else None, **options)
+    return _pendulum_parameters(result, parameters, [name for name, _ in extra], step_handling)
+
+
+def _pendulum_parameters(result: WeakSindyResult, parameters: RigParameters, effects, step_handling) -> PendulumFit:
+    eq = result.equations[0]
+    c = eq.coefficients
+    names = list(c)
+    cov = eq.covariance
+    th1, th2, th3 = c.get(_VV, 0.0), c.get(_VI, 0.0), c.get(_II, 0.0)
+    a = -c.get(_SIN, 0.0)
+    values, errors = {}, {}
+    values['gravity_stiffness'] = a
+    errors['gravity_stiffness'] = _delta({_SIN: -1.0}, cov, names)
+    values['damping'] = -c.get(_RATE, 0.0)
+    errors['damping'] = _delta({_RATE: -1.0}, cov, names)
+    values['thrust_acceleration_coefficient'] = th1
+    errors['thrust_acceleration_coefficient'] = _delta({_VV: 1.0}, cov, names)
+    if th1 != 0.0:
+        values['armature_resistance'] = -th2 / (2 * th1)
+        errors['armature_resistance'] = _delta({_VI: -1 / (2 * th1), _VV: th2 / (2 * th1 ** 2)}, cov, names)
+        ratio = th3 / th1
+        values['armature_resistance_from_current_square'] = math.sqrt(ratio) if ratio > 0 else float('nan')
+        if ratio > 0:
+            r = math.sqrt(ratio)
+            errors['armature_resistance_from_current_square'] = _delta(
+                {_II: 0.5 / (r * th1), _VV: -0.5 * th3 / (r * th1 ** 2)}, cov, names)
+    scale = (parameters.gear_ratio * parameters.back_emf_constant) ** 2 / parameters.lever_per_inertia
+    values['thrust_coefficient'] = th1 * scale
+    errors['thrust_coefficient'] = errors['thrust_acceleration_coefficient'] * scale
+    if 'cable_torque' in effects:
+        values['cable_stiffness'] = -c.get('angle', 0.0)
+        errors['cable_stiffness'] = _delta({'angle': -1.0}, cov, names)
+    if 'angle_offset' in effects:
+        # measured y_m = y + δ: −a·sin(y_m − δ) = −a·cos δ·sin y_m + a·sin δ·cos y_m
+        wc = c.get('cos(angle)', 0.0)
+        s = wc / a if a else 0.0
+        values['angle_offset'] = math.asin(max(-1.0, min(1.0, s)))
+        errors['angle_offset'] = _delta({'cos(angle)': 1 / a, _SIN: wc / a ** 2}, cov, names) if a else float('nan')
+    return PendulumFit(values, errors, result, step_handling)
+
+
+# ------------------------------------------------------------------------------------------ full-state fit
+def full_state_library(include_constant: bool = True) -> list[lib.Term]:
+    """Paper's library: linear terms, products and squares of the states (Ia, ω1, y, Ω), sin y, cos y, a constant,
+    and the input Va linearly only (held over each sample interval)."""
+    states = ['armature_current', 'motor_speed', 'angle', 'angular_rate']
+    return (lib.polynomial(states, degree=2, include_constant=include_constant) + lib.sine_cosine('angle')
+            + [lib.variable('armature_voltage', hold=True)])
+
+
+def identify_full_state(recording: Recording | Mapping[str, np.ndarray] | Sequence, *,
+                        parameters: RigParameters = DEFAULT_PARAMETERS,
+                        terms: Sequence[lib.Term] | None = None,
+                        **wsindy_options) -> FullStateFit:
+    """Identify the paper's four first-order equations from X = [Va, Ia, ω1, y, Ω] (simulation data).
+
+    Parameters
+    ----------
+    recording : Recording, mapping or sequence of them
+        Needs ``t`` (mapping) / ``time``, ``armature_voltage`` [V], ``armature_current`` [A], ``motor_speed``
+        [rad/s], ``angle`` [rad], ``angular_rate`` [rad/s] (``true_*`` columns are used when the plain ones are
+        absent). A sequence is fitted as several segments.
+    parameters : RigParameters
+        Known gear ratio and L/J for Kq.
+    terms : sequence of Term, optional
+        Candidate library (default :func:`full_state_library`).
+    **wsindy_options
+        Passed to :func:`aeropend_core.wsindy.fit_weak_sindy` (default threshold 'auto').
+
+    Returns
+    -------
+    FullStateFit
+        ``parameters``: ``thrust_coefficient`` Kq [N s²], ``lever_per_inertia_times_thrust_coefficient``,
+        ``gravity_stiffness``, ``damping``, ``armature_resistance``, ``armature_inductance``,
+        ``back_emf_constant`` (from dIa/dt), each with a standard error.
+    """
+    recs = list(recording) if isinstance(recording, Sequence) and not isinstance(recording, Mapping) \
+        else [recording]
+    names = ('armature_voltage', 'armature_current', 'motor_speed', 'angle', 'angular_rate')
+    times, signals = [], []
+    for rec in recs:
+        if isinstance(rec, Recording):
+            t = rec.time
+            sig = {n: rec.signal(n) for n in names}
+        else:
+            if 't' not in rec and 'time' not in rec:
+                raise AeropendError('full-state data needs a time column t')
+            t = np.asarray(rec['t'] if 't' in rec else rec['time'], float)
+            sig = {}
+            for n in names:
+                key = n if n in rec else f'true_{n}'
+                if key not in rec:
+                    raise AeropendError(f'full-state identification needs {n!r} (or true_{n}); '
+                                        'only simulations provide motor_speed and angular_rate')
+                sig[n] = np.asarray(rec[key], float)
+        times.append(t)
+        signals.append(sig)
+    if max(float(np.ptp(s['armature_voltage'])) for s in signals) < 0.05:
+        raise InsufficientDataError('no excitation: the armature voltage is constant; apply duty steps')
+    library = list(terms) if terms is not None else full_state_library()
+    equations = [Equation(n, tuple(library)) for n in ('armature_current', 'motor_speed', 'angle', 'angular_rate')]
+    options = dict(threshold='auto')
+    options.update(wsindy_options)
+    result = fit_weak_sindy(times if len(times) > 1 else times[0], signals if len(signals) > 1 else signals[0],
+                            equations, **options)
+    values, errors = {}, {}
+    rate = result['angular_rate']
+    w = rate.coefficients.get('motor_speed^2', 0.0)
+    se = rate.standard_errors.get('motor_speed^2', float('nan'))
+    g2 = parameters.gear_ratio ** 2
+    values['thrust_coefficient'] = w * g2 / parameters.lever_per_inertia
+    errors['thrust_coefficient'] = se * g2 / parameters.lever_per_inertia
+    values['lever_per_inertia_times_thrust_coefficient'] = w * g2
+    errors['lever_per_inertia_times_thrust_coefficient'] = se * g2
+    values['gravity_stiffness'] = -rate.coefficients.get('sin(angle)', 0.0)
+    errors['gravity_stiffness'] = rate.standard_errors.get('sin(angle)', float('nan'))
+    values['damping'] = -rate.coefficients.get('angular_rate', 0.0)
+    errors['damping'] = rate.standard_errors.get('angular_rate', float('nan'))
+    cur = result['armature_current']
+    wv = cur.coefficients.get('armature_voltage', 0.0)
+    if wv > 0:
+        la = 1.0 / wv
+        cc, ce = cur.coefficients, cur.standard_errors
+        rel_v = ce['armature_voltage'] / wv
+        values['armature_inductance'] = la
+        errors['armature_inductance'] = la * rel_v
+        values['armature_resistance'] = -cc.get('armature_current', 0.0) * la
+        errors['armature_resistance'] = abs(values['armature_resistance']) * math.hypot(
+            ce.get('armature_current', 0.0) / (abs(cc.get('armature_current', 0.0)) or 1.0), rel_v)
+        values['back_emf_constant'] = -cc.get('motor_speed', 0.0) * la
+        errors['back_emf_constant'] = abs(values['back_emf_constant']) * math.hypot(
+            ce.get('motor_speed', 0.0) / (abs(cc.get('motor_speed', 0.0)) or 1.0), rel_v)
+    return FullStateFit(values, errors, result)

@@ -1,0 +1,122 @@
+"""Load a recording of the rig (CSV now; MCAP bags via :mod:`aeropend_core.bag`) into plain arrays.
+
+A :class:`Recording` is a time vector and named signals, SI units, time-first arrays of shape ``(n_samples,)``:
+``duty`` [1], ``armature_voltage`` [V], ``armature_current`` [A], ``angle`` [rad], plus any truth columns a
+simulation wrote (``true_motor_speed`` [rad/s], ``true_angular_rate`` [rad/s], ...). Measured columns win over
+truth columns of the same quantity: :meth:`Recording.signal` looks up ``name`` then ``true_<name>``.
+"""
+from __future__ import annotations
+
+import csv
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from aeropend_core.errors import AeropendError
+
+#: Columns every recording must have (what the rig measures), with units.
+REQUIRED_COLUMNS = {'t': 's', 'armature_voltage': 'V', 'armature_current': 'A', 'angle': 'rad'}
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """Samples of one record.
+
+    Attributes
+    ----------
+    time : ndarray, shape (n,)
+        Sample times [s].
+    signals : dict of str -> ndarray, shape (n,)
+        Every other column, SI units.
+    source : str
+        Where it came from (file path), for messages.
+    """
+
+    time: np.ndarray
+    signals: dict[str, np.ndarray] = field(default_factory=dict)
+    source: str = ''
+
+    def __len__(self) -> int:
+        return len(self.time)
+
+    def has(self, name: str) -> bool:
+        """True if ``name`` or ``true_<name>`` is present."""
+        return name in self.signals or f'true_{name}' in self.signals
+
+    def signal(self, name: str) -> np.ndarray:
+        """The column ``name``, else ``true_<name>`` (simulator truth); AeropendError naming what exists."""
+        for key in (name, f'true_{name}'):
+            if key in self.signals:
+                return self.signals[key]
+        raise AeropendError(f'{self.source or "recording"} has no column {name!r} (nor true_{name}); '
+                            f'columns: {", ".join(["t", *self.signals])}')
+
+    def window(self, start: float, stop: float) -> Recording:
+        """The samples with start <= t < stop [s]."""
+        keep = (self.time >= start) & (self.time < stop)
+        return Recording(self.time[keep], {k: v[keep] for k, v in self.signals.items()}, self.source)
+
+
+def from_columns(columns: Mapping[str, np.ndarray], source: str = '') -> Recording:
+    """A :class:`Recording` from a mapping with a ``t`` column (e.g. ``Trajectory.columns()``)."""
+    missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+    if missing:
+        raise AeropendError(f'{source or "data"} lacks required column(s) {missing}; need '
+                            + ', '.join(f'{k} [{u}]' for k, u in REQUIRED_COLUMNS.items()))
+    time = np.asarray(columns['t'], dtype=float)
+    signals = {k: np.asarray(v, dtype=float) for k, v in columns.items() if k != 't'}
+    for k, v in signals.items():
+        if v.shape != time.shape:
+            raise AeropendError(f'{source or "data"}: column {k!r} has {v.shape} samples, t has {time.shape}')
+    return Recording(time, signals, source)
+
+
+def load_csv(path: str | Path) -> Recording:
+    """Read a CSV with a header row (``t,duty,armature_voltage,armature_current,angle[,true_...]``)."""
+    path = Path(path)
+    try:
+        with path.open(newline='') as handle:
+            reader = csv.reader(handle)
+            header = [h.strip() for h in next(reader, [])]
+            rows = [row for row in reader if row and any(cell.strip() for cell in row)]
+    except OSError as error:
+        raise AeropendError(f'cannot read {path}: {error.strerror or error}') from None
+    if not header:
+        raise AeropendError(f'{path} is empty; expected a CSV header t,duty,armature_voltage,...')
+    try:
+        table = np.array([[float(cell) if cell.strip() else np.nan for cell in row] for row in rows], dtype=float)
+    except ValueError as error:
+        raise AeropendError(f'{path}: non-numeric value ({error}); expected numbers under the header') from None
+    if table.size == 0:
+        raise AeropendError(f'{path} has a header but no samples')
+    if table.ndim != 2 or table.shape[1] != len(header):
+        raise AeropendError(f'{path}: rows have a different number of fields than the header ({len(header)})')
+    return from_columns({name: table[:, i] for i, name in enumerate(header)}, source=str(path))
+
+
+def load_recording(path: str | Path) -> Recording:
+    """Load a recording by file type: ``.csv`` now; MCAP bags (``.mcap`` or a bag folder) through
+    :mod:`aeropend_core.bag` when available."""
+    path = Path(path)
+    if not path.exists():
+        raise AeropendError(f'no such file or folder: {path}')
+    if path.suffix.lower() == '.csv':
+        return load_csv(path)
+    if path.suffix.lower() == '.mcap' or path.is_dir():
+        return _load_bag(path)
+    raise AeropendError(f'{path}: unknown recording type {path.suffix!r}; give a .csv (or an MCAP bag)')
+
+
+def _load_bag(path: Path) -> Recording:
+    try:
+        from aeropend_core import bag
+        read_samples = bag.read_samples
+    except (ImportError, AttributeError):
+        raise AeropendError(f'{path}: reading MCAP bags needs aeropend_core.bag.read_samples') from None
+    samples = read_samples(path)
+    columns = samples if isinstance(samples, Mapping) else getattr(samples, 'columns')()
+    if 't' not in columns and 'time' in columns:
+        columns = {'t': columns['time'], **{k: v for k, v in columns.items() if k != 'time'}}
+    return from_columns(columns, source=str(path))

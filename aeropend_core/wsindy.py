@@ -1,0 +1,664 @@
+"""Weak SINDy (WSINDy) for ordinary differential equations, written from the method (Messenger & Bortz).
+
+For each equation ``d^k x/dt^k = Σ_j w_j θ_j(signals)`` and each test function φ supported on 2m+1 samples, the
+weak form integrates by parts until no derivative of data is left::
+
+    (-1)^k ∫ φ^(k) x dt  =  Σ_j w_j ∫ φ θ_j dt          (a term with its own derivative order d
+                                                           contributes (-1)^d ∫ φ^(d) θ_j dt)
+
+which gives a linear system ``G w = b`` (one row per test function). Steps:
+
+1. Test functions φ(t) = (1 − ((t − c)/(m Δt))²)^p; p is the smallest power that makes φ decay below
+   ``decay_tolerance`` at the first interior sample; the half-width m comes from the target signal's spectrum:
+   the corner wavenumber k* of its cumulative Fourier magnitude (two-piece linear fit) and
+   ``2π k* m = spectral_width · N · sqrt(2p + 3)`` (φ's spectrum then falls off where the data's noise floor
+   starts). m and p are solved together, m clipped to [``min_half_width``, ``max_half_width``].
+2. Gram matrix and right-hand side by trapezoid quadrature: all test functions are shifts of one kernel, so the
+   integrals are a strided correlation of each library column with the kernel (vectorised, no dense V).
+3. Generalised least squares: white noise on the target makes the rows of b correlated with covariance
+   ∝ V^(k) V^(k)ᵀ; both sides are whitened with its (banded) Cholesky factor. Then the covariance is rebuilt
+   from the linearised response of the whole residual b − Gw to white noise on every signal (including noise
+   entering the library terms, with the current w) and the fit is repeated (``irls_iterations``), as in the
+   reference WSINDy; without this the whitening amplifies low-frequency regressor noise and biases every
+   coefficient (4 % on the pendulum with a 10-bit angle).
+4. Modified sequential thresholding (MSTLS) in scale-free coordinates: with columns and b normalised, a term is
+   kept while its relative contribution ``|w_i|·‖G_i‖/‖b‖`` lies in [λ, 1/λ]; refit on the kept terms until the
+   set is stable. λ is chosen on a log grid 10^[-4..0] (100 values) by minimising
+   ``L(λ) = 2α ‖G(w_λ − w_LS)‖/‖G w_LS‖ + 2(1 − α) nnz(w_λ)/J`` (α = 0.8), smallest minimiser. A small ridge
+   (relative to the normalised Gram matrix) keeps nearly collinear libraries (sin y vs y) solvable.
+5. Standard errors of the kept coefficients from the whitened residual: σ̂² = ‖r‖²/(n_rows − n_kept),
+   Cov(w) = σ̂² (G̃ᵀG̃)⁻¹.
+
+Several experiments or segments are fitted together by stacking their (separately whitened) weak equations.
+
+The public entry point is :func:`fit_weak_sindy`; the candidate terms come from :mod:`aeropend_core.library`.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.polynomial import polynomial as npoly
+from scipy import linalg, sparse
+
+from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.library import Term
+
+#: λ grid of the automatic threshold search.
+THRESHOLD_GRID = np.logspace(-4.0, 0.0, 100)
+
+
+@dataclass(frozen=True)
+class Equation:
+    """One equation to identify: ``d^order target / dt^order = Σ w_j · term_j``.
+
+    Parameters
+    ----------
+    target : str
+        Name of the signal whose derivative is the left-hand side.
+    terms : sequence of Term
+        Candidate terms (:mod:`aeropend_core.library`).
+    order : int
+        Derivative order of the left-hand side (1 for first-order systems, 2 for the pendulum from the angle).
+    keep : sequence of str
+        Names of terms never thresholded away (known structure); others are subject to MSTLS.
+    """
+
+    target: str
+    terms: tuple[Term, ...]
+    order: int = 1
+    keep: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, 'terms', tuple(self.terms))
+        object.__setattr__(self, 'keep', tuple(self.keep))
+        if self.order < 1:
+            raise AeropendError(f'equation for {self.target!r}: order must be >= 1, got {self.order}')
+        names = [t.name for t in self.terms]
+        if not names:
+            raise AeropendError(f'equation for {self.target!r} has no candidate terms')
+        if len(set(names)) != len(names):
+            raise AeropendError(f'equation for {self.target!r} has duplicate term names: {names}')
+        unknown = set(self.keep) - set(names)
+        if unknown:
+            raise AeropendError(f'equation for {self.target!r}: keep names {sorted(unknown)} are not terms')
+
+    @property
+    def name(self) -> str:
+        """Left-hand side, e.g. ``'dangle/dt'`` or ``'d^2angle/dt^2'``."""
+        return f'd{self.target}/dt' if self.order == 1 else f'd^{self.order}{self.target}/dt^{self.order}'
+
+
+@dataclass(frozen=True, eq=False)
+class EquationFit:
+    """Result for one equation. Coefficients are in the units of (lhs unit) / (term unit).
+
+    Attributes
+    ----------
+    name : str
+        Left-hand side (:attr:`Equation.name`).
+    candidates : tuple of str
+        All candidate term names, in library order.
+    coefficients : dict
+        Selected term name -> coefficient (terms not selected are absent).
+    standard_errors : dict
+        Selected term name -> 1σ standard error of the coefficient.
+    covariance : ndarray, shape (n_selected, n_selected)
+        Coefficient covariance, in the order of ``coefficients``.
+    threshold : float
+        The λ used (0.0 when thresholding was off).
+    residual : float
+        Relative whitened residual ‖G̃w − b̃‖/‖b̃‖ (0 = perfect fit).
+    half_width, power, n_test_functions : int
+        Test-function half-width m (samples), power p, and number of weak equations (rows) used.
+    """
+
+    name: str
+    candidates: tuple[str, ...]
+    coefficients: dict[str, float]
+    standard_errors: dict[str, float]
+    covariance: np.ndarray = field(repr=False)
+    threshold: float
+    residual: float
+    half_width: int
+    power: int
+    n_test_functions: int
+
+    @property
+    def selected(self) -> tuple[str, ...]:
+        """Names of the terms kept."""
+        return tuple(self.coefficients)
+
+    def coefficient(self, term: str) -> float:
+        """Coefficient of ``term`` (0.0 if the term was not selected; KeyError if it was no candidate)."""
+        if term not in self.candidates:
+            raise KeyError(f'{term!r} is not a candidate of {self.name}; candidates: {list(self.candidates)}')
+        return self.coefficients.get(term, 0.0)
+
+    def format(self) -> str:
+        """``lhs = c1·term1 + c2·term2 ...`` with ±1σ."""
+        if not self.coefficients:
+            return f'{self.name} = 0'
+        parts = [f'({c:+.6g} ± {self.standard_errors[k]:.2g})·{k}' for k, c in self.coefficients.items()]
+        return f'{self.name} = ' + ' + '.join(parts)
+
+
+@dataclass(frozen=True, eq=False)
+class WeakSindyResult:
+    """Identified equations, in the order requested. Index by left-hand side name or by target signal."""
+
+    equations: tuple[EquationFit, ...]
+
+    def __getitem__(self, key: str) -> EquationFit:
+        for eq in self.equations:
+            if key == eq.name or eq.name in (f'd{key}/dt',) or eq.name.endswith(f'{key}/dt^2'):
+                return eq
+        raise KeyError(f'no equation {key!r}; have {[e.name for e in self.equations]}')
+
+    @property
+    def coefficients(self) -> dict[str, dict[str, float]]:
+        """lhs name -> {term: coefficient}."""
+        return {eq.name: dict(eq.coefficients) for eq in self.equations}
+
+    @property
+    def standard_errors(self) -> dict[str, dict[str, float]]:
+        """lhs name -> {term: 1σ standard error}."""
+        return {eq.name: dict(eq.standard_errors) for eq in self.equations}
+
+    def format(self) -> str:
+        return '\n'.join(eq.format() for eq in self.equations)
+
+
+# --------------------------------------------------------------------------------------------- test functions
+def test_function_power(half_width: int, decay_tolerance: float = 1e-10, minimum: int = 2) -> int:
+    """Smallest p with (1 − ((m−1)/m)²)^p ≤ tolerance, i.e. φ negligible at the first interior sample."""
+    m = int(half_width)
+    edge = 1.0 - ((m - 1) / m) ** 2
+    if edge <= 0.0 or edge >= 1.0:
+        return minimum
+    return max(minimum, math.ceil(math.log(decay_tolerance) / math.log(edge)))
+
+
+def spectral_corner(signal: np.ndarray) -> int:
+    """Corner wavenumber k* (in cycles per record) of a signal's spectrum.
+
+    The cumulative Fourier magnitude, summed from the highest frequency down, rises slowly (linearly) through the
+    noise floor and steeply through the signal band; k* is the split of the best two-piece linear fit (secant
+    lines, least squares), i.e. where the signal band ends.
+    """
+    x = np.asarray(signal, float)
+    x = x - x.mean()
+    mag = np.abs(np.fft.rfft(x))
+    cum = np.cumsum(mag[::-1])[::-1]         # cum[k] = Σ_{j>=k} |X_j|, decreasing in k
+    n = len(cum)
+    if n < 8:
+        return max(1, n // 2)
+    k = np.arange(n, dtype=float)
+    # error of the secant line through (i0, y0) and (i1, y1) over i0..i1 via prefix sums of 1, k, k², y, y², k·y
+    s0 = np.concatenate([[0.0], np.cumsum(np.ones(n))])
+    s1 = np.concatenate([[0.0], np.cumsum(k)])
+    s2 = np.concatenate([[0.0], np.cumsum(k * k)])
+    sy = np.concatenate([[0.0], np.cumsum(cum)])
+    syy = np.concatenate([[0.0], np.cumsum(cum * cum)])
+    sky = np.concatenate([[0.0], np.cumsum(k * cum)])
+
+    def secant_error(i0, i1):
+        slope = (cum[i1] - cum[i0]) / np.maximum(i1 - i0, 1)
+        a = cum[i0] - slope * i0            # line y = a + slope·k
+        n_, k1, k2 = s0[i1 + 1] - s0[i0], s1[i1 + 1] - s1[i0], s2[i1 + 1] - s2[i0]
+        y1, y2, ky = sy[i1 + 1] - sy[i0], syy[i1 + 1] - syy[i0], sky[i1 + 1] - sky[i0]
+        # Σ (a + slope k − y)²
+        return (a * a * n_ + 2 * a * slope * k1 + slope * slope * k2 - 2 * a * y1 - 2 * slope * ky + y2)
+
+    splits = np.arange(2, n - 2)
+    err = secant_error(np.zeros_like(splits), splits) + secant_error(splits, np.full_like(splits, n - 1))
+    return int(splits[np.argmin(err)])
+
+
+def choose_support(signal: np.ndarray, order: int = 1, decay_tolerance: float = 1e-10,
+                   spectral_width: float = 1.0, min_half_width: int = 8,
+                   max_half_width: int = 1000) -> tuple[int, int]:
+    """Half-width m (samples) and power p of the test functions for one signal, from its spectrum corner."""
+    n = len(signal)
+    k_star = max(spectral_corner(signal), 1)
+    p = max(test_function_power(min_half_width, decay_tolerance), order + 2)
+    m = min_half_width
+    for _ in range(20):
+        m_new = spectral_width * n * math.sqrt(2 * p + 3) / (2 * math.pi * k_star)
+        m_new = int(np.clip(round(m_new), min_half_width, max_half_width))
+        p_new = max(test_function_power(m_new, decay_tolerance), order + 2)
+        if (m_new, p_new) == (m, p):
+            break
+        m, p = m_new, p_new
+    return m, p
+
+
+def kernel_derivatives(half_width: int, power: int, dt: float, max_order: int) -> np.ndarray:
+    """Quadrature weights ``Δt·φ^(k)(t_i)`` (trapezoid) on the 2m+1 support, shape (max_order+1, 2m+1).
+
+    Row k is the k-th time derivative of φ (units 1/s^k) times the trapezoid weights, so that
+    ``weights[k] @ x[c−m : c+m+1]`` approximates ``∫ φ^(k)(t) x(t) dt``.
+    """
+    m = int(half_width)
+    xs = np.arange(-m, m + 1) / m
+    # (1 − x²)^p as a polynomial in x
+    coef = npoly.polypow([1.0, 0.0, -1.0], power)
+    rows = []
+    for k in range(max_order + 1):
+        dk = npoly.polyder(coef, k) if k else coef
+        rows.append(npoly.polyval(xs, dk) * (1.0 / (m * dt)) ** k)
+    w = np.array(rows) * dt
+    w[:, 0] *= 0.5
+    w[:, -1] *= 0.5
+    return w
+
+
+def kernel_hold(half_width: int, power: int, dt: float) -> np.ndarray:
+    """Weights for a zero-order-hold signal: sample i holds over [t_i, t_i+1), so its weight is Δt·φ at the
+    interval midpoint (midpoint rule), shape (2m+1,); the last interval lies outside the support."""
+    m = int(half_width)
+    xs = (np.arange(-m, m + 1) + 0.5) / m
+    w = np.where(np.abs(xs) < 1.0, np.clip(1.0 - xs * xs, 0.0, None) ** power, 0.0)
+    return w * dt
+
+
+# ----------------------------------------------------------------------------------------------- validation
+def _as_segments(time, signals) -> list[tuple[np.ndarray, dict[str, np.ndarray]]]:
+    if isinstance(signals, Mapping):
+        times, sigs = [time], [signals]
+    else:
+        times, sigs = list(time), list(signals)
+        if len(times) != len(sigs):
+            raise AeropendError(f'{len(times)} time arrays but {len(sigs)} signal sets: give one per segment')
+    out = []
+    for i, (t, s) in enumerate(zip(times, sigs)):
+        label = f'segment {i}: ' if len(times) > 1 else ''
+        t = np.asarray(t, float)
+        if t.ndim != 1:
+            raise AeropendError(f'{label}time must be 1-D, got shape {t.shape}')
+        arrays = {}
+        for name, x in s.items():
+            x = np.asarray(x, float)
+            if x.shape != t.shape:
+                raise AeropendError(f'{label}signal {name!r} has shape {x.shape}, time has {t.shape}')
+            arrays[name] = x
+        for name, x in [('time', t), *arrays.items()]:
+            bad = ~np.isfinite(x)
+            if bad.any():
+                i0 = int(np.argmax(bad))
+                raise InsufficientDataError(
+                    f'{label}{name!r} has {int(bad.sum())} NaN/inf value(s), first at sample {i0}'
+                    f'{"" if name == "time" else f" (t = {t[i0]:.4g} s)"}; remove or interpolate them, '
+                    'or split the record into clean segments')
+        if len(t) < 3:
+            raise InsufficientDataError(f'{label}only {len(t)} samples; a weak-form fit needs a window of data')
+        dt = np.diff(t)
+        step = float(np.median(dt))
+        if step <= 0 or np.max(np.abs(dt - step)) > 1e-3 * step:
+            raise AeropendError(f'{label}time is not uniformly sampled (median step {step:.6g} s, largest '
+                                f'deviation {np.max(np.abs(dt - step)):.3g} s); resample or split at the gaps')
+        out.append((t, arrays))
+    return out
+
+
+# -------------------------------------------------------------------------------------------- weak assembly
+def _centres(n: int, m: int, stride: int) -> np.ndarray:
+    count = (n - 2 * m - 1) // stride + 1
+    span = (count - 1) * stride
+    first = m + (n - 2 * m - 1 - span) // 2      # centre the set of supports in the window
+    return first + stride * np.arange(count)
+
+
+def _weak_rows(columns: np.ndarray, weights: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """∫ φ_c · column for each start, shape (len(starts), n_columns)."""
+    width = weights.shape[-1]
+    view = np.lib.stride_tricks.sliding_window_view(columns, width, axis=0)   # (n - width + 1, ncol, width)
+    return view[starts] @ weights
+
+
+def _whitener(weights: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor of Σ_ij = Σ_l w_l w_{l + c_j − c_i} (covariance of b under unit white noise)."""
+    width = len(weights)
+    auto = np.correlate(weights, weights, mode='full')           # lag −(width−1) .. (width−1)
+    lags = centres[None, :] - centres[:, None]
+    sigma = np.where(np.abs(lags) < width, auto[np.clip(lags + width - 1, 0, 2 * width - 2)], 0.0)
+    sigma[np.diag_indices_from(sigma)] *= 1.0 + 1e-10
+    return linalg.cholesky(sigma, lower=True, check_finite=False)
+
+
+# ----------------------------------------------------------------------------------------------- regression
+class _Solver:
+    """Ridge-regularised least squares on normalised columns, cached by support set."""
+
+    def __init__(self, a: np.ndarray, b: np.ndarray, ridge: float):
+        self.gram = a.T @ a
+        self.rhs = a.T @ b
+        self.ridge = ridge
+        self.cache: dict[bytes, np.ndarray] = {}
+
+    def solve(self, support: np.ndarray) -> np.ndarray:
+        key = support.tobytes()
+        hit = self.cache.get(key)
+        if hit is not None:
+            return hit
+        w = np.zeros(len(support))
+        idx = np.flatnonzero(support)
+        if idx.size:
+            g = self.gram[np.ix_(idx, idx)] + self.ridge * np.eye(idx.size)
+            w[idx] = linalg.solve(g, self.rhs[idx], assume_a='pos', check_finite=False)
+        self.cache[key] = w
+        return w
+
+
+def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: float, alpha: float):
+    """Return (w in normalised coordinates, λ used, column scales, b scale).
+
+    Thresholding runs on the ridge-regularised solutions (the ridge damps cancelling pairs of nearly collinear
+    terms, which would otherwise both look large); the selected terms are then refitted without ridge
+    (only a 1e-12 safeguard), so the ridge does not bias the reported coefficients.
+    """
+    col = np.linalg.norm(a, axis=0)
+    usable = col > 0
+    col = np.where(usable, col, 1.0)
+    bnorm = float(np.linalg.norm(b)) or 1.0
+    an = a / col
+    bn = b / bnorm
+    solver = _Solver(an, bn, ridge)
+    final = _Solver(an, bn, 1e-12)
+    final.gram, final.rhs = solver.gram, solver.rhs
+    w_ls = final.solve(usable)
+    if threshold is None:
+        return w_ls, 0.0, col, bnorm
+    keep = keep & usable
+    if threshold != 'auto':
+        lam = float(threshold)
+        if not 0 < lam <= 1:
+            raise AeropendError(f'threshold must be in (0, 1] or "auto", got {threshold!r}')
+        w = _mstls_usable(solver, lam, keep, usable)
+        return final.solve(w != 0), lam, col, bnorm
+    fit_ls = an @ w_ls
+    denom = float(np.linalg.norm(fit_ls)) or 1.0
+    n_terms = int(usable.sum())
+    best = None
+    for lam in THRESHOLD_GRID:
+        w = final.solve(_mstls_usable(solver, lam, keep, usable) != 0)
+        d = w - w_ls
+        acc = math.sqrt(max(float(d @ solver.gram @ d), 0.0)) / denom
+        loss = 2 * alpha * acc + 2 * (1 - alpha) * np.count_nonzero(w) / n_terms
+        if best is None or loss < best[0] - 1e-12:
+            best = (loss, lam, w)
+    return best[2], float(best[1]), col, bnorm
+
+
+def _mstls_usable(solver: _Solver, lam: float, keep: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    support = usable.copy()
+    w = solver.solve(support)
+    for _ in range(len(usable) + 1):
+        mag = np.abs(w)
+        new = support & (((mag >= lam) & (mag <= 1.0 / lam)) | keep)
+        if np.array_equal(new, support):
+            break
+        support = new
+        w = solver.solve(support)
+    return w
+
+
+# ------------------------------------------------------------------------------------------------- main API
+def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
+                   half_width: int | Mapping[str, int] | None = None,
+                   stride: int | None = None,
+                   threshold: float | str | None = 'auto',
+                   ridge: float = 1e-6,
+                   alpha: float = 0.8,
+                   decay_tolerance: float = 1e-10,
+                   spectral_width: float = 1.0,
+                   min_half_width: int = 8,
+                   max_half_width: int = 1000,
+                   exclude=None,
+                   noise_std: Mapping[str, float] | None = None,
+                   irls_iterations: int = 2) -> WeakSindyResult:
+    """Identify sparse ODEs from uniformly sampled data with weak SINDy.
+
+    Parameters
+    ----------
+    time : ndarray, shape (n_samples,), s — or a sequence of such arrays, one per segment/experiment.
+    signals : mapping name -> ndarray, shape (n_samples,) — or a sequence of mappings, one per segment.
+        SI units; every name a term or target uses must be present. Segments are fitted together.
+    equations : sequence of Equation
+        What to identify (targets, derivative orders, candidate terms).
+    half_width : int or mapping target -> int, optional
+        Test-function half-width m in samples (support 2m+1). Default: chosen per equation from the target
+        signal's spectrum (:func:`choose_support`, median over segments).
+    stride : int, optional
+        Samples between test-function centres; default max(1, m // 4).
+    threshold : 'auto', float in (0, 1] or None
+        MSTLS λ: 'auto' searches the grid 10^[-4..0]; a number fixes it; None gives the plain (ridge) GLS fit
+        of all candidates (no sparsification).
+    ridge : float
+        Tikhonov term added to the normalised (unit-diagonal) Gram matrix.
+    alpha : float
+        Weight of accuracy vs sparsity in the λ loss.
+    decay_tolerance, spectral_width, min_half_width, max_half_width
+        Test-function selection (see :func:`choose_support`).
+    exclude : ndarray of bool, shape (n_samples,), or one per segment, optional
+        Samples no test-function support may cover (e.g. transients the model does not describe).
+    noise_std : mapping signal -> float, optional
+        Measurement-noise standard deviation per signal (signal units), for the residual covariance. Signals not
+        given are estimated from the data (:func:`estimate_noise_std`); give 0 for an exactly known signal.
+    irls_iterations : int
+        Reweighting passes: after a first fit with Σ ∝ V^(k)V^(k)ᵀ (noise on the target only), Σ is rebuilt from
+        the linearised response of the whole residual to the noise on every signal (target, derivative terms,
+        nonlinear terms) and the fit repeated. This removes most of the errors-in-variables bias that a
+        target-only whitening causes (it amplifies low-frequency noise in the regressors).
+
+    Returns
+    -------
+    WeakSindyResult
+
+    Raises
+    ------
+    InsufficientDataError
+        NaN/inf in the data, a segment shorter than the test-function support, a constant target, or fewer
+        usable test functions than candidate terms.
+    AeropendError
+        Missing signals, non-uniform sampling, bad options.
+    """
+    equations = list(equations)
+    if not equations:
+        raise AeropendError('no equations to identify')
+    segments = _as_segments(time, signals)
+    if exclude is None:
+        excludes = [None] * len(segments)
+    elif isinstance(exclude, np.ndarray) and exclude.ndim == 1 and len(segments) == 1:
+        excludes = [exclude]
+    else:
+        excludes = list(exclude)
+    dt = float(np.median(np.diff(segments[0][0])))
+    for t, _ in segments[1:]:
+        if abs(float(np.median(np.diff(t))) - dt) > 1e-3 * dt:
+            raise AeropendError('segments have different sample times; resample them to one rate first')
+    for eq in equations:
+        needed = {eq.target, *(v for t in eq.terms for v in t.variables)}
+        for i, (_, s) in enumerate(segments):
+            missing = needed - set(s)
+            if missing:
+                raise AeropendError(f'equation {eq.name} needs signal(s) {sorted(missing)}, not in the data '
+                                    f'(have {sorted(s)})')
+
+    fits = []
+    for eq in equations:
+        targets = [s[eq.target] for _, s in segments]
+        scale = max(float(np.max(np.abs(x))) for x in targets) or 1.0
+        if all(np.ptp(x) <= 1e-12 * scale for x in targets):
+            raise InsufficientDataError(f'{eq.target!r} is constant: nothing to identify for {eq.name} '
+                                        '(no excitation)')
+        # --- test functions
+        if half_width is None:
+            choices = [choose_support(x, eq.order, decay_tolerance, spectral_width, min_half_width,
+                                      max_half_width) for x in targets]
+            m = int(np.median([c[0] for c in choices]))
+        else:
+            m = int(half_width[eq.target] if isinstance(half_width, Mapping) else half_width)
+            if m < 2:
+                raise AeropendError(f'half_width must be >= 2 samples, got {m}')
+        p = max(test_function_power(m, decay_tolerance), eq.order + 2)
+        s_ = int(stride or max(1, m // 4))
+        max_order = max([eq.order] + [t.derivative_order for t in eq.terms])
+        weights = kernel_derivatives(m, p, dt, max_order)
+        hold_weights = kernel_hold(m, p, dt)
+        width = 2 * m + 1
+        short = [i for i, (t, _) in enumerate(segments) if len(t) < width]
+        if short:
+            i = short[0]
+            raise InsufficientDataError(
+                f'{"segment %d: " % i if len(segments) > 1 else ""}window of {len(segments[i][0])} samples '
+                f'({len(segments[i][0]) * dt:.3g} s) is shorter than the test-function support for {eq.name}: '
+                f'2m+1 = {width} samples ({width * dt:.3g} s); record longer windows')
+        systems = []
+        for (t, s), excl in zip(segments, excludes):
+            centres = _centres(len(t), m, s_)
+            if excl is not None:
+                excl = np.asarray(excl, bool)
+                hits = np.concatenate([[0], np.cumsum(excl)])
+                covered = hits[centres + m + 1] - hits[centres - m]
+                centres = centres[covered == 0]
+                if centres.size == 0:
+                    continue
+            starts = centres - m
+            g = np.empty((len(starts), len(eq.terms)))
+            for d in sorted({t_.derivative_order for t_ in eq.terms}):
+                for held in (False, True):
+                    idx = [j for j, t_ in enumerate(eq.terms) if t_.derivative_order == d and t_.hold == held]
+                    if idx:
+                        theta = np.column_stack([eq.terms[j].evaluate(s) for j in idx])
+                        kern = hold_weights if held else weights[d]
+                        g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
+            b = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
+            ops = _noise_operators(eq, s, starts, weights, hold_weights, noise_std)
+            systems.append((g, b, ops, starts, len(t)))
+        n_rows = sum(len(sys_[1]) for sys_ in systems)
+        if n_rows <= len(eq.terms):
+            raise InsufficientDataError(
+                f'{eq.name}: only {n_rows} usable test functions (support {width} samples) for {len(eq.terms)} '
+                'candidate terms; record longer windows or use fewer terms')
+        keep = np.array([t_.name in eq.keep for t_ in eq.terms])
+        w = None
+        for _ in range(irls_iterations + 1):
+            rows_a, rows_b = [], []
+            for g, b, ops, starts, n in systems:
+                chol, band = _residual_cholesky(ops, w, starts, n, width)
+                rows_a.append(linalg.solve_banded((band, 0), chol, g, check_finite=False))
+                rows_b.append(linalg.solve_banded((band, 0), chol, b, check_finite=False))
+            a = np.vstack(rows_a)
+            bw = np.concatenate(rows_b)
+            w_n, lam, col, bnorm = _regress(a, bw, keep, threshold, ridge, alpha)
+            w_new = w_n * bnorm / col
+            converged = w is not None and np.allclose(w_new, w, rtol=1e-5, atol=0.0)
+            w = w_new
+            if converged:
+                break
+        sel = np.flatnonzero(w_n)
+        resid_vec = bw - a[:, sel] @ w[sel]
+        dof = max(n_rows - sel.size, 1)
+        sigma2 = float(resid_vec @ resid_vec) / dof
+        if sel.size:
+            an = a[:, sel] / col[sel]
+            cov = sigma2 * linalg.pinvh(an.T @ an) / np.outer(col[sel], col[sel])
+        else:
+            cov = np.zeros((0, 0))
+        names = [eq.terms[j].name for j in sel]
+        fits.append(EquationFit(
+            name=eq.name,
+            candidates=tuple(t_.name for t_ in eq.terms),
+            coefficients={nm: float(w[j]) for nm, j in zip(names, sel)},
+            standard_errors={nm: float(math.sqrt(max(cov[i, i], 0.0))) for i, nm in enumerate(names)},
+            covariance=cov,
+            threshold=lam,
+            residual=float(np.linalg.norm(resid_vec) / (np.linalg.norm(bw) or 1.0)),
+            half_width=m, power=p, n_test_functions=n_rows))
+    return WeakSindyResult(tuple(fits))
+
+
+def estimate_noise_std(signal: np.ndarray) -> float:
+    """Robust white-noise standard deviation of a smoothly varying, densely sampled signal (signal's units).
+
+    The third difference cancels anything smooth over four samples (variance 20σ² for white noise); the median
+    absolute deviation ignores the few samples around steps. For quantised, mostly constant signals (MAD 0) the
+    plain standard deviation of the third difference is used.
+    """
+    x = np.asarray(signal, float)
+    if x.size < 8:
+        return 0.0
+    third = np.diff(x, n=3)
+    mad = float(np.median(np.abs(third - np.median(third))))
+    if mad > 0:
+        return 1.4826 * mad / math.sqrt(20.0)
+    return float(np.std(third) / math.sqrt(20.0))
+
+
+def _noise_operators(eq: Equation, signals, starts, weights, hold_weights, noise_std):
+    """Per noisy signal: (σ, lhs kernel or None, [(term index, signed kernel, Jacobian windows (K, width))]).
+
+    The residual b − G·w responds to white noise ε_v on signal v through the linear operator
+    ``(-1)^k V^(k) [v is target] − Σ_j w_j (-1)^{d_j} V^{(d_j)} diag(∂θ_j/∂v)`` (linearised about the data).
+    """
+    width = weights.shape[1]
+    names = {eq.target, *(v for t in eq.terms for v in t.variables)}
+    ops = []
+    for v in sorted(names):
+        x = signals[v]
+        sigma = float(noise_std[v]) if noise_std is not None and v in noise_std else estimate_noise_std(x)
+        if not sigma > 0:
+            continue
+        lhs = (-1) ** eq.order * weights[eq.order] if v == eq.target else None
+        parts = []
+        h = 1e-6 * max(float(np.max(np.abs(x))), 1e-12)
+        for j, term in enumerate(eq.terms):
+            if v not in term.variables:
+                continue
+            plus, minus = dict(signals), dict(signals)
+            plus[v], minus[v] = x + h, x - h
+            jac = (term.evaluate(plus) - term.evaluate(minus)) / (2 * h)
+            kern = hold_weights if term.hold else weights[term.derivative_order]
+            win = np.lib.stride_tricks.sliding_window_view(jac, width)[starts]
+            parts.append((j, (-1) ** term.derivative_order * kern, win))
+        ops.append((sigma, lhs, parts))
+    return ops
+
+
+def _residual_cholesky(ops, w, starts, n, width):
+    """Banded lower Cholesky factor of the residual covariance (see :func:`_noise_operators`) and its bandwidth.
+
+    Before any coefficient is known (``w is None``) only the target's noise counts: Σ ∝ V^(k) V^(k)ᵀ.
+    """
+    k = len(starts)
+    indices = (starts[:, None] + np.arange(width)[None, :]).ravel()
+    indptr = np.arange(k + 1) * width
+    sigma = None
+    for std, lhs, parts in ops:
+        local = np.zeros((k, width)) if lhs is None else np.broadcast_to(lhs, (k, width)).copy()
+        if w is not None:
+            for j, kern, win in parts:
+                if w[j] != 0.0:
+                    local -= w[j] * kern[None, :] * win
+        elif lhs is None:
+            continue
+        r = sparse.csr_matrix(((std * local).ravel(), indices, indptr), shape=(k, n))
+        term = r @ r.T
+        sigma = term if sigma is None else sigma + term
+    if sigma is None:   # noiseless target by the estimate: fall back to the target-only covariance
+        lhs = next((lhs for _, lhs, _ in ops if lhs is not None), None)
+        if lhs is None:
+            raise InsufficientDataError('cannot form the weak-form covariance (no target noise operator)')
+        r = sparse.csr_matrix((np.broadcast_to(lhs, (k, width)).ravel(), indices, indptr), shape=(k, n))
+        sigma = r @ r.T
+    reach = np.searchsorted(starts, starts + width, side='left') - np.arange(k)
+    band = int(max(int(reach.max()) - 1, 0))
+    ab = np.zeros((band + 1, k))
+    for u in range(band + 1):
+        ab[u, :k - u] = sigma.diagonal(-u)
+    ab[0] *= 1.0 + 1e-10
+    ab[0] += 1e-300
+    return linalg.cholesky_banded(ab, lower=True, check_finite=False), band
