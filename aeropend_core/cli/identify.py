@@ -1,0 +1,72 @@
+"""Identify the rig equations with weak SINDy from a recording (CSV now; MCAP bags through aeropend_core.bag).
+
+The CSV has columns t [s], duty [1], armature_voltage [V], armature_current [A], angle [rad] (what the rig
+measures), optionally simulator truth columns (true_motor_speed [rad/s], true_angular_rate [rad/s], ...).
+
+Models:
+  pendulum    (default) the live-rig fit from Va, Ia and angle only:
+              d²y/dt² = −(mgd/J) sin y − (c/J) dy/dt + θ1 Va² + θ2 Va Ia + θ3 Ia²
+  full-state  the paper's four first-order equations from [Va, Ia, ω1, y, Ω] (needs motor_speed and
+              angular_rate columns, i.e. a simulation)
+
+Examples:
+  aeropend simulate -o run.csv --duration 60 --psnr 50 --quantise
+  aeropend identify run.csv
+  aeropend identify run.csv --json
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+import numpy as np
+
+from aeropend_core.identify import PARAMETER_UNITS, identify_full_state, identify_pendulum
+from aeropend_core.recording import load_recording
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('data', metavar='DATA', help='recording: CSV file (or MCAP bag)')
+    parser.add_argument('--json', action='store_true',
+                        help='print {coefficients, standard_errors, parameters} as JSON instead of text')
+    parser.add_argument('--model', choices=('pendulum', 'full-state'), default='pendulum',
+                        help='which equations to identify (default: pendulum, the live-rig case)')
+    parser.add_argument('--effect', action='append', default=[], metavar='NAME',
+                        help='pendulum model: add a catalog effect as a candidate term (cable_torque, angle_offset)')
+    parser.add_argument('--start', type=float, default=None, help='use samples from this time [s]')
+    parser.add_argument('--stop', type=float, default=None, help='use samples before this time [s]')
+
+
+def _clean(value: float):
+    return value if math.isfinite(value) else None
+
+
+def main(args: argparse.Namespace) -> int:
+    recording = load_recording(args.data)
+    if args.start is not None or args.stop is not None:
+        recording = recording.window(-np.inf if args.start is None else args.start,
+                                     np.inf if args.stop is None else args.stop)
+    if args.model == 'pendulum':
+        fit = identify_pendulum(recording.time, recording.signal('armature_voltage'),
+                                recording.signal('armature_current'), recording.signal('angle'),
+                                duty=recording.signals.get('duty'), effects=args.effect)
+    else:
+        fit = identify_full_state(recording)
+    if args.json:
+        out = {
+            'model': args.model,
+            'coefficients': fit.result.coefficients,
+            'standard_errors': fit.result.standard_errors,
+            'parameters': {k: _clean(v) for k, v in fit.parameters.items()},
+            'parameter_standard_errors': {k: _clean(v) for k, v in fit.standard_errors.items()},
+            'units': {k: PARAMETER_UNITS.get(k, '') for k in fit.parameters},
+            'samples': len(recording),
+            'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
+        }
+        print(json.dumps(out, indent=2))
+    else:
+        duration = len(recording) * float(np.median(np.diff(recording.time))) if len(recording) > 1 else 0.0
+        print(f'{args.data}: {len(recording)} samples ({duration:.3g} s), model {args.model}')
+        print(fit.format())
+    return 0
