@@ -1,0 +1,155 @@
+"""Weak SINDy core against small systems with known truth (independent of the rig simulator).
+
+The reference system is a damped pendulum driven by a held (zero-order-hold) input, integrated interval by
+interval with tight tolerances: y'' = -a sin y - c y' + k u^2.
+"""
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from aeropend_core import library as lib
+from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core import wsindy
+from aeropend_core.wsindy import Equation, choose_support, fit_weak_sindy, kernel_derivatives, spectral_corner
+
+A, C, K = 131.75, 13.82, 30.0
+DT = 1 / 490
+
+
+def driven_pendulum(seed=0, n=4900, n_steps=10):
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.uniform(0.2, 2.3, n_steps), n // n_steps + 1)[:n]
+    x = np.zeros(2)
+    out = np.empty((n, 2))
+    for i in range(n):
+        out[i] = x
+        x = solve_ivp(lambda _t, s, ui=u[i]: [s[1], -A * np.sin(s[0]) - C * s[1] + K * ui * ui], (0, DT), x,
+                      rtol=1e-10, atol=1e-12).y[:, -1]
+    return np.arange(n) * DT, u, out[:, 0], out[:, 1]
+
+
+@pytest.fixture(scope='module')
+def pendulum():
+    return driven_pendulum()
+
+
+def second_order(extra=()):
+    terms = (lib.sine('angle'), lib.derivative('angle'), lib.product('u', 'u', hold=True), *extra)
+    return Equation('angle', terms, order=2)
+
+
+def noisy(x, psnr_db, rng):
+    return x + rng.normal(0, np.max(np.abs(x)) * 10 ** (-psnr_db / 20), x.shape)
+
+
+def test_test_function_decays_at_first_interior_point():
+    for m in (8, 20, 60, 200):
+        p = wsindy.test_function_power(m, 1e-10)
+        assert (1 - ((m - 1) / m) ** 2) ** p <= 1e-10
+        assert (1 - ((m - 1) / m) ** 2) ** (p - 1) > 1e-10 or p == 2
+
+
+def test_kernel_derivative_matches_finite_difference():
+    m, p = 30, 6
+    w = kernel_derivatives(m, p, DT, 2) / DT
+    w[:, [0, -1]] *= 2  # undo the trapezoid end weights (φ vanishes there anyway)
+    fd = np.gradient(w[0], DT)
+    assert np.allclose(w[1][2:-2], fd[2:-2], rtol=0, atol=0.02 * np.max(np.abs(w[1])))
+
+
+def test_spectral_corner_tracks_bandwidth():
+    t = np.arange(8192) * DT
+    rng = np.random.default_rng(1)
+    slow = np.sin(2 * np.pi * 1.0 * t) + 1e-3 * rng.normal(size=t.size)
+    fast = np.sin(2 * np.pi * 8.0 * t) + 1e-3 * rng.normal(size=t.size)
+    # The corner lies above the signal's own wavenumber (1 Hz -> 16.7 cycles per record) and moves up with it.
+    assert spectral_corner(slow) > 16.7
+    assert spectral_corner(fast) > 8 * 16.7
+    assert spectral_corner(fast) > 1.5 * spectral_corner(slow)
+    assert choose_support(slow)[0] > choose_support(fast)[0]
+
+
+def test_second_order_weak_form_recovers_coefficients_clean(pendulum):
+    t, u, y, _ = pendulum
+    fit = fit_weak_sindy(t, {'angle': y, 'u': u}, [second_order()], threshold=None)['angle']
+    # Clean data: only quadrature error remains (tolerance 0.2 %).
+    assert fit.coefficient('sin(angle)') == pytest.approx(-A, rel=2e-3)
+    assert fit.coefficient('dangle/dt') == pytest.approx(-C, rel=2e-3)
+    assert fit.coefficient('u^2') == pytest.approx(K, rel=2e-3)
+
+
+def test_held_input_quadrature_matters(pendulum):
+    """Trapezoid quadrature of a held input shifts it by half a sample: ~1 % bias; the midpoint rule removes it."""
+    t, u, y, _ = pendulum
+    eq = Equation('angle', (lib.sine('angle'), lib.derivative('angle'), lib.product('u', 'u')), order=2)
+    trapezoid = fit_weak_sindy(t, {'angle': y, 'u': u}, [eq], threshold=None)['angle'].coefficient('u^2')
+    assert abs(trapezoid / K - 1) > 5e-3
+
+
+def test_second_order_noise_and_quantisation_within_stated_error(pendulum):
+    t, u, y, _ = pendulum
+    rng = np.random.default_rng(7)
+    y_meas = np.round(noisy(y, 50, rng) / (2 * np.pi / 1024)) * (2 * np.pi / 1024)
+    fit = fit_weak_sindy(t, {'angle': y_meas, 'u': u}, [second_order()], threshold=None)['angle']
+    for term, truth in (('sin(angle)', -A), ('dangle/dt', -C), ('u^2', K)):
+        # 1.5 % tolerance at 50 dB + 10-bit quantisation on 10 s; and the error is within 4 standard errors.
+        assert fit.coefficient(term) == pytest.approx(truth, rel=0.015)
+        assert abs(fit.coefficient(term) - truth) < 4 * fit.standard_errors[term] + 1e-3 * abs(truth)
+
+
+def test_mstls_drops_spurious_terms_first_order(pendulum):
+    t, u, y, w = pendulum
+    rng = np.random.default_rng(3)
+    sig = {'angle': noisy(y, 50, rng), 'angular_rate': noisy(w, 50, rng), 'u': u}
+    terms = tuple(lib.polynomial(['angle', 'angular_rate'], 2) + [lib.sine('angle'),
+                                                                 lib.product('u', 'u', hold=True)])
+    result = fit_weak_sindy(t, sig, [Equation('angle', terms), Equation('angular_rate', terms)])
+    assert set(result['angle'].selected) == {'angular_rate'}
+    assert set(result['angular_rate'].selected) == {'sin(angle)', 'angular_rate', 'u^2'}
+    assert result['angular_rate'].coefficient('u^2') == pytest.approx(K, rel=0.02)
+
+
+def test_segments_are_fitted_together():
+    t1, u1, y1, _ = driven_pendulum(seed=1, n=2450, n_steps=5)
+    t2, u2, y2, _ = driven_pendulum(seed=2, n=2450, n_steps=5)
+    both = fit_weak_sindy([t1, t2], [{'angle': y1, 'u': u1}, {'angle': y2, 'u': u2}], [second_order()],
+                          threshold=None)['angle']
+    one = fit_weak_sindy(t1, {'angle': y1, 'u': u1}, [second_order()], threshold=None)['angle']
+    assert both.n_test_functions > one.n_test_functions
+    assert both.coefficient('u^2') == pytest.approx(K, rel=3e-3)
+
+
+def test_inputs_enter_only_where_asked(pendulum):
+    t, u, y, _ = pendulum
+    fit = fit_weak_sindy(t, {'angle': y, 'u': u}, [second_order()])['angle']
+    assert not any('sin(u' in name or 'cos(u' in name for name in fit.candidates)
+
+
+def test_too_short_window_is_refused(pendulum):
+    t, u, y, _ = pendulum
+    with pytest.raises(InsufficientDataError, match='shorter than the test-function support'):
+        fit_weak_sindy(t[:40], {'angle': y[:40], 'u': u[:40]}, [second_order()], half_width=30)
+
+
+def test_nan_is_refused(pendulum):
+    t, u, y, _ = pendulum
+    y = y.copy()
+    y[100] = np.nan
+    with pytest.raises(InsufficientDataError, match='NaN'):
+        fit_weak_sindy(t, {'angle': y, 'u': u}, [second_order()])
+
+
+def test_constant_target_is_refused(pendulum):
+    t, u, _, _ = pendulum
+    with pytest.raises(InsufficientDataError, match='constant'):
+        fit_weak_sindy(t, {'angle': np.full_like(t, 0.3), 'u': u}, [second_order()])
+
+
+def test_missing_signal_and_bad_sampling_are_named(pendulum):
+    t, u, y, _ = pendulum
+    with pytest.raises(AeropendError, match="'u'"):
+        fit_weak_sindy(t, {'angle': y}, [second_order()])
+    t_bad = t.copy()
+    t_bad[500:] += 0.05
+    with pytest.raises(AeropendError, match='uniformly sampled'):
+        fit_weak_sindy(t_bad, {'angle': y, 'u': u}, [second_order()])
