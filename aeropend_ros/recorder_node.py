@@ -1,0 +1,307 @@
+"""recorder_node: record chosen topics to a rosbag2-compatible MCAP bag folder (raw CDR bytes, no re-serialisation).
+
+Topics are the ``topics`` parameter plus every topic matching ``include_regex`` (default ``^/aeropend/``, so the
+identification topics are recorded too). A topic is subscribed as soon as a publisher of it is discovered, with the
+publishers' QoS (best effort if any publisher is best effort, as ``/aeropend/samples`` with SensorData QoS;
+reliable otherwise) and a deep queue. Subscriptions are raw: the exact CDR bytes as received go to the bag, stamped
+with receive time (log time) and send time (publish time).
+
+The callback only queues bytes; a writer thread chunks, compresses and writes them, so the executor stays free and
+the node sustains tens of thousands of messages per second (bench/bench_recorder.py). SIGINT or SIGTERM finalise
+the bag (summary, footer, metadata.yaml). After a SIGKILL, run ``aeropend bag-recover <bag folder>``.
+
+The node publishes its own ``/diagnostics`` (messages written per topic, queue length, drops, current file) once
+per ``diagnostics_period``.
+
+Usage::
+
+    ros2 run aeropend_ros recorder_node --ros-args -p output:=bags/run1
+    ros2 run aeropend_ros recorder_node --ros-args --params-file config/recorder_node.yaml
+"""
+from __future__ import annotations
+
+import collections
+import importlib
+import re
+import sys
+import threading
+import time
+
+from aeropend_ros._ros_env import ament_prefixes, ensure_ros_environment
+
+ensure_ros_environment()
+
+import rclpy
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+)
+
+from aeropend_core.bag import (
+    BagWriter,
+    msg_file_loader,
+    msg_type_hash,
+    offered_qos,
+    ros2msg_definition,
+)
+from aeropend_core.errors import AeropendError
+from aeropend_ros import topics as contract
+
+DEFAULT_TOPICS = [contract.SAMPLES_TOPIC, contract.DUTY_COMMAND_TOPIC, contract.DIAGNOSTICS_TOPIC]
+_POLICY_NAMES = {
+    ReliabilityPolicy.RELIABLE: 'reliable', ReliabilityPolicy.BEST_EFFORT: 'best_effort',
+    DurabilityPolicy.VOLATILE: 'volatile', DurabilityPolicy.TRANSIENT_LOCAL: 'transient_local',
+    HistoryPolicy.KEEP_LAST: 'keep_last', HistoryPolicy.KEEP_ALL: 'keep_all',
+}
+
+
+def message_class(type_name: str):
+    """The Python message class of ``pkg/msg/Type`` (imports ``pkg.msg``)."""
+    package, kind, name = type_name.split('/')
+    return getattr(importlib.import_module(f'{package}.{kind}'), name)
+
+
+def _qos_dict(profile) -> dict:
+    return offered_qos(reliability=_POLICY_NAMES.get(profile.reliability, 'reliable'),
+                       durability=_POLICY_NAMES.get(profile.durability, 'volatile'),
+                       history=_POLICY_NAMES.get(profile.history, 'keep_last'), depth=profile.depth)
+
+
+class RecorderNode(Node):
+    """Records topics into an MCAP bag folder; see the module docstring."""
+
+    def __init__(self, **kwargs):
+        super().__init__('recorder_node', **kwargs)
+        self._declare_parameters()
+        get = self.get_parameter
+        output = get('output').value or f'bags/aeropend_{time.strftime("%Y%m%d_%H%M%S")}'
+        self._topics_wanted = set(get('topics').value or [])
+        self._include = re.compile(get('include_regex').value) if get('include_regex').value else None
+        self._queue_depth = get('queue_depth').value
+        self.writer = BagWriter(output, max_file_bytes=get('max_file_bytes').value,
+                                max_file_duration=get('max_file_duration').value,
+                                chunk_size=get('chunk_size').value, compression=get('compression').value)
+        self._load_msg = msg_file_loader(ament_prefixes() or [sys.prefix])
+        self._subscriptions_by_topic: dict[str, object] = {}
+        self._received: dict[str, int] = collections.Counter()
+        self._queue: collections.deque = collections.deque()
+        self._wake = threading.Event()
+        self._stop = False
+        self._written = 0
+        self._write_error: str = ''
+        self._max_queue = get('max_queue').value
+        self._dropped = 0
+        self._thread = threading.Thread(target=self._write_loop, name='bag_writer', daemon=True)
+        self._thread.start()
+        self._finished = False
+
+        from diagnostic_msgs.msg import DiagnosticArray
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, contract.DIAGNOSTICS_TOPIC,
+                                                      contract.diagnostics_qos())
+        self._discovery_timer = self.create_timer(get('discovery_period').value, self._discover)
+        self._diagnostics_timer = self.create_timer(get('diagnostics_period').value, self._publish_diagnostics)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.get_logger().info(f'recording to {self.writer.folder} (topics {sorted(self._topics_wanted)}'
+                               f'{", regex " + self._include.pattern if self._include else ""})')
+        self._discover()
+
+    # -- parameters ----------------------------------------------------------------------------------------------
+    def _declare_parameters(self) -> None:
+        def desc(text, read_only=True, **ranges):
+            return ParameterDescriptor(description=text, read_only=read_only, **ranges)
+        self.declare_parameter('output', '', desc(
+            'bag folder to create (must not exist); empty: bags/aeropend_<date>_<time>'))
+        self.declare_parameter('topics', DEFAULT_TOPICS, desc('topics to record (recorded when a publisher appears)'))
+        self.declare_parameter('include_regex', '^/aeropend/', desc(
+            'also record every topic whose name matches this regular expression (empty: none)'))
+        self.declare_parameter('max_file_bytes', 0, desc(
+            'start a new .mcap file at this size in bytes (0: never)',
+            integer_range=[IntegerRange(from_value=0, to_value=2**62, step=1)]))
+        self.declare_parameter('max_file_duration', 0.0, desc(
+            'start a new .mcap file after this many seconds of recording (0: never)',
+            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1e9, step=0.0)]))
+        self.declare_parameter('chunk_size', 256 * 1024, desc(
+            'uncompressed bytes per MCAP chunk; a kill loses at most the chunk in progress',
+            integer_range=[IntegerRange(from_value=1024, to_value=64 * 1024 * 1024, step=1)]))
+        self.declare_parameter('compression', 'zstd', desc('chunk compression: zstd, lz4 or none'))
+        self.declare_parameter('queue_depth', 1000, desc(
+            'subscription history depth (messages buffered between executor turns)',
+            integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)]))
+        self.declare_parameter('max_queue', 1_000_000, desc(
+            'messages waiting for the writer thread before new ones are dropped (and counted)',
+            integer_range=[IntegerRange(from_value=1000, to_value=100_000_000, step=1)]))
+        self.declare_parameter('discovery_period', 0.2, desc(
+            'seconds between checks for new topics to record', read_only=False,
+            floating_point_range=[FloatingPointRange(from_value=0.01, to_value=60.0, step=0.0)]))
+        self.declare_parameter('diagnostics_period', 1.0, desc(
+            'seconds between /diagnostics messages', read_only=False,
+            floating_point_range=[FloatingPointRange(from_value=0.05, to_value=60.0, step=0.0)]))
+
+    def _on_set_parameters(self, params) -> SetParametersResult:
+        for param in params:
+            if param.name == 'discovery_period':
+                self._discovery_timer.timer_period_ns = int(param.value * 1e9)
+            elif param.name == 'diagnostics_period':
+                self._diagnostics_timer.timer_period_ns = int(param.value * 1e9)
+        return SetParametersResult(successful=True)
+
+    # -- discovery and subscriptions -------------------------------------------------------------------------------
+    def _wants(self, topic: str) -> bool:
+        return topic in self._topics_wanted or bool(self._include and self._include.search(topic))
+
+    def _discover(self) -> None:
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self._subscriptions_by_topic or not self._wants(topic):
+                continue
+            publishers = [info for info in self.get_publishers_info_by_topic(topic)
+                          if info.node_name != self.get_name() or topic != contract.DIAGNOSTICS_TOPIC]
+            if not publishers and topic != contract.DIAGNOSTICS_TOPIC:
+                continue
+            if len(types) != 1:
+                self.get_logger().warning(f'not recording {topic}: several types {types}')
+                self._subscriptions_by_topic[topic] = None
+                continue
+            self._subscribe(topic, types[0], publishers)
+
+    def _subscribe(self, topic: str, type_name: str, publishers) -> None:
+        try:
+            msg_type = message_class(type_name)
+            schema_text = ros2msg_definition(type_name, self._load_msg)
+        except (ImportError, AttributeError, ValueError, AeropendError) as error:
+            self.get_logger().error(f'not recording {topic} ({type_name}): {error}')
+            self._subscriptions_by_topic[topic] = None
+            return
+        profiles = [info.qos_profile for info in publishers]
+        best_effort = any(p.reliability == ReliabilityPolicy.BEST_EFFORT for p in profiles)
+        transient = bool(profiles) and all(p.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in profiles)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=self._queue_depth,
+                         reliability=ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if transient else DurabilityPolicy.VOLATILE)
+        hashes = {str(info.topic_type_hash) for info in publishers} - {'INVALID', ''}
+        type_hash = hashes.pop() if len(hashes) == 1 else msg_type_hash(type_name, ament_prefixes())
+        self._queue.append(('topic', topic, type_name, schema_text, [_qos_dict(p) for p in profiles], type_hash))
+        subscription = None
+
+        def on_message(data: bytes, info: dict) -> None:
+            # executor turn: take this message and everything else already waiting (amortises executor overhead)
+            self._enqueue(topic, data, info)
+            handle = subscription.handle
+            with handle:
+                while True:
+                    taken = handle.take_message(msg_type, True)
+                    if taken is None:
+                        break
+                    self._enqueue(topic, taken[0], taken[1])
+            self._wake.set()
+
+        subscription = self.create_subscription(msg_type, topic, on_message, qos, raw=True)
+        self._subscriptions_by_topic[topic] = subscription
+        self.get_logger().info(f'recording {topic} [{type_name}] '
+                               f'({"best effort" if best_effort else "reliable"}, depth {self._queue_depth})')
+
+    def _enqueue(self, topic: str, data: bytes, info: dict) -> None:
+        if len(self._queue) >= self._max_queue:
+            self._dropped += 1
+            return
+        received = info.get('received_timestamp') or time.time_ns()
+        self._queue.append((topic, data, received, info.get('source_timestamp') or received,
+                            info.get('publication_sequence_number') or 0))
+        self._received[topic] += 1
+
+    # -- writer thread -----------------------------------------------------------------------------------------------
+    def _write_loop(self) -> None:
+        queue = self._queue
+        writer = self.writer
+        while True:
+            self._wake.wait(0.1)
+            self._wake.clear()
+            try:
+                while queue:
+                    item = queue.popleft()
+                    if item[0] == 'topic' and len(item) == 6:
+                        _, topic, type_name, schema_text, qos, type_hash = item
+                        writer.add_topic(topic, type_name, schema_text, qos, type_hash)
+                        continue
+                    topic, data, received, sent, sequence = item
+                    writer.write(topic, data, received, sent, sequence)
+                    self._written += 1
+            except Exception as error:  # noqa: BLE001 - disk full, permissions...: report it, keep the node alive
+                self._write_error = f'{type(error).__name__}: {error}'
+                self.get_logger().error(f'bag writing failed: {self._write_error}')
+                return
+            if self._stop and not queue:
+                return
+
+    def finish(self) -> None:
+        """Write everything queued and finalise the bag (idempotent)."""
+        if self._finished:
+            return
+        self._finished = True
+        self._stop = True
+        self._wake.set()
+        self._thread.join()
+        self.writer.finish()
+        text = (f'bag {self.writer.folder} finalised: {self._written} messages, {self._dropped} dropped, '
+                f'files {[p.name for p in self.writer.paths]}')
+        if rclpy.ok():
+            self.get_logger().info(text)
+        else:  # after Ctrl-C the context is gone and /rosout with it
+            print(f'[INFO] [recorder_node]: {text}', file=sys.stderr, flush=True)
+
+    # -- diagnostics ---------------------------------------------------------------------------------------------------
+    def _publish_diagnostics(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+        status = DiagnosticStatus(name='recorder_node: bag', hardware_id=str(self.writer.folder))
+        if self._write_error:
+            status.level, status.message = DiagnosticStatus.ERROR, f'writing failed: {self._write_error}'
+        elif self._dropped:
+            status.level, status.message = DiagnosticStatus.WARN, f'{self._dropped} messages dropped (queue full)'
+        else:
+            status.level, status.message = DiagnosticStatus.OK, 'recording'
+        values = [('messages_written', self._written), ('messages_dropped', self._dropped),
+                  ('queue_length', len(self._queue)), ('file', self.writer.paths[-1].name if self.writer.paths else ''),
+                  ('files', len(self.writer.paths))]
+        values += [(f'received {topic}', count) for topic, count in sorted(self._received.items())]
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics_pub.publish(array)
+
+
+def main(args=None) -> int:
+    """Entry point of ``recorder_node`` (``ros2 run aeropend_ros recorder_node``)."""
+    rclpy.init(args=args)
+    try:
+        node = RecorderNode()
+    except AeropendError as error:
+        print(f'recorder_node: error: {error}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.finish()
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
+
+
+__all__ = ['DEFAULT_TOPICS', 'RecorderNode', 'main', 'message_class']
