@@ -1,0 +1,339 @@
+"""MCAP bags without ROS: writer -> two independent readers (rosbags, mcap_ros2) and our own; splits; kills; repair.
+
+CDR bytes are produced here by a hand-written encoder (a third implementation), so a bug shared by the bag writer
+and a reader cannot hide.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import struct
+import subprocess
+import sys
+import textwrap
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from aeropend_core.bag import (
+    BagWriter,
+    msg_file_loader,
+    msg_type_hash,
+    offered_qos,
+    read_messages,
+    read_samples,
+    recover_bag,
+    ros2msg_definition,
+)
+from aeropend_core.errors import AeropendError
+
+ROOT = Path(__file__).resolve().parents[1]
+PREFIXES = [p for p in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) if p] + [sys.prefix]
+LOAD_MSG = msg_file_loader(PREFIXES)
+NAMES = ['angle', 'armature_voltage', 'armature_current', 'duty', 'sequence']
+TS_NS = 2_040_816                        # 1/490 s in ns
+T0_NS = 1_763_700_000_123_456_789        # an epoch stamp with a non-zero nanosecond part
+SAMPLES, DUTY = '/aeropend/samples', '/aeropend/duty_cmd'
+JOINT_STATE, FLOAT64 = 'sensor_msgs/msg/JointState', 'std_msgs/msg/Float64'
+#: the `aeropend` command, run as a fresh process
+AEROPEND = [sys.executable, '-c', 'import sys; from aeropend_core.cli import main; sys.exit(main())']
+
+
+def cdr_joint_state(stamp_ns: int, position: list[float], frame_id: str = 'aeropend') -> bytes:
+    """JointState as little-endian CDR (encapsulation 00 01 00 00), empty velocity and effort."""
+    out = bytearray(b'\x00\x01\x00\x00')
+
+    def align(n: int) -> None:
+        out.extend(b'\x00' * (-(len(out) - 4) % n))
+
+    def string(text: str) -> None:
+        align(4)
+        raw = text.encode() + b'\x00'
+        out.extend(struct.pack('<I', len(raw)) + raw)
+
+    out.extend(struct.pack('<iI', *divmod(stamp_ns, 1_000_000_000)))
+    string(frame_id)
+    align(4)
+    out.extend(struct.pack('<I', len(NAMES)))
+    for name in NAMES:
+        string(name)
+    align(4)
+    out.extend(struct.pack('<I', len(position)))
+    align(8)
+    out.extend(struct.pack(f'<{len(position)}d', *position))
+    for _ in range(2):                       # velocity, effort: empty
+        align(4)
+        out.extend(struct.pack('<I', 0))
+    return bytes(out)
+
+
+def cdr_float64(value: float) -> bytes:
+    return b'\x00\x01\x00\x00' + struct.pack('<d', value)
+
+
+def sample_values(k: int) -> list[float]:
+    """Known, distinct values of sample k: angle, Va, Ia, duty, sequence."""
+    return [0.001 * k - 0.5, 1.0 + 0.0001 * k, 0.25 + 1e-5 * k, (k % 100) / 100.0, float(k)]
+
+
+def write_bag(folder: Path, n: int, **writer_options) -> BagWriter:
+    writer = BagWriter(folder, **writer_options)
+    writer.add_topic(SAMPLES, JOINT_STATE, ros2msg_definition(JOINT_STATE, LOAD_MSG),
+                     [offered_qos('best_effort', depth=5)], msg_type_hash(JOINT_STATE, PREFIXES))
+    writer.add_topic(DUTY, FLOAT64, ros2msg_definition(FLOAT64, LOAD_MSG), [offered_qos('reliable', depth=10)],
+                     msg_type_hash(FLOAT64, PREFIXES))
+    for k in range(n):
+        stamp = T0_NS + k * TS_NS
+        writer.write(SAMPLES, cdr_joint_state(stamp, sample_values(k)), log_time_ns=stamp + 300_000,
+                     publish_time_ns=stamp + 100_000, sequence=k + 1)
+        if k % 49 == 0:
+            writer.write(DUTY, cdr_float64(k / n), log_time_ns=stamp + 200_000)
+    return writer
+
+
+def rosbags_samples(folder: Path) -> tuple[list[int], np.ndarray, dict]:
+    """(stamps ns, positions, {topic: count}) read with the rosbags library from a bag folder."""
+    from rosbags.highlevel import AnyReader
+    stamps, positions, counts = [], [], {}
+    with AnyReader([folder]) as reader:
+        for connection in reader.connections:
+            counts[connection.topic] = connection.msgcount
+        for connection, _, raw in reader.messages():
+            if connection.topic == SAMPLES:
+                msg = reader.deserialize(raw, connection.msgtype)
+                stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+                positions.append(list(msg.position))
+                assert list(msg.name) == NAMES and msg.header.frame_id == 'aeropend'
+                assert len(msg.velocity) == 0 and len(msg.effort) == 0
+    return stamps, np.array(positions), counts
+
+
+def mcap_ros2_samples(folder: Path) -> tuple[list[int], np.ndarray, list[int]]:
+    """(stamps ns, positions, log times) decoded by mcap_ros2 from every file of the folder in split order."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    stamps, positions, log_times = [], [], []
+    files = sorted(folder.glob('*.mcap'), key=lambda p: int(p.stem.rsplit('_', 1)[1]))
+    for file in files:
+        with open(file, 'rb') as stream:
+            reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+            for _, channel, message, msg in reader.iter_decoded_messages(topics=[SAMPLES]):
+                stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+                positions.append(list(msg.position))
+                log_times.append(message.log_time)
+    return stamps, np.array(positions), log_times
+
+
+def test_round_trip_with_two_independent_readers(tmp_path):
+    n = 3000
+    folder = tmp_path / 'run1'
+    writer = write_bag(folder, n, chunk_size=32 * 1024)
+    writer.finish()
+    writer.finish()                                             # idempotent
+    with pytest.raises(AeropendError, match='finished'):
+        writer.write(SAMPLES, b'', 0)
+
+    expected = np.array([sample_values(k) for k in range(n)])
+    expected_stamps = [T0_NS + k * TS_NS for k in range(n)]
+    n_duty = len(range(0, n, 49))
+
+    stamps, positions, counts = rosbags_samples(folder)
+    assert stamps == expected_stamps
+    np.testing.assert_array_equal(positions, expected)
+    assert counts == {SAMPLES: n, DUTY: n_duty}
+
+    stamps2, positions2, log_times = mcap_ros2_samples(folder)
+    assert stamps2 == expected_stamps
+    np.testing.assert_array_equal(positions2, expected)
+    assert log_times == [s + 300_000 for s in expected_stamps]   # log time = receive time, integer ns
+
+    ours = read_samples(folder)
+    np.testing.assert_array_equal(ours['sequence'], np.arange(n))
+    np.testing.assert_array_equal(ours['angle'], expected[:, 0])
+    np.testing.assert_array_equal(ours['armature_current'], expected[:, 2])
+    np.testing.assert_array_equal(ours['stamp_ns'], expected_stamps)
+    np.testing.assert_allclose(np.diff(ours['time']), TS_NS * 1e-9, rtol=1e-9)
+    assert ours['time'][0] == 0.0
+    # the single .mcap file opens on its own too
+    single = read_samples(folder / 'run1_0.mcap')
+    np.testing.assert_array_equal(single['angle'], ours['angle'])
+
+
+def test_file_follows_rosbag2_conventions(tmp_path):
+    folder = tmp_path / 'conv'
+    write_bag(folder, 200).finish()
+    from mcap.reader import make_reader
+    with open(folder / 'conv_0.mcap', 'rb') as stream:
+        reader = make_reader(stream)
+        header = reader.get_header()
+        summary = reader.get_summary()
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert header.profile == 'ros2'
+    schemas = {s.name: s for s in summary.schemas.values()}
+    assert set(schemas) == {JOINT_STATE, FLOAT64}
+    text = schemas[JOINT_STATE].data.decode()
+    assert schemas[JOINT_STATE].encoding == 'ros2msg'
+    assert text.startswith(LOAD_MSG(JOINT_STATE))
+    assert '\n' + '=' * 80 + '\nMSG: std_msgs/Header\n' in text
+    assert '\n' + '=' * 80 + '\nMSG: builtin_interfaces/Time\n' in text
+    assert len(summary.chunk_indexes) >= 1 and {c.compression for c in summary.chunk_indexes} == {'zstd'}
+    for channel in summary.channels.values():
+        assert channel.message_encoding == 'cdr'
+        assert channel.metadata['topic_type_hash'].startswith('RIHS01_')
+        qos = yaml.safe_load(channel.metadata['offered_qos_profiles'])
+        assert qos[0]['reliability'] == ('best_effort' if channel.topic == SAMPLES else 'reliable')
+    assert 'serialized_metadata' in metadata['rosbag2']
+    info = yaml.safe_load((folder / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['version'] == 9 and info['storage_identifier'] == 'mcap'
+    assert info['relative_file_paths'] == ['conv_0.mcap']
+    assert info['message_count'] == 200 + len(range(0, 200, 49))
+    # first message: the duty command logged at T0 + 200 us; last: sample 199 logged at its stamp + 300 us
+    assert info['starting_time']['nanoseconds_since_epoch'] == T0_NS + 200_000
+    assert info['duration']['nanoseconds'] == 199 * TS_NS + 100_000
+
+
+def test_dependencies_of_nested_types():
+    text = ros2msg_definition('diagnostic_msgs/msg/DiagnosticArray', LOAD_MSG)
+    headers = [line for line in text.splitlines() if line.startswith('MSG: ')]
+    assert headers == ['MSG: std_msgs/Header', 'MSG: builtin_interfaces/Time', 'MSG: diagnostic_msgs/DiagnosticStatus',
+                       'MSG: diagnostic_msgs/KeyValue']
+    with pytest.raises(AeropendError, match='no definition'):
+        ros2msg_definition('nonexistent_msgs/msg/Nothing', LOAD_MSG)
+
+
+@pytest.mark.parametrize('split', [{'max_file_bytes': 20_000}, {'max_file_duration': 1.0}])
+def test_split_files_read_as_one_bag(tmp_path, split):
+    n = 2000                                                      # 4.1 s of samples
+    folder = tmp_path / 'split'
+    writer = write_bag(folder, n, chunk_size=8 * 1024, **split)
+    writer.finish()
+    files = sorted(folder.glob('*.mcap'))
+    assert len(files) >= 3
+    info = yaml.safe_load((folder / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['relative_file_paths'] == [f'split_{i}.mcap' for i in range(len(files))]
+    assert sum(f['message_count'] for f in info['files']) == info['message_count']
+    if 'max_file_duration' in split:
+        for entry in info['files']:
+            assert entry['duration']['nanoseconds'] < 1_000_000_000
+    stamps, _, counts = rosbags_samples(folder)
+    assert stamps == [T0_NS + k * TS_NS for k in range(n)] and counts[SAMPLES] == n
+    stamps2, _, _ = mcap_ros2_samples(folder)
+    assert stamps2 == stamps
+    np.testing.assert_array_equal(read_samples(folder)['sequence'], np.arange(n))
+
+
+KILLED_WRITER = textwrap.dedent('''
+    import sys, time
+    sys.path.insert(0, {tests!r})
+    from test_bag import write_bag, SAMPLES, cdr_joint_state, sample_values, T0_NS, TS_NS
+    from pathlib import Path
+    writer = write_bag(Path({folder!r}), 1500, chunk_size=16 * 1024)
+    print(writer.message_count, flush=True)      # not finished: killed while recording
+    time.sleep(60)
+''')
+
+
+def test_killed_recording_readable_to_last_chunk_and_recovered(tmp_path):
+    folder = tmp_path / 'killed'
+    child = subprocess.Popen([sys.executable, '-c', KILLED_WRITER.format(tests=str(ROOT / 'tests'),
+                                                                         folder=str(folder))],
+                             stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    written = int(child.stdout.readline())
+    child.send_signal(signal.SIGKILL)
+    child.wait(10)
+    child.stdout.close()
+    assert written == 1500 + len(range(0, 1500, 49))
+
+    with pytest.warns(UserWarning, match='bag-recover'):
+        partial = read_samples(folder)
+    kept = len(partial['sequence'])
+    # every sample of a complete chunk survives, in order; only the chunk in progress (< 16 KiB ~ 80 samples) is lost
+    np.testing.assert_array_equal(partial['sequence'], np.arange(kept))
+    assert 1500 - 100 < kept < 1500
+    with pytest.raises(AeropendError, match='incomplete'):
+        read_samples(folder, on_incomplete='raise')
+
+    result = subprocess.run([*AEROPEND, 'bag-recover', str(folder)], check=False,
+                            capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert 'repaired killed_0.mcap' in result.stdout
+
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        repaired = read_samples(folder, on_incomplete='raise')
+    np.testing.assert_array_equal(repaired['sequence'], partial['sequence'])
+    stamps, _, counts = rosbags_samples(folder)
+    assert len(stamps) == kept and counts[SAMPLES] == kept
+    stamps2, _, _ = mcap_ros2_samples(folder)
+    assert stamps2 == stamps
+    info = yaml.safe_load((folder / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['topics_with_message_count'][0]['message_count'] == kept
+
+
+def test_bad_files_give_clear_errors(tmp_path):
+    garbage = tmp_path / 'garbage.mcap'
+    garbage.write_bytes(b'this is not a bag' * 100)
+    with pytest.raises(AeropendError, match='not an MCAP file'):
+        read_samples(garbage)
+    empty = tmp_path / 'empty.mcap'
+    empty.write_bytes(b'')
+    with pytest.raises(AeropendError, match='not an MCAP file'):
+        read_samples(empty)
+    with pytest.raises(AeropendError, match='does not exist'):
+        read_samples(tmp_path / 'missing')
+    (tmp_path / 'nobag').mkdir()
+    with pytest.raises(AeropendError, match='no .mcap file'):
+        read_samples(tmp_path / 'nobag')
+
+    # a file cut right after its header holds no sample: the error says so
+    write_bag(tmp_path / 'full', 500, chunk_size=4096).finish()
+    data = (tmp_path / 'full' / 'full_0.mcap').read_bytes()
+    cut = tmp_path / 'cut.mcap'
+    cut.write_bytes(data[:60])
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore')
+        with pytest.raises(AeropendError, match='no /aeropend/samples messages'):
+            read_samples(cut)
+    # corrupted bytes in the middle: read up to the damaged chunk, or refuse when asked to be strict
+    from mcap.reader import make_reader
+    with open(tmp_path / 'full' / 'full_0.mcap', 'rb') as stream:
+        chunks = sorted(make_reader(stream).get_summary().chunk_indexes, key=lambda c: c.chunk_start_offset)
+    assert len(chunks) >= 4
+    damaged = bytearray(data)
+    third = chunks[2]
+    inside = third.chunk_start_offset + third.chunk_length - 32          # inside its compressed data
+    damaged[inside:inside + 16] = bytes(b ^ 0xFF for b in damaged[inside:inside + 16])
+    bad = tmp_path / 'damaged.mcap'
+    bad.write_bytes(bytes(damaged))
+    with pytest.warns(UserWarning, match='corrupt'):
+        prefix = read_samples(bad)
+    first_two = {m.log_time_ns for m in read_messages(tmp_path / 'full', topics=[SAMPLES])
+                 if m.log_time_ns <= chunks[1].message_end_time}
+    np.testing.assert_array_equal(prefix['sequence'], np.arange(len(first_two)))
+    with pytest.raises(AeropendError):
+        read_samples(bad, on_incomplete='raise')
+
+    # other topics: right error for the wrong type
+    with pytest.raises(AeropendError, match='not sensor_msgs/msg/JointState'):
+        read_samples(tmp_path / 'full', topic=DUTY)
+    assert sum(1 for m in read_messages(tmp_path / 'full', topics=[DUTY])) == len(range(0, 500, 49))
+
+    with pytest.raises(AeropendError, match='already exists'):
+        BagWriter(tmp_path / 'full')
+    with pytest.raises(AeropendError, match='compression'):
+        BagWriter(tmp_path / 'new', compression='gzip')
+    result = subprocess.run([*AEROPEND, 'bag-recover', str(garbage)], check=False,
+                            capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert result.returncode == 2 and 'not an MCAP file' in result.stderr and 'Traceback' not in result.stderr
+
+
+def test_recover_leaves_intact_bag_alone(tmp_path):
+    write_bag(tmp_path / 'ok', 300).finish()
+    before = (tmp_path / 'ok' / 'ok_0.mcap').read_bytes()
+    report = recover_bag(tmp_path / 'ok')
+    assert report.repaired == [] and len(report.intact) == 1
+    assert (tmp_path / 'ok' / 'ok_0.mcap').read_bytes() == before
+    assert report.message_count == 300 + len(range(0, 300, 49))
