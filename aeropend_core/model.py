@@ -40,7 +40,7 @@ class RigParameters:
     back_emf_constant: float = 6.606e-4        # Kw [V s/rad], eq (9), sigma 1.38e-5
     # --- motor and propeller, chosen (not measured by the paper) ---------------------------------------------
     torque_constant: float = 6.606e-4          # Kt [N m/A]; equals Kw in SI for a DC motor (Table 1's 0.235 cannot)
-    motor_inertia: float = 4.0e-7              # Jm [kg m^2], rotor plus propeller reflected through the gear
+    motor_inertia: float = 1.5e-7              # Jm [kg m^2], rotor plus propeller reflected through the gear
     motor_friction: float = 6.5e-8             # F [N m s/rad], ~15 % of the motor torque at duty 0.7
     propeller_torque_coefficient: float = 6.0e-8  # Kd [N m s^2]: propeller drag torque Kd w2|w2| at the propeller
     gear_ratio: float = 55.0 / 9.0             # N1/N2 = w1/w2, the paper's gearbox
@@ -147,8 +147,9 @@ class RigParameters:
 #:    needs (mgd/J)/(L/J) = 0.285 N; Table 1's Kq = 1e-4 would give tens of newtons at 2 V.
 #:    The propeller torque-to-thrust ratio Kd/Kq = 0.012 m is typical of small propellers (0.01-0.02 m).
 #:  * F = 6.5e-8 N m s/rad: motor friction ~15 % of the torque at duty 0.7 (Table 1's Bm = 0.01 would stall it).
-#:  * Jm = 4e-7 kg m^2: a small coreless rotor (~1e-7) plus a ~1e-5 kg m^2 propeller seen through (9/55)^2;
-#:    gives a mechanical time constant of ~85 ms, so the electrical (2 ms) and mechanical scales stay separate.
+#:  * Jm = 1.5e-7 kg m^2: a small coreless rotor (~5e-8) plus a ~4e-6 kg m^2 propeller seen through (9/55)^2;
+#:    with the back-EMF, friction and propeller torque slopes (~1.2e-6 N m s) the motor's mechanical time
+#:    constant is ~0.12 s, so the electrical (2 ms), motor and pendulum (~0.5 s) scales stay separate.
 DEFAULT_PARAMETERS = RigParameters()
 
 #: The paper's Table 1, literally (inconsistent: Kt = 0.235 vs Kw = 6.6e-4; Kq = 1e-4 gives tens of newtons).

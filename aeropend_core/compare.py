@@ -1,0 +1,491 @@
+"""Compare a model with measurements: fit on a training part, judge on a held-out part, localise the error.
+
+Conventions (stated so nobody has to guess, NOTES.md section 3):
+
+* **fit %** is MATLAB ``compare``'s NRMSE fit of the *free-run simulation* of the angle on the held-out part:
+  ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)`` (can be negative). The simulation is driven by the measured Va
+  and Ia only; its initial angle and rate are estimated on the first second of the held-out part (like
+  ``compare``'s estimated initial conditions) and it runs free from there.
+* **k-step prediction**: the model restarted every k samples from the state estimated from the measured angle,
+  error taken exactly k samples later (k Ts seconds ahead).
+* **rms_error** [rad]: RMS of measured minus simulated angle on the held-out part; **noise_rms** [rad]: the angle's
+  measurement-noise RMS estimated from the data itself (third differences); the model error beyond the noise is
+  ``sqrt(max(rms_error^2 - noise_rms^2, 0))``.
+* Residual tests as MATLAB ``resid``: autocorrelation (whiteness) and cross-correlation with the thrust input for
+  lags up to 25 integration steps, against the 99 % band 2.58/sqrt(N).
+
+Only the armature voltage, armature current and angle columns are used; truth columns are ignored.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import savgol_filter
+
+from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
+                                        initial_states_from_data)
+from aeropend_core.motor import MotorFit, fit_motor
+from aeropend_core.preprocess import condition_inputs, noise_rms, piecewise_constant
+from aeropend_core.recording import Recording
+
+#: Fraction of the record used for training; the rest is held out.
+TRAIN_FRACTION = 0.75
+#: Target length of the multiple-shooting segments [s] (shorter ones let Ia^2 terms mimic damping).
+SEGMENT_SECONDS = 10.0
+#: Shortest record the comparison accepts [s].
+MIN_DURATION = 20.0
+#: Held-out initial state is estimated on this many seconds [s].
+HELDOUT_INITIAL_SECONDS = 1.0
+#: Horizon of the k-step prediction [s].
+PREDICTION_HORIZON = 0.1
+#: Lags of the residual tests, in integration steps (STRIDE samples).
+RESIDUAL_LAGS = 25
+#: Starting values of effect parameters, as a fraction of the catalog's typical value.
+EFFECT_START_FRACTION = 0.3
+
+
+def fit_percent(measured: np.ndarray, simulated: np.ndarray) -> float:
+    """MATLAB ``compare`` NRMSE fit [%]: 100 (1 - ||y - y_sim|| / ||y - mean(y)||)."""
+    measured, simulated = np.asarray(measured), np.asarray(simulated)
+    denominator = np.linalg.norm(measured - measured.mean())
+    if denominator == 0:
+        return float('nan')
+    return float(100.0 * (1.0 - np.linalg.norm(measured - simulated) / denominator))
+
+
+def excess_error(rms_error: float, noise: float) -> float:
+    """Model error beyond the measurement noise [rad]: sqrt(max(rms^2 - noise^2, 0))."""
+    return float(math.sqrt(max(rms_error ** 2 - noise ** 2, 0.0)))
+
+
+@dataclass
+class PreparedRecord:
+    """A validated recording with conditioned inputs and its training / held-out split.
+
+    Arrays have shape (n,): ``time`` [s], ``armature_voltage`` [V], ``armature_current`` [A], ``angle`` [rad];
+    ``voltage``/``current`` are the conditioned inputs used in the thrust term.
+    """
+
+    time: np.ndarray
+    armature_voltage: np.ndarray
+    armature_current: np.ndarray
+    angle: np.ndarray
+    sample_time: float
+    voltage: np.ndarray
+    current: np.ndarray
+    step_indices: np.ndarray
+    noise_rms: float
+    split: int
+    motor: MotorFit | None = None
+    train: SegmentedData = field(init=False)
+    heldout: SegmentedData = field(init=False)
+    full: SegmentedData = field(init=False)
+
+    def __post_init__(self) -> None:
+        n = len(self.time)
+        first = min(STEP_GUARD, n // 10)   # skip a possible step transient at the very start
+        train_segments = segment_at_steps(first, self.split, self.step_indices, self.sample_time)
+        self.train = SegmentedData(self.voltage, self.current, self.angle, train_segments, self.sample_time)
+        self.heldout = SegmentedData(self.voltage, self.current, self.angle, [(self.split, n)], self.sample_time)
+        self.full = SegmentedData(self.voltage, self.current, self.angle, train_segments + [(self.split, n)],
+                                  self.sample_time)
+
+    @property
+    def duration(self) -> float:
+        return float(self.time[-1] - self.time[0] + self.sample_time)
+
+
+#: Samples skipped at the start of the record (a step may land on sample 0 with no sample before it).
+STEP_GUARD = 8
+
+
+def segment_at_steps(start: int, stop: int, steps: np.ndarray, sample_time: float,
+                     target_seconds: float = SEGMENT_SECONDS) -> list[tuple[int, int]]:
+    """Split [start, stop) into segments of about `target_seconds`, cut just before input steps.
+
+    Cutting a few samples before a step starts each segment from a quasi-steady input, so unknown internal states
+    (a lagging thrust) start near their equilibrium.
+    """
+    target = int(round(target_seconds / sample_time))
+    cuts = [start]
+    candidates = np.asarray(steps, dtype=int) - 3
+    candidates = candidates[(candidates > start) & (candidates < stop)]
+    while stop - cuts[-1] > 1.5 * target:
+        goal = cuts[-1] + target
+        if candidates.size:
+            best = candidates[np.argmin(np.abs(candidates - goal))]
+            cut = int(best) if abs(int(best) - goal) < 0.5 * target and best > cuts[-1] + target // 2 else goal
+        else:
+            cut = goal
+        cuts.append(cut)
+    cuts.append(stop)
+    return [(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b - a > 4 * STRIDE]
+
+
+def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
+            use_motor_observer: bool = True) -> PreparedRecord:
+    """Validate a recording (only Va, Ia and angle are used) and condition it for fitting.
+
+    Raises :class:`InsufficientDataError` / :class:`AeropendError` naming the problem and what to do.
+    """
+    source = recording.source or 'the recording'
+    for name in ('armature_voltage', 'armature_current', 'angle'):
+        if name not in recording.signals:
+            raise AeropendError(f'{source} has no {name!r} column; the diagnosis needs armature_voltage [V], '
+                                f'armature_current [A] and angle [rad]')
+    time = np.asarray(recording.time, dtype=float)
+    voltage = np.asarray(recording.signals['armature_voltage'], dtype=float)
+    current = np.asarray(recording.signals['armature_current'], dtype=float)
+    angle = np.asarray(recording.signals['angle'], dtype=float)
+    for name, values in (('t', time), ('armature_voltage', voltage), ('armature_current', current),
+                         ('angle', angle)):
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise AeropendError(f'{source}: {bad.size} non-finite value(s) in {name!r} (first at sample '
+                                f'{bad[0]}); remove or interpolate them before diagnosing')
+    if time.size < 10:
+        raise InsufficientDataError(f'{source} has only {time.size} samples; record at least {MIN_DURATION:g} s')
+    steps = np.diff(time)
+    if np.any(steps <= 0):
+        k = int(np.flatnonzero(steps <= 0)[0])
+        raise AeropendError(f'{source}: time stamps are not increasing at sample {k + 1} '
+                            f'(t = {time[k]:.6f} s then {time[k + 1]:.6f} s); duplicated or reordered samples')
+    sample_time = float(np.median(steps))
+    if np.max(np.abs(steps - sample_time)) > 0.5 * sample_time:
+        k = int(np.argmax(np.abs(steps - sample_time)))
+        raise AeropendError(f'{source}: samples are not evenly spaced (gap of {steps[k]:.4f} s at t = '
+                            f'{time[k]:.3f} s, expected {sample_time:.4f} s); lost samples must be filled first')
+    duration = time[-1] - time[0]
+    if duration < MIN_DURATION:
+        raise InsufficientDataError(f'{source} lasts {duration:.1f} s; the comparison needs at least '
+                                    f'{MIN_DURATION:g} s (training and held-out parts of ~10 s segments)')
+    if np.ptp(voltage) < 0.05 * max(np.max(np.abs(voltage)), 1e-9) or np.ptp(voltage) < 1e-3:
+        raise InsufficientDataError(f'{source}: the armature voltage barely changes ({np.ptp(voltage):.3g} V '
+                                    f'peak to peak); excite the rig with duty steps (aeropend simulate / the '
+                                    f'excitation node) to identify it')
+    if np.ptp(angle) < 10 * max(noise_rms(angle), 1e-6):
+        raise InsufficientDataError(f'{source}: the angle barely moves ({np.ptp(angle):.3g} rad peak to peak); '
+                                    f'use larger duty steps')
+    conditioned = condition_inputs(voltage, current, sample_time)
+    split = int(round(train_fraction * time.size))
+    # Start the held-out part just before an input step near the nominal split (quasi-steady internal states).
+    near = conditioned.step_indices[np.abs(conditioned.step_indices - split) < int(3.0 / sample_time)]
+    if near.size:
+        split = int(near[np.argmin(np.abs(near - split))]) - 3
+    thrust_voltage, thrust_current, motor = conditioned.armature_voltage, conditioned.armature_current, None
+    stepped = piecewise_constant(voltage, conditioned.step_indices)
+    if use_motor_observer and stepped is not None:
+        motor = fit_motor(stepped, current, conditioned.step_indices, sample_time)
+        if motor.adequate:
+            # the observer's back-EMF is the thrust voltage; R is then 0 in the pendulum model
+            thrust_voltage, thrust_current = motor.back_emf, np.zeros_like(current)
+        else:
+            motor = None
+    return PreparedRecord(time=time, armature_voltage=voltage, armature_current=current, angle=angle,
+                          sample_time=sample_time, voltage=thrust_voltage, current=thrust_current,
+                          step_indices=conditioned.step_indices, noise_rms=noise_rms(angle), split=split,
+                          motor=motor)
+
+
+def initial_guess(prep: PreparedRecord) -> dict[str, float]:
+    """Starting values of the nominal parameters by an equation-error fit on smoothed derivatives.
+
+    Regresses the angle's second derivative on [sin y, dy/dt, Va^2, Va Ia, Ia^2] over the training part; R
+    follows from eq (5)'s structure (the Va Ia coefficient is -2 R times the Va^2 one). With the motor observer
+    the thrust regressor is e|e| of its back-EMF and R is 0. Only starting values.
+    """
+    window = max(7, int(round(0.1 / prep.sample_time)) | 1)
+    stop = prep.split
+    y = savgol_filter(prep.angle[:stop], window, 3)
+    dy = savgol_filter(prep.angle[:stop], window, 3, deriv=1, delta=prep.sample_time)
+    ddy = savgol_filter(prep.angle[:stop], window, 3, deriv=2, delta=prep.sample_time)
+    va, ia = prep.voltage[:stop], prep.current[:stop]
+    keep = slice(window, stop - window)
+    if prep.motor is not None:
+        regressors = np.column_stack([-np.sin(y), -dy, va * np.abs(va)])
+        (gravity, damping, gain), *_ = np.linalg.lstsq(regressors[keep], ddy[keep], rcond=None)
+        resistance = 0.0
+    else:
+        regressors = np.column_stack([-np.sin(y), -dy, va * va, va * ia, ia * ia])
+        (gravity, damping, gain, k_vi, _), *_ = np.linalg.lstsq(regressors[keep], ddy[keep], rcond=None)
+        resistance = -k_vi / (2 * gain) if gain > 0 else float('nan')
+        if not 0.05 < resistance < 20:
+            resistance = 1.0
+    if not (gain > 0 and gravity > 0):
+        # The regression is only a start; fall back to a gravity/thrust balance if it is implausible.
+        e = va - resistance * ia
+        thrust = e * np.abs(e)
+        gravity = gravity if gravity > 0 else 100.0
+        gain = float(np.dot(np.sin(y), thrust) / max(np.dot(thrust, thrust), 1e-12) * gravity)
+    damping = damping if damping > 0 else 0.1 * math.sqrt(gravity)
+    return {'gravity_stiffness': float(gravity), 'damping': float(damping), 'thrust_gain': float(max(gain, 1e-6)),
+            'thrust_resistance': float(resistance)}
+
+
+def effect_start_values(effects: Sequence[str]) -> dict[str, float]:
+    """Starting values of effect parameters (a fraction of the catalog's typical value; 0 offset)."""
+    from aeropend_core.effects import get_effect
+    start = {}
+    for name in effects:
+        for parameter in get_effect(name).parameters:
+            value = parameter.typical * EFFECT_START_FRACTION
+            if parameter.name == 'offset':
+                value = 0.0
+            start[parameter.name] = float(np.clip(value, parameter.lower, parameter.upper))
+    return start
+
+
+def dead_zone_thresholds(prep: PreparedRecord, max_candidates: int = 16) -> np.ndarray:
+    """Candidate dead-zone thresholds [V]: midpoints between the distinct held input levels in the data."""
+    bounds = np.concatenate(([0], prep.step_indices, [len(prep.voltage)]))
+    levels = np.array([np.median(prep.armature_voltage[a:b]) for a, b in zip(bounds[:-1], bounds[1:]) if b > a])
+    levels = np.unique(np.round(levels[levels > 0.05], 3))
+    if levels.size < 2:
+        return np.zeros(0)
+    mids = 0.5 * (levels[1:] + levels[:-1])
+    mids = np.concatenate(([levels[0] * 0.5], mids))
+    mids = mids[mids < 0.75 * levels.max()]     # a dead zone above most of the data would leave nothing to fit
+    if mids.size > max_candidates:
+        mids = mids[np.linspace(0, mids.size - 1, max_candidates).round().astype(int)]
+    return mids
+
+
+def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str, float] | None = None,
+              data: SegmentedData | None = None) -> OutputErrorFit:
+    """Output-error fit of nominal + `effects` on the training segments (or `data`).
+
+    A dead zone's threshold is profiled over the input levels present (the residual is flat between them).
+    """
+    structure = Structure(tuple(effects))
+    data = data if data is not None else prep.train
+    values = dict(initial_guess(prep))
+    fixed_base = {'thrust_resistance': 0.0} if prep.motor is not None else {}
+    values.update(effect_start_values(effects))
+    if start:
+        values.update({k: v for k, v in start.items() if k in structure.parameter_names})
+    if 'dead_zone' not in effects:
+        return fit_output_error(data, structure, values, fixed=fixed_base)
+    thresholds = dead_zone_thresholds(prep)
+    if thresholds.size == 0:
+        raise InsufficientDataError('a dead zone needs steps at several small duty levels; none are in the data')
+    # Profile: rank thresholds with the other parameters at their start values, then refit the best few.
+    fixed_scores = []
+    for threshold in thresholds:
+        fit = fit_output_error(data, structure, values, fixed={**fixed_base, 'threshold_voltage': threshold},
+                               max_iterations=4)
+        fixed_scores.append(fit.residual_rms)
+    order = np.argsort(fixed_scores)[:3]
+    best = None
+    for index in order:
+        fit = fit_output_error(data, structure, values, fixed={**fixed_base, 'threshold_voltage': thresholds[index]})
+        if best is None or fit.residual_rms < best.residual_rms:
+            best = fit
+    levels_below = thresholds[thresholds < best.parameters['threshold_voltage']]
+    best.extra['threshold_interval'] = (float(levels_below.max()) if levels_below.size else 0.0,
+                                        best.parameters['threshold_voltage'])
+    return best
+
+
+@dataclass
+class Evaluation:
+    """How well a fitted model reproduces the held-out data, and where it fails (all angles in rad)."""
+
+    fit_percent: float
+    rms_error: float
+    noise_rms: float
+    prediction_rms: float
+    prediction_horizon: float
+    simulated: np.ndarray                      # (n,) simulated angle over the whole record (train segments + held-out)
+    residual_autocorrelation: np.ndarray       # (lags+1,)
+    residual_input_correlation: np.ndarray     # (2 lags+1,), lags -L..L in integration steps
+    correlation_band: float
+    lag_seconds: np.ndarray
+    regimes: dict[str, dict[str, float]]
+    worst_windows: list[dict[str, float | str]]
+
+    @property
+    def excess_error(self) -> float:
+        """Model error beyond the noise [rad]."""
+        return excess_error(self.rms_error, self.noise_rms)
+
+    @property
+    def whiteness_violations(self) -> int:
+        """Lags (excluding 0) where the residual autocorrelation leaves the 99 % band."""
+        return int(np.sum(np.abs(self.residual_autocorrelation[1:]) > self.correlation_band))
+
+
+def _heldout_simulation(prep: PreparedRecord, fit: OutputErrorFit) -> np.ndarray:
+    """Free-run simulation over the held-out part, initial state estimated on its first second."""
+    structure = fit.structure
+    start, stop = prep.split, len(prep.time)
+    head = min(stop, start + int(round(HELDOUT_INITIAL_SECONDS / prep.sample_time)))
+    fixed = dict(fit.parameters)
+    head_data = SegmentedData(prep.voltage, prep.current, prep.angle, [(start, head)], prep.sample_time)
+    ic_fit = fit_output_error(head_data, structure, fixed, fixed=fixed, max_iterations=30)
+    return prep.heldout.simulate(structure, structure.row(fit.parameters)[None],
+                                 ic_fit.initial_states[None])[0]
+
+
+def _k_step_prediction(prep: PreparedRecord, fit: OutputErrorFit, horizon: float) -> tuple[np.ndarray, np.ndarray]:
+    """Predictions exactly k samples ahead on the held-out part: (indices, predicted angle)."""
+    k = max(STRIDE, int(round(horizon / prep.sample_time / STRIDE)) * STRIDE)
+    starts = np.arange(prep.split, len(prep.time) - k - STRIDE, k + STRIDE)
+    if starts.size == 0:
+        return np.zeros(0, dtype=int), np.zeros(0)
+    segments = [(int(s), int(s) + k + STRIDE) for s in starts]
+    data = SegmentedData(prep.voltage, prep.current, prep.angle, segments, prep.sample_time)
+    window = max(7, int(round(0.1 / prep.sample_time)) | 1)
+    smooth = savgol_filter(prep.angle, window, 3)
+    rate = savgol_filter(prep.angle, window, 3, deriv=1, delta=prep.sample_time)
+    offset = fit.parameters.get('offset', 0.0)
+    initial = np.column_stack([smooth[starts] - offset, rate[starts]])
+    predicted = data.simulate(fit.structure, fit.structure.row(fit.parameters)[None], initial[None])[0]
+    return starts + k, predicted[starts + k]
+
+
+def _correlation(a: np.ndarray, b: np.ndarray, lags: int) -> np.ndarray:
+    """Normalised cross-correlation of a(t) with b(t - lag) for lag in [-lags, lags]."""
+    a = a - a.mean()
+    b = b - b.mean()
+    scale = math.sqrt(float(np.dot(a, a) * np.dot(b, b))) or 1.0
+    n = len(a)
+    out = np.empty(2 * lags + 1)
+    for i, lag in enumerate(range(-lags, lags + 1)):
+        if lag >= 0:
+            out[i] = np.dot(a[lag:], b[:n - lag]) / scale
+        else:
+            out[i] = np.dot(a[:n + lag], b[-lag:]) / scale
+    return out
+
+
+def regime_masks(prep: PreparedRecord) -> dict[str, np.ndarray]:
+    """Boolean masks (n,) of the operating regimes in which errors are localised."""
+    window = max(7, int(round(0.1 / prep.sample_time)) | 1)
+    angle = savgol_filter(prep.angle, window, 3)
+    rate = savgol_filter(prep.angle, window, 3, deriv=1, delta=prep.sample_time)
+    n = len(angle)
+    since_step = np.full(n, np.inf)
+    for k in prep.step_indices:
+        since_step[k:] = np.minimum(since_step[k:], (np.arange(k, n) - k) * prep.sample_time)
+    speed_scale = np.percentile(np.abs(rate), 95)
+    angle_span = np.percentile(angle, 95) - np.percentile(angle, 5)
+    low_angle, high_angle = np.percentile(angle, [5, 95])
+    voltage_scale = np.percentile(prep.armature_voltage, 95)
+    return {
+        'near direction reversals of the rod (|rate| < 5 % of its range)': np.abs(rate) < 0.05 * speed_scale,
+        'large angle (top 25 % of the range)': angle > high_angle - 0.25 * angle_span,
+        'small angle (bottom 25 % of the range)': angle < low_angle + 0.25 * angle_span,
+        'within 0.5 s after an input step': since_step < 0.5,
+        'steady input (> 0.5 s after a step)': since_step >= 0.5,
+        'low thrust (Va < 30 % of its range)': prep.armature_voltage < 0.3 * voltage_scale,
+        'rising (rate > 0)': rate > 0.05 * speed_scale,
+        'falling (rate < 0)': rate < -0.05 * speed_scale,
+    }
+
+
+def evaluate(prep: PreparedRecord, fit: OutputErrorFit) -> Evaluation:
+    """Held-out simulation fit, k-step prediction, residual tests and error localisation for a fitted model."""
+    start, stop = prep.split, len(prep.time)
+    heldout = _heldout_simulation(prep, fit)
+    index = prep.heldout.residual_index
+    measured, simulated = prep.angle[index], heldout[index]
+    residual = measured - simulated
+    rms = float(np.sqrt(np.mean(residual ** 2)))
+    # Whole-record simulation for plots and regimes: training segments with their fitted initial states.
+    full = np.full(stop, np.nan)
+    train_sim = prep.train.simulate(fit.structure, fit.structure.row(fit.parameters)[None],
+                                    fit.initial_states[None])[0]
+    full[prep.train.residual_index] = train_sim[prep.train.residual_index]
+    full[index] = simulated
+    predicted_index, predicted = _k_step_prediction(prep, fit, PREDICTION_HORIZON)
+    prediction_rms = float(np.sqrt(np.mean((prep.angle[predicted_index] - predicted) ** 2))) \
+        if predicted.size else float('nan')
+    e = prep.voltage - fit.parameters['thrust_resistance'] * prep.current
+    thrust_input = (e * np.abs(e))[index]
+    autocorrelation = _correlation(residual, residual, RESIDUAL_LAGS)[RESIDUAL_LAGS:]
+    cross = _correlation(residual, thrust_input, RESIDUAL_LAGS)
+    band = 2.58 / math.sqrt(len(residual))
+    lags = np.arange(-RESIDUAL_LAGS, RESIDUAL_LAGS + 1) * STRIDE * prep.sample_time
+    # Error localisation over the whole record (both parts) where a simulation exists.
+    available = np.isfinite(full)
+    error = np.where(available, prep.angle - np.nan_to_num(full), np.nan)
+    overall = float(np.sqrt(np.nanmean(error ** 2)))
+    regimes = {}
+    for name, mask in regime_masks(prep).items():
+        selected = mask & available
+        if selected.sum() < 20:
+            continue
+        value = float(np.sqrt(np.mean(error[selected] ** 2)))
+        regimes[name] = {'rms_error': value, 'ratio_to_overall': value / overall if overall else float('nan'),
+                         'fraction_of_samples': float(selected.sum() / available.sum())}
+    worst = _worst_windows(prep, error)
+    return Evaluation(fit_percent=fit_percent(measured, simulated), rms_error=rms, noise_rms=prep.noise_rms,
+                      prediction_rms=prediction_rms, prediction_horizon=PREDICTION_HORIZON, simulated=full,
+                      residual_autocorrelation=autocorrelation, residual_input_correlation=cross,
+                      correlation_band=band, lag_seconds=lags, regimes=regimes, worst_windows=worst)
+
+
+def _worst_windows(prep: PreparedRecord, error: np.ndarray, width: float = 1.0, count: int = 5) -> list[dict]:
+    """The `count` one-second windows with the largest RMS error, with what the input was doing."""
+    n = int(round(width / prep.sample_time))
+    windows = []
+    for start in range(0, len(error) - n + 1, n):
+        piece = error[start:start + n]
+        finite = np.isfinite(piece)
+        if finite.sum() < n // 4:
+            continue
+        steps_inside = prep.step_indices[(prep.step_indices >= start) & (prep.step_indices < start + n)]
+        va = prep.armature_voltage[start:start + n]
+        if steps_inside.size:
+            k = int(steps_inside[0])
+            before = float(np.median(prep.armature_voltage[max(k - 20, 0):k])) if k > 0 else 0.0
+            after = float(np.median(prep.armature_voltage[k:k + 20]))
+            doing = f'step {"up" if after > before else "down"} {before:.2f} V -> {after:.2f} V'
+        else:
+            doing = f'steady at {np.median(va):.2f} V'
+        windows.append({'start': float(prep.time[start]), 'stop': float(prep.time[min(start + n, len(error) - 1)]),
+                        'rms_error': float(np.sqrt(np.nanmean(piece ** 2))), 'input': doing,
+                        'part': 'held-out' if start >= prep.split else 'training'})
+    windows.sort(key=lambda w: -w['rms_error'])
+    return windows[:count]
+
+
+@dataclass
+class Comparison:
+    """A fitted model (nominal + effects) and its evaluation on the held-out data."""
+
+    effects: tuple[str, ...]
+    fit: OutputErrorFit
+    evaluation: Evaluation
+
+    @property
+    def parameters(self) -> dict[str, float]:
+        return self.fit.parameters
+
+    @property
+    def fit_percent(self) -> float:
+        return self.evaluation.fit_percent
+
+    @property
+    def rms_error(self) -> float:
+        return self.evaluation.rms_error
+
+    @property
+    def noise_rms(self) -> float:
+        return self.evaluation.noise_rms
+
+
+def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
+            start: dict[str, float] | None = None) -> Comparison:
+    """Fit nominal + `effects` on the training part and evaluate on the held-out part (see module docstring)."""
+    prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
+    fit = fit_model(prep, effects, start)
+    return Comparison(tuple(effects), fit, evaluate(prep, fit))
+
+
+__all__ = ['PreparedRecord', 'Comparison', 'Evaluation', 'prepare', 'compare', 'fit_model', 'evaluate',
+           'fit_percent', 'excess_error', 'initial_states_from_data']

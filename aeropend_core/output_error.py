@@ -1,0 +1,488 @@
+"""Output-error fit of the pendulum equation driven by the measured Va and Ia (multiple shooting).
+
+The model simulated here is what can be known from the rig's three signals::
+
+    dy/dt = W
+    dW/dt = -a sin y - b W + g(Va) k e|e|  (+ pendulum effects),   e = Va - R Ia   (eq 5 in volts)
+    measured angle = y (+ offset)
+
+with a = mgd/J [1/s^2], b = c/J [1/s], k = (L/J) Kq (N2/(N1 Kw))^2 [rad/s^2 per V^2] and R the armature
+resistance [ohm] (fitted too: eq 5's thrust vanishes at Va = R Ia). A thrust lag filters k e|e| through a
+first-order lag; a dead zone gates it by Va.
+
+The angle is simulated free-running from the measured inputs (no angle feedback) over segments of ~10 s, each with
+its own fitted initial angle and rate; parameters come from :func:`scipy.optimize.least_squares` (trust region)
+with a Jacobian by forward differences computed as one batched simulation. Built-in effects run in a compiled
+(numba) kernel; a user's own pendulum effect runs in a vectorised numpy loop that implements the same scheme.
+
+Integration: classical RK4 with step 2 Ts, so the input at the half step is an actual sample.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+from scipy.optimize import least_squares
+from threadpoolctl import threadpool_limits
+
+from aeropend_core.effects import PENDULUM, get_effect
+from aeropend_core.errors import AeropendError, InsufficientDataError
+
+#: Nominal parameters of the pendulum equation, their units and meanings.
+NOMINAL_PARAMETERS = {
+    'gravity_stiffness': ('1/s^2', 'mgd/J, gravity term per unit sin(angle)'),
+    'damping': ('1/s', 'c/J, viscous damping of the pivot'),
+    'thrust_gain': ('rad/s^2/V^2', '(L/J) Kq (N2/(N1 Kw))^2, thrust term per (Va - R Ia)^2'),
+    'thrust_resistance': ('ohm', 'R in Va - R Ia: armature resistance as seen by the thrust'),
+}
+#: Column of each built-in parameter in the kernel's parameter row.
+BUILTIN_COLUMNS = {'gravity_stiffness': 0, 'damping': 1, 'thrust_gain': 2, 'thrust_resistance': 3,
+                   'friction_acceleration': 4, 'drag_coefficient': 5, 'cable_stiffness': 6, 'offset': 7,
+                   'time_constant': 8, 'threshold_voltage': 9}
+BUILTIN_EFFECT_PARAMETER = {'coulomb_friction': 'friction_acceleration', 'quadratic_drag': 'drag_coefficient',
+                            'cable_torque': 'cable_stiffness', 'angle_offset': 'offset',
+                            'thrust_lag': 'time_constant', 'dead_zone': 'threshold_voltage'}
+N_BUILTIN = 10
+#: Samples per integration step (RK4 half step lands on a sample).
+STRIDE = 2
+#: Parameters that are profiled on a grid instead of fitted by gradient (the residual is piecewise constant).
+PROFILED = ('threshold_voltage',)
+#: Smallest thrust-lag time constant the explicit RK4 step handles [s].
+MIN_TIME_CONSTANT = 0.005
+
+
+@numba.njit(cache=True, nogil=True)
+def _simulate_kernel(theta, voltage, current, seg_start, seg_stop, initial, sample_time, lag_on, gate_on, out):
+    """RK4 free-run of every parameter row over every segment; writes predicted measured angle into `out`."""
+    h = STRIDE * sample_time
+    n_rows = theta.shape[0]
+    for row in range(n_rows):
+        a = theta[row, 0]
+        b = theta[row, 1]
+        k = theta[row, 2]
+        r = theta[row, 3]
+        fc = theta[row, 4]
+        cd = theta[row, 5]
+        kc = theta[row, 6]
+        offset = theta[row, 7]
+        tau = max(theta[row, 8], MIN_TIME_CONSTANT)
+        vth = theta[row, 9]
+        smooth = max(0.02, fc * h)
+        for s in range(seg_start.shape[0]):
+            start = seg_start[s]
+            stop = seg_stop[s]
+            y = initial[row, s, 0]
+            w = initial[row, s, 1]
+            e = voltage[start] - r * current[start]
+            f = k * e * abs(e)
+            if gate_on and voltage[start] < vth:
+                f = 0.0
+            i = start
+            while True:
+                out[row, i] = y + offset
+                if i + STRIDE >= stop:
+                    break
+                # thrust input at t, t + h/2, t + h
+                u0 = 0.0
+                u1 = 0.0
+                u2 = 0.0
+                for j in range(3):
+                    idx = i + j
+                    e = voltage[idx] - r * current[idx]
+                    u = k * e * abs(e)
+                    if gate_on and voltage[idx] < vth:
+                        u = 0.0
+                    if j == 0:
+                        u0 = u
+                    elif j == 1:
+                        u1 = u
+                    else:
+                        u2 = u
+                # RK4 on (y, w, f)
+                t1 = f if lag_on else u0
+                dy1 = w
+                dw1 = -a * math.sin(y) - b * w + t1 - fc * math.tanh(w / smooth) - cd * w * abs(w) - kc * y
+                df1 = (u0 - f) / tau
+                y2 = y + 0.5 * h * dy1
+                w2 = w + 0.5 * h * dw1
+                f2 = f + 0.5 * h * df1
+                t2 = f2 if lag_on else u1
+                dy2 = w2
+                dw2 = -a * math.sin(y2) - b * w2 + t2 - fc * math.tanh(w2 / smooth) - cd * w2 * abs(w2) - kc * y2
+                df2 = (u1 - f2) / tau
+                y3 = y + 0.5 * h * dy2
+                w3 = w + 0.5 * h * dw2
+                f3 = f + 0.5 * h * df2
+                t3 = f3 if lag_on else u1
+                dy3 = w3
+                dw3 = -a * math.sin(y3) - b * w3 + t3 - fc * math.tanh(w3 / smooth) - cd * w3 * abs(w3) - kc * y3
+                df3 = (u1 - f3) / tau
+                y4 = y + h * dy3
+                w4 = w + h * dw3
+                f4 = f + h * df3
+                t4 = f4 if lag_on else u2
+                dy4 = w4
+                dw4 = -a * math.sin(y4) - b * w4 + t4 - fc * math.tanh(w4 / smooth) - cd * w4 * abs(w4) - kc * y4
+                df4 = (u2 - f4) / tau
+                y = y + h / 6.0 * (dy1 + 2.0 * dy2 + 2.0 * dy3 + dy4)
+                w = w + h / 6.0 * (dw1 + 2.0 * dw2 + 2.0 * dw3 + dw4)
+                if lag_on:
+                    f = f + h / 6.0 * (df1 + 2.0 * df2 + 2.0 * df3 + df4)
+                i += STRIDE
+
+
+def _simulate_numpy(theta, voltage, current, seg_start, seg_stop, initial, sample_time, lag_on, gate_on, out,
+                    user_terms):
+    """The kernel's scheme in numpy, vectorised over parameter rows; also runs users' pendulum effects.
+
+    `user_terms` is a list of ``(function, {parameter name: column})``.
+    """
+    h = STRIDE * sample_time
+    a, b, k, r, fc, cd, kc, offset = (theta[:, c] for c in range(8))
+    tau = np.maximum(theta[:, 8], MIN_TIME_CONSTANT)
+    vth = theta[:, 9]
+    smooth = np.maximum(0.02, fc * h)
+
+    def thrust(idx):
+        e = voltage[idx] - r * current[idx]
+        u = k * e * np.abs(e)
+        return np.where(voltage[idx] < vth, 0.0, u) if gate_on else u
+
+    def accel(y, w, t):
+        value = -a * np.sin(y) - b * w + t - fc * np.tanh(w / smooth) - cd * w * np.abs(w) - kc * y
+        for function, columns in user_terms:
+            value = value + function(y, w, **{name: theta[:, c] for name, c in columns.items()})
+        return value
+
+    for s in range(len(seg_start)):
+        start, stop = int(seg_start[s]), int(seg_stop[s])
+        y, w = initial[:, s, 0].copy(), initial[:, s, 1].copy()
+        f = thrust(start)
+        i = start
+        while True:
+            out[:, i] = y + offset
+            if i + STRIDE >= stop:
+                break
+            u0, u1, u2 = thrust(i), thrust(i + 1), thrust(i + 2)
+            t1 = f if lag_on else u0
+            dy1, dw1, df1 = w, accel(y, w, t1), (u0 - f) / tau
+            y2, w2, f2 = y + 0.5 * h * dy1, w + 0.5 * h * dw1, f + 0.5 * h * df1
+            dy2, dw2, df2 = w2, accel(y2, w2, f2 if lag_on else u1), (u1 - f2) / tau
+            y3, w3, f3 = y + 0.5 * h * dy2, w + 0.5 * h * dw2, f + 0.5 * h * df2
+            dy3, dw3, df3 = w3, accel(y3, w3, f3 if lag_on else u1), (u1 - f3) / tau
+            y4, w4, f4 = y + h * dy3, w + h * dw3, f + h * df3
+            dy4, dw4, df4 = w4, accel(y4, w4, f4 if lag_on else u2), (u2 - f4) / tau
+            y = y + h / 6.0 * (dy1 + 2 * dy2 + 2 * dy3 + dy4)
+            w = w + h / 6.0 * (dw1 + 2 * dw2 + 2 * dw3 + dw4)
+            if lag_on:
+                f = f + h / 6.0 * (df1 + 2 * df2 + 2 * df3 + df4)
+            i += STRIDE
+
+
+@dataclass(frozen=True)
+class Structure:
+    """Which effects the pendulum model has, and how their parameters map onto the simulation row."""
+
+    effects: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in self.effects:
+            effect = get_effect(name)
+            if not effect.builtin and effect.kind != PENDULUM:
+                raise AeropendError(f'effect {name!r}: only pendulum-kind user effects can be fitted '
+                                    f'(it is {effect.kind!r})')
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """All physical parameter names, nominal first (effect parameters keep their catalog names)."""
+        names = list(NOMINAL_PARAMETERS)
+        for name in self.effects:
+            names.extend(get_effect(name).parameter_names)
+        return tuple(names)
+
+    @property
+    def lag_on(self) -> bool:
+        return 'thrust_lag' in self.effects
+
+    @property
+    def gate_on(self) -> bool:
+        return 'dead_zone' in self.effects
+
+    def user_terms(self) -> list[tuple]:
+        """User (non-built-in) effects with the row column of each of their parameters."""
+        terms, column = [], N_BUILTIN
+        for name in self.effects:
+            effect = get_effect(name)
+            if effect.builtin:
+                continue
+            columns = {}
+            for parameter in effect.parameter_names:
+                columns[parameter] = column
+                column += 1
+            terms.append((effect.function, columns))
+        return terms
+
+    def row(self, values: dict[str, float]) -> np.ndarray:
+        """The simulation row for a parameter dict (absent effects contribute zeros)."""
+        terms = self.user_terms()
+        width = N_BUILTIN + sum(len(columns) for _, columns in terms)
+        row = np.zeros(width)
+        for name, value in values.items():
+            if name in BUILTIN_COLUMNS:
+                row[BUILTIN_COLUMNS[name]] = value
+        for _, columns in terms:
+            for name, column in columns.items():
+                row[column] = values[name]
+        return row
+
+
+@dataclass
+class SegmentedData:
+    """Conditioned inputs and measured angle with the segments to simulate.
+
+    Attributes
+    ----------
+    voltage, current : ndarray, shape (n,)
+        Conditioned Va [V], Ia [A] (see :mod:`aeropend_core.preprocess`).
+    angle : ndarray, shape (n,)
+        Measured angle [rad].
+    segments : list of (start, stop)
+        Sample ranges simulated independently, each with its own initial state.
+    sample_time : float
+        Ts [s].
+    """
+
+    voltage: np.ndarray
+    current: np.ndarray
+    angle: np.ndarray
+    segments: list[tuple[int, int]]
+    sample_time: float
+
+    def __post_init__(self) -> None:
+        starts = np.array([s for s, _ in self.segments], dtype=np.int64)
+        stops = np.array([e for _, e in self.segments], dtype=np.int64)
+        if len(starts) == 0 or np.any(stops - starts < 4 * STRIDE):
+            raise InsufficientDataError('each segment needs at least a few samples; give a longer record')
+        self.seg_start, self.seg_stop = starts, stops
+        # Residuals are taken where the integrator lands: every STRIDE-th sample of each segment.
+        self.residual_index = np.concatenate([np.arange(s, e, STRIDE) for s, e in self.segments])
+        self.segment_of_residual = np.concatenate([np.full(len(range(s, e, STRIDE)), i)
+                                                   for i, (s, e) in enumerate(self.segments)])
+
+    def simulate(self, structure: Structure, rows: np.ndarray, initial: np.ndarray) -> np.ndarray:
+        """Predicted measured angle for each row: array (n_rows, n); NaN outside the residual samples."""
+        rows = np.atleast_2d(np.asarray(rows, dtype=float))
+        initial = np.asarray(initial, dtype=float).reshape(len(rows), len(self.segments), 2)
+        out = np.full((len(rows), len(self.angle)), np.nan)
+        terms = structure.user_terms()
+        if terms:
+            _simulate_numpy(rows, self.voltage, self.current, self.seg_start, self.seg_stop, initial,
+                            self.sample_time, structure.lag_on, structure.gate_on, out, terms)
+        else:
+            _simulate_kernel(rows, self.voltage, self.current, self.seg_start, self.seg_stop, initial,
+                             self.sample_time, structure.lag_on, structure.gate_on, out)
+        return out
+
+
+@dataclass
+class OutputErrorFit:
+    """Result of :func:`fit_output_error`. Parameter dicts are SI (see :data:`NOMINAL_PARAMETERS` and the catalog).
+
+    ``standard_errors`` are 1-sigma from the Gauss-Newton covariance, inflated for residual correlation.
+    ``correlation`` is the parameter correlation matrix in ``free_names`` order.
+    """
+
+    structure: Structure
+    parameters: dict[str, float]
+    standard_errors: dict[str, float]
+    initial_states: np.ndarray
+    residual_rms: float
+    n_residuals: int
+    n_free: int
+    free_names: tuple[str, ...]
+    correlation: np.ndarray
+    effective_samples: float
+    success: bool
+    message: str = ''
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def bic(self) -> float:
+        """Bayesian information criterion with the effective number of independent residuals."""
+        n = self.effective_samples
+        return float(n * math.log(max(self.residual_rms, 1e-300) ** 2) + self.n_free * math.log(n))
+
+
+def initial_states_from_data(data: SegmentedData, offset: float = 0.0) -> np.ndarray:
+    """Initial (angle, rate) per segment from the measured angle: local line fit over the first 40 ms."""
+    states = np.zeros((len(data.segments), 2))
+    window = max(3, int(round(0.04 / data.sample_time)))
+    for s, (start, stop) in enumerate(data.segments):
+        piece = data.angle[start:min(start + window, stop)] - offset
+        t = np.arange(piece.size) * data.sample_time
+        slope, intercept = np.polyfit(t, piece, 1)
+        states[s] = intercept, slope
+    return states
+
+
+def _default_scale(name: str, value: float) -> float:
+    typical = {'gravity_stiffness': 100.0, 'damping': 10.0, 'thrust_gain': 100.0, 'thrust_resistance': 1.0,
+               'offset': 0.05, 'time_constant': 0.1}
+    return max(abs(value), typical.get(name, 1.0) * 0.1, 1e-6)
+
+
+def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str, float],
+                     fixed: dict[str, float] | None = None, max_iterations: int = 60) -> OutputErrorFit:
+    """Fit the parameters of `structure` and the segments' initial states to the measured angle.
+
+    Parameters
+    ----------
+    data : SegmentedData
+    structure : Structure
+    start : dict
+        Starting values for every parameter in ``structure.parameter_names`` (SI).
+    fixed : dict, optional
+        Parameters held at given values (e.g. a profiled dead-zone threshold).
+    """
+    fixed = dict(fixed or {})
+    names = structure.parameter_names
+    missing = [n for n in names if n not in start and n not in fixed]
+    if missing:
+        raise ValueError(f'no starting value for {missing}')
+    free = tuple(n for n in names if n not in fixed)
+    scale = np.array([_default_scale(n, start[n]) for n in free])
+    lower, upper = _bounds(free)
+    x0 = np.clip(np.array([start[n] for n in free]), lower + 1e-9 * scale, upper - 1e-9 * scale) / scale
+    n_seg = len(data.segments)
+    initial0 = initial_states_from_data(data, start.get('offset', fixed.get('offset', 0.0)))
+    ic_scale = np.array([0.1, 1.0])
+    z0 = np.concatenate([x0, (initial0 / ic_scale).ravel()])
+    base_values = {n: fixed.get(n, start.get(n)) for n in names}
+    residual_index = data.residual_index
+    measured = data.angle[residual_index]
+    n_free = len(free)
+
+    def unpack(z):
+        values = dict(base_values)
+        values.update(zip(free, z[:n_free] * scale))
+        return values, z[n_free:].reshape(n_seg, 2) * ic_scale
+
+    def rows_for(zs):
+        rows, initials = [], []
+        for z in zs:
+            values, initial = unpack(z)
+            rows.append(structure.row(values))
+            initials.append(initial)
+        return np.array(rows), np.array(initials)
+
+    cache = {}
+
+    def residuals(z):
+        key = z.tobytes()
+        if key not in cache:
+            rows, initials = rows_for([z])
+            cache.clear()
+            cache[key] = data.simulate(structure, rows, initials)[0, residual_index] - measured
+        return cache[key]
+
+    def jacobian(z):
+        r0 = residuals(z)
+        step = 1e-6 * np.maximum(np.abs(z), 1.0)
+        perturbed = [z.copy() for _ in range(n_free + 2)]
+        for i in range(n_free):
+            perturbed[i][i] += step[i]
+        # one row perturbs every segment's initial angle, one every initial rate: segments are independent
+        ic_angle = n_free + 2 * np.arange(n_seg)
+        perturbed[n_free][ic_angle] += step[ic_angle]
+        perturbed[n_free + 1][ic_angle + 1] += step[ic_angle + 1]
+        rows, initials = rows_for(perturbed)
+        predictions = data.simulate(structure, rows, initials)[:, residual_index] - measured
+        jac = np.zeros((len(r0), len(z)))
+        for i in range(n_free):
+            jac[:, i] = (predictions[i] - r0) / step[i]
+        seg = data.segment_of_residual
+        for j in range(2):
+            delta = (predictions[n_free + j] - r0)
+            columns = n_free + 2 * seg + j
+            jac[np.arange(len(r0)), columns] = delta / step[columns]
+        return jac
+
+    lower_z = np.concatenate([lower / scale, np.full(2 * n_seg, -np.inf)])
+    upper_z = np.concatenate([upper / scale, np.full(2 * n_seg, np.inf)])
+    # Small dense problems: multithreaded BLAS only adds contention (10x slower SVDs on a busy 2-core machine).
+    with np.errstate(all='ignore'), threadpool_limits(1):
+        result = least_squares(residuals, z0, jac=jacobian, bounds=(lower_z, upper_z), method='trf',
+                               x_scale='jac', max_nfev=max_iterations, xtol=1e-8, ftol=1e-8)
+    values, initial = unpack(result.x)
+    r = result.fun
+    n = len(r)
+    rms = float(np.sqrt(np.mean(r ** 2)))
+    effective = _effective_samples(r)
+    jac = result.jac
+    p = jac.shape[1]
+    dof_sigma2 = float(np.sum(r ** 2) / max(n - p, 1))
+    try:
+        covariance_z = np.linalg.pinv(jac.T @ jac) * dof_sigma2 * (n / effective)
+    except np.linalg.LinAlgError:  # pragma: no cover - pinv rarely fails
+        covariance_z = np.full((p, p), np.nan)
+    cov = covariance_z[:n_free, :n_free] * np.outer(scale, scale)
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(invalid='ignore', divide='ignore'):
+        correlation = cov / np.outer(sd, sd)
+    errors = {name: float(s) for name, s in zip(free, sd)}
+    errors.update({name: 0.0 for name in fixed})
+    parameters = {name: float(values[name]) for name in names}
+    return OutputErrorFit(structure=structure, parameters=parameters, standard_errors=errors,
+                          initial_states=initial, residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg,
+                          free_names=free, correlation=correlation, effective_samples=effective,
+                          success=bool(result.success), message=str(result.message))
+
+
+def _bounds(free: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+    lower, upper = [], []
+    for name in free:
+        if name in ('offset',):
+            lo, hi = -0.5, 0.5
+        elif name == 'time_constant':
+            lo, hi = MIN_TIME_CONSTANT, 5.0
+        elif name in NOMINAL_PARAMETERS:
+            lo, hi = (0.0, np.inf) if name != 'thrust_resistance' else (0.0, 20.0)
+        else:
+            bounds = _catalog_bounds(name)
+            lo, hi = bounds
+        lower.append(lo)
+        upper.append(hi)
+    return np.array(lower, dtype=float), np.array(upper, dtype=float)
+
+
+def _catalog_bounds(parameter: str) -> tuple[float, float]:
+    from aeropend_core.effects import CATALOG
+    for effect in CATALOG.values():
+        for p in effect.parameters:
+            if p.name == parameter:
+                return p.lower, p.upper
+    return -np.inf, np.inf
+
+
+def _effective_samples(residuals: np.ndarray) -> float:
+    """Number of effectively independent residuals, from the lag-1 autocorrelation (AR(1) approximation)."""
+    r = residuals - residuals.mean()
+    denominator = float(np.dot(r, r))
+    if denominator <= 0:
+        return float(len(r))
+    rho = float(np.dot(r[1:], r[:-1]) / denominator)
+    rho = min(max(rho, 0.0), 0.999)
+    return float(len(r) * (1 - rho) / (1 + rho))
+
+
+def simulate_angle(data: SegmentedData, fit_parameters: dict[str, float], structure: Structure,
+                   initial: np.ndarray) -> np.ndarray:
+    """Predicted measured angle [rad] over `data`'s segments (NaN where the integrator does not land)."""
+    return data.simulate(structure, structure.row(fit_parameters)[None, :], initial[None])[0]
+
+
+__all__ = ['NOMINAL_PARAMETERS', 'Structure', 'SegmentedData', 'OutputErrorFit', 'fit_output_error',
+           'simulate_angle', 'initial_states_from_data']
