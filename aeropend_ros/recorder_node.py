@@ -58,11 +58,6 @@ from aeropend_core.errors import AeropendError
 from aeropend_ros import topics as contract
 
 DEFAULT_TOPICS = [contract.SAMPLES_TOPIC, contract.DUTY_COMMAND_TOPIC, contract.DIAGNOSTICS_TOPIC]
-_POLICY_NAMES = {
-    ReliabilityPolicy.RELIABLE: 'reliable', ReliabilityPolicy.BEST_EFFORT: 'best_effort',
-    DurabilityPolicy.VOLATILE: 'volatile', DurabilityPolicy.TRANSIENT_LOCAL: 'transient_local',
-    HistoryPolicy.KEEP_LAST: 'keep_last', HistoryPolicy.KEEP_ALL: 'keep_all',
-}
 
 
 def message_class(type_name: str):
@@ -72,9 +67,13 @@ def message_class(type_name: str):
 
 
 def _qos_dict(profile) -> dict:
-    return offered_qos(reliability=_POLICY_NAMES.get(profile.reliability, 'reliable'),
-                       durability=_POLICY_NAMES.get(profile.durability, 'volatile'),
-                       history=_POLICY_NAMES.get(profile.history, 'keep_last'), depth=profile.depth)
+    """An rclpy QoSProfile as one entry of rosbag2's ``offered_qos_profiles`` (policy names in lower case)."""
+    def name(policy, default: str) -> str:
+        return policy.name.lower() if hasattr(policy, 'name') else default
+    return offered_qos(reliability=name(profile.reliability, 'reliable'),
+                       durability=name(profile.durability, 'volatile'),
+                       history=name(profile.history, 'keep_last'), depth=profile.depth,
+                       liveliness=name(profile.liveliness, 'automatic'))
 
 
 class RecorderNode(Node):

@@ -1,0 +1,127 @@
+"""sim_node -> recorder_node over DDS, both real processes: SIGINT finalises a bag that rosbags and mcap_ros2 read,
+with no sample missing and stamps exactly k*Ts apart.
+
+Synchronisation is by the recorder's own /diagnostics (its per-topic receive counts), never by fixed sleeps.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from tests.ros_helpers import NodeProcess, private_domain_id, use_domain, wait_for
+
+DOMAIN_ID = private_domain_id()
+use_domain(DOMAIN_ID)
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.executors import SingleThreadedExecutor
+
+from aeropend_core.bag import read_samples
+from aeropend_core.model import SAMPLE_TIME
+from aeropend_ros import topics
+from aeropend_ros._ros_env import local_ros_environment
+
+pytestmark = pytest.mark.timeout(150)
+DISCOVERY_TIMEOUT = 20.0
+RECORD_SECONDS = 4.0
+
+
+class RecorderWatch:
+    """In-test node reading the recorder's /diagnostics (what it has received per topic)."""
+
+    def __init__(self, context) -> None:
+        self.node = rclpy.create_node('test_recorder_watch', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.values: dict[str, str] = {}
+        self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS_TOPIC, self._on_diagnostics,
+                                      topics.diagnostics_qos())
+
+    def _on_diagnostics(self, msg) -> None:
+        for status in msg.status:
+            if status.name.startswith('recorder_node'):
+                self.values = {kv.key: kv.value for kv in status.values}
+
+    def received(self, topic: str) -> int:
+        return int(self.values.get(f'received {topic}', 0))
+
+    def wait_for(self, condition, timeout: float) -> bool:
+        return wait_for(condition, timeout, executor=self.executor)
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
+@pytest.fixture(scope='module')
+def watch():
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    watch = RecorderWatch(context)
+    yield watch
+    watch.close()
+    rclpy.try_shutdown(context=context)
+
+
+def test_sim_to_recorder_no_sample_missing(tmp_path, watch):
+    bag = tmp_path / 'sim_run'
+    recorder_args = ['-p', f'output:={bag}', '-p', 'diagnostics_period:=0.2', '-p', 'chunk_size:=65536']
+    with NodeProcess('aeropend_ros.recorder_node', recorder_args, DOMAIN_ID) as recorder, \
+            NodeProcess('aeropend_ros.sim_node', ['-p', 'psnr_db:=40.0'], DOMAIN_ID) as sim:
+        need = int(RECORD_SECONDS / SAMPLE_TIME)
+        assert watch.wait_for(lambda: watch.received(topics.SAMPLES_TOPIC) > 0, DISCOVERY_TIMEOUT), \
+            recorder.output() + sim.output()
+        assert watch.wait_for(lambda: watch.received(topics.SAMPLES_TOPIC) >= need, RECORD_SECONDS * 3 + 10), \
+            recorder.output()
+        status = recorder.stop()                         # SIGINT, like Ctrl-C
+        output = recorder.output()
+        assert status == 0, output
+        assert 'finalised' in output, output
+        sim.stop()
+
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    counts = {t['topic_metadata']['name']: t['message_count'] for t in info['topics_with_message_count']}
+    assert counts[topics.SAMPLES_TOPIC] >= need
+    qos = info['topics_with_message_count'][[t['topic_metadata']['name'] for t in
+                                              info['topics_with_message_count']].index(topics.SAMPLES_TOPIC)]
+    assert qos['topic_metadata']['offered_qos_profiles'][0]['reliability'] == 'best_effort'   # SensorData
+
+    ours = read_samples(bag)
+    sequence = ours['sequence']
+    assert len(sequence) == counts[topics.SAMPLES_TOPIC]
+    np.testing.assert_array_equal(np.diff(sequence), 1, err_msg='a sample is missing or repeated')
+    spacing_ns = np.diff(ours['stamp_ns'])
+    assert np.all(np.abs(spacing_ns - SAMPLE_TIME * 1e9) <= 1.0), 'stamps are not k*Ts apart'
+    assert np.all(np.isfinite(ours['angle'])) and np.all(np.isfinite(ours['armature_current']))
+
+    # independent reader 1: rosbags on the folder
+    from rosbags.highlevel import AnyReader
+    with AnyReader([bag]) as reader:
+        connections = [c for c in reader.connections if c.topic == topics.SAMPLES_TOPIC]
+        stamps = [(m := reader.deserialize(raw, c.msgtype)).header.stamp.sec * 1_000_000_000
+                  + m.header.stamp.nanosec for c, _, raw in reader.messages(connections=connections)]
+    np.testing.assert_array_equal(stamps, ours['stamp_ns'])
+
+    # independent reader 2: mcap_ros2 on the file(s)
+    from mcap_ros2.reader import read_ros2_messages
+    positions = [list(m.ros_msg.position) for f in sorted(bag.glob('*.mcap'))
+                 for m in read_ros2_messages(str(f), topics=[topics.SAMPLES_TOPIC])]
+    assert [int(p[4]) for p in positions] == sequence.tolist()
+    np.testing.assert_array_equal([p[0] for p in positions], ours['angle'])
+
+
+def test_recorder_refuses_existing_bag(tmp_path):
+    (tmp_path / 'taken').mkdir()
+    (tmp_path / 'taken' / 'x.mcap').write_bytes(b'')
+    result = subprocess.run([sys.executable, '-m', 'aeropend_ros.recorder_node', '--ros-args',
+                             '-p', f'output:={tmp_path / "taken"}'], capture_output=True, text=True, timeout=60,
+                            env=local_ros_environment(domain_id=DOMAIN_ID), cwd=Path(__file__).parents[1],
+                            check=False)
+    assert result.returncode == 2, result.stderr
+    assert 'already exists' in result.stderr and 'Traceback' not in result.stderr
