@@ -1,0 +1,166 @@
+"""Recorder throughput: can recorder_node record >= 20,000 msg/s without losing one?
+
+Run:  .venv/bin/python bench/bench_recorder.py [--rates 20000 40000] [--seconds 5] [--reliable]
+
+For each offered rate a publisher process publishes ``/aeropend/samples`` JointState messages (the real message,
+SensorData QoS unless --reliable) numbered 0..N-1, paced at the rate, after the recorder (a separate process,
+``python -m aeropend_ros.recorder_node``) has subscribed. The recorder is then stopped with SIGINT and the bag is read
+back: loss = published - recorded, and the recorded sequence numbers must be 0..N-1 without gap.
+
+Baseline, measured in the same run: the same CDR bytes written straight to ``aeropend_core.bag.BagWriter`` (no ROS,
+no DDS) — the cost of the bag writing alone. Printed ratios: recorded rate / offered rate, and recorder CPU per
+message against the baseline's CPU per message.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from aeropend_ros._ros_env import ensure_ros_environment, local_ros_environment
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process (Linux /proc)."""
+    fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+def sample_bytes(count: int) -> list[bytes]:
+    """CDR of `count` JointState samples as the contract defines them (made with rclpy, no empty-array padding
+    issue here: velocity/effort are empty, and what rclpy publishes is what the recorder receives)."""
+    ensure_ros_environment(local_only=True)
+    from rclpy.serialization import serialize_message
+
+    from aeropend_ros.topics import Sample, sample_to_msg
+    return [serialize_message(sample_to_msg(Sample(1_700_000_000_000_000_000 + k * 2_040_816, 0.1, 1.5, 0.4, 0.3, k)))
+            for k in range(count)]
+
+
+def baseline(count: int, folder: Path) -> tuple[float, float]:
+    """(msg/s, CPU s per message) writing `count` sample messages straight to BagWriter."""
+    from aeropend_core.bag import BagWriter, msg_file_loader, ros2msg_definition
+    from aeropend_ros._ros_env import ament_prefixes
+    data = sample_bytes(count)
+    writer = BagWriter(folder, chunk_size=256 * 1024)
+    writer.add_topic('/aeropend/samples', 'sensor_msgs/msg/JointState',
+                     ros2msg_definition('sensor_msgs/msg/JointState', msg_file_loader(ament_prefixes() or [sys.prefix])))
+    cpu0, t0 = time.process_time(), time.perf_counter()
+    for k, raw in enumerate(data):
+        writer.write('/aeropend/samples', raw, 1_700_000_000_000_000_000 + k * 50_000)
+    writer.finish()
+    elapsed, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    return count / elapsed, cpu / count
+
+
+def publisher(rate: float, seconds: float, reliable: bool) -> None:
+    """Publisher role (own process): wait for the recorder's subscription, publish N numbered samples at `rate`."""
+    ensure_ros_environment(local_only=True)
+    import rclpy
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
+
+    from aeropend_ros.topics import SAMPLES_TOPIC, Sample, sample_to_msg, samples_qos
+    rclpy.init()
+    node = rclpy.create_node('bench_publisher')
+    qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE) if reliable else samples_qos()
+    pub = node.create_publisher(JointState, SAMPLES_TOPIC, qos)
+    deadline = time.monotonic() + 30
+    while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    if pub.get_subscription_count() == 0:
+        print('ERROR no subscriber', flush=True)
+        return
+    time.sleep(0.5)   # let the matched subscription settle on both sides (endpoint matching is asynchronous)
+    count = int(rate * seconds)
+    msg = JointState()
+    step = 2_040_816
+    start = time.perf_counter()
+    for k in range(count):
+        sample_to_msg(Sample(1_700_000_000_000_000_000 + k * step, 0.1, 1.5, 0.4, 0.3, k), msg)
+        pub.publish(msg)
+        if k % 64 == 0:                               # pace in small bursts
+            ahead = start + k / rate - time.perf_counter()
+            if ahead > 0:
+                time.sleep(ahead)
+    elapsed = time.perf_counter() - start
+    print(f'PUBLISHED {count} {elapsed:.6f}', flush=True)
+    time.sleep(1.0)   # keep the writer alive while the last messages are delivered
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+def run_rate(rate: float, seconds: float, reliable: bool, work: Path, domain_id: int) -> dict:
+    import numpy as np
+
+    from aeropend_core.bag import read_samples
+    bag = work / f'bench_{int(rate)}{"_rel" if reliable else ""}'
+    env = local_ros_environment(domain_id=domain_id)
+    recorder = subprocess.Popen([sys.executable, '-m', 'aeropend_ros.recorder_node', '--ros-args',
+                                 '-p', f'output:={bag}', '-p', 'topics:=[/aeropend/samples]',
+                                 '-p', "include_regex:=''", '-p', 'queue_depth:=5000'],
+                                env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    pub = subprocess.run([sys.executable, __file__, '--role', 'publisher', '--rate', str(rate),
+                          '--seconds', str(seconds)] + (['--reliable'] if reliable else []),
+                         env=env, cwd=ROOT, capture_output=True, text=True, timeout=seconds * 10 + 60, check=False)
+    cpu = cpu_seconds(recorder.pid)
+    recorder.send_signal(signal.SIGINT)
+    log, _ = recorder.communicate(timeout=120)
+    line = [x for x in pub.stdout.splitlines() if x.startswith('PUBLISHED')]
+    if not line:
+        raise SystemExit(f'publisher failed:\n{pub.stdout}\n{pub.stderr}\nrecorder:\n{log}')
+    published, elapsed = int(line[0].split()[1]), float(line[0].split()[2])
+    samples = read_samples(bag)
+    sequence = samples['sequence']
+    recorded = len(sequence)
+    gaps = int(np.sum(np.diff(sequence) > 1)) if recorded > 1 else 0
+    return {'rate': rate, 'published': published, 'offered_rate': published / elapsed, 'recorded': recorded,
+            'lost': published - recorded, 'gaps': gaps, 'recorder_cpu_per_msg': cpu / max(recorded, 1),
+            'bag_bytes': sum(p.stat().st_size for p in bag.glob('*.mcap'))}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--rates', type=float, nargs='+', default=[20000.0, 40000.0], help='offered msg/s')
+    parser.add_argument('--seconds', type=float, default=5.0, help='publishing time per rate')
+    parser.add_argument('--reliable', action='store_true', help='reliable QoS instead of SensorData (best effort)')
+    parser.add_argument('--role', default='bench', choices=['bench', 'publisher'], help=argparse.SUPPRESS)
+    parser.add_argument('--rate', type=float, default=20000.0, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.role == 'publisher':
+        publisher(args.rate, args.seconds, args.reliable)
+        return 0
+
+    import random
+    work = Path(tempfile.mkdtemp(prefix='bench_recorder_'))
+    try:
+        base_rate, base_cpu = baseline(100_000, work / 'baseline')
+        print(f'baseline  BagWriter alone: {base_rate:,.0f} msg/s, {base_cpu * 1e6:.1f} us CPU/msg')
+        print(f'{"offered":>9} {"achieved":>9} {"published":>9} {"recorded":>9} {"lost":>6} {"gaps":>5} '
+              f'{"rec/offer":>9} {"CPU us/msg":>10} {"CPU vs baseline":>15}')
+        worst_loss = 0
+        for rate in args.rates:
+            r = run_rate(rate, args.seconds, args.reliable, work, random.randint(101, 200))
+            worst_loss = max(worst_loss, r['lost'])
+            print(f'{r["rate"]:9,.0f} {r["offered_rate"]:9,.0f} {r["published"]:9d} {r["recorded"]:9d} '
+                  f'{r["lost"]:6d} {r["gaps"]:5d} {r["recorded"] / r["published"]:9.4f} '
+                  f'{r["recorder_cpu_per_msg"] * 1e6:10.1f} {r["recorder_cpu_per_msg"] / base_cpu:14.2f}x',
+                  flush=True)
+        print(f'QoS: {"reliable" if args.reliable else "SensorData (best effort)"}; '
+              f'worst loss {worst_loss} messages')
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
