@@ -41,17 +41,50 @@ arrives for the watchdog time the device sets the duty to zero and raises ``FLAG
 from __future__ import annotations
 
 import binascii
+import math
 import struct
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
+from aeropend_core.model import DEFAULT_PARAMETERS
+
 __all__ = [
-    'PROTOCOL_VERSION', 'DELIMITER', 'SAMPLE', 'STATUS', 'SET_DUTY', 'SET_MAX_DUTY', 'SET_WATCHDOG',
-    'REQUEST_STATUS', 'FLAG_WATCHDOG_TRIPPED', 'FLAG_DUTY_CLAMPED', 'FLAG_SAMPLES_DROPPED', 'FLAG_BOOT',
-    'PWM_PHASE_CORRECT', 'PWM_FAST', 'PWM_TOP', 'SAMPLE_PERIOD', 'ADC_FULL_SCALE', 'WATCHDOG_MS_RANGE',
-    'crc16', 'cobs_encode', 'cobs_decode', 'frame', 'SampleFrame', 'StatusFrame', 'CommandFrame',
-    'encode_sample', 'encode_status', 'encode_command', 'duty_to_q16', 'q16_to_duty', 'FrameDecoder',
-    'DecoderCounters', 'ProtocolError',
+    'ADC_FULL_SCALE',
+    'DELIMITER',
+    'FLAG_BOOT',
+    'FLAG_DUTY_CLAMPED',
+    'FLAG_SAMPLES_DROPPED',
+    'FLAG_WATCHDOG_TRIPPED',
+    'PROTOCOL_VERSION',
+    'PWM_FAST',
+    'PWM_PHASE_CORRECT',
+    'PWM_TOP',
+    'REQUEST_STATUS',
+    'SAMPLE',
+    'SAMPLE_PERIOD',
+    'SAMPLE_WIRE_LENGTH',
+    'SET_DUTY',
+    'SET_MAX_DUTY',
+    'SET_WATCHDOG',
+    'STATUS',
+    'WATCHDOG_MS_RANGE',
+    'Calibration',
+    'CommandFrame',
+    'DecoderCounters',
+    'FrameDecoder',
+    'ProtocolError',
+    'SampleFrame',
+    'StatusFrame',
+    'cobs_decode',
+    'cobs_encode',
+    'crc16',
+    'decode_message',
+    'duty_to_q16',
+    'encode_command',
+    'encode_sample',
+    'encode_status',
+    'frame',
+    'q16_to_duty',
 ]
 
 PROTOCOL_VERSION = 1
@@ -148,7 +181,7 @@ def frame(payload: bytes) -> bytes:
 
 def duty_to_q16(duty: float) -> int:
     """Duty fraction 0..1 -> the 16-bit wire value (clipped to 0..65535)."""
-    return min(65535, max(0, int(round(float(duty) * 65535.0))))
+    return min(65535, max(0, round(float(duty) * 65535.0)))
 
 
 def q16_to_duty(value: int) -> float:
@@ -203,7 +236,7 @@ def encode_status(status: StatusFrame) -> bytes:
     return frame(_STATUS.pack(STATUS, *status))
 
 
-def encode_command(kind: int, value: int | float = 0) -> bytes:
+def encode_command(kind: int, value: float = 0) -> bytes:
     """Wire bytes of a host -> device command.
 
     Parameters
@@ -222,7 +255,7 @@ def encode_command(kind: int, value: int | float = 0) -> bytes:
             raise ProtocolError(f'duty must be a fraction in [0, 1], got {value!r}')
         raw = duty_to_q16(value)
     elif kind == SET_WATCHDOG:
-        raw = int(round(float(value) * 1000.0))
+        raw = round(float(value) * 1000.0)
         if not WATCHDOG_MS_RANGE[0] <= raw <= WATCHDOG_MS_RANGE[1]:
             raise ProtocolError(f'watchdog timeout must be 0.01..60 s, got {value!r} s')
     elif kind == REQUEST_STATUS:
@@ -360,3 +393,91 @@ class FrameDecoder:
         counters.samples += samples
         counters.messages += len(out)
         return out
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Raw counts <-> SI units
+# ----------------------------------------------------------------------------------------------------------------
+#: ADC volts per count with the AVCC = 5 V reference (ADC = Vin * 1024 / Vref on the ATmega2560).
+ADC_VOLTS_PER_COUNT = 5.0 / 1024
+#: Motor shield Rev3 current sense: 3.3 V at the A0 pin <-> 2 A, in A per count.
+DEFAULT_CURRENT_SCALE = ADC_VOLTS_PER_COUNT * 2.0 / 3.3
+#: AS5040 PWM output low-pass filtered to 0..5 V over one turn, in rad per count.
+DEFAULT_ANGLE_SCALE = 2.0 * math.pi / 1024
+#: Default angle zero: mid-scale (mount the magnet so the hanging rod reads near 512, away from the wrap).
+DEFAULT_ANGLE_ZERO = 512.0
+VOLTAGE_SOURCES = ('duty', 'adc')
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Conversion of a SAMPLE's raw counts to SI units (and back, for emulators).
+
+    Attributes
+    ----------
+    current_scale : float
+        A per ADC count (default 5 V / 1024 * 2 A / 3.3 V).
+    current_offset : float
+        ADC counts read at zero current.
+    angle_zero : float
+        ADC counts read with the rod hanging at rest (angle 0).
+    angle_scale : float
+        rad per ADC count (negative to reverse the direction); default 2 pi / 1024.
+    voltage_source : str
+        ``'duty'``: armature voltage from the applied duty by eq (8) (the paper's choice: the H-bridge drop makes
+        a direct reading unreliable); ``'adc'``: from the voltage divider input.
+    voltage_scale : float
+        V per ADC count of the divider input (``voltage_source='adc'``).
+    voltage_offset : float
+        ADC counts of the divider input at 0 V.
+    duty_voltage : tuple of 4 floats
+        k0 [V], k1 [V], k2, k3 of eq (8): Va = k0 + k1 sqrt(k2 duty + k3), 0 where negative or duty = 0.
+    """
+
+    current_scale: float = DEFAULT_CURRENT_SCALE
+    current_offset: float = 0.0
+    angle_zero: float = DEFAULT_ANGLE_ZERO
+    angle_scale: float = DEFAULT_ANGLE_SCALE
+    voltage_source: str = 'duty'
+    voltage_scale: float = ADC_VOLTS_PER_COUNT
+    voltage_offset: float = 0.0
+    duty_voltage: tuple[float, float, float, float] = (
+        DEFAULT_PARAMETERS.duty_voltage_k0, DEFAULT_PARAMETERS.duty_voltage_k1,
+        DEFAULT_PARAMETERS.duty_voltage_k2, DEFAULT_PARAMETERS.duty_voltage_k3)
+
+    def __post_init__(self) -> None:
+        k0, k1, k2, k3 = (float(k) for k in self.duty_voltage)
+        object.__setattr__(self, '_parameters', DEFAULT_PARAMETERS.replace(
+            duty_voltage_k0=k0, duty_voltage_k1=k1, duty_voltage_k2=k2, duty_voltage_k3=k3))
+        if self.voltage_source not in VOLTAGE_SOURCES:
+            raise ProtocolError(f"voltage_source must be one of {VOLTAGE_SOURCES}, got {self.voltage_source!r}")
+        for name in ('current_scale', 'angle_scale', 'voltage_scale'):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value == 0.0:
+                raise ProtocolError(f'{name} must be finite and non-zero, got {value!r}')
+
+    def voltage_from_duty(self, duty: float) -> float:
+        """Armature voltage [V] for a duty fraction by eq (8) (:meth:`RigParameters.voltage_from_duty`)."""
+        return float(self._parameters.voltage_from_duty(duty))
+
+    def to_si(self, sample: SampleFrame) -> tuple[float, float, float, float]:
+        """``(angle rad, armature_voltage V, armature_current A, duty fraction)`` of one SAMPLE."""
+        duty = sample.duty_q16 / 65535.0
+        if self.voltage_source == 'duty':
+            voltage = self.voltage_from_duty(duty)
+        else:
+            voltage = (sample.voltage_counts - self.voltage_offset) * self.voltage_scale
+        return ((sample.angle_counts - self.angle_zero) * self.angle_scale, voltage,
+                (sample.current_counts - self.current_offset) * self.current_scale, duty)
+
+    def to_counts(self, angle: float, armature_current: float, armature_voltage: float = 0.0
+                  ) -> tuple[int, int, int]:
+        """Inverse conversion as an ideal 10-bit ADC would read it: ``(current, angle, voltage)`` counts.
+
+        Rounded to the nearest count and clipped to 0..1023 (values beyond the ADC range saturate).
+        """
+        def count(value: float) -> int:
+            return min(ADC_FULL_SCALE, max(0, round(value)))
+        return (count(armature_current / self.current_scale + self.current_offset),
+                count(angle / self.angle_scale + self.angle_zero),
+                count(armature_voltage / self.voltage_scale + self.voltage_offset))

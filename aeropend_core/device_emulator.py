@@ -1,0 +1,371 @@
+"""A fake rig on a pseudo-terminal: the firmware's serial behaviour, the simulator's physics, injectable faults.
+
+:class:`DeviceEmulator` opens a pty, points a stable symlink at it (like ``/dev/serial/by-id/...``), and streams
+SAMPLE frames at the firmware's 490.196 Hz in real time. The measured values come from
+:class:`aeropend_core.simulate.RigSimulator` (hidden effects and measurement noise as configured), converted to raw
+ADC counts with the inverse of the bridge's :class:`~aeropend_core.protocol.Calibration`. Commands written to the
+port behave as on the firmware: SET_DUTY clamped to the maximum duty, a watchdog that cuts the duty when no valid
+command arrives in time, STATUS on boot, after configuration and every second.
+
+Faults (all thread-safe, take effect at the next emission):
+
+* :meth:`inject_garbage` random bytes between frames;
+* :meth:`corrupt_frames` flip one random bit in each of the next N frames;
+* :meth:`truncate_frames` cut each of the next N frames short (its closing delimiter is kept or dropped);
+* :meth:`pause` stop writing for a while (frames delayed and delivered in a burst, or lost);
+* :meth:`unplug` / :meth:`replug` close the pty and open a new one behind the same symlink, optionally resetting
+  the device (sequence back to 0, configuration back to defaults: what a USB power cycle does).
+
+Every emitted sample is logged in :attr:`emitted` as ``(sequence, state)`` with state ``'intact'``, ``'corrupt'``,
+``'truncated'`` or ``'lost'`` (not written: paused with loss, or unplugged), so tests know the truth.
+
+No ROS or serial library is needed: the emulator uses ``os.openpty``.
+"""
+from __future__ import annotations
+
+import os
+import random
+import threading
+import time
+import tty
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from aeropend_core import protocol as P
+from aeropend_core.simulate import RigSimulator
+
+__all__ = ['DeviceEmulator', 'EmulatorConfig']
+
+
+@dataclass
+class EmulatorConfig:
+    """Firmware defaults mirrored by the emulator (see firmware/aeropend/aeropend.ino)."""
+
+    max_duty: float = 0.70
+    watchdog_timeout: float = 0.5   #: s
+    pwm_mode: int = P.PWM_PHASE_CORRECT
+    status_every: int = 490         #: samples
+
+
+@dataclass
+class _Faults:
+    garbage: bytearray = field(default_factory=bytearray)
+    corrupt: int = 0
+    truncate: int = 0
+    truncate_keep_delimiter: bool = True
+    pause_until: float = 0.0
+    pause_drop: bool = False
+
+
+class DeviceEmulator:
+    """Pty-backed fake rig streaming simulated samples (see module docstring).
+
+    Parameters
+    ----------
+    link : path, optional
+        Symlink to create to the pty slave (the port name a bridge opens); default: a name in a fresh temporary
+        directory. Replugging keeps this name while the pty behind it changes.
+    simulator : RigSimulator, optional
+        Source of the physics; default ``RigSimulator(sample_time=protocol.SAMPLE_PERIOD)``.
+    calibration : Calibration
+        Conversion SI -> counts; the bridge must use the same one to read back the simulator's values.
+    config : EmulatorConfig
+        Firmware defaults (maximum duty, watchdog timeout).
+    seed : int
+        Seed of the fault-injection random generator.
+    block : int
+        Samples simulated per emission (default 10: one write every ~20 ms, like USB bulk transfers).
+    clock_ppm : float
+        Deviation of the emulated crystal from nominal (positive = the device samples slower), parts per million.
+    """
+
+    def __init__(self, link: str | os.PathLike | None = None, simulator: RigSimulator | None = None,
+                 calibration: P.Calibration | None = None, config: EmulatorConfig | None = None,
+                 seed: int = 0, block: int = 10, clock_ppm: float = 0.0) -> None:
+        if link is None:
+            import tempfile
+            self._tmpdir = tempfile.mkdtemp(prefix='aeropend-emu-')
+            link = Path(self._tmpdir) / 'ttyAEROPEND0'
+        else:
+            self._tmpdir = None
+        self.link = Path(link)
+        self.simulator = simulator or RigSimulator(sample_time=P.SAMPLE_PERIOD)
+        self.calibration = calibration or P.Calibration()
+        self.config = config or EmulatorConfig()
+        self.sample_period = P.SAMPLE_PERIOD * (1.0 + clock_ppm * 1e-6)
+        self.block = int(block)
+        self.rng = random.Random(seed)
+        self.emitted: list[tuple[int, str]] = []
+        self.commands: list[tuple[float, P.CommandFrame]] = []
+        self.samples_written = 0
+        self.bytes_written = 0
+        self._lock = threading.RLock()
+        self._faults = _Faults()
+        self._master = -1
+        self._slave = -1
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._decoder = P.FrameDecoder(accept_commands=True)
+        self._held = bytearray()
+        self._reset_device()
+
+    # -------------------------------------------------------------------------------------------------- life cycle
+    def _reset_device(self) -> None:
+        self.sequence = 0
+        self.max_duty_q16 = P.duty_to_q16(self.config.max_duty)
+        self.watchdog_ms = round(self.config.watchdog_timeout * 1000)
+        self.commanded_q16 = 0
+        self.applied_q16 = 0
+        self.watchdog_left = 0      # samples; 0 = not armed
+        self.flags = 0
+        self.rx_bad_frames = 0
+        self.tx_dropped = 0
+        self._status_due = True
+        self._boot = True
+        self._decoder.reset()
+
+    def start(self) -> DeviceEmulator:
+        """Open the pty and start streaming; returns self."""
+        self._open_pty()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name='aeropend-device-emulator', daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop streaming, close the pty and remove the symlink (idempotent)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        with self._lock:
+            self._close_pty()
+        if self._tmpdir:
+            try:
+                os.rmdir(self._tmpdir)
+            except OSError:
+                pass
+
+    def __enter__(self) -> DeviceEmulator:  # noqa: PYI034
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    @property
+    def port(self) -> str:
+        """The port name to open (the symlink)."""
+        return str(self.link)
+
+    @property
+    def plugged(self) -> bool:
+        return self._master >= 0
+
+    def _open_pty(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        os.set_blocking(master, False)
+        self._master, self._slave = master, slave
+        tmp = self.link.with_name(self.link.name + '.new')
+        if tmp.is_symlink() or tmp.exists():
+            tmp.unlink()
+        os.symlink(os.ttyname(slave), tmp)
+        os.replace(tmp, self.link)
+
+    def _close_pty(self) -> None:
+        if self.link.is_symlink():
+            self.link.unlink()
+        for fd in (self._master, self._slave):
+            if fd >= 0:
+                os.close(fd)
+        self._master = self._slave = -1
+
+    # ------------------------------------------------------------------------------------------------------ faults
+    def inject_garbage(self, data: bytes | int) -> None:
+        """Send `data` (or that many random bytes) before the next frame."""
+        with self._lock:
+            if isinstance(data, int):
+                data = self.rng.randbytes(data)
+            self._faults.garbage += data
+
+    def corrupt_frames(self, count: int = 1) -> None:
+        """Flip one random bit in each of the next `count` frames."""
+        with self._lock:
+            self._faults.corrupt += int(count)
+
+    def truncate_frames(self, count: int = 1, keep_delimiter: bool = True) -> None:
+        """Cut each of the next `count` frames short (with or without its closing 0x00)."""
+        with self._lock:
+            self._faults.truncate += int(count)
+            self._faults.truncate_keep_delimiter = keep_delimiter
+
+    def pause(self, seconds: float, drop: bool = False) -> None:
+        """Stop writing for `seconds`: frames are held and sent in one burst afterwards, or lost when `drop`."""
+        with self._lock:
+            self._faults.pause_until = time.monotonic() + float(seconds)
+            self._faults.pause_drop = bool(drop)
+
+    def unplug(self) -> None:
+        """Close the pty (the reader gets an I/O error) and remove the symlink; the device keeps sampling."""
+        with self._lock:
+            self._close_pty()
+
+    def replug(self, reset: bool = True) -> None:
+        """Open a new pty behind the same symlink; `reset` restarts the device (sequence 0, default config)."""
+        with self._lock:
+            if self.plugged:
+                self._close_pty()
+            if reset:
+                self._reset_device()
+            self._open_pty()
+
+    # ---------------------------------------------------------------------------------------------------- run loop
+    def _run(self) -> None:
+        start = time.monotonic()
+        produced = 0
+        period = self.sample_period
+        while not self._stop.is_set():
+            now = time.monotonic()
+            due = int((now - start) / period)
+            if due - produced < self.block:
+                time.sleep(max(0.0005, (produced + self.block) * period - (now - start)))
+                continue
+            with self._lock:
+                self._read_commands()
+                n = due - produced
+                self._emit_samples(n)
+            produced = due
+
+    def _read_commands(self) -> None:
+        if self._master < 0:
+            return
+        try:
+            data = os.read(self._master, 4096)
+        except (BlockingIOError, OSError):
+            return
+        corrupt_before = self._decoder.counters.corrupt
+        now = time.monotonic()
+        for message in self._decoder.feed(data):
+            if isinstance(message, P.CommandFrame):
+                self.commands.append((now, message))
+                self._apply_command(message)
+        self.rx_bad_frames += self._decoder.counters.corrupt - corrupt_before
+
+    def _apply_command(self, command: P.CommandFrame) -> None:
+        if command.kind == P.SET_DUTY:
+            value = command.value
+            if value > self.max_duty_q16:
+                value = self.max_duty_q16
+                self.flags |= P.FLAG_DUTY_CLAMPED
+            else:
+                self.flags &= ~P.FLAG_DUTY_CLAMPED
+            self.commanded_q16 = value
+            self.flags &= ~P.FLAG_WATCHDOG_TRIPPED
+        elif command.kind == P.SET_MAX_DUTY:
+            self.max_duty_q16 = command.value
+            if self.commanded_q16 > command.value:
+                self.commanded_q16 = command.value
+                self.flags |= P.FLAG_DUTY_CLAMPED
+            self._status_due = True
+        elif command.kind == P.SET_WATCHDOG:
+            if not P.WATCHDOG_MS_RANGE[0] <= command.value <= P.WATCHDOG_MS_RANGE[1]:
+                self.rx_bad_frames += 1
+                self._status_due = True
+                return
+            self.watchdog_ms = command.value
+            self._status_due = True
+        elif command.kind == P.REQUEST_STATUS:
+            self._status_due = True
+        self.watchdog_left = max(1, -(-self.watchdog_ms * 1000 // 2040))
+
+    def _emit_samples(self, n: int) -> None:
+        duties = np.empty(n)
+        applied = np.empty(n, dtype=np.int64)
+        flags = np.empty(n, dtype=np.int64)
+        for k in range(n):
+            # As the firmware: the watchdog counts Timer1 overflows; the duty reported is the one in effect.
+            applied[k] = self.applied_q16
+            if self.watchdog_left:
+                self.watchdog_left -= 1
+                if self.watchdog_left == 0:
+                    self.commanded_q16 = 0
+                    self.flags |= P.FLAG_WATCHDOG_TRIPPED
+            flags[k] = self.flags
+            duties[k] = self.applied_q16 / 65535.0
+            self.applied_q16 = self.commanded_q16
+        trajectory = self.simulator.run(duties)
+        out = bytearray()
+        for k in range(n):
+            sequence = self.sequence
+            self.sequence += 1
+            current, angle, voltage = self.calibration.to_counts(
+                float(trajectory.angle[k]), float(trajectory.armature_current[k]),
+                float(trajectory.armature_voltage[k]))
+            wire = P.encode_sample(P.SampleFrame(sequence, current, angle, voltage, int(applied[k]), int(flags[k])))
+            out += self._apply_faults(sequence, wire)
+            if self._status_due or sequence % self.config.status_every == self.config.status_every - 1:
+                out += self._status_frame()
+        self._write(out, n)
+
+    def _status_frame(self) -> bytes:
+        flags = self.flags | (P.FLAG_BOOT if self._boot else 0)
+        self._boot = False
+        self._status_due = False
+        return P.encode_status(P.StatusFrame(
+            P.PROTOCOL_VERSION, self.config.pwm_mode, flags, P.PWM_TOP[self.config.pwm_mode], self.max_duty_q16,
+            self.watchdog_ms, self.rx_bad_frames & 0xFFFF, self.tx_dropped & 0xFFFF, self.sequence))
+
+    def _apply_faults(self, sequence: int, wire: bytes) -> bytes:
+        faults = self._faults
+        prefix = b''
+        if faults.garbage:
+            prefix = bytes(faults.garbage)
+            faults.garbage.clear()
+        if faults.corrupt:
+            faults.corrupt -= 1
+            data = bytearray(wire)
+            index = self.rng.randrange(1, len(data) - 1)   # inside the frame, delimiters untouched
+            data[index] ^= 1 << self.rng.randrange(8)
+            self.emitted.append((sequence, 'corrupt'))
+            return prefix + bytes(data)
+        if faults.truncate:
+            faults.truncate -= 1
+            cut = self.rng.randrange(2, len(wire) - 2)
+            self.emitted.append((sequence, 'truncated'))
+            return prefix + wire[:cut] + (b'\x00' if faults.truncate_keep_delimiter else b'')
+        self.emitted.append((sequence, 'intact'))
+        return prefix + wire
+
+    def _write(self, data: bytes, samples: int) -> None:
+        faults = self._faults
+        paused = time.monotonic() < faults.pause_until
+        if self._master < 0 or (paused and faults.pause_drop):
+            self._mark_lost(samples)
+            return
+        self._held += data
+        if paused:
+            return
+        try:
+            written = os.write(self._master, self._held)
+        except BlockingIOError:
+            written = 0
+        except OSError:
+            self._mark_lost(samples)
+            self._held.clear()
+            return
+        self.bytes_written += written
+        del self._held[:written]
+        if len(self._held) > 1 << 20:   # nobody reads: a USB device drops what the host does not fetch
+            self._held.clear()
+
+    def _mark_lost(self, samples: int) -> None:
+        for index in range(len(self.emitted) - samples, len(self.emitted)):
+            self.emitted[index] = (self.emitted[index][0], 'lost')
+
+    # ---------------------------------------------------------------------------------------------------- queries
+    def sequences(self, state: str = 'intact') -> list[int]:
+        """Sequence numbers of the emitted samples in `state` ('intact', 'corrupt', 'truncated', 'lost')."""
+        with self._lock:
+            return [sequence for sequence, s in self.emitted if s == state]

@@ -1,0 +1,127 @@
+"""Acquisition time stamps for a sampled device: sample counter x Ts, anchored to the host clock, drift-corrected.
+
+A device that samples on its own crystal (the rig's Timer1, Ts = 2.04 ms) numbers its samples; the host only knows
+when each one *arrived*, late by a variable transport delay (USB frames, OS scheduling, bursts after a stall).
+Stamping with the arrival time would put that jitter into the data. Instead :class:`SampleClock` models
+
+    stamp(sequence) = anchor + period * sequence
+
+and fits ``anchor`` and ``period`` to the *lower envelope* of the arrival times: per window of samples only the
+earliest arrival relative to the model is kept (the least-delayed sample), and a straight line through the recent
+window minima gives the drift-corrected period of the device's crystal as seen by the host clock. Stamps are
+therefore the acquisition times plus the link's minimum latency (a constant, ~1 ms on USB; subtract it with
+`latency` if known). Delayed bursts never pull the stamps later.
+"""
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+__all__ = ['SampleClock']
+
+
+class SampleClock:
+    """Stamp device samples by their sequence number (see module docstring).
+
+    Parameters
+    ----------
+    sample_period : float
+        Nominal device sampling period Ts [s].
+    window : int
+        Samples per envelope window (default 490, about 1 s on the rig).
+    history : int
+        Window minima used for the line fit (default 60: the drift estimate spans about a minute).
+    max_drift : float
+        Largest believable relative deviation of the device period from nominal (default 1e-3 = 1000 ppm; crystals
+        are within ~100 ppm, ceramic resonators within ~0.5 %; use 5e-3 for those).
+    latency : float
+        Known constant minimum latency of the link [s], subtracted from the stamps.
+    min_span : int
+        Windows between two minima used for a slope (default 8): shorter baselines make the period estimate
+        follow latency noise; until then the nominal period is used.
+    """
+
+    def __init__(self, sample_period: float, window: int = 490, history: int = 60, max_drift: float = 1e-3,
+                 latency: float = 0.0, min_span: int = 8) -> None:
+        if not sample_period > 0:
+            raise ValueError(f'sample_period must be positive, got {sample_period!r}')
+        if window < 2 or history < 2:
+            raise ValueError('window and history must be at least 2')
+        self.nominal_period = float(sample_period)
+        self.window = int(window)
+        self.history = int(history)
+        self.max_drift = float(max_drift)
+        self.latency = float(latency)
+        self.min_span = int(min_span)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the anchor (the device restarted its counter): the next sample anchors again."""
+        self._reference = None          # host time [s] that relative times are measured from
+        self._period = self.nominal_period
+        self._anchor = 0.0              # relative host time of sequence 0
+        self._minima: deque[tuple[int, float]] = deque(maxlen=self.history)
+        self._window_start = None
+        self._window_best: tuple[int, float] | None = None
+        self._last_stamp = None
+        self._last_sequence = 0
+
+    @property
+    def period(self) -> float:
+        """Current estimate of the device's sampling period in host seconds."""
+        return self._period
+
+    @property
+    def drift_ppm(self) -> float:
+        """Estimated deviation of the device period from nominal, parts per million."""
+        return (self._period / self.nominal_period - 1.0) * 1e6
+
+    def stamp(self, sequence: int, arrival: float) -> float:
+        """Acquisition time [s, host clock] of sample `sequence` that arrived at host time `arrival` [s].
+
+        Sequences must not decrease between :meth:`reset` calls; gaps (lost samples) are fine.
+        """
+        if self._reference is None:
+            self._reference = arrival
+            self._anchor = -sequence * self._period
+            self._window_start = sequence
+        relative = arrival - self._reference
+        predicted = self._anchor + self._period * sequence
+        residual = relative - predicted
+        if residual < 0.0:
+            # Earlier than the lower envelope: this sample had less delay than any before; move the line down.
+            self._anchor += residual
+            predicted = relative
+        if self._window_best is None or residual < self._window_best[2]:
+            self._window_best = (sequence, relative, residual)
+        if sequence - self._window_start >= self.window:
+            self._close_window()
+            self._window_start = sequence
+            predicted = self._anchor + self._period * sequence
+        stamp = self._reference + predicted - self.latency
+        if self._last_stamp is not None and stamp <= self._last_stamp:
+            stamp = self._last_stamp + 1e-9 * max(1, sequence - self._last_sequence)
+        self._last_stamp = stamp
+        self._last_sequence = sequence
+        return stamp
+
+    def _close_window(self) -> None:
+        sequence, relative, _ = self._window_best
+        self._window_best = None
+        self._minima.append((sequence, relative))
+        points = np.array(self._minima, dtype=float)
+        sequences, times = points[:, 0], points[:, 1]
+        slope = self._period
+        # Theil-Sen slope over pairs of window minima at least `min_span` windows apart: robust to the odd late
+        # window (start-up bursts, a stalled host) that a least-squares line would follow.
+        i, j = np.triu_indices(len(points), k=1)
+        far = sequences[j] - sequences[i] >= self.min_span * self.window
+        if np.any(far):
+            slopes = (times[j[far]] - times[i[far]]) / (sequences[j[far]] - sequences[i[far]])
+            low = self.nominal_period * (1.0 - self.max_drift)
+            high = self.nominal_period * (1.0 + self.max_drift)
+            slope = min(high, max(low, float(np.median(slopes))))
+        # Lower envelope: the line with that slope under every window minimum.
+        self._period = slope
+        self._anchor = float(np.min(times - slope * sequences))

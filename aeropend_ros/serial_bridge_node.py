@@ -1,0 +1,401 @@
+"""serial_bridge_node: the live rig (Arduino Mega running firmware/aeropend) on the aeropend topics.
+
+Reads the firmware's COBS/CRC-16 frames (:mod:`aeropend_core.protocol`) from a serial port with pyserial,
+converts raw ADC counts to SI units with calibration parameters, and publishes one ``sensor_msgs/JointState`` per
+acquisition sample on ``/aeropend/samples`` (SensorData QoS). Each sample is stamped with its *acquisition* time:
+the device's sample counter x Ts anchored to the node clock with drift correction
+(:class:`aeropend_core.sample_clock.SampleClock`), never its arrival time.
+
+Duty commands from ``/aeropend/duty_cmd`` (``std_msgs/Float64``, fraction 0..1) are forwarded to the device
+(clamped to ``max_duty`` here and again by the firmware) and repeated every ``heartbeat_period`` so the firmware's
+watchdog (``watchdog_timeout``) only cuts the motor when this node, or its link, dies.
+
+Link health goes to ``/diagnostics`` (``diagnostic_msgs/DiagnosticArray``) every ``diagnostics_period``: samples
+published and lost (sequence gaps), corrupt frames, device resets, reconnections, the device's own counters,
+sample rate and clock drift. When the port disappears (USB unplugged) the node keeps running, retries every
+``reconnect_period`` seconds, re-sends the configuration (maximum duty, watchdog, current duty) once the device is
+back, and logs how many samples the outage cost.
+
+Run on the rig::
+
+    ros2 run aeropend_ros serial_bridge_node --ros-args -p port:=/dev/ttyACM0 \\
+        --params-file config/serial_bridge_node.yaml
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+from aeropend_ros._node_util import declare, run_node  # first: prepares the ROS environment  # isort: skip
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+
+from aeropend_core import protocol as P
+from aeropend_core.errors import AeropendError
+from aeropend_core.model import DEFAULT_PARAMETERS
+from aeropend_core.sample_clock import SampleClock
+from aeropend_ros import topics
+
+#: Parameters whose change rebuilds the counts -> SI conversion.
+CALIBRATION_PARAMETERS = ('current_scale', 'current_offset', 'angle_zero', 'angle_scale', 'voltage_source',
+                          'voltage_scale', 'voltage_offset', 'duty_voltage_k0', 'duty_voltage_k1',
+                          'duty_voltage_k2', 'duty_voltage_k3')
+#: Parameters whose change is sent to the device.
+DEVICE_PARAMETERS = ('max_duty', 'watchdog_timeout')
+
+
+class SerialBridgeNode(Node):
+    """Bridge between the rig's serial link and the aeropend topics (see module docstring)."""
+
+    def __init__(self, node_name: str = 'serial_bridge_node', **kwargs) -> None:
+        super().__init__(node_name, **kwargs)
+        self.port = declare(self, 'port', '/dev/ttyACM0', 'serial port of the Arduino Mega (a stable name such as '
+                            '/dev/serial/by-id/... survives replugging)', read_only=True)
+        self.baud = declare(self, 'baud', 250000, 'serial baud rate (the firmware uses 250000)', read_only=True,
+                            low=9600, high=2000000, integer=True)
+        self.sample_period = declare(self, 'sample_period', P.SAMPLE_PERIOD, 'nominal device sampling period '
+                                     'Ts [s] (Timer1: 64 * 510 / 16 MHz = 2.04 ms)', read_only=True,
+                                     low=1e-5, high=1.0)
+        declare(self, 'max_duty', 0.7, 'largest duty fraction sent to the device (the firmware clamps too)',
+                low=0.0, high=1.0)
+        declare(self, 'watchdog_timeout', 0.5, 'firmware watchdog [s]: the motor stops when no command arrives '
+                'for this long', low=0.01, high=60.0)
+        self.heartbeat_period = declare(self, 'heartbeat_period', 0.1, 'period [s] of repeating the duty '
+                                        'command (must be shorter than watchdog_timeout)', read_only=True,
+                                        low=0.005, high=10.0)
+        self.reconnect_period = declare(self, 'reconnect_period', 2.0, 'retry period [s] when the port is '
+                                        'missing or failed', read_only=True, low=0.05, high=60.0)
+        declare(self, 'command_timeout', 0.0, 'set the duty to 0 when no duty command arrived for this long '
+                '[s]; 0 = hold the last command', low=0.0, high=3600.0)
+        declare(self, 'current_scale', P.DEFAULT_CURRENT_SCALE, 'armature current per ADC count [A/count] '
+                '(shield: 5 V/1024 * 2 A/3.3 V)', low=-1.0, high=1.0)
+        declare(self, 'current_offset', 0.0, 'ADC counts at zero current (calibrate: aeropend calibrate zero)',
+                low=-1023.0, high=2047.0)
+        declare(self, 'angle_zero', P.DEFAULT_ANGLE_ZERO, 'angle ADC counts with the rod hanging at rest '
+                '(calibrate: aeropend calibrate zero)', low=-1023.0, high=2047.0)
+        declare(self, 'angle_scale', P.DEFAULT_ANGLE_SCALE, 'rod angle per ADC count [rad/count]; negative '
+                'reverses the direction', low=-1.0, high=1.0)
+        declare(self, 'voltage_source', 'duty', "armature voltage from 'duty' (eq 8, the paper's choice) or "
+                "'adc' (divider on A3)")
+        declare(self, 'voltage_scale', P.ADC_VOLTS_PER_COUNT, 'armature voltage per ADC count of the divider '
+                '[V/count]', low=-10.0, high=10.0)
+        declare(self, 'voltage_offset', 0.0, 'divider ADC counts at 0 V', low=-1023.0, high=2047.0)
+        for index in range(4):
+            name = f'duty_voltage_k{index}'
+            declare(self, name, float(getattr(DEFAULT_PARAMETERS, name)),
+                    f'eq (8) coefficient k{index}: Va = k0 + k1 sqrt(k2 duty + k3)', low=-1e9, high=1e9)
+        self.clock_latency = declare(self, 'clock_latency', 0.0, 'known minimum link latency [s] subtracted '
+                                     'from the stamps', read_only=True, low=0.0, high=1.0)
+        clock_max_drift = declare(self, 'clock_max_drift', 1e-3, 'largest believable relative error of the '
+                                  "device's crystal (1e-3 = 1000 ppm)", read_only=True, low=0.0, high=0.05)
+        diagnostics_period = declare(self, 'diagnostics_period', 1.0, 'period [s] of /diagnostics', read_only=True,
+                                     low=0.05, high=60.0)
+        if self.heartbeat_period >= self.get_parameter('watchdog_timeout').value:
+            raise AeropendError(f'heartbeat_period ({self.heartbeat_period} s) must be shorter than '
+                                f'watchdog_timeout ({self.get_parameter("watchdog_timeout").value} s)')
+        self.calibration = self._calibration_from_parameters({})
+
+        self.clock_model = SampleClock(self.sample_period, max_drift=clock_max_drift, latency=self.clock_latency)
+        self._epoch_ns = self.get_clock().now().nanoseconds
+        self.decoder = P.FrameDecoder()
+        self._serial = None
+        self._serial_lock = threading.Lock()
+        self._stop = threading.Event()
+        self.duty = 0.0                    # commanded duty fraction (after the max_duty clamp)
+        self._last_command_time = time.monotonic()
+        self._config_sent_at = -math.inf
+        self.status: P.StatusFrame | None = None
+        self.stats = {'samples_published': 0, 'samples_lost': 0, 'device_resets': 0, 'reconnects': 0,
+                      'outage_samples_lost': 0, 'last_outage_lost': 0, 'watchdog_trips': 0,
+                      'clamped_commands': 0}
+        self._after_reconnect = False
+        self._last_sequence: int | None = None
+        self._last_flags = 0
+        self._last_arrival = None
+        self._disconnected_at: float | None = None
+        self._diag_previous = (time.monotonic(), 0, 0, 0)
+        self.connected = False
+        self._message = JointState()
+
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        self.publisher = self.create_publisher(JointState, topics.SAMPLES_TOPIC, topics.samples_qos())
+        self.diagnostics_publisher = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS_TOPIC,
+                                                           topics.diagnostics_qos())
+        self.create_subscription(Float64, topics.DUTY_COMMAND_TOPIC, self._on_duty, topics.command_qos())
+        self.create_timer(self.heartbeat_period, self._on_heartbeat)
+        self.create_timer(diagnostics_period, self._publish_diagnostics)
+        self._reader = threading.Thread(target=self._read_loop, name='serial_bridge_reader', daemon=True)
+        self._reader.start()
+        self.get_logger().info(f'bridging {self.port} at {self.baud} baud to {topics.SAMPLES_TOPIC}')
+
+    # ------------------------------------------------------------------------------------------------- parameters
+    def _calibration_from_parameters(self, changed: dict) -> P.Calibration:
+        def value(name):
+            return changed[name] if name in changed else self.get_parameter(name).value
+        try:
+            return P.Calibration(
+                current_scale=float(value('current_scale')), current_offset=float(value('current_offset')),
+                angle_zero=float(value('angle_zero')), angle_scale=float(value('angle_scale')),
+                voltage_source=str(value('voltage_source')), voltage_scale=float(value('voltage_scale')),
+                voltage_offset=float(value('voltage_offset')),
+                duty_voltage=tuple(float(value(f'duty_voltage_k{i}')) for i in range(4)))
+        except P.ProtocolError as error:
+            raise AeropendError(f'bad calibration parameter: {error}') from error
+
+    def _validate_parameters(self, parameters) -> SetParametersResult:
+        changed = {p.name: p.value for p in parameters}
+        if any(name in CALIBRATION_PARAMETERS for name in changed):
+            try:
+                self._calibration_from_parameters(changed)
+            except AeropendError as error:
+                return SetParametersResult(successful=False, reason=str(error))
+        if 'watchdog_timeout' in changed and changed['watchdog_timeout'] <= self.heartbeat_period:
+            return SetParametersResult(successful=False, reason=f'watchdog_timeout must exceed heartbeat_period '
+                                       f'({self.heartbeat_period} s)')
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters) -> None:
+        names = {p.name for p in parameters}
+        if names & set(CALIBRATION_PARAMETERS):
+            self.calibration = self._calibration_from_parameters({})
+        if names & set(DEVICE_PARAMETERS):
+            self.duty = min(self.duty, float(self.get_parameter('max_duty').value))
+            self._send_configuration()
+
+    # ------------------------------------------------------------------------------------------------ serial link
+    def _open(self):
+        import serial
+        try:
+            link = serial.Serial(self.port, self.baud, timeout=0.05, write_timeout=0.5, exclusive=True)
+        except (serial.SerialException, OSError, ValueError) as error:
+            return None, error
+        return link, None
+
+    def _read_loop(self) -> None:
+        import serial
+        logger = self.get_logger()
+        warned = False
+        while not self._stop.is_set():
+            link, error = self._open()
+            if link is None:
+                if not warned:
+                    logger.warning(f'cannot open {self.port} ({error}); retrying every {self.reconnect_period:g} s')
+                    warned = True
+                self._stop.wait(self.reconnect_period)
+                continue
+            warned = False
+            self.decoder.reset()
+            with self._serial_lock:
+                self._serial = link
+            self.connected = True
+            self._after_reconnect = True
+            if self._disconnected_at is not None:
+                self.stats['reconnects'] += 1
+                logger.info(f'{self.port} is back after {time.monotonic() - self._disconnected_at:.1f} s; '
+                            're-sending the configuration')
+            self._send_configuration()
+            try:
+                while not self._stop.is_set():
+                    data = link.read(max(1, min(link.in_waiting, 65536)))
+                    if data:
+                        self._handle_bytes(data)
+            except (serial.SerialException, OSError, TypeError) as error:
+                # TypeError: pyserial's read on a closed fd during shutdown.
+                if not self._stop.is_set():
+                    logger.warning(f'lost {self.port}: {error}; retrying every {self.reconnect_period:g} s')
+            finally:
+                with self._serial_lock:
+                    self._serial = None
+                self.connected = False
+                self._disconnected_at = time.monotonic()
+                try:
+                    link.close()
+                except Exception:  # noqa: BLE001, S110 - closing a dead port may fail in many ways
+                    pass
+            self._stop.wait(self.reconnect_period)
+
+    def _write(self, data: bytes) -> bool:
+        with self._serial_lock:
+            link = self._serial
+            if link is None:
+                return False
+            try:
+                link.write(data)
+                return True
+            except Exception as error:  # noqa: BLE001 - the reader thread handles the reconnection
+                self.get_logger().warning(f'write to {self.port} failed: {error}', throttle_duration_sec=2.0)
+                return False
+
+    def _send_configuration(self) -> None:
+        max_duty = float(self.get_parameter('max_duty').value)
+        watchdog = float(self.get_parameter('watchdog_timeout').value)
+        self._config_sent_at = time.monotonic()
+        self._write(P.encode_command(P.SET_MAX_DUTY, max_duty) + P.encode_command(P.SET_WATCHDOG, watchdog)
+                    + P.encode_command(P.SET_DUTY, min(self.duty, max_duty))
+                    + P.encode_command(P.REQUEST_STATUS))
+
+    # ---------------------------------------------------------------------------------------------------- decoding
+    def _handle_bytes(self, data: bytes) -> None:
+        now_ns = self.get_clock().now().nanoseconds
+        arrival = (now_ns - self._epoch_ns) * 1e-9
+        for message in self.decoder.feed(data):
+            if type(message) is P.SampleFrame:
+                self._handle_sample(message, arrival)
+            else:
+                self._handle_status(message)
+
+    def _handle_sample(self, frame: P.SampleFrame, arrival: float) -> None:
+        last = self._last_sequence
+        if last is not None:
+            if frame.sequence > last + 1:
+                gap = frame.sequence - last - 1
+                self.stats['samples_lost'] += gap
+                if self._after_reconnect:
+                    self.stats['last_outage_lost'] = gap
+                    self.get_logger().warning(f'link restored: {gap} samples lost during the outage '
+                                              f'(sequence {last} -> {frame.sequence})')
+            elif frame.sequence <= last:
+                self._device_reset(arrival)
+        self._after_reconnect = False
+        if frame.flags & P.FLAG_WATCHDOG_TRIPPED and not self._last_flags & P.FLAG_WATCHDOG_TRIPPED:
+            self.stats['watchdog_trips'] += 1
+            self.get_logger().warning('device watchdog tripped: motor stopped (no command within '
+                                      f'{self.get_parameter("watchdog_timeout").value:g} s)')
+        self._last_flags = frame.flags
+        self._last_sequence = frame.sequence
+        self._last_arrival = arrival
+        stamp = self.clock_model.stamp(frame.sequence, arrival)
+        angle, voltage, current, duty = self.calibration.to_si(frame)
+        sample = topics.Sample(self._epoch_ns + round(stamp * 1e9), angle, voltage, current, duty, frame.sequence)
+        self.publisher.publish(topics.sample_to_msg(sample, self._message))
+        self.stats['samples_published'] += 1
+
+    def _device_reset(self, arrival: float) -> None:
+        """The sequence went backwards: the device restarted (power cycle, DTR reset, brown-out)."""
+        self.stats['device_resets'] += 1
+        if self._last_arrival is not None:
+            # Samples the device would have taken between the last old and the first new one, minus those it
+            # reports since its boot: an estimate (the reset time itself is unknown).
+            missing = max(0, round((arrival - self._last_arrival) / self.clock_model.period) - 1)
+            self.stats['outage_samples_lost'] += missing
+            self.stats['last_outage_lost'] = missing
+            self.get_logger().warning(f'device reset detected; about {missing} samples lost; re-sending the '
+                                      'configuration')
+        self.clock_model.reset()
+        self._send_configuration()
+
+    def _handle_status(self, status) -> None:
+        if not isinstance(status, P.StatusFrame):
+            return
+        self.status = status
+        if status.protocol_version != P.PROTOCOL_VERSION:
+            self.get_logger().error(f'device speaks protocol {status.protocol_version}, this node '
+                                    f'{P.PROTOCOL_VERSION}: update the firmware', throttle_duration_sec=10.0)
+        want_max = P.duty_to_q16(float(self.get_parameter('max_duty').value))
+        want_watchdog = round(float(self.get_parameter('watchdog_timeout').value) * 1000)
+        if (status.max_duty_q16 != want_max or status.watchdog_ms != want_watchdog) and \
+                time.monotonic() - self._config_sent_at > 0.5:
+            self._send_configuration()
+
+    # ------------------------------------------------------------------------------------------------- commanding
+    def _on_duty(self, msg: Float64) -> None:
+        duty = float(msg.data)
+        max_duty = float(self.get_parameter('max_duty').value)
+        if not math.isfinite(duty):
+            self.get_logger().warning(f'duty command {duty!r} is not a number: duty set to 0')
+            duty = 0.0
+        if duty < 0.0 or duty > max_duty:
+            self.stats['clamped_commands'] += 1
+            self.get_logger().warning(f'duty command {duty:.3f} outside [0, {max_duty:.3f}] (max_duty): clamped',
+                                      throttle_duration_sec=2.0)
+            duty = min(max(duty, 0.0), max_duty)
+        self.duty = duty
+        self._last_command_time = time.monotonic()
+        self._write(P.encode_command(P.SET_DUTY, duty))
+
+    def _on_heartbeat(self) -> None:
+        timeout = float(self.get_parameter('command_timeout').value)
+        if timeout > 0.0 and self.duty > 0.0 and time.monotonic() - self._last_command_time > timeout:
+            self.get_logger().warning(f'no duty command for {timeout:g} s: duty set to 0')
+            self.duty = 0.0
+        self._write(P.encode_command(P.SET_DUTY, self.duty))
+
+    # ------------------------------------------------------------------------------------------------ diagnostics
+    def diagnostics_values(self) -> tuple[dict[str, str], tuple[int, int, int]]:
+        """The link-health numbers for /diagnostics as strings, and (samples, lost, corrupt) since the last call."""
+        now = time.monotonic()
+        counters = self.decoder.counters
+        previous_time, previous_published, previous_lost, previous_corrupt = self._diag_previous
+        published = self.stats['samples_published']
+        elapsed = max(now - previous_time, 1e-9)
+        values = {
+            'port': self.port, 'connected': str(self.connected),
+            'sample_rate_hz': f'{(published - previous_published) / elapsed:.1f}',
+            'frames_corrupt': str(counters.corrupt), 'bytes_received': str(counters.bytes_received),
+            'clock_drift_ppm': f'{self.clock_model.drift_ppm:.1f}', 'duty_command': f'{self.duty:.4f}',
+            'last_sequence': str(self._last_sequence if self._last_sequence is not None else -1),
+        }
+        values.update({name: str(count) for name, count in self.stats.items()})
+        if self.status is not None:
+            values.update({
+                'device_protocol_version': str(self.status.protocol_version),
+                'device_pwm_mode': 'fast' if self.status.pwm_mode == P.PWM_FAST else 'phase-correct',
+                'device_max_duty': f'{P.q16_to_duty(self.status.max_duty_q16):.4f}',
+                'device_watchdog_ms': str(self.status.watchdog_ms),
+                'device_rx_bad_frames': str(self.status.rx_bad_frames),
+                'device_tx_dropped_frames': str(self.status.tx_dropped_frames),
+                'device_watchdog_tripped': str(bool(self.status.flags & P.FLAG_WATCHDOG_TRIPPED)),
+            })
+        self._diag_previous = (now, published, self.stats['samples_lost'], counters.corrupt)
+        return values, (published - previous_published, self.stats['samples_lost'] - previous_lost,
+                        counters.corrupt - previous_corrupt)
+
+    def _publish_diagnostics(self) -> None:
+        values, (new_samples, new_lost, new_corrupt) = self.diagnostics_values()
+        status = DiagnosticStatus(name=f'{self.get_name()}: rig serial link', hardware_id=self.port)
+        if not self.connected:
+            status.level, status.message = DiagnosticStatus.ERROR, f'{self.port} not connected (retrying)'
+        elif new_samples == 0:
+            status.level, status.message = DiagnosticStatus.ERROR, 'connected but no samples'
+        elif new_lost or new_corrupt or self._last_flags & P.FLAG_WATCHDOG_TRIPPED:
+            status.level = DiagnosticStatus.WARN
+            status.message = (f'{new_lost} samples lost, {new_corrupt} corrupt frames'
+                              + (', watchdog tripped' if self._last_flags & P.FLAG_WATCHDOG_TRIPPED else ''))
+        else:
+            status.level, status.message = DiagnosticStatus.OK, 'streaming'
+        status.values = [KeyValue(key=key, value=value) for key, value in values.items()]
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [status]
+        self.diagnostics_publisher.publish(array)
+
+    def destroy_node(self) -> None:
+        """Stop the reader thread, set the duty to 0 on the device and close the port."""
+        self._stop.set()
+        self._write(P.encode_command(P.SET_DUTY, 0.0))
+        with self._serial_lock:
+            link = self._serial
+        if link is not None:
+            try:
+                link.cancel_read()
+            except Exception:  # noqa: BLE001, S110
+                pass
+        self._reader.join(timeout=2.0)
+        super().destroy_node()
+
+
+def main(args=None) -> int:
+    """Run the serial bridge until Ctrl-C."""
+    # SingleThreadedExecutor: with the pip wheels here rclpy.experimental.EventsExecutor never fired this node's
+    # timers (the heartbeat), so the firmware watchdog tripped. The executor only carries the light callbacks; the
+    # 490 Hz decoding and publishing run in the reader thread.
+    return run_node(SerialBridgeNode, args, prefer_events=False)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
