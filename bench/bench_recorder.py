@@ -1,6 +1,6 @@
 """Recorder throughput: can recorder_node record >= 20,000 msg/s without losing one?
 
-Run:  .venv/bin/python bench/bench_recorder.py [--rates 20000 40000] [--seconds 5] [--reliable]
+Run:  .venv/bin/python bench/bench_recorder.py [--rates 20000 40000] [--seconds 5] [--reliable] [--queue-depth N]
 
 For each offered rate a publisher process publishes ``/aeropend/samples`` JointState messages (the real message,
 SensorData QoS unless --reliable) numbered 0..N-1, paced at the rate, after the recorder (a separate process,
@@ -99,7 +99,7 @@ def publisher(rate: float, seconds: float, reliable: bool) -> None:
     rclpy.try_shutdown()
 
 
-def run_rate(rate: float, seconds: float, reliable: bool, work: Path, domain_id: int) -> dict:
+def run_rate(rate: float, seconds: float, reliable: bool, work: Path, domain_id: int, queue_depth: int) -> dict:
     import numpy as np
 
     from aeropend_core.bag import read_samples
@@ -107,7 +107,7 @@ def run_rate(rate: float, seconds: float, reliable: bool, work: Path, domain_id:
     env = local_ros_environment(domain_id=domain_id)
     recorder = subprocess.Popen([sys.executable, '-m', 'aeropend_ros.recorder_node', '--ros-args',
                                  '-p', f'output:={bag}', '-p', 'topics:=[/aeropend/samples]',
-                                 '-p', "include_regex:=''", '-p', 'queue_depth:=5000'],
+                                 '-p', "include_regex:=''", '-p', f'queue_depth:={queue_depth}'],
                                 env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     pub = subprocess.run([sys.executable, __file__, '--role', 'publisher', '--rate', str(rate),
                           '--seconds', str(seconds)] + (['--reliable'] if reliable else []),
@@ -133,6 +133,8 @@ def main() -> int:
     parser.add_argument('--rates', type=float, nargs='+', default=[20000.0, 40000.0], help='offered msg/s')
     parser.add_argument('--seconds', type=float, default=5.0, help='publishing time per rate')
     parser.add_argument('--reliable', action='store_true', help='reliable QoS instead of SensorData (best effort)')
+    parser.add_argument('--queue-depth', type=int, default=50000,
+                        help='recorder queue_depth parameter (subscription history; absorbs CPU stalls)')
     parser.add_argument('--role', default='bench', choices=['bench', 'publisher'], help=argparse.SUPPRESS)
     parser.add_argument('--rate', type=float, default=20000.0, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -149,14 +151,15 @@ def main() -> int:
               f'{"rec/offer":>9} {"CPU us/msg":>10} {"CPU vs baseline":>15}')
         worst_loss = 0
         for rate in args.rates:
-            r = run_rate(rate, args.seconds, args.reliable, work, random.randint(101, 200))
+            r = run_rate(rate, args.seconds, args.reliable, work, random.randint(101, 200), args.queue_depth)
             worst_loss = max(worst_loss, r['lost'])
             print(f'{r["rate"]:9,.0f} {r["offered_rate"]:9,.0f} {r["published"]:9d} {r["recorded"]:9d} '
                   f'{r["lost"]:6d} {r["gaps"]:5d} {r["recorded"] / r["published"]:9.4f} '
                   f'{r["recorder_cpu_per_msg"] * 1e6:10.1f} {r["recorder_cpu_per_msg"] / base_cpu:14.2f}x',
                   flush=True)
-        print(f'QoS: {"reliable" if args.reliable else "SensorData (best effort)"}; '
-              f'worst loss {worst_loss} messages')
+        print(f'QoS: {"reliable" if args.reliable else "SensorData (best effort)"}, recorder queue_depth '
+              f'{args.queue_depth}; worst loss {worst_loss} messages; load average {os.getloadavg()[0]:.1f} '
+              f'on {os.cpu_count()} cores')
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return 0
