@@ -1,4 +1,4 @@
-"""Load a recording of the rig (CSV now; MCAP bags via :mod:`aeropend_core.bag`) into plain arrays.
+"""Load a recording of the rig (CSV, or MCAP bags via :mod:`aeropend_core.bag`) into plain arrays.
 
 A :class:`Recording` is a time vector and named signals, SI units, time-first arrays of shape ``(n_samples,)``:
 ``duty`` [1], ``armature_voltage`` [V], ``armature_current`` [A], ``angle`` [rad], plus any truth columns a
@@ -97,8 +97,8 @@ def load_csv(path: str | Path) -> Recording:
 
 
 def load_recording(path: str | Path) -> Recording:
-    """Load a recording by file type: ``.csv`` now; MCAP bags (``.mcap`` or a bag folder) through
-    :mod:`aeropend_core.bag` when available."""
+    """Load a recording by file type: ``.csv``, or an MCAP bag (``.mcap`` file or bag folder, its
+    ``/aeropend/samples``; a file cut short by a killed recorder is read up to its last complete chunk)."""
     path = Path(path)
     if not path.exists():
         raise AeropendError(f'no such file or folder: {path}')
@@ -110,13 +110,10 @@ def load_recording(path: str | Path) -> Recording:
 
 
 def _load_bag(path: Path) -> Recording:
-    try:
-        from aeropend_core import bag
-        read_samples = bag.read_samples
-    except (ImportError, AttributeError):
-        raise AeropendError(f'{path}: reading MCAP bags needs aeropend_core.bag.read_samples') from None
+    """The ``/aeropend/samples`` of an MCAP bag (folder or ``.mcap``), see :func:`aeropend_core.bag.read_samples`."""
+    from aeropend_core.bag import read_samples
     samples = read_samples(path)
-    columns = samples if isinstance(samples, Mapping) else getattr(samples, 'columns')()
-    if 't' not in columns and 'time' in columns:
-        columns = {'t': columns['time'], **{k: v for k, v in columns.items() if k != 'time'}}
+    columns = {'t': samples['time']}
+    # integer-nanosecond clocks (stamp_ns, receive_time_ns) do not survive float64; t already holds the stamps
+    columns.update({k: v for k, v in samples.items() if k != 'time' and not k.endswith('_ns')})
     return from_columns(columns, source=str(path))

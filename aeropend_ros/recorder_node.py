@@ -133,8 +133,8 @@ class RecorderNode(Node):
             'uncompressed bytes per MCAP chunk; a kill loses at most the chunk in progress',
             integer_range=[IntegerRange(from_value=1024, to_value=64 * 1024 * 1024, step=1)]))
         self.declare_parameter('compression', 'zstd', desc('chunk compression: zstd, lz4 or none'))
-        self.declare_parameter('queue_depth', 1000, desc(
-            'subscription history depth (messages buffered between executor turns)',
+        self.declare_parameter('queue_depth', 10000, desc(
+            'subscription history depth: messages DDS buffers while the recorder is busy (10000 = 20 s at 490 Hz)',
             integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)]))
         self.declare_parameter('max_queue', 1_000_000, desc(
             'messages waiting for the writer thread before new ones are dropped (and counted)',

@@ -337,3 +337,16 @@ def test_recover_leaves_intact_bag_alone(tmp_path):
     assert report.repaired == [] and len(report.intact) == 1
     assert (tmp_path / 'ok' / 'ok_0.mcap').read_bytes() == before
     assert report.message_count == 300 + len(range(0, 300, 49))
+
+
+def test_load_recording_accepts_bags(tmp_path):
+    """`aeropend identify/diagnose` load recordings through load_recording: a bag folder or .mcap works."""
+    from aeropend_core.recording import load_recording
+    write_bag(tmp_path / 'rec', 600).finish()
+    for path in (tmp_path / 'rec', tmp_path / 'rec' / 'rec_0.mcap'):
+        recording = load_recording(path)
+        assert len(recording) == 600
+        np.testing.assert_allclose(np.diff(recording.time), TS_NS * 1e-9, rtol=1e-9)
+        np.testing.assert_array_equal(recording.signal('angle'), [sample_values(k)[0] for k in range(600)])
+        np.testing.assert_array_equal(recording.signal('armature_voltage'), [sample_values(k)[1] for k in range(600)])
+        np.testing.assert_array_equal(recording.signal('duty'), [sample_values(k)[3] for k in range(600)])
