@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from aeropend_ros._node_util import declare, rclpy, run_node
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
@@ -120,7 +122,10 @@ class SimNode(Node):
         duty = min(max(self.commanded_duty, 0.0), float(self.get_parameter('duty_limit').value))
         try:
             block = self.simulator.run([duty] * count)
-        except (AeropendError, RuntimeError) as error:
+            # Work around states decaying into subnormal numbers at long rests (LSODA then returns NaN).
+            state = self.simulator.state
+            state[np.abs(state) < 1e-100] = 0.0
+        except (AeropendError, RuntimeError, ValueError) as error:
             self.get_logger().error(f'simulation failed: {error}; stopping')
             self.finished = True
             self.timer.cancel()

@@ -1,0 +1,272 @@
+"""identification_node: weak SINDy on sliding windows of ``/aeropend/samples``, live.
+
+Every ``hop_s`` seconds of acquisition time, the last ``window_s`` seconds of samples are analysed in a worker
+thread (the executor keeps receiving meanwhile; a window that comes due while the previous one is still being
+computed is skipped and counted) by :func:`aeropend_ros.online.analyze_window`: weak SINDy on the first part of the
+window, output-error refinement with the model's ``effects``, and a free-run fit on the held-out end.
+
+Published (all ``sensor_msgs/JointState`` so that every value is plottable by name; ``header.stamp`` = end of the
+window in acquisition time; ``name`` = quantity names, ``position`` = values, ``velocity`` = 1σ standard errors):
+
+- ``/aeropend/identification/coefficients`` — weak-SINDy coefficients of d²angle/dt² [rad/s² per unit term]
+- ``/aeropend/identification/parameters`` — physical parameters of the refined model, SI
+- ``/aeropend/identification/fit`` — ``fit_percent`` [%], ``rms_error`` [rad], ``noise_rms`` [rad],
+  ``held_out_seconds`` [s], ``compute_time`` [s], ``window_start`` [s] (velocity empty)
+- ``/diagnostics`` — window health (samples, lost samples), excitation sufficient or not and why, compute time,
+  skipped windows, the model's effects; also once a second while waiting for data.
+
+Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
+are changeable at runtime (``ros2 param set /identification_node effects "['angle_offset']"``); unknown effect
+names are rejected with the reason. The new values apply from the next window.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import threading
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+
+from aeropend_ros._node_util import declare, rclpy, run_node
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.model import SAMPLE_TIME
+from aeropend_ros import topics
+from aeropend_ros.online import WindowResult, analyze_window, check_effect_names, fill_gaps
+
+COEFFICIENTS_TOPIC = '/aeropend/identification/coefficients'
+PARAMETERS_TOPIC = '/aeropend/identification/parameters'
+FIT_TOPIC = '/aeropend/identification/fit'
+#: Name of the node's status in /diagnostics.
+DIAGNOSTIC_NAME = 'aeropend: identification'
+#: Fraction of lost samples above which a window is not analysed.
+MAX_LOST_FRACTION = 0.05
+
+
+def results_qos() -> QoSProfile:
+    """Reliable, keep last 10, transient local: a monitor started late still gets the latest results."""
+    return QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def named_values_msg(stamp_ns: int, values: dict[str, tuple[float, float]] | dict[str, float],
+                     with_errors: bool = True) -> JointState:
+    """A JointState with ``name`` = keys, ``position`` = values and (optionally) ``velocity`` = standard errors."""
+    msg = JointState()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    msg.header.frame_id = topics.SAMPLE_FRAME_ID
+    msg.name = list(values)
+    if with_errors:
+        msg.position = [float(v[0]) for v in values.values()]
+        msg.velocity = [float(v[1]) for v in values.values()]
+    else:
+        msg.position = [float(v) for v in values.values()]
+    return msg
+
+
+def msg_to_named_values(msg: JointState) -> dict[str, tuple[float, float]]:
+    """Inverse of :func:`named_values_msg`: ``{name: (value, standard_error or nan)}``."""
+    errors = list(msg.velocity) if len(msg.velocity) == len(msg.name) else [float('nan')] * len(msg.name)
+    return {name: (float(value), float(error)) for name, value, error in zip(msg.name, msg.position, errors)}
+
+
+def _analyze_in_worker(*args) -> WindowResult:
+    """Run :func:`analyze_window` in the worker process with single-threaded BLAS (2 shared cores)."""
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(1):
+        return analyze_window(*args, sample_time=SAMPLE_TIME)
+
+
+class IdentificationNode(Node):
+    """Sliding-window identification of the rig from the sample stream."""
+
+    def __init__(self, node_name: str = 'identification_node', **kwargs) -> None:
+        super().__init__(node_name, **kwargs)
+        declare(self, 'window_s', 20.0, 'window length [s] of acquisition time', low=4.0, high=600.0)
+        declare(self, 'hop_s', 5.0, 'a new window every hop_s seconds of acquisition time', low=0.5, high=600.0)
+        declare(self, 'holdout_fraction', 0.25, 'end fraction of each window held out for the fit score',
+                low=0.05, high=0.5)
+        effects = declare(self, 'effects', [''], 'catalog effects in the model (names; aeropend effects)')
+        self.effects = check_effect_names(effects)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+
+        self.lock = threading.Lock()
+        self.sequence: list[int] = []
+        self.stamps: list[int] = []
+        self.signals: dict[str, list[float]] = {'armature_voltage': [], 'armature_current': [], 'angle': []}
+        self.last_window_end_ns: int | None = None
+        # The analysis runs in a worker *process* (spawned: no fork of the DDS threads): a worker thread would
+        # hold the GIL for most of a window's fit and starve the executor, which then drops samples.
+        self.worker = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'))
+        self.pending = None
+        self.windows_done = 0
+        self.windows_skipped = 0
+        self.last_result: WindowResult | None = None
+        self.last_status = ('waiting for samples', DiagnosticStatus.OK)
+
+        # Best effort like the publisher, with a deep queue so that a busy moment does not drop samples.
+        deep = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, deep)
+        self.coefficients_publisher = self.create_publisher(JointState, COEFFICIENTS_TOPIC, results_qos())
+        self.parameters_publisher = self.create_publisher(JointState, PARAMETERS_TOPIC, results_qos())
+        self.fit_publisher = self.create_publisher(JointState, FIT_TOPIC, results_qos())
+        self.diagnostics_publisher = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS_TOPIC,
+                                                           topics.diagnostics_qos())
+        self.create_timer(1.0, self._on_status_timer)
+        self.get_logger().info(f'identifying on {self._window_s():g} s windows every {self._hop_s():g} s, '
+                               f'effects {list(self.effects) or "none"}')
+
+    # -------------------------------------------------------------------------------------------- parameters
+    def _window_s(self) -> float:
+        return float(self.get_parameter('window_s').value)
+
+    def _hop_s(self) -> float:
+        return float(self.get_parameter('hop_s').value)
+
+    def _validate_parameters(self, parameters) -> SetParametersResult:
+        """Reject unknown effect names (with the reason); apply valid effects from the next window."""
+        for parameter in parameters:
+            if parameter.name == 'effects':
+                try:
+                    effects = check_effect_names(list(parameter.value or []))
+                except AeropendError as error:
+                    return SetParametersResult(successful=False, reason=str(error))
+                self.effects = effects
+                self.get_logger().info(f'model effects now {list(effects) or "none"} (from the next window)')
+        return SetParametersResult(successful=True)
+
+    # --------------------------------------------------------------------------------------------- samples
+    def _on_sample(self, msg: JointState) -> None:
+        try:
+            sample = topics.msg_to_sample(msg)
+        except ValueError as error:
+            self.get_logger().warning(f'ignoring a sample: {error}', throttle_duration_sec=5.0)
+            return
+        with self.lock:
+            if self.sequence and sample.sequence <= self.sequence[-1]:
+                self.get_logger().warning('sample counter went back (source restarted): buffer cleared')
+                self._clear()
+            self.sequence.append(sample.sequence)
+            self.stamps.append(sample.stamp_ns)
+            self.signals['armature_voltage'].append(sample.armature_voltage)
+            self.signals['armature_current'].append(sample.armature_current)
+            self.signals['angle'].append(sample.angle)
+        self._maybe_start_window(sample.stamp_ns)
+
+    def _clear(self) -> None:
+        self.sequence.clear()
+        self.stamps.clear()
+        for values in self.signals.values():
+            values.clear()
+        self.last_window_end_ns = None
+
+    def _maybe_start_window(self, now_ns: int) -> None:
+        window_ns = int(self._window_s() * 1e9)
+        hop_ns = int(self._hop_s() * 1e9)
+        with self.lock:
+            first_ns = self.stamps[0]
+            if now_ns - first_ns < window_ns:
+                return
+            if self.last_window_end_ns is not None and now_ns - self.last_window_end_ns < hop_ns:
+                return
+            self.last_window_end_ns = now_ns
+            keep_from = int(np.searchsorted(np.asarray(self.stamps), now_ns - window_ns, side='right'))
+            snapshot = {'sequence': np.array(self.sequence[keep_from:], dtype=np.int64),
+                        'stamp_ns': np.array(self.stamps[keep_from:], dtype=np.int64)}
+            snapshot.update({k: np.array(v[keep_from:]) for k, v in self.signals.items()})
+            # Keep one window of history (the next window overlaps this one by window - hop).
+            drop = max(0, keep_from - 1)
+            if drop:
+                del self.sequence[:drop], self.stamps[:drop]
+                for values in self.signals.values():
+                    del values[:drop]
+        if self.pending is not None and not self.pending.done():
+            self.windows_skipped += 1
+            return
+        self._submit(snapshot, self.effects, float(self.get_parameter('holdout_fraction').value))
+
+    # ---------------------------------------------------------------------------------------------- worker
+    def _submit(self, snapshot: dict, effects: tuple[str, ...], holdout_fraction: float) -> None:
+        sequence = snapshot['sequence']
+        stop_ns = int(snapshot['stamp_ns'][-1] + round(SAMPLE_TIME * 1e9))
+        health = {'samples': str(sequence.size)}
+        grid, filled, missing = fill_gaps(sequence, {k: snapshot[k] for k in self.signals})
+        health['lost_samples'] = str(missing)
+        if missing > MAX_LOST_FRACTION * grid.size:
+            message = (f'{missing} of {grid.size} samples lost in the window (> {MAX_LOST_FRACTION:.0%}); '
+                       'check the link or the load')
+            self._report(message, DiagnosticStatus.WARN, health, effects=effects)
+            return
+        time = (snapshot['stamp_ns'][0] + (grid - grid[0]) * SAMPLE_TIME * 1e9) * 1e-9
+        self.pending = self.worker.submit(_analyze_in_worker, time, filled['armature_voltage'],
+                                          filled['armature_current'], filled['angle'], effects, holdout_fraction)
+        self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects))
+
+    def _on_result(self, future, stop_ns: int, health: dict, effects: tuple[str, ...]) -> None:
+        try:
+            result = future.result()
+        except InsufficientDataError as error:
+            self._report(str(error), DiagnosticStatus.WARN, health, excitation=str(error), effects=effects)
+            return
+        except Exception as error:  # noqa: BLE001 - a failed window must not kill the node; report it
+            self._report(f'window failed: {error}', DiagnosticStatus.ERROR, health, effects=effects)
+            self.get_logger().error(f'window analysis failed: {error!r}')
+            return
+        self.windows_done += 1
+        self.last_result = result
+        self.coefficients_publisher.publish(named_values_msg(stop_ns, result.coefficients))
+        self.parameters_publisher.publish(named_values_msg(stop_ns, result.parameters))
+        fit = {'fit_percent': result.fit_percent, 'rms_error': result.rms_error, 'noise_rms': result.noise_rms,
+               'held_out_seconds': result.held_out_seconds, 'compute_time': result.compute_time,
+               'window_start': result.start}
+        self.fit_publisher.publish(named_values_msg(stop_ns, fit, with_errors=False))
+        health['compute_time_s'] = f'{result.compute_time:.3f}'
+        health['fit_percent'] = f'{result.fit_percent:.2f}'
+        health['rms_error_rad'] = f'{result.rms_error:.5f}'
+        health['noise_rms_rad'] = f'{result.noise_rms:.5f}'
+        self._report(f'fit {result.fit_percent:.1f} % on {result.held_out_seconds:.1f} s held out',
+                     DiagnosticStatus.OK, health, excitation='sufficient', effects=effects)
+
+    def _report(self, message: str, level: bytes, values: dict[str, str], excitation: str = '',
+                effects: tuple[str, ...] = ()) -> None:
+        values = dict(values)
+        if excitation:
+            values['excitation'] = excitation if excitation == 'sufficient' else f'insufficient: {excitation}'
+        values['effects'] = ','.join(effects) or 'none'
+        values['windows_done'] = str(self.windows_done)
+        values['windows_skipped'] = str(self.windows_skipped)
+        self.last_status = (message, level)
+        self._publish_status(message, level, values)
+
+    def _publish_status(self, message: str, level: bytes, values: dict[str, str]) -> None:
+        status = DiagnosticStatus(level=level, name=DIAGNOSTIC_NAME, message=message, hardware_id='aeropend')
+        status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+        array = DiagnosticArray()
+        array.header.stamp = self.get_clock().now().to_msg()
+        array.status = [status]
+        self.diagnostics_publisher.publish(array)
+
+    def _on_status_timer(self) -> None:
+        with self.lock:
+            buffered = (self.stamps[-1] - self.stamps[0]) * 1e-9 if len(self.stamps) > 1 else 0.0
+        if self.windows_done == 0 and (self.pending is None or self.pending.done()) \
+                and self.last_status[0] == 'waiting for samples':
+            self._publish_status(f'waiting for data: {buffered:.1f} of {self._window_s():g} s buffered',
+                                 DiagnosticStatus.OK, {'effects': ','.join(self.effects) or 'none'})
+
+    def destroy_node(self) -> None:
+        self.worker.shutdown(wait=True, cancel_futures=True)
+        super().destroy_node()
+
+
+def main(args=None) -> int:
+    """Run the identification node until Ctrl-C."""
+    return run_node(IdentificationNode, args, prefer_events=False)
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

@@ -1,0 +1,233 @@
+"""Analysis of one sliding window of samples for the online identification (ROS-free; used by the node).
+
+Per window (time-first arrays of shape ``(n,)``, SI units):
+
+1. **Excitation check** — the first ``1 - holdout_fraction`` of the window (training part) must hold at least
+   ``min_steps`` steps of the armature voltage and a voltage range of ``min_voltage_range`` V, and the held-out
+   part must move the rod by more than a few noise levels; otherwise :class:`InsufficientDataError` says why.
+2. **Weak SINDy** on the training part (:func:`aeropend_core.identify.identify_pendulum`): the coefficients of
+   ``d²angle/dt² = Σ w_j θ_j`` with standard errors and the derived parameters. Effects that the angle-only weak
+   form can express (``cable_torque``, ``angle_offset``) enter its library.
+3. **Output-error refinement** on the training part (:mod:`aeropend_core.output_error`, multiple shooting over
+   ~10 s segments), started from the weak-SINDy values, with *every* requested effect (friction, drag, lag, dead
+   zone included): the physical parameters ± 1σ.
+4. **Held-out fit**: free-run simulation of the refined model over the held-out part, driven by the measured
+   Va and Ia from the measured initial angle: fit % = 100·(1 − ‖y − ŷ‖/‖y − mean(y)‖) (MATLAB ``compare``
+   convention, simulation, not one-step prediction), RMS error [rad] and the angle's noise RMS [rad] (the floor).
+
+The analysis is a plain function so that it can be swapped (e.g. for the diagnosis loop's ``compare``) in one place.
+"""
+from __future__ import annotations
+
+import math
+import time as _time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aeropend_core.effects import get_effect
+from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.model import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
+
+#: Effects the angle-only weak form can carry as library terms (others only enter the output-error stage).
+WEAK_FORM_EFFECTS = ('cable_torque', 'angle_offset')
+#: Output-error segment length [s] (NOTES.md section 7: ~10 s segments are stable, ~3 s collapse).
+SEGMENT_SECONDS = 10.0
+
+
+@dataclass
+class WindowResult:
+    """What one window produced. Dicts map a name to ``(value, standard_error)``, SI units.
+
+    Attributes
+    ----------
+    start, stop : float
+        Window bounds, acquisition time [s] (same epoch as the sample stamps).
+    effects : tuple of str
+        Effects in the model for this window.
+    coefficients : dict
+        Weak-SINDy coefficients of d²angle/dt² [rad/s² per unit term] by term name.
+    parameters : dict
+        Physical parameters of the refined model (``gravity_stiffness`` 1/s², ``damping`` 1/s, ``thrust_gain``
+        rad/s²/V², ``thrust_resistance`` Ω, ``thrust_coefficient`` Kq N·s², plus each effect's parameters).
+    fit_percent : float
+        Held-out free-run fit [%] (100 is perfect; can be negative).
+    rms_error, noise_rms : float
+        Held-out RMS angle error and the angle's measurement-noise RMS [rad].
+    held_out_seconds : float
+        Length of the held-out part [s].
+    compute_time : float
+        Wall time of the analysis [s].
+    """
+
+    start: float
+    stop: float
+    effects: tuple[str, ...]
+    coefficients: dict[str, tuple[float, float]] = field(default_factory=dict)
+    parameters: dict[str, tuple[float, float]] = field(default_factory=dict)
+    fit_percent: float = float('nan')
+    rms_error: float = float('nan')
+    noise_rms: float = float('nan')
+    held_out_seconds: float = 0.0
+    compute_time: float = 0.0
+
+
+def check_effect_names(names: Sequence[str]) -> tuple[str, ...]:
+    """Validate model-effect names against the catalog; returns them without blanks/duplicates.
+
+    Raises
+    ------
+    UnknownEffectError
+        For a name not in the catalog (the message lists the known ones).
+    AeropendError
+        For ``NAME=VALUE`` (the identification takes names only: it fits the values).
+    """
+    result = []
+    for raw in names:
+        name = raw.strip()
+        if not name:
+            continue
+        if '=' in name:
+            raise AeropendError(f'{name!r}: give effect names only (e.g. {name.partition("=")[0]!r}); '
+                                'the identification fits their values')
+        get_effect(name)
+        if name not in result:
+            result.append(name)
+    return tuple(result)
+
+
+def check_excitation(armature_voltage: np.ndarray, angle: np.ndarray, n_train: int, sample_time: float,
+                     min_steps: int = 2, min_voltage_range: float = 0.05) -> None:
+    """Raise :class:`InsufficientDataError` naming the problem when the window cannot identify the model."""
+    from aeropend_core.preprocess import detect_steps, noise_rms
+    train = armature_voltage[:n_train]
+    voltage_range = float(np.ptp(train)) if train.size else 0.0
+    if voltage_range < min_voltage_range:
+        raise InsufficientDataError(f'excitation insufficient: Va varies by {voltage_range:.3f} V '
+                                    f'(< {min_voltage_range} V) in the training part; apply duty steps')
+    steps = len(detect_steps(train, sample_time))
+    if steps < min_steps:
+        raise InsufficientDataError(f'excitation insufficient: {steps} duty step(s) in the training part '
+                                    f'(need {min_steps}); use a longer window or shorter dwells')
+    held = angle[n_train:]
+    noise = noise_rms(held)
+    if held.size < 50 or not np.std(held) > 3.0 * max(noise, 1e-6):
+        raise InsufficientDataError('excitation insufficient: the rod barely moves in the held-out part, so the '
+                                    'held-out fit means nothing; use a longer window or more steps')
+
+
+def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_current: np.ndarray,
+                   angle: np.ndarray, effects: Sequence[str] = (), holdout_fraction: float = 0.25,
+                   sample_time: float = SAMPLE_TIME, parameters: RigParameters = DEFAULT_PARAMETERS,
+                   max_iterations: int = 30) -> WindowResult:
+    """Identify the pendulum on one window and score it on its held-out end (module docstring).
+
+    Parameters
+    ----------
+    time : ndarray, shape (n,)
+        Acquisition times [s], uniformly spaced by `sample_time` (fill lost samples before calling).
+    armature_voltage, armature_current, angle : ndarray, shape (n,)
+        Va [V], Ia [A], angle [rad].
+    effects : sequence of str
+        Catalog effects in the model.
+    holdout_fraction : float
+        Fraction of the window (its end) kept out of the fit and used for the held-out score.
+
+    Raises
+    ------
+    InsufficientDataError
+        Excitation too poor, or too few samples.
+    """
+    from aeropend_core import output_error as oe
+    from aeropend_core.identify import identify_pendulum
+    from aeropend_core.preprocess import condition_inputs, noise_rms
+
+    started = _time.perf_counter()
+    effects = check_effect_names(effects)
+    time = np.asarray(time, dtype=float)
+    voltage = np.asarray(armature_voltage, dtype=float)
+    current = np.asarray(armature_current, dtype=float)
+    angle = np.asarray(angle, dtype=float)
+    n = time.size
+    if not 0.0 < holdout_fraction < 1.0:
+        raise AeropendError(f'holdout_fraction must be in (0, 1), got {holdout_fraction}')
+    n_train = int(round(n * (1.0 - holdout_fraction)))
+    if n_train < int(2.0 / sample_time) or n - n_train < int(0.5 / sample_time):
+        raise InsufficientDataError(f'window of {n * sample_time:.1f} s too short: need >= 2 s of training and '
+                                    '0.5 s held out')
+    check_excitation(voltage, angle, n_train, sample_time)
+
+    weak_effects = [name for name in effects if name in WEAK_FORM_EFFECTS]
+    weak = identify_pendulum(time[:n_train], voltage[:n_train], current[:n_train], angle[:n_train],
+                             effects=weak_effects, parameters=parameters)
+    equation = weak.equation
+    coefficients = {name: (float(value), float(equation.standard_errors.get(name, float('nan'))))
+                    for name, value in equation.coefficients.items()}
+
+    # Output-error refinement with every requested effect, started from the weak-form values.
+    p = weak.parameters
+    start = {'gravity_stiffness': max(p.get('gravity_stiffness', 0.0), 1.0), 'damping': max(p.get('damping', 0.0), 0.1),
+             'thrust_gain': max(p.get('thrust_acceleration_coefficient', 0.0), 1.0),
+             'thrust_resistance': min(max(p.get('armature_resistance', 1.0), 0.1), 5.0)}
+    for name in effects:
+        for parameter in get_effect(name).parameters:
+            start[parameter.name] = parameter.typical
+    if 'angle_offset' in p and math.isfinite(p['angle_offset']):
+        start['offset'] = float(np.clip(p['angle_offset'], -0.49, 0.49))
+    if 'cable_stiffness' in p and math.isfinite(p['cable_stiffness']):
+        start['cable_stiffness'] = max(p['cable_stiffness'], 0.0)
+    conditioned = condition_inputs(voltage, current, sample_time)
+    cv, ci = conditioned.armature_voltage, conditioned.armature_current
+    structure = oe.Structure(effects)
+    step = int(round(SEGMENT_SECONDS / sample_time))
+    segments = [(s, min(s + step, n_train)) for s in range(0, n_train, step)]
+    if len(segments) > 1 and segments[-1][1] - segments[-1][0] < step // 2:   # fold a short tail into its neighbour
+        segments[-2:] = [(segments[-2][0], segments[-1][1])]
+    train = oe.SegmentedData(cv[:n_train], ci[:n_train], angle[:n_train], segments, sample_time)
+    refined = oe.fit_output_error(train, structure, start, max_iterations=max_iterations)
+    values = dict(refined.parameters)
+    errors = dict(refined.standard_errors)
+    scale = (parameters.gear_ratio * parameters.back_emf_constant) ** 2 / parameters.lever_per_inertia
+    values['thrust_coefficient'] = values['thrust_gain'] * scale
+    errors['thrust_coefficient'] = errors.get('thrust_gain', float('nan')) * scale
+
+    held = oe.SegmentedData(cv[n_train:], ci[n_train:], angle[n_train:], [(0, n - n_train)], sample_time)
+    initial = oe.initial_states_from_data(held, values.get('offset', 0.0))
+    predicted = oe.simulate_angle(held, refined.parameters, structure, initial)
+    landed = np.isfinite(predicted)
+    measured = angle[n_train:][landed]
+    error = predicted[landed] - measured
+    spread = float(np.linalg.norm(measured - measured.mean()))
+    fit_percent = 100.0 * (1.0 - float(np.linalg.norm(error)) / spread) if spread > 0 else float('nan')
+    return WindowResult(
+        start=float(time[0]), stop=float(time[-1] + sample_time), effects=effects, coefficients=coefficients,
+        parameters={name: (float(values[name]), float(errors.get(name, float('nan')))) for name in values},
+        fit_percent=fit_percent, rms_error=float(np.sqrt(np.mean(error ** 2))),
+        noise_rms=float(noise_rms(angle[n_train:])), held_out_seconds=(n - n_train) * sample_time,
+        compute_time=_time.perf_counter() - started)
+
+
+def fill_gaps(sequence: np.ndarray, columns: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray], int]:
+    """Put samples on the full sequence grid, filling lost ones by linear interpolation.
+
+    Parameters
+    ----------
+    sequence : ndarray of int, shape (n,)
+        Increasing sample counters.
+    columns : dict of ndarray, shape (n,)
+
+    Returns
+    -------
+    grid : ndarray of int, shape (m,)
+        ``sequence[0] .. sequence[-1]``.
+    filled : dict of ndarray, shape (m,)
+    missing : int
+        Number of samples filled in.
+    """
+    sequence = np.asarray(sequence, dtype=np.int64)
+    grid = np.arange(sequence[0], sequence[-1] + 1)
+    missing = int(grid.size - sequence.size)
+    if missing == 0:
+        return grid, {k: np.asarray(v, dtype=float) for k, v in columns.items()}, 0
+    return grid, {k: np.interp(grid, sequence, np.asarray(v, dtype=float)) for k, v in columns.items()}, missing
