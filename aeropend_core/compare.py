@@ -81,6 +81,7 @@ class PreparedRecord:
     noise_rms: float
     split: int
     motor: MotorFit | None = None
+    gate_voltage: np.ndarray | None = None
     train: SegmentedData = field(init=False)
     heldout: SegmentedData = field(init=False)
     full: SegmentedData = field(init=False)
@@ -89,10 +90,12 @@ class PreparedRecord:
         n = len(self.time)
         first = min(STEP_GUARD, n // 10)   # skip a possible step transient at the very start
         train_segments = segment_at_steps(first, self.split, self.step_indices, self.sample_time)
-        self.train = SegmentedData(self.voltage, self.current, self.angle, train_segments, self.sample_time)
-        self.heldout = SegmentedData(self.voltage, self.current, self.angle, [(self.split, n)], self.sample_time)
+        self.train = SegmentedData(self.voltage, self.current, self.angle, train_segments, self.sample_time,
+                                   self.gate_voltage)
+        self.heldout = SegmentedData(self.voltage, self.current, self.angle, [(self.split, n)], self.sample_time,
+                                   self.gate_voltage)
         self.full = SegmentedData(self.voltage, self.current, self.angle, train_segments + [(self.split, n)],
-                                  self.sample_time)
+                                  self.sample_time, self.gate_voltage)
 
     @property
     def duration(self) -> float:
@@ -188,7 +191,7 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
     return PreparedRecord(time=time, armature_voltage=voltage, armature_current=current, angle=angle,
                           sample_time=sample_time, voltage=thrust_voltage, current=thrust_current,
                           step_indices=conditioned.step_indices, noise_rms=noise_rms(angle), split=split,
-                          motor=motor)
+                          motor=motor, gate_voltage=stepped if stepped is not None else conditioned.armature_voltage)
 
 
 def initial_guess(prep: PreparedRecord) -> dict[str, float]:
@@ -239,19 +242,24 @@ def effect_start_values(effects: Sequence[str]) -> dict[str, float]:
     return start
 
 
-def dead_zone_thresholds(prep: PreparedRecord, max_candidates: int = 16) -> np.ndarray:
-    """Candidate dead-zone thresholds [V]: midpoints between the distinct held input levels in the data."""
-    bounds = np.concatenate(([0], prep.step_indices, [len(prep.voltage)]))
+def input_levels(prep: PreparedRecord) -> np.ndarray:
+    """The distinct held armature-voltage levels [V] in the data (median of each step interval), sorted."""
+    bounds = np.concatenate(([0], prep.step_indices, [len(prep.armature_voltage)]))
     levels = np.array([np.median(prep.armature_voltage[a:b]) for a, b in zip(bounds[:-1], bounds[1:]) if b > a])
-    levels = np.unique(np.round(levels[levels > 0.05], 3))
+    return np.unique(np.round(levels[levels > 0.05], 4))
+
+
+def dead_zone_thresholds(prep: PreparedRecord) -> np.ndarray:
+    """Candidate dead-zone thresholds [V]: midpoints between the held input levels (below 75 % of the largest).
+
+    The fit cannot place a threshold more finely than the levels the data holds: between two adjacent levels the
+    residual does not change.
+    """
+    levels = input_levels(prep)
     if levels.size < 2:
         return np.zeros(0)
-    mids = 0.5 * (levels[1:] + levels[:-1])
-    mids = np.concatenate(([levels[0] * 0.5], mids))
-    mids = mids[mids < 0.75 * levels.max()]     # a dead zone above most of the data would leave nothing to fit
-    if mids.size > max_candidates:
-        mids = mids[np.linspace(0, mids.size - 1, max_candidates).round().astype(int)]
-    return mids
+    mids = np.concatenate(([levels[0] * 0.5], 0.5 * (levels[1:] + levels[:-1])))
+    return mids[mids < 0.75 * levels.max()]
 
 
 def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str, float] | None = None,
@@ -272,21 +280,25 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     thresholds = dead_zone_thresholds(prep)
     if thresholds.size == 0:
         raise InsufficientDataError('a dead zone needs steps at several small duty levels; none are in the data')
-    # Profile: rank thresholds with the other parameters at their start values, then refit the best few.
-    fixed_scores = []
-    for threshold in thresholds:
-        fit = fit_output_error(data, structure, values, fixed={**fixed_base, 'threshold_voltage': threshold},
-                               max_iterations=4)
-        fixed_scores.append(fit.residual_rms)
-    order = np.argsort(fixed_scores)[:3]
+    # Profile: rank thresholds by one simulation each at the start values, then refit the best few.
+    initial = initial_states_from_data(data, values.get('offset', 0.0))
+    rows = np.array([structure.row({**values, **fixed_base, 'threshold_voltage': t}) for t in thresholds])
+    simulated = data.simulate(structure, rows, np.repeat(initial[None], len(rows), axis=0))
+    index = data.residual_index
+    scores = np.sqrt(np.mean((simulated[:, index] - data.angle[index]) ** 2, axis=1))
+    order = np.argsort(scores)[:3]
     best = None
     for index in order:
         fit = fit_output_error(data, structure, values, fixed={**fixed_base, 'threshold_voltage': thresholds[index]})
         if best is None or fit.residual_rms < best.residual_rms:
             best = fit
-    levels_below = thresholds[thresholds < best.parameters['threshold_voltage']]
-    best.extra['threshold_interval'] = (float(levels_below.max()) if levels_below.size else 0.0,
-                                        best.parameters['threshold_voltage'])
+    levels = input_levels(prep)
+    threshold = best.parameters['threshold_voltage']
+    low = float(levels[levels < threshold].max()) if np.any(levels < threshold) else 0.0
+    high = float(levels[levels > threshold].min()) if np.any(levels > threshold) else threshold
+    best.extra['threshold_interval'] = (low, high)
+    # Anywhere between the two levels fits equally: a uniform uncertainty over that interval.
+    best.standard_errors['threshold_voltage'] = (high - low) / math.sqrt(12.0)
     return best
 
 
@@ -324,7 +336,8 @@ def _heldout_simulation(prep: PreparedRecord, fit: OutputErrorFit) -> np.ndarray
     start, stop = prep.split, len(prep.time)
     head = min(stop, start + int(round(HELDOUT_INITIAL_SECONDS / prep.sample_time)))
     fixed = dict(fit.parameters)
-    head_data = SegmentedData(prep.voltage, prep.current, prep.angle, [(start, head)], prep.sample_time)
+    head_data = SegmentedData(prep.voltage, prep.current, prep.angle, [(start, head)], prep.sample_time,
+                              prep.gate_voltage)
     ic_fit = fit_output_error(head_data, structure, fixed, fixed=fixed, max_iterations=30)
     return prep.heldout.simulate(structure, structure.row(fit.parameters)[None],
                                  ic_fit.initial_states[None])[0]
@@ -337,7 +350,8 @@ def _k_step_prediction(prep: PreparedRecord, fit: OutputErrorFit, horizon: float
     if starts.size == 0:
         return np.zeros(0, dtype=int), np.zeros(0)
     segments = [(int(s), int(s) + k + STRIDE) for s in starts]
-    data = SegmentedData(prep.voltage, prep.current, prep.angle, segments, prep.sample_time)
+    data = SegmentedData(prep.voltage, prep.current, prep.angle, segments, prep.sample_time,
+                              prep.gate_voltage)
     window = max(7, int(round(0.1 / prep.sample_time)) | 1)
     smooth = savgol_filter(prep.angle, window, 3)
     rate = savgol_filter(prep.angle, window, 3, deriv=1, delta=prep.sample_time)

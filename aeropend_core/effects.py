@@ -211,7 +211,7 @@ for _effect in (
     Effect('quadratic_drag', 'aerodynamic drag of the rod and motor pod, growing with the square of the speed',
            'residual ~ W|W|: damping that grows with swing speed',
            PENDULUM, (EffectParameter('drag_coefficient', '1/rad',
-                                      'drag per unit inertia, Cd', 1.5, 0.0, 100.0),),
+                                      'drag per unit inertia, Cd', 4.0, 0.0, 100.0),),
            _quadratic_drag, 'eq (6): dW/dt = ... - Cd W|W|', builtin=True),
     Effect('cable_torque', 'the motor cable acting as a torsion spring about the pivot',
            'residual ~ y (linear) next to gravity\'s sin y: differs only at large angles',

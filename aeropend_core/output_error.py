@@ -55,7 +55,8 @@ MIN_TIME_CONSTANT = 0.005
 
 
 @numba.njit(cache=True, nogil=True)
-def _simulate_kernel(theta, voltage, current, seg_start, seg_stop, initial, sample_time, lag_on, gate_on, out):
+def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, initial, sample_time, lag_on, gate_on,
+                     out):
     """RK4 free-run of every parameter row over every segment; writes predicted measured angle into `out`."""
     h = STRIDE * sample_time
     n_rows = theta.shape[0]
@@ -70,7 +71,7 @@ def _simulate_kernel(theta, voltage, current, seg_start, seg_stop, initial, samp
         offset = theta[row, 7]
         tau = max(theta[row, 8], MIN_TIME_CONSTANT)
         vth = theta[row, 9]
-        smooth = max(0.02, fc * h)
+        smooth = max(0.005, 0.5 * fc * h)
         for s in range(seg_start.shape[0]):
             start = seg_start[s]
             stop = seg_stop[s]
@@ -78,7 +79,7 @@ def _simulate_kernel(theta, voltage, current, seg_start, seg_stop, initial, samp
             w = initial[row, s, 1]
             e = voltage[start] - r * current[start]
             f = k * e * abs(e)
-            if gate_on and voltage[start] < vth:
+            if gate_on and gate_signal[start] < vth:
                 f = 0.0
             i = start
             while True:
@@ -93,7 +94,7 @@ def _simulate_kernel(theta, voltage, current, seg_start, seg_stop, initial, samp
                     idx = i + j
                     e = voltage[idx] - r * current[idx]
                     u = k * e * abs(e)
-                    if gate_on and voltage[idx] < vth:
+                    if gate_on and gate_signal[idx] < vth:
                         u = 0.0
                     if j == 0:
                         u0 = u
@@ -134,8 +135,8 @@ def _simulate_kernel(theta, voltage, current, seg_start, seg_stop, initial, samp
                 i += STRIDE
 
 
-def _simulate_numpy(theta, voltage, current, seg_start, seg_stop, initial, sample_time, lag_on, gate_on, out,
-                    user_terms):
+def _simulate_numpy(theta, voltage, current, gate_signal, seg_start, seg_stop, initial, sample_time, lag_on, gate_on,
+                    out, user_terms):
     """The kernel's scheme in numpy, vectorised over parameter rows; also runs users' pendulum effects.
 
     `user_terms` is a list of ``(function, {parameter name: column})``.
@@ -144,12 +145,12 @@ def _simulate_numpy(theta, voltage, current, seg_start, seg_stop, initial, sampl
     a, b, k, r, fc, cd, kc, offset = (theta[:, c] for c in range(8))
     tau = np.maximum(theta[:, 8], MIN_TIME_CONSTANT)
     vth = theta[:, 9]
-    smooth = np.maximum(0.02, fc * h)
+    smooth = np.maximum(0.005, 0.5 * fc * h)
 
     def thrust(idx):
         e = voltage[idx] - r * current[idx]
         u = k * e * np.abs(e)
-        return np.where(voltage[idx] < vth, 0.0, u) if gate_on else u
+        return np.where(gate_signal[idx] < vth, 0.0, u) if gate_on else u
 
     def accel(y, w, t):
         value = -a * np.sin(y) - b * w + t - fc * np.tanh(w / smooth) - cd * w * np.abs(w) - kc * y
@@ -246,13 +247,16 @@ class SegmentedData:
     Attributes
     ----------
     voltage, current : ndarray, shape (n,)
-        Conditioned Va [V], Ia [A] (see :mod:`aeropend_core.preprocess`).
+        Thrust voltage and current [V], [A]: the thrust term uses e = voltage - R current (conditioned Va and Ia,
+        or the motor observer's back-EMF with zero current).
     angle : ndarray, shape (n,)
         Measured angle [rad].
     segments : list of (start, stop)
         Sample ranges simulated independently, each with its own initial state.
     sample_time : float
         Ts [s].
+    gate_signal : ndarray, shape (n,), optional
+        The armature voltage [V] a dead zone compares with its threshold (default: `voltage`).
     """
 
     voltage: np.ndarray
@@ -260,8 +264,11 @@ class SegmentedData:
     angle: np.ndarray
     segments: list[tuple[int, int]]
     sample_time: float
+    gate_signal: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        if self.gate_signal is None:
+            self.gate_signal = self.voltage
         starts = np.array([s for s, _ in self.segments], dtype=np.int64)
         stops = np.array([e for _, e in self.segments], dtype=np.int64)
         if len(starts) == 0 or np.any(stops - starts < 4 * STRIDE):
@@ -279,10 +286,10 @@ class SegmentedData:
         out = np.full((len(rows), len(self.angle)), np.nan)
         terms = structure.user_terms()
         if terms:
-            _simulate_numpy(rows, self.voltage, self.current, self.seg_start, self.seg_stop, initial,
+            _simulate_numpy(rows, self.voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
                             self.sample_time, structure.lag_on, structure.gate_on, out, terms)
         else:
-            _simulate_kernel(rows, self.voltage, self.current, self.seg_start, self.seg_stop, initial,
+            _simulate_kernel(rows, self.voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
                              self.sample_time, structure.lag_on, structure.gate_on, out)
         return out
 

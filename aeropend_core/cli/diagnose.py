@@ -1,0 +1,92 @@
+"""Compare the model with a recording, show where it fails and which physical effect is missing.
+
+The recording (CSV from `aeropend simulate` or a rig log, or an MCAP bag) must hold armature_voltage [V],
+armature_current [A] and angle [rad]; only these are used. The model (nominal + the --add effects) is fitted on the
+first 75 % and judged on the last 25 % by a free-run simulation of the angle (fit % as MATLAB compare). Each
+catalog effect not yet in the model is tried as an augmentation and ranked.
+
+Examples:
+  aeropend diagnose bags/exercise.csv
+  aeropend diagnose bags/exercise.csv --add coulomb_friction --report report.html
+  aeropend diagnose run.csv --json
+  aeropend diagnose run.csv --effects-module my_effects.py     # your own registered effects become candidates
+"""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+from aeropend_core.errors import AeropendError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('data', help='recording: .csv, .mcap or an MCAP bag folder')
+    parser.add_argument('--add', action='append', default=[], metavar='EFFECT',
+                        help='effect to include in the model (repeatable); see `aeropend effects`')
+    parser.add_argument('--only', action='append', default=None, metavar='EFFECT',
+                        help='try only these candidate effects (repeatable; default: the whole catalog)')
+    parser.add_argument('--effects-module', action='append', default=[], metavar='FILE.py',
+                        help='a Python file that registers your own effects (register_effect)')
+    parser.add_argument('--report', metavar='FILE.html', help='write a self-contained HTML report')
+    parser.add_argument('--json', action='store_true', help='print one JSON object instead of the text summary')
+    parser.add_argument('--quiet', action='store_true', help='no progress messages on standard error')
+
+
+def load_effects_module(path: str) -> None:
+    """Execute a user's Python file that registers effects with aeropend_core.effects.register_effect."""
+    file = Path(path)
+    if not file.is_file():
+        raise AeropendError(f'effects module {path} does not exist')
+    spec = importlib.util.spec_from_file_location(f'aeropend_user_effects_{file.stem}', file)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except AeropendError:
+        raise
+    except Exception as error:  # a user's file: report what went wrong in it, briefly
+        raise AeropendError(f'loading {path} failed: {type(error).__name__}: {error}') from None
+
+
+def main(args: argparse.Namespace) -> int:
+    from aeropend_core.diagnose import diagnose
+    from aeropend_core.recording import load_recording
+
+    for path in args.effects_module:
+        load_effects_module(path)
+    recording = load_recording(args.data)
+
+    def progress(message: str) -> None:
+        if not args.quiet:
+            print(f'diagnose: {message}', file=sys.stderr, flush=True)
+
+    diagnosis = diagnose(recording, effects=args.add, candidates=args.only, progress=progress)
+    if args.report:
+        from aeropend_core.report import write_report
+        written = write_report(diagnosis, args.report)
+        progress(f'report written to {written}')
+    if args.json:
+        print(json.dumps(finite_json(diagnosis.to_dict()), indent=2, allow_nan=False))
+    else:
+        print(diagnosis.summary())
+    return 0
+
+
+def finite_json(value):
+    """Plain JSON types with NaN/inf replaced by null (JSON has no NaN)."""
+    import math
+
+    import numpy as np
+    if isinstance(value, dict):
+        return {str(k): finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return finite_json(value.tolist())
+    if isinstance(value, (np.generic,)):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
