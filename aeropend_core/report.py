@@ -439,7 +439,7 @@ def _noise_limited_fit(diagnosis: Diagnosis) -> float:
 def _verdict_html(diagnosis: Diagnosis) -> str:
     title = VERDICT_TITLES.get(diagnosis.verdict, diagnosis.verdict).format(missing=diagnosis.missing_effect)
     css = VERDICT_CLASSES.get(diagnosis.verdict, 'warn')
-    parts = [f'<div class="verdict {css}" id="verdict"><div class="title">{_esc(title)}</div>',
+    parts = [f'<section class="verdict {css}" id="verdict"><div class="title">{_esc(title)}</div>',
              f'<div>{_esc(diagnosis.message)}</div>']
     if diagnosis.verdict == 'effect_found':
         added = ''.join(f' --add {e}' for e in (*diagnosis.effects, diagnosis.missing_effect))
@@ -448,7 +448,7 @@ def _verdict_html(diagnosis: Diagnosis) -> str:
     if diagnosis.notes:
         parts.append(f'<div style="margin-top:6px">{len(diagnosis.notes)} note(s) on confounding and experiments: '
                      f'<a href="#notes">see below</a>.</div>')
-    parts.append('</div>')
+    parts.append('</section>')
     return ''.join(parts)
 
 

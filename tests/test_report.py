@@ -1,0 +1,159 @@
+"""The HTML diagnosis report: one self-contained file with the verdict, the key numbers, decodable PNG plots and
+every candidate; and `aeropend diagnose --report` writing the before -> after comparison.
+
+Two diagnoses in all (about 5-10 s each) on a 30 s simulated record with dry friction hidden, PSNR 40 dB and
+10-bit angle quantisation, only Va/Ia/angle given.
+"""
+import base64
+import dataclasses
+import html
+import io
+import json
+import re
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from aeropend_core.cli import main as aeropend
+from aeropend_core.cli.simulate import write_csv
+from aeropend_core.diagnose import diagnose
+from aeropend_core.errors import AeropendError
+from aeropend_core.excitation import lhc_schedule
+from aeropend_core.model import SAMPLE_TIME
+from aeropend_core.noise import MeasurementNoise
+from aeropend_core.recording import from_columns
+from aeropend_core.report import VERDICT_TITLES, write_report
+from aeropend_core.simulate import simulate
+
+DURATION = 30.0
+SEED = 3
+HIDDEN = {'coulomb_friction': 4.0}     # rad/s^2, the catalog's typical dry friction
+PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
+MAX_BYTES = 2 * 1024 * 1024
+
+
+@pytest.fixture(scope='module')
+def trajectory():
+    duty = lhc_schedule(DURATION, seed=SEED).duty(SAMPLE_TIME, DURATION)
+    return simulate(duty, effects=HIDDEN, noise=MeasurementNoise(40, True), seed=SEED)
+
+
+@pytest.fixture(scope='module')
+def diagnosis(trajectory):
+    return diagnose(from_columns(trajectory.columns(with_truth=False), source='friction.csv'))
+
+
+@pytest.fixture(scope='module')
+def page(diagnosis, tmp_path_factory):
+    path = write_report(diagnosis, tmp_path_factory.mktemp('report') / 'report.html', source='friction.csv')
+    return path, path.read_text(encoding='utf-8')
+
+
+def embedded_pngs(text):
+    return re.findall(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
+
+
+def section(text, element_id, tag):
+    match = re.search(rf'<{tag}[^>]*id="{element_id}".*?</{tag}>', text, re.S)
+    assert match, f'no <{tag} id="{element_id}"> in the report'
+    return match.group(0)
+
+
+def test_report_is_one_self_contained_file(page):
+    path, text = page
+    assert path.is_file() and path.stat().st_size < MAX_BYTES
+    assert text.startswith('<!DOCTYPE html>') and text.rstrip().endswith('</html>')
+    # Every link is a fragment inside the page and every image is inline data: nothing to fetch.
+    for value in re.findall(r'\b(?:src|href)\s*=\s*["\']?([^"\'\s>]+)', text, re.I):
+        assert value.startswith(('#', 'data:image/png;base64,')), value
+    assert not re.search(r'https?://|@import|url\(|<script|<link\b', text, re.I)
+
+
+def test_embedded_images_decode_as_png(page):
+    _, text = page
+    images = embedded_pngs(text)
+    # overlay, held-out zoom, error vs time, regimes, residual tests, candidate chart
+    assert len(images) >= 6
+    assert len(images) == text.count('<img ')
+    for data in images:
+        raw = base64.b64decode(data, validate=True)
+        assert raw.startswith(PNG_MAGIC)
+        image = Image.open(io.BytesIO(raw))
+        image.verify()
+        assert image.format == 'PNG' and image.size[0] >= 600
+
+
+def test_header_states_verdict_and_key_numbers_with_units(page, diagnosis):
+    _, text = page
+    banner = section(text, 'verdict', 'section')
+    title = VERDICT_TITLES[diagnosis.verdict].format(missing=diagnosis.missing_effect)
+    assert html.escape(title) in banner
+    assert html.escape(diagnosis.message) in banner
+    if diagnosis.missing_effect is not None:
+        assert f'--add {diagnosis.missing_effect}' in banner
+    current = diagnosis.current
+    excess = np.sqrt(max(current.rms_error ** 2 - current.noise_rms ** 2, 0.0))
+    for shown in (f'{current.fit_percent:.2f}&nbsp;%', f'{current.rms_error * 1e3:.2f}&nbsp;mrad',
+                  f'{current.noise_rms * 1e3:.2f}&nbsp;mrad', f'{excess * 1e3:.2f}&nbsp;mrad'):
+        assert shown in text, shown
+    assert 'MATLAB' in text and 'NRMSE' in text          # the fit % says which convention
+    assert 'degrees' in text                             # the plots' unit is stated
+
+
+def test_candidate_table_lists_every_candidate_best_first(page, diagnosis):
+    _, text = page
+    table = section(text, 'candidate-table', 'table')
+    listed = re.findall(r'<tr class="main[^"]*"><td>\d+</td><td><b>([^<]+)</b>', table)
+    assert listed == [html.escape(c.effect) for c in diagnosis.candidates]
+    for candidate in diagnosis.candidates:
+        for name, value in candidate.parameters.items():
+            assert f'<code>{name}</code> = {value:.4g}' in table
+    significant = [c for c in diagnosis.candidates if c.significant]
+    assert table.count('<tr class="main significant">') == len(significant)
+
+
+def test_no_before_after_section_without_added_effects(page, diagnosis):
+    _, text = page
+    assert diagnosis.before is None
+    assert 'id="before-after"' not in text
+
+
+def test_text_from_the_diagnosis_is_escaped(diagnosis, tmp_path):
+    tricky = dataclasses.replace(diagnosis, message='a <b>bold</b> & "quoted" claim',
+                                 notes=['<script>alert(1)</script>'])
+    text = write_report(tricky, tmp_path / 'tricky.html').read_text(encoding='utf-8')
+    assert 'a &lt;b&gt;bold&lt;/b&gt; &amp; &quot;quoted&quot; claim' in text
+    assert '&lt;script&gt;alert(1)&lt;/script&gt;' in text and '<script>' not in text
+
+
+def test_missing_folder_is_a_clear_error(diagnosis, tmp_path):
+    with pytest.raises(AeropendError, match='does not exist'):
+        write_report(diagnosis, tmp_path / 'no' / 'such' / 'report.html')
+
+
+def test_cli_report_shows_before_and_after(trajectory, tmp_path, capsys):
+    data = tmp_path / 'friction.csv'
+    write_csv(str(data), trajectory.columns(with_truth=False))
+    report = tmp_path / 'after.html'
+    code = aeropend(['diagnose', str(data), '--add', 'coulomb_friction', '--only', 'thrust_lag',
+                     '--report', str(report), '--json', '--quiet'])
+    assert code == 0
+    result = json.loads(capsys.readouterr().out)
+    text = report.read_text(encoding='utf-8')
+    assert report.stat().st_size < MAX_BYTES
+    after = section(text, 'before-after', 'h2') + text.split('id="before-after"', 1)[1].split('<h2', 1)[0]
+    before = result['before']
+    assert f'{before["fit_percent"]:.2f} &rarr; <b>{result["fit_percent"]:.2f}</b>' in after
+    assert (f'{before["error_beyond_noise"] * 1e3:.2f} &rarr; <b>{result["error_beyond_noise"] * 1e3:.2f}</b>'
+            in after)
+    # the added effect's parameter is new; every nominal parameter shows its move in %
+    assert re.search(r'<code>friction_acceleration</code></td><td class="num">\(not in the model\)', after)
+    for name in ('gravity_stiffness', 'damping', 'thrust_gain'):
+        old, new = before['parameters'][name], result['parameters'][name]
+        assert f'{(new - old) / old * 100:.1f}&nbsp;%' in after, name
+    table = section(text, 'candidate-table', 'table')
+    assert [c['effect'] for c in result['candidates']] == ['thrust_lag']
+    assert '<b>thrust_lag</b>' in table
+    for data_uri in embedded_pngs(text):
+        assert base64.b64decode(data_uri, validate=True).startswith(PNG_MAGIC)
