@@ -762,6 +762,94 @@ def _joint_state_decoder():
     return lambda data: store.deserialize_cdr(data, _JOINT_STATE)
 
 
+def _joint_state_layout(data: bytes) -> tuple[int, int] | None:
+    """(byte offset of ``position[0]``, len(position)) of a little-endian CDR JointState, or None if unusual."""
+    if len(data) < 16 or data[0] != 0 or data[1] != 1:             # CDR little endian only
+        return None
+    try:
+        p = 12                                                     # 4 encapsulation + stamp (sec, nanosec)
+
+        def align(p: int, n: int) -> int:
+            return p + (-(p - 4) % n)
+
+        (n,) = struct.unpack_from('<I', data, p)                    # frame_id
+        p = align(p + 4 + n, 4)
+        (count,) = struct.unpack_from('<I', data, p)                # names
+        p += 4
+        for _ in range(count):
+            p = align(p, 4)
+            (n,) = struct.unpack_from('<I', data, p)
+            p += 4 + n
+        p = align(p, 4)
+        (n_pos,) = struct.unpack_from('<I', data, p)
+        p = align(p + 4, 8)
+        return (p, n_pos) if p + 8 * n_pos <= len(data) else None
+    except struct.error:
+        return None
+
+
+def _decode_samples(datas: list[bytes], where: str) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps (int64 ns) and the SAMPLE_CHANNELS values (n, 5) of JointState CDR messages.
+
+    Fast path: messages with the same length and the same bytes as the first one outside the stamp and the position
+    values (same frame_id, names, array lengths: every sample of one publisher) are decoded at once with numpy
+    views. Any other message goes through the ``rosbags`` deserialiser. The fast path is checked against rosbags
+    on the first message.
+    """
+    n_msgs = len(datas)
+    stamps = np.empty(n_msgs, dtype=np.int64)
+    table = np.empty((n_msgs, len(SAMPLE_CHANNELS)))
+    done = np.zeros(n_msgs, dtype=bool)
+    decode = _joint_state_decoder()
+
+    def decoded(data: bytes):
+        try:
+            return decode(data)
+        except Exception as error:
+            raise AeropendError(f'a message in {where} is not valid CDR for JointState: {error}') from error
+
+    def channel_index(names: tuple[str, ...]) -> list[int]:
+        missing = [n for n in SAMPLE_CHANNELS if n not in names]
+        if missing:
+            raise AeropendError(f'{where}: JointState lacks the channel(s) {missing} (names {list(names)}): '
+                                'not an aeropend samples topic')
+        return [names.index(n) for n in SAMPLE_CHANNELS]
+
+    first = datas[0]
+    layout = _joint_state_layout(first)
+    if layout is not None:
+        pos_offset, n_pos = layout
+        reference = decoded(first)
+        index = channel_index(tuple(reference.name))
+        length = len(first)
+        same_length = np.fromiter((len(d) == length for d in datas), dtype=bool, count=n_msgs)
+        rows = np.flatnonzero(same_length)
+        block = np.frombuffer(b''.join(datas[k] for k in rows), dtype=np.uint8).reshape(len(rows), length)
+        ref = block[0]
+        end = pos_offset + 8 * n_pos
+        alike = np.all(block[:, 12:pos_offset] == ref[12:pos_offset], axis=1) & \
+            np.all(block[:, end:] == ref[end:], axis=1)
+        block, rows = block[alike], rows[alike]
+        sec = np.ascontiguousarray(block[:, 4:8]).view('<i4')[:, 0].astype(np.int64)
+        nsec = np.ascontiguousarray(block[:, 8:12]).view('<u4')[:, 0].astype(np.int64)
+        values = np.ascontiguousarray(block[:, pos_offset:end]).view('<f8')
+        if len(index) and n_pos > max(index) and \
+                np.array_equal(values[0], np.asarray(reference.position, dtype=float)) and \
+                sec[0] * NS_PER_S + nsec[0] == reference.header.stamp.sec * NS_PER_S + reference.header.stamp.nanosec:
+            stamps[rows] = sec * NS_PER_S + nsec
+            table[rows] = values[:, index]
+            done[rows] = True
+    for k in np.flatnonzero(~done):                                   # anything unusual: the general decoder
+        msg = decoded(datas[k])
+        names = tuple(msg.name)
+        index = channel_index(names)
+        if len(msg.position) < len(names):
+            raise AeropendError(f'{where}: a JointState has fewer positions than names')
+        stamps[k] = int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec)
+        table[k] = [msg.position[i] for i in index]
+    return stamps, table
+
+
 def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomplete: str = 'warn') \
         -> dict[str, np.ndarray]:
     """Acquisition samples of a recording as arrays (the JointState messages of ``/aeropend/samples``).
@@ -788,40 +876,16 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     AeropendError
         Not a bag, no message on ``topic``, wrong message type, or a message without the aeropend channel names.
     """
-    decode = None
-    stamps: list[int] = []
+    datas: list[bytes] = []
     received: list[int] = []
-    values: list[list[float]] = []
-    index: list[int] | None = None
-    names_seen: tuple[str, ...] | None = None
     for message in read_messages(path, topics=[topic], on_incomplete=on_incomplete):
         if message.type != _JOINT_STATE:
             raise AeropendError(f'{topic} in {path} carries {message.type}, not {_JOINT_STATE}')
-        if decode is None:
-            decode = _joint_state_decoder()
-        try:
-            msg = decode(message.data)
-        except Exception as error:
-            raise AeropendError(f'a message on {topic} in {path} is not valid CDR for JointState: {error}') \
-                from error
-        names = tuple(msg.name)
-        if names != names_seen:
-            missing = [n for n in SAMPLE_CHANNELS if n not in names]
-            if missing:
-                raise AeropendError(f'{topic} in {path} lacks the channel(s) {missing} (names {list(names)}): '
-                                    'not an aeropend samples topic')
-            index = [names.index(n) for n in SAMPLE_CHANNELS]
-            names_seen = names
-        position = msg.position
-        if len(position) < len(names):
-            raise AeropendError(f'a JointState on {topic} in {path} has fewer positions than names')
-        stamps.append(int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec))
+        datas.append(message.data)
         received.append(message.log_time_ns)
-        values.append([position[i] for i in index])
-    if not stamps:
+    if not datas:
         raise AeropendError(f'no {topic} messages in {path}: was the sample topic recorded?')
-    table = np.asarray(values, dtype=float)
-    stamp_ns = np.asarray(stamps, dtype=np.int64)
+    stamp_ns, table = _decode_samples(datas, f'{topic} in {path}')
     out = {'time': (stamp_ns - stamp_ns[0]) * 1e-9}
     for column, name in enumerate(SAMPLE_CHANNELS):
         out[name] = table[:, column]
