@@ -42,7 +42,8 @@ JOINT_STATE, FLOAT64 = 'sensor_msgs/msg/JointState', 'std_msgs/msg/Float64'
 AEROPEND = [sys.executable, '-c', 'import sys; from aeropend_core.cli import main; sys.exit(main())']
 
 
-def cdr_joint_state(stamp_ns: int, position: list[float], frame_id: str = 'aeropend') -> bytes:
+def cdr_joint_state(stamp_ns: int, position: list[float], frame_id: str = 'aeropend',
+                    names: list[str] = NAMES) -> bytes:
     """JointState as little-endian CDR (encapsulation 00 01 00 00), empty velocity and effort."""
     out = bytearray(b'\x00\x01\x00\x00')
 
@@ -57,8 +58,8 @@ def cdr_joint_state(stamp_ns: int, position: list[float], frame_id: str = 'aerop
     out.extend(struct.pack('<iI', *divmod(stamp_ns, 1_000_000_000)))
     string(frame_id)
     align(4)
-    out.extend(struct.pack('<I', len(NAMES)))
-    for name in NAMES:
+    out.extend(struct.pack('<I', len(names)))
+    for name in names:
         string(name)
     align(4)
     out.extend(struct.pack('<I', len(position)))
@@ -350,3 +351,26 @@ def test_load_recording_accepts_bags(tmp_path):
         np.testing.assert_array_equal(recording.signal('angle'), [sample_values(k)[0] for k in range(600)])
         np.testing.assert_array_equal(recording.signal('armature_voltage'), [sample_values(k)[1] for k in range(600)])
         np.testing.assert_array_equal(recording.signal('duty'), [sample_values(k)[3] for k in range(600)])
+
+
+def test_samples_found_by_name_whatever_the_layout(tmp_path):
+    """Messages whose frame_id, name order or extra channels differ are decoded by name, in recording order."""
+    writer = BagWriter(tmp_path / 'mixed')
+    writer.add_topic(SAMPLES, JOINT_STATE, ros2msg_definition(JOINT_STATE, LOAD_MSG))
+    order = [3, 0, 4, 1, 2]
+    for k in range(300):
+        values = sample_values(k)
+        stamp = T0_NS + k * TS_NS
+        if k % 3 == 1:       # permuted channels
+            data = cdr_joint_state(stamp, [values[i] for i in order], names=[NAMES[i] for i in order])
+        elif k % 3 == 2:     # another frame id and one extra channel
+            data = cdr_joint_state(stamp, [*values, 42.0], frame_id='rig_b', names=[*NAMES, 'extra'])
+        else:
+            data = cdr_joint_state(stamp, values)
+        writer.write(SAMPLES, data, stamp)
+    writer.finish()
+    samples = read_samples(tmp_path / 'mixed')
+    expected = np.array([sample_values(k) for k in range(300)])
+    for column, name in enumerate(NAMES):
+        np.testing.assert_array_equal(samples[name], expected[:, column])
+    np.testing.assert_array_equal(samples['stamp_ns'], [T0_NS + k * TS_NS for k in range(300)])
