@@ -241,6 +241,16 @@ class RecorderNode(Node):
             if self._stop and not queue:
                 return
 
+    @property
+    def received_counts(self) -> dict[str, int]:
+        """Messages received so far per topic (a copy)."""
+        return dict(self._received)
+
+    @property
+    def messages_written(self) -> int:
+        """Messages handed to the bag writer so far (all topics)."""
+        return self._written
+
     def finish(self) -> None:
         """Write everything queued and finalise the bag (idempotent)."""
         if self._finished:
