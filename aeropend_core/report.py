@@ -388,7 +388,7 @@ main { max-width: 1180px; margin: 0 auto; padding: 18px 24px 40px; background: #
 h1 { font-size: 22px; margin: 6px 0 2px; }
 h2 { font-size: 18px; margin: 30px 0 6px; padding-top: 8px; border-top: 2px solid #e3e6ea; }
 h3 { font-size: 15px; margin: 16px 0 4px; }
-p, li { line-height: 1.45; }
+p, li { line-height: 1.45; font-size: 14.5px; }
 .sub { color: #555; margin: 0 0 10px; }
 .verdict { border-radius: 6px; padding: 12px 16px; margin: 12px 0; border-left: 8px solid; }
 .verdict .title { font-size: 20px; font-weight: bold; margin-bottom: 4px; }
@@ -401,7 +401,8 @@ p, li { line-height: 1.45; }
 .card { flex: 1 1 200px; border: 1px solid #dde1e6; border-radius: 6px; padding: 8px 12px; background: #fafbfc; }
 .card .label { font-size: 12px; color: #555; text-transform: uppercase; letter-spacing: .03em; }
 .card .value { font-size: 24px; font-weight: bold; margin: 2px 0; }
-.card .value.key { color: #b2182b; }
+.card .value.bad { color: #b2182b; }
+.card .value.ok { color: #1a9641; }
 .card .hint { font-size: 12px; color: #555; line-height: 1.35; }
 .card .was { font-size: 13px; color: #444; }
 img { max-width: 100%; display: block; margin: 6px 0; }
@@ -448,13 +449,24 @@ def _verdict_html(diagnosis: Diagnosis) -> str:
     if diagnosis.notes:
         parts.append(f'<div style="margin-top:6px">{len(diagnosis.notes)} note(s) on confounding and experiments: '
                      f'<a href="#notes">see below</a>.</div>')
+    if diagnosis.residual_structure:
+        parts.append('<div style="margin-top:6px">What the residual correlates with, as a lead for a new effect: '
+                     '<a href="#structure">see below</a>.</div>')
     parts.append('</section>')
     return ''.join(parts)
 
 
-def _card(label: str, value: str, hint: str, key: bool = False, was: str = '') -> str:
+def _within_noise_text(excess: float, noise: float) -> str:
+    ratio = excess / noise if noise > 0 else float('inf')
+    if excess <= WITHIN_NOISE * noise:
+        return f'within the noise ({ratio:.2f}&times; the noise RMS; limit {WITHIN_NOISE:g}&times;)'
+    return (f'{ratio:.2f}&times; the noise RMS: the model misses the data (within the noise below '
+            f'{WITHIN_NOISE:g}&times;)')
+
+
+def _card(label: str, value: str, hint: str, key: str = '', was: str = '') -> str:
     was_html = f'<div class="was">{was}</div>' if was else ''
-    return (f'<div class="card"><div class="label">{label}</div><div class="value{" key" if key else ""}">{value}'
+    return (f'<div class="card"><div class="label">{label}</div><div class="value {key}">{value}'
             f'</div>{was_html}<div class="hint">{hint}</div></div>')
 
 
@@ -481,9 +493,9 @@ def _cards_html(diagnosis: Diagnosis) -> str:
               was=was(before.fit_percent, current.fit_percent, _num(before.fit_percent, 2, suffix='&nbsp;%'), True)
               if before is not None else ''),
         _card('Model error beyond noise', _mrad(_excess(current)),
-              '&radic;(RMS error&sup2; &minus; noise&sup2;) on the held-out part: the number to watch; '
-              f'within the noise when below {WITHIN_NOISE:g}&times; the noise '
-              f'({_mrad(WITHIN_NOISE * noise)}).', key=True,
+              f'<b>{_within_noise_text(_excess(current), noise)}</b>. '
+              '&radic;(RMS error&sup2; &minus; noise&sup2;) on the held-out part: the number to watch.',
+              key='ok' if _excess(current) <= WITHIN_NOISE * noise else 'bad',
               was=was(_excess(before), _excess(current), _mrad(_excess(before))) if before is not None else ''),
         _card('Held-out RMS error', _mrad(current.rms_error),
               f'measured &minus; simulated angle ({_num(current.rms_error, 2, 180 / math.pi)}&deg;)',
@@ -495,6 +507,13 @@ def _cards_html(diagnosis: Diagnosis) -> str:
               f'{evaluation.prediction_horizon:g}&nbsp;s (held-out part)'),
     ]
     return '<div class="cards">' + ''.join(cards) + '</div>'
+
+
+def _observer_meaning(name: str, motor, meaning: str) -> str:
+    """With the motor observer the thrust input is its back-EMF e, not Va - R Ia."""
+    if name == 'thrust_gain' and motor is not None:
+        return 'thrust term per e|e|, e = the motor observer\'s back-EMF [V] (eq (5) with R Ia removed)'
+    return meaning
 
 
 def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
@@ -510,8 +529,7 @@ def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
             meaning = ('the motor observer\'s back-EMF is the thrust input, so R is 0 in the pendulum model; '
                        'shown: the armature resistance the observer estimated')
             relative = float('nan')
-        if name == 'thrust_gain' and motor is not None:
-            meaning = 'thrust term per e|e|, e = the motor observer\'s back-EMF [V] (eq (5) with R Ia removed)'
+        meaning = _observer_meaning(name, motor, meaning)
         rows.append(f'<tr><td><code>{_esc(name)}</code></td><td class="num">{shown}</td><td>{_esc(unit)}</td>'
                     f'<td class="num">{_num(relative, 1, suffix="&nbsp;%")}</td><td>{_esc(meaning)}</td></tr>')
     return ('<table><tr><th>parameter</th><th>value &plusmn; 1&sigma;</th><th>unit (SI)</th><th>1&sigma; / value'
@@ -566,6 +584,12 @@ def _residual_summary(diagnosis: Diagnosis, best: Candidate | None) -> str:
     return text
 
 
+def _percent_change(value: float) -> str:
+    if not np.isfinite(value):
+        return '&mdash;'
+    return '0&nbsp;%' if abs(value) < 0.5 else f'{value:+.0f}&nbsp;%'
+
+
 def _parameters_with_sigma(candidate: Candidate) -> str:
     parts = []
     for name, value in candidate.parameters.items():
@@ -588,13 +612,14 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
         else:
             badge = '<span class="badge no">no</span>'
         css = 'main significant' if candidate.significant else 'main'
-        change = (f'{-candidate.improvement * 100:+.0f}&nbsp;%' if candidate.comparison is not None
+        change = (_percent_change(-candidate.improvement * 100) if candidate.comparison is not None
                   and candidate.excess_before > 0 else '&mdash;')
         confounded = ', '.join(_esc(c) for c in candidate.confounded_with) or '&mdash;'
         rows.append(
             f'<tr class="{css}"><td>{rank}</td><td><b>{_esc(candidate.effect)}</b></td><td>{badge}</td>'
             f'<td class="num">{_num(candidate.fit_percent, 2, suffix="&nbsp;%")}</td>'
-            f'<td class="num">{_mrad(candidate.excess_after)}<br><small>{change}</small></td>'
+            f'<td class="num">{_mrad(candidate.excess_after)} <small>({change})</small><br>'
+            f'<small>RMS {_mrad(candidate.rms_error)}</small></td>'
             f'<td class="num">{_num(candidate.delta_bic, 1)}</td><td>{_parameters_with_sigma(candidate)}</td>'
             f'<td>{confounded}</td></tr>')
         detail = _esc(candidate.explanation or candidate.error)
@@ -602,7 +627,8 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
             detail += '<br><b>Evidence</b> (regimes that improved most): ' + '; '.join(
                 _esc(e) for e in candidate.evidence)
         rows.append(f'<tr class="expl"><td></td><td colspan="7">{detail}</td></tr>')
-    head = ('<tr><th>#</th><th>effect added</th><th>verdict</th><th>held-out fit</th><th>error beyond noise</th>'
+    head = ('<tr><th>#</th><th>effect added</th><th>verdict</th><th>held-out fit</th>'
+            '<th>error beyond noise (change)<br><small>held-out RMS error</small></th>'
             '<th>&Delta;BIC (training)</th><th>estimated parameters &plusmn; 1&sigma; (SI)</th>'
             '<th>confounded with</th></tr>')
     return '<table id="candidate-table">' + head + ''.join(rows) + '</table>'
@@ -631,7 +657,7 @@ def _before_after_html(diagnosis: Diagnosis) -> str:
          arrow(before.evaluation.prediction_rms, current.evaluation.prediction_rms, True, 2, 1e3, '&nbsp;mrad')),
     ]
     summary = ''.join(f'<tr><td>{label}</td><td class="num">{value}</td></tr>' for label, value in rows)
-    text = (f'<p>Model before: <b>{_esc(_model_name(before.effects))}</b>; after: '
+    text = (f'<p class="caption">Model before: <b>{_esc(_model_name(before.effects))}</b>; after: '
             f'<b>{_esc(_model_name(current.effects))}</b>. Both fitted on the same training part and judged on the '
             f'same held-out part; the measurement noise is {_mrad(noise)}, so raw fit % cannot rise far: watch the '
             f'error beyond the noise.</p>')
@@ -641,6 +667,7 @@ def _before_after_html(diagnosis: Diagnosis) -> str:
         unit, meaning = _unit_and_meaning(name)
         if name == 'thrust_resistance' and motor is not None:
             continue
+        meaning = _observer_meaning(name, motor, meaning)
         old = before.parameters.get(name)
         sigma = current.fit.standard_errors.get(name, float('nan'))
         if old is None:
@@ -667,9 +694,9 @@ def _structure_html(diagnosis: Diagnosis) -> str:
         r = float(row['correlation'])
         rows.append(f'<tr><td>{_esc(row["signature"])}</td><td class="num">{r:+.2f}</td>'
                     f'<td><span class="bar" style="width:{abs(r) * 300:.0f}px"></span></td></tr>')
-    return ('<p>Correlation of the simulation residual (measured &minus; simulated angle) with signatures of '
-            'possible missing terms. A strong one is a lead for a new effect: write a small function and register '
-            'it with <code>aeropend_core.effects.register_effect</code>, then rerun with '
+    return ('<p class="caption">Correlation of the simulation residual (measured &minus; simulated angle) with '
+            'signatures of possible missing terms. A strong one is a lead for a new effect: write a small function '
+            'and register it with <code>aeropend_core.effects.register_effect</code>, then rerun with '
             '<code>--effects-module my_effects.py</code>.</p><table style="width:auto"><tr><th>signature</th>'
             '<th>r</th><th>|r|</th></tr>' + ''.join(rows) + '</table>')
 
@@ -693,8 +720,10 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
     if diagnosis.before is not None:
         nav.append('<a href="#before-after">6 before &rarr; after</a>')
     nav.append('<a href="#parameters">parameters</a>')
-    if diagnosis.notes or diagnosis.residual_structure:
+    if diagnosis.notes:
         nav.append('<a href="#notes">notes</a>')
+    if diagnosis.residual_structure:
+        nav.append('<a href="#structure">residual structure</a>')
 
     header = (f'<h1>{_esc(title)}</h1><p class="sub">Model: <b>{_esc(model)}</b>'
               + (f' (compared with <b>{_esc(_model_name(diagnosis.before.effects))}</b>)'
@@ -768,13 +797,11 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
                     'Per unit inertia, as they enter the angular acceleration.</p>'
                     + _parameter_rows(diagnosis.current, diagnosis))
 
-    if diagnosis.notes or diagnosis.residual_structure:
-        notes = ''
-        if diagnosis.notes:
-            notes += '<ul class="notes">' + ''.join(f'<li>{_esc(n)}</li>' for n in diagnosis.notes) + '</ul>'
-        if diagnosis.residual_structure:
-            notes += '<h3>Structure of the unexplained residual</h3>' + _structure_html(diagnosis)
-        sections.append('<h2 id="notes">Notes: confounding and suggested experiments</h2>' + notes)
+    if diagnosis.notes:
+        sections.append('<h2 id="notes">Notes: confounding and suggested experiments</h2><ul class="notes">'
+                        + ''.join(f'<li>{_esc(n)}</li>' for n in diagnosis.notes) + '</ul>')
+    if diagnosis.residual_structure:
+        sections.append('<h2 id="structure">Structure of the unexplained residual</h2>' + _structure_html(diagnosis))
 
     stamp = datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%d %H:%M UTC')
     sections.append(f'<footer>Generated by <code>aeropend diagnose</code> on {stamp}; the diagnosis took '

@@ -55,7 +55,7 @@ def embedded_pngs(text):
 
 
 def section(text, element_id, tag):
-    match = re.search(rf'<{tag}[^>]*id="{element_id}".*?</{tag}>', text, re.S)
+    match = re.search(rf'<{tag}[^>]*id="{element_id}".*?</{tag}>', text, re.DOTALL)
     assert match, f'no <{tag} id="{element_id}"> in the report'
     return match.group(0)
 
@@ -65,9 +65,9 @@ def test_report_is_one_self_contained_file(page):
     assert path.is_file() and path.stat().st_size < MAX_BYTES
     assert text.startswith('<!DOCTYPE html>') and text.rstrip().endswith('</html>')
     # Every link is a fragment inside the page and every image is inline data: nothing to fetch.
-    for value in re.findall(r'\b(?:src|href)\s*=\s*["\']?([^"\'\s>]+)', text, re.I):
+    for value in re.findall(r'\b(?:src|href)\s*=\s*["\']?([^"\'\s>]+)', text, re.IGNORECASE):
         assert value.startswith(('#', 'data:image/png;base64,')), value
-    assert not re.search(r'https?://|@import|url\(|<script|<link\b', text, re.I)
+    assert not re.search(r'https?://|@import|url\(|<script|<link\b', text, re.IGNORECASE)
 
 
 def test_embedded_images_decode_as_png(page):
