@@ -40,8 +40,9 @@ def test_local_only_respects_user_choice(clean_env):
 
 
 def test_child_environment(clean_env):
+    before = dict(os.environ)
     env = local_ros_environment(base={'PATH': '/bin'}, domain_id=42)
     assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST' and env['ROS_DOMAIN_ID'] == '42'
-    assert env['PATH'] == '/bin' and 'ROS_DOMAIN_ID' not in os.environ
+    assert env['PATH'] == '/bin' and dict(os.environ) == before       # the caller's environment is untouched
     if HAS_INDEX:
         assert env['AMENT_PREFIX_PATH'].split(os.pathsep) == [sys.prefix]
