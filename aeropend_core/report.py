@@ -270,9 +270,16 @@ def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
     return _png(figure)
 
 
+def _regime_excess(regimes: dict, name: str, noise: float) -> float:
+    """Error beyond the noise in one regime [rad] (the noise is white, the same in every regime)."""
+    rms = regimes.get(name, {}).get('rms_error', float('nan'))
+    return excess_error(rms, noise) if np.isfinite(rms) else float('nan')
+
+
 def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
     current = diagnosis.current.evaluation.regimes
-    names = sorted(current, key=lambda name: current[name]['rms_error'])
+    noise = diagnosis.noise_rms
+    names = sorted(current, key=lambda name: _regime_excess(current, name, noise))
     series = []
     if diagnosis.before is not None:
         series.append(('before: ' + _model_name(diagnosis.before.effects), diagnosis.before.evaluation.regimes,
@@ -281,26 +288,25 @@ def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
     if best is not None:
         series.append((f'+ {best.effect} (best candidate)', best.comparison.evaluation.regimes, CANDIDATE))
     height = 0.8 / len(series)
-    figure = _figure(12.5, 0.55 + 0.42 * len(names) * (0.6 + 0.4 * len(series)))
+    figure = _figure(12.5, 0.75 + 0.42 * len(names) * (0.6 + 0.4 * len(series)))
     axes = figure.add_subplot()
     positions = np.arange(len(names), dtype=float)
     largest = 0.0
     for k, (label, regimes, colour) in enumerate(series):
         # the first series on top within each group
         offset = (len(series) - 1 - 2 * k) * height / 2
-        values = np.array([regimes.get(name, {}).get('rms_error', np.nan) for name in names]) * 1e3
+        values = np.array([_regime_excess(regimes, name, noise) for name in names]) * 1e3
         largest = max(largest, np.nanmax(values) if np.isfinite(values).any() else 0.0)
         bars = axes.barh(positions + offset, values, height=height * 0.92, color=colour, label=label)
         for bar, value in zip(bars, values):
             if np.isfinite(value):
                 axes.text(bar.get_width(), bar.get_y() + bar.get_height() / 2, f' {value:.1f}', va='center',
                           fontsize=7.5, color=colour)
-    noise = diagnosis.noise_rms * 1e3
-    axes.axvline(noise, color='black', ls='--', lw=1, label=f'measurement noise RMS ({noise:.1f} mrad)')
     labels = [f'{name}  [{current[name]["fraction_of_samples"] * 100:.0f} % of samples]' for name in names]
     axes.set_yticks(positions, labels, fontsize=8.5)
-    axes.set_xlim(0, max(largest, noise) * 1.12)
-    axes.set_xlabel('RMS error of the simulated angle in the regime [mrad]')
+    axes.set_xlim(0, max(largest, 0.1 * noise * 1e3) * 1.12)
+    axes.set_xlabel(f'model error beyond the noise in the regime, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]'
+                    f'   (noise RMS {noise * 1e3:.1f} mrad)')
     figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=4, fontsize=8.5,
                   frameon=False)
     axes.grid(axis='x', alpha=0.3)
@@ -554,10 +560,10 @@ def _regime_table(diagnosis: Diagnosis, best: Candidate | None) -> str:
     after = best.comparison.evaluation.regimes if best is not None else None
     head = '<tr><th>regime</th><th>share of samples</th>'
     if before is not None:
-        head += '<th>before</th>'
-    head += '<th>model as given</th><th>&times; overall</th>'
+        head += '<th>RMS error, before</th>'
+    head += '<th>RMS error, model as given</th><th>&times; its overall RMS</th>'
     if after is not None:
-        head += f'<th>+ {_esc(best.effect)}</th>'
+        head += f'<th>RMS error, + {_esc(best.effect)}</th>'
     rows = []
     for name, stats in sorted(current.items(), key=lambda kv: -kv[1]['ratio_to_overall']):
         row = f'<tr><td>{_esc(name)}</td><td class="num">{stats["fraction_of_samples"] * 100:.0f}&nbsp;%</td>'
@@ -760,10 +766,11 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
 
     sections.append(
         '<h2 id="regimes">3. Error by regime</h2>'
-        '<p class="caption">RMS error of the simulated angle in each operating regime (over the training segments '
-        'and the held-out part). A regime much above the others points at the missing physics: e.g. direction '
-        'reversals for dry friction, large angles for a cable spring, just after steps for a thrust lag, low '
-        'thrust for a dead zone. Dashed line: the measurement noise, the floor no model can go below.</p>'
+        '<p class="caption">Model error beyond the measurement noise in each operating regime, over the training '
+        'segments and the held-out part (the noise is the same everywhere, so it is taken out to show the '
+        'differences; the table gives the raw RMS errors). A regime much above the others points at the missing '
+        'physics: e.g. direction reversals for dry friction, large angles for a cable spring, just after steps for '
+        'a thrust lag, low thrust for a dead zone.</p>'
         + _img(_plot_regimes(diagnosis, best), 'RMS error by regime') + _regime_table(diagnosis, best))
 
     sections.append(

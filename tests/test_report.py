@@ -17,7 +17,7 @@ from PIL import Image
 
 from aeropend_core.cli import main as aeropend
 from aeropend_core.cli.simulate import write_csv
-from aeropend_core.diagnose import diagnose
+from aeropend_core.diagnose import Candidate, diagnose
 from aeropend_core.errors import AeropendError
 from aeropend_core.excitation import lhc_schedule
 from aeropend_core.model import SAMPLE_TIME
@@ -119,12 +119,19 @@ def test_no_before_after_section_without_added_effects(page, diagnosis):
     assert 'id="before-after"' not in text
 
 
-def test_text_from_the_diagnosis_is_escaped(diagnosis, tmp_path):
+def test_text_from_the_diagnosis_is_escaped_and_untestable_candidates_listed(diagnosis, tmp_path):
+    untestable = Candidate('user<effect>', None, {}, {}, float('nan'), diagnosis.candidates[0].excess_before,
+                           float('nan'), False, error='needs steps at small duty & none are in the data')
     tricky = dataclasses.replace(diagnosis, message='a <b>bold</b> & "quoted" claim',
-                                 notes=['<script>alert(1)</script>'])
+                                 notes=['<script>alert(1)</script>'], candidates=[*diagnosis.candidates, untestable])
     text = write_report(tricky, tmp_path / 'tricky.html').read_text(encoding='utf-8')
     assert 'a &lt;b&gt;bold&lt;/b&gt; &amp; &quot;quoted&quot; claim' in text
     assert '&lt;script&gt;alert(1)&lt;/script&gt;' in text and '<script>' not in text
+    table = section(text, 'candidate-table', 'table')
+    assert '<b>user&lt;effect&gt;</b>' in table and 'not testable' in table
+    assert 'needs steps at small duty &amp; none are in the data' in table
+    assert len(embedded_pngs(text)) == len(embedded_pngs(write_report(diagnosis, tmp_path / 'plain.html')
+                                                         .read_text(encoding='utf-8')))
 
 
 def test_missing_folder_is_a_clear_error(diagnosis, tmp_path):
