@@ -1,6 +1,7 @@
 """Recorder throughput: can recorder_node record >= 20,000 msg/s without losing one?
 
 Run:  .venv/bin/python bench/bench_recorder.py [--rates 20000 40000] [--seconds 5] [--reliable] [--queue-depth N]
+                                              [--fastdds-profile config/fastdds_deep_shm.xml]
 
 For each offered rate a publisher process publishes ``/aeropend/samples`` JointState messages (the real message,
 SensorData QoS unless --reliable) numbered 0..N-1, paced at the rate, after the recorder (a separate process,
@@ -133,6 +134,8 @@ def main() -> int:
     parser.add_argument('--rates', type=float, nargs='+', default=[20000.0, 40000.0], help='offered msg/s')
     parser.add_argument('--seconds', type=float, default=5.0, help='publishing time per rate')
     parser.add_argument('--reliable', action='store_true', help='reliable QoS instead of SensorData (best effort)')
+    parser.add_argument('--fastdds-profile', default=None, metavar='XML',
+                        help='Fast DDS profile for both processes, e.g. config/fastdds_deep_shm.xml')
     parser.add_argument('--queue-depth', type=int, default=50000,
                         help='recorder queue_depth parameter (subscription history; absorbs CPU stalls)')
     parser.add_argument('--role', default='bench', choices=['bench', 'publisher'], help=argparse.SUPPRESS)
@@ -143,6 +146,8 @@ def main() -> int:
         return 0
 
     import random
+    if args.fastdds_profile:
+        os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(Path(args.fastdds_profile).resolve())
     work = Path(tempfile.mkdtemp(prefix='bench_recorder_'))
     try:
         base_rate, base_cpu = baseline(100_000, work / 'baseline')
@@ -158,7 +163,7 @@ def main() -> int:
                   f'{r["recorder_cpu_per_msg"] * 1e6:10.1f} {r["recorder_cpu_per_msg"] / base_cpu:14.2f}x',
                   flush=True)
         print(f'QoS: {"reliable" if args.reliable else "SensorData (best effort)"}, recorder queue_depth '
-              f'{args.queue_depth}; worst loss {worst_loss} messages; load average {os.getloadavg()[0]:.1f} '
+              f'{args.queue_depth}, Fast DDS profile {args.fastdds_profile or "default"}; worst loss {worst_loss} messages; load average {os.getloadavg()[0]:.1f} '
               f'on {os.cpu_count()} cores')
     finally:
         shutil.rmtree(work, ignore_errors=True)
