@@ -163,7 +163,8 @@ def main() -> int:
                   f'{r["recorder_cpu_per_msg"] * 1e6:10.1f} {r["recorder_cpu_per_msg"] / base_cpu:14.2f}x',
                   flush=True)
         print(f'QoS: {"reliable" if args.reliable else "SensorData (best effort)"}, recorder queue_depth '
-              f'{args.queue_depth}, Fast DDS profile {args.fastdds_profile or "default"}; worst loss {worst_loss} messages; load average {os.getloadavg()[0]:.1f} '
+              f'{args.queue_depth}, Fast DDS profile {args.fastdds_profile or "default"}; worst loss {worst_loss} '
+              f'messages; load average {os.getloadavg()[0]:.1f} '
               f'on {os.cpu_count()} cores')
     finally:
         shutil.rmtree(work, ignore_errors=True)
