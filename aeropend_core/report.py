@@ -15,6 +15,7 @@ import datetime
 import html
 import io
 import math
+import shlex
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
@@ -443,14 +444,15 @@ def _noise_limited_fit(diagnosis: Diagnosis) -> float:
     return 100.0 * (1.0 - diagnosis.noise_rms / spread) if spread > 0 else float('nan')
 
 
-def _verdict_html(diagnosis: Diagnosis) -> str:
+def _verdict_html(diagnosis: Diagnosis, source: str | None = None) -> str:
     title = VERDICT_TITLES.get(diagnosis.verdict, diagnosis.verdict).format(missing=diagnosis.missing_effect)
     css = VERDICT_CLASSES.get(diagnosis.verdict, 'warn')
     parts = [f'<section class="verdict {css}" id="verdict"><div class="title">{_esc(title)}</div>',
              f'<div>{_esc(diagnosis.message)}</div>']
     if diagnosis.verdict == 'effect_found':
         added = ''.join(f' --add {e}' for e in (*diagnosis.effects, diagnosis.missing_effect))
-        parts.append(f'<div style="margin-top:6px">Next: <span class="next">aeropend diagnose DATA{_esc(added)}'
+        data = shlex.quote(source) if source else 'DATA'
+        parts.append(f'<div style="margin-top:6px">Next: <span class="next">aeropend diagnose {_esc(data)}{_esc(added)}'
                      f' --report after.html</span> and check that the error falls.</div>')
     if diagnosis.notes:
         parts.append(f'<div style="margin-top:6px">{len(diagnosis.notes)} note(s) on confounding and experiments: '
@@ -737,7 +739,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
               + f' &middot; {prep.duration:.1f} s recorded at {1 / prep.sample_time:.0f} Hz; fitted on '
               f't &lt; {heldout_from:.1f} s, judged on the held-out t &ge; {heldout_from:.1f} s &middot; only Va, '
               f'Ia and the angle are used</p><nav>' + ''.join(nav) + '</nav>')
-    sections.append(header + _verdict_html(diagnosis) + _cards_html(diagnosis))
+    sections.append(header + _verdict_html(diagnosis, source) + _cards_html(diagnosis))
 
     best_text = (f', the best candidate (<span style="color:{CANDIDATE}">+ {_esc(best.effect)}</span>, dashed)'
                  if best is not None else '')
