@@ -374,3 +374,17 @@ def test_samples_found_by_name_whatever_the_layout(tmp_path):
     for column, name in enumerate(NAMES):
         np.testing.assert_array_equal(samples[name], expected[:, column])
     np.testing.assert_array_equal(samples['stamp_ns'], [T0_NS + k * TS_NS for k in range(300)])
+
+
+@pytest.mark.parametrize('compression', ['lz4', 'none'])
+def test_other_compressions_read_by_both_readers(tmp_path, compression):
+    folder = tmp_path / f'c_{compression}'
+    write_bag(folder, 400, chunk_size=8 * 1024, compression=compression).finish()
+    from mcap.reader import make_reader
+    with open(folder / f'c_{compression}_0.mcap', 'rb') as stream:
+        used = {c.compression for c in make_reader(stream).get_summary().chunk_indexes}
+    assert used == {'' if compression == 'none' else compression}
+    stamps, _, counts = rosbags_samples(folder)
+    assert stamps == [T0_NS + k * TS_NS for k in range(400)] and counts[SAMPLES] == 400
+    assert mcap_ros2_samples(folder)[0] == stamps
+    np.testing.assert_array_equal(read_samples(folder)['sequence'], np.arange(400))
