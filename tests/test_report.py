@@ -10,6 +10,7 @@ import html
 import io
 import json
 import re
+from html.parser import HTMLParser
 
 import numpy as np
 import pytest
@@ -50,6 +51,26 @@ def page(diagnosis, tmp_path_factory):
     return path, path.read_text(encoding='utf-8')
 
 
+class TagBalance(HTMLParser):
+    """Records every end tag that does not close the innermost open element."""
+
+    VOID = frozenset({'img', 'br', 'meta', 'hr', 'input', 'link'})
+
+    def __init__(self):
+        super().__init__()
+        self.open, self.mismatched = [], []
+
+    def handle_starttag(self, tag, attrs):
+        if tag not in self.VOID:
+            self.open.append(tag)
+
+    def handle_endtag(self, tag):
+        if self.open and self.open[-1] == tag:
+            self.open.pop()
+        else:
+            self.mismatched.append((tag, self.getpos()))
+
+
 def embedded_pngs(text):
     return re.findall(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
 
@@ -68,6 +89,9 @@ def test_report_is_one_self_contained_file(page):
     for value in re.findall(r'\b(?:src|href)\s*=\s*["\']?([^"\'\s>]+)', text, re.IGNORECASE):
         assert value.startswith(('#', 'data:image/png;base64,')), value
     assert not re.search(r'https?://|@import|url\(|<script|<link\b', text, re.IGNORECASE)
+    balance = TagBalance()
+    balance.feed(text)
+    assert balance.mismatched == [] and balance.open == []
 
 
 def test_embedded_images_decode_as_png(page):
