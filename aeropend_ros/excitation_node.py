@@ -12,7 +12,7 @@ Every duty is clamped to ``duty_cap`` (safety). ``start_delay`` seconds at duty 
 
 Time base (``time_source``): ``samples`` (default) follows the acquisition stamps on ``/aeropend/samples``, so the
 schedule keeps its dwell times in *rig/simulation time* even when the sim runs faster than real time; ``wall``
-uses the node clock. Playing starts once the duty topic has a subscriber (and, with ``samples``, a sample has
+uses the node clock (times ``time_scale``). Playing starts once the duty topic has a subscriber (and, with ``samples``, a sample has
 arrived). The current duty is re-sent every ``republish_period`` seconds for late joiners. When the schedule ends the
 duty goes to 0 and ``/aeropend/excitation/done`` (``std_msgs/Bool``, transient local) becomes true; with
 ``exit_when_done`` the process then exits. Destroying the node (Ctrl-C) also sends duty 0.
@@ -102,6 +102,9 @@ class ExcitationNode(Node):
                               read_only=True, low=0.0, high=3600.0)
         self.time_source = declare(self, 'time_source', 'samples', "'samples' (acquisition stamps) or 'wall'",
                                    read_only=True)
+        self.time_scale = declare(self, 'time_scale', 1.0, "with time_source 'wall': schedule seconds per wall "
+                                  'second (the realtime factor of a sim whose samples are not followed)',
+                                  read_only=True, low=0.01, high=1000.0)
         republish_period = declare(self, 'republish_period', 0.5, 're-send the current duty this often [s]',
                                    read_only=True, low=0.05, high=60.0)
         self.exit_when_done = declare(self, 'exit_when_done', True, 'exit the process when the schedule ends',
@@ -166,7 +169,7 @@ class ExcitationNode(Node):
                 if not self._ready():
                     return
                 self._begin(now_ns)
-            self._advance((now_ns - self._start_ns) * 1e-9)
+            self._advance((now_ns - self._start_ns) * 1e-9 * self.time_scale)
         if self.started and not self.done and now_ns - self._last_sent_ns >= self._republish_ns:
             self._send(self.current_duty)
 

@@ -74,11 +74,56 @@ def msg_to_named_values(msg: JointState) -> dict[str, tuple[float, float]]:
     return {name: (float(value), float(error)) for name, value, error in zip(msg.name, msg.position, errors)}
 
 
+class RawSampleParser:
+    """Fast reading of ``/aeropend/samples`` from raw CDR bytes (a raw subscription skips building Python messages).
+
+    The first message (and any message whose layout differs) is deserialised in full; its layout is remembered:
+    where the five position values start, and the constant bytes before them (frame id, channel names, array
+    length). Later messages with the same length and the same constant bytes are read with one ``struct`` call.
+    """
+
+    def __init__(self) -> None:
+        import struct
+        from rclpy.serialization import deserialize_message
+        self._deserialize = deserialize_message
+        self._stamp = struct.Struct('<iI')
+        self._values = struct.Struct('<5d')
+        self._length = -1
+        self._offset = 0
+        self._constant = b''
+
+    def parse(self, data: bytes) -> topics.Sample:
+        if len(data) == self._length and data[12:self._offset] == self._constant and data[:2] == b'\x00\x01':
+            sec, nanosec = self._stamp.unpack_from(data, 4)
+            angle, voltage, current, duty, sequence = self._values.unpack_from(data, self._offset)
+            return topics.Sample(sec * 1_000_000_000 + nanosec, angle, voltage, current, duty, round(sequence))
+        msg = self._deserialize(data, JointState)
+        sample = topics.msg_to_sample(msg)
+        self._learn(data, msg)
+        return sample
+
+    def _learn(self, data: bytes, msg: JointState) -> None:
+        self._length = -1
+        if list(msg.name) != list(topics.SAMPLE_NAMES) or len(msg.position) != 5 or data[:2] != b'\x00\x01':
+            return
+        offset = data.find(self._values.pack(*msg.position), 12)
+        if offset < 0 or data.find(self._values.pack(*msg.position), offset + 1) >= 0:
+            return
+        self._length, self._offset, self._constant = len(data), offset, bytes(data[12:offset])
+
+
 def _analyze_in_worker(*args) -> WindowResult:
     """Run :func:`analyze_window` in the worker process with single-threaded BLAS (2 shared cores)."""
     from threadpoolctl import threadpool_limits
     with threadpool_limits(1):
         return analyze_window(*args, sample_time=SAMPLE_TIME)
+
+
+def _warm_up() -> None:
+    """Import the analysis stack in the worker process ahead of the first window (spawn start-up takes seconds)."""
+    import aeropend_core.identify  # noqa: F401
+    import aeropend_core.output_error  # noqa: F401
+    import aeropend_core.preprocess  # noqa: F401
 
 
 class IdentificationNode(Node):
@@ -99,10 +144,12 @@ class IdentificationNode(Node):
         self.stamps: list[int] = []
         self.signals: dict[str, list[float]] = {'armature_voltage': [], 'armature_current': [], 'angle': []}
         self.last_window_end_ns: int | None = None
+        #: Stamp of the first sample received [ns] (origin of the run's relative times).
+        self.first_stamp_ns: int | None = None
         # The analysis runs in a worker *process* (spawned: no fork of the DDS threads): a worker thread would
         # hold the GIL for most of a window's fit and starve the executor, which then drops samples.
         self.worker = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'))
-        self.pending = None
+        self.pending = self.worker.submit(_warm_up)
         self.windows_done = 0
         self.windows_skipped = 0
         self.last_result: WindowResult | None = None
@@ -110,7 +157,10 @@ class IdentificationNode(Node):
 
         # Best effort like the publisher, with a deep queue so that a busy moment does not drop samples.
         deep = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, deep)
+        # Raw subscription: the bytes are read directly (RawSampleParser), which costs a fraction of building a
+        # JointState per sample.
+        self.parser = RawSampleParser()
+        self.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, deep, raw=True)
         self.coefficients_publisher = self.create_publisher(JointState, COEFFICIENTS_TOPIC, results_qos())
         self.parameters_publisher = self.create_publisher(JointState, PARAMETERS_TOPIC, results_qos())
         self.fit_publisher = self.create_publisher(JointState, FIT_TOPIC, results_qos())
@@ -140,12 +190,14 @@ class IdentificationNode(Node):
         return SetParametersResult(successful=True)
 
     # --------------------------------------------------------------------------------------------- samples
-    def _on_sample(self, msg: JointState) -> None:
+    def _on_sample(self, data: bytes) -> None:
         try:
-            sample = topics.msg_to_sample(msg)
+            sample = self.parser.parse(data)
         except ValueError as error:
             self.get_logger().warning(f'ignoring a sample: {error}', throttle_duration_sec=5.0)
             return
+        if self.first_stamp_ns is None:
+            self.first_stamp_ns = sample.stamp_ns
         with self.lock:
             if self.sequence and sample.sequence <= self.sequence[-1]:
                 self.get_logger().warning('sample counter went back (source restarted): buffer cleared')

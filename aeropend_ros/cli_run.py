@@ -1,0 +1,274 @@
+"""Start the whole node graph in one process: sim (or the rig), excitation, recorder, online identification.
+
+By default the simulator stands in for the rig (with a hidden effect the model does not know about), a
+Latin-hypercube duty schedule excites it, everything is recorded to an MCAP bag under bags/, the identification
+node fits the model on sliding windows (its held-out fit is printed as windows complete), and at the end the
+diagnosis of the recording says which physical effect is missing.
+
+Examples:
+  aeropend run                                   # sim, 60 s, record to bags/, diagnose
+  aeropend run --duration 120 --model-effect angle_offset
+  aeropend run --effect coulomb_friction=4 --realtime-factor 4
+  aeropend run --port /dev/ttyACM0 --duration 90 # the real rig through the serial bridge
+
+ROS_AUTOMATIC_DISCOVERY_RANGE is set to LOCALHOST for this demo unless you set it yourself.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+
+from aeropend_core.errors import AeropendError
+
+#: Hidden effect of the default simulation (documented in README, not printed: finding it is the job).
+DEFAULT_HIDDEN_EFFECTS = ['angle_offset=0.05']
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument('--sim', action='store_true', help='use the simulator (default)')
+    source.add_argument('--port', metavar='DEVICE', help='use the rig on this serial port (e.g. /dev/ttyACM0)')
+    parser.add_argument('--record', metavar='DIR', default='bags',
+                        help='folder in which the bag folder is created (default: bags)')
+    parser.add_argument('--no-record', action='store_true', help='do not record (diagnose the samples in memory)')
+    parser.add_argument('--duration', type=float, default=60.0, metavar='S',
+                        help='length of the experiment [s] (default 60; the diagnosis needs >= 20 s)')
+    parser.add_argument('--effect', action='append', default=None, metavar='NAME=VALUE',
+                        help='hidden effect of the simulator (repeatable; replaces the default hidden effect); '
+                             '--effect none for a clean simulator')
+    parser.add_argument('--model-effect', action='append', default=[], metavar='NAME',
+                        help='effect included in the identified model from the start (repeatable)')
+    parser.add_argument('--realtime-factor', type=float, default=1.0, metavar='F',
+                        help='simulation speed: 1 = real time, 4 = four times faster (sim only)')
+    parser.add_argument('--window', type=float, default=20.0, metavar='S', help='identification window [s]')
+    parser.add_argument('--hop', type=float, default=5.0, metavar='S', help='identification hop [s]')
+    parser.add_argument('--psnr', type=float, default=50.0, metavar='DB',
+                        help='simulated measurement noise [dB] (0 = none)')
+    parser.add_argument('--seed', type=int, default=1, help='seed of the excitation and the simulated noise')
+    parser.add_argument('--duty-cap', type=float, default=0.7, metavar='FRACTION', help='safety cap on the duty')
+    parser.add_argument('--no-diagnose', action='store_true', help='skip the diagnosis at the end')
+
+
+def _check_arguments(args) -> None:
+    if not args.duration > 0:
+        raise AeropendError(f'--duration must be positive, got {args.duration} s')
+    if args.port is not None and args.realtime_factor != 1.0:
+        raise AeropendError('--realtime-factor only applies to the simulator; the rig runs in real time')
+    if not 0 < args.realtime_factor <= 100:
+        raise AeropendError(f'--realtime-factor must be in (0, 100], got {args.realtime_factor}')
+    if not 0 < args.duty_cap <= 1:
+        raise AeropendError(f'--duty-cap must be a fraction in (0, 1], got {args.duty_cap}')
+    if not 4 <= args.window <= 600 or not 0.5 <= args.hop <= 600:
+        raise AeropendError('--window must be in [4, 600] s and --hop in [0.5, 600] s')
+    if args.port is not None and not Path(args.port).exists():
+        raise AeropendError(f'serial port {args.port} does not exist: is the Arduino plugged in? '
+                            '(ls /dev/ttyACM* /dev/serial/by-id/), or run the simulator with --sim')
+    from aeropend_core.effects import parse_effect_assignments
+    from aeropend_ros.online import check_effect_names
+    if args.effect and args.effect != ['none']:
+        parse_effect_assignments(args.effect)
+    check_effect_names(args.model_effect)
+
+
+def main(args) -> int:
+    _check_arguments(args)
+    # Demo traffic stays on this machine unless the user chose otherwise.
+    from aeropend_ros._ros_env import ensure_ros_environment
+    ensure_ros_environment(local_only=True)
+    return _run(args)
+
+
+def _run(args) -> int:
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from aeropend_core.model import SAMPLE_TIME
+    from aeropend_ros.excitation_node import ExcitationNode
+    from aeropend_ros.identification_node import IdentificationNode
+
+    def overrides(**values):
+        return [Parameter(name, value=value) for name, value in values.items()]
+
+    use_sim = args.port is None
+    hidden = DEFAULT_HIDDEN_EFFECTS if args.effect is None else ([] if args.effect == ['none'] else args.effect)
+    rclpy.init(args=['--ros-args', '--log-level', 'warn'])
+    nodes = []
+    executors = []
+    memory = None
+    recorder = None
+    bag_folder = None
+    try:
+        if use_sim:
+            from aeropend_ros.sim_node import SimNode
+            source = SimNode(parameter_overrides=overrides(
+                effects=list(hidden) or [''], psnr_db=float(args.psnr), seed=int(args.seed),
+                duty_limit=float(args.duty_cap), realtime_factor=float(args.realtime_factor),
+                stop_after=float(args.duration)))
+        else:
+            from aeropend_ros.serial_bridge_node import SerialBridgeNode
+            source = SerialBridgeNode(parameter_overrides=overrides(port=args.port))
+        nodes.append(source)
+        start_delay = 1.0
+        excitation = ExcitationNode(parameter_overrides=overrides(
+            duration=max(float(args.duration) - start_delay - 2.0, 1.0), seed=int(args.seed),
+            duty_cap=float(args.duty_cap), duty_max=min(0.7, float(args.duty_cap)), start_delay=start_delay,
+            time_source='wall', time_scale=float(args.realtime_factor) if use_sim else 1.0, exit_when_done=False))
+        nodes.append(excitation)
+        identification = IdentificationNode(parameter_overrides=overrides(
+            window_s=float(args.window), hop_s=float(args.hop), effects=list(args.model_effect) or ['']))
+        nodes.append(identification)
+        if not args.no_record:
+            from aeropend_ros.recorder_node import RecorderNode
+            folder = Path(args.record) / f'aeropend_{time.strftime("%Y%m%d_%H%M%S")}'
+            folder.parent.mkdir(parents=True, exist_ok=True)
+            recorder = RecorderNode(parameter_overrides=overrides(output=str(folder)))
+            nodes.append(recorder)
+            bag_folder = folder
+        else:
+            memory = _MemoryRecorder()
+            nodes.append(memory.node)
+        # One single-threaded executor per node, each spinning in its own thread: cheaper per callback than a
+        # MultiThreadedExecutor, and a busy node (the recorder) never delays the sim's timer.
+        for node in nodes:
+            executor = SingleThreadedExecutor()
+            executor.add_node(node)
+            executors.append(executor)
+
+        what = 'simulator' if use_sim else f'rig on {args.port}'
+        print(f'aeropend run: {what}, {args.duration:g} s of excitation'
+              + (f' at {args.realtime_factor:g}x real time' if use_sim and args.realtime_factor != 1 else '')
+              + (f', recording to {bag_folder}' if bag_folder else ', not recording')
+              + f', identifying on {args.window:g} s windows every {args.hop:g} s'
+              + (f' (model effects: {", ".join(args.model_effect)})' if args.model_effect else ''), flush=True)
+        for node, executor in zip(nodes, executors):
+            threading.Thread(target=executor.spin, name=node.get_name(), daemon=True).start()
+        interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME)
+        excitation.finish() if excitation.started and not excitation.done else None
+        if recorder is not None:
+            _drain(recorder)
+    except KeyboardInterrupt:
+        interrupted = True
+        print('aeropend run: interrupted; finalising', file=sys.stderr)
+    finally:
+        for executor in executors:
+            executor.shutdown(timeout_sec=2.0)
+        if recorder is not None:
+            recorder.finish()
+        for node in reversed(nodes):
+            node.destroy_node()
+        rclpy.try_shutdown()
+    if bag_folder is not None:
+        print(f'recorded: {bag_folder}')
+    if args.no_diagnose:
+        return 130 if interrupted else 0
+    return _diagnose(bag_folder, memory, args.model_effect, interrupted)
+
+
+def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float) -> bool:
+    """Print each new window's held-out fit until the experiment is over; True when interrupted (Ctrl-C)."""
+    started = time.monotonic()
+    shown = 0
+    last_status = None
+    try:
+        while True:
+            if use_sim and source.finished:
+                return False
+            if not use_sim and time.monotonic() - started > args.duration:
+                return False
+            if identification.windows_done > shown and identification.last_result is not None:
+                shown = identification.windows_done
+                r = identification.last_result
+                print(f'  window ending t = {r.stop - identification.first_stamp_ns * 1e-9:6.1f} s: held-out fit '
+                      f'{r.fit_percent:6.2f} %, rms error {r.rms_error * 1e3:6.2f} mrad '
+                      f'(noise {r.noise_rms * 1e3:.2f} mrad), {r.compute_time:.2f} s to compute', flush=True)
+                last_status = identification.last_status
+            elif identification.last_status is not last_status:
+                last_status = identification.last_status
+                if last_status[1] != b'\x00':      # not OK: say why no fit was published for this window
+                    print(f'  window: {last_status[0]}', flush=True)
+            if os.environ.get('AEROPEND_RUN_DEBUG'):
+                print(f'    [debug] wall {time.monotonic() - started:5.1f} s, source samples '
+                      f'{getattr(source, "sequence", "?")}, identification buffer {len(identification.stamps)}, '
+                      f'windows done {identification.windows_done}, skipped {identification.windows_skipped}, '
+                      f'status {identification.last_status[0][:60]!r}', flush=True)
+                time.sleep(0.9)
+            time.sleep(0.1)
+    except KeyboardInterrupt:
+        print('aeropend run: interrupted; finalising', file=sys.stderr)
+        return True
+
+
+def _drain(recorder, timeout: float = 5.0) -> None:
+    """Let the recorder receive what is still in flight (its per-topic counts stop growing)."""
+    deadline = time.monotonic() + timeout
+    previous = None
+    while time.monotonic() < deadline:
+        counts = dict(getattr(recorder, '_received', {}))
+        if counts == previous:
+            return
+        previous = counts
+        time.sleep(0.3)
+
+
+class _MemoryRecorder:
+    """Keeps every sample in memory (used with --no-record, so the diagnosis still has data)."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import JointState
+
+        from aeropend_ros import topics
+        self.samples = []
+        self.node = rclpy.create_node('memory_recorder')
+        self.node.create_subscription(JointState, topics.SAMPLES_TOPIC,
+                                      lambda msg: self.samples.append(topics.msg_to_sample(msg)),
+                                      QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
+
+    def recording(self):
+        import numpy as np
+
+        from aeropend_core.recording import from_columns
+        samples = sorted(self.samples, key=lambda s: s.sequence)
+        stamps = np.array([s.stamp_ns for s in samples], dtype=np.int64)
+        columns = {'t': (stamps - stamps[0]) * 1e-9,
+                   'duty': np.array([s.duty for s in samples]),
+                   'armature_voltage': np.array([s.armature_voltage for s in samples]),
+                   'armature_current': np.array([s.armature_current for s in samples]),
+                   'angle': np.array([s.angle for s in samples])}
+        return from_columns(columns, source='samples in memory')
+
+
+def _diagnose(bag_folder, memory, model_effects, interrupted: bool) -> int:
+    from aeropend_core.errors import InsufficientDataError
+    try:
+        from aeropend_core.diagnose import diagnose
+    except ImportError:
+        print('aeropend run: the diagnosis module is not available; skipping the diagnosis', file=sys.stderr)
+        return 130 if interrupted else 0
+    if bag_folder is not None:
+        from aeropend_core.recording import load_recording
+        recording = load_recording(bag_folder)
+    else:
+        if not memory.samples:
+            raise AeropendError('no samples were received; nothing to diagnose (is the source running?)')
+        recording = memory.recording()
+    print(f'\nDiagnosis of {len(recording)} samples ({recording.time[-1] - recording.time[0]:.1f} s) '
+          f'from {recording.source or "the run"}:', flush=True)
+    try:
+        diagnosis = diagnose(recording, effects=tuple(model_effects),
+                             progress=lambda message: print(f'  ... {message}', flush=True))
+    except InsufficientDataError as error:
+        print(f'aeropend run: cannot diagnose: {error}', file=sys.stderr)
+        return 1
+    print(diagnosis.summary())
+    return 130 if interrupted else 0
+
+
+if __name__ == '__main__':  # pragma: no cover - use `aeropend run`
+    sys.exit(os.EX_USAGE)

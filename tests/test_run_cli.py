@@ -1,0 +1,89 @@
+"""`aeropend run` end to end (short, faster than real time) with `aeropend monitor` watching, and the CLI's errors."""
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aeropend_ros._ros_env import local_ros_environment
+from aeropend_ros.cli_monitor import DriftTracker
+from tests.ros_helpers import ROOT, private_domain_id
+
+AEROPEND = [sys.executable, '-c', 'import sys; from aeropend_core.cli import main; sys.exit(main())']
+
+
+def run_cli(arguments, env, timeout=120.0):
+    return subprocess.run(AEROPEND + arguments, env=env, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.timeout(240)
+def test_run_records_identifies_and_diagnoses(tmp_path):
+    """30 s of the default sim (hidden angle offset) at 3x: bag complete, windows identified, offset diagnosed."""
+    env = local_ros_environment(domain_id=private_domain_id())
+    run = subprocess.Popen(AEROPEND + ['run', '--duration', '30', '--realtime-factor', '3', '--record',
+                                       str(tmp_path), '--window', '12', '--hop', '3'],
+                           env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        monitor = run_cli(['monitor', '--once', '--timeout', '60'], env, timeout=90)
+        output, _ = run.communicate(timeout=200)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 0, output
+    assert 'Traceback' not in output, output
+    # The monitor saw a window of the running graph.
+    assert monitor.returncode == 0, monitor.stderr + monitor.stdout
+    assert 'held-out fit' in monitor.stdout and 'gravity_stiffness' in monitor.stdout
+    assert 'sin(angle)' in monitor.stdout
+    # Live windows were reported while running.
+    assert 'window ending t =' in output, output
+    # The bag holds every sample: continuous sequence, Ts spacing, 30 s.
+    folders = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert len(folders) == 1 and (folders[0] / 'metadata.yaml').exists(), output
+    from aeropend_core.bag import read_samples
+    samples = read_samples(folders[0])
+    sequence = samples['sequence']
+    assert sequence.size == round(30 * 490) and np.all(np.diff(sequence) == 1)
+    assert np.allclose(np.diff(samples['time']), 1 / 490, atol=1e-8)
+    assert set(np.unique(np.round(samples['duty'], 6))) > {0.0}, 'the excitation drove the sim'
+    # The diagnosis at the end names the hidden effect (the default sim hides a 0.05 rad sensor offset).
+    assert 'Diagnosis of 14700 samples' in output
+    assert 'missing effect: angle_offset' in output, output
+
+
+def test_run_with_missing_port_fails_clearly():
+    env = local_ros_environment(domain_id=private_domain_id())
+    result = run_cli(['run', '--port', '/dev/ttyACM_does_not_exist'], env, timeout=60)
+    assert result.returncode == 2
+    assert 'does not exist' in result.stderr and 'Traceback' not in result.stderr
+
+
+def test_run_with_unknown_effect_fails_clearly():
+    env = local_ros_environment(domain_id=private_domain_id())
+    result = run_cli(['run', '--effect', 'warp_drive=1'], env, timeout=60)
+    assert result.returncode == 2
+    assert 'unknown effect' in result.stderr and 'coulomb_friction' in result.stderr
+    result = run_cli(['run', '--model-effect', 'coulomb_friction=4'], env, timeout=60)
+    assert result.returncode == 2 and 'names only' in result.stderr
+
+
+def test_monitor_without_identification_says_so():
+    env = local_ros_environment(domain_id=private_domain_id())
+    result = run_cli(['monitor', '--once', '--timeout', '2'], env, timeout=60)
+    assert result.returncode == 1
+    assert 'no identification result' in result.stderr
+
+
+def test_drift_tracker_flags_a_jump_and_restarts_on_model_change():
+    tracker = DriftTracker(sigma=3.0, min_windows=3)
+    for value in (10.0, 10.1, 9.9, 10.0):
+        report = tracker.update({'damping': (value, 0.2)})
+        assert not report['damping'][2]
+    report = tracker.update({'damping': (11.5, 0.2)})           # 7.5 sigma above the running mean 10.0
+    assert report['damping'][2] and report['damping'][1] == pytest.approx(7.5)
+    report = tracker.update({'damping': (11.5, 0.2), 'offset': (0.05, 0.001)})   # effect added: restart
+    assert not any(flag for _, _, flag in report.values())
+    assert Path(ROOT / 'aeropend_ros' / 'cli_monitor.py').exists()
