@@ -597,9 +597,28 @@ def _scan_mcap(path: Path, state: _ScanState, want_messages: bool) -> Iterator[t
     """Yield ``(channel_id, sequence, log_time, publish_time, data)`` of every message of a (possibly cut) file.
 
     Fills ``state`` with schemas, channels and metadata as they appear; stops at the first incomplete or corrupt
-    record (recording what happened in ``state.problem``).
+    record (recording what happened in ``state.problem``). The file is memory-mapped, not read into memory.
     """
-    buf = path.read_bytes()
+    import mmap
+    try:
+        handle = open(path, 'rb')  # noqa: SIM115 - closed in the finally below, after the generator is done
+    except OSError as error:
+        raise AeropendError(f'cannot read {path}: {error.strerror or error}') from None
+    mapped = None
+    try:
+        size = os.fstat(handle.fileno()).st_size
+        if size < len(MCAP_MAGIC):
+            raise AeropendError(f'{path} is not an MCAP file (no MCAP magic at its start)')
+        mapped = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
+        yield from _scan_buffer(mapped, path, state, want_messages)
+    finally:
+        if mapped is not None:
+            mapped.close()
+        handle.close()
+
+
+def _scan_buffer(buf, path: Path, state: _ScanState, want_messages: bool) \
+        -> Iterator[tuple[int, int, int, int, bytes]]:
     if len(buf) < len(MCAP_MAGIC) or buf[:len(MCAP_MAGIC)] != MCAP_MAGIC:
         raise AeropendError(f'{path} is not an MCAP file (no MCAP magic at its start)')
     pos = len(MCAP_MAGIC)
