@@ -7,7 +7,8 @@ A candidate counts as **significant** only if all of these hold:
 * it lowers the training BIC (computed with the effective number of independent residuals) by more than
   ``BIC_MARGIN``;
 * it lowers the held-out model error beyond the noise, sqrt(rms^2 - noise^2), by at least ``MIN_IMPROVEMENT``
-  (a fraction) and by more than ``MIN_ABSOLUTE`` x the noise RMS;
+  (a fraction), and the held-out mean-square error by more than ``MIN_ABSOLUTE^2`` x the noise variance (so that
+  a model already within the noise is not "improved" by fitting it);
 * its parameter is nonzero by more than three standard errors.
 
 Candidates are ranked by held-out error. The recommendation is the best significant candidate unless another
@@ -35,8 +36,8 @@ from aeropend_core.recording import Recording
 BIC_MARGIN = 10.0
 #: ... and the held-out error beyond the noise by at least this fraction ...
 MIN_IMPROVEMENT = 0.25
-#: ... and by more than this multiple of the noise RMS (absolute).
-MIN_ABSOLUTE = 0.05
+#: ... and the held-out mean-square error by more than (this x the noise RMS)^2.
+MIN_ABSOLUTE = 0.15
 #: The current model is "within the noise" when its error beyond the noise is below this multiple of the noise.
 WITHIN_NOISE = 0.3
 #: Two significant candidates are confounded when the runner-up's excess error is within this factor of the best.
@@ -123,6 +124,13 @@ class Diagnosis:
     def noise_rms(self) -> float:
         return self.current.noise_rms
 
+    def reported_parameters(self, comparison: Comparison) -> dict[str, float]:
+        """Fitted parameters in SI; with the motor observer, `thrust_resistance` is the observer's fitted Rm."""
+        parameters = dict(comparison.parameters)
+        if self.prepared is not None and self.prepared.motor is not None:
+            parameters['thrust_resistance'] = self.prepared.motor.parameters['motor_resistance']
+        return parameters
+
     def to_dict(self) -> dict:
         """The machine-readable form printed by ``aeropend diagnose --json``."""
         current = self.current
@@ -135,7 +143,7 @@ class Diagnosis:
             'error_beyond_noise': _finite(excess_error(current.rms_error, current.noise_rms)),
             'prediction_rms_error': _finite(current.evaluation.prediction_rms),
             'prediction_horizon': current.evaluation.prediction_horizon,
-            'parameters': current.parameters,
+            'parameters': self.reported_parameters(current),
             'standard_errors': current.fit.standard_errors,
             'missing_effect': self.missing_effect,
             'verdict': self.verdict,
@@ -155,7 +163,7 @@ class Diagnosis:
                 'fit_percent': _finite(self.before.fit_percent),
                 'rms_error': _finite(self.before.rms_error),
                 'error_beyond_noise': _finite(excess_error(self.before.rms_error, self.before.noise_rms)),
-                'parameters': self.before.parameters,
+                'parameters': self.reported_parameters(self.before),
                 'regimes': self.before.evaluation.regimes,
             }
         return result
@@ -311,7 +319,8 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                       if np.isfinite(s) and s > 0) if values else False
         if name == 'dead_zone':  # profiled, no standard error: require a threshold inside the data's range
             nonzero = values.get('threshold_voltage', 0.0) > 0.0
-        improved = (excess_now - excess_after) >= max(MIN_IMPROVEMENT * excess_now, MIN_ABSOLUTE * noise)
+        improved = (excess_after <= (1.0 - MIN_IMPROVEMENT) * excess_now
+                    and excess_now ** 2 - excess_after ** 2 >= (MIN_ABSOLUTE * noise) ** 2)
         significant = bool(delta_bic < -BIC_MARGIN and improved and nonzero)
         evidence = _regime_evidence(current, augmented)
         candidate = Candidate(name, augmented, values, errors, delta_bic, excess_now, excess_after, significant,
@@ -389,12 +398,13 @@ def format_summary(diagnosis: Diagnosis) -> str:
     lines.append(f'{current.evaluation.prediction_horizon:g} s-ahead prediction RMS error '
                  f'{current.evaluation.prediction_rms * 1e3:.2f} mrad')
     lines.append('Parameters (SI, +- 1 sigma):')
-    for name, value in current.parameters.items():
+    observer = diagnosis.prepared is not None and diagnosis.prepared.motor is not None
+    for name, value in diagnosis.reported_parameters(current).items():
         error = current.fit.standard_errors.get(name, float('nan'))
         unit = NOMINAL_PARAMETERS.get(name, (_unit_of(name), ''))[0]
-        if name == 'thrust_resistance' and diagnosis.prepared is not None and diagnosis.prepared.motor is not None:
-            value = diagnosis.prepared.motor.parameters['motor_resistance']
-            error = float('nan')
+        if name == 'thrust_resistance' and observer:
+            lines.append(f'  {name:24s} {value:12.5g} {unit} (from the motor observer fitted to Ia)')
+            continue
         lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit}')
     if diagnosis.before is not None:
         before = diagnosis.before

@@ -77,10 +77,18 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
             stop = seg_stop[s]
             y = initial[row, s, 0]
             w = initial[row, s, 1]
-            e = voltage[start] - r * current[start]
-            f = k * e * abs(e)
-            if gate_on and gate_signal[start] < vth:
-                f = 0.0
+            # Lagged thrust at the segment start: the lag filter run over the preceding 5 time constants.
+            pre = start - int(5.0 * tau / sample_time) if lag_on else start
+            if pre < 0:
+                pre = 0
+            decay = math.exp(-sample_time / tau)
+            f = 0.0
+            for j in range(pre, start + 1):
+                e = voltage[j] - r * current[j]
+                u = k * e * abs(e)
+                if gate_on and gate_signal[j] < vth:
+                    u = 0.0
+                f = u if j == pre else decay * f + (1.0 - decay) * u
             i = start
             while True:
                 out[row, i] = y + offset
@@ -162,6 +170,12 @@ def _simulate_numpy(theta, voltage, current, gate_signal, seg_start, seg_stop, i
         start, stop = int(seg_start[s]), int(seg_stop[s])
         y, w = initial[:, s, 0].copy(), initial[:, s, 1].copy()
         f = thrust(start)
+        if lag_on:  # lagged thrust at the start: the lag filter over the preceding 5 time constants
+            decay = np.exp(-sample_time / tau)
+            first = max(0, start - int(5.0 * np.max(tau) / sample_time))
+            f = thrust(first)
+            for j in range(first + 1, start + 1):
+                f = decay * f + (1.0 - decay) * thrust(j)
         i = start
         while True:
             out[:, i] = y + offset

@@ -65,7 +65,7 @@ def main(args: argparse.Namespace) -> int:
     diagnosis = diagnose(recording, effects=args.add, candidates=args.only, progress=progress)
     if args.report:
         from aeropend_core.report import write_report
-        written = write_report(diagnosis, args.report)
+        written = write_report(diagnosis, args.report, source=args.data)
         progress(f'report written to {written}')
     if args.json:
         print(json.dumps(finite_json(diagnosis.to_dict()), indent=2, allow_nan=False))
