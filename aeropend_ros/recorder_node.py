@@ -85,7 +85,11 @@ class RecorderNode(Node):
         get = self.get_parameter
         output = get('output').value or f'bags/aeropend_{time.strftime("%Y%m%d_%H%M%S")}'
         self._topics_wanted = set(get('topics').value or [])
-        self._include = re.compile(get('include_regex').value) if get('include_regex').value else None
+        try:
+            self._include = re.compile(get('include_regex').value) if get('include_regex').value else None
+        except re.error as error:
+            raise AeropendError(f'include_regex {get("include_regex").value!r} is not a regular expression: '
+                                f'{error}') from None
         self._queue_depth = get('queue_depth').value
         self.writer = BagWriter(output, max_file_bytes=get('max_file_bytes').value,
                                 max_file_duration=get('max_file_duration').value,
