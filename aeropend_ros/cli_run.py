@@ -99,6 +99,7 @@ def _run(args) -> int:
     rclpy.init(args=['--ros-args', '--log-level', 'warn'])
     nodes = []
     executors = []
+    spinners = []
     memory = None
     recorder = None
     bag_folder = None
@@ -146,9 +147,12 @@ def _run(args) -> int:
               + f', identifying on {args.window:g} s windows every {args.hop:g} s'
               + (f' (model effects: {", ".join(args.model_effect)})' if args.model_effect else ''), flush=True)
         for node, executor in zip(nodes, executors):
-            threading.Thread(target=executor.spin, name=node.get_name(), daemon=True).start()
+            spinner = threading.Thread(target=executor.spin, name=node.get_name(), daemon=True)
+            spinner.start()
+            spinners.append(spinner)
         interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME)
-        excitation.finish() if excitation.started and not excitation.done else None
+        if excitation.started and not excitation.done:
+            excitation.finish()          # duty back to 0 before the graph goes away
         if recorder is not None:
             _drain(recorder)
     except KeyboardInterrupt:
@@ -157,6 +161,8 @@ def _run(args) -> int:
     finally:
         for executor in executors:
             executor.shutdown(timeout_sec=2.0)
+        for spinner in spinners:
+            spinner.join(timeout=2.0)
         if recorder is not None:
             recorder.finish()
         for node in reversed(nodes):

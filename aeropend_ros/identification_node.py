@@ -156,7 +156,7 @@ class IdentificationNode(Node):
         self.last_status = ('waiting for samples', DiagnosticStatus.OK)
 
         # Best effort like the publisher, with a deep queue so that a busy moment does not drop samples.
-        deep = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
+        deep = QoSProfile(depth=2000, reliability=ReliabilityPolicy.BEST_EFFORT)
         # Raw subscription: the bytes are read directly (RawSampleParser), which costs a fraction of building a
         # JointState per sample.
         self.parser = RawSampleParser()
