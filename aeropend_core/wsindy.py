@@ -25,7 +25,10 @@ which gives a linear system ``G w = b`` (one row per test function). Steps:
    kept while its relative contribution ``|w_i|·‖G_i‖/‖b‖`` lies in [λ, 1/λ]; refit on the kept terms until the
    set is stable. λ is chosen on a log grid 10^[-4..0] (100 values) by minimising
    ``L(λ) = 2α ‖G(w_λ − w_LS)‖/‖G w_LS‖ + 2(1 − α) nnz(w_λ)/J`` (α = 0.8), smallest minimiser. A small ridge
-   (relative to the normalised Gram matrix) keeps nearly collinear libraries (sin y vs y) solvable.
+   (relative to the normalised Gram matrix) keeps nearly collinear libraries (sin y vs y) solvable during the
+   thresholding; the kept terms are refitted without it. Because thresholding can drop a true term of a nearly
+   collinear group early, the supports of a greedy backward elimination are scored with the same loss L too,
+   and the overall minimiser wins (its λ is then reported as NaN).
 5. Standard errors of the kept coefficients from the whitened residual: σ̂² = ‖r‖²/(n_rows − n_kept),
    Cov(w) = σ̂² (G̃ᵀG̃)⁻¹.
 
@@ -39,9 +42,10 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 from numpy.polynomial import polynomial as npoly
-from scipy import linalg, sparse
+from scipy import linalg
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.library import Term
@@ -108,7 +112,7 @@ class EquationFit:
     covariance : ndarray, shape (n_selected, n_selected)
         Coefficient covariance, in the order of ``coefficients``.
     threshold : float
-        The λ used (0.0 when thresholding was off).
+        The λ used (0.0 when thresholding was off; NaN when the backward-elimination support won).
     residual : float
         Relative whitened residual ‖G̃w − b̃‖/‖b̃‖ (0 = perfect fit).
     half_width, power, n_test_functions : int
@@ -329,30 +333,8 @@ def _whitener(weights: np.ndarray, centres: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------------- regression
-class _Solver:
-    """Ridge-regularised least squares on normalised columns, cached by support set."""
-
-    def __init__(self, a: np.ndarray, b: np.ndarray, ridge: float):
-        self.gram = a.T @ a
-        self.rhs = a.T @ b
-        self.ridge = ridge
-        self.cache: dict[bytes, np.ndarray] = {}
-
-    def solve(self, support: np.ndarray) -> np.ndarray:
-        key = support.tobytes()
-        hit = self.cache.get(key)
-        if hit is not None:
-            return hit
-        w = np.zeros(len(support))
-        idx = np.flatnonzero(support)
-        if idx.size:
-            g = self.gram[np.ix_(idx, idx)] + self.ridge * np.eye(idx.size)
-            w[idx] = linalg.solve(g, self.rhs[idx], assume_a='pos', check_finite=False)
-        self.cache[key] = w
-        return w
-
-
-def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: float, alpha: float):
+def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: float, alpha: float,
+             noise_gram=None, noise_rhs=None):
     """Return (w in normalised coordinates, λ used, column scales, b scale).
 
     Thresholding runs on the ridge-regularised solutions (the ridge damps cancelling pairs of nearly collinear
@@ -364,45 +346,110 @@ def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: f
     col = np.where(usable, col, 1.0)
     bnorm = float(np.linalg.norm(b)) or 1.0
     an = a / col
-    bn = b / bnorm
-    solver = _Solver(an, bn, ridge)
-    final = _Solver(an, bn, 1e-12)
-    final.gram, final.rhs = solver.gram, solver.rhs
-    w_ls = final.solve(usable)
-    if threshold is None:
-        return w_ls, 0.0, col, bnorm
+    gram = an.T @ an
+    rhs = an.T @ (b / bnorm)
+    if noise_gram is not None:
+        gram = gram - noise_gram / np.outer(col, col)
+        rhs = rhs - noise_rhs / (col * bnorm)
     keep = keep & usable
-    if threshold != 'auto':
+    if threshold is None:
+        grid, backward = np.zeros(0), False
+    elif isinstance(threshold, str):
+        if threshold != 'auto':
+            raise AeropendError(f'threshold must be in (0, 1], "auto" or None, got {threshold!r}')
+        grid, backward = THRESHOLD_GRID, True
+    else:
         lam = float(threshold)
         if not 0 < lam <= 1:
-            raise AeropendError(f'threshold must be in (0, 1] or "auto", got {threshold!r}')
-        w = _mstls_usable(solver, lam, keep, usable)
-        return final.solve(w != 0), lam, col, bnorm
-    fit_ls = an @ w_ls
-    denom = float(np.linalg.norm(fit_ls)) or 1.0
-    n_terms = int(usable.sum())
-    best = None
-    for lam in THRESHOLD_GRID:
-        w = final.solve(_mstls_usable(solver, lam, keep, usable) != 0)
-        d = w - w_ls
-        acc = math.sqrt(max(float(d @ solver.gram @ d), 0.0)) / denom
-        loss = 2 * alpha * acc + 2 * (1 - alpha) * np.count_nonzero(w) / n_terms
-        if best is None or loss < best[0] - 1e-12:
-            best = (loss, lam, w)
-    return best[2], float(best[1]), col, bnorm
+            raise AeropendError(f'threshold must be in (0, 1], "auto" or None, got {threshold!r}')
+        grid, backward = np.array([lam]), False
+    w, lam = _select(np.ascontiguousarray(gram), np.ascontiguousarray(rhs), keep, usable, float(ridge),
+                     float(alpha), np.asarray(grid, float), backward)
+    return w, (0.0 if threshold is None else float(lam)), col, bnorm
 
 
-def _mstls_usable(solver: _Solver, lam: float, keep: np.ndarray, usable: np.ndarray) -> np.ndarray:
-    support = usable.copy()
-    w = solver.solve(support)
-    for _ in range(len(usable) + 1):
-        mag = np.abs(w)
-        new = support & (((mag >= lam) & (mag <= 1.0 / lam)) | keep)
-        if np.array_equal(new, support):
-            break
-        support = new
-        w = solver.solve(support)
+@numba.njit(cache=True, nogil=True)
+def _solve_subset(gram, rhs, support, ridge):
+    """Least squares restricted to the support (normal equations with a relative ridge), zeros elsewhere."""
+    idx = np.flatnonzero(support)
+    w = np.zeros(support.size)
+    if idx.size == 0:
+        return w
+    g = np.empty((idx.size, idx.size))
+    r = np.empty(idx.size)
+    for i in range(idx.size):
+        r[i] = rhs[idx[i]]
+        for j in range(idx.size):
+            g[i, j] = gram[idx[i], idx[j]]
+        g[i, i] += ridge
+    sol = np.linalg.lstsq(g, r)[0]
+    for i in range(idx.size):
+        w[idx[i]] = sol[i]
     return w
+
+
+@numba.njit(cache=True, nogil=True)
+def _loss(gram, w, w_ls, denom, alpha, n_terms):
+    d = w - w_ls
+    acc = np.sqrt(max(d @ (gram @ d), 0.0)) / denom
+    return 2.0 * alpha * acc + 2.0 * (1.0 - alpha) * np.count_nonzero(w) / n_terms
+
+
+@numba.njit(cache=True, nogil=True)
+def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward):
+    """MSTLS over the λ grid (+ optional backward elimination), scored by the loss; returns (w, λ).
+
+    Normalised coordinates: |w_i| is the relative contribution of term i. λ = NaN when the backward path won;
+    with an empty grid and no backward path, the plain (near ridge-free) least squares on all usable terms.
+    """
+    final_ridge = 1e-12
+    w_ls = _solve_subset(gram, rhs, usable, final_ridge)
+    if grid.size == 0 and not backward:
+        return w_ls, 0.0
+    denom = np.sqrt(max(w_ls @ (gram @ w_ls), 0.0))
+    if denom == 0.0:
+        denom = 1.0
+    n_terms = max(np.count_nonzero(usable), 1)
+    best_loss = np.inf
+    best_w = w_ls
+    best_lam = 0.0
+    for lam in grid:
+        support = usable.copy()
+        w = _solve_subset(gram, rhs, support, ridge)
+        for _ in range(usable.size + 1):
+            new = support & (((np.abs(w) >= lam) & (np.abs(w) <= 1.0 / lam)) | keep)
+            if np.array_equal(new, support):
+                break
+            support = new
+            w = _solve_subset(gram, rhs, support, ridge)
+        w = _solve_subset(gram, rhs, w != 0.0, final_ridge)
+        value = _loss(gram, w, w_ls, denom, alpha, n_terms)
+        if value < best_loss - 1e-12:
+            best_loss, best_w, best_lam = value, w, lam
+    if backward:
+        # Greedy backward elimination scored by the same loss: with nearly collinear candidates (sin y, y, y²,
+        # cos y, 1) the thresholding path can drop a true term early and never visit the true support; removing
+        # one term at a time (the one whose removal changes the fit least) does visit it.
+        support = usable.copy()
+        while np.count_nonzero(support) > np.count_nonzero(keep):
+            trial_loss = np.inf
+            trial_j = -1
+            trial_w = w_ls
+            for j in range(support.size):
+                if not support[j] or keep[j]:
+                    continue
+                support[j] = False
+                w = _solve_subset(gram, rhs, support, final_ridge)
+                support[j] = True
+                value = _loss(gram, w, w_ls, denom, alpha, n_terms)
+                if value < trial_loss:
+                    trial_loss, trial_j, trial_w = value, j, w
+            if trial_j < 0:
+                break
+            support[trial_j] = False
+            if trial_loss < best_loss - 1e-12:
+                best_loss, best_w, best_lam = trial_loss, trial_w, np.nan
+    return best_w, best_lam
 
 
 # ------------------------------------------------------------------------------------------------- main API
@@ -418,7 +465,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                    max_half_width: int = 1000,
                    exclude=None,
                    noise_std: Mapping[str, float] | None = None,
-                   irls_iterations: int = 2) -> WeakSindyResult:
+                   irls_iterations: int = 2,
+                   bias_correction: bool = True) -> WeakSindyResult:
     """Identify sparse ODEs from uniformly sampled data with weak SINDy.
 
     Parameters
@@ -452,6 +500,10 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         the linearised response of the whole residual to the noise on every signal (target, derivative terms,
         nonlinear terms) and the fit repeated. This removes most of the errors-in-variables bias that a
         target-only whitening causes (it amplifies low-frequency noise in the regressors).
+    bias_correction : bool
+        Subtract the expected noise contributions from the normal equations (bias-compensated least squares,
+        :func:`_noise_gram`), using the per-signal noise levels; removes the errors-in-variables attenuation.
+        Applied in the reweighted passes (so it needs ``irls_iterations >= 1``).
 
     Returns
     -------
@@ -508,6 +560,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         max_order = max([eq.order] + [t.derivative_order for t in eq.terms])
         weights = kernel_derivatives(m, p, dt, max_order)
         hold_weights = kernel_hold(m, p, dt)
+        kernels = {('d', k): (-1) ** k * weights[k] for k in range(max_order + 1)}
+        kernels[('hold',)] = hold_weights
         width = 2 * m + 1
         short = [i for i, (t, _) in enumerate(segments) if len(t) < width]
         if short:
@@ -547,13 +601,22 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         w = None
         for _ in range(irls_iterations + 1):
             rows_a, rows_b = [], []
+            # The first pass (target-only whitening) is not corrected: that whitening amplifies regressor noise
+            # so much that the correction itself becomes unstable; it only supplies w for the full covariance.
+            correct = bias_correction and w is not None
+            noise_gram = np.zeros((len(eq.terms), len(eq.terms))) if correct else None
+            noise_rhs = np.zeros(len(eq.terms)) if correct else None
             for g, b, ops, starts, n in systems:
                 chol, band = _residual_cholesky(ops, w, starts, n, width)
                 rows_a.append(linalg.solve_banded((band, 0), chol, g, check_finite=False))
                 rows_b.append(linalg.solve_banded((band, 0), chol, b, check_finite=False))
+                if correct:
+                    cg, cr = _noise_gram(ops, chol, band, starts, n, width, len(eq.terms), eq.order, kernels)
+                    noise_gram += cg
+                    noise_rhs += cr
             a = np.vstack(rows_a)
             bw = np.concatenate(rows_b)
-            w_n, lam, col, bnorm = _regress(a, bw, keep, threshold, ridge, alpha)
+            w_n, lam, col, bnorm = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs)
             w_new = w_n * bnorm / col
             converged = w is not None and np.allclose(w_new, w, rtol=1e-5, atol=0.0)
             w = w_new
@@ -564,8 +627,11 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         dof = max(n_rows - sel.size, 1)
         sigma2 = float(resid_vec @ resid_vec) / dof
         if sel.size:
-            an = a[:, sel] / col[sel]
-            cov = sigma2 * linalg.pinvh(an.T @ an) / np.outer(col[sel], col[sel])
+            gram_sel = a[:, sel].T @ a[:, sel]
+            if noise_gram is not None:
+                gram_sel = gram_sel - noise_gram[np.ix_(sel, sel)]
+            scale_sel = np.outer(col[sel], col[sel])
+            cov = sigma2 * linalg.pinvh(gram_sel / scale_sel) / scale_sel
         else:
             cov = np.zeros((0, 0))
         names = [eq.terms[j].name for j in sel]
@@ -585,8 +651,9 @@ def estimate_noise_std(signal: np.ndarray) -> float:
     """Robust white-noise standard deviation of a smoothly varying, densely sampled signal (signal's units).
 
     The third difference cancels anything smooth over four samples (variance 20σ² for white noise); the median
-    absolute deviation ignores the few samples around steps. For quantised, mostly constant signals (MAD 0) the
-    plain standard deviation of the third difference is used.
+    absolute deviation ignores the few samples around steps. When the MAD is 0 (quantised or held signals), the
+    standard deviation of the third difference is used if at least 10 % of it is non-zero (quantisation of a
+    moving signal); otherwise the signal is piecewise constant (a held input) and counts as noiseless.
     """
     x = np.asarray(signal, float)
     if x.size < 8:
@@ -595,14 +662,18 @@ def estimate_noise_std(signal: np.ndarray) -> float:
     mad = float(np.median(np.abs(third - np.median(third))))
     if mad > 0:
         return 1.4826 * mad / math.sqrt(20.0)
+    if np.count_nonzero(third) < 0.1 * third.size:
+        return 0.0
     return float(np.std(third) / math.sqrt(20.0))
 
 
 def _noise_operators(eq: Equation, signals, starts, weights, hold_weights, noise_std):
-    """Per noisy signal: (σ, lhs kernel or None, [(term index, signed kernel, Jacobian windows (K, width))]).
+    """Per noisy signal: (σ, lhs kernel or None, [(term index, signed kernel, Jacobian windows (K, width),
+    kernel id, full Jacobian (n,))]).
 
     The residual b − G·w responds to white noise ε_v on signal v through the linear operator
     ``(-1)^k V^(k) [v is target] − Σ_j w_j (-1)^{d_j} V^{(d_j)} diag(∂θ_j/∂v)`` (linearised about the data).
+    Kernel ids: ``('d', k)`` for (-1)^k φ^(k), ``('hold',)`` for the midpoint kernel.
     """
     width = weights.shape[1]
     names = {eq.target, *(v for t in eq.terms for v in t.variables)}
@@ -622,10 +693,95 @@ def _noise_operators(eq: Equation, signals, starts, weights, hold_weights, noise
             plus[v], minus[v] = x + h, x - h
             jac = (term.evaluate(plus) - term.evaluate(minus)) / (2 * h)
             kern = hold_weights if term.hold else weights[term.derivative_order]
+            kid = ('hold',) if term.hold else ('d', term.derivative_order)
             win = np.lib.stride_tricks.sliding_window_view(jac, width)[starts]
-            parts.append((j, (-1) ** term.derivative_order * kern, win))
+            parts.append((j, (-1) ** term.derivative_order * kern, win, kid, jac))
         ops.append((sigma, lhs, parts))
     return ops
+
+
+def _noise_gram(ops, chol, band, starts, n, width, n_terms, order, kernels):
+    """Expected noise contributions (C, c) to the whitened normal equations G̃ᵀG̃ and G̃ᵀb̃.
+
+    With noise on the signals, G̃ = G̃₀ + Ñ and b̃ = b̃₀ + ñ, so E[G̃ᵀG̃] = G̃₀ᵀG̃₀ + C and E[G̃ᵀb̃] = G̃₀ᵀb̃₀ + c:
+    least squares on noisy regressors is biased (errors in variables; collinear libraries make it large, e.g.
+    −10 % on Kq at 30 dB). With kernels k_a(t) (a column of the operator for kernel type a at sample t),
+    ``C_jk = Σ_v σ_v² Σ_t J_jv(t) J_kv(t) k_a(t)ᵀ Σ⁻¹ k_b(t)``. Only the band of Σ⁻¹ is needed (two test
+    functions covering the same sample are within the band), computed from the banded Cholesky factor by the
+    Takahashi recurrence in O(K·band²). Subtracting C and c gives the bias-compensated least squares.
+    """
+    needed = set()
+    for _, lhs, parts in ops:
+        for part in parts:
+            needed.add(part[3])
+        if lhs is not None:
+            needed.add(('d', order))
+    if not needed:
+        return np.zeros((n_terms, n_terms)), np.zeros(n_terms)
+    needed = sorted(needed)
+    inverse_band = _band_of_inverse(np.ascontiguousarray(chol))
+    starts64 = np.ascontiguousarray(starts, dtype=np.int64)
+    q = {}
+    for i, ka in enumerate(needed):
+        for kb in needed[i:]:
+            q[(ka, kb)] = _kernel_products(inverse_band, starts64, np.ascontiguousarray(kernels[ka]),
+                                           np.ascontiguousarray(kernels[kb]), n)
+            q[(kb, ka)] = q[(ka, kb)]
+    gram = np.zeros((n_terms, n_terms))
+    rhs = np.zeros(n_terms)
+    for std, lhs, parts in ops:
+        var = std * std
+        for ia, (j, _, _, ka, ja) in enumerate(parts):
+            for (k_, _, _, kb, jb) in parts[ia:]:
+                value = var * float(np.dot(ja * jb, q[(ka, kb)]))
+                gram[j, k_] += value
+                if k_ != j:
+                    gram[k_, j] += value
+            if lhs is not None:
+                rhs[j] += var * float(np.dot(ja, q[(ka, ('d', order))]))
+    return gram, rhs
+
+
+@numba.njit(cache=True, nogil=True)
+def _band_of_inverse(ab):
+    """Band of Σ⁻¹ from the lower banded Cholesky factor (LAPACK storage ab[l, j] = L[j+l, j]).
+
+    Returns zb with zb[d, r] = (Σ⁻¹)[r, r+d], d = 0..band (Takahashi recurrence on U = Lᵀ: U·Z = U⁻ᵀ).
+    """
+    p1, k = ab.shape
+    p = p1 - 1
+    z = np.zeros((p1, k))
+    for i in range(k - 1, -1, -1):
+        uii = ab[0, i]
+        lmax = min(p, k - 1 - i)
+        for e in range(lmax, -1, -1):
+            acc = 0.0
+            for m in range(1, lmax + 1):
+                v = z[m - e, i + e] if m >= e else z[e - m, i + m]
+                acc += ab[m, i] * v
+            z[e, i] = ((1.0 / uii if e == 0 else 0.0) - acc) / uii
+    return z
+
+
+@numba.njit(cache=True, nogil=True)
+def _kernel_products(zb, starts, ka, kb, n):
+    """q(t) = Σ_{r,s} (Σ⁻¹)[r,s] ka(t − start_r) kb(t − start_s), shape (n,)."""
+    k = starts.size
+    p = zb.shape[0] - 1
+    width = ka.size
+    q = np.zeros(n)
+    for r in range(k):
+        for s_ in range(max(0, r - p), min(k, r + p + 1)):
+            z = zb[s_ - r, r] if s_ >= r else zb[r - s_, s_]
+            if z == 0.0:
+                continue
+            delta = starts[s_] - starts[r]
+            lo = max(0, delta)
+            hi = min(width, width + delta)
+            base = starts[r]
+            for tau in range(lo, hi):
+                q[base + tau] += z * ka[tau] * kb[tau - delta]
+    return q
 
 
 def _residual_cholesky(ops, w, starts, n, width):
@@ -634,31 +790,42 @@ def _residual_cholesky(ops, w, starts, n, width):
     Before any coefficient is known (``w is None``) only the target's noise counts: Σ ∝ V^(k) V^(k)ᵀ.
     """
     k = len(starts)
-    indices = (starts[:, None] + np.arange(width)[None, :]).ravel()
-    indptr = np.arange(k + 1) * width
-    sigma = None
+    reach = np.searchsorted(starts, starts + width, side='left') - np.arange(k)
+    band = int(max(int(reach.max()) - 1, 0))
+    ab = np.zeros((band + 1, k))
+    starts64 = np.ascontiguousarray(starts, dtype=np.int64)
+    used = False
     for std, lhs, parts in ops:
         local = np.zeros((k, width)) if lhs is None else np.broadcast_to(lhs, (k, width)).copy()
         if w is not None:
-            for j, kern, win in parts:
+            for j, kern, win, _, _ in parts:
                 if w[j] != 0.0:
                     local -= w[j] * kern[None, :] * win
         elif lhs is None:
             continue
-        r = sparse.csr_matrix(((std * local).ravel(), indices, indptr), shape=(k, n))
-        term = r @ r.T
-        sigma = term if sigma is None else sigma + term
-    if sigma is None:   # noiseless target by the estimate: fall back to the target-only covariance
+        _accumulate_band(ab, std * local, starts64)
+        used = True
+    if not used:   # noiseless target by the estimate: fall back to the target-only covariance
         lhs = next((lhs for _, lhs, _ in ops if lhs is not None), None)
         if lhs is None:
             raise InsufficientDataError('cannot form the weak-form covariance (no target noise operator)')
-        r = sparse.csr_matrix((np.broadcast_to(lhs, (k, width)).ravel(), indices, indptr), shape=(k, n))
-        sigma = r @ r.T
-    reach = np.searchsorted(starts, starts + width, side='left') - np.arange(k)
-    band = int(max(int(reach.max()) - 1, 0))
-    ab = np.zeros((band + 1, k))
-    for u in range(band + 1):
-        ab[u, :k - u] = sigma.diagonal(-u)
+        _accumulate_band(ab, np.ascontiguousarray(np.broadcast_to(lhs, (k, width))), starts64)
     ab[0] *= 1.0 + 1e-10
     ab[0] += 1e-300
     return linalg.cholesky_banded(ab, lower=True, check_finite=False), band
+
+
+@numba.njit(cache=True, nogil=True)
+def _accumulate_band(ab, local, starts):
+    """ab[u, r] += Σ_t R[r+u, t]·R[r, t] for operator rows given as windows local[r, :] starting at starts[r]."""
+    p = ab.shape[0] - 1
+    k, width = local.shape
+    for r in range(k):
+        for u in range(0, min(p, k - 1 - r) + 1):
+            delta = starts[r + u] - starts[r]
+            if delta >= width:
+                break
+            acc = 0.0
+            for tau in range(delta, width):
+                acc += local[r, tau] * local[r + u, tau - delta]
+            ab[u, r] += acc
