@@ -311,6 +311,8 @@ class FrameDecoder:
     """Streaming decoder: feed it bytes as they arrive, get the valid messages back in order.
 
     Resynchronises on every ``0x00``; never raises on bad input (bad chunks are counted in ``counters.corrupt``).
+    Bytes before the first delimiter after creation or :meth:`reset` are skipped silently (a port opened in the
+    middle of a message).
     Decoding is a ``bytes.split`` plus a per-message COBS pass, ~0.4 M messages/s (bench/bench_decoder.py).
 
     Parameters
@@ -322,12 +324,13 @@ class FrameDecoder:
     accept_commands: bool = False
     counters: DecoderCounters = field(default_factory=DecoderCounters)
     _pending: bytes = b''
-    _discarding: bool = False
+    #: Skip (without counting) up to the first delimiter: a port opened mid-stream starts inside a message.
+    _discarding: bool = True
 
     def reset(self) -> None:
-        """Forget a partial message (after a reconnect): the next byte starts fresh."""
+        """Forget a partial message (after a reconnect): resynchronise on the next delimiter."""
         self._pending = b''
-        self._discarding = False
+        self._discarding = True
 
     def feed(self, data: bytes) -> list:
         """Decode `data` (any length, any split) and return the complete valid messages it finishes."""

@@ -87,18 +87,18 @@ class SampleClock:
             self._anchor = -sequence * self._period
             self._window_start = sequence
         relative = arrival - self._reference
-        predicted = self._anchor + self._period * sequence
-        residual = relative - predicted
-        if residual < 0.0:
-            # Earlier than the lower envelope: this sample had less delay than any before; move the line down.
-            self._anchor += residual
-            predicted = relative
-        if self._window_best is None or residual < self._window_best[2]:
-            self._window_best = (sequence, relative, residual)
+        # Window minimum of the arrival relative to a line of the current period (fixed within a window).
+        key = relative - self._period * sequence
+        if self._window_best is None or key < self._window_best[2]:
+            self._window_best = (sequence, relative, key)
         if sequence - self._window_start >= self.window:
             self._close_window()
             self._window_start = sequence
-            predicted = self._anchor + self._period * sequence
+        predicted = self._anchor + self._period * sequence
+        if relative < predicted:
+            # Earlier than the lower envelope: this sample had less delay than any before; move the line down.
+            self._anchor += relative - predicted
+            predicted = relative
         stamp = self._reference + predicted - self.latency
         if self._last_stamp is not None and stamp <= self._last_stamp:
             stamp = self._last_stamp + 1e-9 * max(1, sequence - self._last_sequence)

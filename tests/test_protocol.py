@@ -219,6 +219,7 @@ def test_sample_clock_tracks_drift_and_ignores_late_bursts(ppm):
     clock = SampleClock(period)
     stamps = np.array([clock.stamp(int(s), float(a)) for s, a in zip(sequence, arrival)])
     assert np.all(np.diff(stamps) > 0)
+    assert np.all(stamps <= arrival)                     # acquisition never after arrival
     assert clock.drift_ppm == pytest.approx(ppm, abs=20.0)
     error = stamps - acquisition - min_latency
     # After the estimate settles the stamps are the acquisition times (+ the minimum latency) within 0.1 ms,

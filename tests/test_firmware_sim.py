@@ -1,0 +1,248 @@
+"""Firmware in the loop: the real firmware, compiled with avr-gcc, runs in simavr (libsimavr + our C harness).
+
+1. The C protocol header and aeropend_core.protocol produce and accept the same bytes.
+2. Over the harness's pty with pyserial: boot STATUS, configuration commands, clamping, the PWM pin measured by the
+   harness (frequency and duty), ADC values injected by the harness, corrupt commands counted, the watchdog.
+3. The serial bridge node (a real process over DDS) on the same pty: ~5 s of samples at 490 Hz +- 1 % with
+   continuous sequence numbers, acquisition stamps, duty commands reaching the pin, the SI conversion of injected
+   ADC voltages end to end, and the watchdog cutting the motor when the host dies.
+"""
+from __future__ import annotations
+
+import math
+import random
+import subprocess
+import time
+
+import numpy as np
+import pytest
+
+from aeropend_core import protocol as P
+from tests.bridge_helpers import DISCOVERY_TIMEOUT, Harness, Listener, build_firmware, poll
+from tests.ros_helpers import NodeProcess, private_domain_id, use_domain
+
+DOMAIN_ID = private_domain_id()
+use_domain(DOMAIN_ID)
+
+pytestmark = pytest.mark.timeout(240)
+
+#: ADC volts per count in simavr (it converts mV * 1023 / 5000, truncating) and on the chip (1024 / 5 V).
+LSB = 5.0 / 1024
+
+
+@pytest.fixture(scope='module')
+def build(tmp_path_factory):
+    return build_firmware(tmp_path_factory.mktemp('firmware'))
+
+
+def read_messages(link, decoder, seconds: float, until=None) -> list:
+    """Read and decode for up to `seconds`, stopping early when `until(messages)` is true."""
+    messages = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        messages += decoder.feed(link.read(max(1, link.in_waiting)))
+        if until is not None and until(messages):
+            break
+    return messages
+
+
+def samples_of(messages) -> list[P.SampleFrame]:
+    return [m for m in messages if isinstance(m, P.SampleFrame)]
+
+
+def test_both_firmware_variants_build(build):
+    sizes = {}
+    for name in ('aeropend.elf', 'aeropend_sim.elf'):
+        output = subprocess.run(['avr-size', str(build / name)], capture_output=True, text=True, check=True).stdout
+        sizes[name] = int(output.splitlines()[1].split()[0])
+    assert all(0 < size < 16 * 1024 for size in sizes.values()), sizes
+    assert (build / 'aeropend.hex').stat().st_size > 0
+    sections = subprocess.run(['avr-objdump', '-h', str(build / 'aeropend_sim.elf')], capture_output=True,
+                              text=True, check=True).stdout
+    assert '.mmcu' in sections     # simavr metadata only in the simulation build
+    sections = subprocess.run(['avr-objdump', '-h', str(build / 'aeropend.elf')], capture_output=True,
+                              text=True, check=True).stdout
+    assert '.mmcu' not in sections
+
+
+def test_c_protocol_header_matches_python(build):
+    rng = random.Random(7)
+    lines, expected = [], []
+    for _ in range(300):
+        payload = bytes(rng.choice([0, rng.randrange(256)]) for _ in range(rng.choice([3, 14, 18])))
+        lines.append('frame ' + payload.hex())
+        expected.append(P.frame(payload).hex())
+        lines.append('crc ' + payload.hex())
+        expected.append(f'{P.crc16(payload):04x}')
+    for _ in range(300):
+        command = P.encode_command(rng.choice([P.SET_DUTY, P.SET_MAX_DUTY]), rng.random())
+        lines.append('decode ' + command[1:-1].hex())
+        expected.append(P.cobs_decode(command[1:-1]).hex())
+        chunk = bytes(rng.randrange(1, 256) for _ in range(rng.randrange(1, 25)))   # no zeros, like the wire
+        lines.append('decode ' + chunk.hex())
+        try:
+            expected.append(P.cobs_decode(chunk).hex())
+        except P.ProtocolError:
+            expected.append('invalid')
+    result = subprocess.run([str(build / 'protocol_vectors')], input='\n'.join(lines) + '\n', capture_output=True,
+                            text=True, check=True, timeout=30)
+    assert result.stdout.split() == expected
+
+
+def test_firmware_over_pty(build, tmp_path):
+    import serial
+    adc = {0: 1650, 2: 3000}
+    with Harness(build, tmp_path / 'ttyMEGA', adc=adc, pwm_to_adc=3) as harness, \
+            serial.Serial(str(tmp_path / 'ttyMEGA'), 250000, timeout=0.02) as link:
+        decoder = P.FrameDecoder()
+        # The defaults (max duty 0.70, watchdog 500 ms) in the periodic STATUS; commands sent while the chip boots
+        # would be lost (as on the rig), so the test starts talking once frames flow.
+        messages = read_messages(link, decoder, 5.0, until=lambda ms: any(isinstance(m, P.StatusFrame) for m in ms))
+        boot = [m for m in messages if isinstance(m, P.StatusFrame)][0]
+        assert boot.watchdog_ms == 500 and boot.max_duty_q16 == 45875
+        assert not boot.flags & P.FLAG_WATCHDOG_TRIPPED
+        # Configuration: the device answers each configuration command with a STATUS.
+        link.write(P.encode_command(P.SET_MAX_DUTY, 0.6) + P.encode_command(P.SET_WATCHDOG, 0.2))
+        messages = read_messages(link, decoder, 5.0, until=lambda ms: any(
+            isinstance(m, P.StatusFrame) and m.watchdog_ms == 200 for m in ms))
+        status = [m for m in messages if isinstance(m, P.StatusFrame)][-1]
+        assert (status.protocol_version, status.pwm_mode, status.pwm_top) == (P.PROTOCOL_VERSION, P.PWM_FAST, 509)
+        assert status.max_duty_q16 == P.duty_to_q16(0.6) and status.watchdog_ms == 200
+        # Raw ADC counts of the injected voltages (simavr truncates mV * 1023 / 5000).
+        messages += read_messages(link, decoder, 3.0, until=lambda ms: len(samples_of(ms)) > 2)
+        sample = samples_of(messages)[-1]
+        assert sample.current_counts == 1650 * 1023 // 5000
+        assert sample.angle_counts == 3000 * 1023 // 5000
+
+        # Ask for more than the maximum: clamped to 0.6, flagged, on the pin (306 of 510 timer ticks).
+        pwm_reports = len(harness.pwm)
+        start = time.monotonic()
+        messages = []
+        while time.monotonic() - start < 1.6:
+            link.write(P.encode_command(P.SET_DUTY, 0.9))
+            messages += read_messages(link, decoder, 0.05)
+        duty_samples = [s for s in samples_of(messages) if s.duty_q16]
+        assert duty_samples, 'no sample with the commanded duty'
+        last = duty_samples[-1]
+        assert last.duty == pytest.approx(306 / 510, abs=1e-4)
+        assert last.flags & P.FLAG_DUTY_CLAMPED and not last.flags & P.FLAG_WATCHDOG_TRIPPED
+        sequences = [s.sequence for s in samples_of(messages)]
+        assert sequences == list(range(sequences[0], sequences[0] + len(sequences)))   # no gap
+        assert poll(lambda: len(harness.pwm) >= pwm_reports + 2, 5.0)
+        _, _, pin_duty, frequency = harness.pwm[-1]
+        assert pin_duty == pytest.approx(0.6, abs=0.003)
+        assert frequency == pytest.approx(16e6 / 64 / 510, abs=0.5)
+        # The harness feeds the pin's duty into A3: the firmware reads it back.
+        assert last.voltage_counts == pytest.approx(0.6 * 1023, abs=4)
+
+        # A corrupt command is rejected and counted.
+        bad = bytearray(P.encode_command(P.SET_DUTY, 0.1))
+        bad[3] ^= 0x04
+        link.write(bytes(bad) + P.encode_command(P.REQUEST_STATUS))
+        messages = read_messages(link, decoder, 3.0, until=lambda ms: any(
+            isinstance(m, P.StatusFrame) and m.rx_bad_frames >= 1 for m in ms))
+        status = [m for m in messages if isinstance(m, P.StatusFrame)][-1]
+        assert status.rx_bad_frames == 1
+        assert samples_of(messages)[-1].duty == pytest.approx(0.6, abs=1e-3)   # the bad SET_DUTY did nothing
+
+        # Watchdog: no command for 0.2 s (98 samples) -> duty 0 and flagged, until the next SET_DUTY.
+        messages = read_messages(link, decoder, 1.0)
+        samples = samples_of(messages)
+        tripped = [s for s in samples if s.flags & P.FLAG_WATCHDOG_TRIPPED]
+        assert tripped, 'watchdog did not trip'
+        # Last command (REQUEST_STATUS) fed it; count samples from its STATUS reply to the first zero-duty sample.
+        first_zero = next(s for s in samples if s.duty_q16 == 0)
+        assert first_zero.sequence - status.sequence == pytest.approx(0.2 / P.SAMPLE_PERIOD, abs=8)
+        assert all(s.duty_q16 == 0 for s in samples if s.sequence > first_zero.sequence)
+        pwm_reports = len(harness.pwm)
+        assert poll(lambda: len(harness.pwm) >= pwm_reports + 2, 5.0)
+        assert harness.pwm[-1][2] == 0.0   # the pin stays low
+
+
+@pytest.fixture()
+def ros_context():
+    import rclpy
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    yield context
+    rclpy.try_shutdown(context=context)
+
+
+def test_bridge_node_on_the_firmware(build, tmp_path, ros_context):
+    import serial
+    port = tmp_path / 'ttyMEGA'
+    current_mv, angle_mv = 1650, 3000
+    with Harness(build, port, adc={0: current_mv, 2: angle_mv}, pwm_to_adc=3) as harness:
+        listener = Listener(ros_context)
+        bridge = NodeProcess('aeropend_ros.serial_bridge_node',
+                             ['-p', f'port:={port}', '-p', 'watchdog_timeout:=0.5', '-p', 'max_duty:=0.7'],
+                             domain_id=DOMAIN_ID)
+        try:
+            assert poll(lambda: len(listener.samples) > 50, DISCOVERY_TIMEOUT), bridge.output()
+            assert poll(lambda: listener.duty_publisher.get_subscription_count() > 0, DISCOVERY_TIMEOUT)
+            listener.publish_duty(0.4)
+            assert poll(lambda: listener.samples[-1].duty > 0.39, 5.0), bridge.output()
+
+            # ~5 s of samples.
+            first = len(listener.samples)
+            diagnostics_before = len(listener.diagnostics)
+            time.sleep(5.0)                                   # the measurement window itself
+            assert poll(lambda: len(listener.diagnostics) > diagnostics_before + 1 and
+                        listener.diagnostic_stamps[-1] - listener.diagnostic_stamps[diagnostics_before] > 4.9, 8.0)
+            window = listener.samples[first:]
+            receive = np.array(listener.receive_ns[first:first + len(window)]) * 1e-9
+            sequence = np.array([s.sequence for s in window])
+            # Device rate: the bridge's last sequence number over its diagnostics stamps (host clock), ~5 s.
+            # (Not the in-test listener's receive times: a slow Python listener on a loaded machine lags.)
+            d_first, d_last = listener.diagnostics[diagnostics_before], listener.diagnostics[-1]
+            elapsed = listener.diagnostic_stamps[-1] - listener.diagnostic_stamps[diagnostics_before]
+            rate = (int(d_last['last_sequence']) - int(d_first['last_sequence'])) / elapsed
+            assert rate == pytest.approx(1 / P.SAMPLE_PERIOD, rel=0.01)
+            # Continuous: no sequence gap at the bridge, nor a corrupt frame; the window itself has no gap
+            # either (the listener's queue is deep enough for best effort to lose nothing on this machine).
+            diagnostics = listener.last_diagnostics()
+            assert diagnostics['samples_lost'] == '0' and diagnostics['frames_corrupt'] == '0', diagnostics
+            assert diagnostics['device_pwm_mode'] == 'fast' and diagnostics['device_watchdog_tripped'] == 'False'
+            assert int(diagnostics['samples_published']) >= int(diagnostics['last_sequence']) - 1000
+            assert len(np.unique(sequence)) >= 0.97 * (sequence[-1] - sequence[0] + 1)
+            assert np.all(np.diff(sequence) > 0)
+            # Stamps: sequence x Ts on the host clock, before arrival, not arrival times.
+            stamps = np.array([s.stamp_ns for s in window]) * 1e-9
+            per_sample = np.diff(stamps) / np.diff(sequence)
+            assert np.median(per_sample) == pytest.approx(P.SAMPLE_PERIOD, rel=1e-3)
+            assert np.all(stamps <= receive)
+            assert np.std(receive - stamps) > 5 * np.std(per_sample - np.median(per_sample))
+
+            # SI conversion of the injected voltages, end to end (2 ADC steps of tolerance: simavr truncates).
+            sample = window[-1]
+            assert sample.duty == pytest.approx(204 / 510, abs=1e-4)           # 0.4 on the 510-tick timer
+            assert sample.armature_current == pytest.approx(current_mv / 1000 / 3.3 * 2.0, abs=2 * LSB * 2 / 3.3)
+            angle_expected = (angle_mv / 1000 / LSB - P.DEFAULT_ANGLE_ZERO) * P.DEFAULT_ANGLE_SCALE
+            assert sample.angle == pytest.approx(angle_expected, abs=2 * P.DEFAULT_ANGLE_SCALE)
+            assert sample.armature_voltage == pytest.approx(P.Calibration().voltage_from_duty(sample.duty))
+            assert harness.pwm[-1][2] == pytest.approx(0.4, abs=0.003)        # the pin follows the command
+            harness.set_adc(0, 330)
+            harness.set_adc(2, 1000)
+            assert poll(lambda: listener.samples[-1].armature_current < 0.5, 5.0)
+            time.sleep(0.1)
+            sample = listener.samples[-1]
+            assert sample.armature_current == pytest.approx(0.2, abs=2 * LSB * 2 / 3.3)
+            assert sample.angle == pytest.approx((1.0 / LSB - 512) * P.DEFAULT_ANGLE_SCALE,
+                                                 abs=2 * P.DEFAULT_ANGLE_SCALE)
+            assert sample.angle < -math.pi / 4
+        finally:
+            listener.close()
+            output = bridge.output()
+            # The host dies without a word: the firmware's watchdog must stop the motor by itself.
+            bridge.process.kill()
+            bridge.process.wait()
+            bridge.log.close()
+        with serial.Serial(str(port), 250000, timeout=0.02) as link:
+            messages = read_messages(link, P.FrameDecoder(), 3.0, until=lambda ms: sum(
+                1 for s in samples_of(ms) if s.flags & P.FLAG_WATCHDOG_TRIPPED) > 5)
+        # The sample in which the watchdog fires still reports the duty of its own PWM period; then zero.
+        tripped = [s for s in samples_of(messages) if s.flags & P.FLAG_WATCHDOG_TRIPPED]
+        assert len(tripped) > 5 and all(s.duty_q16 == 0 for s in tripped[1:]), output
+        reports = len(harness.pwm)
+        assert poll(lambda: len(harness.pwm) >= reports + 2, 5.0)
+        assert harness.pwm[-1][2] == 0.0
