@@ -242,20 +242,23 @@ def effect_start_values(effects: Sequence[str]) -> dict[str, float]:
     return start
 
 
-def input_levels(prep: PreparedRecord) -> np.ndarray:
-    """The distinct held armature-voltage levels [V] in the data (median of each step interval), sorted."""
-    bounds = np.concatenate(([0], prep.step_indices, [len(prep.armature_voltage)]))
+def input_levels(prep: PreparedRecord, stop: int | None = None) -> np.ndarray:
+    """The distinct held armature-voltage levels [V] in samples [0, stop) (median of each step interval), sorted."""
+    stop = len(prep.armature_voltage) if stop is None else stop
+    steps = prep.step_indices[prep.step_indices < stop]
+    bounds = np.concatenate(([0], steps, [stop]))
     levels = np.array([np.median(prep.armature_voltage[a:b]) for a, b in zip(bounds[:-1], bounds[1:]) if b > a])
     return np.unique(np.round(levels[levels > 0.05], 4))
 
 
 def dead_zone_thresholds(prep: PreparedRecord) -> np.ndarray:
-    """Candidate dead-zone thresholds [V]: midpoints between the held input levels (below 75 % of the largest).
+    """Candidate dead-zone thresholds [V]: midpoints between the training part's input levels (below 75 % of the
+    largest).
 
-    The fit cannot place a threshold more finely than the levels the data holds: between two adjacent levels the
-    residual does not change.
+    The fit cannot place a threshold more finely than the levels the training data holds: between two adjacent
+    levels the residual does not change, so the midpoint is the estimate and the levels bound it.
     """
-    levels = input_levels(prep)
+    levels = input_levels(prep, prep.split)
     if levels.size < 2:
         return np.zeros(0)
     mids = np.concatenate(([levels[0] * 0.5], 0.5 * (levels[1:] + levels[:-1])))
@@ -292,7 +295,7 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
         fit = fit_output_error(data, structure, values, fixed={**fixed_base, 'threshold_voltage': thresholds[index]})
         if best is None or fit.residual_rms < best.residual_rms:
             best = fit
-    levels = input_levels(prep)
+    levels = input_levels(prep, prep.split)
     threshold = best.parameters['threshold_voltage']
     low = float(levels[levels < threshold].max()) if np.any(levels < threshold) else 0.0
     high = float(levels[levels > threshold].min()) if np.any(levels > threshold) else threshold

@@ -37,7 +37,7 @@ BIC_MARGIN = 10.0
 #: ... and the held-out error beyond the noise by at least this fraction ...
 MIN_IMPROVEMENT = 0.25
 #: ... and the held-out mean-square error by more than (this x the noise RMS)^2.
-MIN_ABSOLUTE = 0.15
+MIN_ABSOLUTE = 0.25
 #: The current model is "within the noise" when its error beyond the noise is below this multiple of the noise.
 WITHIN_NOISE = 0.3
 #: Two significant candidates are confounded when the runner-up's excess error is within this factor of the best.
