@@ -18,7 +18,13 @@ import numpy as np
 import pytest
 
 from aeropend_core import protocol as P
-from tests.bridge_helpers import DISCOVERY_TIMEOUT, Harness, Listener, build_firmware, poll
+from tests.bridge_helpers import (
+    DISCOVERY_TIMEOUT,
+    Harness,
+    Listener,
+    build_firmware,
+    poll,
+)
 from tests.ros_helpers import NodeProcess, private_domain_id, use_domain
 
 DOMAIN_ID = private_domain_id()
@@ -98,7 +104,7 @@ def test_firmware_over_pty(build, tmp_path):
         # The defaults (max duty 0.70, watchdog 500 ms) in the periodic STATUS; commands sent while the chip boots
         # would be lost (as on the rig), so the test starts talking once frames flow.
         messages = read_messages(link, decoder, 5.0, until=lambda ms: any(isinstance(m, P.StatusFrame) for m in ms))
-        boot = [m for m in messages if isinstance(m, P.StatusFrame)][0]
+        boot = next(m for m in messages if isinstance(m, P.StatusFrame))
         assert boot.watchdog_ms == 500 and boot.max_duty_q16 == 45875
         assert not boot.flags & P.FLAG_WATCHDOG_TRIPPED
         # Configuration: the device answers each configuration command with a STATUS.
