@@ -100,9 +100,7 @@ def _msg_dependencies(text: str, package: str) -> list[str]:
         line = raw_line.split('#', 1)[0].strip()
         if not line:
             continue
-        field_type = line.split()[0]
-        if '=' in line.split(None, 1)[-1] and len(line.split()) >= 2 and '=' in line.split()[1]:
-            continue  # constant: TYPE NAME=value
+        field_type = line.split()[0]                    # constants and defaults only exist for builtin types
         base = re.sub(r'\[.*\]$', '', field_type)      # arrays: T[], T[3], T[<=3]
         base = re.sub(r'<=\d+$', '', base)              # bounded strings: string<=10
         if base in _BUILTIN_TYPES:
