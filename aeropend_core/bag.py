@@ -300,7 +300,10 @@ class BagWriter:
         if chunk_size <= 0:
             raise AeropendError('chunk_size must be positive')
         self._compression = _compression_type(compression)
-        self.folder.mkdir(parents=True, exist_ok=True)
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise AeropendError(f'cannot create bag folder {self.folder}: {error.strerror or error}') from None
         self.name = self.folder.name
         self.max_file_bytes = int(max_file_bytes)
         self.max_file_duration_ns = round(max_file_duration * NS_PER_S)
