@@ -12,10 +12,11 @@ Every duty is clamped to ``duty_cap`` (safety). ``start_delay`` seconds at duty 
 
 Time base (``time_source``): ``samples`` (default) follows the acquisition stamps on ``/aeropend/samples``, so the
 schedule keeps its dwell times in *rig/simulation time* even when the sim runs faster than real time; ``wall``
-uses the node clock (times ``time_scale``). Playing starts once the duty topic has a subscriber (and, with ``samples``, a sample has
-arrived). The current duty is re-sent every ``republish_period`` seconds for late joiners. When the schedule ends the
-duty goes to 0 and ``/aeropend/excitation/done`` (``std_msgs/Bool``, transient local) becomes true; with
-``exit_when_done`` the process then exits. Destroying the node (Ctrl-C) also sends duty 0.
+uses the node clock (times ``time_scale``). Playing starts once the duty topic has a subscriber (and, with
+``samples``, a sample has arrived). The current duty is re-sent every ``republish_period`` seconds for late
+joiners. When the schedule ends the duty goes to 0 and ``/aeropend/excitation/done`` (``std_msgs/Bool``,
+transient local) becomes true; with ``exit_when_done`` the process then exits. Destroying the node (Ctrl-C)
+also sends duty 0.
 """
 from __future__ import annotations
 
@@ -23,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_ros._node_util import declare, rclpy, run_node
+from aeropend_ros._node_util import declare, run_node  # first: prepares the ROS environment  # isort: skip
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy

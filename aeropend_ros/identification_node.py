@@ -27,7 +27,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from aeropend_ros._node_util import declare, rclpy, run_node
+from aeropend_ros._node_util import declare, run_node  # first: prepares the ROS environment  # isort: skip
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -200,7 +200,8 @@ class IdentificationNode(Node):
             self.first_stamp_ns = sample.stamp_ns
         with self.lock:
             if self.sequence and sample.sequence <= self.sequence[-1]:
-                self.get_logger().warning('sample counter went back (source restarted): buffer cleared')
+                self.get_logger().warning('sample counter went back (source restarted, or two sources on the '
+                                          'topic): buffer cleared', throttle_duration_sec=5.0)
                 self._clear()
             self.sequence.append(sample.sequence)
             self.stamps.append(sample.stamp_ns)

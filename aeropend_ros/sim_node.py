@@ -21,7 +21,7 @@ import math
 
 import numpy as np
 
-from aeropend_ros._node_util import declare, rclpy, run_node
+from aeropend_ros._node_util import declare, run_node  # first: prepares the ROS environment  # isort: skip
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
