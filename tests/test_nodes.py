@@ -303,3 +303,27 @@ def test_identification_matches_truth_and_improves_when_effect_added(own_domain)
         assert parameters['thrust_coefficient'][0] == pytest.approx(truth.thrust_coefficient, rel=0.05)
         assert all(math.isfinite(error) and error > 0 for _, error in
                    (parameters[k] for k in ('gravity_stiffness', 'damping', 'thrust_gain')))
+
+
+def test_sim_faster_than_real_time_stops_after(tmp_path, own_domain):
+    """realtime_factor 10 with stop_after 4 s: exits by itself, faster than real time, every stamp k Ts."""
+    context, domain_id = own_domain
+    listener = Listener(context)
+    try:
+        assert listener.wait_for(lambda: True, 0.1)
+        started = time.monotonic()
+        with NodeProcess('aeropend_ros.sim_node', ['-p', 'realtime_factor:=10.0', '-p', 'stop_after:=4.0',
+                                                   '-p', 'publish_period:=0.01'], domain_id) as process:
+            assert listener.wait_for(lambda: process.process.poll() is not None, 60.0), process.output()
+            wall = time.monotonic() - started
+            assert process.process.returncode == 0, process.output()
+            assert 'stop_after reached: 1960 samples' in process.output()
+        listener.spin_for(0.2)
+    finally:
+        listener.executor.shutdown()
+        listener.node.destroy_node()
+    assert wall < 4.0 + 10.0, 'should not be slower than real time plus start-up'   # functional, not a benchmark
+    sequence = np.array([s.sequence for s in listener.samples])
+    stamps = np.array([s.stamp_ns for s in listener.samples], dtype=np.int64)
+    assert sequence.size > 0 and sequence.max() == 1959
+    assert np.max(np.abs((stamps - stamps[0]) - (sequence - sequence[0]) * SAMPLE_TIME * 1e9)) <= 1.0

@@ -1,0 +1,67 @@
+"""The online window analysis and the excitation node's schedule input, without ROS traffic."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aeropend_core.errors import AeropendError, InsufficientDataError, UnknownEffectError
+from aeropend_core.excitation import lhc_schedule
+from aeropend_core.model import DEFAULT_PARAMETERS, SAMPLE_TIME
+from aeropend_core.noise import MeasurementNoise
+from aeropend_core.simulate import simulate
+from aeropend_ros.online import analyze_window, check_effect_names, fill_gaps
+
+
+def test_effect_names_validated():
+    assert check_effect_names(['', 'angle_offset', 'angle_offset', ' coulomb_friction ']) == \
+        ('angle_offset', 'coulomb_friction')
+    with pytest.raises(UnknownEffectError, match='known effects'):
+        check_effect_names(['warp_drive'])
+    with pytest.raises(AeropendError, match='names only'):
+        check_effect_names(['coulomb_friction=4'])
+
+
+def test_fill_gaps_interpolates_lost_samples():
+    grid, filled, missing = fill_gaps(np.array([5, 6, 9]), {'angle': np.array([0.0, 1.0, 4.0])})
+    assert missing == 2 and list(grid) == [5, 6, 7, 8, 9]
+    assert np.allclose(filled['angle'], [0.0, 1.0, 2.0, 3.0, 4.0])
+
+
+def test_constant_duty_is_insufficient_excitation():
+    n = int(15 / SAMPLE_TIME)
+    run = simulate(np.full(n, 0.4), seed=1)
+    with pytest.raises(InsufficientDataError, match='excitation insufficient'):
+        analyze_window(run.time, run.armature_voltage, run.armature_current, run.angle)
+
+
+def test_window_recovers_truth_and_hidden_offset():
+    """20 s window, 50 dB noise, 10-bit quantisation, hidden 0.06 rad offset: poor fit without, truth with."""
+    duty = lhc_schedule(20, seed=3).duty(duration=20)
+    run = simulate(duty, effects={'angle_offset': 0.06}, noise=MeasurementNoise(50, True), seed=2)
+    without = analyze_window(run.time, run.armature_voltage, run.armature_current, run.angle)
+    with_offset = analyze_window(run.time, run.armature_voltage, run.armature_current, run.angle,
+                                 effects=['angle_offset'])
+    assert with_offset.fit_percent > 95 and with_offset.fit_percent > without.fit_percent + 10
+    assert with_offset.rms_error < 2 * with_offset.noise_rms
+    p = with_offset.parameters
+    assert p['offset'][0] == pytest.approx(0.06, abs=0.005)
+    assert p['gravity_stiffness'][0] == pytest.approx(DEFAULT_PARAMETERS.gravity_stiffness, rel=0.05)
+    assert p['thrust_gain'][0] == pytest.approx(DEFAULT_PARAMETERS.thrust_acceleration_coefficient, rel=0.05)
+    assert 'sin(angle)' in with_offset.coefficients and 'cos(angle)' in with_offset.coefficients
+
+
+def test_steps_file_and_flat_steps(tmp_path):
+    from aeropend_ros.excitation_node import check_steps, read_steps_file
+    path = tmp_path / 'steps.yaml'
+    path.write_text('steps:\n  - [0.3, 1.5]\n  - [0.55, 2.0]\n')
+    assert read_steps_file(path).tolist() == [[0.3, 1.5], [0.55, 2.0]]
+    assert check_steps([0.1, 1.0, 0.2, 0.5], 'x').shape == (2, 2)
+    with pytest.raises(AeropendError, match='fraction'):
+        check_steps([[1.5, 1.0]], 'x')
+    with pytest.raises(AeropendError, match='positive'):
+        check_steps([[0.5, 0.0]], 'x')
+    path.write_text('steps: 3\n')
+    with pytest.raises(AeropendError, match='needs a list'):
+        read_steps_file(path)
+    with pytest.raises(AeropendError, match='cannot read'):
+        read_steps_file(tmp_path / 'missing.yaml')
