@@ -1,0 +1,41 @@
+"""Diagnosis time for a 60 s recording with every catalog candidate (target < 10 s on this machine).
+
+Baseline measured in the same run: one output-error fit of the nominal model (the unit of work a diagnosis
+repeats once per candidate). The ratio says how many such fits a whole diagnosis costs.
+
+Run:  .venv/bin/python bench/bench_diagnose.py [--duration 60]
+"""
+import argparse
+import time
+
+from aeropend_core.compare import compare, prepare
+from aeropend_core.diagnose import diagnose
+from aeropend_core.excitation import lhc_schedule
+from aeropend_core.noise import MeasurementNoise
+from aeropend_core.recording import from_columns
+from aeropend_core.simulate import simulate
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument('--duration', type=float, default=60.0)
+    args = parser.parse_args()
+    duty = lhc_schedule(args.duration, seed=3).duty(duration=args.duration)
+    trajectory = simulate(duty, effects={'coulomb_friction': 4.0}, noise=MeasurementNoise(40.0, True), seed=4)
+    recording = from_columns(trajectory.columns(with_truth=False))
+    diagnose(recording, candidates=['cable_torque'])               # JIT compile / cache warm-up
+    start = time.perf_counter()
+    prep = prepare(recording)
+    compare(prep, ())
+    one_fit = time.perf_counter() - start
+    start = time.perf_counter()
+    result = diagnose(recording)
+    total = time.perf_counter() - start
+    print(f'{args.duration:g} s recording, {len(result.candidates)} candidates: diagnosis {total:.2f} s '
+          f'(target < 10 s: {"met" if total < 10 else "NOT met"})')
+    print(f'baseline, prepare + one nominal fit and evaluation: {one_fit:.2f} s; ratio {total / one_fit:.1f}')
+    print(f'verdict: {result.message}')
+
+
+if __name__ == '__main__':
+    main()

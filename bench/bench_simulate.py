@@ -1,0 +1,64 @@
+"""Simulator speed: seconds of rig time simulated per second of wall time (target >= 200x real time).
+
+Baseline measured in the same run: the same model integrated by scipy's solve_ivp(LSODA) in ONE call over the whole
+record with the input looked up by time (what a straightforward implementation does). Ratio = ours / baseline.
+
+Run:  .venv/bin/python bench/bench_simulate.py [--duration 60] [--repeat 3]
+"""
+import argparse
+import time
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from aeropend_core.excitation import lhc_schedule
+from aeropend_core.model import DEFAULT_PARAMETERS as P
+from aeropend_core.model import SAMPLE_TIME
+from aeropend_core.simulate import RigSimulator, simulate
+
+
+def naive(duty: np.ndarray) -> np.ndarray:
+    voltage = np.asarray(P.voltage_from_duty(duty))
+    simulator = RigSimulator()
+    rhs_for = simulator._rhs_factory          # same equations, one rhs per voltage level
+
+    def rhs(t, x):
+        k = min(int(t / SAMPLE_TIME), len(voltage) - 1)
+        return rhs_for(float(voltage[k]))(t, x)
+
+    t_eval = np.arange(len(duty)) * SAMPLE_TIME
+    solution = solve_ivp(rhs, (0, t_eval[-1]), np.zeros(4), method='LSODA', t_eval=t_eval, rtol=1e-6,
+                         atol=[1e-6, 1e-3, 1e-7, 1e-6])
+    return solution.y[2]
+
+
+def best_of(repeat, function, *args, **kwargs):
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        result = function(*args, **kwargs)
+        times.append(time.perf_counter() - start)
+    return min(times), result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument('--duration', type=float, default=60.0)
+    parser.add_argument('--repeat', type=int, default=3)
+    args = parser.parse_args()
+    duty = lhc_schedule(args.duration, seed=1).duty(duration=args.duration)
+    ours, trajectory = best_of(args.repeat, simulate, duty, effects={'coulomb_friction': 4.0, 'thrust_lag': 0.15})
+    plain, _ = best_of(args.repeat, simulate, duty)
+    baseline, angle = best_of(1, naive, duty)
+    agreement = np.max(np.abs(angle - simulate(duty).truth['angle']))
+    print(f'record: {args.duration:g} s at 490 Hz ({len(duty)} samples), best of {args.repeat}')
+    print(f'simulate, nominal:                {plain:7.3f} s  = {args.duration / plain:7.0f} x real time')
+    print(f'simulate, friction + thrust lag:  {ours:7.3f} s  = {args.duration / ours:7.0f} x real time')
+    print(f'baseline, one LSODA call, input by time lookup: {baseline:7.3f} s  = '
+          f'{args.duration / baseline:5.0f} x real time')
+    print(f'speed-up over baseline (nominal): {baseline / plain:.1f}x; max angle difference {agreement:.2e} rad')
+    print('target >= 200x real time:', 'met' if args.duration / plain >= 200 else 'NOT met')
+
+
+if __name__ == '__main__':
+    main()
