@@ -5,7 +5,7 @@ SAMPLE frames at the firmware's 490.196 Hz in real time. The measured values com
 :class:`aeropend_core.simulate.RigSimulator` (hidden effects and measurement noise as configured), converted to raw
 ADC counts with the inverse of the bridge's :class:`~aeropend_core.protocol.Calibration`. Commands written to the
 port behave as on the firmware: SET_DUTY clamped to the maximum duty, a watchdog that cuts the duty when no valid
-command arrives in time, STATUS on boot, after configuration and every second.
+command arrives in time (checked every emission, ~20 ms), STATUS on boot, after configuration and every second.
 
 Faults (all thread-safe, take effect at the next emission):
 
@@ -37,6 +37,10 @@ from aeropend_core import protocol as P
 from aeropend_core.simulate import RigSimulator
 
 __all__ = ['DeviceEmulator', 'EmulatorConfig']
+
+#: Bytes the emulated device keeps when the host does not read (bounded, like a USB-serial link; generous so
+#: that bursts after a pause reach a reader intact).
+DEVICE_BUFFER = 1 << 16
 
 
 @dataclass
@@ -118,7 +122,8 @@ class DeviceEmulator:
         self.watchdog_ms = round(self.config.watchdog_timeout * 1000)
         self.commanded_q16 = 0
         self.applied_q16 = 0
-        self.watchdog_left = 0      # samples; 0 = not armed
+        self._watchdog_armed = False    # armed by the first valid command
+        self._last_command_time = 0.0
         self.flags = 0
         self.rx_bad_frames = 0
         self.tx_dropped = 0
@@ -278,20 +283,22 @@ class DeviceEmulator:
             self._status_due = True
         elif command.kind == P.REQUEST_STATUS:
             self._status_due = True
-        self.watchdog_left = max(1, -(-self.watchdog_ms * 1000 // 2040))
+        self._last_command_time = time.monotonic()
+        self._watchdog_armed = True
 
     def _emit_samples(self, n: int) -> None:
+        # Watchdog on the host clock at each emission (the firmware counts Timer1 overflows; commands are only
+        # read here, every ~20 ms, so counting samples would trip when this thread is scheduled late).
+        if self._watchdog_armed and time.monotonic() - self._last_command_time > self.watchdog_ms / 1000.0:
+            self._watchdog_armed = False
+            self.commanded_q16 = 0
+            self.flags |= P.FLAG_WATCHDOG_TRIPPED
         duties = np.empty(n)
         applied = np.empty(n, dtype=np.int64)
         flags = np.empty(n, dtype=np.int64)
         for k in range(n):
-            # As the firmware: the watchdog counts Timer1 overflows; the duty reported is the one in effect.
+            # As the firmware: the duty reported is the one in effect during the sample.
             applied[k] = self.applied_q16
-            if self.watchdog_left:
-                self.watchdog_left -= 1
-                if self.watchdog_left == 0:
-                    self.commanded_q16 = 0
-                    self.flags |= P.FLAG_WATCHDOG_TRIPPED
             flags[k] = self.flags
             duties[k] = self.applied_q16 / 65535.0
             self.applied_q16 = self.commanded_q16
@@ -357,8 +364,9 @@ class DeviceEmulator:
             return
         self.bytes_written += written
         del self._held[:written]
-        if len(self._held) > 1 << 20:   # nobody reads: a USB device drops what the host does not fetch
-            self._held.clear()
+        if len(self._held) > DEVICE_BUFFER:
+            # Nobody reads: like the USB-serial chip, keep a small FIFO and drop the rest.
+            del self._held[DEVICE_BUFFER:]
 
     def _mark_lost(self, samples: int) -> None:
         for index in range(len(self.emitted) - samples, len(self.emitted)):

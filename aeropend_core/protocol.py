@@ -181,7 +181,7 @@ def frame(payload: bytes) -> bytes:
 
 def duty_to_q16(duty: float) -> int:
     """Duty fraction 0..1 -> the 16-bit wire value (clipped to 0..65535)."""
-    return min(65535, max(0, round(float(duty) * 65535.0)))
+    return min(65535, max(0, math.floor(float(duty) * 65535.0 + 0.5)))   # half up, like the firmware
 
 
 def q16_to_duty(value: int) -> float:

@@ -65,7 +65,6 @@ class SampleClock:
         self._window_start = None
         self._window_best: tuple[int, float] | None = None
         self._last_stamp = None
-        self._last_sequence = 0
 
     @property
     def period(self) -> float:
@@ -82,29 +81,43 @@ class SampleClock:
 
         Sequences must not decrease between :meth:`reset` calls; gaps (lost samples) are fine.
         """
+        return self.stamp_many([sequence], arrival)[0]
+
+    def stamp_many(self, sequences, arrival: float) -> list[float]:
+        """Stamps of several samples that arrived together (one read), in the order given.
+
+        The newest of them had the least delay, so it alone updates the envelope; the others are placed on the
+        line by their sequence numbers (a backlog read at once is spread over the times it was acquired, not
+        piled up at the arrival time).
+        """
+        if not len(sequences):
+            return []
+        newest = max(sequences)
         if self._reference is None:
             self._reference = arrival
-            self._anchor = -sequence * self._period
-            self._window_start = sequence
+            self._anchor = -newest * self._period
+            self._window_start = newest
         relative = arrival - self._reference
         # Window minimum of the arrival relative to a line of the current period (fixed within a window).
-        key = relative - self._period * sequence
+        key = relative - self._period * newest
         if self._window_best is None or key < self._window_best[2]:
-            self._window_best = (sequence, relative, key)
-        if sequence - self._window_start >= self.window:
+            self._window_best = (newest, relative, key)
+        if newest - self._window_start >= self.window:
             self._close_window()
-            self._window_start = sequence
-        predicted = self._anchor + self._period * sequence
+            self._window_start = newest
+        predicted = self._anchor + self._period * newest
         if relative < predicted:
             # Earlier than the lower envelope: this sample had less delay than any before; move the line down.
             self._anchor += relative - predicted
-            predicted = relative
-        stamp = self._reference + predicted - self.latency
-        if self._last_stamp is not None and stamp <= self._last_stamp:
-            stamp = self._last_stamp + 1e-9 * max(1, sequence - self._last_sequence)
-        self._last_stamp = stamp
-        self._last_sequence = sequence
-        return stamp
+        stamps = []
+        base = self._reference - self.latency
+        for sequence in sequences:
+            stamp = base + self._anchor + self._period * sequence
+            if self._last_stamp is not None and stamp <= self._last_stamp:
+                stamp = self._last_stamp + 1e-9
+            self._last_stamp = stamp
+            stamps.append(stamp)
+        return stamps
 
     def _close_window(self) -> None:
         sequence, relative, _ = self._window_best

@@ -243,14 +243,22 @@ class SerialBridgeNode(Node):
     def _handle_bytes(self, data: bytes) -> None:
         now_ns = self.get_clock().now().nanoseconds
         arrival = (now_ns - self._epoch_ns) * 1e-9
+        run: list[P.SampleFrame] = []         # samples since the last device reset in this read
         for message in self.decoder.feed(data):
             if type(message) is P.SampleFrame:
-                self._handle_sample(message, arrival)
+                if self._check_sequence(message, arrival):   # the device restarted: stamp the old run first
+                    self._publish_run(run, arrival)
+                    run = []
+                    self.clock_model.reset()
+                run.append(message)
             else:
                 self._handle_status(message)
+        self._publish_run(run, arrival)
 
-    def _handle_sample(self, frame: P.SampleFrame, arrival: float) -> None:
+    def _check_sequence(self, frame: P.SampleFrame, arrival: float) -> bool:
+        """Update loss statistics with one sample; True when it reveals a device reset."""
         last = self._last_sequence
+        reset = False
         if last is not None:
             if frame.sequence > last + 1:
                 gap = frame.sequence - last - 1
@@ -261,6 +269,7 @@ class SerialBridgeNode(Node):
                                               f'(sequence {last} -> {frame.sequence})')
             elif frame.sequence <= last:
                 self._device_reset(arrival)
+                reset = True
         self._after_reconnect = False
         if frame.flags & P.FLAG_WATCHDOG_TRIPPED and not self._last_flags & P.FLAG_WATCHDOG_TRIPPED:
             self.stats['watchdog_trips'] += 1
@@ -269,11 +278,20 @@ class SerialBridgeNode(Node):
         self._last_flags = frame.flags
         self._last_sequence = frame.sequence
         self._last_arrival = arrival
-        stamp = self.clock_model.stamp(frame.sequence, arrival)
-        angle, voltage, current, duty = self.calibration.to_si(frame)
-        sample = topics.Sample(self._epoch_ns + round(stamp * 1e9), angle, voltage, current, duty, frame.sequence)
-        self.publisher.publish(topics.sample_to_msg(sample, self._message))
-        self.stats['samples_published'] += 1
+        return reset
+
+    def _publish_run(self, run: list[P.SampleFrame], arrival: float) -> None:
+        """Stamp samples that arrived together (acquisition times by sequence number) and publish them."""
+        if not run:
+            return
+        stamps = self.clock_model.stamp_many([frame.sequence for frame in run], arrival)
+        to_si = self.calibration.to_si
+        for frame, stamp in zip(run, stamps):
+            angle, voltage, current, duty = to_si(frame)
+            sample = topics.Sample(self._epoch_ns + round(stamp * 1e9), angle, voltage, current, duty,
+                                   frame.sequence)
+            self.publisher.publish(topics.sample_to_msg(sample, self._message))
+        self.stats['samples_published'] += len(run)
 
     def _device_reset(self, arrival: float) -> None:
         """The sequence went backwards: the device restarted (power cycle, DTR reset, brown-out)."""
@@ -286,7 +304,6 @@ class SerialBridgeNode(Node):
             self.stats['last_outage_lost'] = missing
             self.get_logger().warning(f'device reset detected; about {missing} samples lost; re-sending the '
                                       'configuration')
-        self.clock_model.reset()
         self._send_configuration()
 
     def _handle_status(self, status) -> None:

@@ -1,0 +1,200 @@
+"""The serial bridge node (a real process over DDS) on the pty device emulator, which streams the simulator's
+physics as raw ADC frames and injects the faults of a real USB serial link.
+
+* the emulator itself behaves like the firmware (clamping, watchdog, STATUS) and labels what it damaged;
+* fuzz: > 1,000,000 bytes of garbage and damaged frames interleaved with the stream: the bridge keeps running,
+  publishes exactly the intact frames and counts the rest;
+* unplug/replug (pty closed and reopened behind the same name): publishing resumes within 5 s and the lost samples
+  are reported; after a device reset the configuration is sent again and the stamps re-anchor.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from aeropend_core import protocol as P
+from aeropend_core.device_emulator import DeviceEmulator
+from tests.bridge_helpers import DISCOVERY_TIMEOUT, Listener, poll
+from tests.ros_helpers import NodeProcess, private_domain_id, use_domain
+
+DOMAIN_ID = private_domain_id()
+use_domain(DOMAIN_ID)
+
+pytestmark = pytest.mark.timeout(240)
+
+
+def read_for(link, decoder, seconds: float, write=None) -> list:
+    messages = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        if write is not None:
+            link.write(write)
+        messages += decoder.feed(link.read(max(1, link.in_waiting)))
+    return messages
+
+
+def test_emulator_behaves_like_the_firmware():
+    import serial
+    with DeviceEmulator(seed=11) as emulator, serial.Serial(emulator.port, 250000, timeout=0.02) as link:
+        decoder = P.FrameDecoder()
+        link.write(P.encode_command(P.SET_MAX_DUTY, 0.5) + P.encode_command(P.SET_WATCHDOG, 0.1))
+        messages = read_for(link, decoder, 1.0, write=P.encode_command(P.SET_DUTY, 0.8))
+        status = [m for m in messages if isinstance(m, P.StatusFrame)][-1]
+        assert status.max_duty_q16 == P.duty_to_q16(0.5) and status.watchdog_ms == 100
+        samples = [m for m in messages if isinstance(m, P.SampleFrame)]
+        assert samples[-1].duty_q16 == P.duty_to_q16(0.5) and samples[-1].flags & P.FLAG_DUTY_CLAMPED
+        # The simulated motor draws current at that duty.
+        _, voltage, current, _ = P.Calibration().to_si(samples[-1])
+        assert voltage == pytest.approx(P.Calibration().voltage_from_duty(0.5), abs=1e-3) and current > 0.1
+        # Watchdog: silence for 0.1 s cuts the duty.
+        messages = read_for(link, decoder, 0.5)
+        last = [m for m in messages if isinstance(m, P.SampleFrame)][-1]
+        assert last.duty_q16 == 0 and last.flags & P.FLAG_WATCHDOG_TRIPPED
+        # Faults are labelled; damaged frames never decode.
+        corrupt_before = decoder.counters.corrupt
+        emulator.corrupt_frames(5)
+        emulator.truncate_frames(5, keep_delimiter=False)
+        messages = read_for(link, decoder, 0.5)
+        damaged = set(emulator.sequences('corrupt')) | set(emulator.sequences('truncated'))
+        assert len(damaged) == 10
+        received = {m.sequence for m in messages if isinstance(m, P.SampleFrame)}
+        assert not received & damaged
+        assert decoder.counters.corrupt - corrupt_before >= 10
+
+
+@pytest.fixture()
+def ros_context():
+    import rclpy
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    yield context
+    rclpy.try_shutdown(context=context)
+
+
+def quiescent_snapshot(listener: Listener, emulator: DeviceEmulator) -> dict[str, str]:
+    """Hold the emulator's output and return the bridge's diagnostics once two reports show nothing new."""
+    emulator.pause(4.0)
+    time.sleep(0.2)                      # frames already in flight reach the bridge
+    start = len(listener.diagnostics)
+
+    def settled() -> bool:
+        recent = listener.diagnostics[start:]
+        return len(recent) >= 2 and recent[-1]['last_sequence'] == recent[-2]['last_sequence']
+    assert poll(settled, 3.5), 'bridge did not settle'
+    return listener.diagnostics[-1]
+
+
+def test_bridge_fuzz_publishes_every_intact_frame(ros_context):
+    with DeviceEmulator(seed=12) as emulator:
+        listener = Listener(ros_context)
+        with NodeProcess('aeropend_ros.serial_bridge_node', ['-p', f'port:={emulator.port}'],
+                         domain_id=DOMAIN_ID) as bridge:
+            try:
+                assert poll(lambda: len(listener.samples) > 50, DISCOVERY_TIMEOUT), bridge.output()
+                assert poll(lambda: listener.duty_publisher.get_subscription_count() > 0, DISCOVERY_TIMEOUT)
+                listener.publish_duty(0.45)
+                before = quiescent_snapshot(listener, emulator)
+                time.sleep(4.0 - 0.2)
+                assert poll(lambda: int(listener.last_diagnostics()['last_sequence']) > int(
+                    before['last_sequence']), 5.0)
+
+                # ~12 s: 2 kB of random bytes every ~20 ms, a bit flip and a truncation every ~100 ms.
+                injected = 0
+                start = time.monotonic()
+                tick = 0
+                while injected < 1_050_000 or time.monotonic() - start < 5.0:
+                    emulator.inject_garbage(2100)
+                    injected += 2100
+                    if tick % 5 == 0:
+                        emulator.corrupt_frames(1)
+                        emulator.truncate_frames(1, keep_delimiter=tick % 10 == 0)
+                        injected += 2 * (P.SAMPLE_WIRE_LENGTH + 2)
+                    tick += 1
+                    time.sleep(0.02)
+                    assert bridge.process.poll() is None, bridge.output()
+                    assert time.monotonic() - start < 60.0, 'fuzzing too slow'
+                time.sleep(0.3)                  # the last damaged frames go out
+                after = quiescent_snapshot(listener, emulator)
+                assert bridge.process.poll() is None, bridge.output()
+                assert after['connected'] == 'True'
+
+                low, high = int(before['last_sequence']), int(after['last_sequence'])
+                fates = {sequence: state for sequence, state in emulator.emitted if low < sequence <= high}
+                intact = {s for s, state in fates.items() if state == 'intact'}
+                damaged = {s for s, state in fates.items() if state in ('corrupt', 'truncated')}
+                assert injected >= 1_000_000 and len(damaged) >= 200
+                # Exactly the intact frames were published; the damaged ones show up as sequence gaps and
+                # corrupt-frame counts (random garbage adds corrupt chunks of its own).
+                published = int(after['samples_published']) - int(before['samples_published'])
+                assert published == len(intact)
+                assert int(after['samples_lost']) - int(before['samples_lost']) == len(damaged)
+                assert int(after['frames_corrupt']) - int(before['frames_corrupt']) >= len(damaged)
+                # What the listener got is intact, never damaged, and nearly all of it (best-effort DDS).
+                received = {s.sequence for s in listener.samples if low < s.sequence <= high}
+                assert not received & damaged
+                assert received <= intact
+                assert len(received) >= 0.95 * len(intact)
+                # Samples are physical values of the simulated rig at the commanded duty.
+                sample = next(s for s in reversed(listener.samples) if s.duty > 0.4)
+                assert sample.armature_voltage == pytest.approx(P.Calibration().voltage_from_duty(sample.duty))
+                assert 0.05 < sample.armature_current < 2.0
+            finally:
+                listener.close()
+
+
+def test_bridge_survives_unplug_and_device_reset(ros_context):
+    with DeviceEmulator(seed=13) as emulator:
+        listener = Listener(ros_context)
+        with NodeProcess('aeropend_ros.serial_bridge_node',
+                         ['-p', f'port:={emulator.port}', '-p', 'max_duty:=0.55', '-p', 'watchdog_timeout:=0.3'],
+                         domain_id=DOMAIN_ID) as bridge:
+            try:
+                assert poll(lambda: len(listener.samples) > 50, DISCOVERY_TIMEOUT), bridge.output()
+                assert poll(lambda: listener.duty_publisher.get_subscription_count() > 0, DISCOVERY_TIMEOUT)
+                listener.publish_duty(0.5)
+                assert poll(lambda: listener.samples[-1].duty > 0.49, 5.0)
+                assert emulator.max_duty_q16 == P.duty_to_q16(0.55) and emulator.watchdog_ms == 300
+
+                # 1. Unplug for 1.5 s, replug; the device kept sampling (powered from elsewhere).
+                last_before = listener.samples[-1].sequence
+                emulator.unplug()
+                time.sleep(1.5)                              # the outage itself
+                emulator.replug(reset=False)
+                replugged = time.monotonic()
+                assert poll(lambda: listener.samples[-1].sequence > last_before + 700, 5.0), bridge.output()
+                assert time.monotonic() - replugged < 5.0
+                assert poll(lambda: listener.last_diagnostics().get('reconnects') == '1', 3.0)
+                diagnostics = listener.last_diagnostics()
+                lost = int(diagnostics['last_outage_lost'])
+                # At least the 1.5 s unplugged, at most that plus the time to notice and reopen (< 5 s).
+                assert 1.5 / P.SAMPLE_PERIOD * 0.95 < lost < 5.0 / P.SAMPLE_PERIOD
+                assert int(diagnostics['samples_lost']) == lost
+                assert 'samples lost during the outage' in bridge.output()
+                # The watchdog (0.3 s) did not stop the motor for good: the heartbeat resumed.
+                assert poll(lambda: listener.samples[-1].duty > 0.49, 3.0)
+
+                # 2. Unplug and replug with a device reset (USB power cycle): configuration sent again.
+                last_before = listener.samples[-1].sequence
+                emulator.unplug()
+                time.sleep(0.5)
+                emulator.replug(reset=True)
+                replugged = time.monotonic()
+                assert poll(lambda: listener.samples[-1].sequence < last_before and listener.samples[-1].duty > 0.49,
+                            5.0), bridge.output()
+                assert time.monotonic() - replugged < 5.0
+                assert emulator.max_duty_q16 == P.duty_to_q16(0.55) and emulator.watchdog_ms == 300
+                assert poll(lambda: listener.last_diagnostics().get('device_resets') == '1', 3.0)
+                assert int(listener.last_diagnostics()['outage_samples_lost']) > 0.5 / P.SAMPLE_PERIOD * 0.9
+                # Stamps re-anchored: increasing after the reset and close to the receive time.
+                samples = list(listener.samples)
+                index = max(i for i in range(1, len(samples)) if samples[i].sequence < samples[i - 1].sequence)
+                recent = samples[index:]
+                stamps = np.array([s.stamp_ns for s in recent])
+                receive = np.array(listener.receive_ns[index:index + len(recent)])
+                assert np.all(np.diff(stamps) > 0)
+                assert np.all(stamps <= receive) and np.median(receive - stamps) < 0.5e9
+                assert bridge.process.poll() is None
+            finally:
+                listener.close()
