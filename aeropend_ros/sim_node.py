@@ -13,7 +13,8 @@ CPU allows (``max_block`` samples per tick; a best-effort subscriber may then dr
 
 Parameters (see ``config/sim_node.yaml``): ``effects`` (string array ``NAME=VALUE`` or ``NAME.PARAM=VALUE``),
 ``psnr_db`` (0 = no noise), ``quantise``, ``seed``, ``initial_angle`` [rad], ``duty_limit``, ``realtime_factor``,
-``publish_period`` [s], ``max_block``, ``stop_after`` [s simulated, 0 = forever].
+``publish_period`` [s], ``max_block``, ``stop_after`` [s simulated, 0 = forever], ``wait_for_subscribers`` (start
+publishing once that many subscribers of the samples are matched; for fast batch runs with a recorder).
 """
 from __future__ import annotations
 
@@ -64,6 +65,9 @@ class SimNode(Node):
         self.stop_after = declare(self, 'stop_after', 0.0, 'stop publishing after this simulated time [s]; '
                                   '0 = run forever', read_only=True, low=0.0, high=1e6)
 
+        self.wait_for_subscribers = declare(self, 'wait_for_subscribers', 0, 'start publishing only when this '
+                                            'many subscribers of the samples are matched (batch runs with a '
+                                            'recorder)', read_only=True, low=0, high=100, integer=True)
         effects = parse_effect_assignments([text for text in effect_texts if text.strip()])
         noise = MeasurementNoise(psnr_db=psnr_db if psnr_db > 0 else None, quantise=bool(quantise))
         self.simulator = RigSimulator(DEFAULT_PARAMETERS, effects, SAMPLE_TIME, noise, int(seed),
@@ -77,6 +81,7 @@ class SimNode(Node):
         self.publisher = self.create_publisher(JointState, topics.SAMPLES_TOPIC, topics.samples_qos())
         self.create_subscription(Float64, topics.DUTY_COMMAND_TOPIC, self._on_duty, topics.command_qos())
         self.start_ns = self.get_clock().now().nanoseconds
+        self.started = self.wait_for_subscribers == 0
         self.timer = self.create_timer(publish_period, self._on_timer)
         hidden = ', '.join(f'{name} {values}' for name, values in effects.items()) or 'none'
         self.get_logger().debug(f'hidden effects: {hidden}')
@@ -106,6 +111,12 @@ class SimNode(Node):
     def _on_timer(self) -> None:
         if self.finished:
             return
+        if not self.started:
+            if self.publisher.get_subscription_count() < self.wait_for_subscribers:
+                return
+            self.started = True
+            self.start_ns = self.get_clock().now().nanoseconds     # the acquisition clock starts now
+            self.get_logger().info(f'{self.wait_for_subscribers} subscriber(s) matched: publishing starts')
         due = self._samples_due()
         if self.stop_after > 0.0:
             due = min(due, int(round(self.stop_after / self.sample_time)))
