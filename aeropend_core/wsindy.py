@@ -27,8 +27,10 @@ which gives a linear system ``G w = b`` (one row per test function). Steps:
    ``L(λ) = 2α ‖G(w_λ − w_LS)‖/‖G w_LS‖ + 2(1 − α) nnz(w_λ)/J`` (α = 0.8), smallest minimiser. A small ridge
    (relative to the normalised Gram matrix) keeps nearly collinear libraries (sin y vs y) solvable during the
    thresholding; the kept terms are refitted without it. Because thresholding can drop a true term of a nearly
-   collinear group early, the supports of a greedy backward elimination are scored with the same loss L too,
-   and the overall minimiser wins (its λ is then reported as NaN).
+   collinear group early, the supports of a greedy backward elimination, a greedy forward selection and every
+   support of up to ``exhaustive_terms`` terms are scored with the same loss L too; the best is refined by
+   single additions/removals while L drops; the overall minimiser wins (λ reported as NaN when it is not on
+   the MSTLS path).
 5. Standard errors of the kept coefficients from the whitened residual: σ̂² = ‖r‖²/(n_rows − n_kept),
    Cov(w) = σ̂² (G̃ᵀG̃)⁻¹.
 
@@ -112,7 +114,7 @@ class EquationFit:
     covariance : ndarray, shape (n_selected, n_selected)
         Coefficient covariance, in the order of ``coefficients``.
     threshold : float
-        The λ used (0.0 when thresholding was off; NaN when the backward-elimination support won).
+        The λ used (0.0 when thresholding was off; NaN when a greedy (backward/forward) support won).
     residual : float
         Relative whitened residual ‖G̃w − b̃‖/‖b̃‖ (0 = perfect fit).
     half_width, power, n_test_functions : int
@@ -334,7 +336,7 @@ def _whitener(weights: np.ndarray, centres: np.ndarray) -> np.ndarray:
 
 # ----------------------------------------------------------------------------------------------- regression
 def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: float, alpha: float,
-             noise_gram=None, noise_rhs=None):
+             noise_gram=None, noise_rhs=None, exhaustive: int = 4):
     """Return (w in normalised coordinates, λ used, column scales, b scale).
 
     Thresholding runs on the ridge-regularised solutions (the ridge damps cancelling pairs of nearly collinear
@@ -364,7 +366,7 @@ def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: f
             raise AeropendError(f'threshold must be in (0, 1], "auto" or None, got {threshold!r}')
         grid, backward = np.array([lam]), False
     w, lam = _select(np.ascontiguousarray(gram), np.ascontiguousarray(rhs), keep, usable, float(ridge),
-                     float(alpha), np.asarray(grid, float), backward)
+                     float(alpha), np.asarray(grid, float), backward, int(exhaustive if backward else 0))
     return w, (0.0 if threshold is None else float(lam)), col, bnorm
 
 
@@ -396,7 +398,7 @@ def _loss(gram, w, w_ls, denom, alpha, n_terms):
 
 
 @numba.njit(cache=True, nogil=True)
-def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward):
+def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     """MSTLS over the λ grid (+ optional backward elimination), scored by the loss; returns (w, λ).
 
     Normalised coordinates: |w_i| is the relative contribution of term i. λ = NaN when the backward path won;
@@ -449,6 +451,70 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward):
             support[trial_j] = False
             if trial_loss < best_loss - 1e-12:
                 best_loss, best_w, best_lam = trial_loss, trial_w, np.nan
+        # Greedy forward selection, same loss: adds the strongest single explanations first (sin y before its
+        # polynomial look-alikes), which the backward path can miss when a whole look-alike group is present.
+        support = keep & usable
+        while np.count_nonzero(support) < np.count_nonzero(usable):
+            trial_loss = np.inf
+            trial_j = -1
+            trial_w = w_ls
+            for j in range(support.size):
+                if support[j] or not usable[j]:
+                    continue
+                support[j] = True
+                w = _solve_subset(gram, rhs, support, final_ridge)
+                support[j] = False
+                value = _loss(gram, w, w_ls, denom, alpha, n_terms)
+                if value < trial_loss:
+                    trial_loss, trial_j, trial_w = value, j, w
+            if trial_j < 0:
+                break
+            support[trial_j] = True
+            if trial_loss < best_loss - 1e-12:
+                best_loss, best_w, best_lam = trial_loss, trial_w, np.nan
+        # Exhaustive search over small supports (keep + up to ``exhaustive`` free terms): greedy paths fail when
+        # the true terms only explain the data together (thrust and gravity nearly cancel at equilibrium) while a
+        # polynomial look-alike group of sin y explains part of it.
+        free = np.flatnonzero(usable & ~keep)
+        nf = free.size
+        for size in range(1, min(exhaustive, nf) + 1):
+            combo = np.arange(size)
+            while True:
+                support = keep & usable
+                for i in range(size):
+                    support[free[combo[i]]] = True
+                w = _solve_subset(gram, rhs, support, final_ridge)
+                value = _loss(gram, w, w_ls, denom, alpha, n_terms)
+                if value < best_loss - 1e-12:
+                    best_loss, best_w, best_lam = value, w, np.nan
+                # next combination in lexicographic order
+                i = size - 1
+                while i >= 0 and combo[i] == nf - size + i:
+                    i -= 1
+                if i < 0:
+                    break
+                combo[i] += 1
+                for k in range(i + 1, size):
+                    combo[k] = combo[k - 1] + 1
+        # Local search from the best support: single additions or removals while they lower the loss.
+        support = best_w != 0.0
+        for _ in range(2 * usable.size):
+            trial_loss = best_loss
+            trial_j = -1
+            trial_w = best_w
+            for j in range(support.size):
+                if not usable[j] or (keep[j] and support[j]):
+                    continue
+                support[j] = not support[j]
+                w = _solve_subset(gram, rhs, support, final_ridge)
+                support[j] = not support[j]
+                value = _loss(gram, w, w_ls, denom, alpha, n_terms)
+                if value < trial_loss - 1e-12:
+                    trial_loss, trial_j, trial_w = value, j, w
+            if trial_j < 0:
+                break
+            support[trial_j] = not support[trial_j]
+            best_loss, best_w, best_lam = trial_loss, trial_w, np.nan
     return best_w, best_lam
 
 
@@ -466,7 +532,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                    exclude=None,
                    noise_std: Mapping[str, float] | None = None,
                    irls_iterations: int = 2,
-                   bias_correction: bool = True) -> WeakSindyResult:
+                   bias_correction: bool = True,
+                   exhaustive_terms: int = 4) -> WeakSindyResult:
     """Identify sparse ODEs from uniformly sampled data with weak SINDy.
 
     Parameters
@@ -504,6 +571,9 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         Subtract the expected noise contributions from the normal equations (bias-compensated least squares,
         :func:`_noise_gram`), using the per-signal noise levels; removes the errors-in-variables attenuation.
         Applied in the reweighted passes (so it needs ``irls_iterations >= 1``).
+    exhaustive_terms : int
+        With ``threshold='auto'``, every support of up to this many free terms (besides ``keep``) is scored with
+        the loss as well (sum of C(J, k), k <= 4: 3,214 small solves for J = 17).
 
     Returns
     -------
@@ -616,7 +686,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                     noise_rhs += cr
             a = np.vstack(rows_a)
             bw = np.concatenate(rows_b)
-            w_n, lam, col, bnorm = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs)
+            w_n, lam, col, bnorm = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs,
+                                            exhaustive_terms)
             w_new = w_n * bnorm / col
             converged = w is not None and np.allclose(w_new, w, rtol=1e-5, atol=0.0)
             w = w_new
