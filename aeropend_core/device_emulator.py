@@ -13,6 +13,7 @@ Faults (all thread-safe, take effect at the next emission):
 * :meth:`corrupt_frames` flip one random bit in each of the next N frames;
 * :meth:`truncate_frames` cut each of the next N frames short (its closing delimiter is kept or dropped);
 * :meth:`pause` stop writing for a while (frames delayed and delivered in a burst, or lost);
+* :attr:`locked_rotor` hold the propeller (for the locked-rotor calibration: Ia = Va / Ra in steady state);
 * :meth:`unplug` / :meth:`replug` close the pty and open a new one behind the same symlink, optionally resetting
   the device (sequence back to 0, configuration back to defaults: what a USB power cycle does).
 
@@ -23,6 +24,7 @@ No ROS or serial library is needed: the emulator uses ``os.openpty``.
 """
 from __future__ import annotations
 
+import math
 import os
 import random
 import threading
@@ -113,6 +115,9 @@ class DeviceEmulator:
         self._stop = threading.Event()
         self._decoder = P.FrameDecoder(accept_commands=True)
         self._held = bytearray()
+        #: Hold the propeller (locked-rotor calibration): no back-EMF, no thrust.
+        self.locked_rotor = False
+        self._locked_current = 0.0
         self._reset_device()
 
     # -------------------------------------------------------------------------------------------------- life cycle
@@ -302,14 +307,28 @@ class DeviceEmulator:
             flags[k] = self.flags
             duties[k] = self.applied_q16 / 65535.0
             self.applied_q16 = self.commanded_q16
-        trajectory = self.simulator.run(duties)
+        if self.locked_rotor:
+            # Propeller held: no thrust, so the rod only settles; the armature obeys La dIa/dt = Va - Ra Ia.
+            trajectory = self.simulator.run(np.zeros(n))
+            p = self.simulator.parameters
+            voltage_now = np.asarray(p.voltage_from_duty(duties), dtype=float).reshape(n)
+            decay = math.exp(-P.SAMPLE_PERIOD * p.armature_resistance / p.armature_inductance)
+            currents = np.empty(n)
+            for k in range(n):
+                currents[k] = self._locked_current
+                target = voltage_now[k] / p.armature_resistance
+                self._locked_current = target + (self._locked_current - target) * decay
+            measured_current, measured_voltage = currents, voltage_now
+        else:
+            trajectory = self.simulator.run(duties)
+            self._locked_current = 0.0
+            measured_current, measured_voltage = trajectory.armature_current, trajectory.armature_voltage
         out = bytearray()
         for k in range(n):
             sequence = self.sequence
             self.sequence += 1
             current, angle, voltage = self.calibration.to_counts(
-                float(trajectory.angle[k]), float(trajectory.armature_current[k]),
-                float(trajectory.armature_voltage[k]))
+                float(trajectory.angle[k]), float(measured_current[k]), float(measured_voltage[k]))
             wire = P.encode_sample(P.SampleFrame(sequence, current, angle, voltage, int(applied[k]), int(flags[k])))
             out += self._apply_faults(sequence, wire)
             if self._status_due or sequence % self.config.status_every == self.config.status_every - 1:

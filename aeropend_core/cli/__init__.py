@@ -20,6 +20,7 @@ VERBS: dict[str, tuple[str, str]] = {
     'bag-recover': ('aeropend_core.cli.bag_recover', 'repair a bag whose recorder was killed'),
     'run': ('aeropend_ros.cli_run', 'start the node graph (sim or rig), record, identify, diagnose'),
     'monitor': ('aeropend_ros.cli_monitor', 'show live identified parameters in the terminal'),
+    'calibrate': ('aeropend_ros.cli_calibrate', 'measure sensor zeros, angle scale, Ra and Kw on the rig (serial)'),
 }
 
 

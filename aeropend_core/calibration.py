@@ -1,0 +1,149 @@
+"""Rig calibration from raw measurements: sensor zeros, angle scale, locked-rotor Ra, back-EMF constant Kw.
+
+Pure functions on arrays (no serial port): ``aeropend calibrate`` (aeropend_ros/cli_calibrate.py) records the data
+from the device and calls these. Every function checks that its data can support the answer and raises
+:class:`~aeropend_core.errors.InsufficientDataError` with what to do otherwise.
+
+* zero: rod hanging still, motor off -> ``angle_zero`` [counts] and ``current_offset`` [counts];
+* angle scale: rod held at a known angle -> ``angle_scale`` [rad/count] (sign included);
+* locked rotor: propeller held, a few low duties -> with the rotor still there is no back-EMF, so in steady state
+  Va = Ra Ia: the slope of Va against Ia over the steps is Ra [ohm] (an intercept absorbs a brush/bridge drop);
+* back-EMF: motor spinning freely at a steady duty, speed measured externally (optical tachometer) ->
+  Kw = (Va - Ra Ia) / w1 [V s/rad].
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from aeropend_core.errors import InsufficientDataError
+
+__all__ = [
+    'LineFit',
+    'ZeroResult',
+    'angle_scale_from_reference',
+    'back_emf_constant',
+    'locked_rotor_resistance',
+    'steady_mean',
+    'zero_offsets',
+]
+
+
+@dataclass(frozen=True)
+class ZeroResult:
+    """Sensor zeros: ``angle_zero`` and ``current_offset`` [ADC counts] with their sample standard deviations."""
+
+    angle_zero: float
+    current_offset: float
+    angle_std: float
+    current_std: float
+    samples: int
+
+
+@dataclass(frozen=True)
+class LineFit:
+    """A fitted constant with its 1-sigma standard error and the fit's offset (e.g. Ra [ohm] and a drop [V])."""
+
+    value: float
+    sigma: float
+    intercept: float
+    points: int
+
+
+def zero_offsets(angle_counts: np.ndarray, current_counts: np.ndarray, max_angle_std: float = 2.0) -> ZeroResult:
+    """Zeros from a record with the rod hanging still and the motor off.
+
+    Parameters
+    ----------
+    angle_counts, current_counts : array, shape (n_samples,)
+        Raw ADC counts.
+    max_angle_std : float
+        Largest believable angle scatter [counts] for a rod at rest (default 2 counts).
+    """
+    angle = np.asarray(angle_counts, dtype=float)
+    current = np.asarray(current_counts, dtype=float)
+    if angle.size < 100:
+        raise InsufficientDataError(f'only {angle.size} samples: record at least 0.2 s (100 samples)')
+    if angle.std() > max_angle_std:
+        raise InsufficientDataError(f'the angle reading scatters by {angle.std():.1f} counts: the rod is moving; '
+                                    'let it hang still (motor off) and repeat')
+    return ZeroResult(float(angle.mean()), float(current.mean()), float(angle.std()), float(current.std()),
+                      int(angle.size))
+
+
+def angle_scale_from_reference(angle_counts: np.ndarray, angle_zero: float, reference_angle: float) -> float:
+    """rad per count from a record with the rod held at `reference_angle` [rad] (e.g. pi/2, horizontal)."""
+    counts = float(np.mean(angle_counts)) - angle_zero
+    if abs(reference_angle) < math.radians(10):
+        raise InsufficientDataError('use a reference angle of at least 10 degrees (e.g. 90, the rod horizontal)')
+    if abs(counts) < 10:
+        raise InsufficientDataError(f'the reading moved only {counts:.1f} counts from the zero: is the rod at the '
+                                    'reference angle, and was the zero taken hanging down?')
+    return reference_angle / counts
+
+
+def steady_mean(values: np.ndarray, settle_fraction: float = 0.5) -> float:
+    """Mean of the last (1 - settle_fraction) of a step record (the transient at its start excluded)."""
+    values = np.asarray(values, dtype=float)
+    return float(values[int(len(values) * settle_fraction):].mean())
+
+
+def _line(x: np.ndarray, y: np.ndarray) -> LineFit:
+    design = np.column_stack([x, np.ones_like(x)])
+    coefficients, *_ = np.linalg.lstsq(design, y, rcond=None)
+    residual = y - design @ coefficients
+    dof = max(len(x) - 2, 1)
+    covariance = np.linalg.inv(design.T @ design) * float(residual @ residual) / dof
+    return LineFit(float(coefficients[0]), float(math.sqrt(max(covariance[0, 0], 0.0))), float(coefficients[1]),
+                   len(x))
+
+
+def locked_rotor_resistance(armature_voltage: np.ndarray, armature_current: np.ndarray) -> LineFit:
+    """Ra [ohm] from steady (Va [V], Ia [A]) pairs with the rotor locked: the slope of Va = Ra Ia + drop.
+
+    Parameters
+    ----------
+    armature_voltage, armature_current : array, shape (n_steps,)
+        Steady-state means of each duty step (at least 3 steps spanning 0.1 A).
+    """
+    voltage = np.asarray(armature_voltage, dtype=float)
+    current = np.asarray(armature_current, dtype=float)
+    if voltage.size < 3:
+        raise InsufficientDataError(f'{voltage.size} duty steps: use at least 3 (e.g. --duties 0.1,0.15,0.2,0.25)')
+    if np.ptp(current) < 0.1:
+        raise InsufficientDataError(f'the current changed by only {np.ptp(current):.3f} A over the steps: use '
+                                    'larger duty steps, and check that the motor is connected')
+    fit = _line(current, voltage)
+    if fit.value <= 0:
+        raise InsufficientDataError(f'Va does not rise with Ia (slope {fit.value:.3g} ohm): is the rotor locked?')
+    return fit
+
+
+def back_emf_constant(armature_voltage: np.ndarray, armature_current: np.ndarray, motor_speed: np.ndarray,
+                      resistance: float) -> LineFit:
+    """Kw [V s/rad] from steady free-running points: (Va - Ra Ia) = Kw w1 (+ drop).
+
+    Parameters
+    ----------
+    armature_voltage, armature_current, motor_speed : array, shape (n_points,)
+        Steady means [V], [A] and the externally measured motor-shaft speed [rad/s]. With one point the
+        result is the ratio (no drop, no sigma); with several, a line fit.
+    resistance : float
+        Ra [ohm] from the locked-rotor step.
+    """
+    voltage = np.atleast_1d(np.asarray(armature_voltage, dtype=float))
+    current = np.atleast_1d(np.asarray(armature_current, dtype=float))
+    speed = np.atleast_1d(np.asarray(motor_speed, dtype=float))
+    if np.any(speed <= 0):
+        raise InsufficientDataError('motor speeds must be positive (rad/s; measure them with a tachometer)')
+    emf = voltage - resistance * current
+    if np.any(emf <= 0):
+        raise InsufficientDataError('Va - Ra Ia is not positive: is the motor spinning freely, and is Ra right?')
+    if speed.size == 1:
+        return LineFit(float(emf[0] / speed[0]), float('nan'), 0.0, 1)
+    if speed.size == 2:
+        slope = float((emf[1] - emf[0]) / (speed[1] - speed[0]))
+        return LineFit(slope, float('nan'), float(emf[0] - slope * speed[0]), 2)
+    return _line(speed, emf)

@@ -1,0 +1,213 @@
+"""Calibrate the rig through its serial port (talks to the firmware directly; stop serial_bridge_node first).
+
+Steps, in this order (each prints the YAML lines for config/serial_bridge_node.yaml; --write FILE updates them):
+
+  aeropend calibrate zero --port /dev/ttyACM0
+      rod hanging still, motor off: angle_zero and current_offset [ADC counts]
+  aeropend calibrate angle-scale --port /dev/ttyACM0 --reference-deg 90
+      rod held at a known angle (90 = horizontal, towards positive thrust): angle_scale [rad/count]
+  aeropend calibrate locked-rotor --port /dev/ttyACM0 --duties 0.1,0.15,0.2,0.25
+      propeller held so the rotor cannot turn: Ra [ohm] from Va = Ra Ia over the duty steps
+  aeropend calibrate back-emf --port /dev/ttyACM0 --duty 0.4,0.6 --motor-speed-rpm 8100,11900 --resistance 1.08
+      motor running freely, shaft speed read with a tachometer at each duty: Kw [V s/rad]
+
+Raw counts are converted with the calibration in --config (default: the bridge's defaults); Va comes from the
+duty by eq (8) unless the config says voltage_source: adc. The motor is driven with the firmware's watchdog armed
+(0.5 s) and set to 0 at the end, on Ctrl-C and on any error.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import re
+import time
+from pathlib import Path
+
+import numpy as np
+
+from aeropend_core import calibration as C
+from aeropend_core import protocol as P
+from aeropend_core.errors import AeropendError
+
+STEPS = ('zero', 'angle-scale', 'locked-rotor', 'back-emf')
+NODE_KEY = 'serial_bridge_node'
+
+
+def _fractions(text: str) -> list[float]:
+    try:
+        values = [float(part) for part in text.split(',') if part.strip()]
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f'expected comma-separated numbers, got {text!r}') from error
+    return values
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument('step', choices=STEPS, help='what to calibrate (see above)')
+    parser.add_argument('--port', required=True, help='serial port of the Arduino (e.g. /dev/ttyACM0)')
+    parser.add_argument('--baud', type=int, default=250000, help='baud rate (firmware default 250000)')
+    parser.add_argument('--config', type=Path, help='serial_bridge_node YAML with the current calibration')
+    parser.add_argument('--write', type=Path, metavar='FILE', help='update the printed keys in this YAML file')
+    parser.add_argument('--seconds', type=float, default=2.0, help='recording time for zero / angle-scale [s]')
+    parser.add_argument('--reference-deg', type=float, default=90.0, help='angle of the rod for angle-scale [deg]')
+    parser.add_argument('--duties', type=_fractions, default=[0.1, 0.15, 0.2, 0.25],
+                        help='duty steps for locked-rotor (fractions, comma-separated)')
+    parser.add_argument('--dwell', type=float, default=1.0, help='seconds per duty step (second half averaged)')
+    parser.add_argument('--duty', type=_fractions, default=[0.5], help='duty(ies) for back-emf')
+    parser.add_argument('--motor-speed-rpm', type=_fractions, help='measured motor-shaft speed(s) for back-emf, '
+                        'one per --duty [rpm]')
+    parser.add_argument('--resistance', type=float, help='Ra [ohm] for back-emf (from locked-rotor)')
+    parser.add_argument('--max-duty', type=float, default=0.7, help='safety cap sent to the firmware')
+
+
+class RigLink:
+    """The firmware over pyserial: configure, drive a duty while recording samples, always stop the motor."""
+
+    def __init__(self, port: str, baud: int, max_duty: float) -> None:
+        import serial
+        try:
+            self.link = serial.Serial(port, baud, timeout=0.02)
+        except (serial.SerialException, OSError) as error:
+            raise AeropendError(f'cannot open {port}: {error} (is the Arduino plugged in? is serial_bridge_node '
+                                'still running on it?)') from error
+        self.decoder = P.FrameDecoder()
+        self.max_duty = max_duty
+        # The Mega resets when the port opens: wait for its frames (bootloader ~1-2 s).
+        deadline = time.monotonic() + 6.0
+        while not any(isinstance(m, P.SampleFrame) for m in self.decoder.feed(self.link.read(4096))):
+            if time.monotonic() > deadline:
+                self.link.close()
+                raise AeropendError(f'no aeropend frames from {port} in 6 s: is firmware/aeropend uploaded, and '
+                                    f'the baud rate {baud}?')
+        self.link.write(P.encode_command(P.SET_MAX_DUTY, max_duty) + P.encode_command(P.SET_WATCHDOG, 0.5))
+
+    def record(self, duty: float, seconds: float) -> list[P.SampleFrame]:
+        """Hold `duty` for `seconds` (repeating the command for the watchdog) and return the samples."""
+        if not 0.0 <= duty <= self.max_duty:
+            raise AeropendError(f'duty {duty} outside [0, {self.max_duty}] (--max-duty)')
+        samples: list[P.SampleFrame] = []
+        command = P.encode_command(P.SET_DUTY, duty)
+        end = time.monotonic() + seconds
+        next_command = 0.0
+        self.link.reset_input_buffer()
+        self.decoder.reset()
+        while time.monotonic() < end:
+            if time.monotonic() >= next_command:
+                self.link.write(command)
+                next_command = time.monotonic() + 0.1
+            samples += [m for m in self.decoder.feed(self.link.read(max(1, self.link.in_waiting)))
+                        if isinstance(m, P.SampleFrame)]
+        if len(samples) < 0.5 * seconds / P.SAMPLE_PERIOD:
+            raise AeropendError(f'only {len(samples)} samples in {seconds:g} s: the serial link is losing data')
+        return samples
+
+    def close(self) -> None:
+        try:
+            self.link.write(P.encode_command(P.SET_DUTY, 0.0))
+            self.link.flush()
+        finally:
+            self.link.close()
+
+
+def load_calibration(path: Path | None) -> tuple[P.Calibration, dict]:
+    """The bridge's calibration from a serial_bridge_node YAML file (defaults for missing keys)."""
+    if path is None:
+        return P.Calibration(), {}
+    import yaml
+    try:
+        document = yaml.safe_load(path.read_text()) or {}
+    except (OSError, yaml.YAMLError) as error:
+        raise AeropendError(f'cannot read {path}: {error}') from error
+    values = (document.get(NODE_KEY) or {}).get('ros__parameters') or {}
+    default = P.Calibration()
+    try:
+        calibration = P.Calibration(
+            current_scale=float(values.get('current_scale', default.current_scale)),
+            current_offset=float(values.get('current_offset', default.current_offset)),
+            angle_zero=float(values.get('angle_zero', default.angle_zero)),
+            angle_scale=float(values.get('angle_scale', default.angle_scale)),
+            voltage_source=str(values.get('voltage_source', default.voltage_source)),
+            voltage_scale=float(values.get('voltage_scale', default.voltage_scale)),
+            voltage_offset=float(values.get('voltage_offset', default.voltage_offset)),
+            duty_voltage=tuple(float(values.get(f'duty_voltage_k{i}', default.duty_voltage[i])) for i in range(4)))
+    except (P.ProtocolError, TypeError, ValueError) as error:
+        raise AeropendError(f'bad calibration in {path}: {error}') from error
+    return calibration, values
+
+
+def write_values(path: Path, updates: dict[str, float]) -> None:
+    """Replace ``key: value`` lines of `path` in place (comments kept); missing keys are appended."""
+    text = path.read_text() if path.exists() else f'{NODE_KEY}:\n  ros__parameters:\n'
+    for key, value in updates.items():
+        pattern = re.compile(rf'^(\s*{re.escape(key)}:\s*)([^#\n]*?)(\s*(#.*)?)$', re.MULTILINE)
+        if pattern.search(text):
+            text = pattern.sub(lambda m, v=value: f'{m.group(1)}{v!r}{m.group(3)}', text, count=1)
+        else:
+            text = text.rstrip('\n') + f'\n    {key}: {value!r}\n'
+    path.write_text(text)
+
+
+def _to_si(calibration: P.Calibration, samples: list[P.SampleFrame]) -> np.ndarray:
+    """Array (n, 4): angle rad, Va V, Ia A, duty."""
+    return np.array([calibration.to_si(s) for s in samples])
+
+
+def main(args) -> int:
+    calibration, _ = load_calibration(args.config)
+    if args.step == 'back-emf':
+        if not args.motor_speed_rpm or len(args.motor_speed_rpm) != len(args.duty):
+            raise AeropendError('back-emf needs --motor-speed-rpm with one measured speed per --duty')
+        if args.resistance is None:
+            raise AeropendError('back-emf needs --resistance (Ra in ohm, from `aeropend calibrate locked-rotor`)')
+    rig = RigLink(args.port, args.baud, args.max_duty)
+    updates: dict[str, float] = {}
+    try:
+        if args.step == 'zero':
+            samples = rig.record(0.0, args.seconds)
+            zero = C.zero_offsets([s.angle_counts for s in samples], [s.current_counts for s in samples])
+            print(f'# {zero.samples} samples, rod still: angle scatter {zero.angle_std:.2f} counts, current '
+                  f'scatter {zero.current_std:.2f} counts')
+            updates = {'angle_zero': round(zero.angle_zero, 2), 'current_offset': round(zero.current_offset, 2)}
+        elif args.step == 'angle-scale':
+            samples = rig.record(0.0, args.seconds)
+            scale = C.angle_scale_from_reference([s.angle_counts for s in samples], calibration.angle_zero,
+                                                 math.radians(args.reference_deg))
+            print(f'# rod at {args.reference_deg:g} deg reads {np.mean([s.angle_counts for s in samples]):.1f} '
+                  f'counts (zero {calibration.angle_zero:g}); nominal 2 pi/1024 = {P.DEFAULT_ANGLE_SCALE:.6g}')
+            updates = {'angle_scale': float(f'{scale:.8g}')}
+        elif args.step == 'locked-rotor':
+            voltages, currents = [], []
+            for duty in args.duties:
+                values = _to_si(calibration, rig.record(duty, args.dwell))
+                voltages.append(C.steady_mean(values[:, 1]))
+                currents.append(C.steady_mean(values[:, 2]))
+                print(f'# duty {duty:.3f}: Va {voltages[-1]:.4f} V, Ia {currents[-1]:.4f} A')
+            rig.record(0.0, 0.2)
+            fit = C.locked_rotor_resistance(voltages, currents)
+            print(f'# Ra = {fit.value:.4f} +- {fit.sigma:.4f} ohm (drop {fit.intercept:+.4f} V, {fit.points} steps)')
+            updates = {'armature_resistance': round(fit.value, 5)}
+        else:  # back-emf
+            voltages, currents = [], []
+            for duty in args.duty:
+                values = _to_si(calibration, rig.record(duty, max(args.dwell, 2.0)))
+                voltages.append(C.steady_mean(values[:, 1]))
+                currents.append(C.steady_mean(values[:, 2]))
+                print(f'# duty {duty:.3f}: Va {voltages[-1]:.4f} V, Ia {currents[-1]:.4f} A')
+            speeds = np.array(args.motor_speed_rpm) * 2 * math.pi / 60
+            fit = C.back_emf_constant(voltages, currents, speeds, args.resistance)
+            sigma = '' if math.isnan(fit.sigma) else f' +- {fit.sigma:.3g}'
+            print(f'# Kw = {fit.value:.5g}{sigma} V s/rad ({fit.points} point(s))')
+            updates = {'back_emf_constant': float(f'{fit.value:.6g}')}
+    finally:
+        rig.close()
+    bridge_keys = {'angle_zero', 'current_offset', 'angle_scale'}
+    for key, value in updates.items():
+        where = 'config/serial_bridge_node.yaml' if key in bridge_keys else 'model parameter (RigParameters)'
+        print(f'{key}: {value!r}    # {where}')
+    if args.write is not None:
+        bridge_updates = {k: v for k, v in updates.items() if k in bridge_keys}
+        if bridge_updates:
+            write_values(args.write, bridge_updates)
+            print(f'# wrote {", ".join(bridge_updates)} to {args.write}')
+        else:
+            print(f'# {", ".join(updates)} is a model parameter, not a bridge setting: {args.write} unchanged')
+    return 0
