@@ -57,6 +57,10 @@ SEPARATING_EXPERIMENT = {
         'add zero-thrust rests longer than the motor spin-down and free-decay segments (they pin the damping)',
     frozenset({'thrust_lag', 'gravity_stiffness'}):
         'add free-decay segments (duty 0 after a large step): they pin the inertia scale without thrust',
+    frozenset({'coulomb_friction', 'gravity_stiffness'}):
+        'add free decays (duty 0 after large steps): dry friction stops the swing early, away from the bottom',
+    frozenset({'coulomb_friction', 'thrust_gain'}):
+        'add steps both up and down through the same levels: friction makes the angle depend on the direction',
     frozenset({'coulomb_friction', 'damping'}):
         'add free decays of several amplitudes: dry friction decays linearly, viscous damping exponentially',
     frozenset({'quadratic_drag', 'damping'}):
@@ -341,14 +345,13 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         rivals = [c for c in significant[1:] if c.excess_after <= CONFOUNDING_FACTOR * max(best.excess_after,
                                                                                                0.2 * noise)]
         if best.confounded_with:
-            verdict = 'confounded'
+            # Only this effect explains the error, but its parameter trades off against a nominal one here:
+            # name the effect, say the value is uncertain, and which experiment would pin it.
             for nominal in best.confounded_with:
-                notes.append(f'{best.effect} is confounded with {nominal} in this data '
-                             f'(parameter correlation > {CORRELATION_LIMIT}); '
+                notes.append(f'the {best.effect} parameter is correlated with {nominal} in this data (correlation '
+                             f'> {CORRELATION_LIMIT}), so its value is uncertain; '
                              f'{separating_experiment(best.effect, nominal)}.')
-            message = (f'{best.effect} improves the fit but cannot be separated from the nominal '
-                       f'{", ".join(best.confounded_with)} here; see notes for the experiment that would.')
-        elif rivals:
+        if rivals:
             verdict = 'confounded'
             names = [best.effect] + [c.effect for c in rivals]
             for rival in rivals:

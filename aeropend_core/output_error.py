@@ -406,7 +406,7 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
         if key not in cache:
             rows, initials = rows_for([z])
             cache.clear()
-            cache[key] = data.simulate(structure, rows, initials)[0, residual_index] - measured
+            cache[key] = _bounded(data.simulate(structure, rows, initials)[0, residual_index] - measured)
         return cache[key]
 
     def jacobian(z):
@@ -420,7 +420,7 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
         perturbed[n_free][ic_angle] += step[ic_angle]
         perturbed[n_free + 1][ic_angle + 1] += step[ic_angle + 1]
         rows, initials = rows_for(perturbed)
-        predictions = data.simulate(structure, rows, initials)[:, residual_index] - measured
+        predictions = _bounded(data.simulate(structure, rows, initials)[:, residual_index] - measured)
         jac = np.zeros((len(r0), len(z)))
         for i in range(n_free):
             jac[:, i] = (predictions[i] - r0) / step[i]
@@ -460,6 +460,16 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
                           initial_states=initial, residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg,
                           free_names=free, correlation=correlation, effective_samples=effective,
                           success=bool(result.success), message=str(result.message))
+
+
+#: A simulation that diverges (unstable parameter trial) is scored as this many radians off, so the optimiser
+#: backs away instead of failing on NaN.
+DIVERGED_RESIDUAL = 10.0
+
+
+def _bounded(residuals: np.ndarray) -> np.ndarray:
+    return np.clip(np.nan_to_num(residuals, nan=DIVERGED_RESIDUAL, posinf=DIVERGED_RESIDUAL,
+                                 neginf=-DIVERGED_RESIDUAL), -DIVERGED_RESIDUAL, DIVERGED_RESIDUAL)
 
 
 def _bounds(free: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
