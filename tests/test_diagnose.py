@@ -190,3 +190,19 @@ def test_too_short_or_unexcited_or_broken_data_is_refused_clearly(tmp_path, caps
     backwards.time[50] = backwards.time[49]
     with pytest.raises(AeropendError, match='not increasing'):
         diagnose(backwards)
+
+
+def test_error_no_catalog_effect_explains_is_reported_with_the_residual_structure():
+    @register_effect('test_cogging', 'a periodic cogging torque', replace=True,
+                     parameters=[EffectParameter('amplitude', 'rad/s^2', 'cogging torque', 10.0, 0.0, 100.0)])
+    def cogging(angle, angular_rate, amplitude):
+        return -amplitude * np.sin(8.0 * angle)
+
+    try:
+        recording = measured_recording({'test_cogging': 15.0}, seed=3)
+    finally:
+        CATALOG.pop('test_cogging')
+    found = diagnose(recording)
+    assert found.verdict == 'unexplained' and found.missing_effect is None, found.message
+    assert found.residual_structure and 'register_effect' in found.message
+    assert excess(found.current) > 3 * found.noise_rms
