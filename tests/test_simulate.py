@@ -106,3 +106,14 @@ def test_bad_inputs_raise_clear_errors():
         simulate(np.array([0.2, np.nan]))
     with pytest.raises(AeropendError, match='outside'):
         simulate(np.zeros(10), effects={'coulomb_friction': -1.0})
+
+
+@pytest.mark.parametrize('effects', [None, {'coulomb_friction': 4.0, 'thrust_lag': 0.15, 'angle_offset': 0.05},
+                                     {'dead_zone': 0.6, 'quadratic_drag': 4.0, 'cable_torque': 20.0}])
+def test_compiled_and_reference_integrators_agree(effects):
+    duty = lhc_schedule(20, seed=9).duty(duration=20)
+    compiled = simulate(duty, effects=effects, method='compiled')
+    reference = simulate(duty, effects=effects, method='lsoda')
+    assert np.max(np.abs(compiled.angle - reference.angle)) < 2e-5                      # rad
+    assert np.max(np.abs(compiled.armature_current - reference.armature_current)) < 2e-5  # A
+    assert np.max(np.abs(compiled.truth['motor_speed'] - reference.truth['motor_speed'])) < 0.05  # rad/s
