@@ -13,6 +13,7 @@ import math
 import random
 import subprocess
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ import pytest
 from aeropend_core import protocol as P
 from tests.bridge_helpers import (
     DISCOVERY_TIMEOUT,
+    FIRMWARE,
     Harness,
     Listener,
     build_firmware,
@@ -69,6 +71,21 @@ def test_both_firmware_variants_build(build):
     sections = subprocess.run(['avr-objdump', '-h', str(build / 'aeropend.elf')], capture_output=True,
                               text=True, check=True).stdout
     assert '.mmcu' not in sections
+
+
+def test_sketch_builds_against_the_arduino_core(build):
+    """As the Arduino IDE / arduino-cli builds it: Arduino.h prepended, the core's main() and Timer0 ISR linked."""
+    if not Path('/usr/share/arduino/hardware/arduino/avr/cores/arduino/Arduino.h').exists():
+        pytest.fail('Arduino AVR core missing: run `bash scripts/setup.sh` (Debian package arduino-core-avr)')
+    result = subprocess.run(['make', '-C', str(FIRMWARE), f'BUILD={build}', 'arduino'], capture_output=True,
+                            text=True, check=False)
+    assert result.returncode == 0, result.stdout + result.stderr
+    symbols = subprocess.run(['avr-nm', str(build / 'arduino' / 'aeropend_arduino.elf')], capture_output=True,
+                             text=True, check=True).stdout
+    defined = {line.split()[-1] for line in symbols.splitlines() if ' T __vector_' in line}
+    # ATmega2560 vectors: 20 TIMER1_OVF, 23 TIMER0_OVF (the core's millis), 25/26 USART0 RX/UDRE, 29 ADC.
+    assert defined == {'__vector_20', '__vector_23', '__vector_25', '__vector_26', '__vector_29'}
+    assert ' T main' in symbols and 'timer0_millis' in symbols      # the core's main() and millis()
 
 
 def test_c_protocol_header_matches_python(build):
