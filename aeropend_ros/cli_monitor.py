@@ -182,7 +182,8 @@ def main(args) -> int:
                 continue
             if args.duration and now - started > args.duration:
                 break
-            if state['dirty'] or (not state['parameters'] and now - last_draw > 2.0):
+            # One redraw per window: its parameters, coefficients, fit and status arrive within milliseconds.
+            if (state['dirty'] and now - last_draw > 0.5) or (not state['parameters'] and now - last_draw > 2.0):
                 text = render(state['parameters'], state['coefficients'], state['fit'], state['status'],
                               state['drift'], state['windows'], shutil.get_terminal_size().columns)
                 print(('\x1b[H\x1b[2J' if clear else '\n') + text, flush=True)

@@ -212,12 +212,15 @@ class ResultListener:
     """In-test node collecting the identification node's fit and parameters (by window end stamp)."""
 
     def __init__(self, context) -> None:
-        from aeropend_ros.identification_node import FIT_TOPIC, PARAMETERS_TOPIC, results_qos
+        from aeropend_ros.identification_node import COEFFICIENTS_TOPIC, FIT_TOPIC, PARAMETERS_TOPIC, results_qos
         self.node = rclpy.create_node('test_results', context=context)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self.fits: dict[int, dict] = {}
         self.parameters: dict[int, dict] = {}
+        self.coefficients: dict[int, dict] = {}
+        self.node.create_subscription(JointState, COEFFICIENTS_TOPIC, lambda m: self._store(self.coefficients, m),
+                                      results_qos())
         self.node.create_subscription(JointState, FIT_TOPIC, lambda m: self._store(self.fits, m), results_qos())
         self.node.create_subscription(JointState, PARAMETERS_TOPIC, lambda m: self._store(self.parameters, m),
                                       results_qos())
@@ -231,13 +234,13 @@ class ResultListener:
     def windows(self, with_parameter: str | None = None, without_parameter: str | None = None):
         """(parameters, fit) of windows with both messages, in time order, filtered by parameter presence."""
         result = []
-        for stamp in sorted(set(self.fits) & set(self.parameters)):
+        for stamp in sorted(set(self.fits) & set(self.parameters) & set(self.coefficients)):
             parameters = self.parameters[stamp]
             if with_parameter and with_parameter not in parameters:
                 continue
             if without_parameter and without_parameter in parameters:
                 continue
-            result.append((parameters, self.fits[stamp]))
+            result.append((parameters, self.fits[stamp] | {'coefficients': self.coefficients[stamp]}))
         return result
 
     def close(self) -> None:
@@ -301,6 +304,12 @@ def test_identification_matches_truth_and_improves_when_effect_added(own_domain)
         assert parameters['thrust_resistance'][0] == pytest.approx(truth.armature_resistance, rel=0.05)
         assert parameters['offset'][0] == pytest.approx(0.08, abs=0.01)
         assert parameters['thrust_coefficient'][0] == pytest.approx(truth.thrust_coefficient, rel=0.05)
+        # The weak-SINDy stage alone (coefficients of d2angle/dt2) also matches the truth within 5 %.
+        coefficients = fit['coefficients']
+        assert -coefficients['sin(angle)'][0] == pytest.approx(truth.gravity_stiffness, rel=0.05)
+        assert -coefficients['dangle/dt'][0] == pytest.approx(truth.damping, rel=0.05)
+        assert coefficients['armature_voltage^2'][0] == pytest.approx(truth.thrust_acceleration_coefficient, rel=0.05)
+        assert 'cos(angle)' in coefficients and coefficients['cos(angle)'][1] > 0
         assert all(math.isfinite(error) and error > 0 for _, error in
                    (parameters[k] for k in ('gravity_stiffness', 'damping', 'thrust_gain')))
 
