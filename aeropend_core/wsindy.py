@@ -544,8 +544,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
     equations : sequence of Equation
         What to identify (targets, derivative orders, candidate terms).
     half_width : int or mapping target -> int, optional
-        Test-function half-width m in samples (support 2m+1). Default: chosen per equation from the target
-        signal's spectrum (:func:`choose_support`, median over segments).
+        Test-function half-width m in samples (support 2m+1). Default (or targets missing from the mapping):
+        chosen per equation from the target signal's spectrum (:func:`choose_support`, median over segments).
     stride : int, optional
         Samples between test-function centres; default max(1, m // 4).
     threshold : 'auto', float in (0, 1] or None
@@ -617,7 +617,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
             raise InsufficientDataError(f'{eq.target!r} is constant: nothing to identify for {eq.name} '
                                         '(no excitation)')
         # --- test functions
-        if half_width is None:
+        if half_width is None or (isinstance(half_width, Mapping) and eq.target not in half_width):
             choices = [choose_support(x, eq.order, decay_tolerance, spectral_width, min_half_width,
                                       max_half_width) for x in targets]
             m = int(np.median([c[0] for c in choices]))
