@@ -372,29 +372,76 @@ def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: f
 
 @numba.njit(cache=True, nogil=True)
 def _solve_subset(gram, rhs, support, ridge):
-    """Least squares restricted to the support (normal equations with a relative ridge), zeros elsewhere."""
-    idx = np.flatnonzero(support)
-    w = np.zeros(support.size)
-    if idx.size == 0:
+    """Least squares restricted to the support (normal equations with a relative ridge), zeros elsewhere.
+
+    Small dense systems (at most a few tens of terms): Gaussian elimination with partial pivoting, written out
+    to avoid per-call LAPACK overhead; a numerically zero pivot drops that direction (minimum-norm-like).
+    """
+    n = support.size
+    idx = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        if support[i]:
+            idx[k] = i
+            k += 1
+    w = np.zeros(n)
+    if k == 0:
         return w
-    g = np.empty((idx.size, idx.size))
-    r = np.empty(idx.size)
-    for i in range(idx.size):
-        r[i] = rhs[idx[i]]
-        for j in range(idx.size):
-            g[i, j] = gram[idx[i], idx[j]]
-        g[i, i] += ridge
-    sol = np.linalg.lstsq(g, r)[0]
-    for i in range(idx.size):
+    a = np.empty((k, k + 1))
+    scale = 0.0
+    for i in range(k):
+        for j in range(k):
+            a[i, j] = gram[idx[i], idx[j]]
+        a[i, i] += ridge
+        a[i, k] = rhs[idx[i]]
+        scale = max(scale, abs(a[i, i]))
+    tiny = 1e-14 * max(scale, 1e-300)
+    for c in range(k):
+        p = c
+        for r in range(c + 1, k):
+            if abs(a[r, c]) > abs(a[p, c]):
+                p = r
+        if p != c:
+            for j in range(c, k + 1):
+                a[c, j], a[p, j] = a[p, j], a[c, j]
+        if abs(a[c, c]) <= tiny:
+            a[c, c] = 0.0
+            continue
+        for r in range(c + 1, k):
+            f = a[r, c] / a[c, c]
+            if f != 0.0:
+                for j in range(c, k + 1):
+                    a[r, j] -= f * a[c, j]
+    sol = np.zeros(k)
+    for c in range(k - 1, -1, -1):
+        if a[c, c] == 0.0:
+            continue
+        acc = a[c, k]
+        for j in range(c + 1, k):
+            acc -= a[c, j] * sol[j]
+        sol[c] = acc / a[c, c]
+    for i in range(k):
         w[idx[i]] = sol[i]
     return w
 
 
 @numba.njit(cache=True, nogil=True)
 def _loss(gram, w, w_ls, denom, alpha, n_terms):
-    d = w - w_ls
-    acc = np.sqrt(max(d @ (gram @ d), 0.0)) / denom
-    return 2.0 * alpha * acc + 2.0 * (1.0 - alpha) * np.count_nonzero(w) / n_terms
+    """L = 2α‖G(w − w_LS)‖/‖G w_LS‖ + 2(1 − α)·nnz(w)/J, with the normalised Gram matrix."""
+    n = w.size
+    acc2 = 0.0
+    nnz = 0
+    for i in range(n):
+        di = w[i] - w_ls[i]
+        if w[i] != 0.0:
+            nnz += 1
+        if di == 0.0:
+            continue
+        row = 0.0
+        for j in range(n):
+            row += gram[i, j] * (w[j] - w_ls[j])
+        acc2 += di * row
+    return 2.0 * alpha * np.sqrt(max(acc2, 0.0)) / denom + 2.0 * (1.0 - alpha) * nnz / n_terms
 
 
 @numba.njit(cache=True, nogil=True)
