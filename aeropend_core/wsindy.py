@@ -426,22 +426,24 @@ def _solve_subset(gram, rhs, support, ridge):
 
 
 @numba.njit(cache=True, nogil=True)
-def _loss(gram, w, w_ls, denom, alpha, n_terms):
-    """L = 2α‖G(w − w_LS)‖/‖G w_LS‖ + 2(1 − α)·nnz(w)/J, with the normalised Gram matrix."""
+def _loss(gram, w, gwls, c0, denom, alpha, n_terms):
+    """L = 2α‖G(w − w_LS)‖/‖G w_LS‖ + 2(1 − α)·nnz(w)/J with the normalised Gram matrix, in O(nnz²):
+    ‖G(w − w_LS)‖² = wᵀGw − 2 wᵀ(G w_LS) + w_LSᵀ G w_LS, with gwls = G w_LS and c0 = w_LSᵀ G w_LS."""
     n = w.size
-    acc2 = 0.0
-    nnz = 0
+    nz = np.empty(n, np.int64)
+    k = 0
     for i in range(n):
-        di = w[i] - w_ls[i]
         if w[i] != 0.0:
-            nnz += 1
-        if di == 0.0:
-            continue
+            nz[k] = i
+            k += 1
+    acc2 = c0
+    for a in range(k):
+        i = nz[a]
         row = 0.0
-        for j in range(n):
-            row += gram[i, j] * (w[j] - w_ls[j])
-        acc2 += di * row
-    return 2.0 * alpha * np.sqrt(max(acc2, 0.0)) / denom + 2.0 * (1.0 - alpha) * nnz / n_terms
+        for b in range(k):
+            row += gram[i, nz[b]] * w[nz[b]]
+        acc2 += w[i] * (row - 2.0 * gwls[i])
+    return 2.0 * alpha * np.sqrt(max(acc2, 0.0)) / denom + 2.0 * (1.0 - alpha) * k / n_terms
 
 
 @numba.njit(cache=True, nogil=True)
@@ -455,16 +457,19 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     w_ls = _solve_subset(gram, rhs, usable, final_ridge)
     if grid.size == 0 and not backward:
         return w_ls, 0.0
-    denom = np.sqrt(max(w_ls @ (gram @ w_ls), 0.0))
+    gwls = gram @ w_ls
+    c0 = w_ls @ gwls
+    denom = np.sqrt(max(c0, 0.0))
     if denom == 0.0:
         denom = 1.0
     n_terms = max(np.count_nonzero(usable), 1)
     best_loss = np.inf
     best_w = w_ls
     best_lam = 0.0
+    w_full = _solve_subset(gram, rhs, usable, ridge)
     for lam in grid:
         support = usable.copy()
-        w = _solve_subset(gram, rhs, support, ridge)
+        w = w_full
         for _ in range(usable.size + 1):
             new = support & (((np.abs(w) >= lam) & (np.abs(w) <= 1.0 / lam)) | keep)
             if np.array_equal(new, support):
@@ -472,7 +477,7 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
             support = new
             w = _solve_subset(gram, rhs, support, ridge)
         w = _solve_subset(gram, rhs, w != 0.0, final_ridge)
-        value = _loss(gram, w, w_ls, denom, alpha, n_terms)
+        value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
         if value < best_loss - 1e-12:
             best_loss, best_w, best_lam = value, w, lam
     if backward:
@@ -490,7 +495,7 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
                 support[j] = False
                 w = _solve_subset(gram, rhs, support, final_ridge)
                 support[j] = True
-                value = _loss(gram, w, w_ls, denom, alpha, n_terms)
+                value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
                 if value < trial_loss:
                     trial_loss, trial_j, trial_w = value, j, w
             if trial_j < 0:
@@ -511,7 +516,7 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
                 support[j] = True
                 w = _solve_subset(gram, rhs, support, final_ridge)
                 support[j] = False
-                value = _loss(gram, w, w_ls, denom, alpha, n_terms)
+                value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
                 if value < trial_loss:
                     trial_loss, trial_j, trial_w = value, j, w
             if trial_j < 0:
@@ -531,7 +536,7 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
                 for i in range(size):
                     support[free[combo[i]]] = True
                 w = _solve_subset(gram, rhs, support, final_ridge)
-                value = _loss(gram, w, w_ls, denom, alpha, n_terms)
+                value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
                 if value < best_loss - 1e-12:
                     best_loss, best_w, best_lam = value, w, np.nan
                 # next combination in lexicographic order
@@ -555,7 +560,7 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
                 support[j] = not support[j]
                 w = _solve_subset(gram, rhs, support, final_ridge)
                 support[j] = not support[j]
-                value = _loss(gram, w, w_ls, denom, alpha, n_terms)
+                value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
                 if value < trial_loss - 1e-12:
                     trial_loss, trial_j, trial_w = value, j, w
             if trial_j < 0:
@@ -657,6 +662,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                                     f'(have {sorted(s)})')
 
     fits = []
+    cache: dict = {}   # library columns, Jacobians and noise levels shared by the equations (terms keyed by name)
     for eq in equations:
         targets = [s[eq.target] for _, s in segments]
         scale = max(float(np.max(np.abs(x))) for x in targets) or 1.0
@@ -688,7 +694,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                 f'({len(segments[i][0]) * dt:.3g} s) is shorter than the test-function support for {eq.name}: '
                 f'2m+1 = {width} samples ({width * dt:.3g} s); record longer windows')
         systems = []
-        for (t, s), excl in zip(segments, excludes):
+        for si, ((t, s), excl) in enumerate(zip(segments, excludes)):
             centres = _centres(len(t), m, s_)
             if excl is not None:
                 excl = np.asarray(excl, bool)
@@ -703,11 +709,12 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                 for held in (False, True):
                     idx = [j for j, t_ in enumerate(eq.terms) if t_.derivative_order == d and t_.hold == held]
                     if idx:
-                        theta = np.column_stack([eq.terms[j].evaluate(s) for j in idx])
+                        theta = np.column_stack([_cached(cache, ('theta', si, eq.terms[j].name),
+                                                         lambda j=j: eq.terms[j].evaluate(s)) for j in idx])
                         kern = hold_weights if held else weights[d]
                         g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
             b = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
-            ops = _noise_operators(eq, s, starts, weights, hold_weights, noise_std)
+            ops = _noise_operators(eq, s, starts, weights, hold_weights, noise_std, cache, si)
             systems.append((g, b, ops, starts, len(t)))
         n_rows = sum(len(sys_[1]) for sys_ in systems)
         if n_rows <= len(eq.terms):
@@ -733,8 +740,9 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                     noise_rhs += cr
             a = np.vstack(rows_a)
             bw = np.concatenate(rows_b)
+            # The first pass only supplies w for the full covariance: the cheaper paths suffice there.
             w_n, lam, col, bnorm = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs,
-                                            exhaustive_terms)
+                                            exhaustive_terms if (w is not None or irls_iterations == 0) else 0)
             w_new = w_n * bnorm / col
             converged = w is not None and np.allclose(w_new, w, rtol=1e-5, atol=0.0)
             w = w_new
@@ -785,7 +793,14 @@ def estimate_noise_std(signal: np.ndarray) -> float:
     return float(np.std(third) / math.sqrt(20.0))
 
 
-def _noise_operators(eq: Equation, signals, starts, weights, hold_weights, noise_std):
+def _cached(cache: dict, key, make):
+    value = cache.get(key)
+    if value is None:
+        value = cache[key] = make()
+    return value
+
+
+def _noise_operators(eq: Equation, signals, starts, weights, hold_weights, noise_std, cache=None, segment=0):
     """Per noisy signal: (σ, lhs kernel or None, [(term index, signed kernel, Jacobian windows (K, width),
     kernel id, full Jacobian (n,))]).
 
@@ -798,7 +813,11 @@ def _noise_operators(eq: Equation, signals, starts, weights, hold_weights, noise
     ops = []
     for v in sorted(names):
         x = signals[v]
-        sigma = float(noise_std[v]) if noise_std is not None and v in noise_std else estimate_noise_std(x)
+        if noise_std is not None and v in noise_std:
+            sigma = float(noise_std[v])
+        else:
+            sigma = _cached(cache, ('sigma', segment, v), lambda: estimate_noise_std(x)) if cache is not None \
+                else estimate_noise_std(x)
         if not sigma > 0:
             continue
         lhs = (-1) ** eq.order * weights[eq.order] if v == eq.target else None
@@ -807,9 +826,11 @@ def _noise_operators(eq: Equation, signals, starts, weights, hold_weights, noise
         for j, term in enumerate(eq.terms):
             if v not in term.variables:
                 continue
-            plus, minus = dict(signals), dict(signals)
-            plus[v], minus[v] = x + h, x - h
-            jac = (term.evaluate(plus) - term.evaluate(minus)) / (2 * h)
+            def jacobian(term=term, v=v, x=x, h=h):
+                plus, minus = dict(signals), dict(signals)
+                plus[v], minus[v] = x + h, x - h
+                return (term.evaluate(plus) - term.evaluate(minus)) / (2 * h)
+            jac = _cached(cache, ('jac', segment, term.name, v), jacobian) if cache is not None else jacobian()
             kern = hold_weights if term.hold else weights[term.derivative_order]
             kid = ('hold',) if term.hold else ('d', term.derivative_order)
             win = np.lib.stride_tricks.sliding_window_view(jac, width)[starts]
@@ -828,35 +849,32 @@ def _noise_gram(ops, chol, band, starts, n, width, n_terms, order, kernels):
     functions covering the same sample are within the band), computed from the banded Cholesky factor by the
     Takahashi recurrence in O(K·band²). Subtracting C and c gives the bias-compensated least squares.
     """
-    needed = set()
-    for _, lhs, parts in ops:
-        for part in parts:
-            needed.add(part[3])
-        if lhs is not None:
-            needed.add(('d', order))
-    if not needed:
+    if not any(parts for _, _, parts in ops):
         return np.zeros((n_terms, n_terms)), np.zeros(n_terms)
-    needed = sorted(needed)
     inverse_band = _band_of_inverse(np.ascontiguousarray(chol))
     starts64 = np.ascontiguousarray(starts, dtype=np.int64)
-    q = {}
-    for i, ka in enumerate(needed):
-        for kb in needed[i:]:
-            q[(ka, kb)] = _kernel_products(inverse_band, starts64, np.ascontiguousarray(kernels[ka]),
-                                           np.ascontiguousarray(kernels[kb]), n)
-            q[(kb, ka)] = q[(ka, kb)]
+    products = {}
+
+    def q(ka, kb):   # computed on demand: only kernel pairs that share a noisy signal are needed
+        key = (ka, kb) if ka <= kb else (kb, ka)
+        value = products.get(key)
+        if value is None:
+            value = products[key] = _kernel_products(inverse_band, starts64, np.ascontiguousarray(kernels[key[0]]),
+                                                     np.ascontiguousarray(kernels[key[1]]), n)
+        return value
+
     gram = np.zeros((n_terms, n_terms))
     rhs = np.zeros(n_terms)
     for std, lhs, parts in ops:
         var = std * std
         for ia, (j, _, _, ka, ja) in enumerate(parts):
             for (k_, _, _, kb, jb) in parts[ia:]:
-                value = var * float(np.dot(ja * jb, q[(ka, kb)]))
+                value = var * float(np.dot(ja * jb, q(ka, kb)))
                 gram[j, k_] += value
                 if k_ != j:
                     gram[k_, j] += value
             if lhs is not None:
-                rhs[j] += var * float(np.dot(ja, q[(ka, ('d', order))]))
+                rhs[j] += var * float(np.dot(ja, q(ka, ('d', order))))
     return gram, rhs
 
 
