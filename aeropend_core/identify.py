@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 import numpy as np
 
@@ -170,7 +171,7 @@ def hold_average(armature_voltage: np.ndarray, steps: np.ndarray) -> np.ndarray:
     v = np.asarray(armature_voltage, float)
     edges = np.concatenate([[0], steps, [v.size]])
     out = np.empty_like(v)
-    for a, b in zip(edges[:-1], edges[1:]):
+    for a, b in pairwise(edges):
         if b > a:
             out[a:b] = v[a:b].mean()
     return out
@@ -312,8 +313,8 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
     terms += [term for _, term in extra]
     # The denoised inputs' remaining noise is neither white nor well estimated by differences: leave it out of
     # the residual covariance (the angle's noise, through d²y, dy and sin y, is what the weighting must see).
-    options = dict(threshold='auto' if extra else None,
-                   noise_std={'armature_voltage': 0.0, 'armature_current': 0.0})
+    options = {'threshold': 'auto' if extra else None,
+               'noise_std': {'armature_voltage': 0.0, 'armature_current': 0.0}}
     options.update(wsindy_options)
     equation = Equation('angle', tuple(terms), order=2, keep=nominal)
     result = fit_weak_sindy(times if len(times) > 1 else times[0], signals if len(signals) > 1 else signals[0],
@@ -438,7 +439,7 @@ def identify_full_state(recording: Recording | Mapping[str, np.ndarray] | Sequen
         equations = [Equation(n, tuple(terms)) for n in FULL_STATE_TARGETS]
     else:
         equations = [Equation(n, tuple(full_state_library(with_voltage=n in voltage_in))) for n in FULL_STATE_TARGETS]
-    options = dict(threshold='auto')
+    options = {'threshold': 'auto'}
     options.update(wsindy_options)
     result = fit_weak_sindy(times if len(times) > 1 else times[0], signals if len(signals) > 1 else signals[0],
                             equations, **options)

@@ -690,7 +690,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         if short:
             i = short[0]
             raise InsufficientDataError(
-                f'{"segment %d: " % i if len(segments) > 1 else ""}window of {len(segments[i][0])} samples '
+                f'{f"segment {i}: " if len(segments) > 1 else ""}window of {len(segments[i][0])} samples '
                 f'({len(segments[i][0]) * dt:.3g} s) is shorter than the test-function support for {eq.name}: '
                 f'2m+1 = {width} samples ({width * dt:.3g} s); record longer windows')
         systems = []
@@ -710,7 +710,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                     idx = [j for j, t_ in enumerate(eq.terms) if t_.derivative_order == d and t_.hold == held]
                     if idx:
                         theta = np.column_stack([_cached(cache, ('theta', si, eq.terms[j].name),
-                                                         lambda j=j: eq.terms[j].evaluate(s)) for j in idx])
+                                                         lambda term=eq.terms[j], s=s: term.evaluate(s)) for j in idx])
                         kern = hold_weights if held else weights[d]
                         g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
             b = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
@@ -816,7 +816,7 @@ def _noise_operators(eq: Equation, signals, starts, weights, hold_weights, noise
         if noise_std is not None and v in noise_std:
             sigma = float(noise_std[v])
         else:
-            sigma = _cached(cache, ('sigma', segment, v), lambda: estimate_noise_std(x)) if cache is not None \
+            sigma = _cached(cache, ('sigma', segment, v), lambda x=x: estimate_noise_std(x)) if cache is not None \
                 else estimate_noise_std(x)
         if not sigma > 0:
             continue
@@ -957,7 +957,7 @@ def _accumulate_band(ab, local, starts):
     p = ab.shape[0] - 1
     k, width = local.shape
     for r in range(k):
-        for u in range(0, min(p, k - 1 - r) + 1):
+        for u in range(min(p, k - 1 - r) + 1):
             delta = starts[r + u] - starts[r]
             if delta >= width:
                 break

@@ -85,7 +85,7 @@ def run_ours(data, repeats: int, **options):
 
 #: The plain method: GLS with Σ ∝ V'V'ᵀ only, no bias compensation, MSTLS plus the greedy paths, no exhaustive
 #: small-support search.
-PLAIN = dict(irls_iterations=0, bias_correction=False, exhaustive_terms=0)
+PLAIN = {'irls_iterations': 0, 'bias_correction': False, 'exhaustive_terms': 0}
 
 
 def run_live_rig(seed: int, repeats: int):
@@ -154,7 +154,7 @@ def run_pysindy(data, repeats: int):
     for threshold in grid:
         try:
             coef = fit_pysindy(data, threshold)
-        except Exception as error:  # a threshold that kills every term, etc.
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as error:  # e.g. a threshold that kills every term
             scored.append(((999, 1.0, 1.0), threshold, None, repr(error)))
             continue
         scored.append((score(coef), threshold, coef, ''))
@@ -175,7 +175,7 @@ def main() -> None:
     parser.add_argument('--repeats', type=int, default=10)
     args = parser.parse_args()
     data = make_window(args.seed, args.psnr)
-    same = dict(voltage_in=STATES)   # Va offered to every equation, exactly pysindy's library
+    same = {'voltage_in': STATES}   # Va offered to every equation, exactly pysindy's library
     ours_time, ours_coef = run_ours(data, args.repeats, **same)
     plain_time, plain_coef = run_ours(data, args.repeats, **same, **PLAIN)
     default_time, default_coef = run_ours(data, args.repeats)

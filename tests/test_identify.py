@@ -8,9 +8,17 @@ import numpy as np
 import pytest
 
 from aeropend_core.cli import main as cli_main
-from aeropend_core.errors import AeropendError, InsufficientDataError, UnknownEffectError
+from aeropend_core.errors import (
+    AeropendError,
+    InsufficientDataError,
+    UnknownEffectError,
+)
 from aeropend_core.excitation import lhc_schedule
-from aeropend_core.identify import identify_full_state, identify_pendulum, interval_current
+from aeropend_core.identify import (
+    identify_full_state,
+    identify_pendulum,
+    interval_current,
+)
 from aeropend_core.model import DEFAULT_PARAMETERS as P
 from aeropend_core.model import SAMPLE_TIME
 from aeropend_core.noise import MeasurementNoise, add_noise

@@ -8,9 +8,15 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from aeropend_core import library as lib
-from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core import wsindy
-from aeropend_core.wsindy import Equation, choose_support, fit_weak_sindy, kernel_derivatives, spectral_corner
+from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.wsindy import (
+    Equation,
+    choose_support,
+    fit_weak_sindy,
+    kernel_derivatives,
+    spectral_corner,
+)
 
 A, C, K = 131.75, 13.82, 30.0
 DT = 1 / 490

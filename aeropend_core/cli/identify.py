@@ -22,7 +22,11 @@ import math
 
 import numpy as np
 
-from aeropend_core.identify import PARAMETER_UNITS, identify_full_state, identify_pendulum
+from aeropend_core.identify import (
+    PARAMETER_UNITS,
+    identify_full_state,
+    identify_pendulum,
+)
 from aeropend_core.recording import load_recording
 
 
