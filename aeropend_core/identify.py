@@ -42,7 +42,12 @@ from aeropend_core.effects import get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model import DEFAULT_PARAMETERS, RigParameters
 from aeropend_core.recording import Recording
-from aeropend_core.wsindy import Equation, WeakSindyResult, fit_weak_sindy
+from aeropend_core.wsindy import (
+    Equation,
+    WeakSindyResult,
+    choose_support,
+    fit_weak_sindy,
+)
 
 #: Units of the derived parameters.
 PARAMETER_UNITS = {
@@ -96,8 +101,12 @@ class PendulumFit:
     def format(self) -> str:
         lines = [f'{self.equation.name} [rad/s^2] = '
                  + _format_terms(self.equation.coefficients, self.equation.standard_errors)]
-        lines += [f'  {k} = {v:.6g} ± {self.standard_errors.get(k, float("nan")):.2g} {PARAMETER_UNITS.get(k, "")}'
-                  for k, v in self.parameters.items()]
+        for k, v in self.parameters.items():
+            se = self.standard_errors.get(k, float('nan'))
+            if k in ('cable_stiffness', 'angle_offset') and not math.isfinite(se):
+                lines.append(f'  {k} = 0 {PARAMETER_UNITS.get(k, "")} (term not selected: no evidence of the effect)')
+            else:
+                lines.append(f'  {k} = {v:.6g} ± {se:.2g} {PARAMETER_UNITS.get(k, "")}')
         return '\n'.join(lines)
 
 
@@ -301,6 +310,13 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
         times.append(t)
         signals.append({'angle': y, 'armature_voltage': va, 'armature_current': ia_eff})
         excludes.append(exclude)
+    # Too short for the test functions? Say so before judging the excitation (a short window rarely has any).
+    longest = max(len(t) for t in times)
+    support = 2 * (half_width or choose_support(max(signals, key=lambda sig: len(sig['angle']))['angle'], 2)[0]) + 1
+    if longest < support:
+        raise InsufficientDataError(
+            f'window of {longest} samples ({longest * dt:.3g} s) is shorter than the test-function support for '
+            f'd^2angle/dt^2: 2m+1 = {support} samples ({support * dt:.3g} s); record longer windows')
     if v_range < min_voltage_range:
         raise InsufficientDataError(
             f'no excitation: the armature voltage varies by only {v_range:.3g} V (< {min_voltage_range:g} V) in the '
@@ -350,14 +366,16 @@ def _pendulum_parameters(result: WeakSindyResult, parameters: RigParameters, eff
     values['thrust_coefficient'] = th1 * scale
     errors['thrust_coefficient'] = errors['thrust_acceleration_coefficient'] * scale
     if 'cable_torque' in effects:
-        values['cable_stiffness'] = -c.get('angle', 0.0)
-        errors['cable_stiffness'] = _delta({'angle': -1.0}, cov, names)
+        # 0 with no error bar when MSTLS dropped the term (no evidence of a cable torque)
+        values['cable_stiffness'] = -c['angle'] if 'angle' in c else 0.0
+        errors['cable_stiffness'] = _delta({'angle': -1.0}, cov, names) if 'angle' in c else float('nan')
     if 'angle_offset' in effects:
         # measured y_m = y + δ: −a·sin(y_m − δ) = −a·cos δ·sin y_m + a·sin δ·cos y_m
         wc = c.get('cos(angle)', 0.0)
-        s = wc / a if a else 0.0
-        values['angle_offset'] = math.asin(max(-1.0, min(1.0, s)))
-        errors['angle_offset'] = _delta({'cos(angle)': 1 / a, _SIN: wc / a ** 2}, cov, names) if a else float('nan')
+        ratio = wc / a if a else 0.0
+        values['angle_offset'] = math.asin(max(-1.0, min(1.0, ratio)))
+        errors['angle_offset'] = (_delta({'cos(angle)': 1 / a, _SIN: wc / a ** 2}, cov, names)
+                                  if a and 'cos(angle)' in c else float('nan'))
     return PendulumFit(values, errors, result, step_handling)
 
 
