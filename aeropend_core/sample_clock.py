@@ -38,12 +38,19 @@ class SampleClock:
     latency : float
         Known constant minimum latency of the link [s], subtracted from the stamps.
     min_span : int
-        Windows between two minima used for a slope (default 8): shorter baselines make the period estimate
-        follow latency noise; until then the nominal period is used.
+        Windows between two minima used for a slope (default 20, ~20 s): shorter baselines make the period
+        estimate follow latency noise (a host stalled for a second biases it); until then the nominal period is
+        used (a 100 ppm crystal drifts 2 ms in 20 s).
+    min_spacing : float
+        Smallest spacing of consecutive stamps, in sample periods per sequence step (default 0.6).
+    max_slew : float
+        Largest move of the line per window when the fit changes, in sample periods (default 0.25: 0.5 ms per
+        second on the rig, 500 ppm).
     """
 
     def __init__(self, sample_period: float, window: int = 490, history: int = 60, max_drift: float = 1e-3,
-                 latency: float = 0.0, min_span: int = 8) -> None:
+                 latency: float = 0.0, min_span: int = 20, min_spacing: float = 0.6,
+                 max_slew: float = 0.25) -> None:
         if not sample_period > 0:
             raise ValueError(f'sample_period must be positive, got {sample_period!r}')
         if window < 2 or history < 2:
@@ -54,6 +61,8 @@ class SampleClock:
         self.max_drift = float(max_drift)
         self.latency = float(latency)
         self.min_span = int(min_span)
+        self.min_spacing = float(min_spacing)
+        self.max_slew = float(max_slew)
         self.reset()
 
     def reset(self) -> None:
@@ -65,6 +74,9 @@ class SampleClock:
         self._window_start = None
         self._window_best: tuple[int, float] | None = None
         self._last_stamp = None
+        self._last_sequence = 0
+        #: Arrivals observed since the last reset (a caller may hold its first stamps until this is large).
+        self.observed = 0
 
     @property
     def period(self) -> float:
@@ -92,30 +104,47 @@ class SampleClock:
         """
         if not len(sequences):
             return []
-        newest = max(sequences)
+        self.observe(max(sequences), arrival)
+        return self.place(sequences)
+
+    def observe(self, sequence: int, arrival: float) -> None:
+        """Update the envelope with one arrival (the newest sample of a read) without stamping anything."""
         if self._reference is None:
             self._reference = arrival
-            self._anchor = -newest * self._period
-            self._window_start = newest
+            self._anchor = -sequence * self._period
+            self._window_start = sequence
+        self.observed += 1
         relative = arrival - self._reference
         # Window minimum of the arrival relative to a line of the current period (fixed within a window).
-        key = relative - self._period * newest
+        key = relative - self._period * sequence
         if self._window_best is None or key < self._window_best[2]:
-            self._window_best = (newest, relative, key)
-        if newest - self._window_start >= self.window:
+            self._window_best = (sequence, relative, key)
+        if sequence - self._window_start >= self.window:
             self._close_window()
-            self._window_start = newest
-        predicted = self._anchor + self._period * newest
+            self._window_start = sequence
+        predicted = self._anchor + self._period * sequence
         if relative < predicted:
             # Earlier than the lower envelope: this sample had less delay than any before; move the line down.
             self._anchor += relative - predicted
+
+    def place(self, sequences) -> list[float]:
+        """Stamps [s] of `sequences` on the current line (after :meth:`observe`), in the order given.
+
+        Consecutive stamps stay at least ``min_spacing`` x Ts x (sequence step) apart: when the line moves down
+        (a less-delayed sample showed that earlier stamps were late) the following stamps catch up gradually
+        instead of piling up on the last one.
+        """
+        if self._reference is None:
+            raise ValueError('place() before any observe(): no anchor yet')
         stamps = []
         base = self._reference - self.latency
         for sequence in sequences:
             stamp = base + self._anchor + self._period * sequence
-            if self._last_stamp is not None and stamp <= self._last_stamp:
-                stamp = self._last_stamp + 1e-9
+            if self._last_stamp is not None:
+                floor = self._last_stamp + self.min_spacing * self._period * max(1, sequence - self._last_sequence)
+                stamp = max(stamp, floor)
             self._last_stamp = stamp
+            self._last_sequence = sequence
             stamps.append(stamp)
         return stamps
 
@@ -135,6 +164,14 @@ class SampleClock:
             low = self.nominal_period * (1.0 - self.max_drift)
             high = self.nominal_period * (1.0 + self.max_drift)
             slope = min(high, max(low, float(np.median(slopes))))
-        # Lower envelope: the line with that slope under every window minimum.
+        # Lower envelope: the line with that slope under every window minimum. Moved towards gradually (at most
+        # `max_slew` x Ts per window, measured at the newest sequence), so stamps never jump when the estimate
+        # changes; a sample arriving below the line still lowers it at once (observe).
+        target = float(np.min(times - slope * sequences))
+        now = sequence
+        current = self._anchor + self._period * now
+        wanted = target + slope * now
+        step = self.max_slew * self.nominal_period
+        value = current + min(step, max(-step, wanted - current))
         self._period = slope
-        self._anchor = float(np.min(times - slope * sequences))
+        self._anchor = value - slope * now

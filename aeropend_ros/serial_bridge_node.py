@@ -46,6 +46,8 @@ CALIBRATION_PARAMETERS = ('current_scale', 'current_offset', 'angle_zero', 'angl
                           'duty_voltage_k2', 'duty_voltage_k3')
 #: Parameters whose change is sent to the device.
 DEVICE_PARAMETERS = ('max_duty', 'watchdog_timeout')
+#: Reads observed before the first stamps of a (re)started clock are published (about 0.1 s of data).
+PRIME_ARRIVALS = 8
 
 
 class SerialBridgeNode(Node):
@@ -102,6 +104,7 @@ class SerialBridgeNode(Node):
         self.clock_model = SampleClock(self.sample_period, max_drift=clock_max_drift, latency=self.clock_latency)
         self._epoch_ns = self.get_clock().now().nanoseconds
         self.decoder = P.FrameDecoder()
+        self._priming: list[P.SampleFrame] = []
         self._serial = None
         self._serial_lock = threading.Lock()
         self._stop = threading.Event()
@@ -248,6 +251,7 @@ class SerialBridgeNode(Node):
             if type(message) is P.SampleFrame:
                 if self._check_sequence(message, arrival):   # the device restarted: stamp the old run first
                     self._publish_run(run, arrival)
+                    self._flush_priming()
                     run = []
                     self.clock_model.reset()
                 run.append(message)
@@ -281,10 +285,23 @@ class SerialBridgeNode(Node):
         return reset
 
     def _publish_run(self, run: list[P.SampleFrame], arrival: float) -> None:
-        """Stamp samples that arrived together (acquisition times by sequence number) and publish them."""
+        """Stamp samples that arrived together (acquisition times by sequence number) and publish them.
+
+        After a (re)start of the clock the first ``PRIME_ARRIVALS`` reads are held back (~0.1 s) until the
+        arrival envelope has seen several reads: the first stamps are then as good as the later ones.
+        """
         if not run:
             return
-        stamps = self.clock_model.stamp_many([frame.sequence for frame in run], arrival)
+        clock = self.clock_model
+        if clock.observed < PRIME_ARRIVALS or self._priming:
+            clock.observe(max(frame.sequence for frame in run), arrival)
+            self._priming.extend(run)
+            if clock.observed < PRIME_ARRIVALS:
+                return
+            run, self._priming = self._priming, []
+            stamps = clock.place([frame.sequence for frame in run])
+        else:
+            stamps = clock.stamp_many([frame.sequence for frame in run], arrival)
         to_si = self.calibration.to_si
         for frame, stamp in zip(run, stamps):
             angle, voltage, current, duty = to_si(frame)
@@ -292,6 +309,18 @@ class SerialBridgeNode(Node):
                                    frame.sequence)
             self.publisher.publish(topics.sample_to_msg(sample, self._message))
         self.stats['samples_published'] += len(run)
+
+    def _flush_priming(self) -> None:
+        """Publish samples still held for priming (before the clock restarts)."""
+        if self._priming:
+            run, self._priming = self._priming, []
+            stamps = self.clock_model.place([frame.sequence for frame in run])
+            for frame, stamp in zip(run, stamps):
+                angle, voltage, current, duty = self.calibration.to_si(frame)
+                self.publisher.publish(topics.sample_to_msg(topics.Sample(
+                    self._epoch_ns + round(stamp * 1e9), angle, voltage, current, duty, frame.sequence),
+                    self._message))
+            self.stats['samples_published'] += len(run)
 
     def _device_reset(self, arrival: float) -> None:
         """The sequence went backwards: the device restarted (power cycle, DTR reset, brown-out)."""

@@ -217,8 +217,12 @@ def test_sample_clock_tracks_drift_and_ignores_late_bursts(ppm):
     arrival = acquisition + min_latency + rng.exponential(0.003, n)
     arrival[20000:20300] = acquisition[20300] + 0.4      # a stalled host: 300 samples arrive in one burst
     clock = SampleClock(period)
-    stamps = np.array([clock.stamp(int(s), float(a)) for s, a in zip(sequence, arrival)])
-    assert np.all(np.diff(stamps) > 0)
+    # As the bridge does: observe the first 50 arrivals before stamping them (the envelope needs a few).
+    for s, a in zip(sequence[:50], arrival[:50]):
+        clock.observe(int(s), float(a))
+    stamps = clock.place([int(s) for s in sequence[:50]])
+    stamps = np.array(stamps + [clock.stamp(int(s), float(a)) for s, a in zip(sequence[50:], arrival[50:])])
+    assert np.all(np.diff(stamps) >= 0.6 * period - 1e-9)   # evenly spaced: never piled up
     assert np.all(stamps <= arrival)                     # acquisition never after arrival
     assert clock.drift_ppm == pytest.approx(ppm, abs=20.0)
     error = stamps - acquisition - min_latency
@@ -229,3 +233,32 @@ def test_sample_clock_tracks_drift_and_ignores_late_bursts(ppm):
     assert np.std(arrival - acquisition) > 10 * np.std(error[-490 * 30:])
     clock.reset()
     assert clock.stamp(0, 9000.0) == pytest.approx(9000.0)
+
+
+def test_sample_clock_stays_even_through_a_stalled_host():
+    """The host stalls for 3 s (every sample 15-40 ms late), twice: stamps stay evenly spaced and recover."""
+    rng = np.random.default_rng(8)
+    period = P.SAMPLE_PERIOD
+    n = 490 * 80
+    sequence = np.arange(n)
+    acquisition = 100.0 + sequence * period * (1 + 60e-6)
+    arrival = acquisition + 0.0005 + rng.exponential(0.002, n)
+    for start in (490 * 12, 490 * 40):
+        arrival[start:start + 490 * 3] += rng.uniform(0.015, 0.040, 490 * 3)
+    clock = SampleClock(period)
+    stamps = np.array([clock.stamp(int(s), float(a)) for s, a in zip(sequence, arrival)])
+    steps = np.diff(stamps)
+    assert np.all(np.abs(steps - period) < 0.5 * period)        # what the diagnosis requires of a recording
+    assert np.max(np.abs(stamps - acquisition - 0.0005)[-490 * 10:]) < 3e-4
+
+
+def test_sample_clock_spreads_a_backlog_read_at_once():
+    """A port opened on a running device returns a backlog in one read: stamps go back by sequence x Ts."""
+    period = P.SAMPLE_PERIOD
+    clock = SampleClock(period)
+    backlog = list(range(100, 300))
+    stamps = clock.stamp_many(backlog, 50.0)
+    assert stamps[-1] == pytest.approx(50.0)
+    assert np.allclose(np.diff(stamps), period)
+    later = clock.stamp_many([300, 301, 302], 50.0 + 3 * period + 0.0004)
+    assert np.allclose(np.diff([stamps[-1], *later]), period)
