@@ -159,3 +159,20 @@ def test_missing_signal_and_bad_sampling_are_named(pendulum):
     t_bad[500:] += 0.05
     with pytest.raises(AeropendError, match='uniformly sampled'):
         fit_weak_sindy(t_bad, {'angle': y, 'u': u}, [second_order()])
+
+
+def test_fixed_threshold_and_excluded_samples(pendulum):
+    t, u, y, w = pendulum
+    terms = (lib.variable('angular_rate'), lib.variable('angle'), lib.sine('angle'), lib.product('u', 'u', hold=True))
+    fixed = fit_weak_sindy(t, {'angle': y, 'angular_rate': w, 'u': u}, [Equation('angle', terms)],
+                           threshold=0.05)['angle']
+    assert fixed.threshold == 0.05
+    assert set(fixed.selected) == {'angular_rate'}
+    assert fixed.coefficient('angular_rate') == pytest.approx(1.0, rel=1e-3)
+    exclude = np.zeros(t.size, bool)
+    exclude[::490] = True  # one sample per second: every support covering one is dropped
+    full = fit_weak_sindy(t, {'angle': y, 'u': u}, [second_order()], threshold=None, half_width=40)['angle']
+    masked = fit_weak_sindy(t, {'angle': y, 'u': u}, [second_order()], threshold=None, half_width=40,
+                            exclude=exclude)['angle']
+    assert 0 < masked.n_test_functions < full.n_test_functions
+    assert masked.coefficient('u^2') == pytest.approx(K, rel=5e-3)
