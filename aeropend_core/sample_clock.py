@@ -33,8 +33,9 @@ class SampleClock:
     history : int
         Window minima used for the line fit (default 60: the drift estimate spans about a minute).
     max_drift : float
-        Largest believable relative deviation of the device period from nominal (default 1e-3 = 1000 ppm; crystals
-        are within ~100 ppm, ceramic resonators within ~0.5 %; use 5e-3 for those).
+        Largest believable relative deviation of the device period from nominal (default 2e-4 = 200 ppm: the Mega
+        2560's 16 MHz crystal is within ~100 ppm; boards clocked by a ceramic resonator need ~5e-3). A heavily
+        loaded host delays whole windows of samples and biases the slope; the bound limits the damage.
     latency : float
         Known constant minimum latency of the link [s], subtracted from the stamps.
     min_span : int
@@ -48,7 +49,7 @@ class SampleClock:
         second on the rig, 500 ppm).
     """
 
-    def __init__(self, sample_period: float, window: int = 490, history: int = 60, max_drift: float = 1e-3,
+    def __init__(self, sample_period: float, window: int = 490, history: int = 60, max_drift: float = 2e-4,
                  latency: float = 0.0, min_span: int = 20, min_spacing: float = 0.6,
                  max_slew: float = 0.25) -> None:
         if not sample_period > 0:
@@ -120,7 +121,7 @@ class SampleClock:
         if self._window_best is None or key < self._window_best[2]:
             self._window_best = (sequence, relative, key)
         if sequence - self._window_start >= self.window:
-            self._close_window()
+            self._close_window(sequence)
             self._window_start = sequence
         predicted = self._anchor + self._period * sequence
         if relative < predicted:
@@ -148,7 +149,8 @@ class SampleClock:
             stamps.append(stamp)
         return stamps
 
-    def _close_window(self) -> None:
+    def _close_window(self, now: int) -> None:
+        """Add the window's minimum, refit the line and move towards it (slewed at sequence `now`)."""
         sequence, relative, _ = self._window_best
         self._window_best = None
         self._minima.append((sequence, relative))
@@ -168,7 +170,6 @@ class SampleClock:
         # `max_slew` x Ts per window, measured at the newest sequence), so stamps never jump when the estimate
         # changes; a sample arriving below the line still lowers it at once (observe).
         target = float(np.min(times - slope * sequences))
-        now = sequence
         current = self._anchor + self._period * now
         wanted = target + slope * now
         step = self.max_slew * self.nominal_period

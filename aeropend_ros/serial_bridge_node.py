@@ -92,8 +92,9 @@ class SerialBridgeNode(Node):
                     f'eq (8) coefficient k{index}: Va = k0 + k1 sqrt(k2 duty + k3)', low=-1e9, high=1e9)
         self.clock_latency = declare(self, 'clock_latency', 0.0, 'known minimum link latency [s] subtracted '
                                      'from the stamps', read_only=True, low=0.0, high=1.0)
-        clock_max_drift = declare(self, 'clock_max_drift', 1e-3, 'largest believable relative error of the '
-                                  "device's crystal (1e-3 = 1000 ppm)", read_only=True, low=0.0, high=0.05)
+        clock_max_drift = declare(self, 'clock_max_drift', 2e-4, 'largest believable relative error of the '
+                                  "device's clock (2e-4 = 200 ppm, a crystal; ~5e-3 for a ceramic resonator)",
+                                  read_only=True, low=0.0, high=0.05)
         diagnostics_period = declare(self, 'diagnostics_period', 1.0, 'period [s] of /diagnostics', read_only=True,
                                      low=0.05, high=60.0)
         if self.heartbeat_period >= self.get_parameter('watchdog_timeout').value:
