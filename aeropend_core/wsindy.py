@@ -634,7 +634,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         Applied in the reweighted passes (so it needs ``irls_iterations >= 1``).
     exhaustive_terms : int
         With ``threshold='auto'``, every support of up to this many free terms (besides ``keep``) is scored with
-        the loss as well (sum of C(J, k), k <= 4: 3,214 small solves for J = 17).
+        the loss as well, in the last pass (sum of C(J, k), k <= 4: 3,214 small solves for J = 17).
 
     Returns
     -------
@@ -732,7 +732,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                 'candidate terms; record longer windows or use fewer terms')
         keep = np.array([t_.name in eq.keep for t_ in eq.terms])
         w = None
-        for _ in range(irls_iterations + 1):
+        for pass_ in range(irls_iterations + 1):
             rows_a, rows_b = [], []
             # The first pass (target-only whitening) is not corrected: that whitening amplifies regressor noise
             # so much that the correction itself becomes unstable; it only supplies w for the full covariance.
@@ -749,14 +749,10 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                     noise_rhs += cr
             a = np.vstack(rows_a)
             bw = np.concatenate(rows_b)
-            # The first pass only supplies w for the full covariance: the cheaper paths suffice there.
+            # Earlier passes only supply w for the covariance: the exhaustive search runs in the last one.
             w_n, lam, col, bnorm = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs,
-                                            exhaustive_terms if (w is not None or irls_iterations == 0) else 0)
-            w_new = w_n * bnorm / col
-            converged = w is not None and np.allclose(w_new, w, rtol=1e-5, atol=0.0)
-            w = w_new
-            if converged:
-                break
+                                            exhaustive_terms if pass_ == irls_iterations else 0)
+            w = w_n * bnorm / col
         sel = np.flatnonzero(w_n)
         resid_vec = bw - a[:, sel] @ w[sel]
         dof = max(n_rows - sel.size, 1)
