@@ -44,7 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='effect included in the identified model from the start (repeatable)')
     parser.add_argument('--realtime-factor', type=float, default=1.0, metavar='F',
                         help='simulation speed: 1 = real time, 4 = four times faster (sim only)')
-    parser.add_argument('--window', type=float, default=20.0, metavar='S', help='identification window [s]')
+    parser.add_argument('--window', type=float, default=25.0, metavar='S', help='identification window [s]')
     parser.add_argument('--hop', type=float, default=5.0, metavar='S', help='identification hop [s]')
     parser.add_argument('--psnr', type=float, default=50.0, metavar='DB',
                         help='simulated measurement noise [dB] (0 = none)')
@@ -178,32 +178,35 @@ def _run(args) -> int:
 def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float) -> bool:
     """Print each new window's held-out fit until the experiment is over; True when interrupted (Ctrl-C)."""
     started = time.monotonic()
-    shown = 0
-    last_status = None
+    progress = {'shown': 0, 'status': None}
+
+    def report() -> None:
+        if identification.windows_done > progress['shown'] and identification.last_result is not None:
+            progress['shown'] = identification.windows_done
+            r = identification.last_result
+            print(f'  window ending t = {r.stop - identification.first_stamp_ns * 1e-9:6.1f} s: held-out fit '
+                  f'{r.fit_percent:6.2f} %, rms error {r.rms_error * 1e3:6.2f} mrad '
+                  f'(noise {r.noise_rms * 1e3:.2f} mrad), {r.compute_time:.2f} s to compute', flush=True)
+            progress['status'] = identification.last_status
+        elif identification.last_status is not progress['status']:
+            progress['status'] = identification.last_status
+            if progress['status'][1] != b'\x00':      # not OK: say why no fit was published for this window
+                print(f'  window: {progress["status"][0]}', flush=True)
+
     try:
         while True:
-            if use_sim and source.finished:
-                return False
-            if not use_sim and time.monotonic() - started > args.duration:
-                return False
-            if identification.windows_done > shown and identification.last_result is not None:
-                shown = identification.windows_done
-                r = identification.last_result
-                print(f'  window ending t = {r.stop - identification.first_stamp_ns * 1e-9:6.1f} s: held-out fit '
-                      f'{r.fit_percent:6.2f} %, rms error {r.rms_error * 1e3:6.2f} mrad '
-                      f'(noise {r.noise_rms * 1e3:.2f} mrad), {r.compute_time:.2f} s to compute', flush=True)
-                last_status = identification.last_status
-            elif identification.last_status is not last_status:
-                last_status = identification.last_status
-                if last_status[1] != b'\x00':      # not OK: say why no fit was published for this window
-                    print(f'  window: {last_status[0]}', flush=True)
-            if os.environ.get('AEROPEND_RUN_DEBUG'):
-                print(f'    [debug] wall {time.monotonic() - started:5.1f} s, source samples '
-                      f'{getattr(source, "sequence", "?")}, identification buffer {len(identification.stamps)}, '
-                      f'windows done {identification.windows_done}, skipped {identification.windows_skipped}, '
-                      f'status {identification.last_status[0][:60]!r}', flush=True)
-                time.sleep(0.9)
+            report()
+            if (use_sim and source.finished) or (not use_sim and time.monotonic() - started > args.duration):
+                break
             time.sleep(0.1)
+        # The window that came due with the last samples is still being computed: show it too.
+        deadline = time.monotonic() + 15.0
+        while identification.pending is not None and not identification.pending.done() \
+                and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(0.2)                    # its result callback publishes right after the future completes
+        report()
+        return False
     except KeyboardInterrupt:
         print('aeropend run: interrupted; finalising', file=sys.stderr)
         return True

@@ -131,7 +131,8 @@ class IdentificationNode(Node):
 
     def __init__(self, node_name: str = 'identification_node', **kwargs) -> None:
         super().__init__(node_name, **kwargs)
-        declare(self, 'window_s', 20.0, 'window length [s] of acquisition time', low=4.0, high=600.0)
+        declare(self, 'window_s', 25.0, 'window length [s] of acquisition time (>= 20 s: held-out fit by compare)',
+                low=4.0, high=600.0)
         declare(self, 'hop_s', 5.0, 'a new window every hop_s seconds of acquisition time', low=0.5, high=600.0)
         declare(self, 'holdout_fraction', 0.25, 'end fraction of each window held out for the fit score',
                 low=0.05, high=0.5)
@@ -278,6 +279,7 @@ class IdentificationNode(Node):
                'window_start': result.start}
         self.fit_publisher.publish(named_values_msg(stop_ns, fit, with_errors=False))
         health['compute_time_s'] = f'{result.compute_time:.3f}'
+        health['fit_method'] = result.method
         health['fit_percent'] = f'{result.fit_percent:.2f}'
         health['rms_error_rad'] = f'{result.rms_error:.5f}'
         health['noise_rms_rad'] = f'{result.noise_rms:.5f}'

@@ -8,12 +8,15 @@ Per window (time-first arrays of shape ``(n,)``, SI units):
 2. **Weak SINDy** on the training part (:func:`aeropend_core.identify.identify_pendulum`): the coefficients of
    ``d²angle/dt² = Σ w_j θ_j`` with standard errors and the derived parameters. Effects that the angle-only weak
    form can express (``cable_torque``, ``angle_offset``) enter its library.
-3. **Output-error refinement** on the training part (:mod:`aeropend_core.output_error`, multiple shooting over
-   ~10 s segments), started from the weak-SINDy values, with *every* requested effect (friction, drag, lag, dead
-   zone included): the physical parameters ± 1σ.
+3. **Output-error refinement** on the training part, started from the weak-SINDy values, with *every* requested
+   effect (friction, drag, lag, dead zone included): the physical parameters ± 1σ.
 4. **Held-out fit**: free-run simulation of the refined model over the held-out part, driven by the measured
    Va and Ia from the measured initial angle: fit % = 100·(1 − ‖y − ŷ‖/‖y − mean(y)‖) (MATLAB ``compare``
    convention, simulation, not one-step prediction), RMS error [rad] and the angle's noise RMS [rad] (the floor).
+
+Steps 3 and 4 are :func:`aeropend_core.compare.compare` — the diagnosis's own definitions, with its motor
+observer — when the window is at least its minimum length (20 s); shorter windows use a plain output-error fit
+(:mod:`aeropend_core.output_error`, multiple shooting over ~10 s segments) and the same fit % definition.
 
 The analysis is a plain function so that it can be swapped (e.g. for the diagnosis loop's ``compare``) in one place.
 """
@@ -59,6 +62,9 @@ class WindowResult:
         Length of the held-out part [s].
     compute_time : float
         Wall time of the analysis [s].
+    method : str
+        ``'compare'`` (:func:`aeropend_core.compare.compare`, windows of at least its 20 s) or ``'window'`` (this
+        module's own output-error fit, for shorter windows).
     """
 
     start: float
@@ -71,6 +77,7 @@ class WindowResult:
     noise_rms: float = float('nan')
     held_out_seconds: float = 0.0
     compute_time: float = 0.0
+    method: str = ''
 
 
 def check_effect_names(names: Sequence[str]) -> tuple[str, ...]:
@@ -139,9 +146,7 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     InsufficientDataError
         Excitation too poor, or too few samples.
     """
-    from aeropend_core import output_error as oe
     from aeropend_core.identify import identify_pendulum
-    from aeropend_core.preprocess import condition_inputs, noise_rms
 
     started = _time.perf_counter()
     effects = check_effect_names(effects)
@@ -170,13 +175,61 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     start = {'gravity_stiffness': max(p.get('gravity_stiffness', 0.0), 1.0), 'damping': max(p.get('damping', 0.0), 0.1),
              'thrust_gain': max(p.get('thrust_acceleration_coefficient', 0.0), 1.0),
              'thrust_resistance': min(max(p.get('armature_resistance', 1.0), 0.1), 5.0)}
-    for name in effects:
-        for parameter in get_effect(name).parameters:
-            start[parameter.name] = parameter.typical
     if 'angle_offset' in p and math.isfinite(p['angle_offset']):
         start['offset'] = float(np.clip(p['angle_offset'], -0.49, 0.49))
     if 'cable_stiffness' in p and math.isfinite(p['cable_stiffness']):
         start['cable_stiffness'] = max(p['cable_stiffness'], 0.0)
+    scale = (parameters.gear_ratio * parameters.back_emf_constant) ** 2 / parameters.lever_per_inertia
+    if (n - 1) * sample_time >= _compare_min_duration():
+        values, errors, fit_percent, rms_error, noise = _held_out_by_compare(
+            time, voltage, current, angle, effects, holdout_fraction, start)
+        method = 'compare'
+    else:
+        typical = {parameter.name: parameter.typical for name in effects for parameter in get_effect(name).parameters}
+        values, errors, fit_percent, rms_error, noise = _held_out_by_window(
+            voltage, current, angle, effects, n_train, sample_time, typical | start, max_iterations)
+        method = 'window'
+    values['thrust_coefficient'] = values['thrust_gain'] * scale
+    errors['thrust_coefficient'] = errors.get('thrust_gain', float('nan')) * scale
+    return WindowResult(
+        start=float(time[0]), stop=float(time[-1] + sample_time), effects=effects, coefficients=coefficients,
+        parameters={name: (float(values[name]), float(errors.get(name, float('nan')))) for name in values},
+        fit_percent=float(fit_percent), rms_error=float(rms_error), noise_rms=float(noise),
+        held_out_seconds=(n - n_train) * sample_time, compute_time=_time.perf_counter() - started, method=method)
+
+
+def _compare_min_duration() -> float:
+    try:
+        from aeropend_core.compare import MIN_DURATION
+    except ImportError:  # pragma: no cover - the diagnosis loop is part of aeropend_core
+        return float('inf')
+    return float(MIN_DURATION)
+
+
+def _held_out_by_compare(time, voltage, current, angle, effects, holdout_fraction, start):
+    """Refinement and held-out score by :func:`aeropend_core.compare.compare` (the diagnosis's own definitions)."""
+    from aeropend_core.compare import compare, prepare
+    from aeropend_core.recording import Recording
+    record = Recording(time - time[0], {'armature_voltage': voltage, 'armature_current': current, 'angle': angle},
+                       source='the identification window')
+    prepared = prepare(record, train_fraction=1.0 - holdout_fraction)
+    comparison = compare(prepared, effects, start=start)
+    values = dict(comparison.parameters)
+    errors = dict(comparison.fit.standard_errors)
+    if prepared.motor is not None:
+        # With the motor observer the thrust voltage is its back-EMF (R = 0 in the pendulum model); the armature
+        # resistance then comes from the observer fitted to Ia.
+        values['thrust_resistance'] = float(prepared.motor.parameters['motor_resistance'])
+        errors['thrust_resistance'] = float('nan')
+    return values, errors, comparison.fit_percent, comparison.rms_error, comparison.noise_rms
+
+
+def _held_out_by_window(voltage, current, angle, effects, n_train, sample_time, start, max_iterations):
+    """Output-error refinement on the training part and free-run score on the rest (windows shorter than
+    what :mod:`aeropend_core.compare` accepts)."""
+    from aeropend_core import output_error as oe
+    from aeropend_core.preprocess import condition_inputs, noise_rms
+    n = angle.size
     conditioned = condition_inputs(voltage, current, sample_time)
     cv, ci = conditioned.armature_voltage, conditioned.armature_current
     structure = oe.Structure(effects)
@@ -188,10 +241,6 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     refined = oe.fit_output_error(train, structure, start, max_iterations=max_iterations)
     values = dict(refined.parameters)
     errors = dict(refined.standard_errors)
-    scale = (parameters.gear_ratio * parameters.back_emf_constant) ** 2 / parameters.lever_per_inertia
-    values['thrust_coefficient'] = values['thrust_gain'] * scale
-    errors['thrust_coefficient'] = errors.get('thrust_gain', float('nan')) * scale
-
     held = oe.SegmentedData(cv[n_train:], ci[n_train:], angle[n_train:], [(0, n - n_train)], sample_time)
     initial = oe.initial_states_from_data(held, values.get('offset', 0.0))
     predicted = oe.simulate_angle(held, refined.parameters, structure, initial)
@@ -200,12 +249,7 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     error = predicted[landed] - measured
     spread = float(np.linalg.norm(measured - measured.mean()))
     fit_percent = 100.0 * (1.0 - float(np.linalg.norm(error)) / spread) if spread > 0 else float('nan')
-    return WindowResult(
-        start=float(time[0]), stop=float(time[-1] + sample_time), effects=effects, coefficients=coefficients,
-        parameters={name: (float(values[name]), float(errors.get(name, float('nan')))) for name in values},
-        fit_percent=fit_percent, rms_error=float(np.sqrt(np.mean(error ** 2))),
-        noise_rms=float(noise_rms(angle[n_train:])), held_out_seconds=(n - n_train) * sample_time,
-        compute_time=_time.perf_counter() - started)
+    return values, errors, fit_percent, float(np.sqrt(np.mean(error ** 2))), noise_rms(angle[n_train:])
 
 
 def fill_gaps(sequence: np.ndarray, columns: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray], int]:

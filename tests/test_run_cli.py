@@ -21,9 +21,9 @@ def run_cli(arguments, env, timeout=120.0):
 
 @pytest.mark.timeout(240)
 def test_run_records_identifies_and_diagnoses(tmp_path):
-    """30 s of the default sim (hidden angle offset) at 3x: bag complete, windows identified, offset diagnosed."""
+    """30 s of the default sim (hidden angle offset) at 2x: bag complete, windows identified, offset diagnosed."""
     env = local_ros_environment(domain_id=private_domain_id())
-    run = subprocess.Popen(AEROPEND + ['run', '--duration', '30', '--realtime-factor', '3', '--record',
+    run = subprocess.Popen(AEROPEND + ['run', '--duration', '30', '--realtime-factor', '2', '--record',
                                        str(tmp_path), '--window', '12', '--hop', '3'],
                            env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
