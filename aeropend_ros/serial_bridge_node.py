@@ -278,8 +278,12 @@ class SerialBridgeNode(Node):
         self._after_reconnect = False
         if frame.flags & P.FLAG_WATCHDOG_TRIPPED and not self._last_flags & P.FLAG_WATCHDOG_TRIPPED:
             self.stats['watchdog_trips'] += 1
-            self.get_logger().warning('device watchdog tripped: motor stopped (no command within '
-                                      f'{self.get_parameter("watchdog_timeout").value:g} s)')
+            message = ('device watchdog tripped: motor stopped (no command within '
+                       f'{self.get_parameter("watchdog_timeout").value:g} s)')
+            if self.duty > 0.0 and not self._stop.is_set():
+                self.get_logger().warning(message)
+            else:   # commanded duty 0 anyway (e.g. while shutting down): nothing was cut
+                self.get_logger().debug(message)
         self._last_flags = frame.flags
         self._last_sequence = frame.sequence
         self._last_arrival = arrival
