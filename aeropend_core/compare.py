@@ -158,6 +158,9 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         raise AeropendError(f'{source}: time stamps are not increasing at sample {k + 1} '
                             f'(t = {time[k]:.6f} s then {time[k + 1]:.6f} s); duplicated or reordered samples')
     sample_time = float(np.median(steps))
+    if sample_time > 0.05:
+        raise AeropendError(f'{source}: samples are {sample_time:g} time units apart; the t column must be in '
+                            f'seconds (the rig samples every 1/490 s = 0.00204 s)')
     if np.max(np.abs(steps - sample_time)) > 0.5 * sample_time:
         k = int(np.argmax(np.abs(steps - sample_time)))
         raise AeropendError(f'{source}: samples are not evenly spaced (gap of {steps[k]:.4f} s at t = '

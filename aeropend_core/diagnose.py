@@ -4,6 +4,7 @@ For the current model (nominal + the effects already added) and for each candida
 model is fitted on the training part (output error, :mod:`aeropend_core.compare`) and judged on the held-out part.
 A candidate counts as **significant** only if all of these hold:
 
+* the current model is not already within the noise (error beyond the noise above ``WITHIN_NOISE`` x noise RMS);
 * it lowers the training BIC (computed with the effective number of independent residuals) by more than
   ``BIC_MARGIN``;
 * it lowers the held-out model error beyond the noise, sqrt(rms^2 - noise^2), by at least ``MIN_IMPROVEMENT``
@@ -38,8 +39,9 @@ BIC_MARGIN = 10.0
 MIN_IMPROVEMENT = 0.25
 #: ... and the held-out mean-square error by more than (this x the noise RMS)^2.
 MIN_ABSOLUTE = 0.25
-#: The current model is "within the noise" when its error beyond the noise is below this multiple of the noise.
-WITHIN_NOISE = 0.3
+#: The current model is "within the noise" when its error beyond the noise is below this multiple of the noise
+#: (its RMS error is then within 12 % of the noise RMS): then no candidate is reported, whatever it absorbs.
+WITHIN_NOISE = 0.5
 #: Two significant candidates are confounded when the runner-up's excess error is within this factor of the best.
 CONFOUNDING_FACTOR = 1.3
 #: An effect parameter correlated beyond this with a nominal parameter is not separable from it in this data.
@@ -325,7 +327,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
             nonzero = values.get('threshold_voltage', 0.0) > 0.0
         improved = (excess_after <= (1.0 - MIN_IMPROVEMENT) * excess_now
                     and excess_now ** 2 - excess_after ** 2 >= (MIN_ABSOLUTE * noise) ** 2)
-        significant = bool(delta_bic < -BIC_MARGIN and improved and nonzero)
+        significant = bool(delta_bic < -BIC_MARGIN and improved and nonzero and excess_now > WITHIN_NOISE * noise)
         evidence = _regime_evidence(current, augmented)
         candidate = Candidate(name, augmented, values, errors, delta_bic, excess_now, excess_after, significant,
                               confounded_with=_correlated_nominals(augmented, name), evidence=evidence)
