@@ -20,9 +20,47 @@ from aeropend_ros._ros_env import ensure_ros_environment, local_ros_environment
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def private_domain_id() -> int:
-    """A ROS_DOMAIN_ID unlikely to be shared with another test run on the machine (1..100)."""
-    return random.Random(os.getpid() * 7919 + time.monotonic_ns()).randint(1, 100)
+#: Domains handed out in this process (never twice).
+_USED_DOMAINS: set[int] = set()
+
+
+def private_domain_id(probe_seconds: float = 1.0) -> int:
+    """A ROS_DOMAIN_ID (1..100) that nobody else on this machine is using right now.
+
+    Random candidates are probed: a throw-away node joins the domain and watches the ROS graph for
+    `probe_seconds`; the first domain where no other node shows up is taken. Several test runs share this
+    machine, and two sims on one domain would interleave their samples.
+    """
+    rng = random.Random(os.getpid() * 7919 + time.monotonic_ns())
+    candidates = [d for d in rng.sample(range(1, 101), 100) if d not in _USED_DOMAINS]
+    chosen = candidates[0]
+    for domain_id in candidates[:10]:
+        if _domain_is_quiet(domain_id, probe_seconds):
+            chosen = domain_id
+            break
+    _USED_DOMAINS.add(chosen)
+    return chosen
+
+
+def _domain_is_quiet(domain_id: int, seconds: float) -> bool:
+    """True when no other ROS node appears on `domain_id` within `seconds` (local discovery)."""
+    ensure_ros_environment(local_only=True)
+    import rclpy
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = None
+    try:
+        node = rclpy.create_node('domain_probe', context=context)
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            if len(node.get_node_names()) > 1:
+                return False
+            time.sleep(0.05)
+        return True
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown(context=context)
 
 
 def use_domain(domain_id: int) -> None:

@@ -256,7 +256,7 @@ class ResultListener:
 @pytest.fixture()
 def own_domain():
     """A context on a second private domain: this test's sim must not meet the module's real-time sim."""
-    domain_id = DOMAIN_ID % 100 + 1
+    domain_id = private_domain_id()
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id)
     yield context, domain_id
