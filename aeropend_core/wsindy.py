@@ -594,7 +594,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                    noise_std: Mapping[str, float] | None = None,
                    irls_iterations: int = 2,
                    bias_correction: bool = True,
-                   exhaustive_terms: int = 4) -> WeakSindyResult:
+                   exhaustive_terms: int = 4,
+                   process_noise: bool = True) -> WeakSindyResult:
     """Identify sparse ODEs from uniformly sampled data with weak SINDy.
 
     Parameters
@@ -632,6 +633,11 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         Subtract the expected noise contributions from the normal equations (bias-compensated least squares,
         :func:`_noise_gram`), using the per-signal noise levels; removes the errors-in-variables attenuation.
         Applied in the reweighted passes (so it needs ``irls_iterations >= 1``).
+    process_noise : bool
+        In the reweighted passes, add q·V Vᵀ to the residual covariance, q ≥ 0 estimated from the previous
+        pass's residual (method of moments): unmodelled forces act like noise in the equation itself. With
+        q = 0 (an exact model) nothing changes; with a missing effect (e.g. 3 rad/s² of pivot friction) the
+        measurement-only whitening would otherwise wipe out the fit (all coefficients -99 %).
     exhaustive_terms : int
         With ``threshold='auto'``, every support of up to this many free terms (besides ``keep``) is scored with
         the loss as well, in the last pass (sum of C(J, k), k <= 4: 3,214 small solves for J = 17).
@@ -739,8 +745,21 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
             correct = bias_correction and w is not None
             noise_gram = np.zeros((len(eq.terms), len(eq.terms))) if correct else None
             noise_rhs = np.zeros(len(eq.terms)) if correct else None
-            for g, b, ops, starts, n in systems:
-                chol, band = _residual_cholesky(ops, w, starts, n, width)
+            bands = [_measurement_band(ops, w, starts, width) for _, _, ops, starts, _ in systems]
+            process = 0.0
+            if process_noise and w is not None:
+                # Method of moments: E‖b − Gw‖² = tr Σ_meas + q·tr(V Vᵀ); q > 0 when the model misses forces
+                # (friction, cable...). Without it the whitening integrates the equation twice (second order)
+                # and any unmodelled low-frequency force swamps the fit.
+                resid = sum(float(np.sum((b - g @ w) ** 2)) for g, b, _, _, _ in systems)
+                trace_meas = sum(float(ab[0].sum()) for ab, _ in bands)
+                trace_v = sum(len(starts) for _, _, _, starts, _ in systems) * float(weights[0] @ weights[0])
+                process = max(0.0, (resid - trace_meas) / trace_v)
+            for (g, b, ops, starts, n), (ab, band) in zip(systems, bands):
+                if process > 0.0:
+                    ab = ab.copy()
+                    _add_process_band(ab, weights[0], starts, process)
+                chol = _cholesky_band(ab)
                 rows_a.append(linalg.solve_banded((band, 0), chol, g, check_finite=False))
                 rows_b.append(linalg.solve_banded((band, 0), chol, b, check_finite=False))
                 if correct:
@@ -925,8 +944,8 @@ def _kernel_products(zb, starts, ka, kb, n):
     return q
 
 
-def _residual_cholesky(ops, w, starts, n, width):
-    """Banded lower Cholesky factor of the residual covariance (see :func:`_noise_operators`) and its bandwidth.
+def _measurement_band(ops, w, starts, width):
+    """Band (LAPACK lower storage) of the residual covariance due to measurement noise, and its bandwidth.
 
     Before any coefficient is known (``w is None``) only the target's noise counts: Σ ∝ V^(k) V^(k)ᵀ.
     """
@@ -951,9 +970,21 @@ def _residual_cholesky(ops, w, starts, n, width):
         if lhs is None:
             raise InsufficientDataError('cannot form the weak-form covariance (no target noise operator)')
         _accumulate_band(ab, np.ascontiguousarray(np.broadcast_to(lhs, (k, width))), starts64)
+    return ab, band
+
+
+def _add_process_band(ab, kernel, starts, variance):
+    """Add variance·V Vᵀ: white 'process noise' in the equation itself (unmodelled forces), V the φ quadrature."""
+    k = len(starts)
+    local = np.ascontiguousarray(np.broadcast_to(math.sqrt(variance) * kernel, (k, len(kernel))))
+    _accumulate_band(ab, local, np.ascontiguousarray(starts, dtype=np.int64))
+
+
+def _cholesky_band(ab):
+    ab = ab.copy()
     ab[0] *= 1.0 + 1e-10
     ab[0] += 1e-300
-    return linalg.cholesky_banded(ab, lower=True, check_finite=False), band
+    return linalg.cholesky_banded(ab, lower=True, check_finite=False)
 
 
 @numba.njit(cache=True, nogil=True)
