@@ -26,6 +26,9 @@ which gives a linear system ``G w = b`` (one row per test function). Steps:
    also bias-compensated (``bias_correction``): the expected contribution of the noise to G̃ᵀG̃ and G̃ᵀb̃,
    computed from the per-signal noise levels (robust third-difference estimate unless given), is subtracted.
    Noisy regressors otherwise attenuate coefficients (errors in variables; -10 to -25 % on Kq at 30 dB).
+   The reweighted covariance also gets a 'process noise' term q·V Vᵀ (``process_noise``), q estimated from the
+   previous residual: for a second-order equation the measurement-only whitening integrates the equation twice,
+   so an unmodelled force (pivot friction) would otherwise swamp the fit.
 4. Modified sequential thresholding (MSTLS) in scale-free coordinates: with columns and b normalised, a term is
    kept while its relative contribution ``|w_i|·‖G_i‖/‖b‖`` lies in [λ, 1/λ]; refit on the kept terms until the
    set is stable. λ is chosen on a log grid 10^[-4..0] (100 values) by minimising
