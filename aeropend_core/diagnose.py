@@ -161,8 +161,13 @@ class Diagnosis:
             'residual_structure': self.residual_structure,
             'seconds': round(self.seconds, 2),
         }
+        result['signal_errors'] = {'angle': {'rms_error': _finite(current.rms_error), 'unit': 'rad',
+                                             'noise_rms': _finite(current.noise_rms)}}
         if self.prepared is not None and self.prepared.motor is not None:
-            result['motor_observer'] = self.prepared.motor.parameters
+            motor = self.prepared.motor
+            result['motor_observer'] = motor.parameters
+            result['signal_errors']['armature_current'] = {'rms_error': _finite(motor.current_rms_error),
+                                                           'unit': 'A', 'noise_rms': _finite(motor.current_noise_rms)}
         if self.before is not None:
             result['before'] = {
                 'model_effects': list(self.before.effects),
@@ -402,6 +407,10 @@ def format_summary(diagnosis: Diagnosis) -> str:
                  f'error beyond noise {excess_error(current.rms_error, noise) * 1e3:.2f} mrad')
     lines.append(f'{current.evaluation.prediction_horizon:g} s-ahead prediction RMS error '
                  f'{current.evaluation.prediction_rms * 1e3:.2f} mrad')
+    if diagnosis.prepared is not None and diagnosis.prepared.motor is not None:
+        motor = diagnosis.prepared.motor
+        lines.append(f'Armature current by the motor observer: RMS error {motor.current_rms_error * 1e3:.2f} mA, '
+                     f'current noise {motor.current_noise_rms * 1e3:.2f} mA')
     lines.append('Parameters (SI, +- 1 sigma):')
     observer = diagnosis.prepared is not None and diagnosis.prepared.motor is not None
     for name, value in diagnosis.reported_parameters(current).items():
