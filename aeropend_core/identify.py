@@ -46,6 +46,7 @@ from aeropend_core.wsindy import (
     Equation,
     WeakSindyResult,
     choose_support,
+    estimate_noise_std,
     fit_weak_sindy,
 )
 
@@ -287,6 +288,7 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
     tau = float(electrical_time_constant or parameters.electrical_time_constant)
     times, signals, excludes = [], [], []
     v_range = 0.0
+    input_noise = {'armature_voltage': 0.0, 'armature_current': 0.0}
     for i, ((t, va, ia, y), du) in enumerate(zip(segments, duties)):
         label = f'segment {i}: ' if len(segments) > 1 else ''
         _check_finite(('time', 'armature_voltage', 'armature_current', 'angle'), (t, va, ia, y), label)
@@ -295,6 +297,12 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
         v_range = max(v_range, float(np.ptp(va)))
         exclude = None
         dt = float(np.median(np.diff(t)))
+        # White-equivalent noise of the inputs as they enter the thrust terms: the weak integrals only see low
+        # frequencies, where both the interval inversion ((Ia_k+1 − a·Ia_k)/(1 − a), gain 1 at DC) and the
+        # zero-phase low-pass of denoise_inputs pass the raw noise unchanged: use the raw level.
+        input_noise['armature_current'] = max(input_noise['armature_current'], estimate_noise_std(ia))
+        if du is None or not denoise:
+            input_noise['armature_voltage'] = max(input_noise['armature_voltage'], estimate_noise_std(va))
         if step_handling == 'invert':
             ia_eff = interval_current(ia, dt, tau)
             t, va, y = t[:-1], va[:-1], y[:-1]
@@ -327,10 +335,9 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
              lib.product('armature_current', 'armature_current', hold=True)]
     nominal = tuple(t.name for t in terms)
     terms += [term for _, term in extra]
-    # The denoised inputs' remaining noise is neither white nor well estimated by differences: leave it out of
-    # the residual covariance (the angle's noise, through d²y, dy and sin y, is what the weighting must see).
-    options = {'threshold': 'auto' if extra else None,
-               'noise_std': {'armature_voltage': 0.0, 'armature_current': 0.0}}
+    # Noise levels of the inputs estimated on the raw signals (the denoised ones would fool the estimator);
+    # Va averaged over held runs (duty given) counts as noiseless.
+    options = {'threshold': 'auto' if extra else None, 'noise_std': input_noise}
     options.update(wsindy_options)
     equation = Equation('angle', tuple(terms), order=2, keep=nominal)
     result = fit_weak_sindy(times if len(times) > 1 else times[0], signals if len(signals) > 1 else signals[0],
