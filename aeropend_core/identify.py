@@ -101,7 +101,7 @@ class PendulumFit:
 
     def format(self) -> str:
         lines = [f'{self.equation.name} [rad/s^2] = '
-                 + _format_terms(self.equation.coefficients, self.equation.standard_errors)]
+                 + _format_terms(self.equation.coefficients, self.equation.standard_errors, self.equation.name)]
         for k, v in self.parameters.items():
             se = self.standard_errors.get(k, float('nan'))
             if k in ('cable_stiffness', 'angle_offset') and not math.isfinite(se):
@@ -120,16 +120,53 @@ class FullStateFit:
     result: WeakSindyResult = field(repr=False)
 
     def format(self) -> str:
-        lines = [f'{eq.name} = ' + _format_terms(eq.coefficients, eq.standard_errors) for eq in self.result.equations]
+        lines = [f'{eq.name} [{_lhs_unit(eq.name)}] = ' + _format_terms(eq.coefficients, eq.standard_errors, eq.name)
+                 for eq in self.result.equations]
         lines += [f'  {k} = {v:.6g} ± {self.standard_errors.get(k, float("nan")):.2g} {PARAMETER_UNITS.get(k, "")}'
                   for k, v in self.parameters.items()]
         return '\n'.join(lines)
 
 
-def _format_terms(coefficients: Mapping[str, float], errors: Mapping[str, float]) -> str:
+def _term_unit(term: str) -> str:
+    """SI unit of a library term's value, from its name (products, powers, sin/cos, d/dt)."""
+    if term == '1' or term.startswith(('sin(', 'cos(')):
+        return '1'
+    if term.startswith('d') and term.endswith('/dt'):
+        return f'{SIGNAL_UNITS.get(term[1:-3], "?")}/s'
+    parts = []
+    for factor in term.split('*'):
+        name, _, power = factor.partition('^')
+        unit = SIGNAL_UNITS.get(name, '?')
+        if power and '/' in unit:
+            unit = f'({unit})'
+        parts.append(f'{unit}^{power}' if power else unit)
+    return '·'.join(parts)
+
+
+def _lhs_unit(name: str) -> str:
+    for order, suffix in ((2, '/dt^2'), (1, '/dt')):
+        if name.endswith(suffix):
+            target = name[3 if order == 2 else 1:-len(suffix)]
+            unit = SIGNAL_UNITS.get(target, '?')
+            if unit.endswith('/s'):
+                return unit + ('^3' if order == 2 else '^2')
+            return unit + ('/s^2' if order == 2 else '/s')
+    return '?'
+
+
+def _format_terms(coefficients: Mapping[str, float], errors: Mapping[str, float], lhs: str = '') -> str:
+    """``(c ± σ)·term [coefficient unit] + ...``."""
     if not coefficients:
         return '0'
-    return ' + '.join(f'({c:+.6g} ± {errors.get(k, float("nan")):.2g})·{k}' for k, c in coefficients.items())
+    lhs_unit = _lhs_unit(lhs) if lhs else ''
+    out = []
+    for k, c in coefficients.items():
+        unit = ''
+        if lhs_unit:
+            term_unit = _term_unit(k)
+            unit = f' [{lhs_unit}]' if term_unit == '1' else f' [({lhs_unit})/({term_unit})]'
+        out.append(f'({c:+.6g} ± {errors.get(k, float("nan")):.2g}{unit})·{k}')
+    return '\n    + '.join(out)
 
 
 # ------------------------------------------------------------------------------------------------ helpers
