@@ -727,7 +727,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                 for held in (False, True):
                     idx = [j for j, t_ in enumerate(eq.terms) if t_.derivative_order == d and t_.hold == held]
                     if idx:
-                        theta = np.column_stack([_cached(cache, ('theta', si, eq.terms[j].name),
+                        theta = np.column_stack([_cached(cache, ('theta', si, eq.terms[j].name, eq.terms[j].variables),
                                                          lambda term=eq.terms[j], s=s: term.evaluate(s)) for j in idx])
                         kern = hold_weights if held else weights[d]
                         g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
@@ -857,7 +857,7 @@ def _noise_operators(eq: Equation, signals, starts, weights, hold_weights, noise
                 plus, minus = dict(signals), dict(signals)
                 plus[v], minus[v] = x + h, x - h
                 return (term.evaluate(plus) - term.evaluate(minus)) / (2 * h)
-            jac = _cached(cache, ('jac', segment, term.name, v), jacobian) if cache is not None else jacobian()
+            jac = _cached(cache, ('jac', segment, term.name, term.variables, v), jacobian) if cache is not None else jacobian()
             kern = hold_weights if term.hold else weights[term.derivative_order]
             kid = ('hold',) if term.hold else ('d', term.derivative_order)
             win = np.lib.stride_tricks.sliding_window_view(jac, width)[starts]
