@@ -204,7 +204,7 @@ def test_bridge_node_on_the_firmware(build, tmp_path, ros_context):
             assert poll(lambda: len(listener.samples) > 50, DISCOVERY_TIMEOUT), bridge.output()
             assert poll(lambda: listener.duty_publisher.get_subscription_count() > 0, DISCOVERY_TIMEOUT)
             listener.publish_duty(0.4)
-            assert poll(lambda: listener.samples[-1].duty > 0.39, 5.0), bridge.output()
+            assert poll(lambda: listener.samples[-1].duty > 0.39, 5.0), (listener.samples[-1], bridge.output())
 
             # ~5 s of samples.
             first = len(listener.samples)
@@ -220,7 +220,7 @@ def test_bridge_node_on_the_firmware(build, tmp_path, ros_context):
             d_first, d_last = listener.diagnostics[diagnostics_before], listener.diagnostics[-1]
             elapsed = listener.diagnostic_stamps[-1] - listener.diagnostic_stamps[diagnostics_before]
             rate = (int(d_last['last_sequence']) - int(d_first['last_sequence'])) / elapsed
-            assert rate == pytest.approx(1 / P.SAMPLE_PERIOD, rel=0.01)
+            assert rate == pytest.approx(1 / P.SAMPLE_PERIOD, rel=0.01), (rate, elapsed)
             # Continuous: no sequence gap at the bridge, nor a corrupt frame; the window itself has no gap
             # either (the listener's queue is deep enough for best effort to lose nothing on this machine).
             diagnostics = listener.last_diagnostics()
@@ -233,8 +233,9 @@ def test_bridge_node_on_the_firmware(build, tmp_path, ros_context):
             stamps = np.array([s.stamp_ns for s in window]) * 1e-9
             per_sample = np.diff(stamps) / np.diff(sequence)
             assert np.median(per_sample) == pytest.approx(P.SAMPLE_PERIOD, rel=1e-3)
-            assert np.all(stamps <= receive)
-            assert np.std(receive - stamps) > 5 * np.std(per_sample - np.median(per_sample))
+            assert np.all(stamps <= receive), np.max(stamps - receive)
+            assert np.std(receive - stamps) > 5 * np.std(per_sample - np.median(per_sample)), (
+                np.std(receive - stamps), np.std(per_sample))
 
             # SI conversion of the injected voltages, end to end (2 ADC steps of tolerance: simavr truncates).
             sample = window[-1]
