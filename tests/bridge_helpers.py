@@ -54,7 +54,8 @@ class Harness:
         if pwm_to_adc is not None:
             command += ['--pwm-to-adc', str(pwm_to_adc)]
         self.link = link
-        self.pwm: list[tuple[float, float, float, float]] = []   # (wall time, sim time, duty, frequency)
+        #: (wall time, sim time, duty, frequency, current conversions started with the pin high, ... low)
+        self.pwm: list[tuple[float, float, float, float, float, float]] = []
         self.log: list[str] = []
         self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                         stderr=subprocess.STDOUT, text=True, bufsize=1)
@@ -73,7 +74,7 @@ class Harness:
             if match:
                 self.pty = match.group(1)
                 self._ready.set()
-            match = re.match(r'pwm (\S+) (\S+) (\S+)', line)
+            match = re.match(r'pwm (\S+) (\S+) (\S+) (\S+) (\S+)', line)
             if match:
                 self.pwm.append((time.monotonic(), *(float(value) for value in match.groups())))
 

@@ -152,9 +152,11 @@ def test_firmware_over_pty(build, tmp_path):
         sequences = [s.sequence for s in samples_of(messages)]
         assert sequences == list(range(sequences[0], sequences[0] + len(sequences)))   # no gap
         assert poll(lambda: len(harness.pwm) >= pwm_reports + 2, 5.0)
-        _, _, pin_duty, frequency = harness.pwm[-1]
+        _, _, pin_duty, frequency, started_high, started_low = harness.pwm[-1]
         assert pin_duty == pytest.approx(0.6, abs=0.003)
         assert frequency == pytest.approx(16e6 / 64 / 510, abs=0.5)
+        # Timing diagram: every current conversion (one per Timer1 overflow) starts while the output is high.
+        assert started_high == pytest.approx(0.5 * frequency, abs=2) and started_low == 0
         # The harness feeds the pin's duty into A3: the firmware reads it back.
         assert last.voltage_counts == pytest.approx(0.6 * 1023, abs=4)
 

@@ -1,7 +1,8 @@
 /*
  * aeropend_harness: run the aeropend firmware in simavr, in real time, with its UART0 on a pseudo-terminal.
  *
- *   aeropend_harness FIRMWARE.elf [--link PATH] [--adc CH=MILLIVOLTS]... [--pwm-to-adc CH] [--speed FACTOR]
+ *   aeropend_harness FIRMWARE.elf [--link PATH] [--adc CH=MILLIVOLTS]... [--pwm-to-adc CH] [--current-channel CH]
+ *                    [--speed FACTOR]
  *
  * - Opens its own pty with openpty() (no fixed /tmp/simavr-uart0 symlink, so several harnesses can run at once),
  *   prints "pty <slave path>" on stdout, and optionally makes PATH a symlink to the slave (a stable device name
@@ -12,9 +13,11 @@
  *   while it signals XON.
  * - Drives the ADC inputs: --adc CH=MV holds analog input CH at MV millivolts (AVCC = 5000 mV). At run time, lines
  *   "adc CH MV" on stdin change them; "quit", SIGTERM/SIGINT or the end of a piped stdin end the simulation.
- * - Measures the PWM on OC1A (PB5, Arduino D11) edge by edge and prints "pwm <sim_time_s> <duty> <freq_hz>" every
- *   0.5 s of simulated time (duty over the last 0.5 s). --pwm-to-adc CH also feeds that duty (times 5000 mV) into
- *   analog input CH, standing in for an RC-filtered armature-voltage divider.
+ * - Measures the PWM on OC1A (PB5, Arduino D11) edge by edge and prints
+ *   "pwm <sim_time_s> <duty> <freq_hz> <high> <low>" every 0.5 s of simulated time: the duty over the last 0.5 s,
+ *   and how many ADC conversions of the current channel (--current-channel, default 0) started while the PWM
+ *   output was high / low (the paper samples while it is high). --pwm-to-adc CH also feeds that duty (times
+ *   5000 mV) into analog input CH, standing in for an RC-filtered armature-voltage divider.
  * - Paces the simulation to the wall clock (FACTOR 1 = real time; 0 = as fast as possible).
  */
 #define _GNU_SOURCE
@@ -77,6 +80,22 @@ static unsigned long pwm_rising_edges;
 static int pwm_adc_channel = -1;
 static avr_irq_t *adc_irq_base;
 
+/* ADC conversions of the current channel started while PB5 was high / low (the paper's timing diagram). */
+static int current_channel = 0;
+static unsigned long trigger_high, trigger_low;
+
+static void adc_trigger_hook(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq; (void)param;
+    union { avr_adc_mux_t mux; uint32_t v; } event = { .v = value };
+    if (event.mux.kind == ADC_MUX_SINGLE && (int)event.mux.src == current_channel) {
+        if (pwm_level)
+            trigger_high++;
+        else
+            trigger_low++;
+    }
+}
+
 static void pwm_pin_hook(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq; (void)param;
@@ -101,7 +120,9 @@ static void pwm_report(void)
     avr_cycle_count_t high = pwm_high_cycles + (pwm_level ? now - pwm_last_edge : 0);
     double duty = (double)high / (double)span;
     double seconds = (double)span / avr->frequency;
-    printf("pwm %.6f %.6f %.3f\n", (double)now / avr->frequency, duty, pwm_rising_edges / seconds);
+    printf("pwm %.6f %.6f %.3f %lu %lu\n", (double)now / avr->frequency, duty, pwm_rising_edges / seconds,
+           trigger_high, trigger_low);
+    trigger_high = trigger_low = 0;
     fflush(stdout);
     if (pwm_adc_channel >= 0)
         avr_raise_irq(adc_irq_base + pwm_adc_channel, (uint32_t)(duty * 5000.0 + 0.5));
@@ -146,8 +167,8 @@ static void handle_stdin_line(char *line)
 
 static void usage(const char *name)
 {
-    fprintf(stderr, "usage: %s FIRMWARE.elf [--link PATH] [--adc CH=MV]... [--pwm-to-adc CH] [--speed FACTOR]\n",
-            name);
+    fprintf(stderr, "usage: %s FIRMWARE.elf [--link PATH] [--adc CH=MV]... [--pwm-to-adc CH] [--current-channel CH]"
+            " [--speed FACTOR]\n", name);
     exit(2);
 }
 
@@ -168,6 +189,8 @@ int main(int argc, char **argv)
             adc_count++;
         } else if (!strcmp(argv[i], "--pwm-to-adc") && i + 1 < argc) {
             pwm_adc_channel = atoi(argv[++i]);
+        } else if (!strcmp(argv[i], "--current-channel") && i + 1 < argc) {
+            current_channel = atoi(argv[++i]);
         } else if (!strcmp(argv[i], "--speed") && i + 1 < argc) {
             speed = atof(argv[++i]);
         } else if (argv[i][0] == '-' || firmware_path) {
@@ -216,6 +239,7 @@ int main(int argc, char **argv)
     for (int i = 0; i < adc_count; i++)
         set_adc(adc_channels[i], adc_values[i]);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 5), pwm_pin_hook, NULL);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger_hook, NULL);
 
     int master = -1, slave = -1;
     char slave_name[256];
