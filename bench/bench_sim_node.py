@@ -3,7 +3,8 @@
 Both publishers run as separate processes (local discovery, a private ROS_DOMAIN_ID), one after the other, and the
 same receiver (this process, best effort with a deep queue) measures for --seconds each:
 
-- rate by receive count and by the publisher's sequence numbers [Hz] (target 490 Hz +- 1 %),
+- rate by receive count, by the publisher's sequence numbers over the window, and as the Theil-Sen slope of
+  sequence number against receive time [Hz] (target 490 Hz +- 1 %),
 - samples lost (sequence gaps),
 - inter-arrival jitter: standard deviation, 99th percentile and maximum of the receive intervals [ms],
 - stamp spacing error: max |stamp_k - stamp_0 - (seq_k - seq_0) Ts| [ns] (0 for the sim: stamps are counter x Ts),
@@ -92,6 +93,9 @@ def measure(command: list[str], env: dict, seconds: float, context) -> dict:
             if time.monotonic() > deadline:
                 raise RuntimeError(f'no samples from {command}')
             executor.spin_once(timeout_sec=0.05)
+        warm_up = time.monotonic() + 2.0   # a just-started publisher may still catch up its start-up backlog
+        while time.monotonic() < warm_up:
+            executor.spin_once(timeout_sec=0.01)
         received.clear()
         cpu_start, wall_start = cpu_seconds(process.pid), time.monotonic()
         while time.monotonic() - wall_start < seconds:
@@ -110,7 +114,10 @@ def measure(command: list[str], env: dict, seconds: float, context) -> dict:
     sequence = np.array([s.sequence for _, s in received], dtype=np.int64)
     stamps = np.array([s.stamp_ns for _, s in received], dtype=np.int64)
     intervals = np.diff(arrival) * 1e3
+    from scipy.stats import theilslopes
+    pick = np.linspace(0, len(received) - 1, 400).astype(int)
     return {
+        'rate_by_slope': float(theilslopes(sequence[pick], arrival[pick])[0]),
         'rate_by_count': len(received) / window,
         'rate_by_sequence': (sequence[-1] - sequence[0]) / (arrival[-1] - arrival[0]),
         'lost': int(np.sum(np.diff(sequence) - 1)),
@@ -146,7 +153,7 @@ def main() -> int:
                              f'publish_period:={args.publish_period}'], env, args.seconds, context),
     }
     rclpy.try_shutdown(context=context)
-    keys = ['rate_by_count', 'rate_by_sequence', 'lost', 'jitter_std_ms', 'jitter_p99_ms', 'jitter_max_ms',
+    keys = ['rate_by_count', 'rate_by_sequence', 'rate_by_slope', 'lost', 'jitter_std_ms', 'jitter_p99_ms', 'jitter_max_ms',
             'stamp_error_ns', 'cpu_percent', 'samples']
     print(f'# sim node vs plain 490 Hz publisher, {args.seconds:g} s each, cross-process, '
           f'load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs')
