@@ -430,6 +430,10 @@ FULL_STATE_TARGETS = ('armature_current', 'motor_speed', 'angle', 'angular_rate'
 VOLTAGE_INPUT_EQUATIONS = ('armature_current',)
 
 
+#: Family-wise level of the significance guard on the selected full-state terms (see ``fit_weak_sindy``).
+FULL_STATE_SIGNIFICANCE = 0.05
+
+
 def full_state_library(include_constant: bool = True, with_voltage: bool = True) -> list[lib.Term]:
     """Paper's library: linear terms, products and squares of the states (Ia, ω1, y, Ω), sin y, cos y, a constant,
     and (``with_voltage``) the input Va linearly only (held over each sample interval): 18 terms."""
@@ -462,7 +466,9 @@ def identify_full_state(recording: Recording | Mapping[str, np.ndarray] | Sequen
         Va ≈ Ra·Ia + Kω·ω1, so {Ia, Va} fits as well as {Ia, ω1} (about a quarter of 40 dB records then swap
         the small friction term for Va).
     **wsindy_options
-        Passed to :func:`aeropend_core.wsindy.fit_weak_sindy` (default threshold 'auto').
+        Passed to :func:`aeropend_core.wsindy.fit_weak_sindy` (defaults: threshold 'auto', significance
+        :data:`FULL_STATE_SIGNIFICANCE`: a selected term must be significant at the 5 % family-wise level over
+        the candidates, which removes the occasional noise look-alike in dIa/dt at 40 dB).
 
     Returns
     -------
@@ -501,7 +507,7 @@ def identify_full_state(recording: Recording | Mapping[str, np.ndarray] | Sequen
         equations = [Equation(n, tuple(terms)) for n in FULL_STATE_TARGETS]
     else:
         equations = [Equation(n, tuple(full_state_library(with_voltage=n in voltage_in))) for n in FULL_STATE_TARGETS]
-    options = {'threshold': 'auto'}
+    options = {'threshold': 'auto', 'significance': FULL_STATE_SIGNIFICANCE}
     options.update(wsindy_options)
     result = fit_weak_sindy(times if len(times) > 1 else times[0], signals if len(signals) > 1 else signals[0],
                             equations, **options)

@@ -59,7 +59,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 from numpy.polynomial import polynomial as npoly
-from scipy import linalg
+from scipy import linalg, special
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.library import Term
@@ -332,8 +332,27 @@ def _centres(n: int, m: int, stride: int) -> np.ndarray:
 def _weak_rows(columns: np.ndarray, weights: np.ndarray, starts: np.ndarray) -> np.ndarray:
     """∫ φ_c · column for each start, shape (len(starts), n_columns)."""
     width = weights.shape[-1]
-    view = np.lib.stride_tricks.sliding_window_view(columns, width, axis=0)   # (n - width + 1, ncol, width)
-    return view[starts] @ weights
+    k = len(starts)
+    step = int(starts[1] - starts[0]) if k > 1 else 1
+    if k < 2 or step < 1 or np.any(np.diff(starts) != step):
+        view = np.lib.stride_tricks.sliding_window_view(columns, width, axis=0)   # (n - width + 1, ncol, width)
+        return view[starts] @ weights
+    # Evenly spaced supports: cut the data into blocks of ``step`` samples and the kernel into q pieces of the
+    # same length; row r is Σ_j (block r+j)·(piece j). One small matrix product, no (K, ncol, width) copy.
+    q = -(-width // step)
+    n_blocks = k - 1 + q
+    first = int(starts[0])
+    stop = first + n_blocks * step
+    block = columns[first:min(stop, len(columns))]
+    if stop > len(columns):
+        block = np.concatenate([block, np.zeros((stop - len(columns), columns.shape[1]))])
+    kernel = np.zeros(q * step)
+    kernel[:width] = weights
+    parts = np.ascontiguousarray(block).reshape(n_blocks, step, -1).transpose(0, 2, 1) @ kernel.reshape(q, step).T
+    out = parts[:k, :, 0].copy()
+    for j in range(1, q):
+        out += parts[j:j + k, :, j]
+    return out
 
 
 def _whitener(weights: np.ndarray, centres: np.ndarray) -> np.ndarray:
@@ -459,6 +478,132 @@ def _loss(gram, w, gwls, c0, denom, alpha, n_terms):
 
 
 @numba.njit(cache=True, nogil=True)
+def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size, best_loss, ridge):
+    """Best support (by the loss) among ``base`` plus every set of 1..max_size terms of ``free``.
+
+    Depth-first over the combinations in lexicographic order with a Cholesky factor of the support's normal
+    matrix extended by one row per added term, so each support costs O(k²) instead of a fresh O(k³) solve:
+    with z = L⁻¹rhs_S and y = L⁻¹(Gw_LS)_S the loss numerator is c0 + ‖z‖² − 2 zᵀy (same value as
+    :func:`_loss` on the subset solution). Supports whose factor breaks down (numerically collinear terms) are
+    scored with :func:`_solve_subset`, as before. A size is not entered once its sparsity penalty alone
+    reaches the best loss. Returns the best support (bool mask), or an empty array when none beats best_loss.
+    """
+    n = gram.shape[0]
+    nb = 0
+    for i in range(n):
+        if base[i]:
+            nb += 1
+    kmax = nb + max_size
+    idx = np.empty(kmax, np.int64)
+    lmat = np.zeros((kmax, kmax))
+    z = np.zeros(kmax)
+    y = np.zeros(kmax)
+    scale = 0.0
+    for i in range(n):
+        scale = max(scale, abs(gram[i, i]))
+    tiny = 1e-13 * max(scale, 1e-300)
+    penalty = 2.0 * (1.0 - alpha) / n_terms
+    best = best_loss
+    best_combo = np.empty(0, np.int64)
+    # factor of the base (kept terms); a singular base falls back to full solves everywhere
+    k = 0
+    broken = False
+    for i in range(n):
+        if base[i]:
+            idx[k] = i
+            k += 1
+    for a in range(nb):
+        acc = gram[idx[a], idx[a]] + ridge
+        for c in range(a):
+            acc -= lmat[a, c] * lmat[a, c]
+        if acc <= tiny:
+            broken = True
+            break
+        lmat[a, a] = np.sqrt(acc)
+        for r in range(a + 1, nb):
+            v = gram[idx[r], idx[a]]
+            for c in range(a):
+                v -= lmat[r, c] * lmat[a, c]
+            lmat[r, a] = v / lmat[a, a]
+    if not broken:
+        for a in range(nb):
+            zr = rhs[idx[a]]
+            yr = gwls[idx[a]]
+            for c in range(a):
+                zr -= lmat[a, c] * z[c]
+                yr -= lmat[a, c] * y[c]
+            z[a] = zr / lmat[a, a]
+            y[a] = yr / lmat[a, a]
+    nf = free.size
+    combo = np.zeros(max_size, np.int64)
+    # ok[d]: the factor of base + combo[:d] is valid (rows 0..nb+d-1)
+    ok = np.zeros(max_size + 1, np.bool_)
+    ok[0] = not broken
+    sz = np.zeros(max_size + 1)   # running ‖z‖² − 2 zᵀy
+    for a in range(nb):
+        sz[0] += z[a] * z[a] - 2.0 * z[a] * y[a]
+    placed = np.zeros(max_size, np.bool_)
+    depth = 0            # position being varied: base + combo[:depth] is fixed
+    combo[0] = -1
+    support = base.copy()
+    while True:
+        if placed[depth]:
+            support[free[combo[depth]]] = False
+            placed[depth] = False
+        nxt = combo[depth] + 1
+        if nxt >= nf or penalty * (nb + depth + 1) >= best - 1e-12:
+            if depth == 0:
+                break
+            depth -= 1
+            continue
+        combo[depth] = nxt
+        j = free[nxt]
+        support[j] = True
+        placed[depth] = True
+        row = nb + depth
+        idx[row] = j
+        value = np.inf
+        ok[depth + 1] = False
+        if ok[depth]:
+            for c in range(row):
+                v = gram[idx[c], j]
+                for e in range(c):
+                    v -= lmat[row, e] * lmat[c, e]
+                lmat[row, c] = v / lmat[c, c]
+            acc = gram[j, j] + ridge
+            for c in range(row):
+                acc -= lmat[row, c] * lmat[row, c]
+            if acc > tiny:
+                d = np.sqrt(acc)
+                lmat[row, row] = d
+                zr = rhs[j]
+                yr = gwls[j]
+                for c in range(row):
+                    zr -= lmat[row, c] * z[c]
+                    yr -= lmat[row, c] * y[c]
+                z[row] = zr / d
+                y[row] = yr / d
+                sz[depth + 1] = sz[depth] + z[row] * z[row] - 2.0 * z[row] * y[row]
+                ok[depth + 1] = True
+                value = 2.0 * alpha * np.sqrt(max(c0 + sz[depth + 1], 0.0)) / denom + penalty * (row + 1)
+        if not ok[depth + 1]:
+            w = _solve_subset(gram, rhs, support, ridge)
+            value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
+        if value < best - 1e-12:
+            best = value
+            best_combo = combo[:depth + 1].copy()
+        if depth + 1 < max_size and nxt + 1 < nf:
+            depth += 1
+            combo[depth] = nxt
+    if best_combo.size == 0:
+        return np.zeros(0, np.bool_)
+    out = base.copy()
+    for i in range(best_combo.size):
+        out[free[best_combo[i]]] = True
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     """MSTLS over the λ grid (+ optional backward elimination), scored by the loss; returns (w, λ).
 
@@ -540,26 +685,14 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
         # the true terms only explain the data together (thrust and gravity nearly cancel at equilibrium) while a
         # polynomial look-alike group of sin y explains part of it.
         free = np.flatnonzero(usable & ~keep)
-        nf = free.size
-        for size in range(1, min(exhaustive, nf) + 1):
-            combo = np.arange(size)
-            while True:
-                support = keep & usable
-                for i in range(size):
-                    support[free[combo[i]]] = True
+        if exhaustive > 0 and free.size:
+            support = _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, keep & usable, free,
+                                  min(exhaustive, free.size), best_loss, final_ridge)
+            if support.size:
                 w = _solve_subset(gram, rhs, support, final_ridge)
                 value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
                 if value < best_loss - 1e-12:
                     best_loss, best_w, best_lam = value, w, np.nan
-                # next combination in lexicographic order
-                i = size - 1
-                while i >= 0 and combo[i] == nf - size + i:
-                    i -= 1
-                if i < 0:
-                    break
-                combo[i] += 1
-                for k in range(i + 1, size):
-                    combo[k] = combo[k - 1] + 1
         # Local search from the best support: single additions or removals while they lower the loss.
         support = best_w != 0.0
         for _ in range(2 * usable.size):
@@ -598,7 +731,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                    irls_iterations: int = 2,
                    bias_correction: bool = True,
                    exhaustive_terms: int = 4,
-                   process_noise: bool = True) -> WeakSindyResult:
+                   process_noise: bool = True,
+                   significance: float | None = None) -> WeakSindyResult:
     """Identify sparse ODEs from uniformly sampled data with weak SINDy.
 
     Parameters
@@ -643,7 +777,12 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         measurement-only whitening would otherwise wipe out the fit (all coefficients -99 %).
     exhaustive_terms : int
         With ``threshold='auto'``, every support of up to this many free terms (besides ``keep``) is scored with
-        the loss as well, in the last pass (sum of C(J, k), k <= 4: 3,214 small solves for J = 17).
+        the loss as well, in the last pass (sum of C(J, k), k <= 4: 3,214 supports for J = 17, depth-first with
+        one Cholesky row per added term).
+    significance : float, optional
+        With thresholding on, drop selected free terms whose |w|/σ_w is below the two-sided normal critical value
+        at family-wise level ``significance`` over the J free candidates (Bonferroni: z = Φ⁻¹(1 − s/(2J)),
+        2.99 for s = 0.05, J = 18), weakest first, refitting after each removal. None (default) skips the test.
 
     Returns
     -------
@@ -776,17 +915,29 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                                             exhaustive_terms if pass_ == irls_iterations else 0)
             w = w_n * bnorm / col
         sel = np.flatnonzero(w_n)
-        resid_vec = bw - a[:, sel] @ w[sel]
-        dof = max(n_rows - sel.size, 1)
-        sigma2 = float(resid_vec @ resid_vec) / dof
-        if sel.size:
-            gram_sel = a[:, sel].T @ a[:, sel]
-            if noise_gram is not None:
-                gram_sel = gram_sel - noise_gram[np.ix_(sel, sel)]
-            scale_sel = np.outer(col[sel], col[sel])
-            cov = sigma2 * linalg.pinvh(gram_sel / scale_sel) / scale_sel
-        else:
-            cov = np.zeros((0, 0))
+        cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram)
+        if significance is not None and threshold is not None and sel.size:
+            # Significance guard (backward elimination by t-statistic): a selected free term must differ from 0
+            # at the family-wise level ``significance`` over the J free candidates (Bonferroni, two-sided normal
+            # critical value). The loss-based selection cannot tell a real small term from the best of J noise
+            # look-alikes (|t| ~ 2.5 at 40 dB); this test can, with a level chosen before seeing any data.
+            free = int(np.count_nonzero(~keep & (col > 0)))
+            critical = float(special.ndtri(1.0 - significance / (2.0 * max(free, 1))))
+            gram_c = a.T @ a - (noise_gram if noise_gram is not None else 0.0)
+            rhs_c = a.T @ bw - (noise_rhs if noise_rhs is not None else 0.0)
+            while sel.size:
+                tstat = np.abs(w[sel]) / np.sqrt(np.maximum(np.diag(cov), 1e-300))
+                tstat[keep[sel]] = np.inf
+                worst = int(np.argmin(tstat))
+                if tstat[worst] >= critical:
+                    break
+                sel = np.delete(sel, worst)
+                w = np.zeros_like(w)
+                if sel.size:
+                    cs = col[sel]   # column-normalised, as in the selection
+                    w[sel] = linalg.solve(gram_c[np.ix_(sel, sel)] / np.outer(cs, cs), rhs_c[sel] / cs,
+                                          assume_a='sym', check_finite=False) / cs
+                cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram)
         names = [eq.terms[j].name for j in sel]
         fits.append(EquationFit(
             name=eq.name,
@@ -798,6 +949,24 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
             residual=float(np.linalg.norm(resid_vec) / (np.linalg.norm(bw) or 1.0)),
             half_width=m, power=p, n_test_functions=n_rows))
     return WeakSindyResult(tuple(fits))
+
+
+def _coefficient_covariance(a, bw, w, sel, col, noise_gram):
+    """Covariance of the selected coefficients and the whitened residual vector.
+
+    σ̂² = ‖r‖²/(n_rows − n_kept); Cov(w) = σ̂² (G̃ᵀG̃ − C)⁻¹ (C the noise compensation when used), computed in
+    column-normalised coordinates.
+    """
+    resid_vec = bw - a[:, sel] @ w[sel]
+    dof = max(a.shape[0] - sel.size, 1)
+    sigma2 = float(resid_vec @ resid_vec) / dof
+    if not sel.size:
+        return np.zeros((0, 0)), resid_vec
+    gram_sel = a[:, sel].T @ a[:, sel]
+    if noise_gram is not None:
+        gram_sel = gram_sel - noise_gram[np.ix_(sel, sel)]
+    scale_sel = np.outer(col[sel], col[sel])
+    return sigma2 * linalg.pinvh(gram_sel / scale_sel) / scale_sel, resid_vec
 
 
 def estimate_noise_std(signal: np.ndarray) -> float:
