@@ -87,3 +87,25 @@ def test_drift_tracker_flags_a_jump_and_restarts_on_model_change():
     report = tracker.update({'damping': (11.5, 0.2), 'offset': (0.05, 0.001)})   # effect added: restart
     assert not any(flag for _, _, flag in report.values())
     assert Path(ROOT / 'aeropend_ros' / 'cli_monitor.py').exists()
+
+
+@pytest.mark.timeout(180)
+def test_run_on_the_rig_through_the_serial_bridge(tmp_path):
+    """`aeropend run --port` against the device emulator (a fake rig on a pty): bridge, excitation, recorder,
+    identification and the diagnosis in one process, 22 s of real time."""
+    from aeropend_core.device_emulator import DeviceEmulator
+    env = local_ros_environment(domain_id=private_domain_id())
+    with DeviceEmulator(seed=5) as emulator:
+        result = run_cli(['run', '--port', str(emulator.port), '--duration', '22', '--record', str(tmp_path),
+                          '--window', '12', '--hop', '4'], env, timeout=150)
+        emitted = [state for _, state in emulator.emitted]
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output
+    assert 'rig on' in output and 'window ending t =' in output and 'Diagnosis of' in output, output
+    assert len(emitted) > 20 * 490
+    from aeropend_core.bag import read_samples
+    folder = next(p for p in tmp_path.iterdir() if p.is_dir())
+    samples = read_samples(folder)
+    assert samples['sequence'].size > 19 * 490, output
+    assert np.mean(np.diff(samples['sequence']) == 1) > 0.99
+    assert np.max(samples['duty']) > 0.1, 'the excitation reached the rig'
