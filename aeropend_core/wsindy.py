@@ -901,7 +901,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                         kern = hold_weights if held else weights[d]
                         g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
             b = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
-            model = _noise_model(eq, s, starts, kernel_list, type_of, noise_std, cache, si, width)
+            model = _noise_model(eq, s, starts, kernel_list, type_of, noise_std, cache, si, width, weights[0])
             systems.append((g, b, model))
         n_rows = sum(len(sys_[1]) for sys_ in systems)
         if n_rows <= len(eq.terms):
@@ -917,26 +917,25 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
             correct = bias_correction and w is not None
             noise_gram = np.zeros((len(eq.terms), len(eq.terms))) if correct else None
             noise_rhs = np.zeros(len(eq.terms)) if correct else None
-            bands = [_measurement_band(model, w, width) for _, _, model in systems]
+            bands = [_measurement_band(model, w) for _, _, model in systems]
             process = 0.0
             if process_noise and w is not None:
                 # Method of moments: E‖b − Gw‖² = tr Σ_meas + q·tr(V Vᵀ); q > 0 when the model misses forces
                 # (friction, cable...). Without it the whitening integrates the equation twice (second order)
                 # and any unmodelled low-frequency force swamps the fit.
                 resid = sum(float(np.sum((b - g @ w) ** 2)) for g, b, _ in systems)
-                trace_meas = sum(float(ab[0].sum()) for ab, _, _ in bands)
+                trace_meas = sum(float(ab[0].sum()) for ab, _ in bands)
                 trace_v = sum(len(b) for _, b, _ in systems) * float(weights[0] @ weights[0])
                 process = max(0.0, (resid - trace_meas) / trace_v)
-            for (g, b, model), (ab, band, pairs) in zip(systems, bands):
+            for (g, b, model), (ab, band) in zip(systems, bands):
                 if process > 0.0:
-                    plain = _pair_kernels(weights[0][None, :], model.step, pairs.shape[2] - 1)[0, 0]
-                    ab = ab + _process_band(model, plain, band, process)
+                    ab = ab + _process_band(model, band, process)
                 chol = _cholesky_band(ab)
                 both = linalg.solve_banded((band, 0), chol, np.column_stack([g, b]), check_finite=False)
                 rows_a.append(both[:, :-1])
                 rows_b.append(both[:, -1])
                 if correct:
-                    cg, cr = _noise_gram(model, chol, band, pairs, w, len(eq.terms))
+                    cg, cr = _noise_gram(model, chol, len(eq.terms))
                     noise_gram += cg
                     noise_rhs += cr
             a = np.vstack(rows_a)
@@ -1049,6 +1048,13 @@ class _NoiseModel:
     step: int                      # grid spacing (samples)
     rows: np.ndarray               # grid index of each used test function, shape (K,)
     n: int                         # samples in the segment
+    pairs: np.ndarray              # H[a, b, u, τ] (:func:`_pair_kernels`), u = 0..grid band
+    plain_pair: np.ndarray         # H[u, τ] of the plain φ (process noise)
+
+    @property
+    def contiguous(self) -> bool:
+        """No holes in the grid (no excluded rows): the used rows are the grid."""
+        return int(self.rows[-1]) + 1 == len(self.rows)
 
 
 def _grid(starts: np.ndarray, width: int) -> tuple[int, int, np.ndarray]:
@@ -1059,7 +1065,8 @@ def _grid(starts: np.ndarray, width: int) -> tuple[int, int, np.ndarray]:
     return first, max(step, 1), offsets // max(step, 1)
 
 
-def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, segment, width) -> _NoiseModel:
+def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, segment, width,
+                 plain_kernel) -> _NoiseModel:
     names = {eq.target, *(v for t in eq.terms for v in t.variables)}
     out = []
     for v in sorted(names):
@@ -1085,7 +1092,11 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
         jac = np.column_stack(cols) if cols else np.zeros((len(x), 0))
         out.append((sigma, v == eq.target, np.array(idx, np.int64), np.array(types, np.int64), jac))
     first, step, rows = _grid(starts, width)
-    return _NoiseModel(np.array(kernel_list), tuple(out), first, step, rows, len(signals[eq.target]))
+    grid_band = max(-(-width // step) - 1, 0)
+    kernels = np.array(kernel_list)
+    pairs = _pair_kernels(kernels, step, grid_band)
+    plain = _pair_kernels(plain_kernel[None, :], step, grid_band)[0, 0]
+    return _NoiseModel(kernels, tuple(out), first, step, rows, len(signals[eq.target]), pairs, plain)
 
 
 def _pair_kernels(kernels: np.ndarray, step: int, band: int) -> np.ndarray:
@@ -1122,72 +1133,26 @@ def _window_dots(columns: np.ndarray, kernels: np.ndarray, first: int, step: int
     return out
 
 
-def _overlap_add(rows: np.ndarray, first: int, step: int, n: int) -> np.ndarray:
-    """out[c, first + r·step + τ] += rows[c, r, τ], shape (C, n)."""
+@numba.njit(cache=True, nogil=True)
+def _overlap_add(rows, first, step, n):
+    """out[c, first + r·step + τ] += rows[c, r, τ] (inside 0..n−1), shape (C, n)."""
     c, count, width = rows.shape
-    q = -(-width // step)
-    padded = np.zeros((c, count, q * step))
-    padded[:, :, :width] = rows
-    padded = padded.reshape(c, count, q, step)
-    blocks = np.zeros((c, count - 1 + q, step))
-    for j in range(q):
-        blocks[:, j:j + count] += padded[:, :, j]
-    flat = blocks.reshape(c, -1)
     out = np.zeros((c, n))
-    m = min(flat.shape[1], n - first)
-    out[:, first:first + m] = flat[:, :m]
+    for p in range(c):
+        for r in range(count):
+            base = first + r * step
+            top = min(width, n - base)
+            for tau in range(top):
+                out[p, base + tau] += rows[p, r, tau]
     return out
 
 
-def _coefficient_functions(model: _NoiseModel, w) -> list[tuple[float, np.ndarray]]:
-    """Per noisy signal: (σ², c (T, n)) with c_a(t) the kernel-type coefficient functions (section comment)."""
-    t = len(model.kernels)
-    out = []
-    for sigma, is_target, idx, types, jac in model.signals:
-        c = np.zeros((t, model.n))
-        used = is_target
-        if is_target:
-            c[0] = 1.0
-        if w is not None and idx.size:
-            wv = w[idx]
-            for a in np.unique(types[wv != 0.0]):
-                sel = (types == a) & (wv != 0.0)
-                c[a] -= jac[:, sel] @ wv[sel]
-                used = True
-        if used:
-            out.append((sigma * sigma, c))
-    return out
-
-
-def _measurement_band(model: _NoiseModel, w, width: int):
-    """Band (LAPACK lower storage, shape (band+1, K)) of the residual covariance Σ = Σ_v σ_v² R_v R_vᵀ over the
-    used rows, its bandwidth, and the pair kernels.
-
-    Before any coefficient is known (``w is None``) only the target's noise counts: Σ ∝ V^(k) V^(k)ᵀ (unit
-    variance when the target is estimated noiseless).
-    """
+def _to_used_rows(model: _NoiseModel, grid_ab: np.ndarray):
+    """Band on the grid (grid_ab[u, g] = Σ[g, g+u]) -> band on the used rows (LAPACK lower storage), bandwidth."""
     rows = model.rows
-    full = int(rows[-1]) + 1
-    grid_band = max(-(-width // model.step) - 1, 0)
-    pairs = _pair_kernels(model.kernels, model.step, grid_band)
-    t = len(model.kernels)
-    funcs = _coefficient_functions(model, w)
-    if not funcs:
-        funcs = [(1.0, np.vstack([np.ones((1, model.n)), np.zeros((t - 1, model.n))]))]
-    # C_ab(t) = Σ_v σ_v² c_av(t)·c_bv(t), only for the types that carry anything
-    if w is None:
-        # target only: C_00 is the constant σ², so every row has the same band
-        grid_ab = np.repeat((funcs[0][0] * pairs[0, 0].sum(axis=1))[:, None], full, axis=1)
-    else:
-        active = [a for a in range(t) if any(np.any(c[a]) for _, c in funcs)]
-        cols, kerns = [], []
-        for a in active:
-            for b in active:
-                cols.append(sum(var * c[a] * c[b] for var, c in funcs))
-                kerns.append(pairs[a, b])
-        dots = _window_dots(np.array(cols), np.array(kerns), model.first, model.step, full)   # (P, full, band+1)
-        grid_ab = dots.sum(axis=0).T                                                          # (band+1, full)
-    # restrict to the used rows: consecutive used rows i, i+u' are grid_ab[rows[i+u'] − rows[i], rows[i]]
+    if model.contiguous:
+        return grid_ab, grid_ab.shape[0] - 1
+    grid_band = grid_ab.shape[0] - 1
     k = len(rows)
     reach = np.searchsorted(rows, rows + grid_band, side='right') - np.arange(k) - 1
     band = int(max(int(reach.max()), 0))
@@ -1197,24 +1162,64 @@ def _measurement_band(model: _NoiseModel, w, width: int):
         offset = rows[i + u] - rows[i]
         ok = offset <= grid_band
         ab[u, i[ok]] = grid_ab[offset[ok], rows[i[ok]]]
-    return ab, band, pairs
+    return ab, band
 
 
-def _process_band(model: _NoiseModel, pairs_kernel0: np.ndarray, band: int, variance: float) -> np.ndarray:
+def _coefficient_functions(model: _NoiseModel, w) -> list[tuple[float, dict]]:
+    """Per noisy signal: (σ², {type a: c_a(t)}) with the non-zero kernel-type coefficient functions (section
+    comment); the lhs type 0 is the constant 1.0 for the target."""
+    out = []
+    for sigma, is_target, idx, types, jac in model.signals:
+        c = {0: 1.0} if is_target else {}
+        if w is not None and idx.size:
+            wv = w[idx]
+            for a in set(types[wv != 0.0].tolist()):
+                sel = (types == a) & (wv != 0.0)
+                c[a] = -(jac[:, sel] @ wv[sel])
+        if c:
+            out.append((sigma * sigma, c))
+    return out
+
+
+def _measurement_band(model: _NoiseModel, w):
+    """Band (LAPACK lower storage, shape (band+1, K)) of the residual covariance Σ = Σ_v σ_v² R_v R_vᵀ over the
+    used rows, and its bandwidth.
+
+    Before any coefficient is known (``w is None``) only the target's noise counts: Σ ∝ V^(k) V^(k)ᵀ (unit
+    variance when the target is estimated noiseless).
+    """
+    pairs = model.pairs
+    full = int(model.rows[-1]) + 1
+    funcs = _coefficient_functions(model, w)
+    if not funcs:
+        funcs = [(1.0, {0: 1.0})]
+    # C_ab(t) = Σ_v σ_v² c_av(t)·c_bv(t) (= C_ba), with kernel H_ab + H_ba for a < b
+    products: dict = {}
+    for var, c in funcs:
+        keys = sorted(c)
+        for i, a in enumerate(keys):
+            for b in keys[i:]:
+                products[(a, b)] = products.get((a, b), 0.0) + var * c[a] * c[b]
+    constant = sum(float(v) * (pairs[a, b] + (pairs[b, a] if a != b else 0.0)).sum(axis=1)
+                   for (a, b), v in products.items() if np.ndim(v) == 0)
+    varying = [(ab, v) for ab, v in products.items() if np.ndim(v)]
+    grid_ab = np.zeros((pairs.shape[2], full)) + (constant[:, None] if np.ndim(constant) else 0.0)
+    if varying:
+        cols = np.array([v for _, v in varying])
+        kerns = np.array([pairs[a, b] + (pairs[b, a] if a != b else 0.0) for (a, b), _ in varying])
+        grid_ab += _window_dots(cols, kerns, model.first, model.step, full).sum(axis=0).T
+    return _to_used_rows(model, grid_ab)
+
+
+def _process_band(model: _NoiseModel, band: int, variance: float) -> np.ndarray:
     """Band of variance·V Vᵀ (white 'process noise' in the equation, V the plain φ quadrature) on the used rows."""
-    rows = model.rows
-    k = len(rows)
-    per_offset = pairs_kernel0.sum(axis=1)          # Σ_τ φ(τ) φ(τ − u·step), u = 0..grid band
-    ab = np.zeros((band + 1, k))
-    for u in range(band + 1):
-        i = np.arange(k - u)
-        offset = rows[i + u] - rows[i]
-        ok = offset < len(per_offset)
-        ab[u, i[ok]] = variance * per_offset[offset[ok]]
+    per_offset = variance * model.plain_pair.sum(axis=1)   # Σ_τ φ(τ) φ(τ − u·step), u = 0..grid band
+    full = int(model.rows[-1]) + 1
+    ab, _ = _to_used_rows(model, np.repeat(per_offset[:, None], full, axis=1))
     return ab
 
 
-def _noise_gram(model: _NoiseModel, chol, band, pairs, w, n_terms):
+def _noise_gram(model: _NoiseModel, chol, n_terms):
     """Expected noise contributions (C, c) to the whitened normal equations G̃ᵀG̃ and G̃ᵀb̃.
 
     With noise on the signals, G̃ = G̃₀ + Ñ and b̃ = b̃₀ + ñ, so E[G̃ᵀG̃] = G̃₀ᵀG̃₀ + C and E[G̃ᵀb̃] = G̃₀ᵀb̃₀ + c:
@@ -1228,42 +1233,53 @@ def _noise_gram(model: _NoiseModel, chol, band, pairs, w, n_terms):
     if not any(idx.size for _, _, idx, _, _ in model.signals):
         return np.zeros((n_terms, n_terms)), np.zeros(n_terms)
     zb = _band_of_inverse(np.ascontiguousarray(chol))          # zb[u, i] = Σ⁻¹[i, i+u] on the used rows
+    pairs = model.pairs
     rows = model.rows
     full = int(rows[-1]) + 1
     grid_band = pairs.shape[2] - 1
-    zgrid = np.zeros((full, grid_band + 1))
-    for u in range(zb.shape[0]):
-        i = np.arange(len(rows) - u)
-        offset = rows[i + u] - rows[i]
-        ok = offset <= grid_band
-        zgrid[rows[i[ok]], offset[ok]] = zb[u, i[ok]]
-    t = len(model.kernels)
-    # symmetric pair kernels: s = r + u uses H_ab[u], s = r − u uses H_ba[u]
-    sym = pairs.copy()
-    sym[:, :, 1:] += pairs.transpose(1, 0, 2, 3)[:, :, 1:]
-    iu = np.triu_indices(t)
-    kern = sym[iu]                                                         # (pairs, band+1, width)
+    if model.contiguous:
+        zgrid = np.ascontiguousarray(zb.T)
+    else:
+        zgrid = np.zeros((full, grid_band + 1))
+        for u in range(zb.shape[0]):
+            i = np.arange(len(rows) - u)
+            offset = rows[i + u] - rows[i]
+            ok = offset <= grid_band
+            zgrid[rows[i[ok]], offset[ok]] = zb[u, i[ok]]
+    # kernel types needed: (a, b) for two columns of one signal, (a, 0) for the target's own noise
+    needed = set()
+    for _, is_target, idx, types, _ in model.signals:
+        present = sorted(set(types.tolist()))
+        needed.update((a, b) for i, a in enumerate(present) for b in present[i:])
+        if is_target:
+            needed.update((0, a) for a in present)
+    needed = sorted(needed)
+    # s = r + u uses H_ab[u], s = r − u uses H_ba[u]
+    kern = np.array([pairs[a, b] + np.concatenate([np.zeros_like(pairs[b, a][:1]), pairs[b, a][1:]])
+                     for a, b in needed])                                  # (pairs, band+1, width)
     n_pairs, _, width = kern.shape
     per_row = (zgrid @ kern.transpose(1, 0, 2).reshape(grid_band + 1, n_pairs * width)).reshape(
         full, n_pairs, width).transpose(1, 0, 2)                           # (pairs, full, width)
-    q_upper = _overlap_add(per_row, model.first, model.step, model.n)
-    q = np.zeros((t, t, model.n))
-    q[iu] = q_upper
-    q[iu[1], iu[0]] = q_upper
+    q_all = _overlap_add(np.ascontiguousarray(per_row), model.first, model.step, model.n)
+    q = {ab: q_all[i] for i, ab in enumerate(needed)}
     gram = np.zeros((n_terms, n_terms))
     rhs = np.zeros(n_terms)
     for sigma, is_target, idx, types, jac in model.signals:
         if not idx.size:
             continue
         var = sigma * sigma
-        for a in np.unique(types):
+        present = sorted(set(types.tolist()))
+        block = np.empty((idx.size, idx.size))
+        for a in present:
             ia = types == a
-            ja = jac[:, ia]
-            for b in np.unique(types):
-                ib = types == b
-                gram[np.ix_(idx[ia], idx[ib])] += var * ((ja * q[a, b][:, None]).T @ jac[:, ib])
+            # columns k of type b weighted by q_ab: one product per kernel type a
+            weights = np.empty_like(jac)
+            for b in present:
+                weights[:, types == b] = jac[:, types == b] * q[(min(a, b), max(a, b))][:, None]
+            block[ia] = jac[:, ia].T @ weights
             if is_target:
-                rhs[idx[ia]] += var * (ja.T @ q[a, 0])
+                rhs[idx[ia]] += var * (jac[:, ia].T @ q[(0, a)])
+        gram[np.ix_(idx, idx)] += var * block
     return gram, rhs
 
 
