@@ -61,6 +61,7 @@ import numba
 import numpy as np
 from numpy.polynomial import polynomial as npoly
 from scipy import linalg, special
+from scipy.linalg import lapack
 from threadpoolctl import ThreadpoolController
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
@@ -606,6 +607,21 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
 
 
 @numba.njit(cache=True, nogil=True)
+def _memo_solve(keys, vals, counts, slot, gram, rhs, support, ridge):
+    """:func:`_solve_subset` through a small ring buffer of recent (support, solution) pairs."""
+    for i in range(counts[slot]):
+        if np.array_equal(keys[i], support):
+            return vals[i].copy()
+    w = _solve_subset(gram, rhs, support, ridge)
+    i = counts[slot + 1]
+    keys[i] = support
+    vals[i] = w
+    counts[slot + 1] = (i + 1) % keys.shape[0]
+    counts[slot] = min(counts[slot] + 1, keys.shape[0])
+    return w
+
+
+@numba.njit(cache=True, nogil=True)
 def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     """MSTLS over the λ grid (+ optional backward elimination), scored by the loss; returns (w, λ).
 
@@ -626,6 +642,14 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     best_w = w_ls
     best_lam = 0.0
     w_full = _solve_subset(gram, rhs, usable, ridge)
+    # Neighbouring λ mostly visit the same supports: remember recent solves (ridge ones and final ones).
+    cap = 32
+    n = usable.size
+    ridge_keys = np.zeros((cap, n), np.bool_)
+    ridge_vals = np.zeros((cap, n))
+    final_keys = np.zeros((cap, n), np.bool_)
+    final_vals = np.zeros((cap, n))
+    counts = np.zeros(4, np.int64)          # ridge count, ridge next slot, final count, final next slot
     for lam in grid:
         support = usable.copy()
         w = w_full
@@ -634,8 +658,8 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
             if np.array_equal(new, support):
                 break
             support = new
-            w = _solve_subset(gram, rhs, support, ridge)
-        w = _solve_subset(gram, rhs, w != 0.0, final_ridge)
+            w = _memo_solve(ridge_keys, ridge_vals, counts, 0, gram, rhs, support, ridge)
+        w = _memo_solve(final_keys, final_vals, counts, 2, gram, rhs, w != 0.0, final_ridge)
         value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
         if value < best_loss - 1e-12:
             best_loss, best_w, best_lam = value, w, lam
@@ -931,7 +955,10 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                 if process > 0.0:
                     ab = ab + _process_band(model, band, process)
                 chol = _cholesky_band(ab)
-                both = linalg.solve_banded((band, 0), chol, np.column_stack([g, b]), check_finite=False)
+                both, info = lapack.dtbtrs(chol, np.column_stack([g, b]), uplo='L')   # L⁻¹[G b], L banded
+                if info != 0:
+                    raise InsufficientDataError(f'{eq.name}: the weak-form covariance is singular (LAPACK info '
+                                                f'{info}); the data cannot support this fit')
                 rows_a.append(both[:, :-1])
                 rows_b.append(both[:, -1])
                 if correct:
