@@ -260,8 +260,14 @@ def kernel_derivatives(half_width: int, power: int, dt: float, max_order: int) -
     """Quadrature weights ``Δt·φ^(k)(t_i)`` (trapezoid) on the 2m+1 support, shape (max_order+1, 2m+1).
 
     Row k is the k-th time derivative of φ (units 1/s^k) times the trapezoid weights, so that
-    ``weights[k] @ x[c−m : c+m+1]`` approximates ``∫ φ^(k)(t) x(t) dt``.
+    ``weights[k] @ x[c−m : c+m+1]`` approximates ``∫ φ^(k)(t) x(t) dt``. Depends on (m, p, Δt, k) only:
+    cached (successive windows of a stream reuse it).
     """
+    return _kernel_derivatives(int(half_width), int(power), float(dt), int(max_order)).copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _kernel_derivatives(half_width: int, power: int, dt: float, max_order: int) -> np.ndarray:
     m = int(half_width)
     xs = np.arange(-m, m + 1) / m
     # (1 − x²)^p as a polynomial in x
@@ -1105,19 +1111,24 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
         if not sigma > 0:
             continue
         h = 1e-6 * max(float(np.max(np.abs(x))), 1e-12)
-        idx, types, cols = [], [], []
-        for j, term in enumerate(eq.terms):
-            if v not in term.variables:
-                continue
-            def jacobian(term=term, v=v, x=x, h=h):
-                plus, minus = dict(signals), dict(signals)
-                plus[v], minus[v] = x + h, x - h
-                return (term.evaluate(plus) - term.evaluate(minus)) / (2 * h)
-            cols.append(_cached(cache, ('jac', segment, term.name, term.variables, v), jacobian))
-            idx.append(j)
-            types.append(type_of[j])
-        jac = np.column_stack(cols) if cols else np.zeros((len(x), 0))
-        out.append((sigma, v == eq.target, np.array(idx, np.int64), np.array(types, np.int64), jac))
+        # columns ordered by kernel type, so each type is a contiguous slice
+        members = sorted((type_of[j], j) for j, term in enumerate(eq.terms) if v in term.variables)
+        idx = np.array([j for _, j in members], np.int64)
+        types = np.array([a for a, _ in members], np.int64)
+
+        def stacked(v=v, x=x, h=h, idx=idx):
+            cols = []
+            for j in idx:
+                term = eq.terms[j]
+
+                def jacobian(term=term):
+                    plus, minus = dict(signals), dict(signals)
+                    plus[v], minus[v] = x + h, x - h
+                    return (term.evaluate(plus) - term.evaluate(minus)) / (2 * h)
+                cols.append(_cached(cache, ('jac', segment, term.name, term.variables, v), jacobian))
+            return np.column_stack(cols) if cols else np.zeros((len(x), 0))
+        key = ('jacs', segment, v, tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx))
+        out.append((sigma, v == eq.target, idx, types, _cached(cache, key, stacked)))
     first, step, rows = _grid(starts, width)
     grid_band = max(-(-width // step) - 1, 0)
     kernels = np.array(kernel_list)
@@ -1296,16 +1307,24 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
             continue
         var = sigma * sigma
         present = sorted(set(types.tolist()))
-        block = np.empty((idx.size, idx.size))
-        for a in present:
-            ia = types == a
-            # columns k of type b weighted by q_ab: one product per kernel type a
-            weights = np.empty_like(jac)
-            for b in present:
-                weights[:, types == b] = jac[:, types == b] * q[(min(a, b), max(a, b))][:, None]
-            block[ia] = jac[:, ia].T @ weights
-            if is_target:
-                rhs[idx[ia]] += var * (jac[:, ia].T @ q[(0, a)])
+        bounds = {a: (int(np.searchsorted(types, a)), int(np.searchsorted(types, a, side='right'))) for a in present}
+        if len(present) == 1:
+            (a,) = present
+            block = (jac * q[(a, a)][:, None]).T @ jac
+        else:
+            block = np.empty((idx.size, idx.size))
+            for a in present:
+                lo, hi = bounds[a]
+                # columns k of type b weighted by q_ab: one product per kernel type a
+                weighted = np.empty_like(jac)
+                for b in present:
+                    lo_b, hi_b = bounds[b]
+                    weighted[:, lo_b:hi_b] = jac[:, lo_b:hi_b] * q[(min(a, b), max(a, b))][:, None]
+                block[lo:hi] = jac[:, lo:hi].T @ weighted
+        if is_target:
+            for a in present:
+                lo, hi = bounds[a]
+                rhs[idx[lo:hi]] += var * (jac[:, lo:hi].T @ q[(0, a)])
         gram[np.ix_(idx, idx)] += var * block
     return gram, rhs
 
