@@ -376,7 +376,7 @@ def _whitener(weights: np.ndarray, centres: np.ndarray) -> np.ndarray:
 
 # ----------------------------------------------------------------------------------------------- regression
 def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: float, alpha: float,
-             noise_gram=None, noise_rhs=None, exhaustive: int = 4):
+             noise_gram=None, noise_rhs=None, exhaustive: int = 4, greedy: bool = True):
     """Return (w in normalised coordinates, λ used, column scales, b scale).
 
     Thresholding runs on the ridge-regularised solutions (the ridge damps cancelling pairs of nearly collinear
@@ -399,7 +399,7 @@ def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: f
     elif isinstance(threshold, str):
         if threshold != 'auto':
             raise AeropendError(f'threshold must be in (0, 1], "auto" or None, got {threshold!r}')
-        grid, backward = THRESHOLD_GRID, True
+        grid, backward = THRESHOLD_GRID, greedy
     else:
         lam = float(threshold)
         if not 0 < lam <= 1:
@@ -973,9 +973,11 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                     noise_rhs += cr
             a = np.vstack(rows_a)
             bw = np.concatenate(rows_b)
-            # Earlier passes only supply w for the covariance: the exhaustive search runs in the last one.
+            # Earlier passes only supply w for the covariance: the greedy paths and the exhaustive search run in
+            # the last one (with them in the first pass too, no support and no Kq error changed beyond noise).
+            last = pass_ == irls_iterations
             w_n, lam, col, bnorm = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs,
-                                            exhaustive_terms if pass_ == irls_iterations else 0)
+                                            exhaustive_terms if last else 0, greedy=last)
             w = w_n * bnorm / col
         sel = np.flatnonzero(w_n)
         cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram)
