@@ -40,8 +40,11 @@ MIN_IMPROVEMENT = 0.25
 #: ... and the held-out mean-square error by more than (this x the noise RMS)^2.
 MIN_ABSOLUTE = 0.25
 #: The current model is "within the noise" when its error beyond the noise is below this multiple of the noise
-#: (its RMS error is then within 12 % of the noise RMS): then no candidate is reported, whatever it absorbs.
-WITHIN_NOISE = 0.5
+#: (its RMS error is then within 5 % of the noise RMS): then no candidate is reported, whatever it absorbs.
+WITHIN_NOISE = 0.3
+#: "Unexplained" (no catalog effect helps) is claimed only beyond this multiple of the noise: a smaller excess can
+#: come from the noise estimate itself (quantisation that does not dither is partly a slow bias).
+UNEXPLAINED_NOISE = 0.5
 #: Two significant candidates are confounded when the runner-up's excess error is within this factor of the best.
 CONFOUNDING_FACTOR = 1.3
 #: An effect parameter correlated beyond this with a nominal parameter is not separable from it in this data.
@@ -372,7 +375,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
             missing = best.effect
             message = (f'missing effect: {best.effect}. Add it (--add {best.effect}): the held-out error beyond '
                        f'the noise falls from {best.excess_before * 1e3:.2f} to {best.excess_after * 1e3:.2f} mrad.')
-    elif excess_now <= WITHIN_NOISE * noise:
+    elif excess_now <= UNEXPLAINED_NOISE * noise:
         verdict = 'nothing_missing'
         message = (f'nothing significant is missing: the model error beyond the measurement noise is '
                    f'{excess_now * 1e3:.2f} mrad against {noise * 1e3:.2f} mrad of noise, and no catalog effect '

@@ -11,9 +11,11 @@ back-EMF e = Kw w1 [V]::
     de/dt = p1 (Va - e) - p2 e - p3 e|e|
 
 with p1 = Kw Kt / (Jm Rm) [1/s], p2 = F / Jm [1/s], p3 = Kd (N2/N1)^3 / (Jm Kw) [1/(V s)]. These four numbers are
-fitted (output error on Ia, the electrical transient after each step excluded); the model's e(t) is then a
-noise-free thrust input. If the model cannot explain Ia to within its noise, the caller falls back to the
-measured Va - R Ia.
+fitted first (output error on Ia, the electrical transient after each step excluded). The fit is then refined with
+the armature inductance, tau_e dIa/dt = (Va - e)/Rm - Ia (tau_e = La/Rm fitted too), because neglecting La dIa/dt
+while the motor speeds up biases Rm by ~1 % and the thrust by ~2 %; the refinement is kept only if it explains Ia
+better. The model's e(t) is then a noise-free thrust input. If the model cannot explain Ia to within its noise,
+the caller falls back to the measured Va - R Ia.
 """
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ from aeropend_core.preprocess import STEP_SETTLING_SAMPLES, noise_rms
 
 PARAMETER_NAMES = ('motor_drive_rate', 'motor_friction_rate', 'motor_drag_rate', 'motor_resistance')
 PARAMETER_UNITS = {'motor_drive_rate': '1/s', 'motor_friction_rate': '1/s', 'motor_drag_rate': '1/(V s)',
-                   'motor_resistance': 'ohm'}
+                   'motor_resistance': 'ohm', 'electrical_time_constant': 's'}
 
 
 @numba.njit(cache=True, nogil=True)
@@ -51,6 +53,49 @@ def _back_emf_kernel(parameters, voltage, initial, sample_time, out):
             e4 = e + h * k3
             k4 = p1 * (v - e4) - p2 * e4 - p3 * e4 * abs(e4)
             e = e + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+
+#: RK4 sub-steps per sample for the observer with the armature inductance (La/Ra ~ one sample).
+ELECTRICAL_SUBSTEPS = 8
+
+
+@numba.njit(cache=True, nogil=True)
+def _motor_kernel(parameters, voltage, initial, sample_time, out_current, out_emf):
+    """RK4 of  tau_e dIa/dt = (Va - e)/R - Ia,  de/dt = q1 Ia - p2 e - p3 e|e|  (Va held over each sample).
+
+    parameters rows: R [ohm], tau_e = La/R [s], q1 = Kw Kt / Jm [V/(A s)], p2 [1/s], p3 [1/(V s)];
+    initial rows: Ia0 [A], e0 [V]. Writes Ia and e at the start of each sample.
+    """
+    h = sample_time / ELECTRICAL_SUBSTEPS
+    for row in range(parameters.shape[0]):
+        r = parameters[row, 0]
+        tau = parameters[row, 1]
+        q1 = parameters[row, 2]
+        p2 = parameters[row, 3]
+        p3 = parameters[row, 4]
+        i = initial[row, 0]
+        e = initial[row, 1]
+        for k in range(voltage.shape[0]):
+            out_current[row, k] = i
+            out_emf[row, k] = e
+            v = voltage[k]
+            for _ in range(ELECTRICAL_SUBSTEPS):
+                di1 = ((v - e) / r - i) / tau
+                de1 = q1 * i - p2 * e - p3 * e * abs(e)
+                i2 = i + 0.5 * h * di1
+                e2 = e + 0.5 * h * de1
+                di2 = ((v - e2) / r - i2) / tau
+                de2 = q1 * i2 - p2 * e2 - p3 * e2 * abs(e2)
+                i3 = i + 0.5 * h * di2
+                e3 = e + 0.5 * h * de2
+                di3 = ((v - e3) / r - i3) / tau
+                de3 = q1 * i3 - p2 * e3 - p3 * e3 * abs(e3)
+                i4 = i + h * di3
+                e4 = e + h * de3
+                di4 = ((v - e4) / r - i4) / tau
+                de4 = q1 * i4 - p2 * e4 - p3 * e4 * abs(e4)
+                i += h / 6.0 * (di1 + 2.0 * di2 + 2.0 * di3 + di4)
+                e += h / 6.0 * (de1 + 2.0 * de2 + 2.0 * de3 + de4)
 
 
 @dataclass(frozen=True)
@@ -137,8 +182,60 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
     emf = _simulate(x[None, :3], voltage, x[None, 4], sample_time)[0]
     error = float(np.sqrt(np.mean(result.fun ** 2)))
     parameters = dict(zip(PARAMETER_NAMES, (float(v) for v in x[:4])))
-    return MotorFit(parameters=parameters, back_emf=emf, current_rms_error=error,
-                    current_noise_rms=noise_rms(current[keep]))
+    quasi_static = MotorFit(parameters=parameters, back_emf=emf, current_rms_error=error,
+                            current_noise_rms=noise_rms(current[keep]))
+    with_inductance = _fit_with_inductance(voltage, current, keep, sample_time, quasi_static, x[4])
+    return with_inductance if with_inductance is not None else quasi_static
+
+
+def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, initial_emf: float):
+    """Refine the observer with the armature inductance (all samples but the first few are then usable).
+
+    Neglecting La dIa/dt biases the fitted resistance while the motor speeds up or slows down (Ia moves at the
+    motor's time constant); with tau_e = La/R in the model that bias goes. Returns None if this model does not
+    explain the current better than the quasi-static one on the samples both use.
+    """
+    p = start.parameters
+    r0 = p['motor_resistance']
+    x0 = np.array([r0, 2e-3, p['motor_drive_rate'] * r0, p['motor_friction_rate'], p['motor_drag_rate'],
+                   float(current[0]), initial_emf])
+    scale = np.maximum(np.abs(x0), np.array([0.1, 1e-4, 1e-3, 1e-3, 1e-3, 0.01, 0.01]))
+    use = np.ones(voltage.size, dtype=bool)
+    use[:2] = False
+    measured = current[use]
+
+    def model(rows):
+        out_current = np.empty((rows.shape[0], voltage.size))
+        out_emf = np.empty_like(out_current)
+        _motor_kernel(rows[:, :5], voltage, rows[:, 5:7], sample_time, out_current, out_emf)
+        return out_current, out_emf
+
+    def residuals(z):
+        return model((z * scale)[None, :])[0][0, use] - measured
+
+    def jacobian(z):
+        step = 1e-6 * np.maximum(np.abs(z), 1.0)
+        rows = np.tile(z, (len(z) + 1, 1))
+        rows[1:] += np.diag(step)
+        predictions = model(rows * scale)[0][:, use]
+        return ((predictions[1:] - predictions[0]) / step[:, None]).T
+
+    lower = np.array([1e-3, 1e-5, 0.0, 0.0, 0.0, -np.inf, -np.inf]) / scale
+    upper = np.array([100.0, 0.05, np.inf, 1e4, 1e4, np.inf, np.inf]) / scale
+    z0 = np.clip(x0 / scale, lower + 1e-9, upper - 1e-9)
+    with np.errstate(all='ignore'), threadpool_limits(1):
+        result = least_squares(residuals, z0, jac=jacobian, bounds=(lower, upper), method='trf', x_scale='jac',
+                               max_nfev=60)
+    x = result.x * scale
+    fitted_current, emf = model(x[None, :])
+    error_on_keep = float(np.sqrt(np.mean((fitted_current[0] - current)[keep] ** 2)))
+    if not np.all(np.isfinite(emf)) or error_on_keep > start.current_rms_error:
+        return None
+    parameters = {'motor_drive_rate': float(x[2] / x[0]), 'motor_friction_rate': float(x[3]),
+                  'motor_drag_rate': float(x[4]), 'motor_resistance': float(x[0]),
+                  'electrical_time_constant': float(x[1])}
+    return MotorFit(parameters=parameters, back_emf=emf[0], current_rms_error=error_on_keep,
+                    current_noise_rms=start.current_noise_rms)
 
 
 def _resistance_from_steps(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray) -> float:
