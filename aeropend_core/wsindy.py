@@ -216,26 +216,49 @@ def spectral_corner(signal: np.ndarray) -> int:
     n = len(cum)
     if n < 8:
         return max(1, n // 2)
-    k = np.arange(n, dtype=float)
-    # error of the secant line through (i0, y0) and (i1, y1) over i0..i1 via prefix sums of 1, k, k², y, y², k·y
-    s0 = np.concatenate([[0.0], np.cumsum(np.ones(n))])
-    s1 = np.concatenate([[0.0], np.cumsum(k)])
-    s2 = np.concatenate([[0.0], np.cumsum(k * k)])
-    sy = np.concatenate([[0.0], np.cumsum(cum)])
-    syy = np.concatenate([[0.0], np.cumsum(cum * cum)])
-    sky = np.concatenate([[0.0], np.cumsum(k * cum)])
+    return _two_piece_split(cum)
 
-    def secant_error(i0, i1):
-        slope = (cum[i1] - cum[i0]) / np.maximum(i1 - i0, 1)
-        a = cum[i0] - slope * i0            # line y = a + slope·k
-        n_, k1, k2 = s0[i1 + 1] - s0[i0], s1[i1 + 1] - s1[i0], s2[i1 + 1] - s2[i0]
-        y1, y2, ky = sy[i1 + 1] - sy[i0], syy[i1 + 1] - syy[i0], sky[i1 + 1] - sky[i0]
-        # Σ (a + slope k − y)²
-        return (a * a * n_ + 2 * a * slope * k1 + slope * slope * k2 - 2 * a * y1 - 2 * slope * ky + y2)
 
-    splits = np.arange(2, n - 2)
-    err = secant_error(np.zeros_like(splits), splits) + secant_error(splits, np.full_like(splits, n - 1))
-    return int(splits[np.argmin(err)])
+@numba.njit(cache=True, nogil=True)
+def _two_piece_split(cum):
+    """Split index (2 .. n−3) of the best two-piece secant fit of ``cum`` (least squares over each piece).
+
+    Error of the secant line through (i0, y0) and (i1, y1) over i0..i1 from prefix sums of 1, k, k², y, y², k·y.
+    """
+    n = cum.size
+    s0 = np.zeros(n + 1)
+    s1 = np.zeros(n + 1)
+    s2 = np.zeros(n + 1)
+    sy = np.zeros(n + 1)
+    syy = np.zeros(n + 1)
+    sky = np.zeros(n + 1)
+    for i in range(n):
+        k = float(i)
+        s0[i + 1] = s0[i] + 1.0
+        s1[i + 1] = s1[i] + k
+        s2[i + 1] = s2[i] + k * k
+        sy[i + 1] = sy[i] + cum[i]
+        syy[i + 1] = syy[i] + cum[i] * cum[i]
+        sky[i + 1] = sky[i] + k * cum[i]
+    best = np.inf
+    best_split = 2
+    for split in range(2, n - 2):
+        total = 0.0
+        for i0, i1 in ((0, split), (split, n - 1)):
+            slope = (cum[i1] - cum[i0]) / max(i1 - i0, 1)
+            a = cum[i0] - slope * i0            # line y = a + slope·k
+            n_ = s0[i1 + 1] - s0[i0]
+            k1 = s1[i1 + 1] - s1[i0]
+            k2 = s2[i1 + 1] - s2[i0]
+            y1 = sy[i1 + 1] - sy[i0]
+            y2 = syy[i1 + 1] - syy[i0]
+            ky = sky[i1 + 1] - sky[i0]
+            # Σ (a + slope k − y)²
+            total += a * a * n_ + 2 * a * slope * k1 + slope * slope * k2 - 2 * a * y1 - 2 * slope * ky + y2
+        if total < best:
+            best = total
+            best_split = split
+    return best_split
 
 
 def choose_support(signal: np.ndarray, order: int = 1, decay_tolerance: float = 1e-10,
@@ -926,8 +949,11 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                 for held in (False, True):
                     idx = [j for j, t_ in enumerate(eq.terms) if t_.derivative_order == d and t_.hold == held]
                     if idx:
-                        theta = np.column_stack([_cached(cache, ('theta', si, eq.terms[j].name, eq.terms[j].variables),
-                                                         lambda term=eq.terms[j], s=s: term.evaluate(s)) for j in idx])
+                        group = tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx)
+                        members = [eq.terms[j] for j in idx]
+                        theta = _cached(cache, ('thetas', si, group), lambda members=members, s=s, si=si: np.column_stack(
+                            [_cached(cache, ('theta', si, term.name, term.variables),
+                                     lambda term=term, s=s: term.evaluate(s)) for term in members]))
                         kern = hold_weights if held else weights[d]
                         g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
             b = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
@@ -1174,16 +1200,18 @@ def _window_dots(columns: np.ndarray, kernels: np.ndarray, first: int, step: int
 
 
 @numba.njit(cache=True, nogil=True)
-def _overlap_add(rows, first, step, n):
-    """out[c, first + r·step + τ] += rows[c, r, τ] (inside 0..n−1), shape (C, n)."""
-    c, count, width = rows.shape
-    out = np.zeros((c, n))
-    for p in range(c):
-        for r in range(count):
-            base = first + r * step
-            top = min(width, n - base)
+def _overlap_add(rows, n_channels, first, step, n):
+    """out[c, first + r·step + τ] += rows[r, c·width + τ] (inside 0..n−1), shape (C, n); rows (count, C·width)."""
+    count = rows.shape[0]
+    width = rows.shape[1] // n_channels
+    out = np.zeros((n_channels, n))
+    for r in range(count):
+        base = first + r * step
+        top = min(width, n - base)
+        for p in range(n_channels):
+            off = p * width
             for tau in range(top):
-                out[p, base + tau] += rows[p, r, tau]
+                out[p, base + tau] += rows[r, off + tau]
     return out
 
 
@@ -1298,9 +1326,8 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
     kern = np.array([pairs[a, b] + np.concatenate([np.zeros_like(pairs[b, a][:1]), pairs[b, a][1:]])
                      for a, b in needed])                                  # (pairs, band+1, width)
     n_pairs, _, width = kern.shape
-    per_row = (zgrid @ kern.transpose(1, 0, 2).reshape(grid_band + 1, n_pairs * width)).reshape(
-        full, n_pairs, width).transpose(1, 0, 2)                           # (pairs, full, width)
-    q_all = _overlap_add(np.ascontiguousarray(per_row), model.first, model.step, model.n)
+    per_row = zgrid @ kern.transpose(1, 0, 2).reshape(grid_band + 1, n_pairs * width)   # (full, pairs·width)
+    q_all = _overlap_add(per_row, n_pairs, model.first, model.step, model.n)
     q = {ab: q_all[i] for i, ab in enumerate(needed)}
     gram = np.zeros((n_terms, n_terms))
     rhs = np.zeros(n_terms)
