@@ -84,7 +84,6 @@ class PreparedRecord:
     gate_voltage: np.ndarray | None = None
     train: SegmentedData = field(init=False)
     heldout: SegmentedData = field(init=False)
-    full: SegmentedData = field(init=False)
 
     def __post_init__(self) -> None:
         n = len(self.time)
@@ -94,8 +93,6 @@ class PreparedRecord:
                                    self.gate_voltage)
         self.heldout = SegmentedData(self.voltage, self.current, self.angle, [(self.split, n)], self.sample_time,
                                    self.gate_voltage)
-        self.full = SegmentedData(self.voltage, self.current, self.angle, train_segments + [(self.split, n)],
-                                  self.sample_time, self.gate_voltage)
 
     @property
     def duration(self) -> float:
@@ -409,7 +406,7 @@ def regime_masks(prep: PreparedRecord) -> dict[str, np.ndarray]:
 
 def evaluate(prep: PreparedRecord, fit: OutputErrorFit) -> Evaluation:
     """Held-out simulation fit, k-step prediction, residual tests and error localisation for a fitted model."""
-    start, stop = prep.split, len(prep.time)
+    stop = len(prep.time)
     heldout = _heldout_simulation(prep, fit)
     index = prep.heldout.residual_index
     measured, simulated = prep.angle[index], heldout[index]
@@ -508,4 +505,4 @@ def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
 
 
 __all__ = ['PreparedRecord', 'Comparison', 'Evaluation', 'prepare', 'compare', 'fit_model', 'evaluate',
-           'fit_percent', 'excess_error', 'initial_states_from_data']
+           'fit_percent', 'excess_error']

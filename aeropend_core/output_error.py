@@ -48,8 +48,6 @@ BUILTIN_EFFECT_PARAMETER = {'coulomb_friction': 'friction_acceleration', 'quadra
 N_BUILTIN = 10
 #: Samples per integration step (RK4 half step lands on a sample).
 STRIDE = 2
-#: Parameters that are profiled on a grid instead of fitted by gradient (the residual is piecewise constant).
-PROFILED = ('threshold_voltage',)
 #: Smallest thrust-lag time constant the explicit RK4 step handles [s].
 MIN_TIME_CONSTANT = 0.005
 

@@ -1,7 +1,6 @@
 """Physics of the simulator against independent results: equilibria, small-angle analytic response, energy."""
 import numpy as np
 import pytest
-from scipy.integrate import solve_ivp
 
 from aeropend_core.errors import AeropendError, UnknownEffectError
 from aeropend_core.excitation import lhc_schedule
@@ -78,7 +77,8 @@ def test_streaming_in_blocks_equals_one_batch_and_is_deterministic():
     ('angle_offset', 0.05, lambda base, eff: np.allclose(eff.angle - base.angle, 0.05)),
     ('dead_zone', 1.0, lambda base, eff: np.all(eff.truth['thrust'] == 0.0)),
     ('thrust_lag', 0.2, lambda base, eff: eff.truth['angle'][100] < base.truth['angle'][100]),
-    ('quadratic_drag', 2.0, lambda base, eff: eff.truth['angular_rate'].max() < 0.95 * base.truth['angular_rate'].max()),
+    ('quadratic_drag', 2.0,
+     lambda base, eff: eff.truth['angular_rate'].max() < 0.95 * base.truth['angular_rate'].max()),
 ])
 def test_each_effect_changes_the_response_the_way_its_physics_says(effect, values, check):
     # Duty 0.4 (1.37 V); for the dead zone duty 0.15 (0.73 V), below its 1 V threshold.
