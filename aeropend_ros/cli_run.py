@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import threading
 import time
@@ -96,7 +97,11 @@ def _run(args) -> int:
 
     use_sim = args.port is None
     hidden = DEFAULT_HIDDEN_EFFECTS if args.effect is None else ([] if args.effect == ['none'] else args.effect)
-    rclpy.init(args=['--ros-args', '--log-level', 'warn'])
+    from rclpy.signals import SignalHandlerOptions
+    # This process handles Ctrl-C itself (KeyboardInterrupt in the main thread, SIGTERM mapped to it), so that the
+    # shutdown is orderly: duty back to 0, bag finalised, then the diagnosis of what was recorded.
+    rclpy.init(args=['--ros-args', '--log-level', 'warn'], signal_handler_options=SignalHandlerOptions.NO)
+    previous_sigterm = signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
     nodes = []
     executors = []
     spinners = []
@@ -147,7 +152,7 @@ def _run(args) -> int:
               + f', identifying on {args.window:g} s windows every {args.hop:g} s'
               + (f' (model effects: {", ".join(args.model_effect)})' if args.model_effect else ''), flush=True)
         for node, executor in zip(nodes, executors):
-            spinner = threading.Thread(target=executor.spin, name=node.get_name(), daemon=True)
+            spinner = threading.Thread(target=_spin, args=(executor,), name=node.get_name(), daemon=True)
             spinner.start()
             spinners.append(spinner)
         interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME)
@@ -159,6 +164,8 @@ def _run(args) -> int:
         interrupted = True
         print('aeropend run: interrupted; finalising', file=sys.stderr)
     finally:
+        # A second Ctrl-C must not cut the finalisation of the bag short (it takes a second or two).
+        previous_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN)
         for executor in executors:
             executor.shutdown(timeout_sec=2.0)
         for spinner in spinners:
@@ -168,11 +175,26 @@ def _run(args) -> int:
         for node in reversed(nodes):
             node.destroy_node()
         rclpy.try_shutdown()
+        signal.signal(signal.SIGTERM, previous_sigterm)
+        signal.signal(signal.SIGINT, previous_sigint)
     if bag_folder is not None:
         print(f'recorded: {bag_folder}')
     if args.no_diagnose:
         return 130 if interrupted else 0
     return _diagnose(bag_folder, memory, args.model_effect, interrupted)
+
+
+def _raise_keyboard_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
+def _spin(executor) -> None:
+    """Spin one node's executor until it is shut down."""
+    from rclpy.executors import ExternalShutdownException
+    try:
+        executor.spin()
+    except ExternalShutdownException:
+        pass
 
 
 def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float) -> bool:
@@ -274,7 +296,7 @@ def _diagnose(bag_folder, memory, model_effects, interrupted: bool) -> int:
                              progress=lambda message: print(f'  ... {message}', flush=True))
     except InsufficientDataError as error:
         print(f'aeropend run: cannot diagnose: {error}', file=sys.stderr)
-        return 1
+        return 130 if interrupted else 1
     print(diagnosis.summary())
     return 130 if interrupted else 0
 

@@ -119,6 +119,12 @@ def _analyze_in_worker(*args) -> WindowResult:
         return analyze_window(*args, sample_time=SAMPLE_TIME)
 
 
+def _ignore_interrupts() -> None:
+    """Worker start-up: Ctrl-C goes to the whole process group; the node shuts the worker down itself."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _warm_up() -> None:
     """Import the analysis stack in the worker process ahead of the first window (spawn start-up takes seconds)."""
     import aeropend_core.identify  # noqa: F401
@@ -149,7 +155,8 @@ class IdentificationNode(Node):
         self.first_stamp_ns: int | None = None
         # The analysis runs in a worker *process* (spawned: no fork of the DDS threads): a worker thread would
         # hold the GIL for most of a window's fit and starve the executor, which then drops samples.
-        self.worker = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'))
+        self.worker = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
+                                          initializer=_ignore_interrupts)
         self.pending = self.worker.submit(_warm_up)
         self.windows_done = 0
         self.windows_skipped = 0

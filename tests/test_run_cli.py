@@ -109,3 +109,37 @@ def test_run_on_the_rig_through_the_serial_bridge(tmp_path):
     assert samples['sequence'].size > 19 * 490, output
     assert np.mean(np.diff(samples['sequence']) == 1) > 0.99
     assert np.max(samples['duty']) > 0.1, 'the excitation reached the rig'
+
+
+@pytest.mark.timeout(120)
+def test_run_interrupted_finalises_the_bag(tmp_path):
+    """Ctrl-C (SIGINT) during `aeropend run`: duty back to 0, bag finalised and complete, exit status 130."""
+    import signal
+    env = local_ros_environment(domain_id=private_domain_id())
+    run = subprocess.Popen(AEROPEND + ['run', '--duration', '120', '--realtime-factor', '3', '--record',
+                                       str(tmp_path), '--no-diagnose', '--window', '10', '--hop', '5'],
+                           env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    try:
+        for line in run.stdout:              # wait for the first identified window, then interrupt
+            lines.append(line)
+            if 'window ending t =' in line:
+                run.send_signal(signal.SIGINT)
+                break
+        rest, _ = run.communicate(timeout=60)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    output = ''.join(lines) + rest
+    assert run.returncode == 130, output
+    assert 'interrupted; finalising' in output and 'recorded:' in output and 'Traceback' not in output, output
+    from aeropend_core.bag import read_samples
+    folder = next(p for p in tmp_path.iterdir() if p.is_dir())
+    assert (folder / 'metadata.yaml').exists()
+    samples = read_samples(folder, on_incomplete='raise')
+    assert samples['sequence'].size > 10 * 490 and np.all(np.diff(samples['sequence']) == 1)
+    # The last duty command recorded is 0: the excitation was stopped before the graph went away.
+    import struct
+    from aeropend_core.bag import read_messages
+    commands = [struct.unpack_from('<d', m.data, 4)[0] for m in read_messages(folder, ['/aeropend/duty_cmd'])]
+    assert commands and max(commands) > 0.0 and commands[-1] == 0.0, commands[-5:]
