@@ -380,10 +380,13 @@ def _weak_rows(columns: np.ndarray, weights: np.ndarray, starts: np.ndarray) -> 
         block = np.concatenate([block, np.zeros((stop - len(columns), columns.shape[1]))])
     kernel = np.zeros(q * step)
     kernel[:width] = weights
-    parts = np.ascontiguousarray(block).reshape(n_blocks, step, -1).transpose(0, 2, 1) @ kernel.reshape(q, step).T
-    out = parts[:k, :, 0].copy()
+    n_col = columns.shape[1]
+    # (q, step) @ (step, n_blocks·n_col): parts[j, b, c] = Σ_σ kernel[j·step + σ]·data[b·step + σ, c]
+    by_phase = np.ascontiguousarray(block.reshape(n_blocks, step, n_col).transpose(1, 0, 2)).reshape(step, -1)
+    parts = (kernel.reshape(q, step) @ by_phase).reshape(q, n_blocks, n_col)
+    out = parts[0, :k].copy()
     for j in range(1, q):
-        out += parts[j:j + k, :, j]
+        out += parts[j, j:j + k]
     return out
 
 
