@@ -46,6 +46,10 @@ class Term:
         as the commanded armature voltage, or an interval average). Its weak integral then uses the midpoint of
         each interval instead of the trapezoid rule; this removes a half-sample time shift that biases damping
         and gain estimates when the input steps.
+    partial : callable, optional
+        ``partial(signals, name) -> ndarray``: ∂function/∂signal, shape ``(n_samples,)`` (how noise on a signal
+        enters the term; the weak-form covariance needs it). Built-in terms give it exactly; without it
+        :meth:`derivative_wrt` uses a central difference.
     """
 
     name: str
@@ -53,6 +57,7 @@ class Term:
     function: Callable[[Signals], np.ndarray] = field(repr=False, compare=False)
     derivative_order: int = 0
     hold: bool = False
+    partial: Callable[[Signals, str], np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if not self.name:
@@ -68,15 +73,33 @@ class Term:
         value = np.asarray(self.function(signals), dtype=float)
         return np.broadcast_to(value, (n,)) if value.ndim == 0 else value
 
+    def derivative_wrt(self, signals: Signals, name: str) -> np.ndarray:
+        """∂(term)/∂(signal ``name``) at every sample, shape ``(n_samples,)`` (0 if the term does not read it)."""
+        n = len(signals[name])
+        if name not in self.variables:
+            return np.zeros(n)
+        if self.partial is not None:
+            value = np.asarray(self.partial(signals, name), dtype=float)
+            return np.broadcast_to(value, (n,)).copy() if value.ndim == 0 else value
+        x = np.asarray(signals[name], float)
+        h = 1e-6 * max(float(np.max(np.abs(x))), 1e-12)
+        plus, minus = dict(signals), dict(signals)
+        plus[name], minus[name] = x + h, x - h
+        return (self.evaluate(plus) - self.evaluate(minus)) / (2 * h)
+
 
 def constant() -> Term:
     """The constant term ``1``."""
     return Term('1', (), lambda s: np.ones(len(next(iter(s.values())))))
 
 
+def _ones(signals: Signals, name: str) -> np.ndarray:
+    return np.ones(len(signals[name]))
+
+
 def variable(name: str, hold: bool = False) -> Term:
     """The signal itself (``hold=True`` for a zero-order-hold input, see :class:`Term`)."""
-    return Term(name, (name,), lambda s, n=name: s[n], hold=hold)
+    return Term(name, (name,), lambda s, n=name: s[n], hold=hold, partial=_ones)
 
 
 def product(*names: str, hold: bool = False) -> Term:
@@ -97,17 +120,27 @@ def product(*names: str, hold: bool = False) -> Term:
             out = out * s[n]
         return out
 
-    return Term(label, tuple(counts), evaluate, hold=hold)
+    powers = tuple(counts.items())
+
+    def partial(s: Signals, name: str) -> np.ndarray:
+        # d/dx (x^k · rest) = k · x^(k−1) · rest
+        out = dict(powers)[name] * np.ones(len(s[name]))
+        for n, k in powers:
+            for _ in range(k - 1 if n == name else k):
+                out = out * s[n]
+        return out
+
+    return Term(label, tuple(counts), evaluate, hold=hold, partial=partial)
 
 
 def sine(name: str) -> Term:
     """``sin(name)``."""
-    return Term(f'sin({name})', (name,), lambda s, n=name: np.sin(s[n]))
+    return Term(f'sin({name})', (name,), lambda s, n=name: np.sin(s[n]), partial=lambda s, n: np.cos(s[n]))
 
 
 def cosine(name: str) -> Term:
     """``cos(name)``."""
-    return Term(f'cos({name})', (name,), lambda s, n=name: np.cos(s[n]))
+    return Term(f'cos({name})', (name,), lambda s, n=name: np.cos(s[n]), partial=lambda s, n: -np.sin(s[n]))
 
 
 def sine_cosine(name: str) -> list[Term]:
@@ -118,7 +151,7 @@ def sine_cosine(name: str) -> list[Term]:
 def derivative(name: str, order: int = 1) -> Term:
     """The ``order``-th time derivative of a signal, integrated by parts (never differentiated numerically)."""
     label = f'd{name}/dt' if order == 1 else f'd^{order}{name}/dt^{order}'
-    return Term(label, (name,), lambda s, n=name: s[n], derivative_order=order)
+    return Term(label, (name,), lambda s, n=name: s[n], derivative_order=order, partial=_ones)
 
 
 def polynomial(names: Sequence[str], degree: int = 2, include_constant: bool = False) -> list[Term]:

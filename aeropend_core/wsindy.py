@@ -271,7 +271,7 @@ def choose_support(signal: np.ndarray, order: int = 1, decay_tolerance: float = 
     m = min_half_width
     for _ in range(20):
         m_new = spectral_width * n * math.sqrt(2 * p + 3) / (2 * math.pi * k_star)
-        m_new = int(np.clip(round(m_new), min_half_width, max_half_width))
+        m_new = int(min(max(round(m_new), min_half_width), max_half_width))
         p_new = max(test_function_power(m_new, decay_tolerance), order + 2)
         if (m_new, p_new) == (m, p):
             break
@@ -1045,6 +1045,13 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
     return WeakSindyResult(tuple(fits))
 
 
+def _pinvh(matrix: np.ndarray) -> np.ndarray:
+    """Pseudo-inverse of a small symmetric matrix (eigenvalues below n·eps·max|λ| dropped, as scipy's pinvh)."""
+    values, vectors = np.linalg.eigh(matrix)
+    keep = np.abs(values) > matrix.shape[0] * np.finfo(float).eps * np.max(np.abs(values), initial=0.0)
+    return (vectors[:, keep] / values[keep]) @ vectors[:, keep].T
+
+
 def _coefficient_covariance(a, bw, w, sel, col, noise_gram):
     """Covariance of the selected coefficients and the whitened residual vector.
 
@@ -1060,7 +1067,7 @@ def _coefficient_covariance(a, bw, w, sel, col, noise_gram):
     if noise_gram is not None:
         gram_sel = gram_sel - noise_gram[np.ix_(sel, sel)]
     scale_sel = np.outer(col[sel], col[sel])
-    return sigma2 * linalg.pinvh(gram_sel / scale_sel) / scale_sel, resid_vec
+    return sigma2 * _pinvh(gram_sel / scale_sel) / scale_sel, resid_vec
 
 
 def estimate_noise_std(signal: np.ndarray) -> float:
@@ -1121,6 +1128,12 @@ class _NoiseModel:
         return int(self.rows[-1]) + 1 == len(self.rows)
 
 
+def _term_partial(cache, segment, term, signals, name) -> np.ndarray:
+    """∂term/∂signal, cached per segment (shared by the equations that offer the term)."""
+    return _cached(cache, ('jac', segment, term.name, term.variables, name),
+                   lambda: term.derivative_wrt(signals, name))
+
+
 def _grid(starts: np.ndarray, width: int) -> tuple[int, int, np.ndarray]:
     """(first, step, grid index) with starts = first + step·index."""
     first = int(starts[0])
@@ -1141,22 +1154,13 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
             sigma = _cached(cache, ('sigma', segment, v), lambda x=x: estimate_noise_std(x))
         if not sigma > 0:
             continue
-        h = 1e-6 * max(float(np.max(np.abs(x))), 1e-12)
         # columns ordered by kernel type, so each type is a contiguous slice
         members = sorted((type_of[j], j) for j, term in enumerate(eq.terms) if v in term.variables)
         idx = np.array([j for _, j in members], np.int64)
         types = np.array([a for a, _ in members], np.int64)
 
-        def stacked(v=v, x=x, h=h, idx=idx):
-            cols = []
-            for j in idx:
-                term = eq.terms[j]
-
-                def jacobian(term=term):
-                    plus, minus = dict(signals), dict(signals)
-                    plus[v], minus[v] = x + h, x - h
-                    return (term.evaluate(plus) - term.evaluate(minus)) / (2 * h)
-                cols.append(_cached(cache, ('jac', segment, term.name, term.variables, v), jacobian))
+        def stacked(v=v, x=x, idx=idx):
+            cols = [_term_partial(cache, segment, eq.terms[j], signals, v) for j in idx]
             return np.column_stack(cols) if cols else np.zeros((len(x), 0))
         key = ('jacs', segment, v, tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx))
         out.append((sigma, v == eq.target, idx, types, _cached(cache, key, stacked)))
