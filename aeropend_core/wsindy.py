@@ -722,6 +722,9 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
         # polynomial look-alikes), which the backward path can miss when a whole look-alike group is present.
         support = keep & usable
         while np.count_nonzero(support) < np.count_nonzero(usable):
+            # the sparsity penalty only grows along this path: once it alone reaches the best loss, stop
+            if 2.0 * (1.0 - alpha) * (np.count_nonzero(support) + 1) / n_terms >= best_loss - 1e-12:
+                break
             trial_loss = np.inf
             trial_j = -1
             trial_w = w_ls
