@@ -30,6 +30,7 @@ by default, only in the armature-circuit equation, where the voltage source acts
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -442,6 +443,12 @@ def full_state_library(include_constant: bool = True, with_voltage: bool = True)
     return terms + [lib.variable('armature_voltage', hold=True)] if with_voltage else terms
 
 
+@functools.lru_cache(maxsize=8)
+def _default_full_state_equations(voltage_in: tuple[str, ...]) -> list[Equation]:
+    """The four default equations (terms are immutable, so they are built once per voltage_in)."""
+    return [Equation(n, tuple(full_state_library(with_voltage=n in voltage_in))) for n in FULL_STATE_TARGETS]
+
+
 def identify_full_state(recording: Recording | Mapping[str, np.ndarray] | Sequence, *,
                         parameters: RigParameters = DEFAULT_PARAMETERS,
                         terms: Sequence[lib.Term] | None = None,
@@ -506,7 +513,7 @@ def identify_full_state(recording: Recording | Mapping[str, np.ndarray] | Sequen
     if terms is not None:
         equations = [Equation(n, tuple(terms)) for n in FULL_STATE_TARGETS]
     else:
-        equations = [Equation(n, tuple(full_state_library(with_voltage=n in voltage_in))) for n in FULL_STATE_TARGETS]
+        equations = _default_full_state_equations(tuple(sorted(voltage_in)))
     options = {'threshold': 'auto', 'significance': FULL_STATE_SIGNIFICANCE}
     options.update(wsindy_options)
     result = fit_weak_sindy(times if len(times) > 1 else times[0], signals if len(signals) > 1 else signals[0],
