@@ -176,3 +176,53 @@ def test_fixed_threshold_and_excluded_samples(pendulum):
                             exclude=exclude)['angle']
     assert 0 < masked.n_test_functions < full.n_test_functions
     assert masked.coefficient('u^2') == pytest.approx(K, rel=5e-3)
+
+
+def test_exhaustive_search_matches_brute_force():
+    """The depth-first small-support search (incremental Cholesky, pruning) finds the same best support as
+    scoring every combination with a fresh solve, including nearly collinear columns and kept terms."""
+    import itertools
+    rng = np.random.default_rng(0)
+    for trial in range(60):
+        n = int(rng.integers(4, 11))
+        a = rng.normal(size=(60, n))
+        if trial % 3 == 0:
+            a[:, 1] = a[:, 0] + 1e-3 * rng.normal(size=60)
+        truth = np.zeros(n)
+        truth[rng.choice(n, 3, replace=False)] = rng.normal(size=3)
+        b = a @ truth + 0.05 * rng.normal(size=60)
+        an = a / np.linalg.norm(a, axis=0)
+        gram, rhs = an.T @ an, an.T @ b / np.linalg.norm(b)
+        keep = np.zeros(n, bool)
+        keep[0] = trial % 2 == 1
+        usable = np.ones(n, bool)
+        w_ls = wsindy._solve_subset(gram, rhs, usable, 1e-12)
+        gwls = gram @ w_ls
+        c0 = float(w_ls @ gwls)
+        free = np.flatnonzero(~keep)
+        size = min(4, free.size)
+        best, best_support = np.inf, None
+        for k in range(1, size + 1):
+            for combo in itertools.combinations(free, k):
+                support = keep.copy()
+                support[list(combo)] = True
+                w = wsindy._solve_subset(gram, rhs, support, 1e-12)
+                value = wsindy._loss(gram, w, gwls, c0, np.sqrt(c0), 0.8, n)
+                if value < best - 1e-12:
+                    best, best_support = value, support
+        found = wsindy._exhaustive(gram, rhs, gwls, c0, np.sqrt(c0), 0.8, n, keep, free, size, np.inf, 1e-12)
+        assert np.array_equal(found, best_support), trial
+
+
+def test_term_partial_derivatives_match_central_differences():
+    rng = np.random.default_rng(2)
+    signals = {'a': rng.normal(size=40) + 2, 'b': rng.normal(size=40), 'c': rng.normal(size=40)}
+    terms = (lib.polynomial(['a', 'b', 'c'], 3, include_constant=True) + lib.sine_cosine('a')
+             + [lib.derivative('b'), lib.variable('c', hold=True), lib.product('a', 'a', 'b', hold=True)])
+    for term in terms:
+        numeric = lib.Term(term.name, term.variables, term.function)   # no partial: central difference
+        for name in signals:
+            exact = term.derivative_wrt(signals, name)
+            assert np.allclose(exact, numeric.derivative_wrt(signals, name), rtol=1e-6, atol=1e-8), (term.name, name)
+            if name not in term.variables:
+                assert not np.any(exact)
