@@ -49,32 +49,43 @@ def make_executor(prefer_events: bool = True):
     return SingleThreadedExecutor()
 
 
+def _raise_keyboard_interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def run_node(node_factory: Callable[[], object], args=None, prefer_events: bool = True,
              until: Callable[[object], bool] | None = None) -> int:
     """Jazzy-style ``main``: init, build the node, spin until Ctrl-C (or ``until(node)``), destroy, shut down.
 
-    A user mistake in the node's parameters (:class:`AeropendError` from the constructor) prints one line and
-    returns 2 instead of a traceback.
+    Ctrl-C (SIGINT) and SIGTERM become a ``KeyboardInterrupt`` in this thread while the ROS context is still up,
+    so that ``destroy_node`` can still publish (the excitation node sends duty 0 on the way out); rclpy's own
+    signal handler would shut the context down first. A user mistake in the node's parameters
+    (:class:`AeropendError` from the constructor) prints one line and returns 2 instead of a traceback.
     """
-    rclpy.init(args=args)
+    import signal
+
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    previous_sigterm = signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
     node = None
     status = 0
     try:
         node = node_factory()
         executor = make_executor(prefer_events)
         executor.add_node(node)
-        if until is None:
-            executor.spin()
-        else:
-            while rclpy.ok() and not until(node):
-                executor.spin_once(timeout_sec=0.1)
+        # spin_once with a timeout returns to Python regularly, so the interrupt is delivered promptly.
+        while rclpy.ok() and not (until is not None and until(node)):
+            executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except AeropendError as error:
         print(f'error: {error}', file=sys.stderr)
         status = 2
     finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)      # a second Ctrl-C must not cut the clean-up short
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        signal.signal(signal.SIGTERM, previous_sigterm)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     return status

@@ -20,6 +20,7 @@ also sends duty 0.
 """
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -34,6 +35,8 @@ from std_msgs.msg import Bool, Float64
 from aeropend_core.errors import AeropendError
 from aeropend_core.excitation import lhc_schedule
 from aeropend_ros import topics
+
+_STAMP = struct.Struct('<iI')
 
 #: Topic on which the node reports that the schedule has finished (std_msgs/Bool, transient local).
 DONE_TOPIC = '/aeropend/excitation/done'
@@ -146,7 +149,10 @@ class ExcitationNode(Node):
         self._last_sent_ns = 0
         self._republish_ns = int(republish_period * 1e9)
         if self.time_source == 'samples':
-            self.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, topics.samples_qos())
+            # Raw subscription: only the stamp is needed, read straight from the CDR bytes (cheap at 490 Hz and
+            # faster). Bytes 0-3 are the encapsulation header, then header.stamp (int32 sec, uint32 nanosec).
+            self.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, topics.samples_qos(),
+                                     raw=True)
         self.create_timer(0.005, self._on_timer)
         self.get_logger().info(f'excitation: {len(self.duties)} steps, {self.total_time:.1f} s '
                                f'(duty cap {self.duty_cap:g}, time from {self.time_source})')
@@ -155,8 +161,11 @@ class ExcitationNode(Node):
     def _ready(self) -> bool:
         return self.duty_publisher.get_subscription_count() > 0
 
-    def _on_sample(self, msg: JointState) -> None:
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    def _on_sample(self, data: bytes) -> None:
+        if len(data) < 12 or data[1] != 1:          # not little-endian CDR: ignore
+            return
+        sec, nanosec = _STAMP.unpack_from(data, 4)
+        stamp_ns = sec * 1_000_000_000 + nanosec
         if not self.started:
             if not self._ready():
                 return

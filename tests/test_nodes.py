@@ -202,11 +202,12 @@ def test_excitation_plays_steps_with_cap_and_returns_to_zero(sim, listener):
     duties = np.array([s.duty for s in listener.samples])
     distinct = [float(d) for i, d in enumerate(duties) if i == 0 or d != duties[i - 1]]
     assert distinct == [0.0, 0.3, 0.6, 0.2, 0.0]
-    # Plateaus as applied by the sim: each step held 0.5 s of sample time (+- transport latency).
+    # Plateaus as applied by the sim: each step held 0.5 s of sample time (+- the command's transport and
+    # scheduling latency on this shared machine).
     times = np.array([s.stamp_ns for s in listener.samples]) * 1e-9
     for level in (0.3, 0.6, 0.2):
         held = times[duties == level]
-        assert held.size and abs((held[-1] - held[0]) - 0.5) < 0.05, (level, held[-1] - held[0])
+        assert held.size and abs((held[-1] - held[0]) - 0.5) < 0.1, (level, held[-1] - held[0])
     rod = np.array([s.angle for s in listener.samples])[duties == 0.6]
     assert np.max(rod) > 0.05, 'the rod should swing up at duty 0.6'
     assert math.isfinite(rod[-1])
@@ -358,3 +359,16 @@ def test_sim_faster_than_real_time_stops_after(tmp_path, own_domain):
     # A Python listener cannot take 4,900 msg/s without best-effort drops: check what arrived, and the ends.
     assert sequence.size > 100 and sequence.min() == 0 and sequence.max() == 1959
     assert np.max(np.abs((stamps - stamps[0]) - (sequence - sequence[0]) * SAMPLE_TIME * 1e9)) <= 1.0
+
+
+def test_excitation_interrupted_sends_duty_zero(sim, listener):
+    """Ctrl-C on a playing excitation node: it sends duty 0 on the way out (the sim applies it), exit status 0."""
+    with NodeProcess('aeropend_ros.excitation_node',
+                     ['-p', 'schedule:=steps', '-p', 'steps:=[0.35, 60.0]', '-p', 'start_delay:=0.0'],
+                     DOMAIN_ID) as process:
+        assert listener.wait_for(lambda: listener.samples and listener.samples[-1].duty == 0.35, 30.0), \
+            process.output()
+        process.process.send_signal(2)
+        assert listener.wait_for(lambda: listener.samples[-1].duty == 0.0, 10.0), process.output()
+        assert listener.wait_for(lambda: process.process.poll() is not None, 10.0)
+        assert process.process.returncode == 0, process.output()
