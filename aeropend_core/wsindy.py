@@ -1209,19 +1209,27 @@ def _window_dots(columns: np.ndarray, kernels: np.ndarray, first: int, step: int
     return out
 
 
-@numba.njit(cache=True, nogil=True)
-def _overlap_add(rows, n_channels, first, step, n):
-    """out[c, first + r·step + τ] += rows[r, c·width + τ] (inside 0..n−1), shape (C, n); rows (count, C·width)."""
-    count = rows.shape[0]
-    width = rows.shape[1] // n_channels
-    out = np.zeros((n_channels, n))
-    for r in range(count):
-        base = first + r * step
-        top = min(width, n - base)
-        for p in range(n_channels):
-            off = p * width
-            for tau in range(top):
-                out[p, base + tau] += rows[r, off + tau]
+def _banded_overlap(zgrid: np.ndarray, kernels: np.ndarray, first: int, step: int, n: int) -> np.ndarray:
+    """q_p(t) = Σ_r Σ_u zgrid[r, u]·kernels[p, u, t − first − r·step], shape (P, n).
+
+    In blocks of ``step`` samples (t = first + b·step + σ, r = b − j): q_p[b, σ] = Σ_j Σ_u zgrid[b − j, u]·
+    kernels[p, u, j·step + σ], one matrix product of the shifted copies of zgrid with the kernel pieces.
+    """
+    full, n_offsets = zgrid.shape
+    n_pairs, _, width = kernels.shape
+    q = -(-width // step)
+    n_blocks = full - 1 + q
+    shifted = np.zeros((n_blocks, q, n_offsets))
+    for j in range(q):
+        shifted[j:j + full, j] = zgrid
+    padded = np.zeros((n_pairs, n_offsets, q * step))
+    padded[:, :, :width] = kernels
+    pieces = padded.reshape(n_pairs, n_offsets, q, step).transpose(2, 1, 0, 3).reshape(q * n_offsets, n_pairs * step)
+    blocks = (shifted.reshape(n_blocks, q * n_offsets) @ pieces).reshape(n_blocks, n_pairs, step)
+    flat = blocks.transpose(1, 0, 2).reshape(n_pairs, n_blocks * step)
+    out = np.zeros((n_pairs, n))
+    m = min(flat.shape[1], n - first)
+    out[:, first:first + m] = flat[:, :m]
     return out
 
 
@@ -1305,7 +1313,8 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
     −10 % on Kq at 30 dB). ``C_jk = Σ_v σ_v² Σ_t J_jv(t) J_kv(t) q_ab(t)`` with
     ``q_ab(t) = Σ_{r,s} (Σ⁻¹)[r,s] k_a(t − start_r) k_b(t − start_s)`` (a, b the kernel types of j, k). Only
     the band of Σ⁻¹ is needed (two test functions covering the same sample are within the band): the Takahashi
-    recurrence on the banded Cholesky factor, then one overlap-add of (band of Σ⁻¹) × (pair kernels).
+    recurrence on the banded Cholesky factor, then one product of (band of Σ⁻¹) with the pair kernels
+    (:func:`_banded_overlap`).
     Subtracting C and c gives the bias-compensated least squares.
     """
     if not any(idx.size for _, _, idx, _, _ in model.signals):
@@ -1335,9 +1344,7 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
     # s = r + u uses H_ab[u], s = r − u uses H_ba[u]
     kern = np.array([pairs[a, b] + np.concatenate([np.zeros_like(pairs[b, a][:1]), pairs[b, a][1:]])
                      for a, b in needed])                                  # (pairs, band+1, width)
-    n_pairs, _, width = kern.shape
-    per_row = zgrid @ kern.transpose(1, 0, 2).reshape(grid_band + 1, n_pairs * width)   # (full, pairs·width)
-    q_all = _overlap_add(per_row, n_pairs, model.first, model.step, model.n)
+    q_all = _banded_overlap(zgrid, kern, model.first, model.step, model.n)
     q = {ab: q_all[i] for i, ab in enumerate(needed)}
     gram = np.zeros((n_terms, n_terms))
     rhs = np.zeros(n_terms)
