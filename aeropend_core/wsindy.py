@@ -1187,9 +1187,10 @@ def _pair_kernels(kernels: np.ndarray, step: int, band: int) -> np.ndarray:
 
 
 def _window_dots(columns: np.ndarray, kernels: np.ndarray, first: int, step: int, count: int) -> np.ndarray:
-    """out[c, r, k] = Σ_τ kernels[c, k, τ]·columns[c, first + r·step + τ], shape (C, count, nk).
+    """out[r, k] = Σ_c Σ_τ kernels[c, k, τ]·columns[c, first + r·step + τ], shape (count, nk).
 
-    Blocked like :func:`_weak_rows`: the data in blocks of ``step`` samples, each kernel in q pieces.
+    Blocked like :func:`_weak_rows`: with the data in blocks of ``step`` samples and each kernel cut into q
+    pieces, one product (blocks × channel·phase) @ (channel·phase × piece·k), then q shifted sums.
     """
     c, nk, width = kernels.shape
     q = -(-width // step)
@@ -1198,14 +1199,14 @@ def _window_dots(columns: np.ndarray, kernels: np.ndarray, first: int, step: int
     data = columns[:, first:min(stop, columns.shape[1])]
     if stop > columns.shape[1]:
         data = np.concatenate([data, np.zeros((c, stop - columns.shape[1]))], axis=1)
+    blocks = np.ascontiguousarray(data.reshape(c, n_blocks, step).transpose(1, 0, 2)).reshape(n_blocks, c * step)
     padded = np.zeros((c, nk, q * step))
     padded[:, :, :width] = kernels
-    # (C, n_blocks, step) @ (C, step, nk·q) -> (C, n_blocks, nk, q)
-    parts = (np.ascontiguousarray(data).reshape(c, n_blocks, step)
-             @ padded.reshape(c, nk * q, step).transpose(0, 2, 1)).reshape(c, n_blocks, nk, q)
-    out = parts[:, :count, :, 0].copy()
+    pieces = padded.reshape(c, nk, q, step).transpose(0, 3, 2, 1).reshape(c * step, q * nk)
+    parts = (blocks @ pieces).reshape(n_blocks, q, nk)
+    out = parts[:count, 0].copy()
     for j in range(1, q):
-        out += parts[:, j:j + count, :, j]
+        out += parts[j:j + count, j]
     return out
 
 
@@ -1293,7 +1294,7 @@ def _measurement_band(model: _NoiseModel, w):
     if varying:
         cols = np.array([v for _, v in varying])
         kerns = np.array([pairs[a, b] + (pairs[b, a] if a != b else 0.0) for (a, b), _ in varying])
-        grid_ab += _window_dots(cols, kerns, model.first, model.step, full).sum(axis=0).T
+        grid_ab += _window_dots(cols, kerns, model.first, model.step, full).T
     return _to_used_rows(model, grid_ab)
 
 
