@@ -682,16 +682,29 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     final_keys = np.zeros((cap, n), np.bool_)
     final_vals = np.zeros((cap, n))
     counts = np.zeros(4, np.int64)          # ridge count, ridge next slot, final count, final next slot
+    support = np.empty(n, np.bool_)
+    new = np.empty(n, np.bool_)
+    nonzero = np.empty(n, np.bool_)
     for lam in grid:
-        support = usable.copy()
+        upper = 1.0 / lam
+        support[:] = usable
         w = w_full
-        for _ in range(usable.size + 1):
-            new = support & (((np.abs(w) >= lam) & (np.abs(w) <= 1.0 / lam)) | keep)
-            if np.array_equal(new, support):
+        for _ in range(n + 1):
+            # new = support & ((λ <= |w| <= 1/λ) | keep), without temporaries
+            changed = False
+            for i in range(n):
+                size = abs(w[i])
+                inside = support[i] and ((size >= lam and size <= upper) or keep[i])
+                new[i] = inside
+                if inside != support[i]:
+                    changed = True
+            if not changed:
                 break
-            support = new
+            support[:] = new
             w = _memo_solve(ridge_keys, ridge_vals, counts, 0, gram, rhs, support, ridge)
-        w = _memo_solve(final_keys, final_vals, counts, 2, gram, rhs, w != 0.0, final_ridge)
+        for i in range(n):
+            nonzero[i] = w[i] != 0.0
+        w = _memo_solve(final_keys, final_vals, counts, 2, gram, rhs, nonzero, final_ridge)
         value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
         if value < best_loss - 1e-12:
             best_loss, best_w, best_lam = value, w, lam
