@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import functools
 import math
+import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -307,7 +308,12 @@ def _kernel_derivatives(half_width: int, power: int, dt: float, max_order: int) 
 
 def kernel_hold(half_width: int, power: int, dt: float) -> np.ndarray:
     """Weights for a zero-order-hold signal: sample i holds over [t_i, t_i+1), so its weight is Δt·φ at the
-    interval midpoint (midpoint rule), shape (2m+1,); the last interval lies outside the support."""
+    interval midpoint (midpoint rule), shape (2m+1,); the last interval lies outside the support (cached)."""
+    return _kernel_hold(int(half_width), int(power), float(dt)).copy()
+
+
+@functools.lru_cache(maxsize=64)
+def _kernel_hold(half_width: int, power: int, dt: float) -> np.ndarray:
     m = int(half_width)
     xs = (np.arange(-m, m + 1) + 0.5) / m
     w = np.where(np.abs(xs) < 1.0, np.clip(1.0 - xs * xs, 0.0, None) ** power, 0.0)
@@ -924,7 +930,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         if half_width is None or (isinstance(half_width, Mapping) and eq.target not in half_width):
             choices = [choose_support(x, eq.order, decay_tolerance, spectral_width, min_half_width,
                                       max_half_width) for x in targets]
-            m = int(np.median([c[0] for c in choices]))
+            m = int(statistics.median([c[0] for c in choices]))
         else:
             m = int(half_width[eq.target] if isinstance(half_width, Mapping) else half_width)
             if m < 2:
