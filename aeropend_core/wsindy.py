@@ -351,7 +351,7 @@ def _as_segments(time, signals) -> list[tuple[np.ndarray, dict[str, np.ndarray]]
         if len(t) < 3:
             raise InsufficientDataError(f'{label}only {len(t)} samples; a weak-form fit needs a window of data')
         dt = np.diff(t)
-        step = float(np.median(dt))
+        step = _median(dt)
         if step <= 0 or np.max(np.abs(dt - step)) > 1e-3 * step:
             raise AeropendError(f'{label}time is not uniformly sampled (median step {step:.6g} s, largest '
                                 f'deviation {np.max(np.abs(dt - step)):.3g} s); resample or split at the gaps')
@@ -906,9 +906,9 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         excludes = [exclude]
     else:
         excludes = list(exclude)
-    dt = float(np.median(np.diff(segments[0][0])))
+    dt = _median(np.diff(segments[0][0]))
     for t, _ in segments[1:]:
-        if abs(float(np.median(np.diff(t))) - dt) > 1e-3 * dt:
+        if abs(_median(np.diff(t)) - dt) > 1e-3 * dt:
             raise AeropendError('segments have different sample times; resample them to one rate first')
     for eq in equations:
         needed = {eq.target, *(v for t in eq.terms for v in t.variables)}
@@ -1067,11 +1067,23 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
     return WeakSindyResult(tuple(fits))
 
 
-def _pinvh(matrix: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True, nogil=True)
+def _pinvh(matrix):
     """Pseudo-inverse of a small symmetric matrix (eigenvalues below n·eps·max|λ| dropped, as scipy's pinvh)."""
     values, vectors = np.linalg.eigh(matrix)
-    keep = np.abs(values) > matrix.shape[0] * np.finfo(float).eps * np.max(np.abs(values), initial=0.0)
-    return (vectors[:, keep] / values[keep]) @ vectors[:, keep].T
+    n = values.size
+    largest = 0.0
+    for i in range(n):
+        largest = max(largest, abs(values[i]))
+    cutoff = n * np.finfo(np.float64).eps * largest
+    out = np.zeros((n, n))
+    for k in range(n):
+        if abs(values[k]) > cutoff:
+            for i in range(n):
+                f = vectors[i, k] / values[k]
+                for j in range(n):
+                    out[i, j] += f * vectors[j, k]
+    return out
 
 
 def _coefficient_covariance(a, bw, w, sel, col, noise_gram):
@@ -1427,7 +1439,12 @@ def _band_of_inverse(ab):
 
 
 def _cholesky_band(ab):
-    ab = ab.copy()
+    """Lower banded Cholesky factor (LAPACK storage) of the covariance band, with a 1e-10 relative jitter."""
+    ab = np.array(ab, order='F')
     ab[0] *= 1.0 + 1e-10
     ab[0] += 1e-300
-    return linalg.cholesky_banded(ab, lower=True, check_finite=False)
+    chol, info = lapack.dpbtrf(ab, lower=1, overwrite_ab=1)
+    if info != 0:
+        raise InsufficientDataError(f'the weak-form covariance is not positive definite (LAPACK info {info}); '
+                                    'the data cannot support this fit')
+    return chol
