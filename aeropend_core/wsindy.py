@@ -415,7 +415,7 @@ def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: f
     terms, which would otherwise both look large); the selected terms are then refitted without ridge
     (only a 1e-12 safeguard), so the ridge does not bias the reported coefficients.
     """
-    col = np.linalg.norm(a, axis=0)
+    col = np.sqrt(np.einsum('ij,ij->j', a, a))
     usable = col > 0
     col = np.where(usable, col, 1.0)
     bnorm = float(np.linalg.norm(b)) or 1.0
@@ -1022,8 +1022,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                     cg, cr = _noise_gram(model, chol, len(eq.terms))
                     noise_gram += cg
                     noise_rhs += cr
-            a = np.vstack(rows_a)
-            bw = np.concatenate(rows_b)
+            a = rows_a[0] if len(rows_a) == 1 else np.vstack(rows_a)
+            bw = rows_b[0] if len(rows_b) == 1 else np.concatenate(rows_b)
             # Earlier passes only supply w for the covariance: the greedy paths and the exhaustive search run in
             # the last one (with them in the first pass too, no support and no Kq error changed beyond noise).
             last = pass_ == irls_iterations
@@ -1211,9 +1211,30 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
     first, step, rows = _grid(starts, width)
     grid_band = max(-(-width // step) - 1, 0)
     kernels = np.array(kernel_list)
-    pairs = _pair_kernels(kernels, step, grid_band)
-    plain = _pair_kernels(plain_kernel[None, :], step, grid_band)[0, 0]
+    pairs = _cached_pair_kernels(kernels, step, grid_band)
+    plain = _cached_pair_kernels(plain_kernel[None, :], step, grid_band)[0, 0]
     return _NoiseModel(kernels, tuple(out), first, step, rows, len(signals[eq.target]), pairs, plain)
+
+
+def clear_caches() -> None:
+    """Forget the cached quadrature and pair kernels (they depend on (m, p, Δt, stride) only; benchmarks clear
+    them to time a window whose support differs from the previous one)."""
+    _kernel_derivatives.cache_clear()
+    _kernel_hold.cache_clear()
+    _pair_kernels_by_value.cache_clear()
+
+
+def _cached_pair_kernels(kernels: np.ndarray, step: int, band: int) -> np.ndarray:
+    """:func:`_pair_kernels`, cached on the kernels' values (read-only result; windows of a stream share it)."""
+    kernels = np.ascontiguousarray(kernels, float)
+    return _pair_kernels_by_value(kernels.tobytes(), kernels.shape, int(step), int(band))
+
+
+@functools.lru_cache(maxsize=32)
+def _pair_kernels_by_value(data: bytes, shape: tuple, step: int, band: int) -> np.ndarray:
+    out = _pair_kernels(np.frombuffer(data).reshape(shape), step, band)
+    out.setflags(write=False)
+    return out
 
 
 def _pair_kernels(kernels: np.ndarray, step: int, band: int) -> np.ndarray:

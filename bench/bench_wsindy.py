@@ -35,6 +35,7 @@ from aeropend_core.model import DEFAULT_PARAMETERS as P
 from aeropend_core.model import SAMPLE_TIME
 from aeropend_core.noise import add_noise
 from aeropend_core.simulate import simulate
+from aeropend_core.wsindy import clear_caches
 
 STATES = ('armature_current', 'motor_speed', 'angle', 'angular_rate')
 SIGNALS = STATES + ('armature_voltage',)
@@ -80,6 +81,7 @@ def run_ours(data, repeats: int, **options):
     identify_full_state(data, **options)  # warm-up (numba kernels load from their cache)
     times = []
     for _ in range(repeats):
+        clear_caches()   # no quadrature/pair kernels carried over from the previous (identical) window
         t0 = time.perf_counter()
         fit = identify_full_state(data, **options)
         times.append(time.perf_counter() - t0)
@@ -101,6 +103,7 @@ def run_live_rig(seed: int, repeats: int):
     identify_pendulum(*args, duty=tr.duty)
     times = []
     for _ in range(repeats):
+        clear_caches()
         t0 = time.perf_counter()
         fit = identify_pendulum(*args, duty=tr.duty)
         times.append(time.perf_counter() - t0)
