@@ -246,7 +246,7 @@ class RigSimulator:
             if not solution.success:
                 raise RuntimeError(f'simulation failed at t = {t_eval[0]:.3f} s: {solution.message}')
             states[start:stop] = solution.y[:, :-1].T
-            state = solution.y[:, -1]
+            state = _flush_denormals(solution.y[:, -1])
         self.state = np.array(state, dtype=float)
         time = (self.sample_index + np.arange(n)) * ts
         self.sample_index += n
@@ -264,7 +264,7 @@ class RigSimulator:
         final = _rig_kernel(np.array(self._constants, dtype=float), voltage, gate, state, self.sample_time,
                             c.get('coulomb_friction', 0.0), c.get('quadratic_drag', 0.0), c.get('cable_torque', 0.0),
                             self._lag_time_constant, FRICTION_SMOOTHING, states)
-        self.state = final[:len(self.state)].copy()
+        self.state = _flush_denormals(final[:len(self.state)])
         time = (self.sample_index + np.arange(n)) * self.sample_time
         self.sample_index += n
         return self._measure(time, duty, voltage, states[:, :len(self.state)])
@@ -287,6 +287,14 @@ class RigSimulator:
         if self.noise is not None:
             measured = apply_measurement_noise(measured, self.noise, self.rng)
         return Trajectory(time=time, duty=duty.copy(), truth=truth, sample_time=self.sample_time, **measured)
+
+
+def _flush_denormals(state: np.ndarray) -> np.ndarray:
+    """Zero the state components that decayed below 1e-200 (after long rests the state decays into subnormal
+    numbers, which LSODA turns into NaN and which slow arithmetic down)."""
+    state = np.array(state, dtype=float)
+    state[np.abs(state) < 1e-200] = 0.0
+    return state
 
 
 def simulate(duty: np.ndarray, parameters: RigParameters = DEFAULT_PARAMETERS,

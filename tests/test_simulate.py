@@ -117,3 +117,13 @@ def test_compiled_and_reference_integrators_agree(effects):
     assert np.max(np.abs(compiled.angle - reference.angle)) < 2e-5                      # rad
     assert np.max(np.abs(compiled.armature_current - reference.armature_current)) < 2e-5  # A
     assert np.max(np.abs(compiled.truth['motor_speed'] - reference.truth['motor_speed'])) < 0.05  # rad/s
+
+
+@pytest.mark.parametrize('method', ['compiled', 'lsoda'])
+def test_a_long_rest_in_small_blocks_stays_finite(method):
+    # After minutes at duty 0 the state decays into subnormal numbers; LSODA used to return NaN then.
+    simulator = RigSimulator(method=method)
+    simulator.run(np.full(490, 0.5))
+    for _ in range(420):                                   # 420 s of rest in 1 s blocks
+        block = simulator.run(np.zeros(490))
+        assert np.all(np.isfinite(block.angle)) and np.all(np.isfinite(simulator.state))
