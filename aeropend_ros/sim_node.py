@@ -133,9 +133,6 @@ class SimNode(Node):
         duty = min(max(self.commanded_duty, 0.0), float(self.get_parameter('duty_limit').value))
         try:
             block = self.simulator.run([duty] * count)
-            # Work around states decaying into subnormal numbers at long rests (LSODA then returns NaN).
-            state = self.simulator.state
-            state[np.abs(state) < 1e-100] = 0.0
         except (AeropendError, RuntimeError, ValueError) as error:
             self.get_logger().error(f'simulation failed: {error}; stopping')
             self.finished = True
