@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 
 from aeropend_ros._node_util import declare, run_node  # first: prepares the ROS environment  # isort: skip
 from rclpy.node import Node
