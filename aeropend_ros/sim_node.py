@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 
-
 from aeropend_ros._node_util import declare, run_node  # first: prepares the ROS environment  # isort: skip
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
