@@ -409,19 +409,20 @@ def _whitener(weights: np.ndarray, centres: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------------- regression
 def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: float, alpha: float,
              noise_gram=None, noise_rhs=None, exhaustive: int = 4, greedy: bool = True):
-    """Return (w in normalised coordinates, λ used, column scales, b scale).
+    """Return (w in normalised coordinates, λ used, column scales, b scale, AᵀA, Aᵀb).
 
     Thresholding runs on the ridge-regularised solutions (the ridge damps cancelling pairs of nearly collinear
     terms, which would otherwise both look large); the selected terms are then refitted without ridge
     (only a 1e-12 safeguard), so the ridge does not bias the reported coefficients.
     """
-    col = np.sqrt(np.einsum('ij,ij->j', a, a))
+    ata = a.T @ a
+    atb = a.T @ b
+    col = np.sqrt(np.diag(ata))
     usable = col > 0
     col = np.where(usable, col, 1.0)
-    bnorm = float(np.linalg.norm(b)) or 1.0
-    an = a / col
-    gram = an.T @ an
-    rhs = an.T @ (b / bnorm)
+    bnorm = float(np.sqrt(b @ b)) or 1.0
+    gram = ata / np.outer(col, col)
+    rhs = atb / (col * bnorm)
     if noise_gram is not None:
         gram = gram - noise_gram / np.outer(col, col)
         rhs = rhs - noise_rhs / (col * bnorm)
@@ -439,7 +440,7 @@ def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: f
         grid, backward = np.array([lam]), False
     w, lam = _select(np.ascontiguousarray(gram), np.ascontiguousarray(rhs), keep, usable, float(ridge),
                      float(alpha), np.asarray(grid, float), backward, int(exhaustive if backward else 0))
-    return w, (0.0 if threshold is None else float(lam)), col, bnorm
+    return w, (0.0 if threshold is None else float(lam)), col, bnorm, ata, atb
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1027,11 +1028,11 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
             # Earlier passes only supply w for the covariance: the greedy paths and the exhaustive search run in
             # the last one (with them in the first pass too, no support and no Kq error changed beyond noise).
             last = pass_ == irls_iterations
-            w_n, lam, col, bnorm = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs,
-                                            exhaustive_terms if last else 0, greedy=last)
+            w_n, lam, col, bnorm, ata, atb = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs,
+                                                      exhaustive_terms if last else 0, greedy=last)
             w = w_n * bnorm / col
         sel = np.flatnonzero(w_n)
-        cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram)
+        cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata)
         if significance is not None and threshold is not None and sel.size:
             # Significance guard (backward elimination by t-statistic): a selected free term must differ from 0
             # at the family-wise level ``significance`` over the J free candidates (Bonferroni, two-sided normal
@@ -1039,8 +1040,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
             # look-alikes (|t| ~ 2.5 at 40 dB); this test can, with a level chosen before seeing any data.
             free = int(np.count_nonzero(~keep & (col > 0)))
             critical = float(special.ndtri(1.0 - significance / (2.0 * max(free, 1))))
-            gram_c = a.T @ a - (noise_gram if noise_gram is not None else 0.0)
-            rhs_c = a.T @ bw - (noise_rhs if noise_rhs is not None else 0.0)
+            gram_c = ata - (noise_gram if noise_gram is not None else 0.0)
+            rhs_c = atb - (noise_rhs if noise_rhs is not None else 0.0)
             while sel.size:
                 tstat = np.abs(w[sel]) / np.sqrt(np.maximum(np.diag(cov), 1e-300))
                 tstat[keep[sel]] = np.inf
@@ -1053,7 +1054,7 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                     cs = col[sel]   # column-normalised, as in the selection
                     w[sel] = linalg.solve(gram_c[np.ix_(sel, sel)] / np.outer(cs, cs), rhs_c[sel] / cs,
                                           assume_a='sym', check_finite=False) / cs
-                cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram)
+                cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata)
         names = [eq.terms[j].name for j in sel]
         fits.append(EquationFit(
             name=eq.name,
@@ -1086,7 +1087,7 @@ def _pinvh(matrix):
     return out
 
 
-def _coefficient_covariance(a, bw, w, sel, col, noise_gram):
+def _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata):
     """Covariance of the selected coefficients and the whitened residual vector.
 
     σ̂² = ‖r‖²/(n_rows − n_kept); Cov(w) = σ̂² (G̃ᵀG̃ − C)⁻¹ (C the noise compensation when used), computed in
@@ -1097,7 +1098,7 @@ def _coefficient_covariance(a, bw, w, sel, col, noise_gram):
     sigma2 = float(resid_vec @ resid_vec) / dof
     if not sel.size:
         return np.zeros((0, 0)), resid_vec
-    gram_sel = a[:, sel].T @ a[:, sel]
+    gram_sel = ata[np.ix_(sel, sel)]
     if noise_gram is not None:
         gram_sel = gram_sel - noise_gram[np.ix_(sel, sel)]
     scale_sel = np.outer(col[sel], col[sel])
