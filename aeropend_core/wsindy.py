@@ -970,7 +970,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                 if centres.size == 0:
                     continue
             starts = centres - m
-            g = np.empty((len(starts), len(eq.terms)))
+            gb = np.empty((len(starts), len(eq.terms) + 1), order='F')   # [G b], Fortran order for LAPACK
+            g = gb[:, :-1]
             for d in sorted({t_.derivative_order for t_ in eq.terms}):
                 for held in (False, True):
                     idx = [j for j, t_ in enumerate(eq.terms) if t_.derivative_order == d and t_.hold == held]
@@ -982,9 +983,10 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                                      lambda term=term, s=s: term.evaluate(s)) for term in members]))
                         kern = hold_weights if held else weights[d]
                         g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
-            b = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
+            gb[:, -1] = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
+            b = gb[:, -1]
             model = _noise_model(eq, s, starts, kernel_list, type_of, noise_std, cache, si, width, weights[0])
-            systems.append((g, b, model))
+            systems.append((g, b, model, gb))
         n_rows = sum(len(sys_[1]) for sys_ in systems)
         if n_rows <= len(eq.terms):
             raise InsufficientDataError(
@@ -999,21 +1001,21 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
             correct = bias_correction and w is not None
             noise_gram = np.zeros((len(eq.terms), len(eq.terms))) if correct else None
             noise_rhs = np.zeros(len(eq.terms)) if correct else None
-            bands = [_measurement_band(model, w) for _, _, model in systems]
+            bands = [_measurement_band(model, w) for _, _, model, _ in systems]
             process = 0.0
             if process_noise and w is not None:
                 # Method of moments: E‖b − Gw‖² = tr Σ_meas + q·tr(V Vᵀ); q > 0 when the model misses forces
                 # (friction, cable...). Without it the whitening integrates the equation twice (second order)
                 # and any unmodelled low-frequency force swamps the fit.
-                resid = sum(float(np.sum((b - g @ w) ** 2)) for g, b, _ in systems)
+                resid = sum(float(np.sum((b - g @ w) ** 2)) for g, b, _, _ in systems)
                 trace_meas = sum(float(ab[0].sum()) for ab, _ in bands)
-                trace_v = sum(len(b) for _, b, _ in systems) * float(weights[0] @ weights[0])
+                trace_v = sum(len(b) for _, b, _, _ in systems) * float(weights[0] @ weights[0])
                 process = max(0.0, (resid - trace_meas) / trace_v)
-            for (g, b, model), (ab, band) in zip(systems, bands):
+            for (g, b, model, gb), (ab, band) in zip(systems, bands):
                 if process > 0.0:
                     ab = ab + _process_band(model, band, process)
                 chol = _cholesky_band(ab)
-                both, info = lapack.dtbtrs(chol, np.column_stack([g, b]), uplo='L')   # L⁻¹[G b], L banded
+                both, info = lapack.dtbtrs(chol, gb, uplo='L')   # L⁻¹[G b], L banded (gb is not overwritten)
                 if info != 0:
                     raise InsufficientDataError(f'{eq.name}: the weak-form covariance is singular (LAPACK info '
                                                 f'{info}); the data cannot support this fit')
