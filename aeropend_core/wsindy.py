@@ -294,12 +294,20 @@ def kernel_derivatives(half_width: int, power: int, dt: float, max_order: int) -
 def _kernel_derivatives(half_width: int, power: int, dt: float, max_order: int) -> np.ndarray:
     m = int(half_width)
     xs = np.arange(-m, m + 1) / m
-    # (1 − x²)^p as a polynomial in x
-    coef = npoly.polypow([1.0, 0.0, -1.0], power)
+    u = 1.0 - xs * xs
+    # closed forms of d^k/dx^k (1 − x²)^p for k <= 2 (p >= 3 here), the polynomial expansion beyond
+    closed = {0: lambda: u ** power,
+              1: lambda: -2.0 * power * xs * u ** (power - 1),
+              2: lambda: -2.0 * power * u ** (power - 1) + 4.0 * power * (power - 1) * xs * xs * u ** (power - 2)}
+    coef = None
     rows = []
     for k in range(max_order + 1):
-        dk = npoly.polyder(coef, k) if k else coef
-        rows.append(npoly.polyval(xs, dk) * (1.0 / (m * dt)) ** k)
+        if k in closed and power - k >= 0:
+            values = closed[k]()
+        else:
+            coef = npoly.polypow([1.0, 0.0, -1.0], power) if coef is None else coef
+            values = npoly.polyval(xs, npoly.polyder(coef, k))
+        rows.append(values * (1.0 / (m * dt)) ** k)
     w = np.array(rows) * dt
     w[:, 0] *= 0.5
     w[:, -1] *= 0.5
