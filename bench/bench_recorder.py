@@ -53,8 +53,9 @@ def baseline(count: int, folder: Path) -> tuple[float, float]:
     from aeropend_ros._ros_env import ament_prefixes
     data = sample_bytes(count)
     writer = BagWriter(folder, chunk_size=256 * 1024)
+    loader = msg_file_loader(ament_prefixes() or [sys.prefix])
     writer.add_topic('/aeropend/samples', 'sensor_msgs/msg/JointState',
-                     ros2msg_definition('sensor_msgs/msg/JointState', msg_file_loader(ament_prefixes() or [sys.prefix])))
+                     ros2msg_definition('sensor_msgs/msg/JointState', loader))
     cpu0, t0 = time.process_time(), time.perf_counter()
     for k, raw in enumerate(data):
         writer.write('/aeropend/samples', raw, 1_700_000_000_000_000_000 + k * 50_000)

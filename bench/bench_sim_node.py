@@ -153,8 +153,8 @@ def main() -> int:
                              f'publish_period:={args.publish_period}'], env, args.seconds, context),
     }
     rclpy.try_shutdown(context=context)
-    keys = ['rate_by_count', 'rate_by_sequence', 'rate_by_slope', 'lost', 'jitter_std_ms', 'jitter_p99_ms', 'jitter_max_ms',
-            'stamp_error_ns', 'cpu_percent', 'samples']
+    keys = ['rate_by_count', 'rate_by_sequence', 'rate_by_slope', 'lost', 'jitter_std_ms', 'jitter_p99_ms',
+            'jitter_max_ms', 'stamp_error_ns', 'cpu_percent', 'samples']
     print(f'# sim node vs plain 490 Hz publisher, {args.seconds:g} s each, cross-process, '
           f'load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs')
     print(f'{"metric":18s} {"baseline":>12s} {"sim_node":>12s} {"ratio":>8s}')
