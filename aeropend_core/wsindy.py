@@ -455,8 +455,9 @@ def _regress(a: np.ndarray, b: np.ndarray, keep: np.ndarray, threshold, ridge: f
 def _solve_subset(gram, rhs, support, ridge):
     """Least squares restricted to the support (normal equations with a relative ridge), zeros elsewhere.
 
-    Small dense systems (at most a few tens of terms): Gaussian elimination with partial pivoting, written out
-    to avoid per-call LAPACK overhead; a numerically zero pivot drops that direction (minimum-norm-like).
+    Small dense systems (at most a few tens of terms), written out to avoid per-call LAPACK overhead: Cholesky
+    when every pivot exceeds 1e-8 of the largest diagonal entry, otherwise Gaussian elimination with partial
+    pivoting, where a numerically zero pivot drops that direction (minimum-norm-like).
     """
     n = support.size
     idx = np.empty(n, np.int64)
@@ -477,6 +478,38 @@ def _solve_subset(gram, rhs, support, ridge):
         a[i, k] = rhs[idx[i]]
         scale = max(scale, abs(a[i, i]))
     tiny = 1e-14 * max(scale, 1e-300)
+    # Cholesky first (half the work); any pivot below 1e-8·scale (nearly singular or indefinite) falls back to
+    # Gaussian elimination with partial pivoting below.
+    low = np.zeros((k, k))
+    y = np.zeros(k)
+    ok = True
+    for c in range(k):
+        acc = a[c, c]
+        for e in range(c):
+            acc -= low[c, e] * low[c, e]
+        if acc <= 1e-8 * scale:
+            ok = False
+            break
+        d = np.sqrt(acc)
+        low[c, c] = d
+        for r in range(c + 1, k):
+            v = a[r, c]
+            for e in range(c):
+                v -= low[r, e] * low[c, e]
+            low[r, c] = v / d
+        v = a[c, k]
+        for e in range(c):
+            v -= low[c, e] * y[e]
+        y[c] = v / d
+    if ok:
+        for c in range(k - 1, -1, -1):
+            v = y[c]
+            for e in range(c + 1, k):
+                v -= low[e, c] * y[e]
+            y[c] = v / low[c, c]
+        for i in range(k):
+            w[idx[i]] = y[i]
+        return w
     for c in range(k):
         p = c
         for r in range(c + 1, k):
@@ -957,7 +990,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
             kid = ('hold',) if t_.hold else ('d', t_.derivative_order)
             if kid not in kernel_ids:
                 kernel_ids.append(kid)
-                kernel_list.append(hold_weights if t_.hold else (-1) ** t_.derivative_order * weights[t_.derivative_order])
+                order_ = t_.derivative_order
+                kernel_list.append(hold_weights if t_.hold else (-1) ** order_ * weights[order_])
             type_of.append(kernel_ids.index(kid))
         width = 2 * m + 1
         short = [i for i, (t, _) in enumerate(segments) if len(t) < width]
@@ -986,9 +1020,10 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                     if idx:
                         group = tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx)
                         members = [eq.terms[j] for j in idx]
-                        theta = _cached(cache, ('thetas', si, group), lambda members=members, s=s, si=si: np.column_stack(
-                            [_cached(cache, ('theta', si, term.name, term.variables),
-                                     lambda term=term, s=s: term.evaluate(s)) for term in members]))
+                        theta = _cached(cache, ('thetas', si, group), lambda members=members, s=s, si=si:
+                                        np.column_stack([_cached(cache, ('theta', si, term.name, term.variables),
+                                                                 lambda term=term, s=s: term.evaluate(s))
+                                                         for term in members]))
                         kern = hold_weights if held else weights[d]
                         g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
             gb[:, -1] = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
