@@ -723,7 +723,7 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     best_lam = 0.0
     w_full = _solve_subset(gram, rhs, usable, ridge)
     # Neighbouring λ mostly visit the same supports: remember recent solves (ridge ones and final ones).
-    cap = 32
+    cap = 64
     n = usable.size
     ridge_keys = np.zeros((cap, n), np.bool_)
     ridge_vals = np.zeros((cap, n))
