@@ -1160,6 +1160,16 @@ def _median(values: np.ndarray) -> float:
     return float((part[k - 1] + part[k]) / 2)
 
 
+@numba.njit(cache=True, nogil=True)
+def _third_difference_mad(x):
+    """(median absolute deviation of the third difference, the third difference), as np.diff(x, 3) and
+    np.median give them."""
+    d1 = x[1:] - x[:-1]
+    d2 = d1[1:] - d1[:-1]
+    third = d2[1:] - d2[:-1]
+    return np.median(np.abs(third - np.median(third))), third
+
+
 def estimate_noise_std(signal: np.ndarray) -> float:
     """Robust white-noise standard deviation of a smoothly varying, densely sampled signal (signal's units).
 
@@ -1171,8 +1181,7 @@ def estimate_noise_std(signal: np.ndarray) -> float:
     x = np.asarray(signal, float)
     if x.size < 8:
         return 0.0
-    third = np.diff(x, n=3)
-    mad = _median(np.abs(third - _median(third)))
+    mad, third = _third_difference_mad(np.ascontiguousarray(x))
     if mad > 0:
         return 1.4826 * mad / math.sqrt(20.0)
     if np.count_nonzero(third) < 0.1 * third.size:
