@@ -752,6 +752,14 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
             w = _memo_solve(ridge_keys, ridge_vals, counts, 0, gram, rhs, support, ridge)
         for i in range(n):
             nonzero[i] = w[i] != 0.0
+        # a support scored before cannot beat the best loss (which only decreases): skip it
+        seen = False
+        for i in range(counts[2]):
+            if np.array_equal(final_keys[i], nonzero):
+                seen = True
+                break
+        if seen:
+            continue
         w = _memo_solve(final_keys, final_vals, counts, 2, gram, rhs, nonzero, final_ridge)
         value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
         if value < best_loss - 1e-12:
