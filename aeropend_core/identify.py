@@ -56,7 +56,8 @@ PARAMETER_UNITS = {
     'gravity_stiffness': '1/s^2', 'damping': '1/s', 'thrust_acceleration_coefficient': 'rad/s^2/V^2',
     'armature_resistance': 'ohm', 'armature_resistance_from_current_square': 'ohm', 'thrust_coefficient': 'N s^2',
     'cable_stiffness': '1/s^2', 'angle_offset': 'rad', 'armature_inductance': 'H', 'back_emf_constant': 'V s/rad',
-    'motor_inertia_per_torque_constant': 'kg m^2/(N m/A)', 'lever_per_inertia_times_thrust_coefficient': '1/(kg m) N s^2',
+    'motor_inertia_per_torque_constant': 'kg m^2/(N m/A)',
+    'lever_per_inertia_times_thrust_coefficient': '1/(kg m) N s^2',
 }
 #: Units of each signal, for printing equations.
 SIGNAL_UNITS = {'angle': 'rad', 'armature_voltage': 'V', 'armature_current': 'A', 'motor_speed': 'rad/s',
@@ -231,11 +232,12 @@ def denoise_inputs(armature_voltage: np.ndarray, armature_current: np.ndarray, s
     """Denoise Va and the (interval) current without smearing the duty steps.
 
     Va is held, so it is averaged over each run between ``steps`` (indices where the duty changes; no averaging
-    when None — steps detected from a noisy Va alone are not reliable enough). The back-EMF voltage u = Va − R0·Ia (= Kω·ω1,
-    continuous through steps because of the rotor's inertia) is low-passed with a zero-phase 2nd-order
-    Butterworth at ``cutoff`` [Hz] and Ia rebuilt as (Va − u)/R0. This is a linear change of variables, so the
-    thrust terms stay exact for any R0 near Ra (R0 only has to make u smooth); Ra is still fitted. Noise in the
-    quadratic thrust terms otherwise biases every coefficient by errors in variables (~4 % at 50 dB).
+    when None — steps detected from a noisy Va alone are not reliable enough). The back-EMF voltage
+    u = Va − R0·Ia (= Kω·ω1, continuous through steps because of the rotor's inertia) is low-passed with a
+    zero-phase 2nd-order Butterworth at ``cutoff`` [Hz] and Ia rebuilt as (Va − u)/R0. This is a linear change of
+    variables, so the thrust terms stay exact for any R0 near Ra (R0 only has to make u smooth); Ra is still
+    fitted. Noise in the quadratic thrust terms otherwise biases every coefficient by errors in variables (~4 % at
+    50 dB).
     """
     from scipy.signal import butter, sosfiltfilt
     va = np.asarray(armature_voltage, float) if steps is None else hold_average(armature_voltage, steps)

@@ -201,7 +201,8 @@ def main() -> None:
     print(f'full-state window: {n} samples ({n * SAMPLE_TIME:.1f} s), PSNR {args.psnr:g} dB, seed {args.seed}, '
           f'4 equations; same 18-term library for all methods unless noted')
     print(f'{"method":34s} {"time/window":>12s} {"wrong terms":>12s} {"Kq error":>10s} {"worst coef":>11s}')
-    rows = [('aeropend WSINDy (full method)', ours_time, ours), ('aeropend WSINDy plain (GLS+MSTLS)', plain_time, plain),
+    rows = [('aeropend WSINDy (full method)', ours_time, ours),
+            ('aeropend WSINDy plain (GLS+MSTLS)', plain_time, plain),
             ('aeropend default (Va in dIa/dt only)', default_time, default)]
     for label, t, sc in rows:
         print(f'{label:34s} {t * 1e3:10.1f}ms {sc[0]:12d} {sc[1] * 100:9.2f}% {sc[2] * 100:10.2f}%')
