@@ -182,8 +182,11 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
     thrust_voltage, thrust_current, motor = conditioned.armature_voltage, conditioned.armature_current, None
     stepped = piecewise_constant(voltage, conditioned.step_indices)
     if use_motor_observer and stepped is not None:
-        motor = fit_motor(stepped, current, conditioned.step_indices, sample_time)
-        if motor.adequate:
+        try:
+            motor = fit_motor(stepped, current, conditioned.step_indices, sample_time)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+            motor = None      # the observer is an improvement, not a requirement: use the measured Va - R Ia
+        if motor is not None and motor.adequate and np.all(np.isfinite(motor.back_emf)):
             # the observer's back-EMF is the thrust voltage; R is then 0 in the pendulum model
             thrust_voltage, thrust_current = motor.back_emf, np.zeros_like(current)
         else:

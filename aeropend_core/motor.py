@@ -153,7 +153,7 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
     rows = np.column_stack([grid, grid * ratio2, grid * ratio3])
     emf_grid = _simulate(rows, voltage, np.full(grid.size, initial_emf), sample_time)
     scan = np.mean(((voltage[None, :] - emf_grid) / resistance0 - current[None, :])[:, keep] ** 2, axis=1)
-    p1_0 = float(grid[int(np.argmin(scan))])
+    p1_0 = float(grid[int(np.argmin(np.nan_to_num(scan, nan=np.inf)))])
     p2_0, p3_0 = p1_0 * ratio2, p1_0 * ratio3
     scale = np.array([max(p1_0, 1e-3), max(p2_0, 0.01 * p1_0), max(p3_0, 0.01 * p1_0), max(resistance0, 0.1), 1.0])
     x0 = np.array([p1_0, p2_0, p3_0, resistance0, initial_emf]) / scale
@@ -163,13 +163,13 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
         return (voltage[None, :] - emf) / rows[:, 3:4]
 
     def residuals(x):
-        return model_current((x * scale)[None, :])[0, keep] - measured
+        return _bounded(model_current((x * scale)[None, :])[0, keep] - measured)
 
     def jacobian(x):
         step = 1e-6 * np.maximum(np.abs(x), 1.0)
         rows = np.tile(x, (len(x) + 1, 1))
         rows[1:] += np.diag(step)
-        predictions = model_current(rows * scale)[:, keep]
+        predictions = _bounded(model_current(rows * scale)[:, keep])
         return ((predictions[1:] - predictions[0]) / step[:, None]).T
 
     lower = np.array([1e-3, 0.0, 0.0, 1e-3, -np.inf]) / scale
@@ -211,13 +211,13 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
         return out_current, out_emf
 
     def residuals(z):
-        return model((z * scale)[None, :])[0][0, use] - measured
+        return _bounded(model((z * scale)[None, :])[0][0, use] - measured)
 
     def jacobian(z):
         step = 1e-6 * np.maximum(np.abs(z), 1.0)
         rows = np.tile(z, (len(z) + 1, 1))
         rows[1:] += np.diag(step)
-        predictions = model(rows * scale)[0][:, use]
+        predictions = _bounded(model(rows * scale)[0][:, use])
         return ((predictions[1:] - predictions[0]) / step[:, None]).T
 
     lower = np.array([1e-3, 1e-5, 0.0, 0.0, 0.0, -np.inf, -np.inf]) / scale
@@ -236,6 +236,15 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
                   'electrical_time_constant': float(x[1])}
     return MotorFit(parameters=parameters, back_emf=emf[0], current_rms_error=error_on_keep,
                     current_noise_rms=start.current_noise_rms)
+
+
+#: A diverging trial (an unstable rate for the sample time) is scored as this many amperes off.
+DIVERGED_CURRENT = 100.0
+
+
+def _bounded(values: np.ndarray) -> np.ndarray:
+    return np.clip(np.nan_to_num(values, nan=DIVERGED_CURRENT, posinf=DIVERGED_CURRENT, neginf=-DIVERGED_CURRENT),
+                   -DIVERGED_CURRENT, DIVERGED_CURRENT)
 
 
 def _resistance_from_steps(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray) -> float:

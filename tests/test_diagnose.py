@@ -206,3 +206,14 @@ def test_error_no_catalog_effect_explains_is_reported_with_the_residual_structur
     assert found.verdict == 'unexplained' and found.missing_effect is None, found.message
     assert found.residual_structure and 'register_effect' in found.message
     assert excess(found.current) > 3 * found.noise_rms
+
+
+@pytest.mark.parametrize('rate_hz', [200.0, 1000.0])
+def test_other_sample_rates_work(rate_hz):
+    sample_time = 1.0 / rate_hz
+    duty = lhc_schedule(60, seed=5).duty(sample_time, duration=60)
+    trajectory = simulate(duty, effects={'thrust_lag': 0.15}, sample_time=sample_time,
+                          noise=MeasurementNoise(40.0, True), seed=6)
+    found = diagnose(from_columns(trajectory.columns(with_truth=False)))
+    assert found.missing_effect == 'thrust_lag', found.message
+    assert found.candidates[0].parameters['time_constant'] == pytest.approx(0.15, rel=PARAMETER_TOLERANCE)
