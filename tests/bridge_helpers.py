@@ -14,6 +14,8 @@ import threading
 import time
 from pathlib import Path
 
+from tests.ros_helpers import wait_for
+
 ROOT = Path(__file__).resolve().parents[1]
 FIRMWARE = ROOT / 'firmware'
 #: Discovery plus the first message can take several seconds on a loaded machine (NOTES.md section 5).
@@ -35,12 +37,7 @@ def build_firmware(build_dir: Path) -> Path:
 
 def poll(condition, timeout: float, period: float = 0.01) -> bool:
     """Poll `condition()` until true or `timeout` [s] passes (listeners spin in their own thread)."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(period)
-    return True
+    return wait_for(condition, timeout, period=period)
 
 
 class Harness:

@@ -20,7 +20,7 @@ import pytest
 import yaml
 
 from aeropend_ros._ros_env import local_ros_environment
-from tests.ros_helpers import private_domain_id
+from tests.ros_helpers import private_domain_id, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE_FILES = ['package.xml', 'setup.py', 'setup.cfg', 'resource', 'aeropend_ros', 'aeropend_core', 'config']
@@ -28,15 +28,6 @@ COLCON = shutil.which('colcon', path=str(Path(sys.executable).parent)) or shutil
 
 pytestmark = [pytest.mark.timeout(240),
               pytest.mark.skipif(COLCON is None, reason='colcon not installed (pip install colcon-common-extensions)')]
-
-
-def wait_until(condition, timeout: float, period: float = 0.05) -> bool:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(period)
-    return True
 
 
 @pytest.fixture(scope='module')
@@ -99,8 +90,8 @@ def test_installed_recorder_node_runs_and_stops_on_sigint(workspace, tmp_path):
                                    stderr=subprocess.STDOUT)
         try:
             # it logs its start, then records its own /diagnostics (its publisher is discovered like any other)
-            assert wait_until(lambda: 'recording /diagnostics' in log.read_text(), 30), log.read_text()
-            assert wait_until(lambda: process.poll() is None and (bag / 'metadata.yaml').is_file(), 10)
+            assert wait_for(lambda: 'recording /diagnostics' in log.read_text(), 30), log.read_text()
+            assert wait_for(lambda: process.poll() is None and (bag / 'metadata.yaml').is_file(), 10)
             time.sleep(1.0)   # a measurement window: let a few diagnostics messages be recorded
             process.send_signal(signal.SIGINT)
             status = process.wait(30)
