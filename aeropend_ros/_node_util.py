@@ -4,6 +4,7 @@ Imports rclpy (call :func:`aeropend_ros._ros_env.ensure_ros_environment` first; 
 """
 from __future__ import annotations
 
+import math
 import sys
 from collections.abc import Callable
 
@@ -35,6 +36,22 @@ def declare(node, name: str, default, description: str, **range_and_flags):
     """Declare one parameter with a descriptor and return its current value (default or from YAML/CLI)."""
     node.declare_parameter(name, default, describe(description, **range_and_flags))
     return node.get_parameter(name).value
+
+
+def checked_duty(node, duty: float, limit_parameter: str) -> tuple[float, bool]:
+    """A duty command made safe: not a number -> 0, outside [0, limit] -> clamped (both logged).
+
+    Returns the duty to apply and whether it was clamped; `limit_parameter` names the node's cap parameter.
+    """
+    limit = float(node.get_parameter(limit_parameter).value)
+    if not math.isfinite(duty):
+        node.get_logger().warning(f'duty command {duty!r} is not a number: duty set to 0')
+        duty = 0.0
+    if 0.0 <= duty <= limit:
+        return duty, False
+    node.get_logger().warning(f'duty command {duty:.3f} outside [0, {limit:.3f}] ({limit_parameter}): clamped',
+                              throttle_duration_sec=2.0)
+    return min(max(duty, 0.0), limit), True
 
 
 def make_executor(prefer_events: bool = True):

@@ -27,7 +27,7 @@ import math
 import threading
 import time
 
-from aeropend_ros._node_util import declare, run_node  # first: prepares the ROS environment  # isort: skip
+from aeropend_ros._node_util import checked_duty, declare, run_node  # first: prepares the ROS environment  # isort: skip
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -355,16 +355,8 @@ class SerialBridgeNode(Node):
 
     # ------------------------------------------------------------------------------------------------- commanding
     def _on_duty(self, msg: Float64) -> None:
-        duty = float(msg.data)
-        max_duty = float(self.get_parameter('max_duty').value)
-        if not math.isfinite(duty):
-            self.get_logger().warning(f'duty command {duty!r} is not a number: duty set to 0')
-            duty = 0.0
-        if duty < 0.0 or duty > max_duty:
-            self.stats['clamped_commands'] += 1
-            self.get_logger().warning(f'duty command {duty:.3f} outside [0, {max_duty:.3f}] (max_duty): clamped',
-                                      throttle_duration_sec=2.0)
-            duty = min(max(duty, 0.0), max_duty)
+        duty, clamped = checked_duty(self, float(msg.data), 'max_duty')
+        self.stats['clamped_commands'] += clamped
         self.duty = duty
         self._last_command_time = time.monotonic()
         self._write(P.encode_command(P.SET_DUTY, duty))

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 
-from aeropend_ros._node_util import declare, run_node  # first: prepares the ROS environment  # isort: skip
+from aeropend_ros._node_util import checked_duty, declare, run_node  # first: prepares the ROS environment  # isort: skip
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -89,16 +89,7 @@ class SimNode(Node):
 
     # ------------------------------------------------------------------------------------------------------------
     def _on_duty(self, msg: Float64) -> None:
-        duty = float(msg.data)
-        limit = float(self.get_parameter('duty_limit').value)
-        if not math.isfinite(duty):
-            self.get_logger().warning(f'duty command {duty!r} is not a number: duty set to 0')
-            duty = 0.0
-        if duty < 0.0 or duty > limit:
-            self.get_logger().warning(f'duty command {duty:.3f} outside [0, {limit:.3f}] (duty_limit): clamped',
-                                      throttle_duration_sec=2.0)
-            duty = min(max(duty, 0.0), limit)
-        self.commanded_duty = duty
+        self.commanded_duty, _ = checked_duty(self, float(msg.data), 'duty_limit')
 
     def _samples_due(self) -> int:
         if self.realtime_factor <= 0.0:
