@@ -135,6 +135,15 @@ def get_effect(name: str) -> Effect:
             f'(`aeropend effects` describes them)') from None
 
 
+def find_parameter(parameter: str) -> tuple[Effect, EffectParameter] | None:
+    """The catalog effect that has a parameter of this name, and that parameter (None if no effect has it)."""
+    for effect in CATALOG.values():
+        for candidate in effect.parameters:
+            if candidate.name == parameter:
+                return effect, candidate
+    return None
+
+
 def resolve_effects(effects: Mapping[str, Mapping[str, float] | float] | None) -> dict[str, dict[str, float]]:
     """Normalise an effects specification to ``{name: {parameter: value}}`` with validated values.
 

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from aeropend_core.effects import PENDULUM, get_effect
+from aeropend_core.effects import PENDULUM, find_parameter, get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
 
 #: Nominal parameters of the pendulum equation, their units and meanings.
@@ -480,20 +480,11 @@ def _bounds(free: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
         elif name in NOMINAL_PARAMETERS:
             lo, hi = (0.0, np.inf) if name != 'thrust_resistance' else (0.0, 20.0)
         else:
-            bounds = _catalog_bounds(name)
-            lo, hi = bounds
+            found = find_parameter(name)
+            lo, hi = (found[1].lower, found[1].upper) if found else (-np.inf, np.inf)
         lower.append(lo)
         upper.append(hi)
     return np.array(lower, dtype=float), np.array(upper, dtype=float)
-
-
-def _catalog_bounds(parameter: str) -> tuple[float, float]:
-    from aeropend_core.effects import CATALOG
-    for effect in CATALOG.values():
-        for p in effect.parameters:
-            if p.name == parameter:
-                return p.lower, p.upper
-    return -np.inf, np.inf
 
 
 def _effective_samples(residuals: np.ndarray) -> float:

@@ -24,7 +24,7 @@ import numpy as np
 from aeropend_core.compare import Comparison, excess_error
 from aeropend_core.diagnose import (BIC_MARGIN, MIN_ABSOLUTE, MIN_IMPROVEMENT, WITHIN_NOISE, Candidate,
                                     Diagnosis)
-from aeropend_core.effects import CATALOG
+from aeropend_core.effects import find_parameter
 from aeropend_core.errors import AeropendError
 from aeropend_core.output_error import NOMINAL_PARAMETERS
 
@@ -78,11 +78,11 @@ def _unit_and_meaning(parameter: str) -> tuple[str, str]:
     """SI unit and meaning of a model parameter (nominal or from the effect catalog, user effects included)."""
     if parameter in NOMINAL_PARAMETERS:
         return NOMINAL_PARAMETERS[parameter]
-    for effect in CATALOG.values():
-        for p in effect.parameters:
-            if p.name == parameter:
-                return p.unit, f'{p.description} ({effect.name})'
-    return '', ''
+    found = find_parameter(parameter)
+    if found is None:
+        return '', ''
+    effect, entry = found
+    return entry.unit, f'{entry.description} ({effect.name})'
 
 
 def _excess(comparison: Comparison) -> float:
