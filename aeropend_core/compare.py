@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.signal import savgol_filter
@@ -93,6 +94,21 @@ class PreparedRecord:
                                    self.gate_voltage)
         self.heldout = SegmentedData(self.voltage, self.current, self.angle, [(self.split, n)], self.sample_time,
                                    self.gate_voltage)
+
+    @property
+    def smoothing_window(self) -> int:
+        """Samples of the Savitzky-Golay window (odd, ~0.1 s) used to estimate the angle's rate from data."""
+        return max(7, int(round(0.1 / self.sample_time)) | 1)
+
+    @cached_property
+    def smoothed_angle(self) -> np.ndarray:
+        """The measured angle smoothed over ~0.1 s [rad], shape (n,)."""
+        return savgol_filter(self.angle, self.smoothing_window, 3)
+
+    @cached_property
+    def smoothed_rate(self) -> np.ndarray:
+        """The angle's rate estimated from the measured angle over ~0.1 s [rad/s], shape (n,)."""
+        return savgol_filter(self.angle, self.smoothing_window, 3, deriv=1, delta=self.sample_time)
 
     @property
     def duration(self) -> float:
@@ -204,7 +220,7 @@ def initial_guess(prep: PreparedRecord) -> dict[str, float]:
     follows from eq (5)'s structure (the Va Ia coefficient is -2 R times the Va^2 one). With the motor observer
     the thrust regressor is e|e| of its back-EMF and R is 0. Only starting values.
     """
-    window = max(7, int(round(0.1 / prep.sample_time)) | 1)
+    window = prep.smoothing_window
     stop = prep.split
     y = savgol_filter(prep.angle[:stop], window, 3)
     dy = savgol_filter(prep.angle[:stop], window, 3, deriv=1, delta=prep.sample_time)
@@ -358,11 +374,8 @@ def _k_step_prediction(prep: PreparedRecord, fit: OutputErrorFit, horizon: float
     segments = [(int(s), int(s) + k + STRIDE) for s in starts]
     data = SegmentedData(prep.voltage, prep.current, prep.angle, segments, prep.sample_time,
                               prep.gate_voltage)
-    window = max(7, int(round(0.1 / prep.sample_time)) | 1)
-    smooth = savgol_filter(prep.angle, window, 3)
-    rate = savgol_filter(prep.angle, window, 3, deriv=1, delta=prep.sample_time)
     offset = fit.parameters.get('offset', 0.0)
-    initial = np.column_stack([smooth[starts] - offset, rate[starts]])
+    initial = np.column_stack([prep.smoothed_angle[starts] - offset, prep.smoothed_rate[starts]])
     predicted = data.simulate(fit.structure, fit.structure.row(fit.parameters)[None], initial[None])[0]
     return starts + k, predicted[starts + k]
 
@@ -384,9 +397,7 @@ def _correlation(a: np.ndarray, b: np.ndarray, lags: int) -> np.ndarray:
 
 def regime_masks(prep: PreparedRecord) -> dict[str, np.ndarray]:
     """Boolean masks (n,) of the operating regimes in which errors are localised."""
-    window = max(7, int(round(0.1 / prep.sample_time)) | 1)
-    angle = savgol_filter(prep.angle, window, 3)
-    rate = savgol_filter(prep.angle, window, 3, deriv=1, delta=prep.sample_time)
+    angle, rate = prep.smoothed_angle, prep.smoothed_rate
     n = len(angle)
     since_step = np.full(n, np.inf)
     for k in prep.step_indices:

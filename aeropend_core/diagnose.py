@@ -25,10 +25,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from aeropend_core.compare import Comparison, PreparedRecord, compare, excess_error, prepare
-from aeropend_core.effects import CATALOG, get_effect
+from aeropend_core.effects import CATALOG, find_parameter, get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.output_error import NOMINAL_PARAMETERS
 from aeropend_core.recording import Recording
@@ -258,9 +257,7 @@ def residual_structure(prep: PreparedRecord, comparison: Comparison, count: int 
     simulated = comparison.evaluation.simulated
     available = np.isfinite(simulated)
     residual = prep.angle - np.nan_to_num(simulated)
-    window = max(7, int(round(0.1 / prep.sample_time)) | 1)
-    angle = savgol_filter(prep.angle, window, 3)
-    rate = savgol_filter(prep.angle, window, 3, deriv=1, delta=prep.sample_time)
+    angle, rate = prep.smoothed_angle, prep.smoothed_rate
     e = prep.voltage - comparison.parameters.get('thrust_resistance', 0.0) * prep.current
     thrust = e * np.abs(e)
     delay = int(round(0.1 / prep.sample_time))
@@ -418,7 +415,8 @@ def format_summary(diagnosis: Diagnosis) -> str:
     observer = diagnosis.prepared is not None and diagnosis.prepared.motor is not None
     for name, value in diagnosis.reported_parameters(current).items():
         error = current.fit.standard_errors.get(name, float('nan'))
-        unit = NOMINAL_PARAMETERS.get(name, (_unit_of(name), ''))[0]
+        found = find_parameter(name)
+        unit = NOMINAL_PARAMETERS[name][0] if name in NOMINAL_PARAMETERS else (found[1].unit if found else '')
         if name == 'thrust_resistance' and observer:
             lines.append(f'  {name:24s} {value:12.5g} {unit} (from the motor observer fitted to Ia)')
             continue
@@ -465,11 +463,3 @@ def format_summary(diagnosis: Diagnosis) -> str:
         lines.append('Why: ' + best.explanation)
     lines.append(f'({diagnosis.seconds:.1f} s)')
     return '\n'.join(lines)
-
-
-def _unit_of(parameter: str) -> str:
-    for effect in CATALOG.values():
-        for p in effect.parameters:
-            if p.name == parameter:
-                return p.unit
-    return ''
