@@ -15,19 +15,35 @@ window in acquisition time; ``name`` = quantity names, ``position`` = values, ``
 - ``/diagnostics`` — window health (samples, lost samples), excitation sufficient or not and why, compute time,
   skipped windows, the model's effects; also once a second while waiting for data.
 
+Bad samples are never analysed. A sample with a NaN/inf angle, voltage or current, a duplicated sequence number, an
+older sequence number and stamp (out of order), a stamp that does not advance with the sequence number, or that
+cannot be read is rejected: counted (``rejected_<reason>`` on /diagnostics), logged, and reported as WARN within a
+second. A rejected sample counts as lost: a window missing at most 5 % of its samples is analysed with the gaps
+filled by linear interpolation (its status then says how many, and why, at WARN); a window missing more is not
+analysed (WARN saying so). A sequence number that goes back with a later stamp (the source restarted) or stamps
+that jump against the sequence numbers (by more than 0.1 s + 5 %) clear the buffer: the windows start again (WARN).
+A window whose excitation is insufficient (e.g. constant duty) is refused with the reason (WARN), and a result with
+a non-finite value is not published (ERROR).
+
 Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
 are changeable at runtime (``ros2 param set /identification_node effects "['angle_offset']"``); unknown effect
 names are rejected with the reason. The new values apply from the next window.
 """
 from __future__ import annotations
 
+import math
 import multiprocessing
 import threading
 from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from aeropend_ros._node_util import declare, run_node  # first: prepares the ROS environment  # isort: skip
+from aeropend_ros._node_util import (  # first: prepares the ROS environment  # isort: skip
+    ParameterError,
+    check_unknown_overrides,
+    declare,
+    run_node,
+)
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -46,6 +62,17 @@ FIT_TOPIC = '/aeropend/identification/fit'
 DIAGNOSTIC_NAME = 'aeropend: identification'
 #: Fraction of lost samples above which a window is not analysed.
 MAX_LOST_FRACTION = 0.05
+#: Largest believable mismatch between a stamp step and the sequence step times Ts: 0.1 s + 5 % of the step.
+STAMP_JUMP_TOLERANCE = (0.1, 0.05)
+#: Why a received sample is rejected (not buffered; it counts as lost, filled like one if the window still has
+#: enough samples) -> the words used on /diagnostics and in the log.
+REJECTIONS = {
+    'not_finite': 'not finite (NaN/inf angle, voltage or current)',
+    'duplicate': 'duplicated (same sequence number as the previous sample)',
+    'out_of_order': 'out of order (older sequence number and stamp than the previous sample)',
+    'stamp_not_increasing': 'non-monotonic stamp (sequence number advanced, stamp did not)',
+    'unreadable': 'unreadable (not an aeropend sample, or its sequence number is not a whole number)',
+}
 
 
 def results_qos() -> QoSProfile:
@@ -96,7 +123,8 @@ class RawSampleParser:
         if len(data) == self._length and data[12:self._offset] == self._constant and data[:2] == b'\x00\x01':
             sec, nanosec = self._stamp.unpack_from(data, 4)
             angle, voltage, current, duty, sequence = self._values.unpack_from(data, self._offset)
-            return topics.Sample(sec * 1_000_000_000 + nanosec, angle, voltage, current, duty, round(sequence))
+            return topics.Sample(sec * 1_000_000_000 + nanosec, angle, voltage, current, duty,
+                                 topics.sequence_number(sequence))
         msg = self._deserialize(data, JointState)
         sample = topics.msg_to_sample(msg)
         self._learn(data, msg)
@@ -143,7 +171,11 @@ class IdentificationNode(Node):
         declare(self, 'holdout_fraction', 0.25, 'end fraction of each window held out for the fit score',
                 low=0.05, high=0.5)
         effects = declare(self, 'effects', [''], 'catalog effects in the model (names; aeropend effects)')
-        self.effects = check_effect_names(effects)
+        check_unknown_overrides(self)
+        try:
+            self.effects = check_effect_names(effects)
+        except AeropendError as error:
+            raise ParameterError(f'{self.get_name()}: parameter effects: {error}') from None
         self.add_on_set_parameters_callback(self._validate_parameters)
 
         self.lock = threading.Lock()
@@ -160,6 +192,15 @@ class IdentificationNode(Node):
         self.pending = self.worker.submit(_warm_up)
         self.windows_done = 0
         self.windows_skipped = 0
+        #: Samples received since the start, and samples missed (gaps in the sequence counter between them).
+        self.samples_received = 0
+        self.samples_missed = 0
+        #: Rejected samples by reason (REJECTIONS), since the start; and the counts at the last window / status.
+        self.rejected = dict.fromkeys(REJECTIONS, 0)
+        self._rejected_at_window = dict(self.rejected)
+        self._rejected_at_status = dict(self.rejected)
+        #: Source restarts and stamp jumps (the buffer was cleared), since the start.
+        self.restarts = 0
         self.last_result: WindowResult | None = None
         self.last_status = ('waiting for samples', DiagnosticStatus.OK)
 
@@ -192,7 +233,7 @@ class IdentificationNode(Node):
                 try:
                     effects = check_effect_names(list(parameter.value or []))
                 except AeropendError as error:
-                    return SetParametersResult(successful=False, reason=str(error))
+                    return SetParametersResult(successful=False, reason=f'effects: {error}; the model is unchanged')
                 self.effects = effects
                 self.get_logger().info(f'model effects now {list(effects) or "none"} (from the next window)')
         return SetParametersResult(successful=True)
@@ -201,22 +242,65 @@ class IdentificationNode(Node):
     def _on_sample(self, data: bytes) -> None:
         try:
             sample = self.parser.parse(data)
-        except ValueError as error:
-            self.get_logger().warning(f'ignoring a sample: {error}', throttle_duration_sec=5.0)
+        except (ValueError, OverflowError) as error:
+            self._reject('unreadable', str(error))
+            return
+        if not (math.isfinite(sample.angle) and math.isfinite(sample.armature_voltage)
+                and math.isfinite(sample.armature_current)):
+            self._reject('not_finite', f'sample {sample.sequence}')
             return
         if self.first_stamp_ns is None:
             self.first_stamp_ns = sample.stamp_ns
         with self.lock:
-            if self.sequence and sample.sequence <= self.sequence[-1]:
-                self.get_logger().warning('sample counter went back (source restarted, or two sources on the '
-                                          'topic): buffer cleared', throttle_duration_sec=5.0)
-                self._clear()
+            if self.sequence:
+                last_sequence, last_stamp = self.sequence[-1], self.stamps[-1]
+                if sample.sequence == last_sequence:
+                    self._reject('duplicate', f'sample {sample.sequence}')
+                    return
+                if sample.sequence < last_sequence:
+                    if sample.stamp_ns <= last_stamp:
+                        self._reject('out_of_order', f'sample {sample.sequence} after {last_sequence}')
+                        return
+                    self._restart(f'sample counter went back from {last_sequence} to {sample.sequence} with a '
+                                  'later stamp: the source restarted (or two sources share the topic)')
+                elif sample.stamp_ns <= last_stamp:
+                    self._reject('stamp_not_increasing', f'sample {sample.sequence} stamped '
+                                 f'{(sample.stamp_ns - last_stamp) * 1e-9:+.6f} s after sample {last_sequence}')
+                    return
+                else:
+                    expected = (sample.sequence - last_sequence) * SAMPLE_TIME
+                    step = (sample.stamp_ns - last_stamp) * 1e-9
+                    if abs(step - expected) > STAMP_JUMP_TOLERANCE[0] + STAMP_JUMP_TOLERANCE[1] * expected:
+                        self._restart(f'stamps jumped by {step:.3f} s over {sample.sequence - last_sequence} '
+                                      f'sample(s) (expected {expected:.3f} s): the clock of the source jumped')
+                    else:
+                        self.samples_missed += sample.sequence - last_sequence - 1
+            self.samples_received += 1
             self.sequence.append(sample.sequence)
             self.stamps.append(sample.stamp_ns)
             self.signals['armature_voltage'].append(sample.armature_voltage)
             self.signals['armature_current'].append(sample.armature_current)
             self.signals['angle'].append(sample.angle)
         self._maybe_start_window(sample.stamp_ns)
+
+    def _reject(self, reason: str, detail: str) -> None:
+        """Count and log a sample that is not buffered (see REJECTIONS); /diagnostics reports the counts."""
+        self.rejected[reason] += 1
+        self.get_logger().warning(f'sample rejected, {REJECTIONS[reason]}: {detail}', throttle_duration_sec=5.0)
+
+    def _restart(self, why: str) -> None:
+        """The stream restarted (counter back, or stamps jumped): start the windows again from this sample."""
+        self.restarts += 1
+        self._clear()
+        message = f'{why}; buffer cleared, windows start again'
+        self.get_logger().warning(message, throttle_duration_sec=5.0)
+        self._report(message, DiagnosticStatus.WARN, {}, effects=self.effects)
+
+    @staticmethod
+    def _rejected_text(now: dict[str, int], before: dict[str, int]) -> tuple[int, str]:
+        """Rejected samples between two counter snapshots: (total, 'n reason, ...')."""
+        changes = {key: now[key] - before[key] for key in now if now[key] > before[key]}
+        return sum(changes.values()), ', '.join(f'{count} {REJECTIONS[key]}' for key, count in changes.items())
 
     def _clear(self) -> None:
         self.sequence.clear()
@@ -254,18 +338,35 @@ class IdentificationNode(Node):
     def _submit(self, snapshot: dict, effects: tuple[str, ...], holdout_fraction: float) -> None:
         sequence = snapshot['sequence']
         stop_ns = int(snapshot['stamp_ns'][-1] + round(SAMPLE_TIME * 1e9))
-        health = {'samples': str(sequence.size)}
+        health = {'samples': str(sequence.size), 'window_stop_ns': str(stop_ns)}
+        rejected, rejected_text = self._rejected_text(self.rejected, self._rejected_at_window)
+        self._rejected_at_window = dict(self.rejected)
+        health['rejected_samples'] = str(rejected)
         grid, filled, missing = fill_gaps(sequence, {k: snapshot[k] for k in self.signals})
+        # Samples missing from the whole window (also before its first received sample), rejected ones included.
+        expected = int(round(self._window_s() / SAMPLE_TIME))
+        missing = max(missing, expected - int(sequence.size))
         health['lost_samples'] = str(missing)
-        if missing > MAX_LOST_FRACTION * grid.size:
-            message = (f'{missing} of {grid.size} samples lost in the window (> {MAX_LOST_FRACTION:.0%}); '
-                       'check the link or the load')
+        if missing > MAX_LOST_FRACTION * expected:
+            message = (f'window not analysed: {missing} of {expected} samples lost (> {MAX_LOST_FRACTION:.0%})'
+                       + (f', of them rejected: {rejected_text}' if rejected else '')
+                       + '; check the link, the load or the source')
             self._report(message, DiagnosticStatus.WARN, health, effects=effects)
             return
+        if rejected:
+            health['rejected'] = rejected_text
         time = (snapshot['stamp_ns'][0] + (grid - grid[0]) * SAMPLE_TIME * 1e9) * 1e-9
         self.pending = self.worker.submit(_analyze_in_worker, time, filled['armature_voltage'],
                                           filled['armature_current'], filled['angle'], effects, holdout_fraction)
         self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects))
+
+    @staticmethod
+    def _non_finite(result: WindowResult) -> list[str]:
+        """Names of the values of a result that are not finite (standard errors may be NaN: unknown)."""
+        values = {f'coefficient {k}': v for k, (v, _) in result.coefficients.items()}
+        values.update({f'parameter {k}': v for k, (v, _) in result.parameters.items()})
+        values.update({'fit_percent': result.fit_percent, 'rms_error': result.rms_error})
+        return [name for name, value in values.items() if not math.isfinite(value)]
 
     def _on_result(self, future, stop_ns: int, health: dict, effects: tuple[str, ...]) -> None:
         try:
@@ -276,6 +377,11 @@ class IdentificationNode(Node):
         except Exception as error:  # noqa: BLE001 - a failed window must not kill the node; report it
             self._report(f'window failed: {error}', DiagnosticStatus.ERROR, health, effects=effects)
             self.get_logger().error(f'window analysis failed: {error!r}')
+            return
+        bad = self._non_finite(result)
+        if bad:
+            self._report(f'window not published: {", ".join(bad)} not finite (the fit diverged)',
+                         DiagnosticStatus.ERROR, health, effects=effects)
             return
         self.windows_done += 1
         self.last_result = result
@@ -290,8 +396,13 @@ class IdentificationNode(Node):
         health['fit_percent'] = f'{result.fit_percent:.2f}'
         health['rms_error_rad'] = f'{result.rms_error:.5f}'
         health['noise_rms_rad'] = f'{result.noise_rms:.5f}'
-        self._report(f'fit {result.fit_percent:.1f} % on {result.held_out_seconds:.1f} s held out',
-                     DiagnosticStatus.OK, health, excitation='sufficient', effects=effects)
+        message = f'fit {result.fit_percent:.1f} % on {result.held_out_seconds:.1f} s held out'
+        level = DiagnosticStatus.OK
+        if 'rejected' in health:
+            message += (f'; {health["lost_samples"]} samples filled by interpolation, rejected: '
+                        f'{health["rejected"]}')
+            level = DiagnosticStatus.WARN
+        self._report(message, level, health, excitation='sufficient', effects=effects)
 
     def _report(self, message: str, level: bytes, values: dict[str, str], excitation: str = '',
                 effects: tuple[str, ...] = ()) -> None:
@@ -301,6 +412,10 @@ class IdentificationNode(Node):
         values['effects'] = ','.join(effects) or 'none'
         values['windows_done'] = str(self.windows_done)
         values['windows_skipped'] = str(self.windows_skipped)
+        values['samples_received'] = str(self.samples_received)
+        values['samples_missed'] = str(self.samples_missed)
+        values.update({f'rejected_{key}': str(count) for key, count in self.rejected.items()})
+        values['restarts'] = str(self.restarts)
         self.last_status = (message, level)
         self._publish_status(message, level, values)
 
@@ -315,6 +430,12 @@ class IdentificationNode(Node):
     def _on_status_timer(self) -> None:
         with self.lock:
             buffered = (self.stamps[-1] - self.stamps[0]) * 1e-9 if len(self.stamps) > 1 else 0.0
+        rejected, rejected_text = self._rejected_text(self.rejected, self._rejected_at_status)
+        self._rejected_at_status = dict(self.rejected)
+        if rejected:       # said at once, not only with the next window (which may never come)
+            self._report(f'{rejected} samples rejected in the last second: {rejected_text}',
+                         DiagnosticStatus.WARN, {'rejected_samples': str(rejected)}, effects=self.effects)
+            return
         if self.windows_done == 0 and (self.pending is None or self.pending.done()) \
                 and self.last_status[0] == 'waiting for samples':
             self._publish_status(f'waiting for data: {buffered:.1f} of {self._window_s():g} s buffered',
