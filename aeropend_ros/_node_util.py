@@ -13,15 +13,38 @@ from aeropend_ros._ros_env import ensure_ros_environment
 ensure_ros_environment()
 
 import rclpy  # noqa: E402
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor  # noqa: E402
+from rcl_interfaces.msg import (  # noqa: E402
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.exceptions import ParameterException  # noqa: E402
 from rclpy.executors import ExternalShutdownException  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
 
 from aeropend_core.errors import AeropendError  # noqa: E402
 
 
+#: Names of the parameter types as a user writes them (messages).
+_TYPE_WORDS = {
+    'DOUBLE': 'a floating-point number', 'INTEGER': 'a whole number',
+    'BOOL': 'true or false', 'STRING': 'a text', 'STRING_ARRAY': "a list of texts such as ['a', 'b']",
+    'DOUBLE_ARRAY': 'a list of floating-point numbers such as [0.3, 1.5]',
+    'INTEGER_ARRAY': 'a list of whole numbers', 'BOOL_ARRAY': 'a list of true/false', 'BYTE_ARRAY': 'bytes',
+}
+#: Prefix of ``ParameterDescriptor.additional_constraints`` for a parameter with a fixed set of text values.
+CHOICES_PREFIX = 'one of: '
+
+
+class ParameterError(AeropendError):
+    """A node parameter with a bad value (start-up: the node prints this one line and exits with status 2)."""
+
+
 def describe(description: str, *, read_only: bool = False, low: float | None = None, high: float | None = None,
-             integer: bool = False) -> ParameterDescriptor:
-    """A ``ParameterDescriptor`` with a description and, optionally, an inclusive range (enforced by rclpy)."""
+             integer: bool = False, choices: tuple[str, ...] = ()) -> ParameterDescriptor:
+    """A ``ParameterDescriptor`` with a description and, optionally, an inclusive range (enforced by rclpy) or a
+    fixed set of text values (``additional_constraints = 'one of: a, b'``, enforced by :func:`declare`)."""
     descriptor = ParameterDescriptor(description=description, read_only=read_only)
     if low is not None and high is not None:
         if integer:
@@ -29,13 +52,145 @@ def describe(description: str, *, read_only: bool = False, low: float | None = N
         else:
             descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high),
                                                                   step=0.0)]
+    if choices:
+        descriptor.additional_constraints = CHOICES_PREFIX + ', '.join(choices)
     return descriptor
 
 
+def descriptor_choices(descriptor: ParameterDescriptor) -> tuple[str, ...]:
+    """The allowed text values of a parameter declared with ``choices`` (empty when any text goes)."""
+    text = descriptor.additional_constraints
+    return tuple(text[len(CHOICES_PREFIX):].split(', ')) if text.startswith(CHOICES_PREFIX) else ()
+
+
+def allowed_text(descriptor: ParameterDescriptor) -> str:
+    """What a parameter accepts, in words: its type, and its range or its choices."""
+    words = _TYPE_WORDS.get(Parameter.Type(descriptor.type).name, Parameter.Type(descriptor.type).name.lower())
+    if descriptor.floating_point_range:
+        r = descriptor.floating_point_range[0]
+        return f'{words} in [{r.from_value:g}, {r.to_value:g}]'
+    if descriptor.integer_range:
+        r = descriptor.integer_range[0]
+        return f'{words} in [{r.from_value}, {r.to_value}]'
+    choices = descriptor_choices(descriptor)
+    if choices:
+        return 'one of ' + ', '.join(repr(c) for c in choices)
+    return words
+
+
+def value_problem(value, descriptor: ParameterDescriptor) -> str | None:
+    """Why `value` is not acceptable for a parameter with this descriptor (type, range, NaN/inf, choices), or None."""
+    expected = Parameter.Type(descriptor.type)
+    try:
+        given = Parameter.Type.from_parameter_value(value) if not isinstance(value, Parameter.Type) else value
+    except (AttributeError, TypeError):
+        given = None
+    if given != expected:
+        return 'has the wrong type'
+    if expected == Parameter.Type.DOUBLE and not math.isfinite(value):
+        return 'is not a finite number'
+    if expected == Parameter.Type.DOUBLE_ARRAY and not all(math.isfinite(v) for v in value):
+        return 'holds a value that is not a finite number'
+    if descriptor.floating_point_range:
+        r = descriptor.floating_point_range[0]
+        if not r.from_value <= value <= r.to_value:
+            return 'is out of range'
+    if descriptor.integer_range:
+        r = descriptor.integer_range[0]
+        if not r.from_value <= value <= r.to_value:
+            return 'is out of range'
+    choices = descriptor_choices(descriptor)
+    if choices and value not in choices:
+        return 'is not an allowed value'
+    return None
+
+
+def parameter_message(node, name: str, value, problem: str, descriptor: ParameterDescriptor | None = None,
+                      default=None) -> str:
+    """One line naming the node, the parameter, its value, the problem, what it accepts and what to do."""
+    text = f'{node.get_name()}: parameter {name} = {value!r} {problem}'
+    if descriptor is not None:
+        text += f'; it must be {allowed_text(descriptor)}'
+        if problem == 'has the wrong type' and descriptor.type in (Parameter.Type.DOUBLE.value,
+                                                                  Parameter.Type.DOUBLE_ARRAY.value):
+            text += ' (write 1.0, not 1)'
+        if descriptor.description:
+            text += f' ({descriptor.description})'
+    if default is not None:
+        text += f'; fix it on the command line (-p {name}:={_yaml(default)} is the default) or in the params file'
+    return text
+
+
+def _yaml(value) -> str:
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, str):
+        return repr(value) if value else "''"
+    if isinstance(value, (list, tuple)):
+        return '[' + ', '.join(_yaml(v) for v in value) + ']'
+    return repr(value)
+
+
 def declare(node, name: str, default, description: str, **range_and_flags):
-    """Declare one parameter with a descriptor and return its current value (default or from YAML/CLI)."""
-    node.declare_parameter(name, default, describe(description, **range_and_flags))
+    """Declare one parameter with a descriptor and return its current value (default or from YAML/CLI).
+
+    A value given at start-up (``-p`` or ``--params-file``) that has the wrong type, is out of range, is NaN/inf,
+    or is not one of ``choices`` raises :class:`ParameterError` with one line saying so (``run_node`` prints it and
+    exits with status 2); an empty list for a list of texts means none. The same checks apply to runtime changes
+    (rclpy enforces the type, range and read-only flag; a callback added here rejects NaN and other choices).
+    """
+    descriptor = describe(description, **range_and_flags)
+    descriptor.type = Parameter.Type.from_parameter_value(default).value
+    overrides = getattr(node, '_parameter_overrides', {})
+    override = overrides.get(name)
+    if override is not None:
+        value = override.value
+        if override.type_ == Parameter.Type.NOT_SET:
+            if descriptor.type != Parameter.Type.STRING_ARRAY.value:
+                raise ParameterError(parameter_message(node, name, value, 'has no value (empty list or null)',
+                                                       descriptor, default))
+            overrides[name] = Parameter(name, value=[''])     # '[]' in YAML: no entries
+        else:
+            problem = value_problem(value, descriptor)
+            if problem is not None:
+                raise ParameterError(parameter_message(node, name, value, problem, descriptor, default))
+    try:
+        node.declare_parameter(name, default, descriptor)
+    except ParameterException as error:                    # anything the checks above did not foresee
+        raise ParameterError(f'{node.get_name()}: parameter {name}: {error}; it must be '
+                             f'{allowed_text(descriptor)}') from None
+    if not getattr(node, '_aeropend_checks_runtime', False):
+        node._aeropend_checks_runtime = True
+        node.add_on_set_parameters_callback(lambda parameters: _check_runtime_values(node, parameters))
     return node.get_parameter(name).value
+
+
+def _check_runtime_values(node, parameters) -> SetParametersResult:
+    """Runtime changes: reject NaN/inf and texts outside ``choices`` (rclpy has checked type, range, read-only)."""
+    for parameter in parameters:
+        if not node.has_parameter(parameter.name):
+            continue
+        descriptor = node.describe_parameter(parameter.name)
+        problem = value_problem(parameter.value, descriptor)
+        if problem is not None:
+            return SetParametersResult(successful=False, reason=parameter_message(
+                node, parameter.name, parameter.value, problem, descriptor) + '; the value is unchanged')
+    return SetParametersResult(successful=True)
+
+
+def check_unknown_overrides(node) -> None:
+    """Raise :class:`ParameterError` for a start-up parameter the node does not have (a typo would be ignored)."""
+    import difflib
+    declared = set(node._parameters) if hasattr(node, '_parameters') else set()
+    unknown = sorted(set(getattr(node, '_parameter_overrides', {})) - declared)
+    if not unknown:
+        return
+    name = unknown[0]
+    close = difflib.get_close_matches(name, sorted(declared), n=1)
+    hint = f"did you mean '{close[0]}'? " if close else ''
+    own = sorted(n for n in declared if n not in ('use_sim_time', 'start_type_description_service'))
+    raise ParameterError(f'{node.get_name()} has no parameter {name!r} ({hint}its parameters: {", ".join(own)}); '
+                         'remove or correct it in the command line or the params file')
 
 
 def checked_duty(node, duty: float, limit_parameter: str) -> tuple[float, bool]:
@@ -74,10 +229,13 @@ def run_node(node_factory: Callable[[], object], args=None, prefer_events: bool 
              until: Callable[[object], bool] | None = None) -> int:
     """Jazzy-style ``main``: init, build the node, spin until Ctrl-C (or ``until(node)``), destroy, shut down.
 
-    Ctrl-C (SIGINT) and SIGTERM become a ``KeyboardInterrupt`` in this thread while the ROS context is still up,
-    so that ``destroy_node`` can still publish (the excitation node sends duty 0 on the way out); rclpy's own
-    signal handler would shut the context down first. A user mistake in the node's parameters
-    (:class:`AeropendError` from the constructor) prints one line and returns 2 instead of a traceback.
+    Ctrl-C (SIGINT) and SIGTERM end the spinning while the ROS context is still up, so that ``destroy_node`` can
+    still publish (the excitation node sends duty 0 on the way out); rclpy's own signal handler would shut the
+    context down first. While the node is being built they raise ``KeyboardInterrupt``; once it spins they only
+    set a flag that the loop checks every 0.1 s (an exception raised inside a callback would be logged by the
+    executor as a FATAL error). A user mistake in the node's parameters (:class:`AeropendError` from the
+    constructor, e.g. :class:`ParameterError`, or a parameter the node does not have) prints one line and
+    returns 2 instead of a traceback.
     """
     import signal
 
@@ -88,10 +246,14 @@ def run_node(node_factory: Callable[[], object], args=None, prefer_events: bool 
     status = 0
     try:
         node = node_factory()
+        check_unknown_overrides(node)
         executor = make_executor(prefer_events)
         executor.add_node(node)
-        # spin_once with a timeout returns to Python regularly, so the interrupt is delivered promptly.
-        while rclpy.ok() and not (until is not None and until(node)):
+        stop_signals: list[int] = []
+        signal.signal(signal.SIGINT, lambda signum, frame: stop_signals.append(signum))
+        signal.signal(signal.SIGTERM, lambda signum, frame: stop_signals.append(signum))
+        # spin_once with a timeout returns to Python regularly, so the stop request is seen promptly.
+        while rclpy.ok() and not stop_signals and not (until is not None and until(node)):
             executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

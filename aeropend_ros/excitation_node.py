@@ -25,7 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_ros._node_util import declare, run_node  # first: prepares the ROS environment  # isort: skip
+from aeropend_ros._node_util import (  # first: prepares the ROS environment  # isort: skip
+    ParameterError,
+    check_unknown_overrides,
+    declare,
+    run_node,
+)
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -84,7 +89,7 @@ class ExcitationNode(Node):
     def __init__(self, node_name: str = 'excitation_node', **kwargs) -> None:
         super().__init__(node_name, **kwargs)
         kind = declare(self, 'schedule', 'lhc', "'lhc' (Latin hypercube) or 'steps' (steps / steps_file)",
-                       read_only=True)
+                       read_only=True, choices=('lhc', 'steps'))
         duration = declare(self, 'duration', 60.0, 'length of the Latin-hypercube schedule [s]', read_only=True,
                            low=0.5, high=86400.0)
         seed = declare(self, 'seed', 1, 'seed of the Latin hypercube', read_only=True, low=0, high=2**31 - 1,
@@ -105,7 +110,7 @@ class ExcitationNode(Node):
         start_delay = declare(self, 'start_delay', 1.0, 'rest at duty 0 before the first step [s]',
                               read_only=True, low=0.0, high=3600.0)
         self.time_source = declare(self, 'time_source', 'samples', "'samples' (acquisition stamps) or 'wall'",
-                                   read_only=True)
+                                   read_only=True, choices=('samples', 'wall'))
         self.time_scale = declare(self, 'time_scale', 1.0, "with time_source 'wall': schedule seconds per wall "
                                   'second (the realtime factor of a sim whose samples are not followed)',
                                   read_only=True, low=0.01, high=1000.0)
@@ -113,21 +118,35 @@ class ExcitationNode(Node):
                                    read_only=True, low=0.05, high=60.0)
         self.exit_when_done = declare(self, 'exit_when_done', True, 'exit the process when the schedule ends',
                                       read_only=True)
-        if self.time_source not in ('samples', 'wall'):
-            raise AeropendError(f"time_source must be 'samples' or 'wall', got {self.time_source!r}")
+        check_unknown_overrides(self)
+        name = self.get_name()
+        # The step list and file are checked even when the schedule is 'lhc' (a mistake there is still a mistake).
+        try:
+            listed = check_steps(flat_steps, 'parameter steps') if list(flat_steps) != [0.0] else None
+        except AeropendError as error:
+            raise ParameterError(f'{name}: {error}; fix -p steps:=[duty0, dwell0, ...] or the params file') \
+                from None
+        try:
+            from_file = read_steps_file(steps_file) if steps_file else None
+        except AeropendError as error:
+            raise ParameterError(f'{name}: parameter steps_file: {error}') from None
 
         if kind == 'lhc':
-            if duty_max < duty_min or dwell_max < dwell_min:
-                raise AeropendError('duty_min <= duty_max and dwell_min <= dwell_max are required')
+            if duty_max < duty_min:
+                raise ParameterError(f'{name}: duty_min ({duty_min:g}) must not exceed duty_max ({duty_max:g}); '
+                                     'swap or correct them')
+            if dwell_max < dwell_min:
+                raise ParameterError(f'{name}: dwell_min ({dwell_min:g} s) must not exceed dwell_max '
+                                     f'({dwell_max:g} s); swap or correct them')
             schedule = lhc_schedule(duration, int(n_strata), (duty_min, duty_max), (dwell_min, dwell_max),
                                     seed=int(seed), duty_cap=1.0)
             steps = np.column_stack((schedule.amplitudes, schedule.dwells))
             steps = steps[np.concatenate(([0.0], np.cumsum(steps[:, 1])[:-1])) < duration]
-        elif kind == 'steps':
-            steps = read_steps_file(steps_file) if steps_file else check_steps(
-                flat_steps if len(flat_steps) > 1 else [], 'parameter steps')
         else:
-            raise AeropendError(f"schedule must be 'lhc' or 'steps', got {kind!r}")
+            steps = from_file if from_file is not None else listed
+            if steps is None:
+                raise ParameterError(f"{name}: schedule 'steps' needs steps:=[duty0, dwell0, duty1, dwell1, ...] "
+                                     'or steps_file (a YAML file with steps: [[duty, dwell_s], ...])')
         if np.any(steps[:, 0] > self.duty_cap):
             self.get_logger().warning(f'{int(np.sum(steps[:, 0] > self.duty_cap))} step(s) above duty_cap '
                                       f'{self.duty_cap:g}: clamped')

@@ -27,7 +27,13 @@ import math
 import threading
 import time
 
-from aeropend_ros._node_util import checked_duty, declare, run_node  # first: prepares the ROS environment  # isort: skip
+from aeropend_ros._node_util import (  # first: prepares the ROS environment  # isort: skip
+    ParameterError,
+    check_unknown_overrides,
+    checked_duty,
+    declare,
+    run_node,
+)
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
@@ -82,7 +88,7 @@ class SerialBridgeNode(Node):
         declare(self, 'angle_scale', P.DEFAULT_ANGLE_SCALE, 'rod angle per ADC count [rad/count]; negative '
                 'reverses the direction', low=-1.0, high=1.0)
         declare(self, 'voltage_source', 'duty', "armature voltage from 'duty' (eq 8, the paper's choice) or "
-                "'adc' (divider on A3)")
+                "'adc' (divider on A3)", choices=('duty', 'adc'))
         declare(self, 'voltage_scale', P.ADC_VOLTS_PER_COUNT, 'armature voltage per ADC count of the divider '
                 '[V/count]', low=-10.0, high=10.0)
         declare(self, 'voltage_offset', 0.0, 'divider ADC counts at 0 V', low=-1023.0, high=2047.0)
@@ -97,10 +103,25 @@ class SerialBridgeNode(Node):
                                   read_only=True, low=0.0, high=0.05)
         diagnostics_period = declare(self, 'diagnostics_period', 1.0, 'period [s] of /diagnostics', read_only=True,
                                      low=0.05, high=60.0)
+        check_unknown_overrides(self)
         if self.heartbeat_period >= self.get_parameter('watchdog_timeout').value:
-            raise AeropendError(f'heartbeat_period ({self.heartbeat_period} s) must be shorter than '
-                                f'watchdog_timeout ({self.get_parameter("watchdog_timeout").value} s)')
-        self.calibration = self._calibration_from_parameters({})
+            raise ParameterError(f'{self.get_name()}: heartbeat_period ({self.heartbeat_period:g} s) must be shorter '
+                                 f'than watchdog_timeout ({self.get_parameter("watchdog_timeout").value:g} s), or '
+                                 'the firmware stops the motor between two heartbeats; lower heartbeat_period or '
+                                 'raise watchdog_timeout')
+        try:
+            self.calibration = self._calibration_from_parameters({})
+        except AeropendError as error:
+            raise ParameterError(f'{self.get_name()}: {error}') from None
+        # A port that cannot be opened at start-up is a mistake (wrong name, not plugged in, no permission): say so
+        # and exit. Once running, a port that disappears (USB unplugged) is retried every reconnect_period.
+        self._first_link, error = self._open()
+        if self._first_link is None:
+            from pathlib import Path
+            reason = 'does not exist' if not Path(self.port).exists() else f'cannot be opened ({error})'
+            raise ParameterError(
+                f'{self.get_name()}: parameter port: serial port {self.port} {reason}; plug in the Arduino and give '
+                'its port with -p port:=... (ls /dev/ttyACM* /dev/serial/by-id/; permission: the dialout group)')
 
         self.clock_model = SampleClock(self.sample_period, max_drift=clock_max_drift, latency=self.clock_latency)
         self._epoch_ns = self.get_clock().now().nanoseconds
@@ -185,7 +206,8 @@ class SerialBridgeNode(Node):
         logger = self.get_logger()
         warned = False
         while not self._stop.is_set():
-            link, error = self._open()
+            link, error = (self._first_link, None) if self._first_link is not None else self._open()
+            self._first_link = None
             if link is None:
                 if not warned:
                     logger.warning(f'cannot open {self.port} ({error}); retrying every {self.reconnect_period:g} s')

@@ -20,7 +20,13 @@ from __future__ import annotations
 
 import math
 
-from aeropend_ros._node_util import checked_duty, declare, run_node  # first: prepares the ROS environment  # isort: skip
+from aeropend_ros._node_util import (  # first: prepares the ROS environment  # isort: skip
+    ParameterError,
+    check_unknown_overrides,
+    checked_duty,
+    declare,
+    run_node,
+)
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -66,7 +72,11 @@ class SimNode(Node):
         self.wait_for_subscribers = declare(self, 'wait_for_subscribers', 0, 'start publishing only when this '
                                             'many subscribers of the samples are matched (batch runs with a '
                                             'recorder)', read_only=True, low=0, high=100, integer=True)
-        effects = parse_effect_assignments([text for text in effect_texts if text.strip()])
+        check_unknown_overrides(self)
+        try:
+            effects = parse_effect_assignments([text for text in effect_texts if text.strip()])
+        except AeropendError as error:
+            raise ParameterError(f'{self.get_name()}: parameter effects: {error}') from None
         noise = MeasurementNoise(psnr_db=psnr_db if psnr_db > 0 else None, quantise=bool(quantise))
         self.simulator = RigSimulator(DEFAULT_PARAMETERS, effects, SAMPLE_TIME, noise, int(seed),
                                       float(initial_angle))

@@ -10,6 +10,7 @@ Importing this module does not import rclpy; the QoS and message helpers import 
 """
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 #: Topic of the acquisition samples (sensor_msgs/msg/JointState, SensorData QoS, 490 Hz).
@@ -110,7 +111,9 @@ def msg_to_sample(msg) -> Sample:
     Raises
     ------
     ValueError
-        When a name of :data:`SAMPLE_NAMES` is missing or ``position`` is shorter than ``name``.
+        When a name of :data:`SAMPLE_NAMES` is missing, ``position`` is shorter than ``name`` or the sequence number
+        is not a whole number (NaN/inf). Other values may be NaN/inf; the consumer decides (identification_node
+        rejects such samples).
     """
     names = list(msg.name)
     position = list(msg.position)
@@ -123,4 +126,17 @@ def msg_to_sample(msg) -> Sample:
             from error
     stamp_ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
     return Sample(stamp_ns, values['angle'], values['armature_voltage'], values['armature_current'],
-                  values['duty'], round(values['sequence']))
+                  values['duty'], sequence_number(values['sequence']))
+
+
+def sequence_number(value: float) -> int:
+    """The sample counter carried as a float in ``position``, as an int.
+
+    Raises
+    ------
+    ValueError
+        When it is NaN/inf or not a whole non-negative number (the sample cannot be placed).
+    """
+    if not (math.isfinite(value) and value >= 0 and value == round(value)):
+        raise ValueError(f'sample sequence number {value!r} is not a whole non-negative number')
+    return int(value)
