@@ -355,10 +355,12 @@ class IdentificationNode(Node):
             return
         if rejected:
             health['rejected'] = rejected_text
-        time = (snapshot['stamp_ns'][0] + (grid - grid[0]) * SAMPLE_TIME * 1e9) * 1e-9
+        # Times from the window start: epoch seconds (~1.8e9 s) in float64 would jitter the 2 ms steps by ~2e-4.
+        start_s = int(snapshot['stamp_ns'][0]) * 1e-9
+        time = (grid - grid[0]) * SAMPLE_TIME
         self.pending = self.worker.submit(_analyze_in_worker, time, filled['armature_voltage'],
                                           filled['armature_current'], filled['angle'], effects, holdout_fraction)
-        self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects))
+        self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects, start_s))
 
     @staticmethod
     def _non_finite(result: WindowResult) -> list[str]:
@@ -368,9 +370,11 @@ class IdentificationNode(Node):
         values.update({'fit_percent': result.fit_percent, 'rms_error': result.rms_error})
         return [name for name, value in values.items() if not math.isfinite(value)]
 
-    def _on_result(self, future, stop_ns: int, health: dict, effects: tuple[str, ...]) -> None:
+    def _on_result(self, future, stop_ns: int, health: dict, effects: tuple[str, ...], start_s: float = 0.0) -> None:
         try:
             result = future.result()
+            result.start += start_s          # back to acquisition time
+            result.stop += start_s
         except InsufficientDataError as error:
             self._report(str(error), DiagnosticStatus.WARN, health, excitation=str(error), effects=effects)
             return
