@@ -3,10 +3,12 @@
 Baseline measured in the same run: one output-error fit of the nominal model (the unit of work a diagnosis
 repeats once per candidate). The ratio says how many such fits a whole diagnosis costs.
 
-Run:  .venv/bin/python bench/bench_diagnose.py [--duration 60]
+Run:  .venv/bin/python bench/bench_diagnose.py [--duration 60] [--json PATH]   (~10 s)
 """
 import argparse
 import time
+
+from _common import add_json_argument, figure, write_json
 
 from aeropend_core.compare import compare, prepare
 from aeropend_core.diagnose import diagnose
@@ -19,6 +21,7 @@ from aeropend_core.simulate import simulate
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument('--duration', type=float, default=60.0)
+    add_json_argument(parser)
     args = parser.parse_args()
     duty = lhc_schedule(args.duration, seed=3).duty(duration=args.duration)
     trajectory = simulate(duty, effects={'coulomb_friction': 4.0}, noise=MeasurementNoise(40.0, True), seed=4)
@@ -35,6 +38,13 @@ def main() -> None:
           f'(target < 10 s: {"met" if total < 10 else "NOT met"})')
     print(f'baseline, prepare + one nominal fit and evaluation: {one_fit:.2f} s; ratio {total / one_fit:.1f}')
     print(f'verdict: {result.message}')
+    write_json(args.json, 'bench_diagnose', [
+        figure(f'diagnosis time, {args.duration:g} s recording, {len(result.candidates)} candidates', total, 's',
+               baseline=one_fit, baseline_name='prepare + one nominal output-error fit and evaluation',
+               ratio=total / one_fit, ratio_meaning='diagnosis / one nominal fit (cost in fits)',
+               target='< 10 s', met=total < 10),
+    ], duration_s=args.duration, verdict=result.verdict, missing_effect=result.missing_effect,
+        hidden_effect='coulomb_friction', correct=result.missing_effect == 'coulomb_friction', message=result.message)
 
 
 if __name__ == '__main__':

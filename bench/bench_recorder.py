@@ -1,7 +1,8 @@
 """Recorder throughput: can recorder_node record >= 20,000 msg/s without losing one?
 
 Run:  .venv/bin/python bench/bench_recorder.py [--rates 20000 40000] [--seconds 5] [--reliable] [--queue-depth N]
-                                              [--fastdds-profile config/fastdds_deep_shm.xml]
+                                              [--fastdds-profile config/fastdds_deep_shm.xml] [--json PATH]
+(~20 s with the defaults)
 
 For each offered rate a publisher process publishes ``/aeropend/samples`` JointState messages (the real message,
 SensorData QoS unless --reliable) numbered 0..N-1, paced at the rate, after the recorder (a separate process,
@@ -26,6 +27,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+
+from _common import add_json_argument, figure, write_json
 
 from aeropend_ros._ros_env import ensure_ros_environment, local_ros_environment
 
@@ -139,6 +142,7 @@ def main() -> int:
                         help='Fast DDS profile for both processes, e.g. config/fastdds_deep_shm.xml')
     parser.add_argument('--queue-depth', type=int, default=50000,
                         help='recorder queue_depth parameter (subscription history; absorbs CPU stalls)')
+    add_json_argument(parser)
     parser.add_argument('--role', default='bench', choices=['bench', 'publisher'], help=argparse.SUPPRESS)
     parser.add_argument('--rate', type=float, default=20000.0, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -156,9 +160,11 @@ def main() -> int:
         print(f'{"offered":>9} {"achieved":>9} {"published":>9} {"recorded":>9} {"lost":>6} {"gaps":>5} '
               f'{"rec/offer":>9} {"CPU us/msg":>10} {"CPU vs baseline":>15}')
         worst_loss = 0
+        results = []
         for rate in args.rates:
             r = run_rate(rate, args.seconds, args.reliable, work, random.randint(101, 200), args.queue_depth)
             worst_loss = max(worst_loss, r['lost'])
+            results.append(r)
             print(f'{r["rate"]:9,.0f} {r["offered_rate"]:9,.0f} {r["published"]:9d} {r["recorded"]:9d} '
                   f'{r["lost"]:6d} {r["gaps"]:5d} {r["recorded"] / r["published"]:9.4f} '
                   f'{r["recorder_cpu_per_msg"] * 1e6:10.1f} {r["recorder_cpu_per_msg"] / base_cpu:14.2f}x',
@@ -167,6 +173,28 @@ def main() -> int:
               f'{args.queue_depth}, Fast DDS profile {args.fastdds_profile or "default"}; worst loss {worst_loss} '
               f'messages; load average {os.getloadavg()[0]:.1f} '
               f'on {os.cpu_count()} cores')
+        figures = []
+        for r in results:
+            received_rate = r['recorded'] / r['published'] * r['offered_rate']
+            # the target: >= 20,000 msg/s recorded without a loss (1 % allowance for the publisher's pacing)
+            at_target = r['rate'] == 20000
+            figures.append(figure(f'recorder at {r["rate"]:,.0f} msg/s offered: recorded rate', received_rate, 'msg/s',
+                                  baseline=r['offered_rate'], baseline_name='achieved publish rate',
+                                  ratio_meaning='recorded / published',
+                                  target='>= 20,000 msg/s (-1 %), 0 lost' if at_target else '',
+                                  met=(r['lost'] == 0 and r['gaps'] == 0 and received_rate >= 19800)
+                                  if at_target else None))
+            figures.append(figure(f'recorder at {r["rate"]:,.0f} msg/s offered: messages lost', r['lost'], 'messages',
+                                  target='0' if r['rate'] == 20000 else '', met=(r['lost'] == 0)
+                                  if r['rate'] == 20000 else None))
+            figures.append(figure(f'recorder at {r["rate"]:,.0f} msg/s offered: CPU per message',
+                                  r['recorder_cpu_per_msg'] * 1e6, 'us/msg', baseline=base_cpu * 1e6,
+                                  baseline_name='BagWriter alone (no ROS, no DDS)',
+                                  ratio_meaning='recorder / bag writing alone'))
+        figures.append(figure('bag writing alone (baseline)', base_rate, 'msg/s'))
+        write_json(args.json, 'bench_recorder', figures, runs=results, seconds=args.seconds,
+                   qos='reliable' if args.reliable else 'sensor_data', queue_depth=args.queue_depth,
+                   fastdds_profile=args.fastdds_profile, baseline={'msg_per_s': base_rate, 'cpu_s_per_msg': base_cpu})
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return 0

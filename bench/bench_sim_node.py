@@ -13,7 +13,7 @@ same receiver (this process, best effort with a deep queue) measures for --secon
 The baseline is a plain rclpy timer at Ts publishing one JointState of the same layout per tick (stamp = now).
 Ratios sim / baseline are printed for rate, jitter and CPU. Usage::
 
-    .venv/bin/python bench/bench_sim_node.py --seconds 20
+    .venv/bin/python bench/bench_sim_node.py [--seconds 20] [--json PATH]      (~50 s with the defaults)
 """
 from __future__ import annotations
 
@@ -29,7 +29,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from aeropend_ros._ros_env import ensure_ros_environment, local_ros_environment  # noqa: E402
+from _common import add_json_argument, figure, write_json
+
+from aeropend_ros._ros_env import ensure_ros_environment, local_ros_environment
 
 
 def baseline_publisher() -> int:
@@ -134,6 +136,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--seconds', type=float, default=20.0, help='measurement window per publisher [s]')
     parser.add_argument('--publish-period', type=float, default=0.004, help="sim node's timer period [s]")
+    add_json_argument(parser)
     parser.add_argument('--role', choices=['bench', 'baseline'], default='bench', help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.role == 'baseline':
@@ -165,6 +168,20 @@ def main() -> int:
     sim = runs['sim_node']
     within = abs(sim['rate_by_sequence'] - 490.0) <= 4.9 and abs(sim['rate_by_count'] - 490.0) <= 4.9
     print(f'sim node rate within 490 Hz +- 1 %: {"yes" if within else "NO"}')
+    base = runs['baseline']
+    write_json(args.json, 'bench_sim_node', [
+        figure('sim node rate (by sequence numbers)', sim['rate_by_sequence'], 'Hz', baseline=base['rate_by_sequence'],
+               baseline_name='plain rclpy 490 Hz timer publisher', ratio_meaning='sim / baseline',
+               target='490 Hz +- 1 %', met=within),
+        figure('sim node samples lost', sim['lost'], 'samples', baseline=base['lost'], baseline_name='plain timer',
+               target='0', met=sim['lost'] == 0),
+        figure('sim node inter-arrival jitter, 99th percentile', sim['jitter_p99_ms'], 'ms',
+               baseline=base['jitter_p99_ms'], baseline_name='plain timer', ratio_meaning='sim / baseline'),
+        figure('sim node inter-arrival jitter, standard deviation', sim['jitter_std_ms'], 'ms',
+               baseline=base['jitter_std_ms'], baseline_name='plain timer', ratio_meaning='sim / baseline'),
+        figure('sim node publisher CPU', sim['cpu_percent'], '% of one core', baseline=base['cpu_percent'],
+               baseline_name='plain timer', ratio_meaning='sim / baseline'),
+    ], seconds=args.seconds, publish_period_s=args.publish_period, runs=runs)
     return 0 if within else 1
 
 

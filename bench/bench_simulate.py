@@ -4,13 +4,15 @@ Default path: compiled fixed-step RK4 (numba). Baselines measured in the same ru
 stretch of constant input, also used for users' own effects) and scipy's solve_ivp(LSODA) in ONE call over the
 whole record with the input looked up by time (what a straightforward implementation does).
 
-Run:  .venv/bin/python bench/bench_simulate.py [--duration 60] [--repeat 3]
+Run:  .venv/bin/python bench/bench_simulate.py [--duration 60] [--repeat 3] [--json PATH]   (~5 s)
 """
 import argparse
 import time
 
 import numpy as np
 from scipy.integrate import solve_ivp
+
+from _common import add_json_argument, figure, write_json
 
 from aeropend_core.excitation import lhc_schedule
 from aeropend_core.model import DEFAULT_PARAMETERS as P
@@ -46,6 +48,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument('--duration', type=float, default=60.0)
     parser.add_argument('--repeat', type=int, default=3)
+    add_json_argument(parser)
     args = parser.parse_args()
     duty = lhc_schedule(args.duration, seed=1).duty(duration=args.duration)
     simulate(duty[:100])                                                   # compile / load the numba cache
@@ -64,6 +67,18 @@ def main() -> None:
     print(f'compiled vs reference: {reference / plain:.1f}x; vs one-call baseline: {baseline / plain:.1f}x; '
           f'max angle difference to the baseline {agreement:.2e} rad')
     print('target >= 200x real time:', 'met' if args.duration / plain >= 200 else 'NOT met')
+    speed = args.duration / plain
+    write_json(args.json, 'bench_simulate', [
+        figure(f'simulator speed, nominal model, {args.duration:g} s record', speed, 'x real time',
+               baseline=args.duration / baseline, baseline_name='one solve_ivp(LSODA) call, input by time lookup',
+               ratio=baseline / plain, ratio_meaning='speed-up (baseline time / ours)', target='>= 200x real time',
+               met=speed >= 200),
+        figure('simulator speed, friction + thrust lag', args.duration / ours, 'x real time',
+               baseline=args.duration / reference, baseline_name='reference path (LSODA per constant-input stretch)',
+               ratio=reference / ours, ratio_meaning='speed-up (baseline time / ours)'),
+    ], duration_s=args.duration, repeat=args.repeat,
+        seconds={'nominal': plain, 'effects': ours, 'reference_lsoda': reference, 'one_call_lsoda': baseline},
+        max_angle_difference_rad=float(agreement))
 
 
 if __name__ == '__main__':

@@ -11,86 +11,30 @@ only) has no pysindy counterpart; its time and errors are printed too.
 
 pysindy gets exactly the same 18 terms (a CustomLibrary of functions of all five signals, so Va enters only
 linearly), the same noisy data, ``fit(x, t=..., u=...)``, K = 100 test functions, normalised columns. Its STLSQ
-threshold is absolute, so the best one of a grid is chosen *with the truth* (this favours the baseline); it is
-timed at that threshold, with the default BLAS threads and with one BLAS thread; the faster of the two counts
-(aeropend's fit_weak_sindy limits BLAS to one thread itself). NumPy's global RNG is seeded before each pysindy
-fit (WeakPDELibrary draws its test function centres from it). Accuracy: number of wrong terms (spurious +
-missing) over the four equations, the relative error of Kq (from the ω1² coefficient of dΩ/dt) and the largest
-relative error of a true coefficient.
+threshold is absolute, so for each equation the best one of a grid (half-decades 1e-2 .. 1e8) is chosen *with the
+truth*: lowest relative L2 coefficient error of that equation, then fewest terms (this favours the baseline; the
+best single threshold for all four equations is printed too). It is timed at dΩ/dt's threshold, with the default
+BLAS threads and with one BLAS thread; the faster of the two counts (aeropend's fit_weak_sindy limits BLAS to one
+thread itself). NumPy's global RNG is seeded before each pysindy fit (WeakPDELibrary draws its test function centres
+from it). Accuracy: number of wrong terms (spurious + missing) over the four equations, the relative error of Kq
+(from the ω1² coefficient of dΩ/dt) and the largest relative error of a true coefficient.
 
-Run:  .venv/bin/python bench/bench_wsindy.py [--psnr 40] [--seed 0] [--repeats 10]
+Run:  .venv/bin/python bench/bench_wsindy.py [--psnr 40] [--seed 0] [--repeats 10] [--json PATH]   (~15 s)
 """
 from __future__ import annotations
 
 import argparse
 import statistics
 import time
-import warnings
 
-import numpy as np
+from _common import (PLAIN, SAME_LIBRARY, add_json_argument, figure, fit_pysindy, make_window, pysindy_with_truth,
+                     run_ours, score, time_both_blas, write_json)
 
 from aeropend_core.excitation import lhc_schedule
-from aeropend_core.identify import full_state_library, identify_full_state
 from aeropend_core.model import DEFAULT_PARAMETERS as P
 from aeropend_core.model import SAMPLE_TIME
-from aeropend_core.noise import add_noise
 from aeropend_core.simulate import simulate
 from aeropend_core.wsindy import clear_caches
-
-STATES = ('armature_current', 'motor_speed', 'angle', 'angular_rate')
-SIGNALS = STATES + ('armature_voltage',)
-
-
-def true_coefficients() -> dict[str, dict[str, float]]:
-    """The nominal model written in the library's terms (positive motor speed)."""
-    ra, la, kw, kt = P.armature_resistance, P.armature_inductance, P.back_emf_constant, P.torque_constant
-    jm, fr, kd, g = P.motor_inertia, P.motor_friction, P.propeller_torque_coefficient, P.gear_ratio
-    return {
-        'armature_current': {'armature_current': -ra / la, 'motor_speed': -kw / la, 'armature_voltage': 1 / la},
-        'motor_speed': {'armature_current': kt / jm, 'motor_speed': -fr / jm, 'motor_speed^2': -kd / g ** 3 / jm},
-        'angle': {'angular_rate': 1.0},
-        'angular_rate': {'sin(angle)': -P.gravity_stiffness, 'angular_rate': -P.damping,
-                         'motor_speed^2': P.lever_per_inertia * P.thrust_coefficient / g ** 2},
-    }
-
-
-def score(coefficients: dict[str, dict[str, float]]) -> tuple[int, float, float]:
-    """(wrong terms, |Kq error|, largest relative error of a true coefficient)."""
-    truth = true_coefficients()
-    wrong, worst = 0, 0.0
-    for eq, true in truth.items():
-        got = {k: v for k, v in coefficients[eq].items() if v != 0.0}
-        wrong += len(set(got) ^ set(true))
-        for term, value in true.items():
-            worst = max(worst, abs(got.get(term, 0.0) / value - 1))
-    kq = coefficients['angular_rate'].get('motor_speed^2', 0.0) * P.gear_ratio ** 2 / P.lever_per_inertia
-    return wrong, abs(kq / P.thrust_coefficient - 1), worst
-
-
-def make_window(seed: int, psnr_db: float, duration: float = 10.0):
-    schedule = lhc_schedule(duration, seed=seed)
-    trajectory = simulate(schedule.duty(SAMPLE_TIME, duration), seed=seed)
-    rng = np.random.default_rng(1000 + seed)
-    data = {'t': trajectory.time}
-    for name in SIGNALS:
-        data[name] = add_noise(trajectory.truth[name], psnr_db, rng)
-    return data
-
-
-def run_ours(data, repeats: int, **options):
-    identify_full_state(data, **options)  # warm-up (numba kernels load from their cache)
-    times = []
-    for _ in range(repeats):
-        clear_caches()   # no quadrature/pair kernels carried over from the previous (identical) window
-        t0 = time.perf_counter()
-        fit = identify_full_state(data, **options)
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), {s: dict(fit.result[s].coefficients) for s in STATES}
-
-
-#: The plain method: GLS with Σ ∝ V'V'ᵀ only, no bias compensation, MSTLS plus the greedy paths, no exhaustive
-#: small-support search, no significance guard.
-PLAIN = {'irls_iterations': 0, 'bias_correction': False, 'exhaustive_terms': 0, 'significance': None}
 
 
 def run_live_rig(seed: int, repeats: int):
@@ -112,72 +56,11 @@ def run_live_rig(seed: int, repeats: int):
     return statistics.median(times), errors
 
 
-def pysindy_library():
-    import pysindy as ps
-    names, functions = [], []
-
-    def make(term):
-        # exactly five positional parameters (pysindy counts them): the signals x..., u in SIGNALS order
-        def f(ia, w1, y, om, va):
-            return term.evaluate({'armature_current': ia, 'motor_speed': w1, 'angle': y, 'angular_rate': om,
-                                  'armature_voltage': va})
-
-        def name(*_args):
-            return term.name
-        return f, name
-
-    for term in full_state_library():
-        f, name = make(term)
-        functions.append(f)
-        names.append(name)
-    return ps.CustomLibrary(library_functions=functions, function_names=names, interaction_only=True), \
-        [t.name for t in full_state_library()]
-
-
-def fit_pysindy(data, threshold: float):
-    import pysindy as ps
-    custom, names = pysindy_library()
-    x = np.column_stack([data[s] for s in STATES])
-    u = data['armature_voltage'][:, None]
-    library = ps.WeakPDELibrary(function_library=custom, spatiotemporal_grid=data['t'], K=100, p=4)
-    model = ps.SINDy(feature_library=library,
-                     optimizer=ps.STLSQ(threshold=threshold, alpha=1e-8, normalize_columns=True))
-    np.random.seed(0)
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore')
-        model.fit(x, t=data['t'], u=u)
-    coef = model.coefficients()
-    features = model.get_feature_names()
-    if list(features) != names:  # pysindy must see exactly our library
-        raise RuntimeError(f'pysindy library differs: {features[:5]}... vs {names[:5]}...')
-    return {eq: {names[j]: float(coef[i, j]) for j in range(len(names)) if coef[i, j] != 0.0}
-            for i, eq in enumerate(STATES)}
-
-
 def run_pysindy(data, repeats: int):
-    grid = [1e-4, 1e-3, 3e-3, 1e-2, 3e-2, 0.1, 0.3, 1.0, 3.0]
-    scored = []
-    for threshold in grid:
-        try:
-            coef = fit_pysindy(data, threshold)
-        except (ValueError, RuntimeError, np.linalg.LinAlgError) as error:  # e.g. a threshold that kills every term
-            scored.append(((999, 1.0, 1.0), threshold, None, repr(error)))
-            continue
-        scored.append((score(coef), threshold, coef, ''))
-    best = min(scored, key=lambda s: (s[0][0], s[0][1]))
-    threshold = best[1]
-    from threadpoolctl import threadpool_limits
-    timings = {}
-    for label, limit in (('default BLAS threads', None), ('1 BLAS thread', 1)):
-        with threadpool_limits(limits=limit):
-            fit_pysindy(data, threshold)
-            times = []
-            for _ in range(repeats):
-                t0 = time.perf_counter()
-                fit_pysindy(data, threshold)
-                times.append(time.perf_counter() - t0)
-        timings[label] = statistics.median(times)
-    return timings, best[2], threshold
+    """pysindy weak with its thresholds chosen with the truth (per equation), timed at dΩ/dt's threshold."""
+    best = pysindy_with_truth(data, 'weak')
+    timings = time_both_blas(lambda: fit_pysindy(data, best['threshold']), repeats)
+    return timings, best
 
 
 def main() -> None:
@@ -185,18 +68,20 @@ def main() -> None:
     parser.add_argument('--psnr', type=float, default=40.0, help='PSNR of the noise on every signal [dB]')
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--repeats', type=int, default=10)
+    add_json_argument(parser)
     args = parser.parse_args()
     data = make_window(args.seed, args.psnr)
-    same = {'voltage_in': STATES}   # Va offered to every equation, exactly pysindy's library
-    ours_time, ours_coef = run_ours(data, args.repeats, **same)
-    plain_time, plain_coef = run_ours(data, args.repeats, **same, **PLAIN)
+    ours_time, ours_coef = run_ours(data, args.repeats, **SAME_LIBRARY)   # Va in every equation: pysindy's library
+    plain_time, plain_coef = run_ours(data, args.repeats, **SAME_LIBRARY, **PLAIN)
     default_time, default_coef = run_ours(data, args.repeats)
-    base_times, base_coef, threshold = run_pysindy(data, max(3, args.repeats // 3))
+    base_times, best = run_pysindy(data, max(3, args.repeats // 3))
+    base_coef = best['coefficients']
     base_time = min(base_times.values())   # the faster configuration of the baseline
     ours = score(ours_coef)
     plain = score(plain_coef)
     default = score(default_coef)
-    base = score(base_coef) if base_coef else (999, float('nan'), float('nan'))
+    base = score(base_coef)
+    single = score(best['single']['coefficients'])
     n = len(data['t'])
     print(f'full-state window: {n} samples ({n * SAMPLE_TIME:.1f} s), PSNR {args.psnr:g} dB, seed {args.seed}, '
           f'4 equations; same 18-term library for all methods unless noted')
@@ -206,14 +91,39 @@ def main() -> None:
             ('aeropend default (Va in dIa/dt only)', default_time, default)]
     for label, t, sc in rows:
         print(f'{label:34s} {t * 1e3:10.1f}ms {sc[0]:12d} {sc[1] * 100:9.2f}% {sc[2] * 100:10.2f}%')
-    print(f'{"pysindy WeakPDE+STLSQ (thr " + format(threshold, "g") + ")":34s} {base_time * 1e3:10.1f}ms '
-          f'{base[0]:12d} {base[1] * 100:9.2f}% {base[2] * 100:10.2f}%   ('
+    print(f'{"pysindy WeakPDE+STLSQ (per equation)":34s} {base_time * 1e3:10.1f}ms '
+          f'{base[0]:12d} {base[1] * 100:9.2f}% {base[2] * 100:10.2f}%   (thresholds '
+          + ', '.join(f'{k} {v:g}' for k, v in best['thresholds'].items()) + '; '
           + ', '.join(f'{k} {v * 1e3:.1f} ms' for k, v in base_times.items()) + '; the faster counts)')
+    print(f'{"pysindy, one threshold " + format(best["single"]["threshold"], "g"):34s} {"":12s} '
+          f'{single[0]:12d} {single[1] * 100:9.2f}% {single[2] * 100:10.2f}%')
     print(f'speed-up vs pysindy: full {base_time / ours_time:.1f}x, plain {base_time / plain_time:.1f}x   '
           '(target >= 10x and < 50 ms per window)')
     live_time, live_err = run_live_rig(args.seed, args.repeats)
     print(f'live-rig identify_pendulum (angle-only, 2nd order, 5 terms), 10 s window, 50 dB + 10-bit angle: '
           f'{live_time * 1e3:.1f} ms; errors ' + ', '.join(f'{k} {v * 100:+.2f}%' for k, v in live_err.items()))
+    speed_up = base_time / ours_time
+    write_json(args.json, 'bench_wsindy', [
+        figure(f'time per window, WSINDy full method vs pysindy weak ({args.psnr:g} dB)', ours_time * 1e3, 'ms',
+               baseline=base_time * 1e3, baseline_name='pysindy WeakPDELibrary+STLSQ', ratio=speed_up,
+               ratio_meaning='speed-up (baseline time / ours)', target='>= 10x and < 50 ms',
+               met=speed_up >= 10 and ours_time < 0.05),
+        figure(f'time per window, WSINDy plain vs pysindy weak ({args.psnr:g} dB)', plain_time * 1e3, 'ms',
+               baseline=base_time * 1e3, baseline_name='pysindy WeakPDELibrary+STLSQ', ratio=base_time / plain_time,
+               ratio_meaning='speed-up (baseline time / ours)'),
+        figure(f'wrong terms of 72, WSINDy vs pysindy weak ({args.psnr:g} dB)', ours[0], 'terms', baseline=base[0],
+               baseline_name='pysindy weak, thresholds chosen with the truth per equation',
+               ratio_meaning='ours / baseline', target='0', met=ours[0] == 0),
+        figure(f'Kq error, WSINDy vs pysindy weak ({args.psnr:g} dB)', ours[1] * 100, '%', baseline=base[1] * 100,
+               baseline_name='pysindy weak', ratio_meaning='ours / baseline'),
+        figure('live-rig identify_pendulum time per 10 s window (50 dB, 10-bit angle)', live_time * 1e3, 'ms'),
+    ], psnr_db=args.psnr, seed=args.seed, repeats=args.repeats, pysindy_thresholds=best['thresholds'],
+        pysindy_single_threshold={'threshold': best['single']['threshold'], 'score': single},
+        pysindy_timings_s=base_times,
+        rows={'full': {'time_s': ours_time, 'score': ours}, 'plain': {'time_s': plain_time, 'score': plain},
+              'default_library': {'time_s': default_time, 'score': default},
+              'pysindy_weak': {'time_s': base_time, 'score': base}},
+        live_rig={'time_s': live_time, 'errors': live_err})
 
 
 if __name__ == '__main__':
