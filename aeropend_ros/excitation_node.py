@@ -132,14 +132,21 @@ class ExcitationNode(Node):
             raise ParameterError(f'{name}: parameter steps_file: {error}') from None
 
         if kind == 'lhc':
-            if duty_max < duty_min:
-                raise ParameterError(f'{name}: duty_min ({duty_min:g}) must not exceed duty_max ({duty_max:g}); '
-                                     'swap or correct them')
-            if dwell_max < dwell_min:
-                raise ParameterError(f'{name}: dwell_min ({dwell_min:g} s) must not exceed dwell_max '
-                                     f'({dwell_max:g} s); swap or correct them')
-            schedule = lhc_schedule(duration, int(n_strata), (duty_min, duty_max), (dwell_min, dwell_max),
-                                    seed=int(seed), duty_cap=1.0)
+            # The hypercube spreads the steps over [min, max]: both ranges must be open intervals.
+            if not duty_min < duty_max:
+                raise ParameterError(f'{name}: duty_min ({duty_min:g}) must be below duty_max ({duty_max:g}), the '
+                                     "range the Latin hypercube spreads the steps over; for fixed steps use "
+                                     "schedule 'steps'")
+            if not dwell_min < dwell_max:
+                raise ParameterError(f'{name}: dwell_min ({dwell_min:g} s) must be below dwell_max '
+                                     f"({dwell_max:g} s), the range of the step lengths; for fixed steps use "
+                                     "schedule 'steps'")
+            try:
+                schedule = lhc_schedule(duration, int(n_strata), (duty_min, duty_max), (dwell_min, dwell_max),
+                                        seed=int(seed), duty_cap=1.0)
+            except (AeropendError, ValueError) as error:
+                raise ParameterError(f'{name}: no Latin-hypercube schedule from duration, n_strata, duty_min/max '
+                                     f'and dwell_min/max: {error}') from None
             steps = np.column_stack((schedule.amplitudes, schedule.dwells))
             steps = steps[np.concatenate(([0.0], np.cumsum(steps[:, 1])[:-1])) < duration]
         else:

@@ -236,6 +236,8 @@ EXTRA_STARTUP_CASES = [
     ('identification_node', ["effects:=['angle_offset=0.1']"], ['effects', 'names only']),
     ('excitation_node', ['duty_min:=0.6', 'duty_max:=0.2'], ['duty_min', 'duty_max']),
     ('excitation_node', ['dwell_min:=3.0', 'dwell_max:=1.0'], ['dwell_min', 'dwell_max']),
+    ('excitation_node', ['duty_min:=0.5', 'duty_max:=0.5'], ['duty_min', 'duty_max']),
+    ('excitation_node', ['dwell_min:=2.0', 'dwell_max:=2.0'], ['dwell_min', 'dwell_max']),
     ('excitation_node', ['steps:=[0.5, 1.0, 0.3]'], ['steps', 'pairs']),
     ('excitation_node', ['steps:=[1.5, 1.0]'], ['steps', 'fraction']),
     ('excitation_node', ['steps:=[0.5, -1.0]'], ['steps', 'dwell']),
@@ -355,6 +357,29 @@ def test_bad_startup_values_raise_one_line(declared, spare_emulator, tmp_path):
         gc.collect()
         rclpy.try_shutdown(context=context)
     print(f'\n{checked} bad start-up values checked')
+    assert not failures, '\n'.join(failures)
+
+
+def test_boundary_values_accepted_or_refused_in_one_line(declared, spare_emulator):
+    """Each number at either end of its range (valid alone) builds the node, or (against another parameter's
+    default) is refused with a ParameterError: never another exception. identification_node is left out (it starts
+    its worker process when built; its numbers are checked per window)."""
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=private_domain_id(0.2))
+    base = node_arguments(spare_emulator.port)
+    failures = []
+    try:
+        for node_name in ('sim_node', 'excitation_node', 'serial_bridge_node'):
+            for name, (descriptor, _) in declared[node_name].items():
+                for r in list(descriptor.floating_point_range) + list(descriptor.integer_range):
+                    for value in (r.from_value, r.to_value):
+                        error = construct(node_name, context, [*without(base[node_name], name), '-p',
+                                                               f'{name}:={value!r}'])
+                        if error is not None and (not isinstance(error, ParameterError) or '\n' in str(error)):
+                            failures.append(f'{node_name} {name}={value!r}: {type(error).__name__}: {error}')
+    finally:
+        gc.collect()
+        rclpy.try_shutdown(context=context)
     assert not failures, '\n'.join(failures)
 
 
