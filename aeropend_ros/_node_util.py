@@ -111,8 +111,10 @@ def parameter_message(node, name: str, value, problem: str, descriptor: Paramete
     text = f'{node.get_name()}: parameter {name} = {value!r} {problem}'
     if descriptor is not None:
         text += f'; it must be {allowed_text(descriptor)}'
-        if problem == 'has the wrong type' and descriptor.type in (Parameter.Type.DOUBLE.value,
-                                                                  Parameter.Type.DOUBLE_ARRAY.value):
+        if problem == 'has the wrong type' and descriptor.type == Parameter.Type.DOUBLE.value \
+                and isinstance(value, int) and not isinstance(value, bool):
+            text += f' (write {float(value)!r}, not {value})'
+        elif problem == 'has the wrong type' and descriptor.type == Parameter.Type.DOUBLE_ARRAY.value:
             text += ' (write 1.0, not 1)'
         if descriptor.description:
             text += f' ({descriptor.description})'

@@ -175,7 +175,8 @@ class IdentificationNode(Node):
         try:
             self.effects = check_effect_names(effects)
         except AeropendError as error:
-            raise ParameterError(f'{self.get_name()}: parameter effects: {error}') from None
+            raise ParameterError(f'{self.get_name()}: parameter effects: {error}; fix -p "effects:=[\'NAME\']" or '
+                                 'the params file') from None
         self.add_on_set_parameters_callback(self._validate_parameters)
 
         self.lock = threading.Lock()

@@ -76,7 +76,8 @@ class SimNode(Node):
         try:
             effects = parse_effect_assignments([text for text in effect_texts if text.strip()])
         except AeropendError as error:
-            raise ParameterError(f'{self.get_name()}: parameter effects: {error}') from None
+            raise ParameterError(f'{self.get_name()}: parameter effects: {error}; fix -p "effects:=[\'NAME=VALUE\']" '
+                                 'or the params file') from None
         noise = MeasurementNoise(psnr_db=psnr_db if psnr_db > 0 else None, quantise=bool(quantise))
         self.simulator = RigSimulator(DEFAULT_PARAMETERS, effects, SAMPLE_TIME, noise, int(seed),
                                       float(initial_angle))
