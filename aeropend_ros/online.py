@@ -124,6 +124,29 @@ def check_excitation(armature_voltage: np.ndarray, angle: np.ndarray, n_train: i
                                     'held-out fit means nothing; use a longer window or more steps')
 
 
+def check_window_data(time: np.ndarray, columns: dict[str, np.ndarray], sample_time: float) -> None:
+    """Refuse data the analysis would turn into wrong numbers: unequal lengths, NaN/inf, a time axis that is not
+    increasing by `sample_time` [s] (within 1 %).
+
+    Raises
+    ------
+    AeropendError
+        Naming the column and how many values are bad (the node rejects such samples before they get here).
+    """
+    for name, values in columns.items():
+        if values.shape != time.shape:
+            raise AeropendError(f'{name} has {values.size} values for {time.size} times')
+        bad = int(np.count_nonzero(~np.isfinite(values)))
+        if bad:
+            raise AeropendError(f'{name} holds {bad} NaN/inf value(s) of {values.size}: drop or fill them first')
+    if not np.all(np.isfinite(time)):
+        raise AeropendError('time holds NaN/inf values')
+    steps = np.diff(time)
+    if steps.size and np.max(np.abs(steps - sample_time)) > 0.01 * sample_time:
+        raise AeropendError(f'time is not uniform: steps from {steps.min():.6g} to {steps.max():.6g} s, expected '
+                            f'{sample_time:.6g} s; put the samples on the sequence grid first (fill_gaps)')
+
+
 def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_current: np.ndarray,
                    angle: np.ndarray, effects: Sequence[str] = (), holdout_fraction: float = 0.25,
                    sample_time: float = SAMPLE_TIME, parameters: RigParameters = DEFAULT_PARAMETERS,
@@ -155,6 +178,7 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     current = np.asarray(armature_current, dtype=float)
     angle = np.asarray(angle, dtype=float)
     n = time.size
+    check_window_data(time, {'armature_voltage': voltage, 'armature_current': current, 'angle': angle}, sample_time)
     if not 0.0 < holdout_fraction < 1.0:
         raise AeropendError(f'holdout_fraction must be in (0, 1), got {holdout_fraction}')
     n_train = int(round(n * (1.0 - holdout_fraction)))

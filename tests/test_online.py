@@ -71,3 +71,23 @@ def test_steps_file_and_flat_steps(tmp_path):
         read_steps_file(path)
     with pytest.raises(AeropendError, match='cannot read'):
         read_steps_file(tmp_path / 'missing.yaml')
+
+
+def test_window_refuses_non_finite_or_non_uniform_data():
+    """The analysis itself refuses NaN/inf and a time axis off the sample grid (never a number from them)."""
+    duty = lhc_schedule(8.0, seed=3).duty(duration=8.0)
+    run = simulate(duty, seed=2)
+    angle = run.angle.copy()
+    angle[100] = np.nan
+    with pytest.raises(AeropendError, match='angle holds 1 NaN/inf'):
+        analyze_window(run.time, run.armature_voltage, run.armature_current, angle)
+    current = run.armature_current.copy()
+    current[-1] = np.inf
+    with pytest.raises(AeropendError, match='armature_current holds 1 NaN/inf'):
+        analyze_window(run.time, run.armature_voltage, current, run.angle)
+    time = run.time.copy()
+    time[500:] += 0.5 * SAMPLE_TIME                   # a stamp glitch that was not put on the grid
+    with pytest.raises(AeropendError, match='not uniform'):
+        analyze_window(time, run.armature_voltage, run.armature_current, run.angle)
+    with pytest.raises(AeropendError, match='values for'):
+        analyze_window(run.time, run.armature_voltage[:-1], run.armature_current, run.angle)
