@@ -209,17 +209,30 @@ def offered_qos(reliability: str = 'reliable', durability: str = 'volatile', his
 # Writer
 # --------------------------------------------------------------------------------------------------------------
 class _DirectFile:
-    """Unbuffered binary file for the mcap writer: each write goes to the OS at once (kill-safe chunks)."""
+    """Unbuffered binary file for the mcap writer: each write goes to the OS at once (kill-safe chunks).
+
+    A write the system refuses part-way (disk full, file size limit) is undone: the file is cut back to where that
+    write began, so it ends with complete records only (readable up to there, repairable by :func:`recover_bag`),
+    and the OSError is raised.
+    """
 
     def __init__(self, path: Path):
+        self.path = Path(path)
         self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         self._position = 0
 
     def write(self, data: bytes) -> int:
         view = memoryview(data)
-        while view:
-            written = os.write(self._fd, view)
-            view = view[written:]
+        try:
+            while view:
+                written = os.write(self._fd, view)
+                view = view[written:]
+        except OSError:
+            try:
+                os.ftruncate(self._fd, self._position)
+            except OSError:             # pragma: no cover - a reader still stops at the cut record
+                pass
+            raise
         self._position += len(data)
         return len(data)
 
@@ -316,7 +329,13 @@ class BagWriter:
         self._writer = None
         self._stream: _DirectFile | None = None
         self._finished = False
-        self._open_file()
+        self._failure = ''
+        self._on_disk = 0                              # messages in chunks handed to the OS (closed files included)
+        self._on_disk_by_topic: dict[str, int] = {}
+        try:
+            self._open_file()
+        except OSError as error:
+            self._fail(error)
 
     # -- public API --------------------------------------------------------------------------------------------
     def add_topic(self, topic: str, type_name: str, schema_text: str,
@@ -345,7 +364,10 @@ class BagWriter:
         _split_type(type_name)
         self.topics[topic] = TopicInfo(topic, type_name, schema_text, list(offered_qos_profiles or []),
                                        type_hash)
-        self._register(self.topics[topic])
+        try:
+            self._register(self.topics[topic])
+        except OSError as error:
+            self._fail(error)
 
     def write(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int | None = None,
               sequence: int = 0) -> None:
@@ -369,26 +391,53 @@ class BagWriter:
         if channel_id is None:
             raise AeropendError(f'topic {topic} was not declared with add_topic()')
         log_time_ns = int(log_time_ns)
-        current = self.files[-1]
-        if (self.max_file_duration_ns and current.start_ns is not None
-                and log_time_ns - current.start_ns >= self.max_file_duration_ns):
-            self._split()
+        try:
             current = self.files[-1]
-            channel_id = self._channel_ids[topic]
-        self._writer.add_message(channel_id=channel_id, log_time=log_time_ns, data=data,
-                                 publish_time=log_time_ns if publish_time_ns is None else int(publish_time_ns),
-                                 sequence=int(sequence) & 0xFFFFFFFF)
-        current.message_count += 1
-        current.start_ns = log_time_ns if current.start_ns is None else min(current.start_ns, log_time_ns)
-        current.end_ns = log_time_ns if current.end_ns is None else max(current.end_ns, log_time_ns)
-        self.topics[topic].message_count += 1
-        if self.max_file_bytes and self._stream.tell() >= self.max_file_bytes:
-            self._split()
+            if (self.max_file_duration_ns and current.start_ns is not None
+                    and log_time_ns - current.start_ns >= self.max_file_duration_ns):
+                self._split()
+                current = self.files[-1]
+                channel_id = self._channel_ids[topic]
+            position = self._stream.tell()
+            try:
+                self._writer.add_message(channel_id=channel_id, log_time=log_time_ns, data=data,
+                                         publish_time=log_time_ns if publish_time_ns is None
+                                         else int(publish_time_ns), sequence=int(sequence) & 0xFFFFFFFF)
+            except OSError:
+                if self._stream.tell() != position:   # the chunk with this message is on disk, its index is not
+                    current.message_count += 1
+                    self.topics[topic].message_count += 1
+                    self._mark_on_disk()
+                raise
+            current.message_count += 1
+            current.start_ns = log_time_ns if current.start_ns is None else min(current.start_ns, log_time_ns)
+            current.end_ns = log_time_ns if current.end_ns is None else max(current.end_ns, log_time_ns)
+            self.topics[topic].message_count += 1
+            if self._stream.tell() != position:          # the chunk was full: it (and this message) went to disk
+                self._mark_on_disk()
+            if self.max_file_bytes and self._stream.tell() >= self.max_file_bytes:
+                self._split()
+        except OSError as error:
+            self._fail(error)
 
     @property
     def message_count(self) -> int:
-        """Messages written so far, all files."""
+        """Messages written so far, all files (including those still in the chunk being built)."""
         return sum(f.message_count for f in self.files)
+
+    @property
+    def messages_on_disk(self) -> int:
+        """Messages in complete chunks handed to the operating system: what a SIGKILL right now would keep."""
+        return self._on_disk
+
+    def messages_on_disk_by_topic(self) -> dict[str, int]:
+        """:attr:`messages_on_disk` per topic (a copy)."""
+        return dict(self._on_disk_by_topic)
+
+    @property
+    def failure(self) -> str:
+        """Why writing stopped (disk full...), or '' while the bag is healthy."""
+        return self._failure
 
     @property
     def paths(self) -> list[Path]:
@@ -400,8 +449,13 @@ class BagWriter:
         if self._finished:
             return
         self._finished = True
-        self._close_file()
-        _write_metadata_yaml(self.folder, self._metadata_dict())
+        if self._failure:               # the file stays as cut at the failure; bag-recover finalises it
+            return
+        try:
+            self._close_file()
+            _write_metadata_yaml(self.folder, self._metadata_dict())
+        except OSError as error:
+            self._fail(error)
 
     close = finish
 
@@ -413,8 +467,31 @@ class BagWriter:
 
     # -- internals ---------------------------------------------------------------------------------------------
     def _check_open(self) -> None:
+        if self._failure:
+            raise AeropendError(self._failure)
         if self._finished:
             raise AeropendError(f'bag {self.folder} is finished; open a new BagWriter to record more')
+
+    def _mark_on_disk(self) -> None:
+        self._on_disk = self.message_count
+        self._on_disk_by_topic = {name: info.message_count for name, info in self.topics.items()}
+
+    def _fail(self, error: OSError):
+        """Stop writing after the system refused a write: keep what is on disk, raise a clear AeropendError."""
+        file = self._stream.path if self._stream is not None else self.folder
+        lost = self.message_count - self._on_disk
+        reason = error.strerror or str(error)
+        if error.errno in (28, 27):     # ENOSPC, EFBIG
+            reason += ' (the disk or the file size limit is full)'
+        self._failure = (f'writing the bag {self.folder} failed: {reason} in {file.name}. The {self._on_disk} '
+                         f'message(s) in complete chunks are kept in the file; the {lost} message(s) of the chunk '
+                         f'being built are lost. Free space (or fix the permissions), then run: '
+                         f'aeropend bag-recover {self.folder}')
+        if self._stream is not None:
+            self._stream.close()
+        self._writer = None
+        self._stream = None
+        raise AeropendError(self._failure) from None
 
     def _open_file(self) -> None:
         from mcap.writer import Writer
@@ -451,6 +528,7 @@ class BagWriter:
         self._stream.close()
         self._writer = None
         self._stream = None
+        self._mark_on_disk()
 
     def _split(self) -> None:
         self._close_file()
@@ -755,8 +833,9 @@ def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None,
             schema = state.schemas.get(channel.schema_id)
             yield BagMessage(channel.topic, schema.name if schema else '', log_t, pub_t, data, seq)
         if not state.complete:
+            in_bag = Path(path).is_dir() or (file.parent / 'metadata.yaml').is_file()
             message = (f'{file} is incomplete ({state.problem}); read up to its last complete chunk. '
-                       f'Repair it with: aeropend bag-recover {file.parent if file.parent != Path() else file}')
+                       f'Repair it with: aeropend bag-recover {file.parent if in_bag else file}')
             if on_incomplete == 'raise':
                 raise AeropendError(message)
             if on_incomplete == 'warn':
@@ -898,13 +977,23 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     """
     datas: list[bytes] = []
     received: list[int] = []
-    for message in read_messages(path, topics=[topic], on_incomplete=on_incomplete):
-        if message.type != _JOINT_STATE:
-            raise AeropendError(f'{topic} in {path} carries {message.type}, not {_JOINT_STATE}')
-        datas.append(message.data)
-        received.append(message.log_time_ns)
+    with warnings.catch_warnings(record=True) as cut:
+        warnings.simplefilter('always')
+        for message in read_messages(path, topics=[topic], on_incomplete=on_incomplete):
+            if message.type != _JOINT_STATE:
+                raise AeropendError(f'{topic} in {path} carries {message.type}, not {_JOINT_STATE}')
+            datas.append(message.data)
+            received.append(message.log_time_ns)
+    incomplete = [w for w in cut if 'is incomplete' in str(w.message)]
     if not datas:
-        raise AeropendError(f'no {topic} messages in {path}: was the sample topic recorded?')
+        if incomplete:
+            raise AeropendError(f'no {topic} message in {path} before it is cut short: {incomplete[0].message}')
+        topics = bag_topics(path)
+        raise AeropendError(f'no {topic} messages in {path} (it holds: '
+                            f'{", ".join(f"{t} [{k}]" for t, k in topics.items()) or "no topic"}): '
+                            'was the sample topic recorded? (recorder_node records it by default)')
+    for record in cut:
+        warnings.warn_explicit(record.message, record.category, record.filename, record.lineno)
     stamp_ns, table = _decode_samples(datas, f'{topic} in {path}')
     out = {'time': (stamp_ns - stamp_ns[0]) * 1e-9}
     for column, name in enumerate(SAMPLE_CHANNELS):
@@ -927,6 +1016,7 @@ class RecoveryReport:
     intact: list[Path]
     message_count: int
     notes: list[str]
+    metadata_yaml: Path | None = None      # the regenerated metadata.yaml (None for a lone .mcap file)
 
 
 def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> RecoveryReport:
@@ -939,7 +1029,9 @@ def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> Recover
     Parameters
     ----------
     path
-        The bag folder (or one ``.mcap`` file of it).
+        The bag folder, its ``metadata.yaml``, or one ``.mcap`` file. A file listed in its folder's
+        ``metadata.yaml`` repairs that whole bag; a lone ``.mcap`` file (no bag folder around it) is repaired alone
+        and no ``metadata.yaml`` is written next to it.
 
     Returns
     -------
@@ -948,12 +1040,44 @@ def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> Recover
     Raises
     ------
     AeropendError
-        When the path is not an MCAP bag, or a file is unreadable from its start (no MCAP magic).
+        When the path is not an MCAP bag, a file is unreadable from its start (no MCAP magic), or the repaired
+        file cannot be written (disk full: the cut file is then left as it was).
     """
-    from mcap.writer import Writer
     path = Path(path)
-    folder = path.parent if path.is_file() else path
-    files = bag_files(folder)
+    if not path.exists():
+        raise AeropendError(f'{path} does not exist')
+    folder, files, bag_folder = _recovery_targets(path)
+    try:
+        return _recover_files(folder, files, bag_folder, keep_original)
+    except OSError as error:
+        raise AeropendError(f'cannot repair {path}: {error.strerror or error}'
+                            f'{" (" + str(error.filename) + ")" if error.filename else ""}; nothing was changed in '
+                            'the bag files. Free space (or copy the bag to another disk) and run '
+                            f'aeropend bag-recover again') from None
+
+
+def _recovery_targets(path: Path) -> tuple[Path, list[Path], bool]:
+    """(folder, files to scan, whether the folder is a bag whose metadata.yaml is regenerated)."""
+    if path.is_dir():
+        return path, bag_files(path), True
+    if path.name == 'metadata.yaml':
+        return path.parent, bag_files(path.parent), True
+    if path.suffix.lower() != '.mcap':
+        raise AeropendError(f'{path} is not an MCAP file: give a bag folder, its metadata.yaml or a .mcap file')
+    meta = path.parent / 'metadata.yaml'
+    if meta.is_file():
+        try:
+            info = yaml.safe_load(meta.read_text(encoding='utf-8'))['rosbag2_bagfile_information']
+            listed = {Path(p).name for p in info.get('relative_file_paths', [])}
+        except (yaml.YAMLError, KeyError, TypeError, OSError):
+            listed = set()
+        if path.name in listed:
+            return path.parent, bag_files(path.parent), True
+    return path.parent, [path], False
+
+
+def _recover_files(folder: Path, files: list[Path], bag_folder: bool, keep_original: bool) -> RecoveryReport:
+    from mcap.writer import Writer
     repaired: list[Path] = []
     intact: list[Path] = []
     notes: list[str] = []
@@ -989,7 +1113,26 @@ def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> Recover
             continue
         notes.append(f'{file.name}: {state.problem}; kept {len(messages)} messages')
         tmp = file.with_name(file.name + '.recovering')
-        stream = _DirectFile(tmp)
+        try:
+            _write_recovered(Writer, tmp, state, messages, topic_infos, file_infos, ros_distro)
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+        if keep_original:
+            os.replace(file, file.with_name(file.name + '.orig'))
+        os.replace(tmp, file)
+        repaired.append(file)
+    meta = None
+    if bag_folder:
+        _write_metadata_yaml(folder, _metadata_dict(topic_infos.values(), file_infos, ros_distro))
+        meta = folder / 'metadata.yaml'
+    return RecoveryReport(folder, repaired, intact, sum(f.message_count for f in file_infos), notes, meta)
+
+
+def _write_recovered(Writer, tmp: Path, state: _ScanState, messages, topic_infos, file_infos, ros_distro) -> None:
+    """Write the kept messages of a cut file to `tmp` as a complete MCAP file (summary, footer, metadata)."""
+    stream = _DirectFile(tmp)
+    try:
         writer = Writer(stream, compression=_compression_type('zstd'))
         writer.start(profile=ROS2_PROFILE, library='aeropend bag-recover')
         writer.add_metadata('rosbag2', {'ROS_DISTRO': ros_distro})
@@ -1007,11 +1150,6 @@ def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> Recover
         writer.add_metadata('rosbag2', {'serialized_metadata': yaml.safe_dump(
             _metadata_dict(topic_infos.values(), file_infos, ros_distro), sort_keys=False)})
         writer.finish()
+    finally:
         stream.close()
-        if keep_original:
-            os.replace(file, file.with_name(file.name + '.orig'))
-        os.replace(tmp, file)
-        repaired.append(file)
-    _write_metadata_yaml(folder, _metadata_dict(topic_infos.values(), file_infos, ros_distro))
-    return RecoveryReport(folder, repaired, intact, sum(f.message_count for f in file_infos), notes)
 

@@ -8,6 +8,7 @@ truth columns of the same quantity: :meth:`Recording.signal` looks up ``name`` t
 from __future__ import annotations
 
 import csv
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,10 +104,56 @@ def load_recording(path: str | Path) -> Recording:
     if not path.exists():
         raise AeropendError(f'no such file or folder: {path}')
     if path.suffix.lower() == '.csv':
-        return load_csv(path)
+        return checked_time(load_csv(path))
     if path.suffix.lower() == '.mcap' or path.is_dir():
-        return _load_bag(path)
+        return checked_time(_load_bag(path))
     raise AeropendError(f'{path}: unknown recording type {path.suffix!r}; give a .csv (or an MCAP bag)')
+
+
+def checked_time(recording: Recording) -> Recording:
+    """The recording with its time stamps checked: finite and strictly increasing.
+
+    A sample repeated exactly (same time stamp and the same value in every column, e.g. a message recorded twice)
+    is dropped, with a warning saying how many and where. Anything else that does not move forward in time (a
+    stamp going back, or two different samples with the same stamp) is refused with the index of the first one:
+    reordering or averaging them would be a guess.
+
+    Raises
+    ------
+    AeropendError
+        Non-finite stamps, or stamps that do not increase.
+    """
+    time, where = recording.time, recording.source or 'the recording'
+    bad = np.flatnonzero(~np.isfinite(time))
+    if bad.size:
+        raise AeropendError(f'{where}: {bad.size} time stamp(s) are not finite numbers (first at sample {bad[0]}); '
+                            'fix or remove those samples')
+    if len(time) < 2:
+        return recording
+    step = np.diff(time)
+    repeated = np.flatnonzero(step == 0) + 1
+    if repeated.size:
+        same = np.ones(repeated.size, dtype=bool)
+        for values in recording.signals.values():
+            a, b = values[repeated], values[repeated - 1]
+            same &= (a == b) | (np.isnan(a) & np.isnan(b))
+        if not same.all():
+            k = int(repeated[~same][0])
+            raise AeropendError(f'{where}: samples {k - 1} and {k} have the same time stamp t = {time[k]:.6f} s but '
+                                'different values; which one is right cannot be told: fix the time stamps')
+    backwards = np.flatnonzero(step < 0) + 1
+    if backwards.size:
+        k = int(backwards[0])
+        raise AeropendError(f'{where}: time stamps go backwards at sample {k} (t = {time[k - 1]:.6f} s then '
+                            f'{time[k]:.6f} s; {backwards.size} place(s) in all); the samples are out of order: '
+                            'sort them by time or split the record there')
+    if repeated.size:
+        keep = np.ones(len(time), dtype=bool)
+        keep[repeated] = False
+        warnings.warn(f'{where}: dropped {repeated.size} duplicated sample(s) (same time stamp and values as the '
+                      f'one before; first at sample {repeated[0]})', stacklevel=2)
+        return Recording(time[keep], {k: v[keep] for k, v in recording.signals.items()}, recording.source)
+    return recording
 
 
 def _load_bag(path: Path) -> Recording:

@@ -1,13 +1,28 @@
 """The `aeropend` command: one module per verb, each with ``add_arguments(parser)`` and ``main(args) -> int``.
 
 Verbs are imported lazily, so `aeropend simulate` never imports ROS; the ROS verbs live in `aeropend_ros`.
-A user mistake (:class:`aeropend_core.errors.AeropendError`) prints one clear line and exits with status 2.
+
+Exit statuses and what reaches standard error:
+
+- 0 done; 2 a user mistake (:class:`aeropend_core.errors.AeropendError`, or a command-line syntax error from
+  argparse): one line ``aeropend VERB: error: <what is wrong and what to do>``;
+- 1 the system refused (an ``OSError`` nobody turned into a clear message: disk full, permissions...): one line
+  naming the file and the operating system's reason;
+- 1 an internal error (any other exception, i.e. a bug in aeropend, not in the input): one line naming the
+  exception, and how to get the traceback (``AEROPEND_DEBUG=1``) to report it. With ``AEROPEND_DEBUG=1`` every
+  exception propagates with its full traceback;
+- 130 interrupted (Ctrl-C); 141 the reader of standard output went away (``aeropend simulate | head``).
+
+Warnings (e.g. a bag cut short by a killed recorder, duplicated samples dropped) print as one line
+``aeropend VERB: warning: ...``.
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+import warnings
 
 from aeropend_core.errors import AeropendError
 
@@ -42,6 +57,11 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     return parser
 
 
+def debug_enabled() -> bool:
+    """True when AEROPEND_DEBUG asks for full tracebacks (any value but empty, 0, false, no)."""
+    return os.environ.get('AEROPEND_DEBUG', '').strip().lower() not in ('', '0', 'false', 'no')
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(argv)
@@ -49,14 +69,61 @@ def main(argv: list[str] | None = None) -> int:
     if not args.verb:
         parser.print_help()
         return 2
-    try:
+    prefix = f'aeropend {args.verb}'
+    if debug_enabled():
         return int(args._main(args) or 0)
-    except AeropendError as error:
-        print(f'aeropend {args.verb}: error: {error}', file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f'aeropend {args.verb}: interrupted', file=sys.stderr)
-        return 130
+    with warnings.catch_warnings():
+        warnings.showwarning = _one_line_warning(prefix)
+        try:
+            return int(args._main(args) or 0)
+        except AeropendError as error:
+            print(f'{prefix}: error: {error}', file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print(f'{prefix}: interrupted', file=sys.stderr)
+            return 130
+        except BrokenPipeError:
+            # the reader of our standard output went away (`aeropend simulate | head`): not an error of ours
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            return 141
+        except OSError as error:
+            print(f'{prefix}: error: {_os_error_text(error)}', file=sys.stderr)
+            return 1
+        except MemoryError:
+            print(f'{prefix}: error: out of memory; use a shorter record (or --start/--stop)', file=sys.stderr)
+            return 1
+        except Exception as error:  # noqa: BLE001 - a bug: one line that says so, the traceback on request
+            where = _innermost_frame(error)
+            print(f'{prefix}: internal error: {type(error).__name__}: {error}{where}\n'
+                  f'{prefix}: this is a bug in aeropend, not a problem with your input. Run the same command with '
+                  f'AEROPEND_DEBUG=1 for the traceback and please report it.', file=sys.stderr)
+            return 1
+
+
+def _os_error_text(error: OSError) -> str:
+    """'<file>: <reason>' of an OSError, e.g. 'run.csv: No space left on device (errno 28)'."""
+    reason = error.strerror or str(error)
+    code = f' (errno {error.errno})' if error.errno else ''
+    target = error.filename if error.filename is not None else ''
+    return f'{target}: {reason}{code}' if target else f'{reason}{code}'
+
+
+def _innermost_frame(error: BaseException) -> str:
+    """' (at file.py:123 in function)' of the innermost traceback frame, for the one-line bug report."""
+    tb = error.__traceback__
+    if tb is None:
+        return ''
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    code = tb.tb_frame.f_code
+    return f' (at {os.path.basename(code.co_filename)}:{tb.tb_lineno} in {code.co_name})'
+
+
+def _one_line_warning(prefix: str):
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        print(f'{prefix}: warning: {message}', file=sys.stderr if file is None else file)
+    return show
 
 
 if __name__ == '__main__':

@@ -25,8 +25,9 @@ def main(args: argparse.Namespace) -> int:
     report = recover_bag(args.bag, keep_original=args.keep_original)
     for note in report.notes:
         print(f'repaired {note}')
+    files = len(report.repaired) + len(report.intact)
     if not report.repaired:
-        print(f'{report.folder}: all {len(report.intact)} file(s) intact; metadata.yaml regenerated')
-    print(f'{report.folder}: {report.message_count} messages in {len(report.repaired) + len(report.intact)} '
-          f'file(s)')
+        print(f'{args.bag}: all {files} file(s) intact' + ('; metadata.yaml regenerated' if report.metadata_yaml
+                                                           else ''))
+    print(f'{args.bag}: {report.message_count} messages in {files} file(s)')
     return 0

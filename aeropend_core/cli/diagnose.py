@@ -54,8 +54,11 @@ def main(args: argparse.Namespace) -> int:
     from aeropend_core.diagnose import diagnose
     from aeropend_core.recording import load_recording
 
+    from aeropend_core.cli._checks import check_effect_names
     for path in args.effects_module:
         load_effects_module(path)
+    check_effect_names(args.add, '--add')
+    check_effect_names(args.only or [], '--only')
     recording = load_recording(args.data)
 
     def progress(message: str) -> None:

@@ -22,6 +22,7 @@ import math
 
 import numpy as np
 
+from aeropend_core.errors import AeropendError
 from aeropend_core.identify import (
     PARAMETER_UNITS,
     identify_full_state,
@@ -46,11 +47,27 @@ def _clean(value: float):
     return value if math.isfinite(value) else None
 
 
+def _window(recording, start: float | None, stop: float | None):
+    """The samples in [start, stop) with clear errors for an empty or inverted window."""
+    for option, value in (('--start', start), ('--stop', stop)):
+        if value is not None and not math.isfinite(value):
+            raise AeropendError(f'{option} must be a finite time in seconds, got {value}')
+    if start is not None and stop is not None and not start < stop:
+        raise AeropendError(f'--start {start:g} s must be before --stop {stop:g} s')
+    window = recording.window(-np.inf if start is None else start, np.inf if stop is None else stop)
+    if len(window) == 0:
+        span = f'{recording.time[0]:g} s to {recording.time[-1]:g} s' if len(recording) else 'no samples'
+        asked = ' and '.join(f'{o} {v:g} s' for o, v in (('--start', start), ('--stop', stop)) if v is not None)
+        raise AeropendError(f'no samples with {asked}; the recording spans {span}')
+    return window
+
+
 def main(args: argparse.Namespace) -> int:
+    from aeropend_core.cli._checks import check_effect_names
+    check_effect_names(args.effect, '--effect')
     recording = load_recording(args.data)
     if args.start is not None or args.stop is not None:
-        recording = recording.window(-np.inf if args.start is None else args.start,
-                                     np.inf if args.stop is None else args.stop)
+        recording = _window(recording, args.start, args.stop)
     if args.model == 'pendulum':
         fit = identify_pendulum(recording.time, recording.signal('armature_voltage'),
                                 recording.signal('armature_current'), recording.signal('angle'),

@@ -36,12 +36,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-truth', action='store_true', help='write only the measured columns')
 
 
-def main(args: argparse.Namespace) -> int:
-    if not args.duration > 0:
-        raise AeropendError(f'--duration must be positive, got {args.duration} s')
+#: Longest record `aeropend simulate` writes [s] (1 h: 1.8 million samples, ~200 MB of CSV with the truth).
+MAX_DURATION = 3600.0
+#: PSNR range [dB]: 0 dB is noise as large as the signal's peak; above 200 dB the noise is below float precision.
+PSNR_RANGE = (0.0, 200.0)
+
+
+def check_arguments(args: argparse.Namespace) -> None:
+    """Refuse values that would give an empty, absurd or never-ending simulation (AeropendError)."""
+    if not 0 < args.duration <= MAX_DURATION:
+        raise AeropendError(f'--duration must be in (0, {MAX_DURATION:g}] s, got {args.duration} s; '
+                            'simulate longer records in pieces (different --seed)')
+    if args.duration < 2 * SAMPLE_TIME:
+        raise AeropendError(f'--duration {args.duration:g} s is shorter than two samples '
+                            f'({2 * SAMPLE_TIME:.4f} s at {1 / SAMPLE_TIME:g} Hz)')
+    if args.psnr is not None and not PSNR_RANGE[0] < args.psnr <= PSNR_RANGE[1]:
+        raise AeropendError(f'--psnr must be in ({PSNR_RANGE[0]:g}, {PSNR_RANGE[1]:g}] dB, got {args.psnr}; '
+                            'typical rig values are 30-60 dB; leave --psnr out for noise-free data')
     if not 0 < args.max_duty <= 1:
         raise AeropendError(f'--max-duty must be in (0, 1], got {args.max_duty}')
+    if args.seed < 0:
+        raise AeropendError(f'--seed must be a whole number >= 0, got {args.seed}')
+
+
+def main(args: argparse.Namespace) -> int:
+    check_arguments(args)
     effects = parse_effect_assignments(args.effect)
+    if args.output != '-':
+        _check_output(args.output)
     schedule = lhc_schedule(args.duration, duty_range=(0.0, args.max_duty), seed=args.seed, duty_cap=args.max_duty)
     noise = MeasurementNoise(args.psnr, args.quantise) if (args.psnr is not None or args.quantise) else None
     trajectory = simulate(schedule.duty(SAMPLE_TIME, args.duration), parameters=PRESETS[args.preset],
@@ -53,14 +75,34 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_output(path: str) -> None:
+    """Refuse an --output that cannot be a new file before spending time on the simulation."""
+    target = Path(path)
+    if target.is_dir():
+        raise AeropendError(f'--output {target} is a folder; give a file name, e.g. {target / "run.csv"}')
+    if not target.parent.is_dir():
+        raise AeropendError(f'folder {target.parent} does not exist; create it or choose another --output')
+
+
 def write_csv(path: str, columns: dict[str, np.ndarray]) -> None:
-    """Write equal-length columns as CSV with a header row (``-`` for standard output)."""
+    """Write equal-length columns as CSV with a header row (``-`` for standard output).
+
+    A file is written under a temporary name and renamed when complete, so a failure (disk full, no permission)
+    never leaves a shorter file that reads as a valid recording; the error says what the system refused.
+    """
     table = np.column_stack(list(columns.values()))
     header = ','.join(columns)
     if path == '-':
         np.savetxt(sys.stdout, table, delimiter=',', header=header, comments='', fmt='%.9g')
         return
     target = Path(path)
-    if target.parent and not target.parent.exists():
-        raise AeropendError(f'folder {target.parent} does not exist; create it or choose another --output')
-    np.savetxt(target, table, delimiter=',', header=header, comments='', fmt='%.9g')
+    _check_output(path)
+    partial = target.with_name(f'.{target.name}.partial')
+    try:
+        with open(partial, 'w', encoding='utf-8') as handle:
+            np.savetxt(handle, table, delimiter=',', header=header, comments='', fmt='%.9g')
+        partial.replace(target)
+    except OSError as error:
+        partial.unlink(missing_ok=True)
+        raise AeropendError(f'cannot write {target}: {error.strerror or error}; nothing was written (free space, '
+                            'check permissions or choose another --output)') from None
