@@ -29,13 +29,14 @@ import argparse
 import datetime as dt
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from _common import machine_info
+from _common import figure, machine_info
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / 'bench'
@@ -80,8 +81,93 @@ def git_commit() -> dict:
 
 
 def accepts(script: Path, option: str) -> bool:
-    """Whether `script` mentions command-line option `option` (scripts written by others may lack --json/--quick)."""
-    return f"'{option}'" in script.read_text(encoding='utf-8') or f'"{option}"' in script.read_text(encoding='utf-8')
+    """Whether `script` takes command-line option `option` (scripts written by others may lack --json/--quick)."""
+    source = script.read_text(encoding='utf-8')
+    if option == '--json' and 'add_json_argument(' in source:
+        return True
+    return f"'{option}'" in source or f'"{option}"' in source
+
+
+def run_process(command: list[str], timeout_s: float) -> tuple[int | None, str, str]:
+    """Run `command` in its own process group; on timeout or Ctrl-C stop the whole group (the benchmark's nodes too)
+    with SIGINT, then SIGKILL. Returns (exit code or None when stopped, stdout, stderr)."""
+    process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               start_new_session=True)
+    try:
+        stdout, stderr = process.communicate(timeout=timeout_s)
+        return process.returncode, stdout, stderr
+    except (subprocess.TimeoutExpired, KeyboardInterrupt) as stop:
+        for sig, wait in ((signal.SIGINT, 15.0), (signal.SIGKILL, 5.0)):
+            try:
+                os.killpg(process.pid, sig)
+            except ProcessLookupError:
+                break
+            try:
+                stdout, stderr = process.communicate(timeout=wait)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+        else:
+            stdout, stderr = '', ''
+        if isinstance(stop, KeyboardInterrupt):
+            raise
+        return None, stdout or '', (stderr or '') + f'\nrun_all: stopped after the {timeout_s:g} s time limit'
+
+
+def robustness_figures(data: dict) -> list[dict]:
+    """Key figures from bench/robustness.py's own JSON schema (it writes no "figures" list)."""
+    figures = []
+    at40 = [p for p in data['vs_psnr'] if p['psnr'] == 40.0 and p['factor'] == 1.0]
+    if at40:
+        correct, runs = sum(p['counts']['correct'] for p in at40), sum(p['runs'] for p in at40)
+        figures.append(figure(f'hidden effects named correctly, typical size, 40 dB ({len(at40)} effects)',
+                              correct / runs, 'fraction', target='1.0', met=correct == runs))
+    clean = [p for p in data['clean'] if p['psnr'] == 40.0]
+    if clean:
+        figures.append(figure('false alarms on data with nothing hidden, 40 dB', clean[0]['false_alarm_rate'],
+                              'fraction', target='0', met=clean[0]['false_alarm_rate'] == 0))
+    for effect, t in data['thresholds'].items():
+        figures.append(figure(f'{effect}: smallest size named reliably at {data["magnitude_psnr"]:g} dB',
+                              t['value'], t['unit'], baseline=t['typical'], baseline_name='typical size',
+                              ratio=t['factor'], ratio_meaning='of the typical size'))
+    figures.append(figure('mean diagnosis time per 60 s record', data['mean_diagnosis_seconds'], 's'))
+    return figures
+
+
+def load_test_figures(data: dict) -> list[dict]:
+    """Key figures from bench/load_test.py's own JSON schema (it writes no "figures" list)."""
+    figures = []
+    for role, e in data['memory'].items():
+        figures.append(figure(f'{role}: RSS growth after warm-up', e['rss_growth_mb'], 'MB',
+                              baseline=e['rss_warm_mb'], baseline_name='RSS at warm-up',
+                              ratio_meaning='growth / RSS at warm-up', target='flat', met=bool(e['flat'])))
+    samples = data['samples']['independent']
+    figures.append(figure('samples lost (bag read independently)', samples['missing'], 'samples',
+                          baseline=samples['published'], baseline_name='published', target='0',
+                          met=samples['missing'] == 0 and samples['gaps'] == 0))
+    i = data['identification']
+    figures.append(figure('identification compute per window (mean)', i['compute_time_s'].get('mean'), 's',
+                          baseline=i['hop_s'], baseline_name='hop between windows', ratio_meaning='compute / hop',
+                          target='keeps up', met=bool(i['keeps_up'])))
+    return figures
+
+
+ADAPTERS = {'robustness': robustness_figures, 'load_test': load_test_figures}
+
+
+def collect(name: str, json_path: Path, takes_json: bool = True) -> dict:
+    """{'figures', 'json'[, 'error']} from a benchmark's JSON file (its "figures" list, or an adapter)."""
+    if not json_path.exists():
+        return {'figures': [], 'json': None,
+                'error': 'no JSON written' if takes_json else 'script has no --json option: figures only in the log'}
+    data = json.loads(json_path.read_text(encoding='utf-8'))
+    if 'figures' in data:
+        return {'figures': data['figures'], 'json': json_path.name}
+    try:
+        return {'figures': ADAPTERS[name](data), 'json': json_path.name}
+    except (KeyError, TypeError, ValueError, ZeroDivisionError) as error:
+        return {'figures': [], 'json': json_path.name,
+                'error': f'its JSON has no "figures" list and its own schema was not understood ({error!r})'}
 
 
 def run_one(bench: Bench, out: Path, quick: bool) -> dict:
@@ -99,15 +185,7 @@ def run_one(bench: Bench, out: Path, quick: bool) -> dict:
     load_before = os.getloadavg()
     print(f'== {bench.name}: {" ".join(command[1:])}   (load average {load_before[0]:.2f})', flush=True)
     start = time.perf_counter()
-    try:
-        done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=bench.timeout_s,
-                              check=False)
-        code, stdout, stderr = done.returncode, done.stdout, done.stderr
-    except subprocess.TimeoutExpired as expired:
-        code = None
-        stdout = expired.stdout.decode() if isinstance(expired.stdout, bytes) else (expired.stdout or '')
-        stderr = (expired.stderr.decode() if isinstance(expired.stderr, bytes) else (expired.stderr or '')) + \
-            f'\nrun_all: timed out after {bench.timeout_s:g} s'
+    code, stdout, stderr = run_process(command, bench.timeout_s)
     wall = time.perf_counter() - start
     load_after = os.getloadavg()
     (out / f'{bench.name}.log').write_text(stdout + ('\n--- stderr ---\n' + stderr if stderr.strip() else ''),
@@ -119,15 +197,7 @@ def run_one(bench: Bench, out: Path, quick: bool) -> dict:
     record = {'name': bench.name, 'what': bench.what, 'command': ' '.join(command[1:]), 'exit_code': code,
               'wall_time_s': wall, 'load_average_before': list(load_before), 'load_average_after': list(load_after),
               'figures': [], 'details': None, 'json': None}
-    if json_path.exists():
-        data = json.loads(json_path.read_text(encoding='utf-8'))
-        record.update(figures=data.get('figures', []), json=json_path.name)
-        if 'figures' not in data:
-            record['error'] = 'its JSON has no "figures" list (the common schema of bench/_common.py)'
-    elif takes_json:
-        record['error'] = 'no JSON written'
-    else:
-        record['error'] = 'script has no --json option: figures only in the log'
+    record.update(collect(bench.name, json_path, takes_json))
     return record
 
 
@@ -152,6 +222,16 @@ def fmt(value) -> str:
     return str(value)
 
 
+def busy_note(run: dict) -> list[str]:
+    """A warning line when the machine was not idle (1-min load average above a quarter of the cores)."""
+    loads = [b['load_average_before'][0] for b in run['benchmarks'] if not b.get('skipped')]
+    cores = run['machine']['cores'] or 1
+    if loads and max(loads) > cores / 4:
+        return [f'- **Busy machine**: 1-min load average up to {max(loads):.1f} on {cores} cores before a benchmark '
+                'started: timings are pessimistic and noisy; rerun on an idle machine for the record.']
+    return []
+
+
 def summary_markdown(run: dict) -> str:
     m = run['machine']
     lines = [f'# Benchmark results {run["date"]}{" (--quick)" if run["quick"] else ""}', '',
@@ -162,6 +242,7 @@ def summary_markdown(run: dict) -> str:
              + (f', ROS {m["ros_distro"]}' if m.get('ros_distro') else ''),
              f'- **Code**: commit {run["git"]["commit"][:10]}'
              + (f' with {run["git"]["dirty_files"]} uncommitted file(s)' if run['git']['dirty_files'] else ''),
+             *busy_note(run),
              '', 'Every baseline is measured in the same run on the same data/machine. Ratio: see "ratio means" '
              '(speed-ups are baseline time / ours). Target and met? only where a target exists.', '',
              '| benchmark | figure | value | baseline (same run) | ratio | ratio means | target | met? |',
@@ -197,6 +278,23 @@ def summary_markdown(run: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def resummarise(folder: Path) -> int:
+    results = folder / 'results.json'
+    if not results.exists():
+        print(f'run_all: {results} not found: give a folder written by run_all.py', file=sys.stderr)
+        return 2
+    run = json.loads(results.read_text(encoding='utf-8'))
+    for record in run['benchmarks']:
+        if not record.get('skipped'):
+            record.pop('error', None)
+            record.update(collect(record['name'], folder / f'{record["name"]}.json', '--json' in record['command']))
+    results.write_text(json.dumps(run, indent=1, ensure_ascii=False) + '\n', encoding='utf-8')
+    run['out'] = folder
+    (folder / 'summary.md').write_text(summary_markdown(run), encoding='utf-8')
+    print(f'rewrote {folder / "summary.md"}')
+    return 0
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0], epilog='See the module docstring.')
     parser.add_argument('--quick', action='store_true', help='shorter variants of every benchmark (~2 min)')
@@ -207,7 +305,11 @@ def main() -> int:
     parser.add_argument('--skip', nargs='+', choices=names, default=[], metavar='NAME', help='skip these')
     parser.add_argument('--out', type=Path, default=None,
                         help='output folder (default bench/results/<UTC date>[-quick]/)')
+    parser.add_argument('--resummarise', type=Path, metavar='DIR', default=None,
+                        help='run nothing: re-read the benchmarks\' JSON files in DIR and rewrite its summary.md')
     args = parser.parse_args()
+    if args.resummarise:
+        return resummarise(args.resummarise)
     started = dt.datetime.now(dt.timezone.utc)
     out = args.out or BENCH / 'results' / (started.strftime('%Y-%m-%d') + ('-quick' if args.quick else ''))
     out.mkdir(parents=True, exist_ok=True)
