@@ -151,13 +151,43 @@ def _to_si(calibration: P.Calibration, samples: list[P.SampleFrame]) -> np.ndarr
     return np.array([calibration.to_si(s) for s in samples])
 
 
-def main(args) -> int:
-    calibration, _ = load_calibration(args.config)
+def check_arguments(args) -> None:
+    """Refuse out-of-range settings before the port is opened and the motor driven (AeropendError)."""
+    def positive(option: str, value: float, unit: str) -> None:
+        if not 0 < value < math.inf:
+            raise AeropendError(f'{option} must be a positive number{unit}, got {value}')
+
+    if not 0 < args.max_duty <= 1:
+        raise AeropendError(f'--max-duty must be a fraction in (0, 1], got {args.max_duty}')
+    positive('--baud', args.baud, '')
+    positive('--seconds', args.seconds, ' of seconds')
+    positive('--dwell', args.dwell, ' of seconds')
+    if not 10 <= abs(args.reference_deg) <= 180:
+        raise AeropendError(f'--reference-deg must be a rod angle of 10 to 180 degrees (e.g. 90, the rod '
+                            f'horizontal), got {args.reference_deg}')
+    duties = list(args.duties) if args.step == 'locked-rotor' else list(args.duty) if args.step == 'back-emf' \
+        else []
+    if args.step in ('locked-rotor', 'back-emf') and not duties:
+        raise AeropendError(f'{args.step} needs at least one duty')
+    for duty in duties:
+        if not 0 < duty <= args.max_duty:
+            raise AeropendError(f'duty {duty:g} is outside (0, {args.max_duty:g}] (--max-duty); duties are '
+                                'fractions, e.g. 0.25 for 25 %')
+    if args.step == 'locked-rotor' and len(duties) < 3:
+        raise AeropendError('locked-rotor needs at least three --duties to fit Ra (e.g. 0.1,0.15,0.2,0.25)')
     if args.step == 'back-emf':
         if not args.motor_speed_rpm or len(args.motor_speed_rpm) != len(args.duty):
             raise AeropendError('back-emf needs --motor-speed-rpm with one measured speed per --duty')
+        for speed in args.motor_speed_rpm:
+            positive('--motor-speed-rpm', speed, ' of rpm')
         if args.resistance is None:
             raise AeropendError('back-emf needs --resistance (Ra in ohm, from `aeropend calibrate locked-rotor`)')
+        positive('--resistance', args.resistance, ' of ohms')
+
+
+def main(args) -> int:
+    check_arguments(args)
+    calibration, _ = load_calibration(args.config)
     rig = RigLink(args.port, args.baud, args.max_duty)
     updates: dict[str, float] = {}
     try:

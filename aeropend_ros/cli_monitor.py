@@ -109,9 +109,19 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
     return '\n'.join(lines)
 
 
+def check_arguments(args) -> None:
+    """Refuse negative, zero or non-finite times and thresholds (AeropendError)."""
+    if not 0 < args.timeout < math.inf:
+        raise AeropendError(f'--timeout must be a positive number of seconds, got {args.timeout}')
+    if not 0 <= args.duration < math.inf:
+        raise AeropendError(f'--duration must be >= 0 s (0 = until Ctrl-C), got {args.duration}')
+    if not 0 < args.drift_sigma < math.inf:
+        raise AeropendError(f'--drift-sigma must be a positive number of standard errors (e.g. 3), got '
+                            f'{args.drift_sigma}')
+
+
 def main(args) -> int:
-    if args.once and not args.timeout > 0:
-        raise AeropendError('--timeout must be positive')
+    check_arguments(args)
     from aeropend_ros._ros_env import ensure_ros_environment
     ensure_ros_environment(local_only=args.local)
     import rclpy

@@ -55,8 +55,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _check_arguments(args) -> None:
-    if not args.duration > 0:
-        raise AeropendError(f'--duration must be positive, got {args.duration} s')
+    import math
+    if not 0 < args.duration < math.inf:
+        raise AeropendError(f'--duration must be a positive number of seconds, got {args.duration}')
+    if not 0 <= args.psnr <= 200:
+        raise AeropendError(f'--psnr must be in [0, 200] dB (0 = no noise), got {args.psnr}')
+    if not 0 <= args.seed <= 2**31 - 1:
+        raise AeropendError(f'--seed must be a whole number in [0, 2147483647], got {args.seed}')
     if args.port is not None and args.realtime_factor != 1.0:
         raise AeropendError('--realtime-factor only applies to the simulator; the rig runs in real time')
     if not 0 < args.realtime_factor <= 100:
@@ -73,6 +78,19 @@ def _check_arguments(args) -> None:
     if args.effect and args.effect != ['none']:
         parse_effect_assignments(args.effect)
     check_effect_names(args.model_effect)
+    if not args.no_record:
+        _check_record_folder(Path(args.record))
+
+
+def _check_record_folder(folder: Path) -> None:
+    """The folder for the bag exists (or is created) and is writable, before any node starts."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise AeropendError(f'cannot create the --record folder {folder}: {error.strerror or error}; choose another '
+                            'folder (or --no-record)') from None
+    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+        raise AeropendError(f'--record {folder} is not a writable folder; choose another folder (or --no-record)')
 
 
 def main(args) -> int:
@@ -155,7 +173,7 @@ def _run(args) -> int:
             spinner = threading.Thread(target=_spin, args=(executor,), name=node.get_name(), daemon=True)
             spinner.start()
             spinners.append(spinner)
-        interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME)
+        interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME, recorder)
         if excitation.started and not excitation.done:
             excitation.finish()          # duty back to 0 before the graph goes away
         if recorder is not None:
@@ -177,6 +195,10 @@ def _run(args) -> int:
         rclpy.try_shutdown()
         signal.signal(signal.SIGTERM, previous_sigterm)
         signal.signal(signal.SIGINT, previous_sigint)
+    if recorder is not None and recorder.failed:
+        print(f'aeropend run: error: the recording failed, so the run stopped: {recorder.write_error}',
+              file=sys.stderr)
+        return 1
     if bag_folder is not None:
         print(f'recorded: {bag_folder}')
     if args.no_diagnose:
@@ -197,8 +219,11 @@ def _spin(executor) -> None:
         pass
 
 
-def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float) -> bool:
-    """Print each new window's held-out fit until the experiment is over; True when interrupted (Ctrl-C)."""
+def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float,
+                     recorder=None) -> bool:
+    """Print each new window's held-out fit until the experiment is over; True when interrupted (Ctrl-C).
+
+    Stops early when the recorder cannot write the bag (disk full): the run then ends with that error."""
     started = time.monotonic()
     progress = {'shown': 0, 'status': None}
 
@@ -220,6 +245,9 @@ def _wait_until_done(args, source, excitation, identification, use_sim: bool, sa
             report()
             if (use_sim and source.finished) or (not use_sim and time.monotonic() - started > args.duration):
                 break
+            if recorder is not None and recorder.failed:
+                print(f'aeropend run: recording stopped: {recorder.write_error}', file=sys.stderr, flush=True)
+                return False
             time.sleep(0.1)
         # The window that came due with the last samples is still being computed: show it too.
         deadline = time.monotonic() + 15.0

@@ -13,8 +13,12 @@ That keeps the cost near 15-20 us of CPU per message at 20,000 msg/s and ~4 % of
 (bench/bench_recorder.py). SIGINT or SIGTERM finalise
 the bag (summary, footer, metadata.yaml). After a SIGKILL, run ``aeropend bag-recover <bag folder>``.
 
-The node publishes its own ``/diagnostics`` (messages written per topic, queue length, drops, current file) once
-per ``diagnostics_period``.
+The node publishes its own ``/diagnostics`` (messages written per topic, messages safe on disk, queue length,
+drops, current file) once per ``diagnostics_period``.
+
+When the bag cannot be written (disk full, file size limit, permissions) the node logs the error, publishes an
+ERROR status on ``/diagnostics`` for a second, and exits with status 1. The file keeps every complete chunk
+(it is cut back to the last complete record); free space and run ``aeropend bag-recover <bag folder>``.
 
 Usage::
 
@@ -113,6 +117,7 @@ class RecorderNode(Node):
         self._stop = False
         self._written = 0
         self._write_error: str = ''
+        self._failed = threading.Event()
         self._max_queue = get('max_queue').value
         self._dropped = 0
         self._thread = threading.Thread(target=self._write_loop, name='bag_writer', daemon=True)
@@ -234,7 +239,7 @@ class RecorderNode(Node):
             self._wake.set()
 
     def _enqueue(self, topic: str, data: bytes, info: dict) -> None:
-        if len(self._queue) >= self._max_queue:
+        if len(self._queue) >= self._max_queue or self._failed.is_set():
             self._dropped += 1
             return
         received = info.get('received_timestamp') or time.time_ns()
@@ -259,9 +264,12 @@ class RecorderNode(Node):
                     topic, data, received, sent, sequence = item
                     writer.write(topic, data, received, sent, sequence)
                     self._written += 1
-            except Exception as error:  # noqa: BLE001 - disk full, permissions...: report it, keep the node alive
-                self._write_error = f'{type(error).__name__}: {error}'
+            except Exception as error:  # noqa: BLE001 - disk full, permissions...: report it, then main() exits 1
+                self._write_error = str(error) if isinstance(error, AeropendError) else \
+                    f'{type(error).__name__}: {error}'
                 self.get_logger().error(f'bag writing failed: {self._write_error}')
+                queue.clear()
+                self._failed.set()
                 return
             if self._stop and not queue:
                 return
@@ -276,6 +284,16 @@ class RecorderNode(Node):
         """Messages handed to the bag writer so far (all topics)."""
         return self._written
 
+    @property
+    def failed(self) -> bool:
+        """True once writing the bag failed (see :attr:`write_error`); the node should then stop."""
+        return self._failed.is_set()
+
+    @property
+    def write_error(self) -> str:
+        """Why writing the bag failed ('' while healthy)."""
+        return self._write_error
+
     def finish(self) -> None:
         """Take what is waiting, write everything queued and finalise the bag (idempotent)."""
         if self._finished:
@@ -288,11 +306,18 @@ class RecorderNode(Node):
         self._stop = True
         self._wake.set()
         self._thread.join()
-        self.writer.finish()
-        text = (f'bag {self.writer.folder} finalised: {self._written} messages, {self._dropped} dropped, '
-                f'files {[p.name for p in self.writer.paths]}')
+        try:
+            self.writer.finish()
+        except AeropendError as error:          # the disk filled up while writing the last chunk or the summary
+            self._write_error = str(error)
+            self._failed.set()
+        if self._write_error:
+            text = (f'bag {self.writer.folder} NOT finalised: {self._write_error}')
+        else:
+            text = (f'bag {self.writer.folder} finalised: {self._written} messages, {self._dropped} dropped, '
+                    f'files {[p.name for p in self.writer.paths]}')
         if rclpy.ok():
-            self.get_logger().info(text)
+            (self.get_logger().error if self._write_error else self.get_logger().info)(text)
         else:  # after Ctrl-C the context is gone and /rosout with it
             print(f'[INFO] [recorder_node]: {text}', file=sys.stderr, flush=True)
 
@@ -311,10 +336,13 @@ class RecorderNode(Node):
             status.level, status.message = DiagnosticStatus.WARN, f'{self._dropped} messages dropped (queue full)'
         else:
             status.level, status.message = DiagnosticStatus.OK, 'recording'
-        values = [('messages_written', self._written), ('messages_dropped', self._dropped),
+        values = [('messages_written', self._written), ('messages_on_disk', self.writer.messages_on_disk),
+                  ('messages_dropped', self._dropped),
                   ('queue_length', len(self._queue)), ('file', self.writer.paths[-1].name if self.writer.paths else ''),
                   ('files', len(self.writer.paths))]
         values += [(f'received {topic}', count) for topic, count in sorted(self._received.items())]
+        on_disk = self.writer.messages_on_disk_by_topic()
+        values += [(f'on disk {topic}', count) for topic, count in sorted(on_disk.items())]
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values]
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
@@ -333,13 +361,23 @@ def main(args=None) -> int:
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        executor.spin()
+        while rclpy.ok() and not node.failed:
+            executor.spin_once(timeout_sec=0.1)
+        if node.failed:
+            # tell /diagnostics listeners (a supervisor, `aeropend monitor`) for a second before exiting
+            node._publish_diagnostics()
+            deadline = time.monotonic() + 1.0
+            while rclpy.ok() and time.monotonic() < deadline:
+                executor.spin_once(timeout_sec=0.1)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         node.finish()
         node.destroy_node()
         rclpy.try_shutdown()
+    if node.failed:
+        print(f'recorder_node: error: {node.write_error}', file=sys.stderr, flush=True)
+        return 1
     return 0
 
 

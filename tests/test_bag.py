@@ -5,6 +5,7 @@ and a reader cannot hide.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import struct
@@ -227,33 +228,71 @@ def test_split_files_read_as_one_bag(tmp_path, split):
 
 
 KILLED_WRITER = textwrap.dedent('''
-    import sys, time
+    import json, os, sys, time
     sys.path.insert(0, {tests!r})
-    from test_bag import write_bag, SAMPLES, cdr_joint_state, sample_values, T0_NS, TS_NS
+    from test_bag import write_bag, SAMPLES, DUTY, cdr_joint_state, cdr_float64, sample_values, T0_NS, TS_NS
     from pathlib import Path
-    writer = write_bag(Path({folder!r}), 1500, chunk_size=16 * 1024)
-    print(writer.message_count, flush=True)      # not finished: killed while recording
-    time.sleep(60)
+    writer = write_bag(Path({folder!r}), 0, chunk_size=16 * 1024)
+    file = writer.paths[0]
+    size, samples_on_disk = os.path.getsize(file), 0
+    for k in range({n}):                       # as write_bag, watching the file: it grows when a chunk is written
+        stamp = T0_NS + k * TS_NS
+        writer.write(SAMPLES, cdr_joint_state(stamp, sample_values(k)), log_time_ns=stamp + 300_000,
+                     publish_time_ns=stamp + 100_000, sequence=k + 1)
+        if k % 49 == 0:
+            writer.write(DUTY, cdr_float64(k / {n}), log_time_ns=stamp + 200_000)
+        if os.path.getsize(file) != size:
+            size, samples_on_disk = os.path.getsize(file), k + 1
+    print(json.dumps({{'written': writer.message_count, 'samples_on_disk': samples_on_disk,
+                      'writer_says': writer.messages_on_disk_by_topic().get(SAMPLES, 0)}}), flush=True)
+    time.sleep(60)                             # not finished: killed while recording
 ''')
 
 
+def mcap_stream_count(file: Path, topic: str = SAMPLES) -> int:
+    """Messages on `topic` of a (possibly cut) .mcap file read record by record by the mcap library's stream reader
+    (an independent reader), up to where the file is cut."""
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+    channels, count = {}, 0
+    with open(file, 'rb') as stream:
+        try:
+            for record in StreamReader(stream).records:
+                if isinstance(record, Channel):
+                    channels[record.id] = record.topic
+                elif isinstance(record, Message) and channels.get(record.channel_id) == topic:
+                    count += 1
+        except Exception:  # noqa: BLE001 - the cut record at the end (struct.error, EndOfFile...)
+            pass
+    return count
+
+
 def test_killed_recording_readable_to_last_chunk_and_recovered(tmp_path):
-    folder = tmp_path / 'killed'
+    """SIGKILL while samples wait in an unfinished chunk: exactly the samples of the complete chunks are read back
+    (counted independently from the file's growth while writing), by our reader and the mcap stream reader; then
+    `aeropend bag-recover` makes a bag that rosbags and mcap_ros2 open."""
+    import json
+    folder, n = tmp_path / 'killed', 1500
     child = subprocess.Popen([sys.executable, '-c', KILLED_WRITER.format(tests=str(ROOT / 'tests'),
-                                                                         folder=str(folder))],
+                                                                         folder=str(folder), n=n)],
                              stdout=subprocess.PIPE, text=True, cwd=ROOT)
-    written = int(child.stdout.readline())
+    report = json.loads(child.stdout.readline())
     child.send_signal(signal.SIGKILL)
     child.wait(10)
     child.stdout.close()
-    assert written == 1500 + len(range(0, 1500, 49))
+    assert report['written'] == n + len(range(0, n, 49))
+    on_disk = report['samples_on_disk']
+    # the kill hit mid-chunk: samples were waiting in the unfinished chunk (16 KiB ~ 80 samples)
+    assert 0 < on_disk < n and n - on_disk < 100, report
+    assert report['writer_says'] == on_disk, 'BagWriter.messages_on_disk disagrees with the file growth'
 
     with pytest.warns(UserWarning, match='bag-recover'):
         partial = read_samples(folder)
     kept = len(partial['sequence'])
-    # every sample of a complete chunk survives, in order; only the chunk in progress (< 16 KiB ~ 80 samples) is lost
+    # every sample of a complete chunk survives, in order, and only the unfinished chunk is lost: no fewer, no more
+    assert kept == on_disk, (kept, report)
     np.testing.assert_array_equal(partial['sequence'], np.arange(kept))
-    assert 1500 - 100 < kept < 1500
+    assert mcap_stream_count(folder / 'killed_0.mcap') == kept
     with pytest.raises(AeropendError, match='incomplete'):
         read_samples(folder, on_incomplete='raise')
 
@@ -272,6 +311,101 @@ def test_killed_recording_readable_to_last_chunk_and_recovered(tmp_path):
     assert stamps2 == stamps
     info = yaml.safe_load((folder / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
     assert info['topics_with_message_count'][0]['message_count'] == kept
+
+
+@contextlib.contextmanager
+def small_disk(tmp_path: Path, free_bytes: int):
+    """A folder on which writing stops with an OSError after about `free_bytes`, like a full disk.
+
+    As root (and where mounting is allowed) a tmpfs of that size is mounted on it (ENOSPC, 'No space left on
+    device'), unmounted afterwards. Otherwise the writing child process gets RLIMIT_FSIZE = `free_bytes` (EFBIG,
+    'File too large', per file). Yields ``(folder, preexec_fn for the child or None, description of the method)``.
+    """
+    import resource
+    import shutil
+    folder = tmp_path / 'small_disk'
+    folder.mkdir()
+    if os.geteuid() == 0 and shutil.which('mount'):
+        size = max(free_bytes, 64 * 1024)
+        mounted = subprocess.run(['mount', '-t', 'tmpfs', '-o', f'size={size}', 'tmpfs', str(folder)],
+                                 capture_output=True, text=True, check=False)
+        if mounted.returncode == 0:
+            try:
+                yield folder, None, f'tmpfs of {size} bytes (ENOSPC)'
+            finally:
+                subprocess.run(['umount', '-l', str(folder)], capture_output=True, check=False)
+            return
+
+    def limit_file_size() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (free_bytes, free_bytes))
+    yield folder, limit_file_size, f'RLIMIT_FSIZE of {free_bytes} bytes (EFBIG; mounting a tmpfs was not possible)'
+
+
+FULL_DISK_WRITER = textwrap.dedent('''
+    import json, os, sys
+    sys.path.insert(0, {tests!r})
+    from test_bag import write_bag, SAMPLES, cdr_joint_state, sample_values, T0_NS, TS_NS
+    from aeropend_core.errors import AeropendError
+    from pathlib import Path
+    writer = write_bag(Path({folder!r}), 0, chunk_size=8 * 1024)
+    file = writer.paths[0]
+    size, samples_on_disk, error = os.path.getsize(file), 0, ''
+    try:
+        for k in range(10**6):
+            stamp = T0_NS + k * TS_NS
+            writer.write(SAMPLES, cdr_joint_state(stamp, sample_values(k)), log_time_ns=stamp)
+            if os.path.getsize(file) != size:
+                size, samples_on_disk = os.path.getsize(file), k + 1
+        writer.finish()
+    except AeropendError as failure:
+        error = str(failure)
+        writer.finish()                        # after a failure: leaves the file as it is, raises nothing
+    print(json.dumps({{'error': error, 'samples_on_disk': samples_on_disk, 'attempted': k + 1,
+                      'writer_says': writer.messages_on_disk}}), flush=True)
+''')
+
+
+def test_full_disk_stops_with_a_clear_error_and_keeps_every_complete_chunk(tmp_path):
+    """The plain core writer on a full disk: AeropendError naming the problem and bag-recover, the earlier chunks
+    intact (our reader, the mcap stream reader), and bag-recover finalises the bag once there is room."""
+    import json
+    import shutil
+    with small_disk(tmp_path, 96 * 1024) as (disk, preexec, how):
+        print(f'full disk simulated with {how}')
+        folder = disk / 'full'
+        result = subprocess.run([sys.executable, '-c', FULL_DISK_WRITER.format(tests=str(ROOT / 'tests'),
+                                                                               folder=str(folder))],
+                                capture_output=True, text=True, cwd=ROOT, timeout=120, preexec_fn=preexec,
+                                check=False)
+        assert result.returncode == 0 and 'Traceback' not in result.stderr, (how, result.stderr)
+        report = json.loads(result.stdout)
+        assert ('No space left on device' in report['error'] or 'File too large' in report['error']), (how, report)
+        assert 'bag-recover' in report['error'] and 'complete chunks are kept' in report['error'], report
+        on_disk = report['samples_on_disk']
+        assert 0 < on_disk < report['attempted'] and report['writer_says'] == on_disk, (how, report)
+        # everything that reached the disk before the failure reads back, exactly
+        with pytest.warns(UserWarning, match='incomplete'):
+            partial = read_samples(folder)
+        np.testing.assert_array_equal(partial['sequence'], np.arange(on_disk))
+        assert mcap_stream_count(folder / 'full_0.mcap') == on_disk
+        # repairing on the full disk itself fails cleanly (the cut file untouched) ...
+        before = (folder / 'full_0.mcap').read_bytes()
+        if preexec is None:
+            filler = disk / 'filler'
+            with open(filler, 'wb') as stream, contextlib.suppress(OSError):
+                stream.write(b'x' * 256 * 1024)             # whatever room was left is now taken
+            with pytest.raises(AeropendError, match='cannot repair'):
+                recover_bag(folder)
+            assert (folder / 'full_0.mcap').read_bytes() == before
+            assert not list(folder.glob('*.recovering'))
+        # ... and works once there is room: here, a copy on a disk with space
+        copy = tmp_path / 'copied'
+        shutil.copytree(folder, copy)
+    result = subprocess.run([*AEROPEND, 'bag-recover', str(copy)], check=False, capture_output=True, text=True,
+                            cwd=ROOT, timeout=60)
+    assert result.returncode == 0, result.stderr
+    stamps, _, counts = rosbags_samples(copy)
+    assert counts[SAMPLES] == on_disk and stamps == [T0_NS + k * TS_NS for k in range(on_disk)]
 
 
 def test_bad_files_give_clear_errors(tmp_path):

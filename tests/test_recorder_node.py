@@ -1,19 +1,21 @@
 """sim_node -> recorder_node over DDS, both real processes: SIGINT finalises a bag that rosbags and mcap_ros2 read,
-with no sample missing and stamps exactly k*Ts apart.
+with no sample missing and stamps exactly k*Ts apart; SIGKILL mid-chunk and a full disk keep every complete chunk.
 
-Synchronisation is by the recorder's own /diagnostics (its per-topic receive counts), never by fixed sleeps.
+Synchronisation is by the recorder's own /diagnostics (its per-topic receive and on-disk counts), never by fixed
+sleeps.
 """
 from __future__ import annotations
 
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
-from tests.ros_helpers import NodeProcess, private_domain_id, use_domain, wait_for
+from tests.ros_helpers import ROOT, NodeProcess, private_domain_id, use_domain, wait_for
 
 DOMAIN_ID = private_domain_id()
 use_domain(DOMAIN_ID)
@@ -40,13 +42,29 @@ class RecorderWatch:
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self.values: dict[str, dict[str, str]] = {}     # bag folder (hardware_id) -> status values
+        self.status: dict[str, tuple[int, str]] = {}     # bag folder -> (level, message) of the latest status
         self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS_TOPIC, self._on_diagnostics,
                                       topics.diagnostics_qos())
+        self._publisher = None
 
     def _on_diagnostics(self, msg) -> None:
         for status in msg.status:
             if status.name.startswith('recorder_node'):
                 self.values[status.hardware_id] = {kv.key: kv.value for kv in status.values}
+                self.status[status.hardware_id] = (int.from_bytes(status.level, 'little')
+                                                   if isinstance(status.level, bytes) else int(status.level),
+                                                   status.message)
+
+    def value(self, bag: Path, key: str, default: int = -1) -> int:
+        return int(self.values.get(str(bag), {}).get(key, default))
+
+    def publish_sample(self, sequence: int) -> None:
+        """One more /aeropend/samples message from this test node (SensorData QoS, like the sim)."""
+        if self._publisher is None:
+            from sensor_msgs.msg import JointState
+            self._publisher = self.node.create_publisher(JointState, topics.SAMPLES_TOPIC, topics.samples_qos())
+        stamp = time.time_ns()
+        self._publisher.publish(topics.sample_to_msg(topics.Sample(stamp, 0.1, 1.0, 0.2, 0.3, sequence)))
 
     def received(self, bag: Path, topic: str) -> int:
         """Messages on `topic` received so far by the recorder writing `bag` (from its /diagnostics)."""
@@ -128,25 +146,54 @@ def test_recorder_refuses_existing_bag(tmp_path):
     assert 'already exists' in result.stderr and 'Traceback' not in result.stderr
 
 
+ONLY_SAMPLES = ['-p', f"topics:=['{topics.SAMPLES_TOPIC}']", '-p', f'include_regex:=^{topics.SAMPLES_TOPIC}$']
+
+
 def test_killed_recorder_leaves_readable_bag_and_recovers(tmp_path, watch):
-    """SIGKILL mid-recording: the bag reads up to its last complete chunk; `aeropend bag-recover` finalises it."""
+    """SIGKILL while samples wait in the unfinished chunk: the bag reads back exactly the samples of its complete
+    chunks (the count the recorder reported on disk, by our reader and the mcap stream reader); `aeropend
+    bag-recover` finalises it for rosbags."""
+    from tests.test_bag import mcap_stream_count
+    samples = topics.SAMPLES_TOPIC
     bag = tmp_path / 'killed_run'
-    recorder_args = ['-p', f'output:={bag}', '-p', 'diagnostics_period:=0.2', '-p', 'chunk_size:=16384']
+    recorder_args = ['-p', f'output:={bag}', '-p', 'diagnostics_period:=0.2', '-p', 'chunk_size:=16384',
+                     *ONLY_SAMPLES]
     with NodeProcess('aeropend_ros.recorder_node', recorder_args, DOMAIN_ID) as recorder, \
             NodeProcess('aeropend_ros.sim_node', ['-p', 'psnr_db:=40.0'], DOMAIN_ID) as sim:
-        assert watch.wait_for(lambda: watch.received(bag, topics.SAMPLES_TOPIC) >= 1500, DISCOVERY_TIMEOUT + 10), \
+        assert watch.wait_for(lambda: watch.received(bag, samples) >= 1500, DISCOVERY_TIMEOUT + 10), \
             recorder.output() + sim.output()
-        received = watch.received(bag, topics.SAMPLES_TOPIC)
+        sim.stop()                                       # no more samples: what the recorder holds is now fixed
+        seen = {'received': -1, 'since': time.monotonic()}
+
+        def settled() -> bool:
+            received = watch.received(bag, samples)
+            if received != seen['received']:
+                seen.update(received=received, since=time.monotonic())
+            return (time.monotonic() - seen['since'] > 0.6 and watch.value(bag, 'messages_written') == received
+                    and watch.value(bag, 'queue_length') == 0)
+        assert watch.wait_for(settled, 20.0), recorder.output()
+        extra = 0
+        while watch.value(bag, f'on disk {samples}') == watch.received(bag, samples):
+            # the last sample happened to close a chunk: add samples until one waits in the next chunk
+            before = watch.received(bag, samples)
+            extra += 1
+            watch.publish_sample(10**6 + extra)
+            watch.wait_for(lambda: watch.received(bag, samples) > before
+                           and watch.value(bag, 'messages_written') == watch.received(bag, samples), 1.0)
+            assert extra < 100, 'the recorder does not receive the extra samples'
+        on_disk, received = watch.value(bag, f'on disk {samples}'), watch.received(bag, samples)
+        assert 0 < on_disk < received, (on_disk, received)
         recorder.process.kill()                          # SIGKILL: no chance to finalise
         recorder.process.wait(10)
-        sim.stop()
 
     with pytest.warns(UserWarning, match='bag-recover'):
         partial = read_samples(bag)
     kept = len(partial['sequence'])
+    # exactly the complete chunks survive: no fewer samples than the recorder had on disk, and the unfinished
+    # chunk's samples (received - on_disk) are the only loss
+    assert kept == on_disk, (kept, on_disk, received)
     np.testing.assert_array_equal(np.diff(partial['sequence']), 1)
-    # at most the chunk in progress (16 KiB, ~100 samples) and the writer's queue are lost
-    assert received - 400 < kept <= received + 200, (kept, received)
+    assert mcap_stream_count(next(bag.glob('*.mcap')), samples) == kept
 
     result = subprocess.run([sys.executable, '-c', 'import sys; from aeropend_core.cli import main; sys.exit(main())',
                              'bag-recover', str(bag)], capture_output=True, text=True, timeout=60,
@@ -156,6 +203,59 @@ def test_killed_recorder_leaves_readable_bag_and_recovers(tmp_path, watch):
     np.testing.assert_array_equal(repaired['sequence'], partial['sequence'])
     from rosbags.highlevel import AnyReader
     with AnyReader([bag]) as reader:
-        samples = [c for c in reader.connections if c.topic == topics.SAMPLES_TOPIC]
-        assert sum(c.msgcount for c in samples) == kept
-        assert sum(1 for _ in reader.messages(connections=samples)) == kept
+        connections = [c for c in reader.connections if c.topic == samples]
+        assert sum(c.msgcount for c in connections) == kept
+        assert sum(1 for _ in reader.messages(connections=connections)) == kept
+
+
+def test_full_disk_stops_the_recorder_with_a_clear_error_and_keeps_what_was_written(tmp_path, watch):
+    """The recorder's disk fills up: an ERROR on /diagnostics and in the log, exit status 1, no traceback; the bag
+    holds every complete chunk (as many samples as the recorder reported on disk) and bag-recover finalises it once
+    space is freed."""
+    from tests.test_bag import mcap_stream_count, small_disk
+    samples = topics.SAMPLES_TOPIC
+    with small_disk(tmp_path, 320 * 1024) as (disk, preexec, how):
+        print(f'full disk simulated with {how}')
+        ballast = disk / 'ballast'
+        if preexec is None:                              # a tmpfs: most of it is taken by another file
+            ballast.write_bytes(b'\0' * 160 * 1024)
+        bag = disk / 'bag'
+        command = [sys.executable, '-m', 'aeropend_ros.recorder_node', '--ros-args', '-p', f'output:={bag}',
+                   '-p', 'diagnostics_period:=0.2', '-p', 'chunk_size:=16384', '-p', 'compression:=none',
+                   *ONLY_SAMPLES]
+        recorder = subprocess.Popen(command, env=local_ros_environment(domain_id=DOMAIN_ID), cwd=ROOT,
+                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                    preexec_fn=preexec)
+        try:
+            with NodeProcess('aeropend_ros.sim_node', ['-p', 'psnr_db:=40.0', '-p', 'realtime_factor:=4.0'],
+                             DOMAIN_ID) as sim:
+                assert watch.wait_for(lambda: recorder.poll() is not None, 90.0), sim.output()
+                sim.stop()
+            output = recorder.communicate(timeout=10)[0]
+        finally:
+            if recorder.poll() is None:
+                recorder.kill()
+        assert recorder.returncode == 1, (how, output)
+        assert 'Traceback' not in output, output
+        assert 'No space left on device' in output or 'File too large' in output, (how, output)
+        assert 'bag-recover' in output and 'NOT finalised' in output, output
+        watch.wait_for(lambda: watch.status.get(str(bag), (0, ''))[0] == 2, 3.0)
+        level, message = watch.status.get(str(bag), (0, ''))
+        assert level == 2 and 'writing failed' in message, (level, message)   # DiagnosticStatus.ERROR
+        on_disk = watch.value(bag, f'on disk {samples}')
+
+        with pytest.warns(UserWarning, match='incomplete'):
+            partial = read_samples(bag)
+        kept = len(partial['sequence'])
+        assert kept == on_disk > 0, (kept, on_disk, how)
+        np.testing.assert_array_equal(np.diff(partial['sequence']), 1)
+        assert mcap_stream_count(next(bag.glob('*.mcap')), samples) == kept
+        ballast.unlink(missing_ok=True)                  # free space, then repair in place
+        result = subprocess.run([sys.executable, '-c', 'import sys; from aeropend_core.cli import main; '
+                                 'sys.exit(main())', 'bag-recover', str(bag)], capture_output=True, text=True,
+                                timeout=60, cwd=ROOT, check=False)
+        assert result.returncode == 0, result.stderr
+        from rosbags.highlevel import AnyReader
+        with AnyReader([bag]) as reader:
+            connections = [c for c in reader.connections if c.topic == samples]
+            assert sum(1 for _ in reader.messages(connections=connections)) == kept
