@@ -1,0 +1,438 @@
+"""Noise-robustness of the missing-physics loop: how often is a hidden effect named correctly, vs PSNR and size.
+
+For every effect in the catalog (read at run time, so a newly registered effect is included) one effect is hidden
+in simulated data and :func:`aeropend_core.diagnose.diagnose` is asked what is missing:
+
+* (a) rate vs PSNR at the catalog's typical magnitude, PSNR 60/50/40/30/20 dB;
+* (b) rate vs magnitude at 40 dB, magnitudes as multiples of the typical value;
+* the clean case (nothing hidden): false-alarm rate vs PSNR.
+
+Data per run (as bench/diagnosis_table.py and tests/test_diagnose.py): 60 s of Latin-hypercube duty steps (LHC,
+duty up to 0.7; cable_torque up to 0.9, the large-angle experiment the tool recommends for it), simulated with the
+full model, Gaussian noise at the PSNR on Va, Ia and the angle plus 10-bit quantisation of angle and current; only
+the measured columns reach the diagnosis. Seed k of a point uses the LHC schedule seed ``SEED_BASE + k`` and the
+noise seed ``SEED_BASE + 500 + k`` -- the same schedules at every point (paired comparisons along a curve), none
+shared with the tests or the diagnosis table.
+
+Every run is classified:
+
+``correct``            verdict effect_found naming the hidden effect
+``confounded_truth``   verdict confounded, the hidden effect among the named ones (honest uncertainty, not correct)
+``confounded_other``   verdict confounded, the hidden effect not among them
+``missed``             verdict nothing_missing
+``wrong``              verdict effect_found naming another effect
+``unexplained``        verdict unexplained (model off, no catalog effect helps)
+``crash``              the diagnosis raised (the traceback is kept in the JSON)
+
+For the clean case ``missed`` (nothing_missing) is the right answer; every other outcome is a false alarm.
+
+Run:  .venv/bin/python bench/robustness.py [--quick] [--seeds N] [--out DIR] [--json PATH] [--effects A B ...]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import sys
+import time
+import traceback
+from datetime import datetime, timezone
+from multiprocessing import get_context
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from aeropend_core.effects import CATALOG, get_effect  # noqa: E402
+
+#: PSNR points [dB] of curve (a) and the PSNR of curve (b).
+PSNRS = (60.0, 50.0, 40.0, 30.0, 20.0)
+MAGNITUDE_PSNR = 40.0
+#: Magnitudes of curve (b), as multiples of the catalog's typical value.
+MAGNITUDES = (1 / 16, 1 / 8, 1 / 4, 1 / 2, 1.0, 2.0)
+QUICK_PSNRS = (50.0, 40.0, 30.0)
+QUICK_MAGNITUDES = (1 / 16, 1 / 4, 1.0)
+SEEDS, QUICK_SEEDS = 4, 2
+SEED_BASE = 7100
+DURATION = 60.0
+#: Largest duty of the LHC steps; the cable is separable from gravity only at large angles (the experiment the
+#: diagnosis recommends when it finds them confounded), so its cases use larger steps.
+MAX_DUTY = {'cable_torque': 0.9}
+DEFAULT_MAX_DUTY = 0.7
+#: A magnitude counts as reliably detected when at least this fraction of its seeds is correct.
+RELIABLE = 0.75
+#: An effect still reliably found at the smallest tested magnitude is tried at half of it, and so on, down to
+#: this multiple of its typical value (so that every curve shows where detection fails).
+SMALLEST_FACTOR = 1 / 256
+OUTCOMES = ('correct', 'confounded_truth', 'confounded_other', 'missed', 'wrong', 'unexplained', 'crash')
+CLEAN = 'none'
+
+
+def _worker_init() -> None:
+    from threadpoolctl import threadpool_limits
+    global _LIMITS
+    _LIMITS = threadpool_limits(1)        # one BLAS thread per worker: 2 workers on 2 cores
+
+
+def run_case(case: dict) -> dict:
+    """Simulate one recording with `case['effect']` hidden at `case['factor']` x typical, diagnose, classify."""
+    from aeropend_core.diagnose import diagnose
+    from aeropend_core.excitation import lhc_schedule
+    from aeropend_core.model import DEFAULT_PARAMETERS
+    from aeropend_core.noise import MeasurementNoise
+    from aeropend_core.recording import from_columns
+    from aeropend_core.simulate import simulate
+
+    effect, factor, psnr, seed = case['effect'], case['factor'], case['psnr'], case['seed']
+    result = dict(case)
+    truth = None
+    if effect != CLEAN:
+        truth = {p.name: p.typical * factor for p in get_effect(effect).parameters}
+        result['truth'] = truth
+    max_duty = MAX_DUTY.get(effect, DEFAULT_MAX_DUTY)
+    started = time.perf_counter()
+    try:
+        duty = lhc_schedule(DURATION, duty_range=(0.0, max_duty), duty_cap=max_duty,
+                            seed=SEED_BASE + seed).duty(duration=DURATION)
+        trajectory = simulate(duty, DEFAULT_PARAMETERS, None if truth is None else {effect: truth},
+                              noise=MeasurementNoise(psnr, True), seed=SEED_BASE + 500 + seed)
+        found = diagnose(from_columns(trajectory.columns(with_truth=False), source=f'robustness {case}'))
+    except Exception as error:   # a crash is an outcome to report, not a reason to stop the sweep
+        result.update(outcome='crash', verdict='crash', named=[], error=f'{type(error).__name__}: {error}',
+                      traceback=traceback.format_exc(), seconds=time.perf_counter() - started)
+        return result
+    named = []
+    if found.verdict == 'effect_found':
+        named = [found.missing_effect]
+    elif found.verdict == 'confounded':
+        best = next(c for c in found.candidates if c.significant)
+        named = [best.effect] + [n for n in best.confounded_with if n in CATALOG and n != best.effect]
+    result.update(verdict=found.verdict, named=named, noise_rms=found.noise_rms,
+                  excess_now=_excess(found.current.rms_error, found.noise_rms),
+                  seconds=time.perf_counter() - started)
+    result['outcome'] = classify(effect, found.verdict, named)
+    if truth is not None:
+        hidden = next((c for c in found.candidates if c.effect == effect), None)
+        if hidden is not None and hidden.parameters:
+            name = next(iter(truth))
+            estimate = hidden.parameters.get(name, float('nan'))
+            result['estimate'] = estimate
+            result['relative_error'] = (estimate - truth[name]) / truth[name] if truth[name] else float('nan')
+            result['hidden_significant'] = hidden.significant
+    return result
+
+
+def _excess(rms: float, noise: float) -> float:
+    return math.sqrt(max(rms ** 2 - noise ** 2, 0.0))
+
+
+def classify(effect: str, verdict: str, named: list[str]) -> str:
+    """One of OUTCOMES for a diagnosis of data with `effect` hidden (CLEAN: nothing hidden)."""
+    if verdict == 'effect_found':
+        return 'correct' if named and named[0] == effect else 'wrong'
+    if verdict == 'confounded':
+        return 'confounded_truth' if effect in named else 'confounded_other'
+    if verdict == 'nothing_missing':
+        return 'missed'
+    if verdict == 'unexplained':
+        return 'unexplained'
+    return 'crash'
+
+
+def build_cases(effects: list[str], psnrs, magnitudes, seeds: int) -> list[dict]:
+    points = []
+    for effect in effects:
+        for psnr in psnrs:
+            points.append((effect, 1.0, psnr))
+        for factor in magnitudes:
+            if (effect, factor, MAGNITUDE_PSNR) not in points:
+                points.append((effect, factor, MAGNITUDE_PSNR))
+    for psnr in psnrs:
+        points.append((CLEAN, 0.0, psnr))
+    return [{'effect': e, 'factor': f, 'psnr': p, 'seed': s} for e, f, p in points for s in range(1, seeds + 1)]
+
+
+def summarise(runs: list[dict], effect: str, factor: float, psnr: float) -> dict:
+    selected = [r for r in runs if r['effect'] == effect and r['factor'] == factor and r['psnr'] == psnr]
+    counts = {o: sum(r['outcome'] == o for r in selected) for o in OUTCOMES}
+    errors = [abs(r['relative_error']) for r in selected
+              if r['outcome'] == 'correct' and math.isfinite(r.get('relative_error', float('nan')))]
+    errors.sort()
+    summary = {'effect': effect, 'factor': factor, 'psnr': psnr, 'runs': len(selected), 'counts': counts,
+               'correct_rate': counts['correct'] / len(selected) if selected else float('nan'),
+               'median_abs_relative_error': errors[len(errors) // 2] if errors else None,
+               'max_abs_relative_error': errors[-1] if errors else None}
+    if effect != CLEAN:
+        summary['value'] = {p.name: p.typical * factor for p in get_effect(effect).parameters}
+    else:
+        summary['false_alarm_rate'] = 1.0 - counts['missed'] / len(selected) if selected else float('nan')
+    return summary
+
+
+def smallest_reliable(points: list[dict]) -> dict | None:
+    """The smallest magnitude from which every larger tested one is correct in >= RELIABLE of its seeds."""
+    points = sorted(points, key=lambda p: p['factor'])
+    smallest = None
+    for point in reversed(points):
+        if point['correct_rate'] >= RELIABLE:
+            smallest = point
+        else:
+            break
+    return smallest
+
+
+def _plain(value):
+    """JSON-safe copy: NaN/inf -> None, numpy scalars -> float."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (bool, int, str)) or value is None:
+        return value
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def _percent(value: float) -> str:
+    return f'{value * 100:.0f}'
+
+
+def markdown(report: dict) -> str:
+    lines = [f'# Missing-physics loop: robustness ({report["date"]}, {report["machine"]})', '',
+             f'{report["seeds"]} seeds per point, {report["duration_s"]:g} s LHC records, '
+             f'{report["runs"]} diagnoses in {report["wall_seconds"]:.0f} s wall on {report["workers"]} workers'
+             f'{" (--quick)" if report["quick"] else ""}. Counts per point: C correct, CT confounded incl. the '
+             'truth, CO confounded without it, M missed (nothing_missing), W wrong name, U unexplained, X crash.', '']
+    header = '| hidden effect | magnitude | PSNR dB | C | CT | CO | M | W | U | X | median abs error of estimate |'
+    rule = '|---|---|---|---|---|---|---|---|---|---|---|'
+    lines += ['## (a) vs PSNR at the typical magnitude', '', header, rule]
+    for point in report['vs_psnr']:
+        lines.append(_row(point))
+    lines += ['', f'## (b) vs magnitude at {MAGNITUDE_PSNR:g} dB', '', header, rule]
+    for point in report['vs_magnitude']:
+        lines.append(_row(point))
+    lines += ['', '## Clean data (nothing hidden): false alarms vs PSNR', '',
+              '| PSNR dB | nothing_missing | effect_found | confounded | unexplained | crash | false-alarm rate |',
+              '|---|---|---|---|---|---|---|']
+    for point in report['clean']:
+        c = point['counts']
+        lines.append(f'| {point["psnr"]:g} | {c["missed"]} | {c["wrong"] + c["correct"]} | '
+                     f'{c["confounded_truth"] + c["confounded_other"]} | {c["unexplained"]} | {c["crash"]} | '
+                     f'{_percent(point["false_alarm_rate"])} % |')
+    lines += ['', f'## Smallest reliably detected magnitude (correct in >= {RELIABLE:.0%} of seeds at it and at '
+              f'every larger tested magnitude, {MAGNITUDE_PSNR:g} dB)', '',
+              '| effect | parameter | typical | smallest reliable | as x typical |', '|---|---|---|---|---|']
+    for effect, entry in report['thresholds'].items():
+        if entry['factor'] is None:
+            lines.append(f'| {effect} | {entry["parameter"]} | {entry["typical"]:g} {entry["unit"]} | '
+                         f'not reached in the tested range | - |')
+        else:
+            lines.append(f'| {effect} | {entry["parameter"]} | {entry["typical"]:g} {entry["unit"]} | '
+                         f'{entry["value"]:.4g} {entry["unit"]} | {entry["factor"]:g} |')
+    return '\n'.join(lines) + '\n'
+
+
+def _row(point: dict) -> str:
+    c = point['counts']
+    value = ', '.join(f'{v:.4g}' for v in point['value'].values())
+    error = point['median_abs_relative_error']
+    error_text = '-' if error is None else f'{error * 100:.1f} %'
+    return (f'| {point["effect"]} | {value} (x{point["factor"]:g}) | {point["psnr"]:g} | {c["correct"]} | '
+            f'{c["confounded_truth"]} | {c["confounded_other"]} | {c["missed"]} | {c["wrong"]} | '
+            f'{c["unexplained"]} | {c["crash"]} | {error_text} |')
+
+
+def plot(report: dict, out: Path) -> list[str]:
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter, NullFormatter
+
+    effects = list(report['thresholds'])
+    styles = {'correct': ('C2', 'o', 'correct'), 'confounded_truth': ('C0', 's', 'confounded incl. truth'),
+              'missed': ('C7', 'v', 'missed (nothing missing)'), 'wrong': ('C3', 'x', 'wrong name / confounded w/o'),
+              'unexplained': ('C1', 'd', 'unexplained'), 'crash': ('k', '*', 'crash')}
+    written = []
+
+    def rates(points, key):
+        n = [p['runs'] for p in points]
+        out_rates = {}
+        for outcome in styles:
+            counts = [p['counts'][outcome] + (p['counts']['confounded_other'] if outcome == 'wrong' else 0)
+                      for p in points]
+            out_rates[outcome] = [c / m if m else float('nan') for c, m in zip(counts, n)]
+        return [p[key] for p in points], out_rates
+
+    columns = 3
+    panels = len(effects) + 1
+    rows = math.ceil(panels / columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows), squeeze=False)
+    for ax, effect in zip(axes.flat, effects):
+        points = sorted((p for p in report['vs_psnr'] if p['effect'] == effect), key=lambda p: p['psnr'])
+        x, r = rates(points, 'psnr')
+        for outcome, (color, marker, label) in styles.items():
+            if any(v > 0 for v in r[outcome]) or outcome == 'correct':
+                ax.plot(x, r[outcome], color=color, marker=marker, label=label)
+        ax.set_title(f'{effect} (typical)', fontsize=9)
+        ax.set_xlabel('PSNR [dB]')
+        ax.set_ylim(-0.05, 1.05)
+        ax.axvline(50, color='0.8', lw=0.8, ls='--')
+        ax.grid(alpha=0.3)
+    ax = axes.flat[len(effects)]
+    points = sorted(report['clean'], key=lambda p: p['psnr'])
+    ax.plot([p['psnr'] for p in points], [p['false_alarm_rate'] for p in points], color='C3', marker='x',
+            label='false alarm')
+    ax.set_title('clean data: false-alarm rate', fontsize=9)
+    ax.set_xlabel('PSNR [dB]')
+    ax.set_ylim(-0.05, 1.05)
+    ax.grid(alpha=0.3)
+    for extra in list(axes.flat)[panels:]:
+        extra.axis('off')
+    handles, labels = [], []
+    for a in axes.flat:
+        for h, lab in zip(*a.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(handles, labels, loc='lower center', ncol=4, fontsize=8)
+    fig.suptitle(f'Rate of each diagnosis outcome vs PSNR ({report["seeds"]} seeds/point)', fontsize=10)
+    fig.tight_layout(rect=(0, 0.07, 1, 0.96))
+    path = out / 'rate_vs_psnr.png'
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    written.append(str(path))
+
+    rows = math.ceil(len(effects) / columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows), squeeze=False)
+    for ax, effect in zip(axes.flat, effects):
+        points = sorted((p for p in report['vs_magnitude'] if p['effect'] == effect), key=lambda p: p['factor'])
+        entry = report['thresholds'][effect]
+        x = [p['factor'] * entry['typical'] for p in points]
+        _, r = rates(points, 'factor')
+        for outcome, (color, marker, label) in styles.items():
+            if any(v > 0 for v in r[outcome]) or outcome == 'correct':
+                ax.plot(x, r[outcome], color=color, marker=marker, label=label)
+        ax.set_xscale('log')
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.set_xticks(x)
+        ax.tick_params(axis='x', labelrotation=45, labelsize=7)
+        if entry['value'] is not None:
+            ax.axvline(entry['value'], color='C2', ls=':', lw=1.2)
+            ax.annotate(f'{entry["value"]:.3g}', (entry['value'], 0.5), color='C2', fontsize=8, rotation=90,
+                        ha='right')
+        ax.axvline(entry['typical'], color='0.8', lw=0.8, ls='--')
+        ax.set_title(effect, fontsize=9)
+        ax.set_xlabel(f'{entry["parameter"]} [{entry["unit"]}]')
+        ax.set_ylim(-0.05, 1.05)
+        ax.grid(alpha=0.3)
+    for extra in list(axes.flat)[len(effects):]:
+        extra.axis('off')
+    handles, labels = [], []
+    for a in axes.flat:
+        for h, lab in zip(*a.get_legend_handles_labels()):
+            if lab not in labels:
+                handles.append(h)
+                labels.append(lab)
+    fig.legend(handles, labels, loc='lower center', ncol=4, fontsize=8)
+    fig.suptitle(f'Outcome rate vs effect magnitude at {MAGNITUDE_PSNR:g} dB (dotted: smallest reliably correct; '
+                 f'dashed: typical)', fontsize=10)
+    fig.tight_layout(rect=(0, 0.07, 1, 0.96))
+    path = out / 'rate_vs_magnitude.png'
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    written.append(str(path))
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('--quick', action='store_true',
+                        help=f'{QUICK_SEEDS} seeds, PSNR {QUICK_PSNRS}, magnitudes {QUICK_MAGNITUDES} (~3 min)')
+    parser.add_argument('--seeds', type=int, help=f'seeds per point (default {SEEDS}, --quick {QUICK_SEEDS})')
+    parser.add_argument('--effects', nargs='+', help='catalog effects to test (default: the whole catalog)')
+    parser.add_argument('--workers', type=int, default=2, help='worker processes (default 2)')
+    parser.add_argument('--out', type=Path, default=ROOT / 'bench' / 'results' / 'robustness',
+                        help='directory for robustness.json, robustness.md and the PNG plots')
+    parser.add_argument('--json', type=Path, help='where to write the JSON (default OUT/robustness.json)')
+    parser.add_argument('--no-plots', action='store_true')
+    args = parser.parse_args(argv)
+    effects = args.effects or list(CATALOG)
+    unknown = [e for e in effects if e not in CATALOG]
+    if unknown:
+        parser.error(f'unknown effect(s) {unknown}; known: {", ".join(CATALOG)}')
+    seeds = args.seeds or (QUICK_SEEDS if args.quick else SEEDS)
+    if seeds < 1 or args.workers < 1:
+        parser.error('--seeds and --workers must be at least 1')
+    psnrs = QUICK_PSNRS if args.quick else PSNRS
+    magnitudes = QUICK_MAGNITUDES if args.quick else MAGNITUDES
+    cases = build_cases(effects, psnrs, magnitudes, seeds)
+    args.out.mkdir(parents=True, exist_ok=True)
+    json_path = args.json or args.out / 'robustness.json'
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    print(f'{len(cases)} diagnoses ({len(effects)} effects + clean, {seeds} seeds/point) on {args.workers} '
+          f'worker(s)', flush=True)
+    started = time.perf_counter()
+    runs = []
+    os.environ.setdefault('OMP_NUM_THREADS', '1')
+    context = get_context('fork') if sys.platform.startswith('linux') else get_context()
+    factors = {effect: sorted(magnitudes) for effect in effects}
+    with context.Pool(args.workers, initializer=_worker_init) as pool:
+        while cases:
+            for run in pool.imap_unordered(run_case, cases):
+                runs.append(run)
+                named = ','.join(run['named']) or '-'
+                print(f'[{len(runs):3d}] {run["effect"]:17s} x{run["factor"]:<9.4g} {run["psnr"]:4.0f} dB '
+                      f'seed {run["seed"]}: {run["outcome"]:16s} {named:30s} {run["seconds"]:5.1f} s', flush=True)
+            cases = []
+            for effect in effects:     # still found at the smallest magnitude: halve it until it is not
+                smallest = factors[effect][0]
+                if smallest / 2 >= SMALLEST_FACTOR and \
+                        summarise(runs, effect, smallest, MAGNITUDE_PSNR)['correct_rate'] >= RELIABLE:
+                    factors[effect].insert(0, smallest / 2)
+                    cases += [{'effect': effect, 'factor': smallest / 2, 'psnr': MAGNITUDE_PSNR, 'seed': s}
+                              for s in range(1, seeds + 1)]
+            if cases:
+                print(f'extending downwards: {", ".join(sorted({c["effect"] for c in cases}))}', flush=True)
+    wall = time.perf_counter() - started
+    runs.sort(key=lambda r: (r['effect'], r['factor'], -r['psnr'], r['seed']))
+    vs_psnr = [summarise(runs, e, 1.0, p) for e in effects for p in psnrs]
+    vs_magnitude = [summarise(runs, e, f, MAGNITUDE_PSNR) for e in effects for f in factors[e]]
+    clean = [summarise(runs, CLEAN, 0.0, p) for p in psnrs]
+    thresholds = {}
+    for effect in effects:
+        parameter = get_effect(effect).parameters[0]
+        best = smallest_reliable([p for p in vs_magnitude if p['effect'] == effect])
+        thresholds[effect] = {'parameter': parameter.name, 'unit': parameter.unit, 'typical': parameter.typical,
+                              'factor': best['factor'] if best else None,
+                              'value': best['factor'] * parameter.typical if best else None,
+                              'tested_factors': factors[effect]}
+    report = {'date': datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
+              'machine': f'{platform.node()} {platform.machine()} {os.cpu_count()} cpu',
+              'quick': args.quick, 'seeds': seeds, 'seed_base': SEED_BASE, 'duration_s': DURATION,
+              'psnrs': list(psnrs), 'magnitudes': list(magnitudes), 'magnitude_psnr': MAGNITUDE_PSNR,
+              'max_duty': {e: MAX_DUTY.get(e, DEFAULT_MAX_DUTY) for e in effects}, 'reliable_fraction': RELIABLE,
+              'workers': args.workers, 'runs': len(runs), 'wall_seconds': wall,
+              'mean_diagnosis_seconds': sum(r['seconds'] for r in runs) / len(runs),
+              'outcome_totals': {o: sum(r['outcome'] == o for r in runs) for o in OUTCOMES},
+              'vs_psnr': vs_psnr, 'vs_magnitude': vs_magnitude, 'clean': clean, 'thresholds': thresholds,
+              'cases': runs}
+    json_path.write_text(json.dumps(_plain(report), indent=1))
+    text = markdown(report)
+    (args.out / 'robustness.md').write_text(text)
+    written = [str(json_path), str(args.out / 'robustness.md')]
+    if not args.no_plots:
+        written += plot(report, args.out)
+    print(text)
+    print(f'wall time {wall:.0f} s; wrote ' + ', '.join(written))
+    crashes = report['outcome_totals']['crash']
+    if crashes:
+        print(f'{crashes} diagnosis run(s) crashed; tracebacks in {json_path}', file=sys.stderr)
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())
