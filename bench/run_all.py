@@ -32,6 +32,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -89,13 +90,25 @@ def accepts(script: Path, option: str) -> bool:
 
 
 def run_process(command: list[str], timeout_s: float) -> tuple[int | None, str, str]:
-    """Run `command` in its own process group; on timeout or Ctrl-C stop the whole group (the benchmark's nodes too)
-    with SIGINT, then SIGKILL. Returns (exit code or None when stopped, stdout, stderr)."""
+    """Run `command` in its own process group, echoing its output live (indented); on timeout or Ctrl-C stop the
+    whole group (the benchmark's nodes too) with SIGINT, then SIGKILL. Returns (exit code or None when stopped,
+    stdout, stderr)."""
     process = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               start_new_session=True)
+                               bufsize=1, start_new_session=True)
+    captured = {'stdout': [], 'stderr': []}
+
+    def pump(stream, key):
+        for line in stream:
+            captured[key].append(line)
+            print('   ' + line, end='', flush=True)
+
+    readers = [threading.Thread(target=pump, args=(process.stdout, 'stdout'), daemon=True),
+               threading.Thread(target=pump, args=(process.stderr, 'stderr'), daemon=True)]
+    for reader in readers:
+        reader.start()
+    note = ''
     try:
-        stdout, stderr = process.communicate(timeout=timeout_s)
-        return process.returncode, stdout, stderr
+        code = process.wait(timeout=timeout_s)
     except (subprocess.TimeoutExpired, KeyboardInterrupt) as stop:
         for sig, wait in ((signal.SIGINT, 15.0), (signal.SIGKILL, 5.0)):
             try:
@@ -103,15 +116,16 @@ def run_process(command: list[str], timeout_s: float) -> tuple[int | None, str, 
             except ProcessLookupError:
                 break
             try:
-                stdout, stderr = process.communicate(timeout=wait)
+                process.wait(timeout=wait)
                 break
             except subprocess.TimeoutExpired:
                 continue
-        else:
-            stdout, stderr = '', ''
         if isinstance(stop, KeyboardInterrupt):
             raise
-        return None, stdout or '', (stderr or '') + f'\nrun_all: stopped after the {timeout_s:g} s time limit'
+        code, note = None, f'\nrun_all: stopped after the {timeout_s:g} s time limit\n'
+    for reader in readers:
+        reader.join(timeout=5)
+    return code, ''.join(captured['stdout']), ''.join(captured['stderr']) + note
 
 
 def robustness_figures(data: dict) -> list[dict]:
@@ -190,7 +204,6 @@ def run_one(bench: Bench, out: Path, quick: bool) -> dict:
     load_after = os.getloadavg()
     (out / f'{bench.name}.log').write_text(stdout + ('\n--- stderr ---\n' + stderr if stderr.strip() else ''),
                                            encoding='utf-8')
-    print(stdout.rstrip(), flush=True)
     if code != 0:
         print(f'!! {bench.name} exited with {code}; last lines of stderr:\n' + '\n'.join(stderr.splitlines()[-15:]),
               flush=True)
@@ -234,7 +247,8 @@ def busy_note(run: dict) -> list[str]:
 
 def summary_markdown(run: dict) -> str:
     m = run['machine']
-    lines = [f'# Benchmark results {run["date"]}{" (--quick)" if run["quick"] else ""}', '',
+    lines = [f'# Benchmark results {run["date"]}{" (--quick)" if run["quick"] else ""}'
+             + (f' — INTERRUPTED during {run["interrupted"]}' if run.get('interrupted') else ''), '',
              f'- **Date**: {run["started_utc"]} UTC; total {run["total_wall_time_s"] / 60:.1f} min; '
              f'command `{run["command"]}`',
              f'- **Machine**: {m["cpu"]}, {m["cores"]} cores, {m["ram_gib"]} GiB RAM; {m["os"]}',
@@ -310,6 +324,11 @@ def main() -> int:
     args = parser.parse_args()
     if args.resummarise:
         return resummarise(args.resummarise)
+
+    def interrupt(_signum, _frame):
+        raise KeyboardInterrupt
+    signal.signal(signal.SIGTERM, interrupt)     # stop the running benchmark's process group as on Ctrl-C
+    signal.signal(signal.SIGINT, interrupt)      # also when started with SIGINT ignored (a background job)
     started = dt.datetime.now(dt.timezone.utc)
     out = args.out or BENCH / 'results' / (started.strftime('%Y-%m-%d') + ('-quick' if args.quick else ''))
     out.mkdir(parents=True, exist_ok=True)
@@ -330,7 +349,13 @@ def main() -> int:
             print(f'== {bench.name}: skipped ({skip})', flush=True)
             run['benchmarks'].append({'name': bench.name, 'what': bench.what, 'skipped': skip, 'figures': []})
             continue
-        run['benchmarks'].append(run_one(bench, out, args.quick))
+        try:
+            run['benchmarks'].append(run_one(bench, out, args.quick))
+        except KeyboardInterrupt:
+            print(f'\nrun_all: interrupted during {bench.name} (its processes stopped); writing what ran',
+                  flush=True)
+            run['interrupted'] = bench.name
+            break
     run['total_wall_time_s'] = time.perf_counter() - start
     run['out'] = out
     (out / 'summary.md').write_text(summary_markdown(run), encoding='utf-8')
@@ -341,7 +366,7 @@ def main() -> int:
         'error') == 'no JSON written')]
     print(f'\nwrote {out / "summary.md"} and results.json; total {run["total_wall_time_s"] / 60:.1f} min'
           + (f'; FAILED: {", ".join(failed)}' if failed else ''), flush=True)
-    return 1 if failed else 0
+    return 130 if run.get('interrupted') else 1 if failed else 0
 
 
 if __name__ == '__main__':
