@@ -184,6 +184,12 @@ def collect(name: str, json_path: Path, takes_json: bool = True) -> dict:
                 'error': f'its JSON has no "figures" list and its own schema was not understood ({error!r})'}
 
 
+def shown(path: Path) -> str:
+    """`path` relative to the repository when inside it (the benchmarks run with the repository as cwd)."""
+    path = path.resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
 def run_one(bench: Bench, out: Path, quick: bool) -> dict:
     json_path = out / f'{bench.name}.json'
     json_path.unlink(missing_ok=True)
@@ -193,9 +199,9 @@ def run_one(bench: Bench, out: Path, quick: bool) -> dict:
     takes_json = accepts(bench.script, '--json')
     command = [sys.executable, str(bench.script.relative_to(ROOT)), *args]
     if bench.pass_out and accepts(bench.script, '--out'):
-        command += ['--out', str(out)]
+        command += ['--out', shown(out)]
     if takes_json:
-        command += ['--json', str(json_path)]
+        command += ['--json', shown(json_path)]
     load_before = os.getloadavg()
     print(f'== {bench.name}: {" ".join(command[1:])}   (load average {load_before[0]:.2f})', flush=True)
     start = time.perf_counter()
@@ -335,7 +341,7 @@ def main() -> int:
     run = {'date': started.strftime('%Y-%m-%d'), 'started_utc': started.strftime('%Y-%m-%d %H:%M'),
            'quick': args.quick, 'command': 'python bench/run_all.py ' + ' '.join(sys.argv[1:]),
            'machine': machine_info(), 'git': git_commit(), 'benchmarks': []}
-    print(f'machine: {run["machine"]["cpu"]}, {run["machine"]["cores"]} cores; results -> {out}', flush=True)
+    print(f'machine: {run["machine"]["cpu"]}, {run["machine"]["cores"]} cores; results -> {shown(out)}', flush=True)
     start = time.perf_counter()
     for bench in BENCHES:
         skip = None
@@ -359,12 +365,12 @@ def main() -> int:
     run['total_wall_time_s'] = time.perf_counter() - start
     run['out'] = out
     (out / 'summary.md').write_text(summary_markdown(run), encoding='utf-8')
-    run['out'] = str(out.relative_to(ROOT)) if out.is_relative_to(ROOT) else str(out)
+    run['out'] = shown(out)
     (out / 'results.json').write_text(json.dumps(run, indent=1, ensure_ascii=False) + '\n', encoding='utf-8')
     # a missed target is a "NO" in the table (some scripts also exit 1 then); a failure is a crash or no figures
     failed = [b['name'] for b in run['benchmarks'] if not b.get('skipped') and (b['exit_code'] is None or b.get(
         'error') == 'no JSON written')]
-    print(f'\nwrote {out / "summary.md"} and results.json; total {run["total_wall_time_s"] / 60:.1f} min'
+    print(f'\nwrote {shown(out / "summary.md")} and results.json; total {run["total_wall_time_s"] / 60:.1f} min'
           + (f'; FAILED: {", ".join(failed)}' if failed else ''), flush=True)
     return 130 if run.get('interrupted') else 1 if failed else 0
 
