@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -45,6 +45,8 @@ HELDOUT_INITIAL_SECONDS = 1.0
 PREDICTION_HORIZON = 0.1
 #: Lags of the residual tests, in integration steps (STRIDE samples).
 RESIDUAL_LAGS = 25
+#: Dead-zone thresholds refitted after the ranking by one simulation each.
+PROFILE_REFITS = 3
 #: Starting values of effect parameters, as a fraction of the catalog's typical value.
 EFFECT_START_FRACTION = 0.3
 
@@ -213,19 +215,23 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
                           motor=motor, gate_voltage=stepped if stepped is not None else conditioned.armature_voltage)
 
 
-def initial_guess(prep: PreparedRecord) -> dict[str, float]:
+def initial_guess(prep: PreparedRecord, threshold_voltage: float | None = None) -> dict[str, float]:
     """Starting values of the nominal parameters by an equation-error fit on smoothed derivatives.
 
     Regresses the angle's second derivative on [sin y, dy/dt, Va^2, Va Ia, Ia^2] over the training part; R
     follows from eq (5)'s structure (the Va Ia coefficient is -2 R times the Va^2 one). With the motor observer
-    the thrust regressor is e|e| of its back-EMF and R is 0. Only starting values.
+    the thrust regressor is e|e| of its back-EMF and R is 0. With `threshold_voltage` [V] the thrust regressors
+    are gated by a dead zone at that armature voltage. Only starting values.
     """
     window = prep.smoothing_window
     stop = prep.split
-    y = savgol_filter(prep.angle[:stop], window, 3)
-    dy = savgol_filter(prep.angle[:stop], window, 3, deriv=1, delta=prep.sample_time)
+    y = prep.smoothed_angle[:stop]
+    dy = prep.smoothed_rate[:stop]
     ddy = savgol_filter(prep.angle[:stop], window, 3, deriv=2, delta=prep.sample_time)
     va, ia = prep.voltage[:stop], prep.current[:stop]
+    if threshold_voltage is not None:
+        gate = (prep.gate_voltage[:stop] >= threshold_voltage).astype(float)
+        va, ia = va * gate, ia * gate       # thrust terms are products of two of them: gated once
     keep = slice(window, stop - window)
     if prep.motor is not None:
         regressors = np.column_stack([-np.sin(y), -dy, va * np.abs(va)])
@@ -302,16 +308,28 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     thresholds = dead_zone_thresholds(prep)
     if thresholds.size == 0:
         raise InsufficientDataError('a dead zone needs steps at several small duty levels; none are in the data')
-    # Profile: rank thresholds by one simulation each at the start values, then refit the best few.
+    # Profile: rank thresholds by one simulation each, then refit the best few. Each threshold is simulated from
+    # the given start values and from nominal values fitted by equation error with that threshold's gate: a large
+    # dead zone leaves the nominal fit (the given start) far off, and ranking only from it picks a wrong level.
     initial = initial_states_from_data(data, values.get('offset', 0.0))
-    rows = np.array([structure.row({**values, **fixed_base, 'threshold_voltage': t}) for t in thresholds])
+    trials = [(t, values) for t in thresholds]
+    trials += [(t, {**values, **initial_guess(prep, t), **fixed_base}) for t in thresholds]
+    rows = np.array([structure.row({**start_values, **fixed_base, 'threshold_voltage': t})
+                     for t, start_values in trials])
     simulated = data.simulate(structure, rows, np.repeat(initial[None], len(rows), axis=0))
     index = data.residual_index
     scores = np.sqrt(np.mean((simulated[:, index] - data.angle[index]) ** 2, axis=1))
-    order = np.argsort(scores)[:3]
+    scores[~np.isfinite(scores)] = np.inf
+    chosen: list[int] = []
+    for k in np.argsort(scores):
+        if len(chosen) == PROFILE_REFITS:
+            break
+        if not any(trials[k][0] == trials[j][0] for j in chosen):
+            chosen.append(int(k))
     best = None
-    for index in order:
-        fit = fit_output_error(data, structure, values, fixed={**fixed_base, 'threshold_voltage': thresholds[index]})
+    for k in chosen:
+        threshold, start_values = trials[k]
+        fit = fit_output_error(data, structure, start_values, fixed={**fixed_base, 'threshold_voltage': threshold})
         if best is None or fit.residual_rms < best.residual_rms:
             best = fit
     levels = input_levels(prep, prep.split)
@@ -515,7 +533,40 @@ def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     """Fit nominal + `effects` on the training part and evaluate on the held-out part (see module docstring)."""
     prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
     fit = fit_model(prep, effects, start)
+    if 'threshold_interval' in fit.extra:
+        fit = _place_threshold_among_heldout_levels(prep, fit)
     return Comparison(tuple(effects), fit, evaluate(prep, fit))
+
+
+def _place_threshold_among_heldout_levels(prep: PreparedRecord, fit: OutputErrorFit) -> OutputErrorFit:
+    """A dead zone's threshold on the side of each held-out input level that the training part cannot decide.
+
+    The training part pins the threshold only to the interval between two of its input levels (any value inside
+    fits it equally). A held-out level inside that interval is gated or not depending on an arbitrary choice (the
+    midpoint), which the held-out error would then judge as if it were a wrong model. The held-out levels split
+    the interval; the sub-interval whose midpoint simulates the held-out part best is taken, and the reported
+    interval narrows to it. One discrete choice among models that fit the training part equally, not a refit.
+    """
+    low, high = fit.extra['threshold_interval']
+    held = np.unique(np.round(prep.gate_voltage[prep.split:], 6))
+    inside = held[(held > low) & (held < high)]
+    if inside.size == 0:
+        return fit
+    edges = np.concatenate(([low], inside, [high]))
+    index = prep.heldout.residual_index
+    best = None
+    for a, b in zip(edges[:-1], edges[1:]):
+        trial = replace(fit, parameters={**fit.parameters, 'threshold_voltage': float(0.5 * (a + b))})
+        simulated = _heldout_simulation(prep, trial)
+        rms = float(np.sqrt(np.mean((prep.angle[index] - simulated[index]) ** 2)))
+        if np.isfinite(rms) and (best is None or rms < best[0]):
+            best = (rms, trial, float(a), float(b))
+    if best is None:
+        return fit
+    _, chosen, a, b = best
+    chosen.extra = {**fit.extra, 'threshold_interval': (a, b), 'threshold_interval_training': (low, high)}
+    chosen.standard_errors = {**fit.standard_errors, 'threshold_voltage': (b - a) / math.sqrt(12.0)}
+    return chosen
 
 
 __all__ = ['PreparedRecord', 'Comparison', 'Evaluation', 'prepare', 'compare', 'fit_model', 'evaluate',

@@ -44,6 +44,8 @@ WITHIN_NOISE = 0.3
 #: "Unexplained" (no catalog effect helps) is claimed only beyond this multiple of the noise: a smaller excess can
 #: come from the noise estimate itself (quantisation that does not dither is partly a slow bias).
 UNEXPLAINED_NOISE = 0.5
+#: Angle [rad] above which the record is flagged: the rod went above the horizontal, towards the unstable upright.
+UPRIGHT_WARNING = math.radians(95.0)
 #: Two significant candidates are confounded when the runner-up's excess error is within this factor of the best.
 CONFOUNDING_FACTOR = 1.3
 #: An effect parameter correlated beyond this with a nominal parameter is not separable from it in this data.
@@ -79,6 +81,15 @@ def separating_experiment(a: str, b: str) -> str:
     return SEPARATING_EXPERIMENT.get(frozenset({a, b}), DEFAULT_EXPERIMENT)
 
 
+def excitation_advice(effect: str) -> str:
+    """The experiment that shows `effect` best: the one separating it from a nominal parameter, if known."""
+    for nominal in NOMINAL_PARAMETERS:
+        advice = SEPARATING_EXPERIMENT.get(frozenset({effect, nominal}))
+        if advice:
+            return advice
+    return DEFAULT_EXPERIMENT
+
+
 @dataclass
 class Candidate:
     """One catalog effect tried as an augmentation of the current model."""
@@ -95,6 +106,9 @@ class Candidate:
     evidence: list[str] = field(default_factory=list)
     explanation: str = ''
     error: str = ''
+    #: It explains the held-out error (enough improvement, parameter nonzero) but the training part shows no
+    #: evidence for it (its BIC does not fall): the held-out part holds conditions the training part lacks.
+    heldout_only: bool = False
 
     @property
     def fit_percent(self) -> float:
@@ -196,7 +210,8 @@ def _candidate_dict(candidate: Candidate) -> dict:
             'rms_error': _finite(candidate.rms_error), 'error_beyond_noise': _finite(candidate.excess_after),
             'delta_bic': _finite(candidate.delta_bic), 'significant': candidate.significant,
             'confounded_with': candidate.confounded_with, 'evidence': candidate.evidence,
-            'explanation': candidate.explanation, 'error': candidate.error}
+            'explanation': candidate.explanation, 'error': candidate.error,
+            'heldout_only': candidate.heldout_only}
 
 
 def _effect_parameters(comparison: Comparison, effect: str) -> tuple[dict[str, float], dict[str, float]]:
@@ -332,10 +347,12 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
             nonzero = values.get('threshold_voltage', 0.0) > 0.0
         improved = (excess_after <= (1.0 - MIN_IMPROVEMENT) * excess_now
                     and excess_now ** 2 - excess_after ** 2 >= (MIN_ABSOLUTE * noise) ** 2)
-        significant = bool(delta_bic < -BIC_MARGIN and improved and nonzero and excess_now > WITHIN_NOISE * noise)
+        relevant = improved and nonzero and excess_now > WITHIN_NOISE * noise
+        significant = bool(delta_bic < -BIC_MARGIN and relevant)
         evidence = _regime_evidence(current, augmented)
         candidate = Candidate(name, augmented, values, errors, delta_bic, excess_now, excess_after, significant,
-                              confounded_with=_correlated_nominals(augmented, name), evidence=evidence)
+                              confounded_with=_correlated_nominals(augmented, name), evidence=evidence,
+                              heldout_only=bool(relevant and not significant))
         candidate.explanation = _explain(name, values, errors, excess_now, excess_after, evidence)
         if name == 'dead_zone' and 'threshold_interval' in augmented.fit.extra:
             low, high = augmented.fit.extra['threshold_interval']
@@ -380,10 +397,30 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     else:
         verdict = 'unexplained'
         structure = residual_structure(prep, current)
-        message = (f'the model misses the data by {excess_now * 1e3:.2f} mrad beyond the noise '
-                   f'({noise * 1e3:.2f} mrad), and no catalog effect explains it. The residual correlates most '
-                   f'with: {structure[0]["signature"]} (r = {structure[0]["correlation"]:+.2f}); consider writing '
-                   f'an effect with that signature (aeropend_core.effects.register_effect).')
+        heldout_only = [c for c in results if c.heldout_only]
+        if heldout_only:
+            # Something explains the held-out error, but the training part cannot confirm it: name it, do not
+            # recommend it, and say which data would decide.
+            lead = heldout_only[0]
+            message = (f'the model misses the held-out data by {excess_now * 1e3:.2f} mrad beyond the noise '
+                       f'({noise * 1e3:.2f} mrad). {lead.effect} would explain it ({lead.excess_before * 1e3:.2f} '
+                       f'-> {lead.excess_after * 1e3:.2f} mrad) but the training part shows no evidence for it '
+                       f'(its BIC does not fall), so it is not recommended: the held-out part holds conditions '
+                       f'the training part lacks; {excitation_advice(lead.effect)}.')
+            for other in heldout_only[1:]:
+                notes.append(f'{other.effect} would also explain the held-out error ({other.excess_after * 1e3:.2f} '
+                             f'mrad beyond the noise) without training evidence.')
+        else:
+            message = (f'the model misses the data by {excess_now * 1e3:.2f} mrad beyond the noise '
+                       f'({noise * 1e3:.2f} mrad), and no catalog effect explains it. The residual correlates most '
+                       f'with: {structure[0]["signature"]} (r = {structure[0]["correlation"]:+.2f}); consider '
+                       f'writing an effect with that signature (aeropend_core.effects.register_effect).')
+    highest = float(np.max(np.abs(prep.smoothed_angle)))
+    if highest > UPRIGHT_WARNING:
+        notes.append(f'the rod went {math.degrees(highest):.0f} deg from hanging (above the horizontal'
+                     f'{"; past the upright it went over the top" if highest > math.pi else ""}): near the upright '
+                     f'position tiny model errors decide which way the rod falls, so the free-run comparison is '
+                     f'unreliable there; keep the duty steps below the level that holds the rod at ~85 deg.')
     # Identifiability warnings for effects that could not be seen at all in this data.
     for candidate in results:
         if candidate.confounded_with and not candidate.significant:
@@ -448,7 +485,7 @@ def format_summary(diagnosis: Diagnosis) -> str:
         if candidate.comparison is None:
             lines.append(f'  {candidate.effect:18s} not testable: {candidate.error}')
             continue
-        flag = 'SIGNIFICANT' if candidate.significant else 'no'
+        flag = 'SIGNIFICANT' if candidate.significant else ('held-out' if candidate.heldout_only else 'no')
         params = ', '.join(f'{k} = {v:.4g}' for k, v in candidate.parameters.items())
         lines.append(f'  {candidate.effect:18s} fit {candidate.fit_percent:6.2f} %  beyond noise '
                      f'{candidate.excess_after * 1e3:6.2f} mrad  dBIC {candidate.delta_bic:9.1f}  {flag:11s} '

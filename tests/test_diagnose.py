@@ -217,3 +217,36 @@ def test_other_sample_rates_work(rate_hz):
     found = diagnose(from_columns(trajectory.columns(with_truth=False)))
     assert found.missing_effect == 'thrust_lag', found.message
     assert found.candidates[0].parameters['time_constant'] == pytest.approx(0.15, rel=PARAMETER_TOLERANCE)
+
+
+def test_large_dead_zone_is_found_and_adding_it_leaves_nothing_missing():
+    """A 1.2 V dead zone gates half of the steps: the nominal fit is far off, so the threshold profile must not rank
+    levels from it, and a held-out level inside the training part's threshold interval must not count as an error
+    (seed chosen so that one does)."""
+    truth = 1.2
+    recording = measured_recording({'dead_zone': truth}, seed=281)
+    found = diagnose(recording)
+    assert found.missing_effect == 'dead_zone', found.summary()
+    low, high = found.candidates[0].comparison.fit.extra['threshold_interval']
+    assert low <= truth <= high
+    after = diagnose(recording, effects=('dead_zone',))
+    assert after.missing_effect is None, after.message
+    assert excess(after.before) >= ERROR_FALL * excess(after.current)
+    low, high = after.current.fit.extra['threshold_interval']
+    assert low <= truth <= high
+
+
+def test_effect_seen_only_in_the_heldout_part_is_named_but_not_recommended():
+    """Training steps all above a 0.6 V dead zone, held-out steps below it: the held-out error is explained by the
+    dead zone, but the training part has no evidence for it -- say so and which data would decide."""
+    from aeropend_core.excitation import StepSchedule
+    training = lhc_schedule(45.0, duty_range=(0.35, 0.7), seed=61)
+    heldout_duty = np.array([0.5, 0.05, 0.6, 0.08, 0.45, 0.03, 0.55])
+    schedule = StepSchedule(np.concatenate([training.amplitudes, heldout_duty]),
+                            np.concatenate([training.dwells, np.full(heldout_duty.size, 2.5)]), np.zeros((0, 2)))
+    duty = schedule.duty(duration=training.duration + 17.5)
+    trajectory = simulate(duty, effects={'dead_zone': 0.6}, noise=MeasurementNoise(40.0, True), seed=62)
+    found = diagnose(from_columns(trajectory.columns(with_truth=False)))
+    assert found.missing_effect is None and found.verdict == 'unexplained', found.summary()
+    assert 'dead_zone would explain it' in found.message and 'small duty' in found.message, found.message
+    assert next(c for c in found.candidates if c.effect == 'dead_zone').heldout_only
