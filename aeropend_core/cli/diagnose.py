@@ -51,7 +51,6 @@ def load_effects_module(path: str) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from aeropend_core.diagnose import diagnose
     from aeropend_core.recording import load_recording
 
     from aeropend_core.cli._checks import check_effect_names
@@ -59,7 +58,14 @@ def main(args: argparse.Namespace) -> int:
         load_effects_module(path)
     check_effect_names(args.add, '--add')
     check_effect_names(args.only or [], '--only')
+    if args.report:                          # refuse now, not after minutes of diagnosis
+        report = Path(args.report)
+        if report.is_dir() or not report.parent.is_dir():
+            raise AeropendError(f'cannot write the report to {report}: '
+                                + ('it is a folder; give a file name such as report.html' if report.is_dir()
+                                   else f'the folder {report.parent} does not exist'))
     recording = load_recording(args.data)
+    from aeropend_core.diagnose import diagnose      # scipy and numba: imported once the input is known good
 
     def progress(message: str) -> None:
         if not args.quiet:

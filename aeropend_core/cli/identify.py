@@ -23,11 +23,6 @@ import math
 import numpy as np
 
 from aeropend_core.errors import AeropendError
-from aeropend_core.identify import (
-    PARAMETER_UNITS,
-    identify_full_state,
-    identify_pendulum,
-)
 from aeropend_core.recording import load_recording
 
 
@@ -68,6 +63,8 @@ def main(args: argparse.Namespace) -> int:
     recording = load_recording(args.data)
     if args.start is not None or args.stop is not None:
         recording = _window(recording, args.start, args.stop)
+    # the fitting stack (scipy, numba) is imported once the input is known good: bad input is refused at once
+    from aeropend_core.identify import PARAMETER_UNITS, identify_full_state, identify_pendulum
     if args.model == 'pendulum':
         fit = identify_pendulum(recording.time, recording.signal('armature_voltage'),
                                 recording.signal('armature_current'), recording.signal('angle'),
