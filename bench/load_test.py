@@ -113,6 +113,14 @@ def process_usage(pid: int) -> tuple[float, float, float] | None:
     return values.get('VmRSS', 0.0), values.get('RssAnon', 0.0), cpu
 
 
+def machine_cpu_seconds() -> tuple[float, float]:
+    """(busy, total) CPU time of the whole machine [s, summed over CPUs] from /proc/stat."""
+    fields = [int(v) for v in Path('/proc/stat').read_text().split('\n', 1)[0].split()[1:]]
+    idle = fields[3] + (fields[4] if len(fields) > 4 else 0)
+    total = sum(fields[:8])
+    return (total - idle) / os.sysconf('SC_CLK_TCK'), total / os.sysconf('SC_CLK_TCK')
+
+
 def _command_line(pid: int) -> str:
     try:
         return Path(f'/proc/{pid}/cmdline').read_bytes().replace(b'\0', b' ').decode(errors='replace').strip()
@@ -227,7 +235,7 @@ def stop(process: subprocess.Popen, timeout: float = 30.0) -> int:
 def sample_usage(processes: dict[str, subprocess.Popen], t: float) -> dict:
     """One row: per role RSS / anonymous RSS [MB] and CPU [s] (identification_worker = the node's children)."""
     children = _children_map()
-    row = {'t': t, 'load_average': os.getloadavg()[0], 'roles': {}}
+    row = {'t': t, 'load_average': os.getloadavg()[0], 'machine_cpu': machine_cpu_seconds(), 'roles': {}}
     for name, process in processes.items():
         own = process_usage(process.pid) if process.poll() is None else None
         if own is None:
@@ -264,11 +272,14 @@ def memory_report(rows: list[dict], warm_up: float, end_time: float) -> dict:
             steady = t >= t[len(t) // 2]
         i0 = int(np.argmax(steady))
         entry = {'samples': int(steady.sum()), 'warm_up_s': float(t[i0]), 'end_s': float(t[-1])}
+        late = t >= (t[i0] + t[-1]) / 2
         for label, values in (('rss', rss), ('anon', anon)):
             slope = float(np.polyfit(t[steady], values[steady], 1)[0]) * 60.0
             entry.update({f'{label}_warm_mb': float(values[i0]), f'{label}_end_mb': float(values[-1]),
                           f'{label}_growth_mb': float(values[-1] - values[i0]),
                           f'{label}_slope_mb_per_min': slope, f'{label}_peak_mb': float(values.max())})
+            if late.sum() >= 3:
+                entry[f'{label}_slope_late_mb_per_min'] = float(np.polyfit(t[late], values[late], 1)[0]) * 60.0
         span = t[-1] - t[i0]
         entry['cpu_percent'] = float(100.0 * (cpu[-1] - cpu[i0]) / span) if span > 0 else float('nan')
         growth_ok = entry['rss_growth_mb'] <= max(FLAT_FRACTION * entry['rss_warm_mb'], 1.0)
@@ -404,14 +415,17 @@ def write_summary(result: dict, path: Path) -> None:
              f' (max {result["load_average"]["max"]:.2f}) on {result["cpus"]} CPUs'
              + (' — other jobs were running, so these are loaded-machine figures' if result['load_average']['mean']
                 > 1.5 else '') + '.',
+             f'The machine was busy {result["machine_busy_cores"]:.2f} cores on average, of which the graph '
+             f'used {result["graph_cores"]:.2f}.',
              f'Command: `{result["command"]}`; run time {result["wall_time_s"]:.0f} s.', '',
              '## Memory (RSS) per process', '',
-             '| process | RSS at warm-up [MB] | RSS at end [MB] | growth [MB] | steady slope [MB/min] | peak [MB] '
-             '| anon growth [MB] | CPU [% of a core] | flat |',
-             '| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |']
+             '| process | RSS at warm-up [MB] | RSS at end [MB] | growth [MB] | steady slope [MB/min] '
+             '| second-half slope [MB/min] | peak [MB] | anon growth [MB] | CPU [% of a core] | flat |',
+             '| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |']
     for role, e in m.items():
         lines.append(f'| {role} | {e["rss_warm_mb"]:.1f} | {e["rss_end_mb"]:.1f} | {e["rss_growth_mb"]:+.1f} | '
-                     f'{e["rss_slope_mb_per_min"]:+.3f} | {e["rss_peak_mb"]:.1f} | {e["anon_growth_mb"]:+.1f} | '
+                     f'{e["rss_slope_mb_per_min"]:+.3f} | {e.get("rss_slope_late_mb_per_min", float("nan")):+.3f} | '
+                     f'{e["rss_peak_mb"]:.1f} | {e["anon_growth_mb"]:+.1f} | '
                      f'{e["cpu_percent"]:.1f} | {"yes" if e["flat"] else "NO"} |')
     warm = next(iter(m.values()))['warm_up_s'] if m else float('nan')
     lines += ['', f'Warm-up point {warm:.0f} s after start; slope = least-squares line over the rest. '
@@ -577,12 +591,17 @@ def run(args) -> dict:
     end_time = sim_end if sim_end is not None else rows[-1]['t']
     memory = memory_report(rows, min(args.warm_up, end_time / 2), end_time)
     loads = [row['load_average'] for row in rows]
+    graph_cpu = sum(e['cpu_percent'] for e in memory.values()) / 100.0
+    (busy0, total0), (busy1, total1) = rows[0]['machine_cpu'], rows[-1]['machine_cpu']
+    machine_busy = (busy1 - busy0) / (total1 - total0) * (os.cpu_count() or 1) if total1 > total0 else float('nan')
     result = {
         'date': time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime()),
         'machine': f'{os.uname().machine}, {os.cpu_count()} CPUs, Linux {os.uname().release}',
         'cpus': os.cpu_count(), 'command': ' '.join(['.venv/bin/python', 'bench/load_test.py', *sys.argv[1:]]),
         'duration_s': args.duration, 'wall_time_s': wall, 'sim_end_s': sim_end, 'domain_id': domain_id,
         'load_average': {'mean': float(np.mean(loads)), 'max': float(np.max(loads))},
+        # CPUs busy over the run (all processes) and the part the graph itself used (steady part), in cores.
+        'machine_busy_cores': float(machine_busy), 'graph_cores': float(graph_cpu),
         'exit_codes': exit_codes, 'memory': memory, 'samples': samples, 'sim_rate': sim_rate,
         'recorder': recorder, 'identification': identification,
         'child_processes': next((row['child_processes'] for row in rows if 'child_processes' in row), []),
@@ -610,8 +629,10 @@ def main(argv=None) -> int:
                         help='folder for load_test.json, load_test.md, load_test.png and the node logs')
     parser.add_argument('--json', default=None, help='also write the JSON result here')
     parser.add_argument('--sample-period', type=float, default=5.0, help='seconds between /proc samples')
-    parser.add_argument('--warm-up', type=float, default=60.0,
-                        help='memory growth is measured from this many seconds after start (at most half the run)')
+    parser.add_argument('--warm-up', type=float, default=120.0,
+                        help='memory growth is measured from this many seconds after start (at most half the run; '
+                             'the identification worker fills its bounded kernel caches over its first ~20 '
+                             'windows)')
     parser.add_argument('--window', type=float, default=25.0, help="identification window_s [s]")
     parser.add_argument('--hop', type=float, default=5.0, help='identification hop_s [s]')
     parser.add_argument('--psnr', type=float, default=50.0, help='sim measurement noise [dB]')
