@@ -69,7 +69,8 @@ def _check_arguments(args) -> None:
     if not 0 < args.duty_cap <= 1:
         raise AeropendError(f'--duty-cap must be a fraction in (0, 1], got {args.duty_cap}')
     if not 4 <= args.window <= 600 or not 0.5 <= args.hop <= 600:
-        raise AeropendError('--window must be in [4, 600] s and --hop in [0.5, 600] s')
+        raise AeropendError(f'--window must be in [4, 600] s and --hop in [0.5, 600] s, got --window {args.window} '
+                            f'--hop {args.hop}')
     if args.port is not None and not Path(args.port).exists():
         raise AeropendError(f'serial port {args.port} does not exist: is the Arduino plugged in? '
                             '(ls /dev/ttyACM* /dev/serial/by-id/), or run the simulator with --sim')

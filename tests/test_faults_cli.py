@@ -118,6 +118,7 @@ def files(tmp_path_factory) -> Path:
     stamps = time.copy()
     stamps[300] = np.nan
     write_csv(d / 'nan_time.csv', stamps, signals)
+    write_csv(d / 'rate_zero.csv', np.zeros_like(time), signals)      # a logger whose clock did not run
     repeat = np.sort(np.r_[np.arange(len(time)), np.arange(2000, 2100)])
     write_csv(d / 'duplicated.csv', time[repeat], {k: v[repeat] for k, v in signals.items()})
     flat = simulate(np.full(len(time), 0.4), noise=MeasurementNoise(50.0, True), seed=3).columns(with_truth=False)
@@ -159,6 +160,7 @@ BAD_RECORDINGS = [
     pytest.param('nan_time.csv', ('time stamp', 'not finite', 'sample 300'), id='nan-time-stamp'),
     pytest.param('backwards.csv', ('backwards', 'sample 1001'), id='non-monotonic-stamps'),
     pytest.param('clash.csv', ('same time stamp', 'samples 1999 and 2000'), id='same-stamp-different-values'),
+    pytest.param('rate_zero.csv', ('same time stamp', 'samples 0 and 1'), id='sample-rate-zero'),
     pytest.param('unexcited.csv', ('excit',), id='unexcited-constant-duty'),
     pytest.param('garbage.mcap', ('not an MCAP file',), id='not-an-mcap'),
     pytest.param('no_mcap', ('no .mcap file',), id='folder-without-mcap'),
