@@ -84,8 +84,18 @@ def load_csv(path: str | Path) -> Recording:
             rows = [row for row in reader if row and any(cell.strip() for cell in row)]
     except OSError as error:
         raise AeropendError(f'cannot read {path}: {error.strerror or error}') from None
+    except (UnicodeDecodeError, csv.Error) as error:
+        raise AeropendError(f'{path} is not a text CSV file ({error}); expected a header t,duty,armature_voltage,... '
+                            'and comma-separated numbers') from None
     if not header:
         raise AeropendError(f'{path} is empty; expected a CSV header t,duty,armature_voltage,...')
+    if len(header) == 1 and any(sep in header[0] for sep in ';\t'):
+        raise AeropendError(f'{path}: the header {header[0]!r} is not comma-separated; write the fields separated '
+                            'by commas')
+    ragged = next((k for k, row in enumerate(rows) if len(row) != len(header)), None)
+    if ragged is not None:
+        raise AeropendError(f'{path}: data row {ragged + 1} has {len(rows[ragged])} fields, the header has '
+                            f'{len(header)}; is the file cut short or edited by hand?')
     try:
         table = np.array([[float(cell) if cell.strip() else np.nan for cell in row] for row in rows], dtype=float)
     except ValueError as error:

@@ -128,6 +128,8 @@ def files(tmp_path_factory) -> Path:
     (d / 'empty.csv').write_text('')
     (d / 'header_only.csv').write_text(','.join(COLUMNS) + '\n')
     (d / 'text.csv').write_text(','.join(COLUMNS) + '\n0,0.1,abc,0,0\n')
+    (d / 'ragged.csv').write_text(','.join(COLUMNS) + '\n0,0.1,1.0,0,0\n0.002,0.1,1.0\n')
+    (d / 'binary.csv').write_bytes(b'\xff\xfe\x00\x81' * 64)
     (d / 'notes.txt').write_text('not a recording\n')
     (d / 'garbage.mcap').write_bytes(b'not an mcap file' * 64)
     (d / 'no_mcap').mkdir()
@@ -155,6 +157,8 @@ BAD_RECORDINGS = [
     pytest.param('empty.csv', ('empty',), id='empty-csv'),
     pytest.param('header_only.csv', ('no samples',), id='csv-header-only'),
     pytest.param('text.csv', ('non-numeric',), id='csv-non-numeric'),
+    pytest.param('ragged.csv', ('row 2', 'fields'), id='csv-ragged-rows'),
+    pytest.param('binary.csv', ('not a text CSV',), id='csv-binary'),
     pytest.param('nan.csv', ('angle', 'sample 1000'), id='nan-sample'),
     pytest.param('inf.csv', ('armature_current', 'sample 700'), id='inf-sample'),
     pytest.param('nan_time.csv', ('time stamp', 'not finite', 'sample 300'), id='nan-time-stamp'),
