@@ -39,12 +39,7 @@ from aeropend_ros._ros_env import ament_prefixes, ensure_ros_environment
 ensure_ros_environment()
 
 import rclpy
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (
@@ -63,6 +58,7 @@ from aeropend_core.bag import (
 )
 from aeropend_core.errors import AeropendError
 from aeropend_ros import topics as contract
+from aeropend_ros._node_util import check_unknown_overrides, declare
 
 DEFAULT_TOPICS = [contract.SAMPLES_TOPIC, contract.DUTY_COMMAND_TOPIC, contract.DIAGNOSTICS_TOPIC]
 
@@ -95,7 +91,7 @@ class RecorderNode(Node):
         self._declare_parameters()
         get = self.get_parameter
         output = get('output').value or f'bags/aeropend_{time.strftime("%Y%m%d_%H%M%S")}'
-        self._topics_wanted = set(get('topics').value or [])
+        self._topics_wanted = {t for t in get('topics').value or [] if t}
         try:
             self._include = re.compile(get('include_regex').value) if get('include_regex').value else None
         except re.error as error:
@@ -137,38 +133,30 @@ class RecorderNode(Node):
 
     # -- parameters ----------------------------------------------------------------------------------------------
     def _declare_parameters(self) -> None:
-        def desc(text, read_only=True, **ranges):
-            return ParameterDescriptor(description=text, read_only=read_only, **ranges)
-        self.declare_parameter('output', '', desc(
-            'bag folder to create (must not exist); empty: bags/aeropend_<date>_<time>'))
-        self.declare_parameter('topics', DEFAULT_TOPICS, desc('topics to record (recorded when a publisher appears)'))
-        self.declare_parameter('include_regex', '^/aeropend/', desc(
-            'also record every topic whose name matches this regular expression (empty: none)'))
-        self.declare_parameter('max_file_bytes', 0, desc(
-            'start a new .mcap file at this size in bytes (0: never)',
-            integer_range=[IntegerRange(from_value=0, to_value=2**62, step=1)]))
-        self.declare_parameter('max_file_duration', 0.0, desc(
-            'start a new .mcap file after this many seconds of recording (0: never)',
-            floating_point_range=[FloatingPointRange(from_value=0.0, to_value=1e9, step=0.0)]))
-        self.declare_parameter('chunk_size', 256 * 1024, desc(
-            'uncompressed bytes per MCAP chunk; a kill loses at most the chunk in progress',
-            integer_range=[IntegerRange(from_value=1024, to_value=64 * 1024 * 1024, step=1)]))
-        self.declare_parameter('compression', 'zstd', desc('chunk compression: zstd, lz4 or none'))
-        self.declare_parameter('queue_depth', 10000, desc(
-            'subscription history depth: messages DDS buffers while the recorder is busy (10000 = 20 s at 490 Hz)',
-            integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)]))
-        self.declare_parameter('max_queue', 1_000_000, desc(
-            'messages waiting for the writer thread before new ones are dropped (and counted)',
-            integer_range=[IntegerRange(from_value=1000, to_value=100_000_000, step=1)]))
-        self.declare_parameter('discovery_period', 0.2, desc(
-            'seconds between checks for new topics to record', read_only=False,
-            floating_point_range=[FloatingPointRange(from_value=0.01, to_value=60.0, step=0.0)]))
-        self.declare_parameter('poll_period', 0.02, desc(
-            'seconds between takes of the waiting messages (they wait in the DDS history, queue_depth deep)',
-            read_only=False, floating_point_range=[FloatingPointRange(from_value=0.001, to_value=1.0, step=0.0)]))
-        self.declare_parameter('diagnostics_period', 1.0, desc(
-            'seconds between /diagnostics messages', read_only=False,
-            floating_point_range=[FloatingPointRange(from_value=0.05, to_value=60.0, step=0.0)]))
+        """Declare every parameter with its range; a bad start-up value is a one-line ParameterError (exit 2)."""
+        declare(self, 'output', '', 'bag folder to create (must not exist); empty: bags/aeropend_<date>_<time>',
+                read_only=True)
+        declare(self, 'topics', DEFAULT_TOPICS, 'topics to record (recorded when a publisher appears)',
+                read_only=True)
+        declare(self, 'include_regex', '^/aeropend/',
+                'also record every topic whose name matches this regular expression (empty: none)', read_only=True)
+        declare(self, 'max_file_bytes', 0, 'start a new .mcap file at this size in bytes (0: never)', read_only=True,
+                low=0, high=2**62, integer=True)
+        declare(self, 'max_file_duration', 0.0, 'start a new .mcap file after this many seconds of recording '
+                '(0: never)', read_only=True, low=0.0, high=1e9)
+        declare(self, 'chunk_size', 256 * 1024, 'uncompressed bytes per MCAP chunk; a kill loses at most the chunk '
+                'in progress', read_only=True, low=1024, high=64 * 1024 * 1024, integer=True)
+        declare(self, 'compression', 'zstd', 'chunk compression', read_only=True, choices=('zstd', 'lz4', 'none'))
+        declare(self, 'queue_depth', 10000, 'subscription history depth: messages DDS buffers while the recorder is '
+                'busy (10000 = 20 s at 490 Hz)', read_only=True, low=1, high=100000, integer=True)
+        declare(self, 'max_queue', 1_000_000, 'messages waiting for the writer thread before new ones are dropped '
+                '(and counted)', read_only=True, low=1000, high=100_000_000, integer=True)
+        declare(self, 'discovery_period', 0.2, 'seconds between checks for new topics to record', low=0.01,
+                high=60.0)
+        declare(self, 'poll_period', 0.02, 'seconds between takes of the waiting messages (they wait in the DDS '
+                'history, queue_depth deep)', low=0.001, high=1.0)
+        declare(self, 'diagnostics_period', 1.0, 'seconds between /diagnostics messages', low=0.05, high=60.0)
+        check_unknown_overrides(self)
 
     def _on_set_parameters(self, params) -> SetParametersResult:
         for param in params:
@@ -354,8 +342,8 @@ def main(args=None) -> int:
     rclpy.init(args=args)
     try:
         node = RecorderNode()
-    except AeropendError as error:
-        print(f'recorder_node: error: {error}', file=sys.stderr)
+    except AeropendError as error:      # a bad parameter (its message names the node) or an unusable output
+        print(f'{"" if str(error).startswith("recorder_node") else "recorder_node: "}error: {error}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     executor = SingleThreadedExecutor()

@@ -135,6 +135,23 @@ def test_sim_to_recorder_no_sample_missing(tmp_path, watch):
     np.testing.assert_array_equal([p[0] for p in positions], ours['angle'])
 
 
+@pytest.mark.parametrize('parameter, message', [
+    ('compression:=gzip', "one of 'zstd', 'lz4', 'none'"),
+    ('chunk_size:=0', 'out of range'),
+    ('poll_period:=nan', 'not a finite number'),
+    ('chunck_size:=4096', "did you mean 'chunk_size'"),
+    ('output:=/proc/no/bag', 'cannot create bag folder'),
+])
+def test_recorder_refuses_bad_parameters_in_one_line(tmp_path, parameter, message):
+    arguments = ['-p', parameter] + ([] if parameter.startswith('output') else ['-p', f'output:={tmp_path / "b"}'])
+    result = subprocess.run([sys.executable, '-m', 'aeropend_ros.recorder_node', '--ros-args', *arguments],
+                            capture_output=True, text=True, timeout=60, env=local_ros_environment(domain_id=DOMAIN_ID),
+                            cwd=ROOT, check=False)
+    assert result.returncode == 2, result.stderr
+    assert message in result.stderr and 'Traceback' not in result.stderr, result.stderr
+    assert result.stderr.count('error') == 1 and not (tmp_path / 'b').exists(), result.stderr
+
+
 def test_recorder_refuses_existing_bag(tmp_path):
     (tmp_path / 'taken').mkdir()
     (tmp_path / 'taken' / 'x.mcap').write_bytes(b'')
