@@ -40,7 +40,7 @@ from typing import Any, Self
 import numpy as np
 import yaml
 
-from aeropend_core.errors import AeropendError
+from aeropend_core.errors import AeropendError, StorageError
 
 __all__ = [
     'SAMPLE_CHANNELS',
@@ -468,7 +468,7 @@ class BagWriter:
     # -- internals ---------------------------------------------------------------------------------------------
     def _check_open(self) -> None:
         if self._failure:
-            raise AeropendError(self._failure)
+            raise StorageError(self._failure)
         if self._finished:
             raise AeropendError(f'bag {self.folder} is finished; open a new BagWriter to record more')
 
@@ -491,7 +491,7 @@ class BagWriter:
             self._stream.close()
         self._writer = None
         self._stream = None
-        raise AeropendError(self._failure) from None
+        raise StorageError(self._failure) from None
 
     def _open_file(self) -> None:
         from mcap.writer import Writer
@@ -1050,10 +1050,10 @@ def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> Recover
     try:
         return _recover_files(folder, files, bag_folder, keep_original)
     except OSError as error:
-        raise AeropendError(f'cannot repair {path}: {error.strerror or error}'
-                            f'{" (" + str(error.filename) + ")" if error.filename else ""}; nothing was changed in '
-                            'the bag files. Free space (or copy the bag to another disk) and run '
-                            f'aeropend bag-recover again') from None
+        raise StorageError(f'cannot repair {path}: {error.strerror or error}'
+                           f'{" (" + str(error.filename) + ")" if error.filename else ""}; nothing was changed in '
+                           'the bag files. Free space (or copy the bag to another disk) and run '
+                           f'aeropend bag-recover again') from None
 
 
 def _recovery_targets(path: Path) -> tuple[Path, list[Path], bool]:

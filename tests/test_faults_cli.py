@@ -327,7 +327,7 @@ def test_simulate_on_a_full_disk_fails_clearly_and_leaves_no_partial_file(tmp_pa
     with small_disk(tmp_path, 64 * 1024) as (disk, preexec, how):
         print(f'full disk simulated with {how}')
         result = aeropend(['simulate', '-o', str(disk / 'run.csv'), '--duration', '20'], preexec_fn=preexec)
-        assert_refused(result, ('cannot write', 'run.csv', 'nothing was written'))
+        assert_refused(result, ('cannot write', 'run.csv', 'nothing was written'), status=1)
         assert 'No space left on device' in result.stderr or 'File too large' in result.stderr, (how, result.stderr)
         assert not any(disk.iterdir()), f'left behind: {list(disk.iterdir())}'
 

@@ -6,8 +6,9 @@ Exit statuses and what reaches standard error:
 
 - 0 done; 2 a user mistake (:class:`aeropend_core.errors.AeropendError`, or a command-line syntax error from
   argparse): one line ``aeropend VERB: error: <what is wrong and what to do>``;
-- 1 the system refused (an ``OSError`` nobody turned into a clear message: disk full, permissions...): one line
-  naming the file and the operating system's reason;
+- 1 the system refused to store or read data (:class:`aeropend_core.errors.StorageError`: disk full, file size
+  limit, permissions; or an ``OSError`` nobody turned into a clear message): one line naming the file and the
+  operating system's reason;
 - 1 an internal error (any other exception, i.e. a bug in aeropend, not in the input): one line naming the
   exception, and how to get the traceback (``AEROPEND_DEBUG=1``) to report it. With ``AEROPEND_DEBUG=1`` every
   exception propagates with its full traceback;
@@ -78,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
             return int(args._main(args) or 0)
         except AeropendError as error:
             print(f'{prefix}: error: {error}', file=sys.stderr)
-            return 2
+            return int(getattr(error, 'exit_status', 2))
         except KeyboardInterrupt:
             print(f'{prefix}: interrupted', file=sys.stderr)
             return 130

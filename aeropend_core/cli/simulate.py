@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_core.effects import parse_effect_assignments
-from aeropend_core.errors import AeropendError
+from aeropend_core.errors import AeropendError, StorageError
 from aeropend_core.model import PRESETS, SAMPLE_TIME
 
 
@@ -104,5 +104,5 @@ def write_csv(path: str, columns: dict[str, np.ndarray]) -> None:
         partial.replace(target)
     except OSError as error:
         partial.unlink(missing_ok=True)
-        raise AeropendError(f'cannot write {target}: {error.strerror or error}; nothing was written (free space, '
-                            'check permissions or choose another --output)') from None
+        raise StorageError(f'cannot write {target}: {error.strerror or error}; nothing was written (free space, '
+                           'check permissions or choose another --output)') from None
