@@ -198,20 +198,18 @@ def plot(summary: dict, rows: list[dict], path: Path, title: str) -> None:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0],
-                                     epilog='Figures: see the module docstring (python bench/noise_sweep.py is '
-                                            'documented at its top).')
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--quick', action='store_true',
-                        help='1 seed, a decade threshold grid, fewer timing repeats (~25 s)')
+                        help='1 seed, a decade threshold grid, fewer timing repeats (~50 s)')
     parser.add_argument('--seeds', type=int, default=None, help='windows per PSNR (default 3, --quick 1)')
     parser.add_argument('--psnr', type=float, nargs='+', default=list(PSNRS), help='PSNR levels [dB]')
     parser.add_argument('--repeats', type=int, default=None, help='timed WSINDy calls per window (default 5)')
     add_json_argument(parser)
     args = parser.parse_args()
-    seeds = args.seeds or (1 if args.quick else 3)
-    if seeds < 1:
-        parser.error('--seeds must be >= 1')
-    repeats = args.repeats or (3 if args.quick else 5)
+    seeds = args.seeds if args.seeds is not None else (1 if args.quick else 3)
+    repeats = args.repeats if args.repeats is not None else (3 if args.quick else 5)
+    if seeds < 1 or repeats < 1:
+        parser.error('--seeds and --repeats must be >= 1')
     base_repeats = 2 if args.quick else 3
     grid = QUICK_GRID if args.quick else FULL_GRID
     json_path = Path(args.json) if args.json else ROOT / 'bench' / 'results' / 'latest' / 'noise_sweep.json'

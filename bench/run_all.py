@@ -19,9 +19,10 @@ load_test (the 10-minute full-graph load test, when bench/load_test.py exists).
 
 Run:  .venv/bin/python bench/run_all.py [--quick] [--with-load-test] [--only NAME ...] [--skip NAME ...] [--out DIR]
 
-Run time on the project's 2-core machine: about 6 min by default (plus the robustness sweep), about 2 min with
---quick; --with-load-test adds about 11 min. Benchmark figures need an otherwise idle machine: the load average
-before and after each benchmark is recorded next to its figures.
+Run time on the project's 2-core machine, measured while others loaded it (load average 4-5): the default run
+without robustness 7.4 min (noise_sweep 5.1 of them, ~2.5 min idle), plus the robustness sweep; --quick 4.7 min
+(robustness --quick 2.6 of them); --with-load-test adds about 12 min. Benchmark figures need an otherwise idle
+machine: the load average before and after each benchmark is recorded next to its figures.
 """
 from __future__ import annotations
 
@@ -317,7 +318,7 @@ def resummarise(folder: Path) -> int:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0], epilog='See the module docstring.')
-    parser.add_argument('--quick', action='store_true', help='shorter variants of every benchmark (~2 min)')
+    parser.add_argument('--quick', action='store_true', help='shorter variants of every benchmark (~5 min)')
     parser.add_argument('--with-load-test', action='store_true',
                         help='also run bench/load_test.py (10 minutes of the full graph)')
     names = [b.name for b in BENCHES]
