@@ -18,6 +18,7 @@ robustness (noise robustness of the diagnosis, when bench/robustness.py exists) 
 load_test (the 10-minute full-graph load test, when bench/load_test.py exists).
 
 Run:  .venv/bin/python bench/run_all.py [--quick] [--with-load-test] [--only NAME ...] [--skip NAME ...] [--out DIR]
+                                        [--wait-idle LOAD]
 
 Run time on the project's 2-core machine, measured while others loaded it (load average 4-5): the default run
 without robustness 7.4 min (noise_sweep 5.1 of them, ~2.5 min idle), plus the robustness sweep; --quick 4.7 min
@@ -299,6 +300,16 @@ def summary_markdown(run: dict) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def wait_idle(load: float, limit_s: float = 600.0) -> None:
+    """Sleep until the 1-min load average is below `load` (at most `limit_s`; the record shows the load anyway)."""
+    deadline = time.monotonic() + limit_s
+    if os.getloadavg()[0] >= load:
+        print(f'   waiting for the 1-min load average to fall below {load:g} (now {os.getloadavg()[0]:.2f})',
+              flush=True)
+    while os.getloadavg()[0] >= load and time.monotonic() < deadline:
+        time.sleep(5.0)
+
+
 def resummarise(folder: Path) -> int:
     results = folder / 'results.json'
     if not results.exists():
@@ -326,6 +337,8 @@ def main() -> int:
     parser.add_argument('--skip', nargs='+', choices=names, default=[], metavar='NAME', help='skip these')
     parser.add_argument('--out', type=Path, default=None,
                         help='output folder (default bench/results/<UTC date>[-quick]/)')
+    parser.add_argument('--wait-idle', type=float, metavar='LOAD', default=None,
+                        help='before each benchmark wait (up to 10 min) until the 1-min load average is below LOAD')
     parser.add_argument('--resummarise', type=Path, metavar='DIR', default=None,
                         help='run nothing: re-read the benchmarks\' JSON files in DIR and rewrite its summary.md')
     args = parser.parse_args()
@@ -357,6 +370,8 @@ def main() -> int:
             run['benchmarks'].append({'name': bench.name, 'what': bench.what, 'skipped': skip, 'figures': []})
             continue
         try:
+            if args.wait_idle is not None:
+                wait_idle(args.wait_idle)
             run['benchmarks'].append(run_one(bench, out, args.quick))
         except KeyboardInterrupt:
             print(f'\nrun_all: interrupted during {bench.name} (its processes stopped); writing what ran',
