@@ -647,11 +647,15 @@ def main(argv=None) -> int:
         args.effect = ['angle_offset=0.05']
     if not args.duration >= 10 or not args.sample_period > 0:
         parser.error('--duration must be >= 10 s and --sample-period positive')
+    from aeropend_core.errors import AeropendError
     try:
         result = run(args)
-    except (RuntimeError, OSError) as error:
+    except (RuntimeError, OSError, AeropendError) as error:
         print(f'load test: error: {error}', file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print('load test: interrupted; the nodes were stopped, nothing written', file=sys.stderr)
+        return 130
     out = Path(args.out)
     (out / 'load_test.json').write_text(json.dumps(result, indent=1))
     if args.json:
