@@ -8,11 +8,11 @@ in simulated data and :func:`aeropend_core.diagnose.diagnose` is asked what is m
 * the clean case (nothing hidden): false-alarm rate vs PSNR.
 
 Data per run (as bench/diagnosis_table.py and tests/test_diagnose.py): 60 s of Latin-hypercube duty steps (LHC,
-duty up to 0.7; cable_torque up to 0.9, the large-angle experiment the tool recommends for it), simulated with the
-full model, Gaussian noise at the PSNR on Va, Ia and the angle plus 10-bit quantisation of angle and current; only
-the measured columns reach the diagnosis. Seed k of a point uses the LHC schedule seed ``SEED_BASE + k`` and the
-noise seed ``SEED_BASE + 500 + k`` -- the same schedules at every point (paired comparisons along a curve), none
-shared with the tests or the diagnosis table.
+duty up to 0.7; for cable_torque up to the duty that holds the rod at 75 deg, the large-angle experiment the tool
+recommends for it), simulated with the full model, Gaussian noise at the PSNR on Va, Ia and the angle plus 10-bit
+quantisation of angle and current; only the measured columns reach the diagnosis. Seed k of a point uses the LHC
+schedule seed ``SEED_BASE + k`` and the noise seed ``SEED_BASE + 500 + k`` -- the same schedules at every point
+(paired comparisons along a curve), none shared with the tests or the diagnosis table.
 
 Every run is classified:
 
@@ -47,6 +47,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from aeropend_core.effects import CATALOG, get_effect  # noqa: E402
+from aeropend_core.model import DEFAULT_PARAMETERS  # noqa: E402
 
 #: PSNR points [dB] of curve (a) and the PSNR of curve (b).
 PSNRS = (60.0, 50.0, 40.0, 30.0, 20.0)
@@ -58,10 +59,13 @@ QUICK_MAGNITUDES = (1 / 16, 1 / 4, 1.0)
 SEEDS, QUICK_SEEDS = 4, 2
 SEED_BASE = 7100
 DURATION = 60.0
-#: Largest duty of the LHC steps; the cable is separable from gravity only at large angles (the experiment the
-#: diagnosis recommends when it finds them confounded), so its cases use larger steps.
-MAX_DUTY = {'cable_torque': 0.9}
+#: Largest duty of the LHC steps (the rod settles near 65 deg there with the default parameters).
 DEFAULT_MAX_DUTY = 0.7
+#: Effects for which the diagnosis itself advises "excite larger angles" (the cable: separable from gravity only
+#: there) get the experiment it recommends: the highest step holds the rod at this angle [rad], as an operator
+#: following the advice (70-85 deg) would set it, with room for the ~10 % overshoot of a large step. (A fixed duty,
+#: e.g. 0.9 as in bench/diagnosis_table.py, throws the rod over the top when the cable is weak.)
+LARGE_ANGLE = math.radians(75.0)
 #: A magnitude counts as reliably detected when at least this fraction of its seeds is correct.
 RELIABLE = 0.75
 #: An effect still reliably found at the smallest tested magnitude is tried at half of it, and so on, down to
@@ -69,6 +73,34 @@ RELIABLE = 0.75
 SMALLEST_FACTOR = 1 / 256
 OUTCOMES = ('correct', 'confounded_truth', 'confounded_other', 'missed', 'wrong', 'unexplained', 'crash')
 CLEAN = 'none'
+#: --varied: every nominal parameter moved by 20 % (as tests/test_diagnose.py), so that nothing leans on defaults.
+VARIED_PARAMETERS = DEFAULT_PARAMETERS.scaled(
+    armature_resistance=0.8, armature_inductance=1.2, back_emf_constant=1.2, torque_constant=1.2,
+    motor_inertia=0.8, motor_friction=0.8, propeller_torque_coefficient=0.8, thrust_coefficient=0.8,
+    gravity_stiffness=1.2, damping=0.8, lever_per_inertia=1.2)
+
+
+def max_duty(effect: str, truth: dict[str, float] | None, parameters) -> float:
+    """Largest duty of the LHC steps for a case: DEFAULT_MAX_DUTY, or the large-angle experiment (see LARGE_ANGLE)."""
+    from aeropend_core.diagnose import excitation_advice
+    from aeropend_core.effects import PENDULUM
+    if truth is None or 'larger angles' not in excitation_advice(effect) or get_effect(effect).kind != PENDULUM:
+        return DEFAULT_MAX_DUTY
+    # thrust acceleration that holds the rod at LARGE_ANGLE against gravity and the effect (at rest)
+    needed = parameters.gravity_stiffness * math.sin(LARGE_ANGLE) - float(
+        get_effect(effect).function(LARGE_ANGLE, 0.0, **truth))
+
+    def thrust_acceleration(duty: float) -> float:
+        state = parameters.steady_state(parameters.voltage_from_duty(duty))
+        return parameters.lever_per_inertia * state['thrust']
+
+    low, high = DEFAULT_MAX_DUTY / 2, 1.0
+    if thrust_acceleration(high) <= needed:
+        return high
+    for _ in range(40):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if thrust_acceleration(middle) < needed else (low, middle)
+    return round(low, 4)
 
 
 def _worker_init() -> None:
@@ -81,23 +113,23 @@ def run_case(case: dict) -> dict:
     """Simulate one recording with `case['effect']` hidden at `case['factor']` x typical, diagnose, classify."""
     from aeropend_core.diagnose import diagnose
     from aeropend_core.excitation import lhc_schedule
-    from aeropend_core.model import DEFAULT_PARAMETERS
     from aeropend_core.noise import MeasurementNoise
     from aeropend_core.recording import from_columns
     from aeropend_core.simulate import simulate
 
     effect, factor, psnr, seed = case['effect'], case['factor'], case['psnr'], case['seed']
+    parameters = VARIED_PARAMETERS if case.get('varied') else DEFAULT_PARAMETERS
     result = dict(case)
     truth = None
     if effect != CLEAN:
         truth = {p.name: p.typical * factor for p in get_effect(effect).parameters}
         result['truth'] = truth
-    max_duty = MAX_DUTY.get(effect, DEFAULT_MAX_DUTY)
     started = time.perf_counter()
     try:
-        duty = lhc_schedule(DURATION, duty_range=(0.0, max_duty), duty_cap=max_duty,
-                            seed=SEED_BASE + seed).duty(duration=DURATION)
-        trajectory = simulate(duty, DEFAULT_PARAMETERS, None if truth is None else {effect: truth},
+        top = result['max_duty'] = max_duty(effect, truth, parameters)
+        schedule = lhc_schedule(DURATION, duty_range=(0.0, top), duty_cap=top, seed=SEED_BASE + seed)
+        duty = schedule.duty(duration=DURATION)
+        trajectory = simulate(duty, parameters, None if truth is None else {effect: truth},
                               noise=MeasurementNoise(psnr, True), seed=SEED_BASE + 500 + seed)
         found = diagnose(from_columns(trajectory.columns(with_truth=False), source=f'robustness {case}'))
     except Exception as error:   # a crash is an outcome to report, not a reason to stop the sweep
@@ -112,6 +144,7 @@ def run_case(case: dict) -> dict:
         named = [best.effect] + [n for n in best.confounded_with if n in CATALOG and n != best.effect]
     result.update(verdict=found.verdict, named=named, noise_rms=found.noise_rms,
                   excess_now=_excess(found.current.rms_error, found.noise_rms),
+                  max_true_angle_deg=math.degrees(float(abs(trajectory.truth['angle']).max())),
                   seconds=time.perf_counter() - started)
     result['outcome'] = classify(effect, found.verdict, named)
     if truth is not None:
@@ -122,6 +155,10 @@ def run_case(case: dict) -> dict:
             result['estimate'] = estimate
             result['relative_error'] = (estimate - truth[name]) / truth[name] if truth[name] else float('nan')
             result['hidden_significant'] = hidden.significant
+            interval = hidden.comparison.fit.extra.get('threshold_interval') if hidden.comparison else None
+            if interval is not None:      # a dead zone's threshold is known only between two input levels
+                result['interval'] = list(interval)
+                result['truth_in_interval'] = bool(interval[0] <= truth[name] <= interval[1])
     return result
 
 
@@ -164,7 +201,11 @@ def summarise(runs: list[dict], effect: str, factor: float, psnr: float) -> dict
     summary = {'effect': effect, 'factor': factor, 'psnr': psnr, 'runs': len(selected), 'counts': counts,
                'correct_rate': counts['correct'] / len(selected) if selected else float('nan'),
                'median_abs_relative_error': errors[len(errors) // 2] if errors else None,
-               'max_abs_relative_error': errors[-1] if errors else None}
+               'max_abs_relative_error': errors[-1] if errors else None,
+               'over_horizontal': sum(r.get('max_true_angle_deg', 0.0) > 90.0 for r in selected)}
+    intervals = [r['truth_in_interval'] for r in selected if r['outcome'] == 'correct' and 'truth_in_interval' in r]
+    if intervals:
+        summary['correct_with_truth_in_interval'] = sum(intervals)
     if effect != CLEAN:
         summary['value'] = {p.name: p.typical * factor for p in get_effect(effect).parameters}
     else:
@@ -204,7 +245,9 @@ def markdown(report: dict) -> str:
     lines = [f'# Missing-physics loop: robustness ({report["date"]}, {report["machine"]})', '',
              f'{report["seeds"]} seeds per point, {report["duration_s"]:g} s LHC records, '
              f'{report["runs"]} diagnoses in {report["wall_seconds"]:.0f} s wall on {report["workers"]} workers'
-             f'{" (--quick)" if report["quick"] else ""}. Counts per point: C correct, CT confounded incl. the '
+             f'{" (--quick)" if report["quick"] else ""}'
+             f'{", every nominal parameter moved 20 %" if report["varied_parameters"] else ""}. '
+             'Counts per point: C correct, CT confounded incl. the '
              'truth, CO confounded without it, M missed (nothing_missing), W wrong name, U unexplained, X crash.', '']
     header = '| hidden effect | magnitude | PSNR dB | C | CT | CO | M | W | U | X | median abs error of estimate |'
     rule = '|---|---|---|---|---|---|---|---|---|---|---|'
@@ -240,6 +283,10 @@ def _row(point: dict) -> str:
     value = ', '.join(f'{v:.4g}' for v in point['value'].values())
     error = point['median_abs_relative_error']
     error_text = '-' if error is None else f'{error * 100:.1f} %'
+    if 'correct_with_truth_in_interval' in point:
+        error_text += f' (truth in the reported interval {point["correct_with_truth_in_interval"]}/{c["correct"]})'
+    if point['over_horizontal']:
+        error_text += f'; rod above horizontal in {point["over_horizontal"]}/{point["runs"]} runs'
     return (f'| {point["effect"]} | {value} (x{point["factor"]:g}) | {point["psnr"]:g} | {c["correct"]} | '
             f'{c["confounded_truth"]} | {c["confounded_other"]} | {c["missed"]} | {c["wrong"]} | '
             f'{c["unexplained"]} | {c["crash"]} | {error_text} |')
@@ -274,7 +321,7 @@ def plot(report: dict, out: Path) -> list[str]:
         points = sorted((p for p in report['vs_psnr'] if p['effect'] == effect), key=lambda p: p['psnr'])
         x, r = rates(points, 'psnr')
         for outcome, (color, marker, label) in styles.items():
-            if any(v > 0 for v in r[outcome]) or outcome == 'correct':
+            if any(v > 0 for v in r[outcome]) or outcome in ('correct', 'wrong', 'missed'):
                 ax.plot(x, r[outcome], color=color, marker=marker, label=label)
         ax.set_title(f'{effect} (typical)', fontsize=9)
         ax.set_xlabel('PSNR [dB]')
@@ -313,7 +360,7 @@ def plot(report: dict, out: Path) -> list[str]:
         x = [p['factor'] * entry['typical'] for p in points]
         _, r = rates(points, 'factor')
         for outcome, (color, marker, label) in styles.items():
-            if any(v > 0 for v in r[outcome]) or outcome == 'correct':
+            if any(v > 0 for v in r[outcome]) or outcome in ('correct', 'wrong', 'missed'):
                 ax.plot(x, r[outcome], color=color, marker=marker, label=label)
         ax.set_xscale('log')
         ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
@@ -358,6 +405,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--out', type=Path, default=ROOT / 'bench' / 'results' / 'robustness',
                         help='directory for robustness.json, robustness.md and the PNG plots')
     parser.add_argument('--json', type=Path, help='where to write the JSON (default OUT/robustness.json)')
+    parser.add_argument('--varied', action='store_true',
+                        help='simulate with every nominal parameter moved by 20 %% instead of the defaults')
     parser.add_argument('--no-plots', action='store_true')
     args = parser.parse_args(argv)
     effects = args.effects or list(CATALOG)
@@ -370,6 +419,8 @@ def main(argv: list[str] | None = None) -> int:
     psnrs = QUICK_PSNRS if args.quick else PSNRS
     magnitudes = QUICK_MAGNITUDES if args.quick else MAGNITUDES
     cases = build_cases(effects, psnrs, magnitudes, seeds)
+    for case in cases:
+        case['varied'] = args.varied
     args.out.mkdir(parents=True, exist_ok=True)
     json_path = args.json or args.out / 'robustness.json'
     json_path.parent.mkdir(parents=True, exist_ok=True)
@@ -393,7 +444,8 @@ def main(argv: list[str] | None = None) -> int:
                 if smallest / 2 >= SMALLEST_FACTOR and \
                         summarise(runs, effect, smallest, MAGNITUDE_PSNR)['correct_rate'] >= RELIABLE:
                     factors[effect].insert(0, smallest / 2)
-                    cases += [{'effect': effect, 'factor': smallest / 2, 'psnr': MAGNITUDE_PSNR, 'seed': s}
+                    cases += [{'effect': effect, 'factor': smallest / 2, 'psnr': MAGNITUDE_PSNR, 'seed': s,
+                               'varied': args.varied}
                               for s in range(1, seeds + 1)]
             if cases:
                 print(f'extending downwards: {", ".join(sorted({c["effect"] for c in cases}))}', flush=True)
@@ -412,9 +464,11 @@ def main(argv: list[str] | None = None) -> int:
                               'tested_factors': factors[effect]}
     report = {'date': datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
               'machine': f'{platform.node()} {platform.machine()} {os.cpu_count()} cpu',
-              'quick': args.quick, 'seeds': seeds, 'seed_base': SEED_BASE, 'duration_s': DURATION,
+              'quick': args.quick, 'varied_parameters': args.varied, 'seeds': seeds,
+              'seed_base': SEED_BASE, 'duration_s': DURATION,
               'psnrs': list(psnrs), 'magnitudes': list(magnitudes), 'magnitude_psnr': MAGNITUDE_PSNR,
-              'max_duty': {e: MAX_DUTY.get(e, DEFAULT_MAX_DUTY) for e in effects}, 'reliable_fraction': RELIABLE,
+              'default_max_duty': DEFAULT_MAX_DUTY, 'large_angle_deg': math.degrees(LARGE_ANGLE),
+              'reliable_fraction': RELIABLE,
               'workers': args.workers, 'runs': len(runs), 'wall_seconds': wall,
               'mean_diagnosis_seconds': sum(r['seconds'] for r in runs) / len(runs),
               'outcome_totals': {o: sum(r['outcome'] == o for r in runs) for o in OUTCOMES},
