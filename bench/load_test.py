@@ -430,7 +430,9 @@ def write_summary(result: dict, path: Path) -> None:
     warm = next(iter(m.values()))['warm_up_s'] if m else float('nan')
     lines += ['', f'Warm-up point {warm:.0f} s after start; slope = least-squares line over the rest. '
               f'"flat": growth <= {FLAT_FRACTION:.0%} of the warm-up RSS (at least 1 MB), or the slope projects to '
-              f'<= {FLAT_MB_PER_HOUR:g} MB per hour.', '',
+              f'<= {FLAT_MB_PER_HOUR:g} MB per hour.'
+              + (' This run is too short for the memory verdict: the worker is still filling its caches (it is '
+                 'flat from ~2 min on); use --duration 600.' if result['duration_s'] < 300 else ''), '',
               '## Samples', '',
               '| reader | published | recorded | missing | gaps | duplicates | out of order |',
               '| --- | ---: | ---: | ---: | ---: | ---: | ---: |']
