@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tests.ros_helpers import private_domain_id, use_domain
+from tests.ros_helpers import private_domain_id
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -23,8 +23,7 @@ def _sample_bytes(sequence: int, stamp_ns: int) -> bytes:
 def test_identification_counts_received_and_missed_samples_and_keeps_one_window():
     """Samples fed straight into the node's callback (the exact CDR bytes a subscription hands it): 12 samples
     skipped in two gaps are counted as missed, and 60 s of samples leave at most one window + one hop buffered."""
-    domain_id = private_domain_id()
-    use_domain(domain_id)
+    domain_id = private_domain_id()         # the node's diagnostics stay off other tests' domains
     import rclpy
     from rclpy.parameter import Parameter
 
