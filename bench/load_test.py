@@ -391,6 +391,8 @@ def identification_report(listener: Listener, args, published: int, first_stamp_
         'windows_skipped': int(last_values['windows_skipped']) if 'windows_skipped' in last_values else None,
         'compute_time_s': stats(compute), 'duty_ratio': stats(compute / args.hop),
         'latency_s': stats(latency),
+        # latency - compute: sample delivery, the window's snapshot, hand-over to the worker and back, publishing
+        'latency_minus_compute_s': stats(latency - compute),
         'lost_samples_per_window_max': max(lost_per_window) if lost_per_window else None,
         'fit_percent': stats(np.array([f.get('fit_percent', np.nan) for f in fits])),
     }
@@ -453,8 +455,11 @@ def write_summary(result: dict, path: Path) -> None:
                  f'{i["windows_skipped"]} | {c.get("mean", float("nan")):.2f} / {c.get("p95", float("nan")):.2f} / '
                  f'{c.get("max", float("nan")):.2f} | {d.get("max", float("nan")):.2f} | '
                  f'{lat.get("mean", float("nan")):.2f} / {lat.get("max", float("nan")):.2f} |')
+    extra = i.get('latency_minus_compute_s') or {}
     lines += ['', f'Windows of {i["window_s"]:g} s every {i["hop_s"]:g} s; keeps up: '
-              f'{"yes" if i["keeps_up"] else "NO"}.', '',
+              f'{"yes" if i["keeps_up"] else "NO"}. Latency minus compute time (delivery, hand-over to the worker '
+              f'and back, publishing): mean {extra.get("mean", float("nan")) * 1e3:.0f} ms, max '
+              f'{extra.get("max", float("nan")) * 1e3:.0f} ms.', '',
               '## Sim node rate (recorder receive times)', '',
               f'{r["rate_by_receive_hz"]:.3f} Hz by receive count ({r["rate_by_receive_after_start_hz"]:.3f} Hz '
               f'after the first 2 s), {r["rate_by_slope_hz"]:.3f} Hz as the slope of '
