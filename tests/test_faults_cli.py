@@ -123,6 +123,9 @@ def files(tmp_path_factory) -> Path:
     write_csv(d / 'duplicated.csv', time[repeat], {k: v[repeat] for k, v in signals.items()})
     flat = simulate(np.full(len(time), 0.4), noise=MeasurementNoise(50.0, True), seed=3).columns(with_truth=False)
     write_csv(d / 'unexcited.csv', np.asarray(flat['t']), {c: np.asarray(flat[c]) for c in COLUMNS[1:]})
+    keep = np.ones(len(time), dtype=bool)
+    keep[3000:3010] = False                                           # ten samples lost on the way
+    write_csv(d / 'gap.csv', time[keep], {k: v[keep] for k, v in signals.items()})
     short = int(5.0 / SAMPLE_TIME)
     write_csv(d / 'short.csv', time[:short], {k: v[:short] for k, v in signals.items()})
     (d / 'empty.csv').write_text('')
@@ -166,6 +169,7 @@ BAD_RECORDINGS = [
     pytest.param('clash.csv', ('same time stamp', 'samples 1999 and 2000'), id='same-stamp-different-values'),
     pytest.param('rate_zero.csv', ('same time stamp', 'samples 0 and 1'), id='sample-rate-zero'),
     pytest.param('unexcited.csv', ('excit',), id='unexcited-constant-duty'),
+    pytest.param('gap.csv', ('gap',), id='lost-samples-gap'),
     pytest.param('garbage.mcap', ('not an MCAP file',), id='not-an-mcap'),
     pytest.param('no_mcap', ('no .mcap file',), id='folder-without-mcap'),
     pytest.param('cut_tiny.mcap', ('cut short', 'bag-recover'), id='mcap-truncated-before-first-chunk'),
