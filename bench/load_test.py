@@ -520,9 +520,9 @@ def run(args) -> dict:
     assert abs(core_sample_time - SAMPLE_TIME) < 1e-15
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    logs = out / 'logs'
+    work = Path(tempfile.mkdtemp(prefix='aeropend_load_test_'))     # removed after a successful run
+    logs = (out if args.keep_bag else work) / 'logs'
     logs.mkdir(exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix='aeropend_load_test_'))
     bag_folder = (out if args.keep_bag else work) / 'bag'
     if bag_folder.exists():
         shutil.rmtree(bag_folder)
@@ -633,7 +633,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--duration', type=float, default=600.0, help='seconds of samples at 490 Hz (default 600)')
     parser.add_argument('--out', default=str(ROOT / 'bench' / 'results' / 'load_test'),
-                        help='folder for load_test.json, load_test.md, load_test.png and the node logs')
+                        help='folder for load_test.json, load_test.md and load_test.png')
     parser.add_argument('--json', default=None, help='also write the JSON result here')
     parser.add_argument('--sample-period', type=float, default=5.0, help='seconds between /proc samples')
     parser.add_argument('--warm-up', type=float, default=120.0,
@@ -647,7 +647,9 @@ def main(argv=None) -> int:
                         help='hidden sim effect (repeatable; default angle_offset=0.05 like aeropend run)')
     parser.add_argument('--start-timeout', type=float, default=60.0,
                         help='seconds allowed for start-up and discovery on top of the duration')
-    parser.add_argument('--keep-bag', action='store_true', help='keep the bag in --out (default: a temporary one)')
+    parser.add_argument('--keep-bag', action='store_true',
+                        help='keep the bag and the node logs in --out (default: a temporary folder, removed after a '
+                             'successful run and kept after a failed one)')
     parser.add_argument('--strict', action='store_true', help='exit 1 when a verdict fails')
     args = parser.parse_args(argv)
     if args.effect is None:
