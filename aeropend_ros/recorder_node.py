@@ -149,8 +149,9 @@ class RecorderNode(Node):
         declare(self, 'compression', 'zstd', 'chunk compression', read_only=True, choices=('zstd', 'lz4', 'none'))
         declare(self, 'queue_depth', 10000, 'subscription history depth: messages DDS buffers while the recorder is '
                 'busy (10000 = 20 s at 490 Hz)', read_only=True, low=1, high=100000, integer=True)
-        declare(self, 'max_queue', 1_000_000, 'messages waiting for the writer thread before new ones are dropped '
-                '(and counted)', read_only=True, low=1000, high=100_000_000, integer=True)
+        declare(self, 'max_queue', 100_000, 'messages waiting for the writer thread before new ones are dropped '
+                '(and counted); 100000 = 200 s at 490 Hz, about 40 MB', read_only=True, low=1000, high=100_000_000,
+                integer=True)
         declare(self, 'discovery_period', 0.2, 'seconds between checks for new topics to record', low=0.01,
                 high=60.0)
         declare(self, 'poll_period', 0.02, 'seconds between takes of the waiting messages (they wait in the DDS '
