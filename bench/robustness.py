@@ -296,6 +296,23 @@ def _row(point: dict) -> str:
             f'{c["unexplained"]} | {c["crash"]} | {error_text} |')
 
 
+def _finish(fig, axes, used: int, title: str, path: Path) -> str:
+    """Blank the unused panels, one legend for the figure (each label once), title, save as PNG; returns the path."""
+    import matplotlib.pyplot as plt
+    for extra in list(axes.flat)[used:]:
+        extra.axis('off')
+    legend: dict[str, object] = {}
+    for ax in axes.flat:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            legend.setdefault(label, handle)
+    fig.legend(list(legend.values()), list(legend), loc='lower center', ncol=4, fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout(rect=(0, 0.07, 1, 0.96))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)
+
+
 def plot(report: dict, out: Path) -> list[str]:
     import matplotlib
     matplotlib.use('Agg')
@@ -340,21 +357,8 @@ def plot(report: dict, out: Path) -> list[str]:
     ax.set_xlabel('PSNR [dB]')
     ax.set_ylim(-0.05, 1.05)
     ax.grid(alpha=0.3)
-    for extra in list(axes.flat)[panels:]:
-        extra.axis('off')
-    handles, labels = [], []
-    for a in axes.flat:
-        for h, lab in zip(*a.get_legend_handles_labels()):
-            if lab not in labels:
-                handles.append(h)
-                labels.append(lab)
-    fig.legend(handles, labels, loc='lower center', ncol=4, fontsize=8)
-    fig.suptitle(f'Rate of each diagnosis outcome vs PSNR ({report["seeds"]} seeds/point)', fontsize=10)
-    fig.tight_layout(rect=(0, 0.07, 1, 0.96))
-    path = out / 'rate_vs_psnr.png'
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    written.append(str(path))
+    written.append(_finish(fig, axes, panels, f'Rate of each diagnosis outcome vs PSNR ({report["seeds"]} '
+                           'seeds/point)', out / 'rate_vs_psnr.png'))
 
     rows = math.ceil(len(effects) / columns)
     fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows), squeeze=False)
@@ -380,22 +384,8 @@ def plot(report: dict, out: Path) -> list[str]:
         ax.set_xlabel(f'{entry["parameter"]} [{entry["unit"]}]')
         ax.set_ylim(-0.05, 1.05)
         ax.grid(alpha=0.3)
-    for extra in list(axes.flat)[len(effects):]:
-        extra.axis('off')
-    handles, labels = [], []
-    for a in axes.flat:
-        for h, lab in zip(*a.get_legend_handles_labels()):
-            if lab not in labels:
-                handles.append(h)
-                labels.append(lab)
-    fig.legend(handles, labels, loc='lower center', ncol=4, fontsize=8)
-    fig.suptitle(f'Outcome rate vs effect magnitude at {MAGNITUDE_PSNR:g} dB (dotted: smallest reliably correct; '
-                 f'dashed: typical)', fontsize=10)
-    fig.tight_layout(rect=(0, 0.07, 1, 0.96))
-    path = out / 'rate_vs_magnitude.png'
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    written.append(str(path))
+    written.append(_finish(fig, axes, len(effects), f'Outcome rate vs effect magnitude at {MAGNITUDE_PSNR:g} dB '
+                           '(dotted: smallest reliably correct; dashed: typical)', out / 'rate_vs_magnitude.png'))
     return written
 
 
