@@ -540,6 +540,26 @@ def _solve_subset(gram, rhs, support, ridge):
 
 
 @numba.njit(cache=True, nogil=True)
+def _best_single_change(gram, rhs, support, candidates, state, ridge, gwls, c0, denom, alpha, n_terms):
+    """Set each candidate term of `support` to `state` in turn (the rest unchanged), refit, score with
+    :func:`_loss`; returns (loss, index, weights) of the best change, index -1 without candidates.
+    `support` is restored before returning."""
+    best_loss = np.inf
+    best_j = -1
+    best_w = np.zeros(support.size)
+    for j in range(support.size):
+        if not candidates[j]:
+            continue
+        support[j] = state
+        w = _solve_subset(gram, rhs, support, ridge)
+        support[j] = not state
+        value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
+        if value < best_loss:
+            best_loss, best_j, best_w = value, j, w
+    return best_loss, best_j, best_w
+
+
+@numba.njit(cache=True, nogil=True)
 def _loss(gram, w, gwls, c0, denom, alpha, n_terms):
     """L = 2α‖G(w − w_LS)‖/‖G w_LS‖ + 2(1 − α)·nnz(w)/J with the normalised Gram matrix, in O(nnz²):
     ‖G(w − w_LS)‖² = wᵀGw − 2 wᵀ(G w_LS) + w_LSᵀ G w_LS, with gwls = G w_LS and c0 = w_LSᵀ G w_LS."""
@@ -770,18 +790,8 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
         # one term at a time (the one whose removal changes the fit least) does visit it.
         support = usable.copy()
         while np.count_nonzero(support) > np.count_nonzero(keep):
-            trial_loss = np.inf
-            trial_j = -1
-            trial_w = w_ls
-            for j in range(support.size):
-                if not support[j] or keep[j]:
-                    continue
-                support[j] = False
-                w = _solve_subset(gram, rhs, support, final_ridge)
-                support[j] = True
-                value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
-                if value < trial_loss:
-                    trial_loss, trial_j, trial_w = value, j, w
+            trial_loss, trial_j, trial_w = _best_single_change(gram, rhs, support, support & ~keep, False, final_ridge,
+                                                               gwls, c0, denom, alpha, n_terms)
             if trial_j < 0:
                 break
             support[trial_j] = False
@@ -794,18 +804,8 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
             # the sparsity penalty only grows along this path: once it alone reaches the best loss, stop
             if 2.0 * (1.0 - alpha) * (np.count_nonzero(support) + 1) / n_terms >= best_loss - 1e-12:
                 break
-            trial_loss = np.inf
-            trial_j = -1
-            trial_w = w_ls
-            for j in range(support.size):
-                if support[j] or not usable[j]:
-                    continue
-                support[j] = True
-                w = _solve_subset(gram, rhs, support, final_ridge)
-                support[j] = False
-                value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
-                if value < trial_loss:
-                    trial_loss, trial_j, trial_w = value, j, w
+            trial_loss, trial_j, trial_w = _best_single_change(gram, rhs, support, usable & ~support, True, final_ridge,
+                                                               gwls, c0, denom, alpha, n_terms)
             if trial_j < 0:
                 break
             support[trial_j] = True
