@@ -18,6 +18,7 @@ from typing import Callable
 
 import numpy as np
 
+from aeropend_core.cli.diagnose import finite_json
 from aeropend_core.excitation import lhc_schedule
 from aeropend_core.identify import full_state_library, identify_full_state
 from aeropend_core.model import DEFAULT_PARAMETERS as P
@@ -244,19 +245,6 @@ def figure(name: str, value: float, units: str, *, baseline: float | None = None
             'ratio': ratio, 'ratio_meaning': ratio_meaning, 'target': target, 'met': met}
 
 
-def _clean(value):
-    """JSON-safe copy: NaN/inf -> None, numpy scalars -> Python numbers, tuples -> lists."""
-    if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def write_json(path: str | os.PathLike | None, benchmark: str, figures: list[dict], **details) -> None:
     """Write ``{'benchmark', 'figures', 'details', 'load_average'}`` to `path` (nothing when `path` is None)."""
     if path is None:
@@ -265,7 +253,7 @@ def write_json(path: str | os.PathLike | None, benchmark: str, figures: list[dic
     out.parent.mkdir(parents=True, exist_ok=True)
     record = {'benchmark': benchmark, 'figures': figures, 'details': details,
               'load_average_at_end': list(os.getloadavg())}
-    out.write_text(json.dumps(_clean(record), indent=1, ensure_ascii=False) + '\n', encoding='utf-8')
+    out.write_text(json.dumps(finite_json(record), indent=1, ensure_ascii=False) + '\n', encoding='utf-8')
 
 
 def add_json_argument(parser) -> None:

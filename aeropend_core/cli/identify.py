@@ -22,6 +22,7 @@ import math
 
 import numpy as np
 
+from aeropend_core.cli.diagnose import finite_json
 from aeropend_core.errors import AeropendError
 from aeropend_core.recording import load_recording
 
@@ -36,10 +37,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='pendulum model: add a catalog effect as a candidate term (cable_torque, angle_offset)')
     parser.add_argument('--start', type=float, default=None, help='use samples from this time [s]')
     parser.add_argument('--stop', type=float, default=None, help='use samples before this time [s]')
-
-
-def _clean(value: float):
-    return value if math.isfinite(value) else None
 
 
 def _window(recording, start: float | None, stop: float | None):
@@ -76,8 +73,8 @@ def main(args: argparse.Namespace) -> int:
             'model': args.model,
             'coefficients': fit.result.coefficients,
             'standard_errors': fit.result.standard_errors,
-            'parameters': {k: _clean(v) for k, v in fit.parameters.items()},
-            'parameter_standard_errors': {k: _clean(v) for k, v in fit.standard_errors.items()},
+            'parameters': finite_json(fit.parameters),
+            'parameter_standard_errors': finite_json(fit.standard_errors),
             'units': {k: PARAMETER_UNITS.get(k, '') for k in fit.parameters},
             'samples': len(recording),
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
