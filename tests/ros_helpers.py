@@ -6,6 +6,7 @@ with SIGINT (like Ctrl-C), keeping its output for failure messages.
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import signal
@@ -46,20 +47,28 @@ def _domain_is_quiet(domain_id: int, seconds: float) -> bool:
     """True when no other ROS node appears on `domain_id` within `seconds` (local discovery)."""
     ensure_ros_environment(local_only=True)
     import rclpy
+    with own_context(domain_id) as context:
+        node = rclpy.create_node('domain_probe', context=context)
+        try:
+            deadline = time.monotonic() + seconds
+            while time.monotonic() < deadline:
+                if len(node.get_node_names()) > 1:
+                    return False
+                time.sleep(0.05)
+            return True
+        finally:
+            node.destroy_node()
+
+
+@contextlib.contextmanager
+def own_context(domain_id: int):
+    """An rclpy context of its own on `domain_id` (tests never touch the global one), shut down on exit."""
+    import rclpy
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id)
-    node = None
     try:
-        node = rclpy.create_node('domain_probe', context=context)
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            if len(node.get_node_names()) > 1:
-                return False
-            time.sleep(0.05)
-        return True
+        yield context
     finally:
-        if node is not None:
-            node.destroy_node()
         rclpy.try_shutdown(context=context)
 
 

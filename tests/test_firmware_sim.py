@@ -27,7 +27,7 @@ from tests.bridge_helpers import (
     build_firmware,
     poll,
 )
-from tests.ros_helpers import NodeProcess, private_domain_id, use_domain
+from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain
 
 DOMAIN_ID = private_domain_id()
 use_domain(DOMAIN_ID)
@@ -186,11 +186,8 @@ def test_firmware_over_pty(build, tmp_path):
 
 @pytest.fixture()
 def ros_context():
-    import rclpy
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    yield context
-    rclpy.try_shutdown(context=context)
+    with own_context(DOMAIN_ID) as context:
+        yield context
 
 
 def test_bridge_node_on_the_firmware(build, tmp_path, ros_context):

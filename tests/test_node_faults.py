@@ -28,7 +28,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tests.ros_helpers import NodeProcess, private_domain_id, use_domain, wait_for
+from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain, wait_for
 
 DOMAIN_ID = private_domain_id()
 use_domain(DOMAIN_ID)
@@ -139,10 +139,8 @@ def status_values(status) -> dict[str, str]:
 # ------------------------------------------------------------------------------------------------------ fixtures
 @pytest.fixture(scope='module')
 def ros_context():
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    yield context
-    rclpy.try_shutdown(context=context)
+    with own_context(DOMAIN_ID) as context:
+        yield context
 
 
 @pytest.fixture(scope='module')

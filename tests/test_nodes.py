@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from tests.ros_helpers import NodeProcess, private_domain_id, use_domain, wait_for
+from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain, wait_for
 
 DOMAIN_ID = private_domain_id()
 use_domain(DOMAIN_ID)
@@ -73,10 +73,8 @@ class Listener:
 
 @pytest.fixture(scope='module')
 def ros_context():
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    yield context
-    rclpy.try_shutdown(context=context)
+    with own_context(DOMAIN_ID) as context:
+        yield context
 
 
 @pytest.fixture(scope='module')
@@ -258,10 +256,8 @@ class ResultListener:
 def own_domain():
     """A context on a second private domain: this test's sim must not meet the module's real-time sim."""
     domain_id = private_domain_id()
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id)
-    yield context, domain_id
-    rclpy.try_shutdown(context=context)
+    with own_context(domain_id) as context:
+        yield context, domain_id
 
 
 def test_identification_matches_truth_and_improves_when_effect_added(own_domain):

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import yaml
 
-from tests.ros_helpers import ROOT, NodeProcess, private_domain_id, use_domain, wait_for
+from tests.ros_helpers import NodeProcess, ROOT, own_context, private_domain_id, use_domain, wait_for
 
 DOMAIN_ID = private_domain_id()
 use_domain(DOMAIN_ID)
@@ -80,12 +80,10 @@ class RecorderWatch:
 
 @pytest.fixture(scope='module')
 def watch():
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    watch = RecorderWatch(context)
-    yield watch
-    watch.close()
-    rclpy.try_shutdown(context=context)
+    with own_context(DOMAIN_ID) as context:
+        watch = RecorderWatch(context)
+        yield watch
+        watch.close()
 
 
 def test_sim_to_recorder_no_sample_missing(tmp_path, watch):

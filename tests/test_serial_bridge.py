@@ -17,7 +17,7 @@ import pytest
 from aeropend_core import protocol as P
 from aeropend_core.device_emulator import DeviceEmulator
 from tests.bridge_helpers import DISCOVERY_TIMEOUT, Listener, poll
-from tests.ros_helpers import NodeProcess, private_domain_id, use_domain
+from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain
 
 DOMAIN_ID = private_domain_id()
 use_domain(DOMAIN_ID)
@@ -66,11 +66,8 @@ def test_emulator_behaves_like_the_firmware():
 
 @pytest.fixture()
 def ros_context():
-    import rclpy
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    yield context
-    rclpy.try_shutdown(context=context)
+    with own_context(DOMAIN_ID) as context:
+        yield context
 
 
 def quiescent_snapshot(listener: Listener, emulator: DeviceEmulator) -> dict[str, str]:
