@@ -14,6 +14,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config', glob('config/*.yaml')),
     ],
+    package_data={'aeropend_core': ['py.typed']},
     install_requires=['setuptools'],
     zip_safe=True,
     maintainer='aeropend developers',
@@ -29,6 +30,11 @@ setup(
             'recorder_node = aeropend_ros.recorder_node:main',
             'identification_node = aeropend_ros.identification_node:main',
             'serial_bridge_node = aeropend_ros.serial_bridge_node:main',
+        ],
+        # verbs of the `aeropend` command that need ROS; the core finds them here and never names aeropend_ros
+        'aeropend.verbs': [
+            'run = aeropend_ros.cli.run',
+            'monitor = aeropend_ros.cli.monitor',
         ],
     },
 )

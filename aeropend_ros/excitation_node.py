@@ -1,6 +1,6 @@
 """excitation_node: plays a duty-step schedule on ``/aeropend/duty_cmd``, then returns the duty to 0.
 
-The schedule is a Latin hypercube over (duty, dwell) from :func:`aeropend_core.excitation.lhc_schedule`
+The schedule is a Latin hypercube over (duty, dwell) from :func:`aeropend_core.sim.excitation.lhc_schedule`
 (``schedule: lhc``), or a list of ``[duty, dwell_s]`` steps (``schedule: steps``) given either as the flat
 parameter ``steps: [duty0, dwell0, duty1, dwell1, ...]`` or in a YAML file named by ``steps_file``::
 
@@ -38,7 +38,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64
 
 from aeropend_core.errors import AeropendError
-from aeropend_core.excitation import lhc_schedule
+from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_ros import topics
 
 _STAMP = struct.Struct('<iI')

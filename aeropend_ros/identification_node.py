@@ -2,8 +2,8 @@
 
 Every ``hop_s`` seconds of acquisition time, the last ``window_s`` seconds of samples are analysed in a worker
 thread (the executor keeps receiving meanwhile; a window that comes due while the previous one is still being
-computed is skipped and counted) by :func:`aeropend_ros.online.analyze_window`: weak SINDy on the first part of the
-window, output-error refinement with the model's ``effects``, and a free-run fit on the held-out end.
+computed is skipped and counted) by :func:`aeropend_core.diagnosis.online.analyze_window`: weak SINDy on the first
+part of the window, output-error refinement with the model's ``effects``, and a free-run fit on the held-out end.
 
 Published (all ``sensor_msgs/JointState`` so that every value is plottable by name; ``header.stamp`` = end of the
 window in acquisition time; ``name`` = quantity names, ``position`` = values, ``velocity`` = 1σ standard errors):
@@ -51,9 +51,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.model import SAMPLE_TIME
+from aeropend_core.model.parameters import SAMPLE_TIME
 from aeropend_ros import topics
-from aeropend_ros.online import WindowResult, analyze_window, check_effect_names, fill_gaps
+from aeropend_core.diagnosis.online import WindowResult, analyze_window, check_effect_names, fill_gaps
 
 COEFFICIENTS_TOPIC = '/aeropend/identification/coefficients'
 PARAMETERS_TOPIC = '/aeropend/identification/parameters'
@@ -155,9 +155,9 @@ def _ignore_interrupts() -> None:
 
 def _warm_up() -> None:
     """Import the analysis stack in the worker process ahead of the first window (spawn start-up takes seconds)."""
-    import aeropend_core.identify  # noqa: F401
-    import aeropend_core.output_error  # noqa: F401
-    import aeropend_core.preprocess  # noqa: F401
+    import aeropend_core.identify.pendulum  # noqa: F401
+    import aeropend_core.diagnosis.output_error  # noqa: F401
+    import aeropend_core.signals.preprocess  # noqa: F401
 
 
 class IdentificationNode(Node):

@@ -49,7 +49,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
-from aeropend_core.bag import (
+from aeropend_core.io.bag import (
     BagWriter,
     msg_file_loader,
     msg_type_hash,

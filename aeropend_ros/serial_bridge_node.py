@@ -1,10 +1,10 @@
 """serial_bridge_node: the live rig (Arduino Mega running firmware/aeropend) on the aeropend topics.
 
-Reads the firmware's COBS/CRC-16 frames (:mod:`aeropend_core.protocol`) from a serial port with pyserial,
+Reads the firmware's COBS/CRC-16 frames (:mod:`aeropend_core.rig.protocol`) from a serial port with pyserial,
 converts raw ADC counts to SI units with calibration parameters, and publishes one ``sensor_msgs/JointState`` per
 acquisition sample on ``/aeropend/samples`` (SensorData QoS). Each sample is stamped with its *acquisition* time:
 the device's sample counter x Ts anchored to the node clock with drift correction
-(:class:`aeropend_core.sample_clock.SampleClock`), never its arrival time.
+(:class:`aeropend_core.rig.sample_clock.SampleClock`), never its arrival time.
 
 Duty commands from ``/aeropend/duty_cmd`` (``std_msgs/Float64``, fraction 0..1) are forwarded to the device
 (clamped to ``max_duty`` here and again by the firmware) and repeated every ``heartbeat_period`` so the firmware's
@@ -40,10 +40,10 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from aeropend_core import protocol as P
+from aeropend_core.rig import protocol as P
 from aeropend_core.errors import AeropendError
-from aeropend_core.model import DEFAULT_PARAMETERS
-from aeropend_core.sample_clock import SampleClock
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS
+from aeropend_core.rig.sample_clock import SampleClock
 from aeropend_ros import topics
 
 #: Parameters whose change rebuilds the counts -> SI conversion.

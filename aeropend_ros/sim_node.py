@@ -1,7 +1,7 @@
 """sim_node: the rig simulator standing in for the real rig on the same topics.
 
 Publishes one ``sensor_msgs/JointState`` per acquisition sample on ``/aeropend/samples`` at 490 Hz (SensorData
-QoS) from :class:`aeropend_core.simulate.RigSimulator`, with hidden effects and measurement noise chosen by
+QoS) from :class:`aeropend_core.sim.simulate.RigSimulator`, with hidden effects and measurement noise chosen by
 parameters, and obeys ``/aeropend/duty_cmd`` (``std_msgs/Float64``, fraction 0..1; applied from the next sample,
 clamped to ``duty_limit``).
 
@@ -31,11 +31,11 @@ from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from aeropend_core.effects import parse_effect_assignments
+from aeropend_core.model.effects import parse_effect_assignments
 from aeropend_core.errors import AeropendError
-from aeropend_core.model import DEFAULT_PARAMETERS, SAMPLE_TIME
-from aeropend_core.noise import MeasurementNoise
-from aeropend_core.simulate import RigSimulator
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME
+from aeropend_core.sim.noise import MeasurementNoise
+from aeropend_core.sim.simulate import RigSimulator
 from aeropend_ros import topics
 
 #: Samples simulated and published at most per timer tick when catching up (keeps the executor responsive).

@@ -12,12 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_core.bag import BagWriter, msg_file_loader, msg_type_hash, offered_qos, ros2msg_definition
+from aeropend_core.io.bag import BagWriter, msg_file_loader, msg_type_hash, offered_qos, ros2msg_definition
 from aeropend_core.cli.simulate import write_csv
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.model import DEFAULT_PARAMETERS
-from aeropend_core.noise import MeasurementNoise
-from aeropend_core.simulate import simulate
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS
+from aeropend_core.sim.noise import MeasurementNoise
+from aeropend_core.sim.simulate import simulate
 
 DURATION = 60.0          # s
 SEED = 2026

@@ -2,7 +2,7 @@
 
 Three real processes over DDS (local discovery), exactly as a user would run them: the sim (with a hidden Coulomb
 friction and 40 dB noise), a 12 s Latin-hypercube excitation, and the recorder. Open the result in Foxglove
-(bags/sample_sim/sample_sim_0.mcap) or read it with `aeropend_core.bag.read_samples('bags/sample_sim')`.
+(bags/sample_sim/sample_sim_0.mcap) or read it with `aeropend_core.io.bag.read_samples('bags/sample_sim')`.
 
 Run from the repository root:  .venv/bin/python bags/make_sample_bag.py
 """
@@ -51,7 +51,7 @@ def main() -> int:
                 process.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 process.kill()
-    from aeropend_core.bag import bag_topics, read_samples
+    from aeropend_core.io.bag import bag_topics, read_samples
     samples = read_samples(TARGET)
     print(f'wrote {TARGET}: {len(samples["time"])} samples over {samples["time"][-1]:.1f} s, topics '
           f'{sorted(bag_topics(TARGET))}')

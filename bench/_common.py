@@ -19,13 +19,13 @@ from typing import Callable
 import numpy as np
 
 from aeropend_core.cli.diagnose import finite_json
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.identify import full_state_library, identify_full_state
-from aeropend_core.model import DEFAULT_PARAMETERS as P
-from aeropend_core.model import SAMPLE_TIME
-from aeropend_core.noise import add_noise
-from aeropend_core.simulate import simulate
-from aeropend_core.wsindy import clear_caches
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.identify.pendulum import full_state_library, identify_full_state
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P
+from aeropend_core.model.parameters import SAMPLE_TIME
+from aeropend_core.sim.noise import add_noise
+from aeropend_core.sim.simulate import simulate
+from aeropend_core.wsindy.weak_form import clear_caches
 
 STATES = ('armature_current', 'motor_speed', 'angle', 'angular_rate')
 SIGNALS = STATES + ('armature_voltage',)

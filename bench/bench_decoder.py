@@ -1,7 +1,7 @@
 """Serial frame decoder throughput (target >= 200,000 frames/s, 400x the rig's 490 Hz).
 
 Decodes a stream of SAMPLE frames (19 bytes each on the wire) fed in 4 kB reads, like a serial port, with
-aeropend_core.protocol.FrameDecoder. Baselines measured in the same run on the same bytes:
+aeropend_core.rig.protocol.FrameDecoder. Baselines measured in the same run on the same bytes:
 
 * naive: the textbook decoder, one byte at a time through a state machine (append until 0x00, COBS decode, CRC,
   unpack): what a straightforward port of the firmware's receive loop to Python does;
@@ -21,7 +21,7 @@ import time
 
 from _common import add_json_argument, figure, write_json
 
-from aeropend_core import protocol as P
+from aeropend_core.rig import protocol as P
 
 TARGET = 200_000
 RIG_RATE = 1 / P.SAMPLE_PERIOD

@@ -10,12 +10,12 @@ import time
 
 from _common import add_json_argument, figure, write_json
 
-from aeropend_core.compare import compare, prepare
-from aeropend_core.diagnose import diagnose
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.noise import MeasurementNoise
-from aeropend_core.recording import from_columns
-from aeropend_core.simulate import simulate
+from aeropend_core.diagnosis.compare import compare, prepare
+from aeropend_core.diagnosis.diagnose import diagnose
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.sim.noise import MeasurementNoise
+from aeropend_core.io.recording import from_columns
+from aeropend_core.sim.simulate import simulate
 
 
 def main() -> None:

@@ -9,7 +9,7 @@ SensorData QoS unless --reliable) numbered 0..N-1, paced at the rate, after the 
 ``python -m aeropend_ros.recorder_node``) has subscribed. The recorder is then stopped with SIGINT and the bag is read
 back: loss = published - recorded, and the recorded sequence numbers must be 0..N-1 without gap.
 
-Baseline, measured in the same run: the same CDR bytes written straight to ``aeropend_core.bag.BagWriter`` (no ROS,
+Baseline, measured in the same run: the same CDR bytes written straight to ``aeropend_core.io.bag.BagWriter`` (no ROS,
 no DDS) — the cost of the bag writing alone. Printed ratios: recorded rate / offered rate, and recorder CPU per
 message against the baseline's CPU per message.
 """
@@ -52,7 +52,7 @@ def sample_bytes(count: int) -> list[bytes]:
 
 def baseline(count: int, folder: Path) -> tuple[float, float]:
     """(msg/s, CPU s per message) writing `count` sample messages straight to BagWriter."""
-    from aeropend_core.bag import BagWriter, msg_file_loader, ros2msg_definition
+    from aeropend_core.io.bag import BagWriter, msg_file_loader, ros2msg_definition
     from aeropend_ros._ros_env import ament_prefixes
     data = sample_bytes(count)
     writer = BagWriter(folder, chunk_size=256 * 1024)
@@ -107,7 +107,7 @@ def publisher(rate: float, seconds: float, reliable: bool) -> None:
 def run_rate(rate: float, seconds: float, reliable: bool, work: Path, domain_id: int, queue_depth: int) -> dict:
     import numpy as np
 
-    from aeropend_core.bag import read_samples
+    from aeropend_core.io.bag import read_samples
     bag = work / f'bench_{int(rate)}{"_rel" if reliable else ""}'
     env = local_ros_environment(domain_id=domain_id)
     recorder = subprocess.Popen([sys.executable, '-m', 'aeropend_ros.recorder_node', '--ros-args',

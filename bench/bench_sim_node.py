@@ -41,7 +41,7 @@ def baseline_publisher() -> int:
     from rclpy.executors import ExternalShutdownException
     from sensor_msgs.msg import JointState
 
-    from aeropend_core.model import SAMPLE_TIME
+    from aeropend_core.model.parameters import SAMPLE_TIME
     from aeropend_ros import topics
 
     rclpy.init()
@@ -78,7 +78,7 @@ def measure(command: list[str], env: dict, seconds: float, context) -> dict:
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
 
-    from aeropend_core.model import SAMPLE_TIME
+    from aeropend_core.model.parameters import SAMPLE_TIME
     from aeropend_ros import topics
 
     received = []

@@ -14,10 +14,10 @@ from scipy.integrate import solve_ivp
 
 from _common import add_json_argument, figure, write_json
 
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.model import DEFAULT_PARAMETERS as P
-from aeropend_core.model import SAMPLE_TIME
-from aeropend_core.simulate import RigSimulator, simulate
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P
+from aeropend_core.model.parameters import SAMPLE_TIME
+from aeropend_core.sim.simulate import RigSimulator, simulate
 
 
 def naive(duty: np.ndarray) -> np.ndarray:

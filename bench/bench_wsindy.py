@@ -30,17 +30,17 @@ import time
 from _common import (PLAIN, SAME_LIBRARY, add_json_argument, figure, fit_pysindy, make_window, pysindy_with_truth,
                      run_ours, score, time_both_blas, write_json)
 
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.model import DEFAULT_PARAMETERS as P
-from aeropend_core.model import SAMPLE_TIME
-from aeropend_core.simulate import simulate
-from aeropend_core.wsindy import clear_caches
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P
+from aeropend_core.model.parameters import SAMPLE_TIME
+from aeropend_core.sim.simulate import simulate
+from aeropend_core.wsindy.weak_form import clear_caches
 
 
 def run_live_rig(seed: int, repeats: int):
     """Time identify_pendulum (angle-only 2nd-order fit) on a 10 s window at 50 dB + 10-bit angle."""
-    from aeropend_core.identify import identify_pendulum
-    from aeropend_core.noise import MeasurementNoise
+    from aeropend_core.identify.pendulum import identify_pendulum
+    from aeropend_core.sim.noise import MeasurementNoise
     tr = simulate(lhc_schedule(10.0, seed=seed).duty(SAMPLE_TIME, 10.0), noise=MeasurementNoise(50.0, True),
                   seed=seed)
     args = (tr.time, tr.armature_voltage, tr.armature_current, tr.angle)

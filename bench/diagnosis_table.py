@@ -9,13 +9,13 @@ Run:  .venv/bin/python bench/diagnosis_table.py [--seeds 1 2 3] [--psnr 40]
 import argparse
 import time
 
-from aeropend_core.compare import excess_error
-from aeropend_core.diagnose import diagnose
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.model import DEFAULT_PARAMETERS
-from aeropend_core.noise import MeasurementNoise
-from aeropend_core.recording import from_columns
-from aeropend_core.simulate import simulate
+from aeropend_core.diagnosis.compare import excess_error
+from aeropend_core.diagnosis.diagnose import diagnose
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS
+from aeropend_core.sim.noise import MeasurementNoise
+from aeropend_core.io.recording import from_columns
+from aeropend_core.sim.simulate import simulate
 
 CASES = {'none': None, 'coulomb_friction': 4.0, 'quadratic_drag': 4.0, 'cable_torque': 20.0,
          'angle_offset': 0.05, 'thrust_lag': 0.15, 'dead_zone': 0.6}

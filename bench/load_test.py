@@ -22,7 +22,7 @@ Reported (JSON + markdown summary, and a PNG when matplotlib is available, in --
 
 - memory per process: RSS after the warm-up (--warm-up s after start) and at the end of the run, the growth, the
   slope of a least-squares line over the steady part [MB/min] and the peak;
-- lost samples: the bag read with ``aeropend_core.bag.read_samples`` and, independently, with the ``mcap`` reader
+- lost samples: the bag read with ``aeropend_core.io.bag.read_samples`` and, independently, with the ``mcap`` reader
   and a CDR decoder written here: samples recorded vs published, sequence gaps, duplicates, out-of-order; the
   samples the identification node received and missed (its /diagnostics);
 - identification keeping up: compute time per window (mean, p95, max), duty ratio compute / hop, latency from the
@@ -60,7 +60,7 @@ sys.path.insert(0, str(ROOT))
 
 from aeropend_ros._ros_env import ensure_ros_environment, local_ros_environment  # noqa: E402
 
-SAMPLE_TIME = 1.0 / 490.0          # same as aeropend_core.model.SAMPLE_TIME (checked in main)
+SAMPLE_TIME = 1.0 / 490.0          # same as aeropend_core.model.parameters.SAMPLE_TIME (checked in main)
 SAMPLES_TOPIC = '/aeropend/samples'
 FIT_TOPIC = '/aeropend/identification/fit'
 IDENTIFICATION_STATUS = 'aeropend: identification'
@@ -291,7 +291,7 @@ def memory_report(rows: list[dict], warm_up: float, end_time: float) -> dict:
 
 def read_bag_independently(bag_folder: Path) -> dict[str, np.ndarray]:
     """Sequence, acquisition stamp and receive time of every sample, with the ``mcap`` reader and a CDR decoder
-    written here (nothing from aeropend_core.bag)."""
+    written here (nothing from aeropend_core.io.bag)."""
     from mcap.reader import make_reader
     sequence, stamp, received = [], [], []
     u32 = struct.Struct('<I')
@@ -516,7 +516,7 @@ def _pick_domain() -> int:
 
 
 def run(args) -> dict:
-    from aeropend_core.model import SAMPLE_TIME as core_sample_time
+    from aeropend_core.model.parameters import SAMPLE_TIME as core_sample_time
     assert abs(core_sample_time - SAMPLE_TIME) < 1e-15
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -580,7 +580,7 @@ def run(args) -> dict:
     wall = time.monotonic() - started
     print(f'graph stopped after {wall:.0f} s (exit codes {exit_codes}); reading the bag', flush=True)
 
-    from aeropend_core.bag import read_samples
+    from aeropend_core.io.bag import read_samples
     ours = read_samples(bag_folder)
     independent = read_bag_independently(bag_folder)
     if not np.array_equal(np.sort(ours['sequence']), np.sort(independent['sequence'])):

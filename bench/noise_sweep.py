@@ -9,8 +9,8 @@ sin y, cos y, Va linear only, in all four equations dIa/dt, dω1/dt, dy/dt, dΩ/
 
 Methods:
 
-* **WSINDy**: ``aeropend_core.identify.identify_full_state`` (full method, automatic threshold), Va offered to every
-  equation (exactly the 18 terms above); kernel caches cleared before every timed call.
+* **WSINDy**: ``aeropend_core.identify.pendulum.identify_full_state`` (full method, automatic threshold), Va
+  offered to every equation (exactly the 18 terms above); kernel caches cleared before every timed call.
 * **WSINDy, own library** (extra row, not the same library): aeropend's default, Va offered to dIa/dt only, as the
   tool runs it (offering Va to dω1/dt makes {Ia, Va} and {Ia, ω1} near-equivalent at high noise).
 * **pysindy weak**: ``WeakPDELibrary`` (K = 100, p = 4) over a ``CustomLibrary`` of the 18 terms, ``STLSQ``

@@ -1,7 +1,7 @@
 """Noise-robustness of the missing-physics loop: how often is a hidden effect named correctly, vs PSNR and size.
 
 For every effect in the catalog (read at run time, so a newly registered effect is included) one effect is hidden
-in simulated data and :func:`aeropend_core.diagnose.diagnose` is asked what is missing:
+in simulated data and :func:`aeropend_core.diagnosis.diagnose.diagnose` is asked what is missing:
 
 * (a) rate vs PSNR at the catalog's typical magnitude, PSNR 60/50/40/30/20 dB;
 * (b) rate vs magnitude at 40 dB, magnitudes as multiples of the typical value;
@@ -50,8 +50,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from aeropend_core.effects import CATALOG, get_effect  # noqa: E402
-from aeropend_core.model import DEFAULT_PARAMETERS  # noqa: E402
+from aeropend_core.model.effects import CATALOG, get_effect  # noqa: E402
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS  # noqa: E402
 
 #: PSNR points [dB] of curve (a) and the PSNR of curve (b).
 PSNRS = (60.0, 50.0, 40.0, 30.0, 20.0)
@@ -86,8 +86,8 @@ VARIED_PARAMETERS = DEFAULT_PARAMETERS.scaled(
 
 def max_duty(effect: str, truth: dict[str, float] | None, parameters) -> float:
     """Largest duty of the LHC steps for a case: DEFAULT_MAX_DUTY, or the large-angle experiment (see LARGE_ANGLE)."""
-    from aeropend_core.diagnose import excitation_advice
-    from aeropend_core.effects import PENDULUM
+    from aeropend_core.diagnosis.diagnose import excitation_advice
+    from aeropend_core.model.effects import PENDULUM
     if truth is None or 'larger angles' not in excitation_advice(effect) or get_effect(effect).kind != PENDULUM:
         return DEFAULT_MAX_DUTY
     # thrust acceleration that holds the rod at LARGE_ANGLE against gravity and the effect (at rest)
@@ -115,11 +115,11 @@ def _worker_init() -> None:
 
 def run_case(case: dict) -> dict:
     """Simulate one recording with `case['effect']` hidden at `case['factor']` x typical, diagnose, classify."""
-    from aeropend_core.diagnose import diagnose
-    from aeropend_core.excitation import lhc_schedule
-    from aeropend_core.noise import MeasurementNoise
-    from aeropend_core.recording import from_columns
-    from aeropend_core.simulate import simulate
+    from aeropend_core.diagnosis.diagnose import diagnose
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.io.recording import from_columns
+    from aeropend_core.sim.simulate import simulate
 
     effect, factor, psnr, seed = case['effect'], case['factor'], case['psnr'], case['seed']
     parameters = VARIED_PARAMETERS if case.get('varied') else DEFAULT_PARAMETERS

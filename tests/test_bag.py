@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import yaml
 
-from aeropend_core.bag import (
+from aeropend_core.io.bag import (
     BagWriter,
     msg_file_loader,
     msg_type_hash,
@@ -476,7 +476,7 @@ def test_recover_leaves_intact_bag_alone(tmp_path):
 
 def test_load_recording_accepts_bags(tmp_path):
     """`aeropend identify/diagnose` load recordings through load_recording: a bag folder or .mcap works."""
-    from aeropend_core.recording import load_recording
+    from aeropend_core.io.recording import load_recording
     write_bag(tmp_path / 'rec', 600).finish()
     for path in (tmp_path / 'rec', tmp_path / 'rec' / 'rec_0.mcap'):
         recording = load_recording(path)

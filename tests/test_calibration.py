@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import yaml
 
-from aeropend_core import calibration as C
-from aeropend_core import protocol as P
+from aeropend_core.rig import calibration as C
+from aeropend_core.rig import protocol as P
 from aeropend_core.cli import main as aeropend
-from aeropend_core.device_emulator import DeviceEmulator
+from aeropend_core.testing.device_emulator import DeviceEmulator
 from aeropend_core.errors import InsufficientDataError
-from aeropend_core.model import DEFAULT_PARAMETERS
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 from tests.bridge_helpers import ROOT, poll
 
 

@@ -19,14 +19,14 @@ import numpy as np
 import pytest
 
 from aeropend_core.cli import main as cli_main
-from aeropend_core.compare import excess_error
-from aeropend_core.diagnose import diagnose
-from aeropend_core.effects import CATALOG, EffectParameter, register_effect
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.model import DEFAULT_PARAMETERS
-from aeropend_core.noise import MeasurementNoise
-from aeropend_core.recording import from_columns
-from aeropend_core.simulate import simulate
+from aeropend_core.diagnosis.compare import excess_error
+from aeropend_core.diagnosis.diagnose import diagnose
+from aeropend_core.model.effects import CATALOG, EffectParameter, register_effect
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS
+from aeropend_core.sim.noise import MeasurementNoise
+from aeropend_core.io.recording import from_columns
+from aeropend_core.sim.simulate import simulate
 
 PARAMETER_TOLERANCE = 0.15
 ERROR_FALL = 2.0
@@ -239,7 +239,7 @@ def test_large_dead_zone_is_found_and_adding_it_leaves_nothing_missing():
 def test_effect_seen_only_in_the_heldout_part_is_named_but_not_recommended():
     """Training steps all above a 0.6 V dead zone, held-out steps below it: the held-out error is explained by the
     dead zone, but the training part has no evidence for it -- say so and which data would decide."""
-    from aeropend_core.excitation import StepSchedule
+    from aeropend_core.sim.excitation import StepSchedule
     training = lhc_schedule(45.0, duty_range=(0.35, 0.7), seed=61)
     heldout_duty = np.array([0.5, 0.05, 0.6, 0.08, 0.45, 0.03, 0.55])
     schedule = StepSchedule(np.concatenate([training.amplitudes, heldout_duty]),

@@ -5,10 +5,10 @@ import sys
 import numpy as np
 import pytest
 
-from aeropend_core.effects import CATALOG, EffectParameter, get_effect, parse_effect_assignments, register_effect
+from aeropend_core.model.effects import CATALOG, EffectParameter, get_effect, parse_effect_assignments, register_effect
 from aeropend_core.errors import AeropendError, UnknownEffectError
-from aeropend_core.excitation import latin_hypercube_steps, lhc_schedule, voltage_range_to_duty
-from aeropend_core.simulate import simulate
+from aeropend_core.sim.excitation import latin_hypercube_steps, lhc_schedule, voltage_range_to_duty
+from aeropend_core.sim.simulate import simulate
 
 
 def test_latin_hypercube_has_one_point_per_stratum_in_each_dimension():

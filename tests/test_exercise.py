@@ -3,7 +3,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_core.recording import load_recording
+from aeropend_core.io.recording import load_recording
 
 BAGS = Path(__file__).resolve().parents[1] / 'bags'
 

@@ -2,7 +2,7 @@
 
 Each case runs the real console script in a fresh process and requires: a non-zero exit status, no Python
 traceback (nor the top-level "internal error" line that stands for one), and a message naming the problem. The
-bad files are made from one simulated record (CSV, and MCAP bags written by aeropend_core.bag with CDR from the
+bad files are made from one simulated record (CSV, and MCAP bags written by aeropend_core.io.bag with CDR from the
 independent `rosbags` serialiser), built once per module. ROS verbs (run, monitor, calibrate) are only given
 arguments that must be refused before any node starts, plus one full-disk run where the refusal matters.
 
@@ -22,11 +22,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeropend_core.bag import BagWriter, msg_file_loader, offered_qos, ros2msg_definition
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.model import SAMPLE_TIME
-from aeropend_core.noise import MeasurementNoise
-from aeropend_core.simulate import simulate
+from aeropend_core.io.bag import BagWriter, msg_file_loader, offered_qos, ros2msg_definition
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.model.parameters import SAMPLE_TIME
+from aeropend_core.sim.noise import MeasurementNoise
+from aeropend_core.sim.simulate import simulate
 from aeropend_ros._ros_env import local_ros_environment
 from tests.ros_helpers import ROOT, private_domain_id
 from tests.test_bag import mcap_stream_count, small_disk
@@ -351,7 +351,7 @@ def test_run_stops_with_a_clear_error_when_its_recording_disk_fills(tmp_path, ro
         shutil.copytree(bag, copy)
     repaired = aeropend(['bag-recover', str(copy)])
     assert repaired.returncode == 0 and 'repaired' in repaired.stdout, repaired.stderr
-    from aeropend_core.bag import read_samples
+    from aeropend_core.io.bag import read_samples
     sequence = read_samples(copy, on_incomplete='raise')['sequence']
     assert sequence.size > 0 and np.all(np.diff(sequence) == 1)
 

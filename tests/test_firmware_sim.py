@@ -1,6 +1,6 @@
 """Firmware in the loop: the real firmware, compiled with avr-gcc, runs in simavr (libsimavr + our C harness).
 
-1. The C protocol header and aeropend_core.protocol produce and accept the same bytes.
+1. The C protocol header and aeropend_core.rig.protocol produce and accept the same bytes.
 2. Over the harness's pty with pyserial: boot STATUS, configuration commands, clamping, the PWM pin measured by the
    harness (frequency and duty), ADC values injected by the harness, corrupt commands counted, the watchdog.
 3. The serial bridge node (a real process over DDS) on the same pty: ~5 s of samples at 490 Hz +- 1 % with
@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeropend_core import protocol as P
+from aeropend_core.rig import protocol as P
 from tests.bridge_helpers import (
     DISCOVERY_TIMEOUT,
     FIRMWARE,

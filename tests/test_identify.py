@@ -13,17 +13,17 @@ from aeropend_core.errors import (
     InsufficientDataError,
     UnknownEffectError,
 )
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.identify import (
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.identify.pendulum import (
     identify_full_state,
     identify_pendulum,
     interval_current,
 )
-from aeropend_core.model import DEFAULT_PARAMETERS as P
-from aeropend_core.model import SAMPLE_TIME
-from aeropend_core.noise import MeasurementNoise, add_noise
-from aeropend_core.recording import load_recording
-from aeropend_core.simulate import simulate
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P
+from aeropend_core.model.parameters import SAMPLE_TIME
+from aeropend_core.sim.noise import MeasurementNoise, add_noise
+from aeropend_core.io.recording import load_recording
+from aeropend_core.sim.simulate import simulate
 
 LIVE_TRUTH = {'gravity_stiffness': P.gravity_stiffness, 'damping': P.damping,
               'thrust_acceleration_coefficient': P.thrust_acceleration_coefficient}

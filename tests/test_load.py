@@ -27,7 +27,7 @@ def test_identification_counts_received_and_missed_samples_and_keeps_one_window(
     import rclpy
     from rclpy.parameter import Parameter
 
-    from aeropend_core.model import SAMPLE_TIME
+    from aeropend_core.model.parameters import SAMPLE_TIME
     from aeropend_ros.identification_node import IdentificationNode
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id)

@@ -42,11 +42,11 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
-from aeropend_core.device_emulator import DeviceEmulator  # noqa: E402
-from aeropend_core.excitation import lhc_schedule  # noqa: E402
-from aeropend_core.model import SAMPLE_TIME  # noqa: E402
-from aeropend_core.noise import MeasurementNoise  # noqa: E402
-from aeropend_core.simulate import simulate  # noqa: E402
+from aeropend_core.testing.device_emulator import DeviceEmulator  # noqa: E402
+from aeropend_core.sim.excitation import lhc_schedule  # noqa: E402
+from aeropend_core.model.parameters import SAMPLE_TIME  # noqa: E402
+from aeropend_core.sim.noise import MeasurementNoise  # noqa: E402
+from aeropend_core.sim.simulate import simulate  # noqa: E402
 from aeropend_ros import topics  # noqa: E402
 from aeropend_ros._node_util import ParameterError, descriptor_choices  # noqa: E402
 

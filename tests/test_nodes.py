@@ -23,7 +23,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Bool, Float64  # noqa: E402
 
-from aeropend_core.model import DEFAULT_PARAMETERS, SAMPLE_TIME  # noqa: E402
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME  # noqa: E402
 from aeropend_ros import topics  # noqa: E402
 
 pytestmark = pytest.mark.timeout(180)

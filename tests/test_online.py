@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from aeropend_core.errors import AeropendError, InsufficientDataError, UnknownEffectError
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.model import DEFAULT_PARAMETERS, SAMPLE_TIME
-from aeropend_core.noise import MeasurementNoise
-from aeropend_core.simulate import simulate
-from aeropend_ros.online import analyze_window, check_effect_names, fill_gaps
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME
+from aeropend_core.sim.noise import MeasurementNoise
+from aeropend_core.sim.simulate import simulate
+from aeropend_core.diagnosis.online import analyze_window, check_effect_names, fill_gaps
 
 
 def test_effect_names_validated():

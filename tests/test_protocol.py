@@ -1,4 +1,4 @@
-"""aeropend_core.protocol: framing, CRC, message layouts, the streaming decoder (fuzzed), calibration; and the
+"""aeropend_core.rig.protocol: framing, CRC, message layouts, the streaming decoder (fuzzed), calibration; and the
 drift-corrected sample clock. Pure Python, no ROS, no serial port."""
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import random
 import numpy as np
 import pytest
 
-from aeropend_core import protocol as P
-from aeropend_core.sample_clock import SampleClock
+from aeropend_core.rig import protocol as P
+from aeropend_core.rig.sample_clock import SampleClock
 
 
 def crc16_bitwise(data: bytes) -> int:

@@ -24,8 +24,8 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import SingleThreadedExecutor
 
-from aeropend_core.bag import read_samples
-from aeropend_core.model import SAMPLE_TIME
+from aeropend_core.io.bag import read_samples
+from aeropend_core.model.parameters import SAMPLE_TIME
 from aeropend_ros import topics
 from aeropend_ros._ros_env import local_ros_environment
 

@@ -18,14 +18,14 @@ from PIL import Image
 
 from aeropend_core.cli import main as aeropend
 from aeropend_core.cli.simulate import write_csv
-from aeropend_core.diagnose import Candidate, diagnose
+from aeropend_core.diagnosis.diagnose import Candidate, diagnose
 from aeropend_core.errors import AeropendError
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.model import SAMPLE_TIME
-from aeropend_core.noise import MeasurementNoise
-from aeropend_core.recording import from_columns
-from aeropend_core.report import VERDICT_TITLES, write_report
-from aeropend_core.simulate import simulate
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.model.parameters import SAMPLE_TIME
+from aeropend_core.sim.noise import MeasurementNoise
+from aeropend_core.io.recording import from_columns
+from aeropend_core.present.report import VERDICT_TITLES, write_report
+from aeropend_core.sim.simulate import simulate
 
 DURATION = 30.0
 SEED = 3

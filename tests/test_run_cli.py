@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from aeropend_ros._ros_env import local_ros_environment
-from aeropend_ros.cli_monitor import DriftTracker
+from aeropend_ros.cli.monitor import DriftTracker
 from tests.ros_helpers import ROOT, private_domain_id
 
 AEROPEND = [sys.executable, '-c', 'import sys; from aeropend_core.cli import main; sys.exit(main())']
@@ -43,7 +43,7 @@ def test_run_records_identifies_and_diagnoses(tmp_path):
     # The bag holds every sample: continuous sequence, Ts spacing, 30 s.
     folders = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert len(folders) == 1 and (folders[0] / 'metadata.yaml').exists(), output
-    from aeropend_core.bag import read_samples
+    from aeropend_core.io.bag import read_samples
     samples = read_samples(folders[0])
     sequence = samples['sequence']
     assert sequence.size == round(30 * 490) and np.all(np.diff(sequence) == 1)
@@ -86,14 +86,14 @@ def test_drift_tracker_flags_a_jump_and_restarts_on_model_change():
     assert report['damping'][2] and report['damping'][1] == pytest.approx(7.5)
     report = tracker.update({'damping': (11.5, 0.2), 'offset': (0.05, 0.001)})   # effect added: restart
     assert not any(flag for _, _, flag in report.values())
-    assert Path(ROOT / 'aeropend_ros' / 'cli_monitor.py').exists()
+    assert Path(ROOT / 'aeropend_ros' / 'cli' / 'monitor.py').exists()
 
 
 @pytest.mark.timeout(180)
 def test_run_on_the_rig_through_the_serial_bridge(tmp_path):
     """`aeropend run --port` against the device emulator (a fake rig on a pty): bridge, excitation, recorder,
     identification and the diagnosis in one process, 22 s of real time."""
-    from aeropend_core.device_emulator import DeviceEmulator
+    from aeropend_core.testing.device_emulator import DeviceEmulator
     env = local_ros_environment(domain_id=private_domain_id())
     with DeviceEmulator(seed=5) as emulator:
         result = run_cli(['run', '--port', str(emulator.port), '--duration', '22', '--record', str(tmp_path),
@@ -103,7 +103,7 @@ def test_run_on_the_rig_through_the_serial_bridge(tmp_path):
     assert result.returncode == 0, output
     assert 'rig on' in output and 'window ending t =' in output and 'Diagnosis of' in output, output
     assert len(emitted) > 20 * 490
-    from aeropend_core.bag import read_samples
+    from aeropend_core.io.bag import read_samples
     folder = next(p for p in tmp_path.iterdir() if p.is_dir())
     samples = read_samples(folder)
     assert samples['sequence'].size > 19 * 490, output
@@ -133,13 +133,13 @@ def test_run_interrupted_finalises_the_bag(tmp_path):
     output = ''.join(lines) + rest
     assert run.returncode == 130, output
     assert 'interrupted; finalising' in output and 'recorded:' in output and 'Traceback' not in output, output
-    from aeropend_core.bag import read_samples
+    from aeropend_core.io.bag import read_samples
     folder = next(p for p in tmp_path.iterdir() if p.is_dir())
     assert (folder / 'metadata.yaml').exists()
     samples = read_samples(folder, on_incomplete='raise')
     assert samples['sequence'].size > 10 * 490 and np.all(np.diff(samples['sequence']) == 1)
     # The last duty command recorded is 0: the excitation was stopped before the graph went away.
     import struct
-    from aeropend_core.bag import read_messages
+    from aeropend_core.io.bag import read_messages
     commands = [struct.unpack_from('<d', m.data, 4)[0] for m in read_messages(folder, ['/aeropend/duty_cmd'])]
     assert commands and max(commands) > 0.0 and commands[-1] == 0.0, commands[-5:]

@@ -14,8 +14,8 @@ import time
 import numpy as np
 import pytest
 
-from aeropend_core import protocol as P
-from aeropend_core.device_emulator import DeviceEmulator
+from aeropend_core.rig import protocol as P
+from aeropend_core.testing.device_emulator import DeviceEmulator
 from tests.bridge_helpers import DISCOVERY_TIMEOUT, Listener, poll
 from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain
 

@@ -3,10 +3,10 @@ import numpy as np
 import pytest
 
 from aeropend_core.errors import AeropendError, UnknownEffectError
-from aeropend_core.excitation import lhc_schedule
-from aeropend_core.model import DEFAULT_PARAMETERS, PAPER_TABLE1, SAMPLE_TIME
-from aeropend_core.noise import MeasurementNoise, psnr
-from aeropend_core.simulate import RigSimulator, simulate
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, PAPER_TABLE1, SAMPLE_TIME
+from aeropend_core.sim.noise import MeasurementNoise, psnr
+from aeropend_core.sim.simulate import RigSimulator, simulate
 
 P = DEFAULT_PARAMETERS
 

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from aeropend_core import library as lib
-from aeropend_core import wsindy
+from aeropend_core.wsindy import library as lib
+from aeropend_core.wsindy import weak_form as wsindy
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.wsindy import (
+from aeropend_core.wsindy.weak_form import (
     Equation,
     choose_support,
     fit_weak_sindy,

@@ -1,6 +1,9 @@
 """The `aeropend` command: one module per verb, each with ``add_arguments(parser)`` and ``main(args) -> int``.
 
-Verbs are imported lazily, so `aeropend simulate` never imports ROS; the ROS verbs live in `aeropend_ros`.
+Verbs are imported lazily, so `aeropend simulate` never imports ROS. The core's own verbs are listed in
+:data:`VERBS`; other packages add theirs through the ``aeropend.verbs`` entry-point group (``name =
+package.module``, the module's first docstring line is the help), which is how the ROS verbs of `aeropend_ros`
+(``run``, ``monitor``) arrive without the core naming them.
 
 Exit statuses and what reaches standard error:
 
@@ -21,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import os
 import sys
 import warnings
@@ -34,10 +38,34 @@ VERBS: dict[str, tuple[str, str]] = {
     'diagnose': ('aeropend_core.cli.diagnose', 'compare model and data, find the missing physical effect'),
     'effects': ('aeropend_core.cli.effects', 'list the catalog of physical effects'),
     'bag-recover': ('aeropend_core.cli.bag_recover', 'repair a bag whose recorder was killed'),
-    'run': ('aeropend_ros.cli_run', 'start the node graph (sim or rig), record, identify, diagnose'),
-    'monitor': ('aeropend_ros.cli_monitor', 'show live identified parameters in the terminal'),
-    'calibrate': ('aeropend_ros.cli_calibrate', 'measure sensor zeros, angle scale, Ra and Kw on the rig (serial)'),
+    'calibrate': ('aeropend_core.cli.calibrate', 'measure sensor zeros, angle scale, Ra and Kw on the rig (serial)'),
 }
+
+
+#: entry-point group through which other packages add verbs
+VERB_GROUP = 'aeropend.verbs'
+
+
+def all_verbs() -> dict[str, tuple[str, str]]:
+    """The core's verbs and those registered in the ``aeropend.verbs`` entry-point group (verb -> module, help)."""
+    from importlib.metadata import entry_points
+    verbs = dict(VERBS)
+    for point in sorted(entry_points(group=VERB_GROUP), key=lambda p: p.name):
+        verbs.setdefault(point.name, (point.value, _plugin_help(point.value)))
+    return verbs
+
+
+def _plugin_help(module_name: str) -> str:
+    """First line of a plugin verb module's docstring, read without importing it (its imports may be heavy)."""
+    spec = importlib.util.find_spec(module_name)
+    if spec is None or not spec.origin:
+        return ''
+    import ast
+    try:
+        doc = ast.get_docstring(ast.parse(open(spec.origin, encoding='utf-8').read())) or ''
+    except (OSError, SyntaxError):
+        return ''
+    return doc.strip().splitlines()[0].rstrip('.') if doc.strip() else ''
 
 
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
@@ -46,7 +74,7 @@ def build_parser(argv: list[str]) -> argparse.ArgumentParser:
         prog='aeropend',
         description='Aeropendulum rig: record, identify (weak SINDy) and diagnose missing physics.')
     sub = parser.add_subparsers(dest='verb', metavar='VERB')
-    for verb, (module_name, help_text) in VERBS.items():
+    for verb, (module_name, help_text) in all_verbs().items():
         if verb in argv[:1]:
             module = importlib.import_module(module_name)
             verb_parser = sub.add_parser(verb, help=help_text, description=module.__doc__,

@@ -6,7 +6,7 @@ from aeropend_core.errors import AeropendError
 
 def check_effect_names(names: list[str], option: str) -> None:
     """Effect names given to --effect/--add/--only must be bare catalog names (their values are fitted)."""
-    from aeropend_core.effects import CATALOG
+    from aeropend_core.model.effects import CATALOG
     from aeropend_core.errors import UnknownEffectError
     for name in names:
         bare = name.split('=', 1)[0].split('.', 1)[0].strip()

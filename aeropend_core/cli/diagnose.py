@@ -36,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def load_effects_module(path: str) -> None:
-    """Execute a user's Python file that registers effects with aeropend_core.effects.register_effect."""
+    """Execute a user's Python file that registers effects with aeropend_core.model.effects.register_effect."""
     file = Path(path)
     if not file.is_file():
         raise AeropendError(f'effects module {path} does not exist')
@@ -51,7 +51,7 @@ def load_effects_module(path: str) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from aeropend_core.recording import load_recording
+    from aeropend_core.io.recording import load_recording
 
     from aeropend_core.cli._checks import check_effect_names
     for path in args.effects_module:
@@ -65,7 +65,7 @@ def main(args: argparse.Namespace) -> int:
                                 + ('it is a folder; give a file name such as report.html' if report.is_dir()
                                    else f'the folder {report.parent} does not exist'))
     recording = load_recording(args.data)
-    from aeropend_core.diagnose import diagnose      # scipy and numba: imported once the input is known good
+    from aeropend_core.diagnosis.diagnose import diagnose      # scipy and numba: imported once the input is known good
 
     def progress(message: str) -> None:
         if not args.quiet:
@@ -73,7 +73,7 @@ def main(args: argparse.Namespace) -> int:
 
     diagnosis = diagnose(recording, effects=args.add, candidates=args.only, progress=progress)
     if args.report:
-        from aeropend_core.report import write_report
+        from aeropend_core.present.report import write_report
         written = write_report(diagnosis, args.report, source=args.data)
         progress(f'report written to {written}')
     if args.json:

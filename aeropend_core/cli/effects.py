@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from aeropend_core.effects import CATALOG
+from aeropend_core.model.effects import CATALOG
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

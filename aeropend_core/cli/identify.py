@@ -1,4 +1,4 @@
-"""Identify the rig equations with weak SINDy from a recording (CSV now; MCAP bags through aeropend_core.bag).
+"""Identify the rig equations with weak SINDy from a recording (CSV now; MCAP bags through aeropend_core.io.bag).
 
 The CSV has columns t [s], duty [1], armature_voltage [V], armature_current [A], angle [rad] (what the rig
 measures), optionally simulator truth columns (true_motor_speed [rad/s], true_angular_rate [rad/s], ...).
@@ -24,7 +24,7 @@ import numpy as np
 
 from aeropend_core.cli.diagnose import finite_json
 from aeropend_core.errors import AeropendError
-from aeropend_core.recording import load_recording
+from aeropend_core.io.recording import load_recording
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,7 +61,7 @@ def main(args: argparse.Namespace) -> int:
     if args.start is not None or args.stop is not None:
         recording = _window(recording, args.start, args.stop)
     # the fitting stack (scipy, numba) is imported once the input is known good: bad input is refused at once
-    from aeropend_core.identify import PARAMETER_UNITS, identify_full_state, identify_pendulum
+    from aeropend_core.identify.pendulum import PARAMETER_UNITS, identify_full_state, identify_pendulum
     if args.model == 'pendulum':
         fit = identify_pendulum(recording.time, recording.signal('armature_voltage'),
                                 recording.signal('armature_current'), recording.signal('angle'),

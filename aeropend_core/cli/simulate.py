@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_core.effects import parse_effect_assignments
+from aeropend_core.model.effects import parse_effect_assignments
 from aeropend_core.errors import AeropendError, StorageError
-from aeropend_core.model import PRESETS, SAMPLE_TIME
+from aeropend_core.model.parameters import PRESETS, SAMPLE_TIME
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,9 +61,9 @@ def main(args: argparse.Namespace) -> int:
     effects = parse_effect_assignments(args.effect)
     if args.output != '-':
         _check_output(args.output)
-    from aeropend_core.excitation import lhc_schedule       # scipy: imported once the arguments are known good
-    from aeropend_core.noise import MeasurementNoise
-    from aeropend_core.simulate import simulate
+    from aeropend_core.sim.excitation import lhc_schedule       # scipy: imported once the arguments are known good
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.sim.simulate import simulate
     schedule = lhc_schedule(args.duration, duty_range=(0.0, args.max_duty), seed=args.seed, duty_cap=args.max_duty)
     noise = MeasurementNoise(args.psnr, args.quantise) if (args.psnr is not None or args.quantise) else None
     trajectory = simulate(schedule.duty(SAMPLE_TIME, args.duration), parameters=PRESETS[args.preset],

@@ -16,7 +16,7 @@
  *   PWM A pin (D3) is not a Timer1 output: bend the shield's D3 pin out and jumper D11 to it. Channel B
  *   (-DAEROPEND_SHIELD_CHANNEL_B=1) needs no jumper (PWM B = D11 = OC1A, DIR B = D13, BRAKE B = D8, sense A1).
  * - Serial: USART0 (USB), 250000 baud 8N1 (exact at 16 MHz), interrupt driven. Frame format: aeropend_protocol.h
- *   and aeropend_core/protocol.py.
+ *   and aeropend_core/rig/protocol.py.
  * - Watchdog: when no valid command arrives for watchdog_ms (default 500 ms), the duty is cut to zero until the
  *   next SET_DUTY. Maximum duty default 0.70 (the paper's cap: the rod stays below 90 degrees).
  *

@@ -1,5 +1,5 @@
 /*
- * aeropend serial protocol, device side. The host side is aeropend_core/protocol.py; its module docstring is
+ * aeropend serial protocol, device side. The host side is aeropend_core/rig/protocol.py; its module docstring is
  * the reference description of the format and both are tested against each other (tests/test_firmware_sim.py).
  *
  * Every message on the wire: 0x00 COBS(payload + CRC16_LE(payload)) 0x00

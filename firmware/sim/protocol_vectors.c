@@ -1,5 +1,5 @@
 /*
- * Host-side check of firmware/aeropend/aeropend_protocol.h against aeropend_core/protocol.py
+ * Host-side check of firmware/aeropend/aeropend_protocol.h against aeropend_core/rig/protocol.py
  * (tests/test_firmware_sim.py). Reads lines from stdin, writes one answer line each:
  *   "frame HEX"  -> HEX of ap_frame(payload)          (device -> host framing, CRC and COBS)
  *   "decode HEX" -> HEX of ap_cobs_decode(chunk) or "invalid"

@@ -46,7 +46,7 @@ import struct
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from aeropend_core.model import DEFAULT_PARAMETERS
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 
 __all__ = [
     'ADC_FULL_SCALE',

@@ -27,11 +27,11 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
+from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
                                         initial_states_from_data)
-from aeropend_core.motor import MotorFit, fit_motor
-from aeropend_core.preprocess import condition_inputs, noise_rms, piecewise_constant
-from aeropend_core.recording import Recording
+from aeropend_core.signals.motor import MotorFit, fit_motor
+from aeropend_core.signals.preprocess import condition_inputs, noise_rms, piecewise_constant
+from aeropend_core.io.recording import Recording
 
 #: Fraction of the record used for training; the rest is held out.
 TRAIN_FRACTION = 0.75
@@ -256,7 +256,7 @@ def initial_guess(prep: PreparedRecord, threshold_voltage: float | None = None) 
 
 def effect_start_values(effects: Sequence[str]) -> dict[str, float]:
     """Starting values of effect parameters (a fraction of the catalog's typical value; 0 offset)."""
-    from aeropend_core.effects import get_effect
+    from aeropend_core.model.effects import get_effect
     start = {}
     for name in effects:
         for parameter in get_effect(name).parameters:

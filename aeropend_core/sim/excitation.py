@@ -12,7 +12,7 @@ import numpy as np
 from scipy.stats import qmc
 
 from aeropend_core.errors import AeropendError
-from aeropend_core.model import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
 
 #: The paper's ranges: duty up to 70 % (eq 8: 1.89 V; 2.5 V is beyond duty 1 = 2.32 V), dwell 0.6-2 s, 10 strata.
 DEFAULT_DUTY_RANGE = (0.0, 0.7)

@@ -1,7 +1,8 @@
 """Which physical effect is missing? Test every catalog effect as an augmentation of the current model.
 
 For the current model (nominal + the effects already added) and for each candidate effect not yet in it, the
-model is fitted on the training part (output error, :mod:`aeropend_core.compare`) and judged on the held-out part.
+model is fitted on the training part (output error,
+:mod:`aeropend_core.diagnosis.compare`) and judged on the held-out part.
 A candidate counts as **significant** only if all of these hold:
 
 * the current model is not already within the noise (error beyond the noise above ``WITHIN_NOISE`` x noise RMS);
@@ -26,11 +27,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aeropend_core.compare import Comparison, PreparedRecord, compare, excess_error, prepare
-from aeropend_core.effects import CATALOG, find_parameter, get_effect
+from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
+from aeropend_core.model.effects import CATALOG, find_parameter, get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.output_error import NOMINAL_PARAMETERS
-from aeropend_core.recording import Recording
+from aeropend_core.diagnosis.output_error import NOMINAL_PARAMETERS
+from aeropend_core.io.recording import Recording
 
 #: A candidate must lower the training BIC by more than this.
 BIC_MARGIN = 10.0
@@ -414,7 +415,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
             message = (f'the model misses the data by {excess_now * 1e3:.2f} mrad beyond the noise '
                        f'({noise * 1e3:.2f} mrad), and no catalog effect explains it. The residual correlates most '
                        f'with: {structure[0]["signature"]} (r = {structure[0]["correlation"]:+.2f}); consider '
-                       f'writing an effect with that signature (aeropend_core.effects.register_effect).')
+                       f'writing an effect with that signature (aeropend_core.model.effects.register_effect).')
     highest = float(np.max(np.abs(prep.smoothed_angle)))
     if highest > UPRIGHT_WARNING:
         notes.append(f'the rod went {math.degrees(highest):.0f} deg from hanging (above the horizontal'

@@ -26,7 +26,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from aeropend_core.preprocess import STEP_SETTLING_SAMPLES, noise_rms
+from aeropend_core.signals.preprocess import STEP_SETTLING_SAMPLES, noise_rms
 
 PARAMETER_NAMES = ('motor_drive_rate', 'motor_friction_rate', 'motor_drag_rate', 'motor_resistance')
 PARAMETER_UNITS = {'motor_drive_rate': '1/s', 'motor_friction_rate': '1/s', 'motor_drag_rate': '1/(V s)',

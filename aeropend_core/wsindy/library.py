@@ -10,7 +10,7 @@ the angular rate enters the live-rig pendulum equation when only the angle is me
 
 Examples
 --------
->>> from aeropend_core import library as lib
+>>> from aeropend_core.wsindy import library as lib
 >>> terms = lib.polynomial(['armature_current', 'motor_speed'], degree=2) + lib.sine_cosine('angle')
 >>> [t.name for t in terms][:3]
 ['armature_current', 'motor_speed', 'armature_current^2']

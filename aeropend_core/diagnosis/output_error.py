@@ -28,7 +28,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from aeropend_core.effects import PENDULUM, find_parameter, get_effect
+from aeropend_core.model.effects import PENDULUM, find_parameter, get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
 
 #: Nominal parameters of the pendulum equation, their units and meanings.

@@ -48,7 +48,7 @@ disk, so the first call in a fresh environment compiles for a few seconds.
 
 Several experiments or segments are fitted together by stacking their (separately whitened) weak equations.
 
-The public entry point is :func:`fit_weak_sindy`; the candidate terms come from :mod:`aeropend_core.library`.
+The public entry point is :func:`fit_weak_sindy`; the candidate terms come from :mod:`aeropend_core.wsindy.library`.
 """
 from __future__ import annotations
 
@@ -66,7 +66,7 @@ from scipy.linalg import lapack
 from threadpoolctl import ThreadpoolController
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.library import Term
+from aeropend_core.wsindy.library import Term
 
 #: λ grid of the automatic threshold search.
 THRESHOLD_GRID = np.logspace(-4.0, 0.0, 100)
@@ -81,7 +81,7 @@ class Equation:
     target : str
         Name of the signal whose derivative is the left-hand side.
     terms : sequence of Term
-        Candidate terms (:mod:`aeropend_core.library`).
+        Candidate terms (:mod:`aeropend_core.wsindy.library`).
     order : int
         Derivative order of the left-hand side (1 for first-order systems, 2 for the pendulum from the angle).
     keep : sequence of str

@@ -16,7 +16,7 @@ enters, and SI parameters. Four kinds say where it enters:
 Parameters of pendulum-side effects are per unit inertia, as they enter dW/dt.  A user adds an effect with one
 small function::
 
-    from aeropend_core.effects import register_effect, EffectParameter
+    from aeropend_core.model.effects import register_effect, EffectParameter
 
     @register_effect('cubic_spring', 'a hardening spring at the pivot', signature='residual ~ angle^3',
                      parameters=[EffectParameter('stiffness', '1/(s^2 rad^2)', 'cubic spring per inertia', 5.0)])

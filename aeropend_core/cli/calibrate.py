@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_core import calibration as C
-from aeropend_core import protocol as P
+from aeropend_core.rig import calibration as C
+from aeropend_core.rig import protocol as P
 from aeropend_core.errors import AeropendError
 
 STEPS = ('zero', 'angle-scale', 'locked-rotor', 'back-emf')

@@ -17,11 +17,11 @@ import numba
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from aeropend_core.effects import (FRICTION_SMOOTHING, MEASUREMENT, PENDULUM, THRUST_GATE, THRUST_LAG,
+from aeropend_core.model.effects import (FRICTION_SMOOTHING, MEASUREMENT, PENDULUM, THRUST_GATE, THRUST_LAG,
                                    get_effect, resolve_effects)
 from aeropend_core.errors import AeropendError
-from aeropend_core.model import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
-from aeropend_core.noise import MeasurementNoise, apply_measurement_noise
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
+from aeropend_core.sim.noise import MeasurementNoise, apply_measurement_noise
 
 #: RK4 sub-steps per sample in the compiled path: h = Ts/8 = 0.26 ms, an eighth of La/Ra (error < 1e-6 rad).
 SUBSTEPS = 8

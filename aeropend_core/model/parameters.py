@@ -11,7 +11,7 @@ with the propeller speed w2 = w1 / (N1/N2) (eq 4), its thrust f = Kq w2|w2| [N] 
 Va from the PWM duty cycle by the paper's curve fit (eq 8).  Written in the *measured* signals Va and Ia the
 quasi-static thrust is eq (5): f = Kq (N2/(N1 Kw))^2 (Va - Ra Ia)^2.
 
-Effects beyond these nominal terms (friction, cable, lag...) live in :mod:`aeropend_core.effects`.
+Effects beyond these nominal terms (friction, cable, lag...) live in :mod:`aeropend_core.model.effects`.
 """
 from __future__ import annotations
 

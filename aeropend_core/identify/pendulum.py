@@ -1,6 +1,6 @@
 """Aeropendulum identification with weak SINDy: the live-rig pendulum fit and the paper's full-state fit.
 
-Two problem shapes (paper eqs (1)–(7); :mod:`aeropend_core.wsindy` does the regression):
+Two problem shapes (paper eqs (1)–(7); :mod:`aeropend_core.wsindy.weak_form` does the regression):
 
 **Live rig** (:func:`identify_pendulum`) — only the armature voltage Va, current Ia and angle y are measured. The
 pendulum equation is second order in y, with the thrust of eq (5) written in the measured signals::
@@ -38,12 +38,12 @@ from itertools import pairwise
 
 import numpy as np
 
-from aeropend_core import library as lib
-from aeropend_core.effects import get_effect
+from aeropend_core.wsindy import library as lib
+from aeropend_core.model.effects import get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.model import DEFAULT_PARAMETERS, RigParameters
-from aeropend_core.recording import Recording
-from aeropend_core.wsindy import (
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, RigParameters
+from aeropend_core.io.recording import Recording
+from aeropend_core.wsindy.weak_form import (
     Equation,
     WeakSindyResult,
     choose_support,
@@ -299,7 +299,7 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
         The commanded duty [fraction]. Where it is constant, Va is held, so Va is averaged there (removes Va
         noise, ~1-2 % of bias at 50 dB otherwise). Give it whenever it is recorded.
     **wsindy_options
-        Passed to :func:`aeropend_core.wsindy.fit_weak_sindy` (e.g. ``threshold``, ``ridge``).
+        Passed to :func:`aeropend_core.wsindy.weak_form.fit_weak_sindy` (e.g. ``threshold``, ``ridge``).
 
     Returns
     -------
@@ -475,7 +475,7 @@ def identify_full_state(recording: Recording | Mapping[str, np.ndarray] | Sequen
         Va ≈ Ra·Ia + Kω·ω1, so {Ia, Va} fits as well as {Ia, ω1} (about a quarter of 40 dB records then swap
         the small friction term for Va).
     **wsindy_options
-        Passed to :func:`aeropend_core.wsindy.fit_weak_sindy` (defaults: threshold 'auto', significance
+        Passed to :func:`aeropend_core.wsindy.weak_form.fit_weak_sindy` (defaults: threshold 'auto', significance
         :data:`FULL_STATE_SIGNIFICANCE`: a selected term must be significant at the 5 % family-wise level over
         the candidates, which removes the occasional noise look-alike in dIa/dt at 40 dB).
 

@@ -1,4 +1,4 @@
-"""Load a recording of the rig (CSV, or MCAP bags via :mod:`aeropend_core.bag`) into plain arrays.
+"""Load a recording of the rig (CSV, or MCAP bags via :mod:`aeropend_core.io.bag`) into plain arrays.
 
 A :class:`Recording` is a time vector and named signals, SI units, time-first arrays of shape ``(n_samples,)``:
 ``duty`` [1], ``armature_voltage`` [V], ``armature_current`` [A], ``angle`` [rad], plus any truth columns a
@@ -167,8 +167,8 @@ def checked_time(recording: Recording) -> Recording:
 
 
 def _load_bag(path: Path) -> Recording:
-    """The ``/aeropend/samples`` of an MCAP bag (folder or ``.mcap``), see :func:`aeropend_core.bag.read_samples`."""
-    from aeropend_core.bag import read_samples
+    """The ``/aeropend/samples`` of an MCAP bag (folder or ``.mcap``), see :func:`aeropend_core.io.bag.read_samples`."""
+    from aeropend_core.io.bag import read_samples
     samples = read_samples(path)
     columns = {'t': samples['time']}
     # integer-nanosecond clocks (stamp_ns, receive_time_ns) do not survive float64; t already holds the stamps

@@ -2,8 +2,8 @@
 
 :class:`DeviceEmulator` opens a pty, points a stable symlink at it (like ``/dev/serial/by-id/...``), and streams
 SAMPLE frames at the firmware's 490.196 Hz in real time. The measured values come from
-:class:`aeropend_core.simulate.RigSimulator` (hidden effects and measurement noise as configured), converted to raw
-ADC counts with the inverse of the bridge's :class:`~aeropend_core.protocol.Calibration`. Commands written to the
+:class:`aeropend_core.sim.simulate.RigSimulator` (hidden effects and measurement noise as configured), converted to raw
+ADC counts with the inverse of the bridge's :class:`~aeropend_core.rig.protocol.Calibration`. Commands written to the
 port behave as on the firmware: SET_DUTY clamped to the maximum duty, a watchdog that cuts the duty when no valid
 command arrives in time (checked every emission, ~20 ms), STATUS on boot, after configuration and every second.
 
@@ -35,8 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_core import protocol as P
-from aeropend_core.simulate import RigSimulator
+from aeropend_core.rig import protocol as P
+from aeropend_core.sim.simulate import RigSimulator
 
 __all__ = ['DeviceEmulator', 'EmulatorConfig']
 

@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_core.compare import Comparison, excess_error
-from aeropend_core.diagnose import (BIC_MARGIN, MIN_ABSOLUTE, MIN_IMPROVEMENT, WITHIN_NOISE, Candidate,
+from aeropend_core.diagnosis.compare import Comparison, excess_error
+from aeropend_core.diagnosis.diagnose import (BIC_MARGIN, MIN_ABSOLUTE, MIN_IMPROVEMENT, WITHIN_NOISE, Candidate,
                                     Diagnosis)
-from aeropend_core.effects import find_parameter
+from aeropend_core.model.effects import find_parameter
 from aeropend_core.errors import AeropendError
-from aeropend_core.output_error import NOMINAL_PARAMETERS
+from aeropend_core.diagnosis.output_error import NOMINAL_PARAMETERS
 
 #: Resolution of the embedded PNGs [dots per inch]; with the figure sizes below a page stays well under 2 MB.
 DPI = 90
@@ -704,7 +704,7 @@ def _structure_html(diagnosis: Diagnosis) -> str:
                     f'<td><span class="bar" style="width:{abs(r) * 300:.0f}px"></span></td></tr>')
     return ('<p class="caption">Correlation of the simulation residual (measured &minus; simulated angle) with '
             'signatures of possible missing terms. A strong one is a lead for a new effect: write a small function '
-            'and register it with <code>aeropend_core.effects.register_effect</code>, then rerun with '
+            'and register it with <code>aeropend_core.model.effects.register_effect</code>, then rerun with '
             '<code>--effects-module my_effects.py</code>.</p><table style="width:auto"><tr><th>signature</th>'
             '<th>r</th><th>|r|</th></tr>' + ''.join(rows) + '</table>')
 
@@ -828,7 +828,7 @@ def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = No
     Parameters
     ----------
     diagnosis : Diagnosis
-        The result of :func:`aeropend_core.diagnose.diagnose` (it carries the prepared recording).
+        The result of :func:`aeropend_core.diagnosis.diagnose.diagnose` (it carries the prepared recording).
     path : str or Path
         Output file, e.g. ``report.html``; its folder must exist.
     source : str, optional

@@ -5,7 +5,7 @@ Per window (time-first arrays of shape ``(n,)``, SI units):
 1. **Excitation check** — the first ``1 - holdout_fraction`` of the window (training part) must hold at least
    ``min_steps`` steps of the armature voltage and a voltage range of ``min_voltage_range`` V, and the held-out
    part must move the rod by more than a few noise levels; otherwise :class:`InsufficientDataError` says why.
-2. **Weak SINDy** on the training part (:func:`aeropend_core.identify.identify_pendulum`): the coefficients of
+2. **Weak SINDy** on the training part (:func:`aeropend_core.identify.pendulum.identify_pendulum`): the coefficients of
    ``d²angle/dt² = Σ w_j θ_j`` with standard errors and the derived parameters. Effects that the angle-only weak
    form can express (``cable_torque``, ``angle_offset``) enter its library.
 3. **Output-error refinement** on the training part, started from the weak-SINDy values, with *every* requested
@@ -14,9 +14,9 @@ Per window (time-first arrays of shape ``(n,)``, SI units):
    Va and Ia from the measured initial angle: fit % = 100·(1 − ‖y − ŷ‖/‖y − mean(y)‖) (MATLAB ``compare``
    convention, simulation, not one-step prediction), RMS error [rad] and the angle's noise RMS [rad] (the floor).
 
-Steps 3 and 4 are :func:`aeropend_core.compare.compare` — the diagnosis's own definitions, with its motor
+Steps 3 and 4 are :func:`aeropend_core.diagnosis.compare.compare` — the diagnosis's own definitions, with its motor
 observer — when the window is at least its minimum length (20 s); shorter windows use a plain output-error fit
-(:mod:`aeropend_core.output_error`, multiple shooting over ~10 s segments) and the same fit % definition.
+(:mod:`aeropend_core.diagnosis.output_error`, multiple shooting over ~10 s segments) and the same fit % definition.
 
 The analysis is a plain function so that it can be swapped (e.g. for the diagnosis loop's ``compare``) in one place.
 """
@@ -29,9 +29,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aeropend_core.effects import get_effect
+from aeropend_core.model.effects import get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.model import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
 
 #: Effects the angle-only weak form can carry as library terms (others only enter the output-error stage).
 WEAK_FORM_EFFECTS = ('cable_torque', 'angle_offset')
@@ -63,8 +63,8 @@ class WindowResult:
     compute_time : float
         Wall time of the analysis [s].
     method : str
-        ``'compare'`` (:func:`aeropend_core.compare.compare`, windows of at least its 20 s) or ``'window'`` (this
-        module's own output-error fit, for shorter windows).
+        ``'compare'`` (:func:`aeropend_core.diagnosis.compare.compare`, windows of at least its 20 s)
+        or ``'window'`` (this module's own output-error fit, for shorter windows).
     """
 
     start: float
@@ -107,7 +107,7 @@ def check_effect_names(names: Sequence[str]) -> tuple[str, ...]:
 def check_excitation(armature_voltage: np.ndarray, angle: np.ndarray, n_train: int, sample_time: float,
                      min_steps: int = 2, min_voltage_range: float = 0.05) -> None:
     """Raise :class:`InsufficientDataError` naming the problem when the window cannot identify the model."""
-    from aeropend_core.preprocess import detect_steps, noise_rms
+    from aeropend_core.signals.preprocess import detect_steps, noise_rms
     train = armature_voltage[:n_train]
     voltage_range = float(np.ptp(train)) if train.size else 0.0
     if voltage_range < min_voltage_range:
@@ -169,7 +169,7 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     InsufficientDataError
         Excitation too poor, or too few samples.
     """
-    from aeropend_core.identify import identify_pendulum
+    from aeropend_core.identify.pendulum import identify_pendulum
 
     started = _time.perf_counter()
     effects = check_effect_names(effects)
@@ -224,16 +224,16 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
 
 def _compare_min_duration() -> float:
     try:
-        from aeropend_core.compare import MIN_DURATION
+        from aeropend_core.diagnosis.compare import MIN_DURATION
     except ImportError:  # pragma: no cover - the diagnosis loop is part of aeropend_core
         return float('inf')
     return float(MIN_DURATION)
 
 
 def _held_out_by_compare(time, voltage, current, angle, effects, holdout_fraction, start):
-    """Refinement and held-out score by :func:`aeropend_core.compare.compare` (the diagnosis's own definitions)."""
-    from aeropend_core.compare import compare, prepare
-    from aeropend_core.recording import Recording
+    """Refinement and held-out score by :func:`aeropend_core.diagnosis.compare.compare` (diagnosis definitions)."""
+    from aeropend_core.diagnosis.compare import compare, prepare
+    from aeropend_core.io.recording import Recording
     record = Recording(time - time[0], {'armature_voltage': voltage, 'armature_current': current, 'angle': angle},
                        source='the identification window')
     prepared = prepare(record, train_fraction=1.0 - holdout_fraction)
@@ -250,9 +250,9 @@ def _held_out_by_compare(time, voltage, current, angle, effects, holdout_fractio
 
 def _held_out_by_window(voltage, current, angle, effects, n_train, sample_time, start, max_iterations):
     """Output-error refinement on the training part and free-run score on the rest (windows shorter than
-    what :mod:`aeropend_core.compare` accepts)."""
-    from aeropend_core import output_error as oe
-    from aeropend_core.preprocess import condition_inputs, noise_rms
+    what :mod:`aeropend_core.diagnosis.compare` accepts)."""
+    from aeropend_core.diagnosis import output_error as oe
+    from aeropend_core.signals.preprocess import condition_inputs, noise_rms
     n = angle.size
     conditioned = condition_inputs(voltage, current, sample_time)
     cv, ci = conditioned.armature_voltage, conditioned.armature_current

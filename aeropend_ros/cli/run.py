@@ -74,8 +74,8 @@ def _check_arguments(args) -> None:
     if args.port is not None and not Path(args.port).exists():
         raise AeropendError(f'serial port {args.port} does not exist: is the Arduino plugged in? '
                             '(ls /dev/ttyACM* /dev/serial/by-id/), or run the simulator with --sim')
-    from aeropend_core.effects import parse_effect_assignments
-    from aeropend_ros.online import check_effect_names
+    from aeropend_core.model.effects import parse_effect_assignments
+    from aeropend_core.diagnosis.online import check_effect_names
     if args.effect and args.effect != ['none']:
         parse_effect_assignments(args.effect)
     check_effect_names(args.model_effect)
@@ -107,7 +107,7 @@ def _run(args) -> int:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
 
-    from aeropend_core.model import SAMPLE_TIME
+    from aeropend_core.model.parameters import SAMPLE_TIME
     from aeropend_ros.excitation_node import ExcitationNode
     from aeropend_ros.identification_node import IdentificationNode
 
@@ -293,7 +293,7 @@ class _MemoryRecorder:
     def recording(self):
         import numpy as np
 
-        from aeropend_core.recording import from_columns
+        from aeropend_core.io.recording import from_columns
         samples = sorted(self.samples, key=lambda s: s.sequence)
         stamps = np.array([s.stamp_ns for s in samples], dtype=np.int64)
         columns = {'t': (stamps - stamps[0]) * 1e-9,
@@ -307,12 +307,12 @@ class _MemoryRecorder:
 def _diagnose(bag_folder, memory, model_effects, interrupted: bool) -> int:
     from aeropend_core.errors import InsufficientDataError
     try:
-        from aeropend_core.diagnose import diagnose
+        from aeropend_core.diagnosis.diagnose import diagnose
     except ImportError:
         print('aeropend run: the diagnosis module is not available; skipping the diagnosis', file=sys.stderr)
         return 130 if interrupted else 0
     if bag_folder is not None:
-        from aeropend_core.recording import load_recording
+        from aeropend_core.io.recording import load_recording
         recording = load_recording(bag_folder)
     else:
         if not memory.samples:

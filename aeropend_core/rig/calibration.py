@@ -1,6 +1,6 @@
 """Rig calibration from raw measurements: sensor zeros, angle scale, locked-rotor Ra, back-EMF constant Kw.
 
-Pure functions on arrays (no serial port): ``aeropend calibrate`` (aeropend_ros/cli_calibrate.py) records the data
+Pure functions on arrays (no serial port): ``aeropend calibrate`` (aeropend_core/cli/calibrate.py) records the data
 from the device and calls these. Every function checks that its data can support the answer and raises
 :class:`~aeropend_core.errors.InsufficientDataError` with what to do otherwise.
 

@@ -1,0 +1,1 @@
+"""Compare model and data, find where it fails and which physical effect is missing."""

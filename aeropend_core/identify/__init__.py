@@ -1,0 +1,1 @@
+"""Identification of the rig equations from recordings with weak SINDy."""

@@ -1,0 +1,1 @@
+"""The physical model: rig parameters (SI) and the catalog of physical effects."""

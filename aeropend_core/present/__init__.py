@@ -1,0 +1,1 @@
+"""Presentation of results: text, JSON and the HTML report with plots."""

@@ -1,0 +1,1 @@
+"""The rig hardware side without ROS: frame protocol, sample clock, calibration."""

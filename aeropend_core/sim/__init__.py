@@ -1,0 +1,1 @@
+"""The rig simulator, excitation schedules and measurement-noise injection."""

@@ -1,0 +1,1 @@
+"""Test doubles for what cannot be on this machine: a pty-backed fake rig device."""

@@ -1,0 +1,1 @@
+"""Weak SINDy: candidate-term libraries, test functions, weak-form regression and term selection."""
