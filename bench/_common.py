@@ -25,7 +25,7 @@ from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P
 from aeropend_core.model.parameters import SAMPLE_TIME
 from aeropend_core.sim.noise import add_noise
 from aeropend_core.sim.simulate import simulate
-from aeropend_core.wsindy.weak_form import clear_caches
+from aeropend_core.wsindy.noise_model import clear_caches
 
 STATES = ('armature_current', 'motor_speed', 'angle', 'angular_rate')
 SIGNALS = STATES + ('armature_voltage',)

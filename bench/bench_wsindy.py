@@ -34,7 +34,7 @@ from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P
 from aeropend_core.model.parameters import SAMPLE_TIME
 from aeropend_core.sim.simulate import simulate
-from aeropend_core.wsindy.weak_form import clear_caches
+from aeropend_core.wsindy.noise_model import clear_caches
 
 
 def run_live_rig(seed: int, repeats: int):

@@ -8,15 +8,15 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from aeropend_core.wsindy import library as lib
-from aeropend_core.wsindy import weak_form as wsindy
+from aeropend_core.wsindy import selection, test_functions
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.wsindy.weak_form import (
     Equation,
     choose_support,
     fit_weak_sindy,
     kernel_derivatives,
-    spectral_corner,
 )
+from aeropend_core.wsindy.test_functions import spectral_corner
 
 A, C, K = 131.75, 13.82, 30.0
 DT = 1 / 490
@@ -50,7 +50,7 @@ def noisy(x, psnr_db, rng):
 
 def test_test_function_decays_at_first_interior_point():
     for m in (8, 20, 60, 200):
-        p = wsindy.test_function_power(m, 1e-10)
+        p = test_functions.test_function_power(m, 1e-10)
         assert (1 - ((m - 1) / m) ** 2) ** p <= 1e-10
         assert (1 - ((m - 1) / m) ** 2) ** (p - 1) > 1e-10 or p == 2
 
@@ -196,7 +196,7 @@ def test_exhaustive_search_matches_brute_force():
         keep = np.zeros(n, bool)
         keep[0] = trial % 2 == 1
         usable = np.ones(n, bool)
-        w_ls = wsindy._solve_subset(gram, rhs, usable, 1e-12)
+        w_ls = selection._solve_subset(gram, rhs, usable, 1e-12)
         gwls = gram @ w_ls
         c0 = float(w_ls @ gwls)
         free = np.flatnonzero(~keep)
@@ -206,11 +206,11 @@ def test_exhaustive_search_matches_brute_force():
             for combo in itertools.combinations(free, k):
                 support = keep.copy()
                 support[list(combo)] = True
-                w = wsindy._solve_subset(gram, rhs, support, 1e-12)
-                value = wsindy._loss(gram, w, gwls, c0, np.sqrt(c0), 0.8, n)
+                w = selection._solve_subset(gram, rhs, support, 1e-12)
+                value = selection._loss(gram, w, gwls, c0, np.sqrt(c0), 0.8, n)
                 if value < best - 1e-12:
                     best, best_support = value, support
-        found = wsindy._exhaustive(gram, rhs, gwls, c0, np.sqrt(c0), 0.8, n, keep, free, size, np.inf, 1e-12)
+        found = selection._exhaustive(gram, rhs, gwls, c0, np.sqrt(c0), 0.8, n, keep, free, size, np.inf, 1e-12)
         assert np.array_equal(found, best_support), trial
 
 

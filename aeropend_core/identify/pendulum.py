@@ -47,9 +47,9 @@ from aeropend_core.wsindy.weak_form import (
     Equation,
     WeakSindyResult,
     choose_support,
-    estimate_noise_std,
     fit_weak_sindy,
 )
+from aeropend_core.signals.preprocess import estimate_noise_std
 
 #: Units of the derived parameters.
 PARAMETER_UNITS = {

@@ -1,0 +1,379 @@
+"""The noise model of generalised least squares in weak SINDy: per-signal noise levels (robust third-difference
+estimate), the banded covariance of the weak residual under white measurement noise and process noise, the
+noise compensation of the normal equations, banded Cholesky factors, and the coefficient covariance.
+"""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+from scipy.linalg import lapack
+
+from aeropend_core.errors import InsufficientDataError
+from aeropend_core.signals.preprocess import estimate_noise_std
+from aeropend_core.wsindy.test_functions import _kernel_derivatives, _kernel_hold
+
+
+@numba.njit(cache=True, nogil=True)
+def _pinvh(matrix):
+    """Pseudo-inverse of a small symmetric matrix (eigenvalues below n·eps·max|λ| dropped, as scipy's pinvh)."""
+    values, vectors = np.linalg.eigh(matrix)
+    n = values.size
+    largest = 0.0
+    for i in range(n):
+        largest = max(largest, abs(values[i]))
+    cutoff = n * np.finfo(np.float64).eps * largest
+    out = np.zeros((n, n))
+    for k in range(n):
+        if abs(values[k]) > cutoff:
+            for i in range(n):
+                f = vectors[i, k] / values[k]
+                for j in range(n):
+                    out[i, j] += f * vectors[j, k]
+    return out
+
+
+def _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata):
+    """Covariance of the selected coefficients and the whitened residual vector.
+
+    σ̂² = ‖r‖²/(n_rows − n_kept); Cov(w) = σ̂² (G̃ᵀG̃ − C)⁻¹ (C the noise compensation when used), computed in
+    column-normalised coordinates.
+    """
+    resid_vec = bw - a[:, sel] @ w[sel]
+    dof = max(a.shape[0] - sel.size, 1)
+    sigma2 = float(resid_vec @ resid_vec) / dof
+    if not sel.size:
+        return np.zeros((0, 0)), resid_vec
+    gram_sel = ata[np.ix_(sel, sel)]
+    if noise_gram is not None:
+        gram_sel = gram_sel - noise_gram[np.ix_(sel, sel)]
+    scale_sel = np.outer(col[sel], col[sel])
+    return sigma2 * _pinvh(gram_sel / scale_sel) / scale_sel, resid_vec
+
+
+def _cached(cache: dict, key, make):
+    value = cache.get(key)
+    if value is None:
+        value = cache[key] = make()
+    return value
+
+
+@dataclass(frozen=True, eq=False)
+class _NoiseModel:
+    """Noise response of one equation on one segment (see the section comment)."""
+
+    kernels: np.ndarray            # (T, width) signed kernels; type 0 is the lhs
+    signals: tuple                 # per noisy signal: (σ, is_target, term indices (n_v,), type per column (n_v,),
+                                   #                    Jacobian columns ∂θ_j/∂v, shape (n, n_v))
+    first: int                     # first start of the grid (sample index)
+    step: int                      # grid spacing (samples)
+    rows: np.ndarray               # grid index of each used test function, shape (K,)
+    n: int                         # samples in the segment
+    pairs: np.ndarray              # H[a, b, u, τ] (:func:`_pair_kernels`), u = 0..grid band
+    plain_pair: np.ndarray         # H[u, τ] of the plain φ (process noise)
+
+    @property
+    def contiguous(self) -> bool:
+        """No holes in the grid (no excluded rows): the used rows are the grid."""
+        return int(self.rows[-1]) + 1 == len(self.rows)
+
+
+def _term_partial(cache, segment, term, signals, name) -> np.ndarray:
+    """∂term/∂signal, cached per segment (shared by the equations that offer the term)."""
+    return _cached(cache, ('jac', segment, term.name, term.variables, name),
+                   lambda: term.derivative_wrt(signals, name))
+
+
+def _grid(starts: np.ndarray, width: int) -> tuple[int, int, np.ndarray]:
+    """(first, step, grid index) with starts = first + step·index."""
+    first = int(starts[0])
+    offsets = np.asarray(starts, np.int64) - first
+    step = int(np.gcd.reduce(offsets[1:])) if len(starts) > 1 else width
+    return first, max(step, 1), offsets // max(step, 1)
+
+
+def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, segment, width,
+                 plain_kernel) -> _NoiseModel:
+    names = {eq.target, *(v for t in eq.terms for v in t.variables)}
+    out = []
+    for v in sorted(names):
+        x = signals[v]
+        if noise_std is not None and v in noise_std:
+            sigma = float(noise_std[v])
+        else:
+            sigma = _cached(cache, ('sigma', segment, v), lambda x=x: estimate_noise_std(x))
+        if not sigma > 0:
+            continue
+        # columns ordered by kernel type, so each type is a contiguous slice
+        members = sorted((type_of[j], j) for j, term in enumerate(eq.terms) if v in term.variables)
+        idx = np.array([j for _, j in members], np.int64)
+        types = np.array([a for a, _ in members], np.int64)
+
+        def stacked(v=v, x=x, idx=idx):
+            cols = [_term_partial(cache, segment, eq.terms[j], signals, v) for j in idx]
+            return np.column_stack(cols) if cols else np.zeros((len(x), 0))
+        key = ('jacs', segment, v, tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx))
+        out.append((sigma, v == eq.target, idx, types, _cached(cache, key, stacked)))
+    first, step, rows = _grid(starts, width)
+    grid_band = max(-(-width // step) - 1, 0)
+    kernels = np.array(kernel_list)
+    pairs = _cached_pair_kernels(kernels, step, grid_band)
+    plain = _cached_pair_kernels(plain_kernel[None, :], step, grid_band)[0, 0]
+    return _NoiseModel(kernels, tuple(out), first, step, rows, len(signals[eq.target]), pairs, plain)
+
+
+def clear_caches() -> None:
+    """Forget the cached quadrature and pair kernels (they depend on (m, p, Δt, stride) only; benchmarks clear
+    them to time a window whose support differs from the previous one)."""
+    _kernel_derivatives.cache_clear()
+    _kernel_hold.cache_clear()
+    _pair_kernels_by_value.cache_clear()
+
+
+def _cached_pair_kernels(kernels: np.ndarray, step: int, band: int) -> np.ndarray:
+    """:func:`_pair_kernels`, cached on the kernels' values (read-only result; windows of a stream share it)."""
+    kernels = np.ascontiguousarray(kernels, float)
+    return _pair_kernels_by_value(kernels.tobytes(), kernels.shape, int(step), int(band))
+
+
+@functools.lru_cache(maxsize=32)
+def _pair_kernels_by_value(data: bytes, shape: tuple, step: int, band: int) -> np.ndarray:
+    out = _pair_kernels(np.frombuffer(data).reshape(shape), step, band)
+    out.setflags(write=False)
+    return out
+
+
+def _pair_kernels(kernels: np.ndarray, step: int, band: int) -> np.ndarray:
+    """H[a, b, u, τ] = k_a(τ)·k_b(τ − u·step), u = 0..band (zero where τ − u·step is off the support)."""
+    t, width = kernels.shape
+    out = np.zeros((t, t, band + 1, width))
+    for u in range(band + 1):
+        shift = u * step
+        if shift < width:
+            out[:, :, u, shift:] = kernels[:, None, shift:] * kernels[None, :, :width - shift]
+    return out
+
+
+def _window_dots(columns: np.ndarray, kernels: np.ndarray, first: int, step: int, count: int) -> np.ndarray:
+    """out[r, k] = Σ_c Σ_τ kernels[c, k, τ]·columns[c, first + r·step + τ], shape (count, nk).
+
+    Blocked like :func:`_weak_rows`: with the data in blocks of ``step`` samples and each kernel cut into q
+    pieces, one product (blocks × channel·phase) @ (channel·phase × piece·k), then q shifted sums.
+    """
+    c, nk, width = kernels.shape
+    q = -(-width // step)
+    n_blocks = count - 1 + q
+    stop = first + n_blocks * step
+    data = columns[:, first:min(stop, columns.shape[1])]
+    if stop > columns.shape[1]:
+        data = np.concatenate([data, np.zeros((c, stop - columns.shape[1]))], axis=1)
+    blocks = np.ascontiguousarray(data.reshape(c, n_blocks, step).transpose(1, 0, 2)).reshape(n_blocks, c * step)
+    padded = np.zeros((c, nk, q * step))
+    padded[:, :, :width] = kernels
+    pieces = padded.reshape(c, nk, q, step).transpose(0, 3, 2, 1).reshape(c * step, q * nk)
+    parts = (blocks @ pieces).reshape(n_blocks, q, nk)
+    out = parts[:count, 0].copy()
+    for j in range(1, q):
+        out += parts[j:j + count, j]
+    return out
+
+
+def _banded_overlap(zgrid: np.ndarray, kernels: np.ndarray, first: int, step: int, n: int) -> np.ndarray:
+    """q_p(t) = Σ_r Σ_u zgrid[r, u]·kernels[p, u, t − first − r·step], shape (P, n).
+
+    In blocks of ``step`` samples (t = first + b·step + σ, r = b − j): q_p[b, σ] = Σ_j Σ_u zgrid[b − j, u]·
+    kernels[p, u, j·step + σ], one matrix product of the shifted copies of zgrid with the kernel pieces.
+    """
+    full, n_offsets = zgrid.shape
+    n_pairs, _, width = kernels.shape
+    q = -(-width // step)
+    n_blocks = full - 1 + q
+    shifted = np.zeros((n_blocks, q, n_offsets))
+    for j in range(q):
+        shifted[j:j + full, j] = zgrid
+    padded = np.zeros((n_pairs, n_offsets, q * step))
+    padded[:, :, :width] = kernels
+    pieces = padded.reshape(n_pairs, n_offsets, q, step).transpose(2, 1, 0, 3).reshape(q * n_offsets, n_pairs * step)
+    blocks = (shifted.reshape(n_blocks, q * n_offsets) @ pieces).reshape(n_blocks, n_pairs, step)
+    flat = blocks.transpose(1, 0, 2).reshape(n_pairs, n_blocks * step)
+    out = np.zeros((n_pairs, n))
+    m = min(flat.shape[1], n - first)
+    out[:, first:first + m] = flat[:, :m]
+    return out
+
+
+def _to_used_rows(model: _NoiseModel, grid_ab: np.ndarray):
+    """Band on the grid (grid_ab[u, g] = Σ[g, g+u]) -> band on the used rows (LAPACK lower storage), bandwidth."""
+    rows = model.rows
+    if model.contiguous:
+        return grid_ab, grid_ab.shape[0] - 1
+    grid_band = grid_ab.shape[0] - 1
+    k = len(rows)
+    reach = np.searchsorted(rows, rows + grid_band, side='right') - np.arange(k) - 1
+    band = int(max(int(reach.max()), 0))
+    ab = np.zeros((band + 1, k))
+    for u in range(band + 1):
+        i = np.arange(k - u)
+        offset = rows[i + u] - rows[i]
+        ok = offset <= grid_band
+        ab[u, i[ok]] = grid_ab[offset[ok], rows[i[ok]]]
+    return ab, band
+
+
+def _coefficient_functions(model: _NoiseModel, w) -> list[tuple[float, dict]]:
+    """Per noisy signal: (σ², {type a: c_a(t)}) with the non-zero kernel-type coefficient functions (section
+    comment); the lhs type 0 is the constant 1.0 for the target."""
+    out = []
+    for sigma, is_target, idx, types, jac in model.signals:
+        c = {0: 1.0} if is_target else {}
+        if w is not None and idx.size:
+            wv = w[idx]
+            for a in set(types[wv != 0.0].tolist()):
+                lo, hi = np.searchsorted(types, a), np.searchsorted(types, a, side='right')   # columns by type
+                c[a] = -(jac[:, lo:hi] @ wv[lo:hi])
+        if c:
+            out.append((sigma * sigma, c))
+    return out
+
+
+def _measurement_band(model: _NoiseModel, w):
+    """Band (LAPACK lower storage, shape (band+1, K)) of the residual covariance Σ = Σ_v σ_v² R_v R_vᵀ over the
+    used rows, and its bandwidth.
+
+    Before any coefficient is known (``w is None``) only the target's noise counts: Σ ∝ V^(k) V^(k)ᵀ (unit
+    variance when the target is estimated noiseless).
+    """
+    pairs = model.pairs
+    full = int(model.rows[-1]) + 1
+    funcs = _coefficient_functions(model, w)
+    if not funcs:
+        funcs = [(1.0, {0: 1.0})]
+    # C_ab(t) = Σ_v σ_v² c_av(t)·c_bv(t) (= C_ba), with kernel H_ab + H_ba for a < b
+    products: dict = {}
+    for var, c in funcs:
+        keys = sorted(c)
+        for i, a in enumerate(keys):
+            for b in keys[i:]:
+                products[(a, b)] = products.get((a, b), 0.0) + var * c[a] * c[b]
+    constant = sum(float(v) * (pairs[a, b] + (pairs[b, a] if a != b else 0.0)).sum(axis=1)
+                   for (a, b), v in products.items() if np.ndim(v) == 0)
+    varying = [(ab, v) for ab, v in products.items() if np.ndim(v)]
+    grid_ab = np.zeros((pairs.shape[2], full)) + (constant[:, None] if np.ndim(constant) else 0.0)
+    if varying:
+        cols = np.array([v for _, v in varying])
+        kerns = np.array([pairs[a, b] + (pairs[b, a] if a != b else 0.0) for (a, b), _ in varying])
+        grid_ab += _window_dots(cols, kerns, model.first, model.step, full).T
+    return _to_used_rows(model, grid_ab)
+
+
+def _process_band(model: _NoiseModel, band: int, variance: float) -> np.ndarray:
+    """Band of variance·V Vᵀ (white 'process noise' in the equation, V the plain φ quadrature) on the used rows."""
+    per_offset = variance * model.plain_pair.sum(axis=1)   # Σ_τ φ(τ) φ(τ − u·step), u = 0..grid band
+    full = int(model.rows[-1]) + 1
+    ab, _ = _to_used_rows(model, np.repeat(per_offset[:, None], full, axis=1))
+    return ab
+
+
+def _noise_gram(model: _NoiseModel, chol, n_terms):
+    """Expected noise contributions (C, c) to the whitened normal equations G̃ᵀG̃ and G̃ᵀb̃.
+
+    With noise on the signals, G̃ = G̃₀ + Ñ and b̃ = b̃₀ + ñ, so E[G̃ᵀG̃] = G̃₀ᵀG̃₀ + C and E[G̃ᵀb̃] = G̃₀ᵀb̃₀ + c:
+    least squares on noisy regressors is biased (errors in variables; collinear libraries make it large, e.g.
+    −10 % on Kq at 30 dB). ``C_jk = Σ_v σ_v² Σ_t J_jv(t) J_kv(t) q_ab(t)`` with
+    ``q_ab(t) = Σ_{r,s} (Σ⁻¹)[r,s] k_a(t − start_r) k_b(t − start_s)`` (a, b the kernel types of j, k). Only
+    the band of Σ⁻¹ is needed (two test functions covering the same sample are within the band): the Takahashi
+    recurrence on the banded Cholesky factor, then one product of (band of Σ⁻¹) with the pair kernels
+    (:func:`_banded_overlap`).
+    Subtracting C and c gives the bias-compensated least squares.
+    """
+    if not any(idx.size for _, _, idx, _, _ in model.signals):
+        return np.zeros((n_terms, n_terms)), np.zeros(n_terms)
+    zb = _band_of_inverse(np.ascontiguousarray(chol))          # zb[u, i] = Σ⁻¹[i, i+u] on the used rows
+    pairs = model.pairs
+    rows = model.rows
+    full = int(rows[-1]) + 1
+    grid_band = pairs.shape[2] - 1
+    if model.contiguous:
+        zgrid = np.ascontiguousarray(zb.T)
+    else:
+        zgrid = np.zeros((full, grid_band + 1))
+        for u in range(zb.shape[0]):
+            i = np.arange(len(rows) - u)
+            offset = rows[i + u] - rows[i]
+            ok = offset <= grid_band
+            zgrid[rows[i[ok]], offset[ok]] = zb[u, i[ok]]
+    # kernel types needed: (a, b) for two columns of one signal, (a, 0) for the target's own noise
+    needed = set()
+    for _, is_target, idx, types, _ in model.signals:
+        present = sorted(set(types.tolist()))
+        needed.update((a, b) for i, a in enumerate(present) for b in present[i:])
+        if is_target:
+            needed.update((0, a) for a in present)
+    needed = sorted(needed)
+    # s = r + u uses H_ab[u], s = r − u uses H_ba[u]
+    kern = np.array([pairs[a, b] + np.concatenate([np.zeros_like(pairs[b, a][:1]), pairs[b, a][1:]])
+                     for a, b in needed])                                  # (pairs, band+1, width)
+    q_all = _banded_overlap(zgrid, kern, model.first, model.step, model.n)
+    q = {ab: q_all[i] for i, ab in enumerate(needed)}
+    gram = np.zeros((n_terms, n_terms))
+    rhs = np.zeros(n_terms)
+    for sigma, is_target, idx, types, jac in model.signals:
+        if not idx.size:
+            continue
+        var = sigma * sigma
+        present = sorted(set(types.tolist()))
+        bounds = {a: (int(np.searchsorted(types, a)), int(np.searchsorted(types, a, side='right'))) for a in present}
+        if len(present) == 1:
+            (a,) = present
+            block = (jac * q[(a, a)][:, None]).T @ jac
+        else:
+            block = np.empty((idx.size, idx.size))
+            for a in present:
+                lo, hi = bounds[a]
+                # columns k of type b weighted by q_ab: one product per kernel type a
+                weighted = np.empty_like(jac)
+                for b in present:
+                    lo_b, hi_b = bounds[b]
+                    weighted[:, lo_b:hi_b] = jac[:, lo_b:hi_b] * q[(min(a, b), max(a, b))][:, None]
+                block[lo:hi] = jac[:, lo:hi].T @ weighted
+        if is_target:
+            for a in present:
+                lo, hi = bounds[a]
+                rhs[idx[lo:hi]] += var * (jac[:, lo:hi].T @ q[(0, a)])
+        gram[np.ix_(idx, idx)] += var * block
+    return gram, rhs
+
+
+@numba.njit(cache=True, nogil=True)
+def _band_of_inverse(ab):
+    """Band of Σ⁻¹ from the lower banded Cholesky factor (LAPACK storage ab[l, j] = L[j+l, j]).
+
+    Returns zb with zb[d, r] = (Σ⁻¹)[r, r+d], d = 0..band (Takahashi recurrence on U = Lᵀ: U·Z = U⁻ᵀ).
+    """
+    p1, k = ab.shape
+    p = p1 - 1
+    z = np.zeros((p1, k))
+    for i in range(k - 1, -1, -1):
+        uii = ab[0, i]
+        lmax = min(p, k - 1 - i)
+        for e in range(lmax, -1, -1):
+            acc = 0.0
+            for m in range(1, lmax + 1):
+                v = z[m - e, i + e] if m >= e else z[e - m, i + m]
+                acc += ab[m, i] * v
+            z[e, i] = ((1.0 / uii if e == 0 else 0.0) - acc) / uii
+    return z
+
+
+def _cholesky_band(ab):
+    """Lower banded Cholesky factor (LAPACK storage) of the covariance band, with a 1e-10 relative jitter."""
+    ab = np.array(ab, order='F')
+    ab[0] *= 1.0 + 1e-10
+    ab[0] += 1e-300
+    chol, info = lapack.dpbtrf(ab, lower=1, overwrite_ab=1)
+    if info != 0:
+        raise InsufficientDataError(f'the weak-form covariance is not positive definite (LAPACK info {info}); '
+                                    'the data cannot support this fit')
+    return chol

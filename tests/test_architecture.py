@@ -1,0 +1,141 @@
+"""Layering of the tree, checked on the source (static, so a lazy or string import counts too).
+
+- ``aeropend_core`` imports no ROS (rclpy, message packages, ``aeropend_ros``) and no pyserial, not even by a
+  string handed to importlib; the one exception is the ``calibrate`` verb, which talks to the rig's serial port.
+- Library code (``aeropend_core`` outside ``cli``, ``aeropend_ros`` nodes) never imports the command line.
+- ``bench/`` and ``tests/`` do not import each other.
+- No library module is over 800 lines; every core folder is a package with a docstring.
+- Nothing in the repository points at files outside it.
+"""
+from __future__ import annotations
+
+import ast
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+CORE = ROOT / 'aeropend_core'
+ROS_ROOTS = {'rclpy', 'rosidl_runtime_py', 'rosidl_parser', 'sensor_msgs', 'std_msgs', 'diagnostic_msgs',
+             'rcl_interfaces', 'builtin_interfaces', 'aeropend_ros'}
+#: core files allowed to import pyserial, and why
+SERIAL_ALLOWED = {'aeropend_core/cli/calibrate.py': 'the calibrate verb talks to the firmware on the serial port'}
+MAX_LINES = 800
+
+
+def python_files(*folders: str) -> list[Path]:
+    return sorted(p for folder in folders for p in (ROOT / folder).rglob('*.py') if '__pycache__' not in p.parts)
+
+
+def imported_roots(path: Path) -> dict[str, int]:
+    """Top-level modules a file imports (statements anywhere, and string literals naming a module) -> line."""
+    tree = ast.parse(path.read_text(encoding='utf-8'), str(path))
+    found: dict[str, int] = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                found.setdefault(alias.name.split('.')[0], node.lineno)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.setdefault(node.module.split('.')[0], node.lineno)
+        elif isinstance(node, ast.Constant) and isinstance(node.value, str):
+            # 'aeropend_ros.cli.run', 'rclpy', 'sensor_msgs.msg' in importlib calls or tables
+            match = re.fullmatch(r'([A-Za-z_]\w*)(\.[A-Za-z_]\w*)*', node.value.strip())
+            if match and match.group(1) in ROS_ROOTS | {'serial'}:
+                found.setdefault(match.group(1), node.lineno)
+    return found
+
+
+def rel(path: Path) -> str:
+    return path.relative_to(ROOT).as_posix()
+
+
+def test_core_names_no_ros_and_no_serial_even_by_string():
+    offences = []
+    for path in python_files('aeropend_core'):
+        for root, line in imported_roots(path).items():
+            if root in ROS_ROOTS or (root == 'serial' and rel(path) not in SERIAL_ALLOWED):
+                offences.append(f'{rel(path)}:{line} imports {root}')
+    assert not offences, '\n'.join(offences)
+
+
+def test_core_imports_no_ros_at_run_time():
+    code = ('import sys, pkgutil, importlib, aeropend_core\n'
+            'for m in pkgutil.walk_packages(aeropend_core.__path__, "aeropend_core."):\n'
+            '    importlib.import_module(m.name)\n'
+            f'bad = sorted(m for m in sys.modules if m.split(".")[0] in {sorted(ROS_ROOTS | {"serial"})!r})\n'
+            'print(bad); sys.exit(1 if bad else 0)\n')
+    result = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_library_code_never_imports_the_command_line():
+    offences = []
+    for path in python_files('aeropend_core', 'aeropend_ros'):
+        if 'cli' in path.relative_to(ROOT).parts[1:-1]:
+            continue
+        tree = ast.parse(path.read_text(encoding='utf-8'))
+        for node in ast.walk(tree):
+            names = []
+            if isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module] + [f'{node.module}.{a.name}' for a in node.names]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            if any(re.match(r'aeropend_(core|ros)\.cli(\.|$)', n) for n in names):
+                offences.append(f'{rel(path)}:{node.lineno}')
+    assert not offences, 'library code imports the CLI:\n' + '\n'.join(offences)
+
+
+@pytest.mark.parametrize('folder, other', [('bench', 'tests'), ('tests', 'bench')])
+def test_bench_and_tests_do_not_import_each_other(folder, other):
+    offences = []
+    for path in python_files(folder):
+        text = path.read_text(encoding='utf-8')
+        roots = imported_roots(path)
+        if other in roots or re.search(rf"['\"/]{other}['\"]\)?\s*\)", text) and 'sys.path' in text:
+            offences.append(rel(path))
+    assert not offences, f'{folder} imports {other}: ' + ', '.join(offences)
+
+
+def test_no_library_module_is_over_800_lines():
+    long = {rel(p): n for p in python_files('aeropend_core', 'aeropend_ros')
+            if (n := len(p.read_text(encoding='utf-8').splitlines())) > MAX_LINES}
+    assert not long, f'split these modules (> {MAX_LINES} lines): {long}'
+
+
+def test_every_core_folder_is_a_documented_package():
+    for folder in sorted(p for p in CORE.iterdir() if p.is_dir() and p.name != '__pycache__'):
+        init = folder / '__init__.py'
+        assert init.exists(), f'{rel(folder)} has no __init__.py'
+        assert ast.get_docstring(ast.parse(init.read_text(encoding='utf-8'))), f'{rel(init)} has no docstring'
+    assert (CORE / 'py.typed').exists()
+
+
+def test_nothing_points_outside_the_repository():
+    tracked = subprocess.run(['git', 'ls-files'], cwd=ROOT, capture_output=True, text=True).stdout.split()
+    pattern = re.compile(r'NOTES\.md|STYLE\.md|shared/reference|\.\./shared|_DEFAULT_CHOICES')
+    offences = []
+    for name in tracked:
+        path = ROOT / name
+        if name == 'tests/test_architecture.py' or name.startswith('bench/results/') or not path.is_file():
+            continue
+        try:
+            text = path.read_text(encoding='utf-8')
+        except (UnicodeDecodeError, OSError):
+            continue
+        offences += [f'{name}:{i}' for i, line in enumerate(text.splitlines(), 1) if pattern.search(line)]
+    assert not offences, 'references to files outside the repository:\n' + '\n'.join(offences)
+
+
+def test_public_api_is_importable_and_listed():
+    import aeropend_core
+    required = {'load_recording', 'simulate', 'RigSimulator', 'RigParameters', 'DEFAULT_PARAMETERS',
+                'identify_pendulum', 'fit_weak_sindy', 'compare', 'diagnose', 'register_effect', 'write_report',
+                'AeropendError', 'InsufficientDataError', 'StorageError', 'UnknownEffectError'}
+    assert required <= set(aeropend_core.__all__)
+    for name in aeropend_core.__all__:
+        assert getattr(aeropend_core, name) is not None
+    with pytest.raises(AttributeError):
+        aeropend_core.no_such_name  # noqa: B018
