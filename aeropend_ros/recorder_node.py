@@ -49,13 +49,8 @@ from rclpy.qos import (
     ReliabilityPolicy,
 )
 
-from aeropend_core.io.bag import (
-    BagWriter,
-    msg_file_loader,
-    msg_type_hash,
-    offered_qos,
-    ros2msg_definition,
-)
+from aeropend_core.io.bag_writer import BagWriter
+from aeropend_core.io.mcap_format import msg_file_loader, msg_type_hash, offered_qos, ros2msg_definition
 from aeropend_core.errors import AeropendError
 from aeropend_ros import topics as contract
 from aeropend_ros._node_util import check_unknown_overrides, declare

@@ -52,7 +52,8 @@ def sample_bytes(count: int) -> list[bytes]:
 
 def baseline(count: int, folder: Path) -> tuple[float, float]:
     """(msg/s, CPU s per message) writing `count` sample messages straight to BagWriter."""
-    from aeropend_core.io.bag import BagWriter, msg_file_loader, ros2msg_definition
+    from aeropend_core.io.bag_writer import BagWriter
+    from aeropend_core.io.mcap_format import msg_file_loader, ros2msg_definition
     from aeropend_ros._ros_env import ament_prefixes
     data = sample_bytes(count)
     writer = BagWriter(folder, chunk_size=256 * 1024)

@@ -55,6 +55,8 @@ from pathlib import Path
 
 import numpy as np
 
+from aeropend_core.signals.sequence import sequence_report
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
@@ -324,19 +326,6 @@ def read_bag_independently(bag_folder: Path) -> dict[str, np.ndarray]:
             'receive_time_ns': np.array(received, dtype=np.int64)[order]}
 
 
-def sequence_report(sequence: np.ndarray, expected: int) -> dict:
-    """Gaps, duplicates and order of a recorded sample counter against the `expected` samples 0..expected-1."""
-    unique = np.unique(sequence)
-    in_range = unique[(unique >= 0) & (unique < expected)]
-    steps = np.diff(sequence)
-    return {'recorded': int(sequence.size), 'published': int(expected), 'unique': int(unique.size),
-            'duplicates': int(sequence.size - unique.size), 'missing': int(expected - in_range.size),
-            'gaps': int(np.sum(np.diff(unique) > 1)) + int(unique.size > 0 and unique[0] > 0)
-            + int(unique.size > 0 and unique[-1] < expected - 1),
-            'out_of_order': int(np.sum(steps < 0)), 'first': int(sequence.min()) if sequence.size else None,
-            'last': int(sequence.max()) if sequence.size else None}
-
-
 def rate_report(sequence: np.ndarray, stamp_ns: np.ndarray, received_ns: np.ndarray) -> dict:
     """The sim node's rate as the recorder saw it: receive-time rate, slope, intervals, stamp-to-receive delay."""
     from scipy.stats import theilslopes
@@ -507,12 +496,8 @@ def write_plot(rows: list[dict], identification: dict, path: Path) -> bool:
 
 # ------------------------------------------------------------------------------------------------------- main
 def _pick_domain() -> int:
-    sys.path.insert(0, str(ROOT / 'tests'))
-    try:
-        from ros_helpers import private_domain_id
-        return private_domain_id()
-    except ImportError:   # the tests folder is not shipped: a domain from the process id
-        return 100 - (os.getpid() % 40)
+    from aeropend_ros.testing import private_domain_id
+    return private_domain_id()
 
 
 def run(args) -> dict:

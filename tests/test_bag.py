@@ -19,16 +19,10 @@ import numpy as np
 import pytest
 import yaml
 
-from aeropend_core.io.bag import (
-    BagWriter,
-    msg_file_loader,
-    msg_type_hash,
-    offered_qos,
-    read_messages,
-    read_samples,
-    recover_bag,
-    ros2msg_definition,
-)
+from aeropend_core.io.bag import read_messages, read_samples
+from aeropend_core.io.bag_recover import recover_bag
+from aeropend_core.io.bag_writer import BagWriter
+from aeropend_core.io.mcap_format import msg_file_loader, msg_type_hash, offered_qos, ros2msg_definition
 from aeropend_core.errors import AeropendError
 
 ROOT = Path(__file__).resolve().parents[1]

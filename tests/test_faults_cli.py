@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeropend_core.io.bag import BagWriter, msg_file_loader, offered_qos, ros2msg_definition
+from aeropend_core.io.bag_writer import BagWriter
+from aeropend_core.io.mcap_format import msg_file_loader, offered_qos, ros2msg_definition
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.model.parameters import SAMPLE_TIME
 from aeropend_core.sim.noise import MeasurementNoise

@@ -2,7 +2,6 @@
 counters and its bounded history, and the load test's own sequence accounting."""
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -61,8 +60,7 @@ def test_identification_counts_received_and_missed_samples_and_keeps_one_window(
 
 def test_load_test_sequence_accounting():
     """Gaps, duplicates and order as the load test counts them against the published samples 0..n-1."""
-    sys.path.insert(0, str(ROOT / 'bench'))
-    from load_test import sequence_report
+    from aeropend_core.signals.sequence import sequence_report
     clean = sequence_report(np.arange(10), 10)
     assert (clean['missing'], clean['gaps'], clean['duplicates'], clean['out_of_order']) == (0, 0, 0, 0)
     report = sequence_report(np.array([1, 2, 2, 4, 3, 6, 7]), 10)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 
-from aeropend_core.io.bag import recover_bag
+from aeropend_core.io.bag_recover import recover_bag
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

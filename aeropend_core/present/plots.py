@@ -1,0 +1,261 @@
+"""The diagnosis report's figures: measured vs simulated angle, the held-out zoom, error vs time with the worst
+windows, error by regime, residual tests (MATLAB ``resid`` style) and the candidate ranking.
+"""
+from __future__ import annotations
+
+
+import numpy as np
+
+from aeropend_core.diagnosis.compare import excess_error
+from aeropend_core.diagnosis.diagnose import (BIC_MARGIN, MIN_ABSOLUTE, MIN_IMPROVEMENT, Candidate,
+                                    Diagnosis)
+from aeropend_core.present.formatting import (
+    BEFORE,
+    CANDIDATE,
+    CURRENT,
+    HELDOUT_SHADE,
+    MEASURED,
+    NOISE_SHADE,
+    WORST_SHADE,
+    SMOOTHING_SECONDS,
+    _excess,
+    _figure,
+    _finite_trace,
+    _model_name,
+    _png,
+    _running_mean,
+)
+
+
+def _segment_starts(diagnosis: Diagnosis) -> list[int]:
+    prep = diagnosis.prepared
+    starts = [a for a, _ in getattr(prep.train, 'segments', [])]
+    return starts + [prep.split]
+
+
+def _overlay_traces(diagnosis: Diagnosis, best: Candidate | None) -> list[tuple[str, np.ndarray, str, str, float]]:
+    """(label, simulated angle [rad], colour, line style, width) of every model drawn on the overlays."""
+    traces = []
+    if diagnosis.before is not None:
+        traces.append((f'before: {_model_name(diagnosis.before.effects)}', diagnosis.before.evaluation.simulated,
+                       BEFORE, ':', 1.4))
+    traces.append((f'model as given: {_model_name(diagnosis.effects)}', diagnosis.current.evaluation.simulated,
+                   CURRENT, '-', 1.4))
+    if best is not None:
+        status = 'significant' if best.significant else 'not significant'
+        traces.append((f'best candidate: + {best.effect} ({status})', best.comparison.evaluation.simulated,
+                       CANDIDATE, '--', 1.4))
+    return traces
+
+
+def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
+    prep = diagnosis.prepared
+    time = prep.time
+    breaks = _segment_starts(diagnosis)
+    figure = _figure(12.5, 5.6)
+    grid = figure.add_gridspec(2, 1, height_ratios=[3.2, 1])
+    angle_axes = figure.add_subplot(grid[0])
+    input_axes = figure.add_subplot(grid[1], sharex=angle_axes)
+    t_split = time[prep.split]
+    for axes in (angle_axes, input_axes):
+        axes.axvspan(t_split, time[-1], color=HELDOUT_SHADE, zorder=0)
+        for start in breaks[1:-1]:
+            axes.axvline(time[start], color='#999999', lw=0.6, ls=(0, (2, 3)), zorder=1)
+    t, y = _finite_trace(time, prep.angle)
+    angle_axes.plot(t, np.degrees(y), color=MEASURED, lw=0.6, alpha=0.8, label='measured')
+    for label, simulated, colour, style, width in _overlay_traces(diagnosis, best):
+        t, y = _finite_trace(time, simulated, breaks)
+        angle_axes.plot(t, np.degrees(y), color=colour, ls=style, lw=width, label=label)
+    angle_axes.set_ylabel('angle [deg]')
+    angle_axes.text(t_split, 1.0, ' held-out part: fit % computed here', transform=angle_axes.get_xaxis_transform(),
+                    va='bottom', ha='left', fontsize=9, color='#8a6d00')
+    angle_axes.text(time[0], 1.0, 'training part (fitted in ~10 s segments, each restarted from a fitted state)',
+                    transform=angle_axes.get_xaxis_transform(), va='bottom', ha='left', fontsize=9,
+                    color='#666666')
+    figure.legend(*angle_axes.get_legend_handles_labels(), loc='outside upper center', ncol=4, fontsize=8.5,
+                  frameon=False)
+    angle_axes.grid(alpha=0.3)
+    t, v = _finite_trace(time, prep.armature_voltage)
+    input_axes.plot(t, v, color='#7b3294', lw=0.8)
+    input_axes.set_ylabel('Va [V]')
+    input_axes.set_xlabel('time [s]')
+    input_axes.grid(alpha=0.3)
+    input_axes.set_xlim(time[0], time[-1])
+    return _png(figure)
+
+
+def _plot_heldout_zoom(diagnosis: Diagnosis, best: Candidate | None) -> str:
+    prep = diagnosis.prepared
+    part = slice(prep.split, len(prep.time))
+    time = prep.time[part]
+    figure = _figure(12.5, 3.6)
+    axes = figure.add_subplot()
+    t, y = _finite_trace(time, prep.angle[part])
+    axes.plot(t, np.degrees(y), color=MEASURED, lw=0.6, alpha=0.8, label='measured')
+    for label, simulated, colour, style, width in _overlay_traces(diagnosis, best):
+        t, y = _finite_trace(time, simulated[part])
+        axes.plot(t, np.degrees(y), color=colour, ls=style, lw=width, label=label)
+    axes.set_facecolor('#fffbea')
+    axes.set_xlim(time[0], time[-1])
+    axes.set_xlabel('time [s]')
+    axes.set_ylabel('angle [deg]')
+    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=4, fontsize=8.5,
+                  frameon=False)
+    axes.grid(alpha=0.3)
+    return _png(figure)
+
+
+def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
+    prep = diagnosis.prepared
+    time = prep.time
+    breaks = _segment_starts(diagnosis)
+    noise = diagnosis.noise_rms
+    width = max(1, round(SMOOTHING_SECONDS / prep.sample_time / 2))   # simulated every 2nd sample
+    figure = _figure(12.5, 4.4)
+    axes = figure.add_subplot()
+    axes.axvspan(time[prep.split], time[-1], color=HELDOUT_SHADE, zorder=0)
+    windows = diagnosis.current.evaluation.worst_windows
+    for rank, window in enumerate(windows, 1):
+        axes.axvspan(window['start'], window['stop'], color=WORST_SHADE, alpha=0.55, zorder=0.5)
+        axes.text(0.5 * (window['start'] + window['stop']), 0.98, f'#{rank}', transform=axes.get_xaxis_transform(),
+                  ha='center', va='top', fontsize=9, color='#b2182b', fontweight='bold')
+    axes.axhspan(-noise * 1e3, noise * 1e3, color=NOISE_SHADE, alpha=0.6, zorder=0.6,
+                 label=f'\u00b1 measurement noise RMS ({noise * 1e3:.1f} mrad)')
+    error = prep.angle - diagnosis.current.evaluation.simulated
+    t, e = _finite_trace(time, error, breaks)
+    axes.plot(t, e * 1e3, color=CURRENT, lw=0.4, alpha=0.35, label='error, model as given (raw)')
+    t, e = _finite_trace(time, _running_mean(error, width), breaks)
+    axes.plot(t, e * 1e3, color=CURRENT, lw=1.5,
+              label=f'error, model as given ({SMOOTHING_SECONDS:g} s running mean)')
+    if diagnosis.before is not None:
+        before = _running_mean(prep.angle - diagnosis.before.evaluation.simulated, width)
+        t, e = _finite_trace(time, before, breaks)
+        axes.plot(t, e * 1e3, color=BEFORE, lw=1.2, ls=':', label='error, before (running mean)')
+    if best is not None:
+        candidate = _running_mean(prep.angle - best.comparison.evaluation.simulated, width)
+        t, e = _finite_trace(time, candidate, breaks)
+        axes.plot(t, e * 1e3, color=CANDIDATE, lw=1.2, ls='--', label=f'error, + {best.effect} (running mean)')
+    axes.axhline(0, color='black', lw=0.6)
+    axes.set_xlim(time[0], time[-1])
+    axes.set_xlabel('time [s]')
+    axes.set_ylabel('measured \u2212 simulated angle [mrad]')
+    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=3, fontsize=8.5,
+                  frameon=False)
+    axes.grid(alpha=0.3)
+    return _png(figure)
+
+
+def _regime_excess(regimes: dict, name: str, noise: float) -> float:
+    """Error beyond the noise in one regime [rad] (the noise is white, the same in every regime)."""
+    rms = regimes.get(name, {}).get('rms_error', float('nan'))
+    return excess_error(rms, noise) if np.isfinite(rms) else float('nan')
+
+
+def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
+    current = diagnosis.current.evaluation.regimes
+    noise = diagnosis.noise_rms
+    names = sorted(current, key=lambda name: _regime_excess(current, name, noise))
+    series = []
+    if diagnosis.before is not None:
+        series.append(('before: ' + _model_name(diagnosis.before.effects), diagnosis.before.evaluation.regimes,
+                       BEFORE))
+    series.append(('model as given: ' + _model_name(diagnosis.effects), current, CURRENT))
+    if best is not None:
+        series.append((f'+ {best.effect} (best candidate)', best.comparison.evaluation.regimes, CANDIDATE))
+    height = 0.8 / len(series)
+    figure = _figure(12.5, 0.75 + 0.42 * len(names) * (0.6 + 0.4 * len(series)))
+    axes = figure.add_subplot()
+    positions = np.arange(len(names), dtype=float)
+    largest = 0.0
+    for k, (label, regimes, colour) in enumerate(series):
+        # the first series on top within each group
+        offset = (len(series) - 1 - 2 * k) * height / 2
+        values = np.array([_regime_excess(regimes, name, noise) for name in names]) * 1e3
+        largest = max(largest, np.nanmax(values) if np.isfinite(values).any() else 0.0)
+        bars = axes.barh(positions + offset, values, height=height * 0.92, color=colour, label=label)
+        for bar, value in zip(bars, values):
+            if np.isfinite(value):
+                axes.text(bar.get_width(), bar.get_y() + bar.get_height() / 2, f' {value:.1f}', va='center',
+                          fontsize=7.5, color=colour)
+    labels = [f'{name}  [{current[name]["fraction_of_samples"] * 100:.0f} % of samples]' for name in names]
+    axes.set_yticks(positions, labels, fontsize=8.5)
+    axes.set_xlim(0, max(largest, 0.1 * noise * 1e3) * 1.12)
+    axes.set_xlabel(f'model error beyond the noise in the regime, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]'
+                    f'   (noise RMS {noise * 1e3:.1f} mrad)')
+    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=4, fontsize=8.5,
+                  frameon=False)
+    axes.grid(axis='x', alpha=0.3)
+    return _png(figure)
+
+
+def _stems(axes, lags: np.ndarray, values: np.ndarray, colour: str, label: str, offset: float = 0.0,
+           marker: str = 'o') -> None:
+    axes.vlines(lags + offset, 0, values, color=colour, lw=1.1)
+    axes.plot(lags + offset, values, marker, color=colour, ms=3.5, label=label, mfc=colour if marker == 'o'
+              else 'none')
+
+
+def _plot_residual_tests(diagnosis: Diagnosis, best: Candidate | None) -> str:
+    evaluation = diagnosis.current.evaluation
+    lags = evaluation.lag_seconds
+    half = (len(lags) - 1) // 2
+    band = evaluation.correlation_band
+    shift = 0.25 * (lags[1] - lags[0]) if len(lags) > 1 else 0.0
+    figure = _figure(12.5, 3.6)
+    auto_axes, cross_axes = figure.subplots(1, 2)
+    for axes in (auto_axes, cross_axes):
+        axes.axhspan(-band, band, color='#c6dbef', alpha=0.7, label=f'99 % band \u00b12.58/\u221aN = '
+                                                                    f'\u00b1{band:.3f}')
+        axes.axhline(0, color='black', lw=0.6)
+        axes.grid(alpha=0.3)
+    _stems(auto_axes, lags[half:], evaluation.residual_autocorrelation, CURRENT, 'model as given')
+    _stems(cross_axes, lags, evaluation.residual_input_correlation, CURRENT, 'model as given')
+    if best is not None:
+        other = best.comparison.evaluation
+        _stems(auto_axes, lags[half:], other.residual_autocorrelation, CANDIDATE, f'+ {best.effect}', shift, 's')
+        _stems(cross_axes, lags, other.residual_input_correlation, CANDIDATE, f'+ {best.effect}', shift, 's')
+    auto_axes.set_title('residual autocorrelation (whiteness test)', fontsize=10)
+    auto_axes.set_xlabel('lag [s]')
+    auto_axes.set_ylabel('normalised correlation')
+    cross_axes.set_title('residual vs thrust input e|e| (cross-correlation)', fontsize=10)
+    cross_axes.set_xlabel('lag [s]  (positive: the input leads the residual)')
+    figure.legend(*auto_axes.get_legend_handles_labels(), loc='outside upper center', ncol=3, fontsize=8.5,
+                  frameon=False)
+    return _png(figure)
+
+
+def _plot_candidates(diagnosis: Diagnosis) -> str | None:
+    testable = [c for c in diagnosis.candidates if c.comparison is not None and np.isfinite(c.excess_after)]
+    if not testable:
+        return None
+    noise = diagnosis.noise_rms * 1e3
+    now = _excess(diagnosis.current) * 1e3
+    needed = max(now - max(MIN_IMPROVEMENT * now, MIN_ABSOLUTE * noise), 0.0)
+    figure = _figure(12.5, 0.9 + 0.38 * len(testable))
+    axes = figure.add_subplot()
+    positions = np.arange(len(testable))[::-1]
+    values = np.array([c.excess_after * 1e3 for c in testable])
+    colours = [CANDIDATE if c.significant else '#9e9e9e' for c in testable]
+    bars = axes.barh(positions, values, color=colours, height=0.7)
+    for position, value, candidate in zip(positions, values, testable):
+        if candidate.significant:   # a marker keeps a bar of (almost) zero length visible
+            axes.plot([value], [position], 'D', color=CANDIDATE, ms=7, clip_on=False, zorder=3)
+    for bar, value, candidate in zip(bars, values, testable):
+        tag = '  SIGNIFICANT' if candidate.significant else ''
+        axes.annotate(f'{value:.2f} mrad{tag}', (bar.get_width(), bar.get_y() + bar.get_height() / 2),
+                      xytext=(7, 0), textcoords='offset points', va='center', fontsize=8,
+                      color=CANDIDATE if candidate.significant else '#555555',
+                      fontweight='bold' if candidate.significant else 'normal')
+    axes.axvline(now, color=CURRENT, lw=1.6, label=f'model as given ({now:.2f} mrad)')
+    axes.axvline(needed, color=CURRENT, lw=1, ls=':',
+                 label=f'improvement needed to count ({needed:.2f} mrad; also \u0394BIC < \u2212{BIC_MARGIN:g}, '
+                       f'parameter > 3\u03c3)')
+    axes.axvline(noise, color='black', ls='--', lw=1, label=f'measurement noise RMS ({noise:.2f} mrad)')
+    axes.set_yticks(positions, [f'+ {c.effect}' for c in testable], fontsize=9)
+    axes.set_xlim(0, max(np.nanmax(values), now, noise) * 1.3)
+    axes.set_xlabel('held-out model error beyond the noise, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]  '
+                    '(shorter is better)')
+    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=3, fontsize=8.5,
+                  frameon=False)
+    axes.grid(axis='x', alpha=0.3)
+    return _png(figure)
