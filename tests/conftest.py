@@ -1,4 +1,63 @@
-"""Shared test set-up: tests never multicast off the machine (ROS 2 discovery stays on localhost)."""
+"""Shared test set-up.
+
+- Tests never multicast off the machine (ROS 2 discovery stays on localhost).
+- Every test that uses ROS (rclpy, the node modules, the ROS test helpers, ``aeropend run``), itself or through a
+  fixture, is marked ``ros`` when collected (by reading its source): ``pytest -m "not ros"`` runs the core alone.
+- ``clean_record``: one 60 s simulated record of the default rig (Latin-hypercube excitation, 40 dB, 10-bit
+  quantisation, seed 7) with its truth, shared by the modules that only read it.
+"""
+from __future__ import annotations
+
+import inspect
 import os
+import re
+
+import pytest
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+
+#: what marks a test (or one of its fixtures) as using ROS: rclpy, the nodes, the ROS test helpers, `aeropend run`
+_ROS_USE = re.compile(r'rclpy|aeropend_ros|NodeProcess|private_domain_id|own_context|use_domain|ros2|'
+                      r'run_bridge|start_bridge|bridge_process|Listener|[\'"]run[\'"]|ros_env')
+#: a module that imports these at its top needs ROS for every test in it
+_ROS_MODULE = re.compile(r'^(from|import) (rclpy|sensor_msgs|std_msgs|diagnostic_msgs|rcl_interfaces)\b', re.M)
+_seen: dict[object, bool] = {}
+
+
+def _source_uses_ros(function) -> bool:
+    if function not in _seen:
+        try:
+            _seen[function] = bool(_ROS_USE.search(inspect.getsource(function)))
+        except (OSError, TypeError):
+            _seen[function] = False
+    return _seen[function]
+
+
+def _module_needs_ros(module) -> bool:
+    if module not in _seen:
+        try:
+            _seen[module] = bool(_ROS_MODULE.search(inspect.getsource(module)))
+        except (OSError, TypeError):
+            _seen[module] = False
+    return _seen[module]
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        function = getattr(item, 'function', None)
+        fixtures = getattr(getattr(item, '_fixtureinfo', None), 'name2fixturedefs', {})
+        functions = [function] + [d.func for defs in fixtures.values() for d in defs]
+        module = getattr(item, 'module', None)
+        if (module is not None and _module_needs_ros(module)) or any(
+                f is not None and _source_uses_ros(f) for f in functions):
+            item.add_marker(pytest.mark.ros)
+
+
+@pytest.fixture(scope='session')
+def clean_record():
+    """60 s of the default rig under LHC duty steps, 40 dB PSNR, quantised (a ``Trajectory`` with truth)."""
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.sim.simulate import simulate
+    duty = lhc_schedule(60, seed=7).duty(duration=60)
+    return simulate(duty, noise=MeasurementNoise(psnr_db=40, quantise=True), seed=7)
