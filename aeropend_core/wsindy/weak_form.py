@@ -328,154 +328,166 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                 raise AeropendError(f'equation {eq.name} needs signal(s) {sorted(missing)}, not in the data '
                                     f'(have {sorted(s)})')
 
-    fits = []
     cache: dict = {}   # library columns, Jacobians and noise levels shared by the equations (terms keyed by name)
-    for eq in equations:
-        targets = [s[eq.target] for _, s in segments]
-        scale = max(float(np.max(np.abs(x))) for x in targets) or 1.0
-        if all(np.ptp(x) <= 1e-12 * scale for x in targets):
-            raise InsufficientDataError(f'{eq.target!r} is constant: nothing to identify for {eq.name} '
-                                        '(no excitation)')
-        # --- test functions
-        if half_width is None or (isinstance(half_width, Mapping) and eq.target not in half_width):
-            choices = [choose_support(x, eq.order, decay_tolerance, spectral_width, min_half_width,
-                                      max_half_width) for x in targets]
-            m = int(statistics.median([c[0] for c in choices]))
-        else:
-            m = int(half_width[eq.target] if isinstance(half_width, Mapping) else half_width)
-            if m < 2:
-                raise AeropendError(f'half_width must be >= 2 samples, got {m}')
-        p = max(test_function_power(m, decay_tolerance), eq.order + 2)
-        s_ = int(stride or max(1, m // 4))
-        max_order = max([eq.order] + [t.derivative_order for t in eq.terms])
-        weights = kernel_derivatives(m, p, dt, max_order)
-        hold_weights = kernel_hold(m, p, dt)
-        # kernel types of the noise model: 0 = lhs (-1)^k φ^(k), then one per term kernel ((-1)^d φ^(d) or hold)
-        kernel_ids = [('lhs',)]
-        kernel_list = [(-1) ** eq.order * weights[eq.order]]
-        type_of = []
-        for t_ in eq.terms:
-            kid = ('hold',) if t_.hold else ('d', t_.derivative_order)
-            if kid not in kernel_ids:
-                kernel_ids.append(kid)
-                order_ = t_.derivative_order
-                kernel_list.append(hold_weights if t_.hold else (-1) ** order_ * weights[order_])
-            type_of.append(kernel_ids.index(kid))
-        width = 2 * m + 1
-        short = [i for i, (t, _) in enumerate(segments) if len(t) < width]
-        if short:
-            i = short[0]
-            raise InsufficientDataError(
-                f'{f"segment {i}: " if len(segments) > 1 else ""}window of {len(segments[i][0])} samples '
-                f'({len(segments[i][0]) * dt:.3g} s) is shorter than the test-function support for {eq.name}: '
-                f'2m+1 = {width} samples ({width * dt:.3g} s); record longer windows')
-        systems = []
-        for si, ((t, s), excl) in enumerate(zip(segments, excludes)):
-            centres = _centres(len(t), m, s_)
-            if excl is not None:
-                excl = np.asarray(excl, bool)
-                hits = np.concatenate([[0], np.cumsum(excl)])
-                covered = hits[centres + m + 1] - hits[centres - m]
-                centres = centres[covered == 0]
-                if centres.size == 0:
-                    continue
-            starts = centres - m
-            gb = np.empty((len(starts), len(eq.terms) + 1), order='F')   # [G b], Fortran order for LAPACK
-            g = gb[:, :-1]
-            for d in sorted({t_.derivative_order for t_ in eq.terms}):
-                for held in (False, True):
-                    idx = [j for j, t_ in enumerate(eq.terms) if t_.derivative_order == d and t_.hold == held]
-                    if idx:
-                        group = tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx)
-                        members = [eq.terms[j] for j in idx]
-                        theta = _cached(cache, ('thetas', si, group), lambda members=members, s=s, si=si:
-                                        np.column_stack([_cached(cache, ('theta', si, term.name, term.variables),
-                                                                 lambda term=term, s=s: term.evaluate(s))
-                                                         for term in members]))
-                        kern = hold_weights if held else weights[d]
-                        g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
-            gb[:, -1] = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
-            b = gb[:, -1]
-            model = _noise_model(eq, s, starts, kernel_list, type_of, noise_std, cache, si, width, weights[0])
-            systems.append((g, b, model, gb))
-        n_rows = sum(len(sys_[1]) for sys_ in systems)
-        if n_rows <= len(eq.terms):
-            raise InsufficientDataError(
-                f'{eq.name}: only {n_rows} usable test functions (support {width} samples) for {len(eq.terms)} '
-                'candidate terms; record longer windows or use fewer terms')
-        keep = np.array([t_.name in eq.keep for t_ in eq.terms])
-        w = None
-        for pass_ in range(irls_iterations + 1):
-            rows_a, rows_b = [], []
-            # The first pass (target-only whitening) is not corrected: that whitening amplifies regressor noise
-            # so much that the correction itself becomes unstable; it only supplies w for the full covariance.
-            correct = bias_correction and w is not None
-            noise_gram = np.zeros((len(eq.terms), len(eq.terms))) if correct else None
-            noise_rhs = np.zeros(len(eq.terms)) if correct else None
-            bands = [_measurement_band(model, w) for _, _, model, _ in systems]
-            process = 0.0
-            if process_noise and w is not None:
-                # Method of moments: E‖b − Gw‖² = tr Σ_meas + q·tr(V Vᵀ); q > 0 when the model misses forces
-                # (friction, cable...). Without it the whitening integrates the equation twice (second order)
-                # and any unmodelled low-frequency force swamps the fit.
-                resid = sum(float(np.sum((b - g @ w) ** 2)) for g, b, _, _ in systems)
-                trace_meas = sum(float(ab[0].sum()) for ab, _ in bands)
-                trace_v = sum(len(b) for _, b, _, _ in systems) * float(weights[0] @ weights[0])
-                process = max(0.0, (resid - trace_meas) / trace_v)
-            for (g, b, model, gb), (ab, band) in zip(systems, bands):
-                if process > 0.0:
-                    ab = ab + _process_band(model, band, process)
-                chol = _cholesky_band(ab)
-                both, info = lapack.dtbtrs(chol, gb, uplo='L')   # L⁻¹[G b], L banded (gb is not overwritten)
-                if info != 0:
-                    raise InsufficientDataError(f'{eq.name}: the weak-form covariance is singular (LAPACK info '
-                                                f'{info}); the data cannot support this fit')
-                rows_a.append(both[:, :-1])
-                rows_b.append(both[:, -1])
-                if correct:
-                    cg, cr = _noise_gram(model, chol, len(eq.terms))
-                    noise_gram += cg
-                    noise_rhs += cr
-            a = rows_a[0] if len(rows_a) == 1 else np.vstack(rows_a)
-            bw = rows_b[0] if len(rows_b) == 1 else np.concatenate(rows_b)
-            # Earlier passes only supply w for the covariance: the greedy paths and the exhaustive search run in
-            # the last one (with them in the first pass too, no support and no Kq error changed beyond noise).
-            last = pass_ == irls_iterations
-            w_n, lam, col, bnorm, ata, atb = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs,
-                                                      exhaustive_terms if last else 0, greedy=last)
-            w = w_n * bnorm / col
-        sel = np.flatnonzero(w_n)
-        cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata)
-        if significance is not None and threshold is not None and sel.size:
-            # Significance guard (backward elimination by t-statistic): a selected free term must differ from 0
-            # at the family-wise level ``significance`` over the J free candidates (Bonferroni, two-sided normal
-            # critical value). The loss-based selection cannot tell a real small term from the best of J noise
-            # look-alikes (|t| ~ 2.5 at 40 dB); this test can, with a level chosen before seeing any data.
-            free = int(np.count_nonzero(~keep & (col > 0)))
-            critical = float(special.ndtri(1.0 - significance / (2.0 * max(free, 1))))
-            gram_c = ata - (noise_gram if noise_gram is not None else 0.0)
-            rhs_c = atb - (noise_rhs if noise_rhs is not None else 0.0)
-            while sel.size:
-                tstat = np.abs(w[sel]) / np.sqrt(np.maximum(np.diag(cov), 1e-300))
-                tstat[keep[sel]] = np.inf
-                worst = int(np.argmin(tstat))
-                if tstat[worst] >= critical:
-                    break
-                sel = np.delete(sel, worst)
-                w = np.zeros_like(w)
-                if sel.size:
-                    cs = col[sel]   # column-normalised, as in the selection
-                    w[sel] = linalg.solve(gram_c[np.ix_(sel, sel)] / np.outer(cs, cs), rhs_c[sel] / cs,
-                                          assume_a='sym', check_finite=False) / cs
-                cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata)
-        names = [eq.terms[j].name for j in sel]
-        fits.append(EquationFit(
-            name=eq.name,
-            candidates=tuple(t_.name for t_ in eq.terms),
-            coefficients={nm: float(w[j]) for nm, j in zip(names, sel)},
-            standard_errors={nm: float(math.sqrt(max(cov[i, i], 0.0))) for i, nm in enumerate(names)},
-            covariance=cov,
-            threshold=lam,
-            residual=float(np.linalg.norm(resid_vec) / (np.linalg.norm(bw) or 1.0)),
-            half_width=m, power=p, n_test_functions=n_rows))
+    options = dict(half_width=half_width, stride=stride, threshold=threshold, ridge=ridge, alpha=alpha,
+                   decay_tolerance=decay_tolerance, spectral_width=spectral_width, min_half_width=min_half_width,
+                   max_half_width=max_half_width, noise_std=noise_std, irls_iterations=irls_iterations,
+                   bias_correction=bias_correction, exhaustive_terms=exhaustive_terms, process_noise=process_noise,
+                   significance=significance)
+
+    fits = [_fit_equation(eq, segments, excludes, dt, cache, **options) for eq in equations]
     return WeakSindyResult(tuple(fits))
+
+
+def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, half_width, stride, threshold,
+                  ridge, alpha, decay_tolerance, spectral_width, min_half_width, max_half_width, noise_std,
+                  irls_iterations, bias_correction, exhaustive_terms, process_noise, significance) -> EquationFit:
+    """One equation of :func:`fit_weak_sindy` (its parameters, same meaning): test functions, weak system,
+    GLS passes with the noise model, term selection, significance guard."""
+    targets = [s[eq.target] for _, s in segments]
+    scale = max(float(np.max(np.abs(x))) for x in targets) or 1.0
+    if all(np.ptp(x) <= 1e-12 * scale for x in targets):
+        raise InsufficientDataError(f'{eq.target!r} is constant: nothing to identify for {eq.name} '
+                                    '(no excitation)')
+    # --- test functions
+    if half_width is None or (isinstance(half_width, Mapping) and eq.target not in half_width):
+        choices = [choose_support(x, eq.order, decay_tolerance, spectral_width, min_half_width,
+                                  max_half_width) for x in targets]
+        m = int(statistics.median([c[0] for c in choices]))
+    else:
+        m = int(half_width[eq.target] if isinstance(half_width, Mapping) else half_width)
+        if m < 2:
+            raise AeropendError(f'half_width must be >= 2 samples, got {m}')
+    p = max(test_function_power(m, decay_tolerance), eq.order + 2)
+    s_ = int(stride or max(1, m // 4))
+    max_order = max([eq.order] + [t.derivative_order for t in eq.terms])
+    weights = kernel_derivatives(m, p, dt, max_order)
+    hold_weights = kernel_hold(m, p, dt)
+    # kernel types of the noise model: 0 = lhs (-1)^k φ^(k), then one per term kernel ((-1)^d φ^(d) or hold)
+    kernel_ids = [('lhs',)]
+    kernel_list = [(-1) ** eq.order * weights[eq.order]]
+    type_of = []
+    for t_ in eq.terms:
+        kid = ('hold',) if t_.hold else ('d', t_.derivative_order)
+        if kid not in kernel_ids:
+            kernel_ids.append(kid)
+            order_ = t_.derivative_order
+            kernel_list.append(hold_weights if t_.hold else (-1) ** order_ * weights[order_])
+        type_of.append(kernel_ids.index(kid))
+    width = 2 * m + 1
+    short = [i for i, (t, _) in enumerate(segments) if len(t) < width]
+    if short:
+        i = short[0]
+        raise InsufficientDataError(
+            f'{f"segment {i}: " if len(segments) > 1 else ""}window of {len(segments[i][0])} samples '
+            f'({len(segments[i][0]) * dt:.3g} s) is shorter than the test-function support for {eq.name}: '
+            f'2m+1 = {width} samples ({width * dt:.3g} s); record longer windows')
+    systems = []
+    for si, ((t, s), excl) in enumerate(zip(segments, excludes)):
+        centres = _centres(len(t), m, s_)
+        if excl is not None:
+            excl = np.asarray(excl, bool)
+            hits = np.concatenate([[0], np.cumsum(excl)])
+            covered = hits[centres + m + 1] - hits[centres - m]
+            centres = centres[covered == 0]
+            if centres.size == 0:
+                continue
+        starts = centres - m
+        gb = np.empty((len(starts), len(eq.terms) + 1), order='F')   # [G b], Fortran order for LAPACK
+        g = gb[:, :-1]
+        for d in sorted({t_.derivative_order for t_ in eq.terms}):
+            for held in (False, True):
+                idx = [j for j, t_ in enumerate(eq.terms) if t_.derivative_order == d and t_.hold == held]
+                if idx:
+                    group = tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx)
+                    members = [eq.terms[j] for j in idx]
+                    theta = _cached(cache, ('thetas', si, group), lambda members=members, s=s, si=si:
+                                    np.column_stack([_cached(cache, ('theta', si, term.name, term.variables),
+                                                             lambda term=term, s=s: term.evaluate(s))
+                                                     for term in members]))
+                    kern = hold_weights if held else weights[d]
+                    g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
+        gb[:, -1] = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
+        b = gb[:, -1]
+        model = _noise_model(eq, s, starts, kernel_list, type_of, noise_std, cache, si, width, weights[0])
+        systems.append((g, b, model, gb))
+    n_rows = sum(len(sys_[1]) for sys_ in systems)
+    if n_rows <= len(eq.terms):
+        raise InsufficientDataError(
+            f'{eq.name}: only {n_rows} usable test functions (support {width} samples) for {len(eq.terms)} '
+            'candidate terms; record longer windows or use fewer terms')
+    keep = np.array([t_.name in eq.keep for t_ in eq.terms])
+    w = None
+    for pass_ in range(irls_iterations + 1):
+        rows_a, rows_b = [], []
+        # The first pass (target-only whitening) is not corrected: that whitening amplifies regressor noise
+        # so much that the correction itself becomes unstable; it only supplies w for the full covariance.
+        correct = bias_correction and w is not None
+        noise_gram = np.zeros((len(eq.terms), len(eq.terms))) if correct else None
+        noise_rhs = np.zeros(len(eq.terms)) if correct else None
+        bands = [_measurement_band(model, w) for _, _, model, _ in systems]
+        process = 0.0
+        if process_noise and w is not None:
+            # Method of moments: E‖b − Gw‖² = tr Σ_meas + q·tr(V Vᵀ); q > 0 when the model misses forces
+            # (friction, cable...). Without it the whitening integrates the equation twice (second order)
+            # and any unmodelled low-frequency force swamps the fit.
+            resid = sum(float(np.sum((b - g @ w) ** 2)) for g, b, _, _ in systems)
+            trace_meas = sum(float(ab[0].sum()) for ab, _ in bands)
+            trace_v = sum(len(b) for _, b, _, _ in systems) * float(weights[0] @ weights[0])
+            process = max(0.0, (resid - trace_meas) / trace_v)
+        for (g, b, model, gb), (ab, band) in zip(systems, bands):
+            if process > 0.0:
+                ab = ab + _process_band(model, band, process)
+            chol = _cholesky_band(ab)
+            both, info = lapack.dtbtrs(chol, gb, uplo='L')   # L⁻¹[G b], L banded (gb is not overwritten)
+            if info != 0:
+                raise InsufficientDataError(f'{eq.name}: the weak-form covariance is singular (LAPACK info '
+                                            f'{info}); the data cannot support this fit')
+            rows_a.append(both[:, :-1])
+            rows_b.append(both[:, -1])
+            if correct:
+                cg, cr = _noise_gram(model, chol, len(eq.terms))
+                noise_gram += cg
+                noise_rhs += cr
+        a = rows_a[0] if len(rows_a) == 1 else np.vstack(rows_a)
+        bw = rows_b[0] if len(rows_b) == 1 else np.concatenate(rows_b)
+        # Earlier passes only supply w for the covariance: the greedy paths and the exhaustive search run in
+        # the last one (with them in the first pass too, no support and no Kq error changed beyond noise).
+        last = pass_ == irls_iterations
+        w_n, lam, col, bnorm, ata, atb = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs,
+                                                  exhaustive_terms if last else 0, greedy=last)
+        w = w_n * bnorm / col
+    sel = np.flatnonzero(w_n)
+    cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata)
+    if significance is not None and threshold is not None and sel.size:
+        # Significance guard (backward elimination by t-statistic): a selected free term must differ from 0
+        # at the family-wise level ``significance`` over the J free candidates (Bonferroni, two-sided normal
+        # critical value). The loss-based selection cannot tell a real small term from the best of J noise
+        # look-alikes (|t| ~ 2.5 at 40 dB); this test can, with a level chosen before seeing any data.
+        free = int(np.count_nonzero(~keep & (col > 0)))
+        critical = float(special.ndtri(1.0 - significance / (2.0 * max(free, 1))))
+        gram_c = ata - (noise_gram if noise_gram is not None else 0.0)
+        rhs_c = atb - (noise_rhs if noise_rhs is not None else 0.0)
+        while sel.size:
+            tstat = np.abs(w[sel]) / np.sqrt(np.maximum(np.diag(cov), 1e-300))
+            tstat[keep[sel]] = np.inf
+            worst = int(np.argmin(tstat))
+            if tstat[worst] >= critical:
+                break
+            sel = np.delete(sel, worst)
+            w = np.zeros_like(w)
+            if sel.size:
+                cs = col[sel]   # column-normalised, as in the selection
+                w[sel] = linalg.solve(gram_c[np.ix_(sel, sel)] / np.outer(cs, cs), rhs_c[sel] / cs,
+                                      assume_a='sym', check_finite=False) / cs
+            cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata)
+    names = [eq.terms[j].name for j in sel]
+    return EquationFit(
+        name=eq.name,
+        candidates=tuple(t_.name for t_ in eq.terms),
+        coefficients={nm: float(w[j]) for nm, j in zip(names, sel)},
+        standard_errors={nm: float(math.sqrt(max(cov[i, i], 0.0))) for i, nm in enumerate(names)},
+        covariance=cov,
+        threshold=lam,
+        residual=float(np.linalg.norm(resid_vec) / (np.linalg.norm(bw) or 1.0)),
+        half_width=m, power=p, n_test_functions=n_rows)
