@@ -2,7 +2,8 @@
 # Idempotent set-up of aeropend on a plain Debian/Ubuntu machine:
 #   1. Debian packages listed in scripts/apt-packages.txt (only when one is missing: apt-get update, then install);
 #   2. a virtual environment in .venv with every Python dependency (requirements.txt), ROS 2 Jazzy wheels included;
-#   3. the project itself, editable, so `.venv/bin/aeropend` runs the current tree.
+#   3. the project itself, editable, so `.venv/bin/aeropend` runs the current tree;
+#   4. numba's on-disk cache of the numerical kernels, warmed (scripts/warm_numba_cache.py).
 # Re-running it changes nothing when nothing changed (a hash of the dependency files is kept in .venv).
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -34,4 +35,6 @@ if [ "$want" != "$have" ]; then
   .venv/bin/python -m pip install -q --no-deps -e .
   echo "$want" > .venv/.aeropend-deps
 fi
+# numba kernels compiled ahead (not in the first identification window); seconds when the cache is warm
+.venv/bin/python scripts/warm_numba_cache.py
 echo "setup: ready (.venv/bin/aeropend)"
