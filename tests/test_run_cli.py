@@ -24,7 +24,8 @@ def test_run_records_identifies_and_diagnoses(tmp_path):
     """30 s of the default sim (hidden angle offset) at 2x: bag complete, windows identified, offset diagnosed."""
     env = local_ros_environment(domain_id=private_domain_id())
     run = subprocess.Popen(AEROPEND + ['run', '--duration', '30', '--realtime-factor', '2', '--record',
-                                       str(tmp_path), '--window', '12', '--hop', '3'],
+                                       str(tmp_path), '--window', '12', '--hop', '3',
+                                       '--json', str(tmp_path / 'run.json'), '--report', str(tmp_path / 'r.html')],
                            env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         monitor = run_cli(['monitor', '--once', '--timeout', '60'], env, timeout=90)
@@ -52,6 +53,12 @@ def test_run_records_identifies_and_diagnoses(tmp_path):
     # The diagnosis at the end names the hidden effect (the default sim hides a 0.05 rad sensor offset).
     assert 'Diagnosis of 14700 samples' in output
     assert 'missing effect: angle_offset' in output, output
+    # --json and --report: the same diagnosis, machine-readable and as a page; then the next step to take.
+    import json
+    summary = json.loads((tmp_path / 'run.json').read_text())
+    assert summary['samples'] == 14700 and summary['diagnosis']['missing_effect'] == 'angle_offset'
+    assert (tmp_path / 'r.html').stat().st_size > 10_000
+    assert 'Next: add it and watch the error fall: aeropend diagnose' in output and '--add angle_offset' in output
 
 
 def test_run_with_missing_port_fails_clearly():
@@ -68,6 +75,20 @@ def test_run_with_unknown_effect_fails_clearly():
     assert 'unknown effect' in result.stderr and 'coulomb_friction' in result.stderr
     result = run_cli(['run', '--model-effect', 'coulomb_friction=4'], env, timeout=60)
     assert result.returncode == 2 and 'names only' in result.stderr
+
+
+@pytest.mark.parametrize('arguments, message', [
+    (['--duration', '10'], 'too short for the diagnosis'),
+    (['--add', 'coulomb_friction=4'], 'names only'),
+    (['--no-diagnose', '--json', '-'], 'cannot be used with --no-diagnose'),
+    (['--report', '/no/such/folder/report.html'], 'does not exist'),
+])
+def test_run_refuses_arguments_that_cannot_work_before_starting(arguments, message):
+    """Exit 2 with one line, before any node starts (no 'aeropend run: simulator' banner)."""
+    result = run_cli(['run', *arguments], local_ros_environment(domain_id=private_domain_id()), timeout=60)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert message in result.stderr and 'Traceback' not in result.stderr
+    assert 'aeropend run: simulator' not in result.stdout
 
 
 def test_monitor_without_identification_says_so():

@@ -16,3 +16,15 @@ def check_effect_names(names: list[str], option: str) -> None:
         if name not in CATALOG:
             raise UnknownEffectError(f'unknown effect {name!r} in {option}; known effects: '
                                      f'{", ".join(sorted(CATALOG))} (`aeropend effects` describes them)')
+
+
+def check_report_path(path: str | None, option: str = '--report') -> None:
+    """An HTML report can be written to `path` (a file name in an existing folder): refused before any work."""
+    if not path:
+        return
+    from pathlib import Path
+    report = Path(path)
+    if report.is_dir() or not report.parent.is_dir():
+        raise AeropendError(f'cannot write the report to {report} ({option}): '
+                            + ('it is a folder; give a file name such as report.html' if report.is_dir()
+                               else f'the folder {report.parent} does not exist'))

@@ -7,7 +7,8 @@ diagnosis of the recording says which physical effect is missing.
 
 Examples:
   aeropend run                                   # sim, 60 s, record to bags/, diagnose
-  aeropend run --duration 120 --model-effect angle_offset
+  aeropend run --duration 120 --add angle_offset   # the model includes angle_offset from the start
+  aeropend run --report report.html --json run.json
   aeropend run --effect coulomb_friction=4 --realtime-factor 4
   aeropend run --port /dev/ttyACM0 --duration 90 # the real rig through the serial bridge
 
@@ -41,8 +42,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--effect', action='append', default=None, metavar='NAME=VALUE',
                         help='hidden effect of the simulator (repeatable; replaces the default hidden effect); '
                              '--effect none for a clean simulator')
-    parser.add_argument('--model-effect', action='append', default=[], metavar='NAME',
-                        help='effect included in the identified model from the start (repeatable)')
+    parser.add_argument('--add', '--model-effect', dest='model_effect', action='append', default=[], metavar='NAME',
+                        help='effect included in the identified model from the start (repeatable; the same flag '
+                             'as `aeropend diagnose --add`; --model-effect is its old name)')
     parser.add_argument('--realtime-factor', type=float, default=1.0, metavar='F',
                         help='simulation speed: 1 = real time, 4 = four times faster (sim only)')
     parser.add_argument('--window', type=float, default=25.0, metavar='S', help='identification window [s]')
@@ -52,12 +54,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--seed', type=int, default=1, help='seed of the excitation and the simulated noise')
     parser.add_argument('--duty-cap', type=float, default=0.7, metavar='FRACTION', help='safety cap on the duty')
     parser.add_argument('--no-diagnose', action='store_true', help='skip the diagnosis at the end')
+    parser.add_argument('--report', metavar='FILE.html', help='write the diagnosis as a self-contained HTML report')
+    parser.add_argument('--json', metavar='FILE', help='write the run and its diagnosis as one JSON object to FILE '
+                                                      '(- for standard output; the text then goes to standard error)')
 
 
 def _check_arguments(args) -> None:
     import math
     if not 0 < args.duration < math.inf:
         raise AeropendError(f'--duration must be a positive number of seconds, got {args.duration}')
+    from aeropend_core.diagnosis.compare import MIN_DURATION
+    # the recording starts a moment after the run (discovery), so a second of margin over the diagnosis's minimum
+    if not args.no_diagnose and args.duration < MIN_DURATION + 1.0:
+        raise AeropendError(f'--duration {args.duration:g} s is too short for the diagnosis at the end (it needs a '
+                            f'recording of {MIN_DURATION:g} s, so --duration >= {MIN_DURATION + 1:g}); run longer, '
+                            'or add --no-diagnose to only record and identify')
+    if args.no_diagnose and (args.report or args.json):
+        raise AeropendError('--report and --json describe the diagnosis; they cannot be used with --no-diagnose')
+    from aeropend_core.cli._checks import check_report_path
+    check_report_path(args.report)
+    if args.json and args.json != '-':
+        check_report_path(args.json, '--json')
     if not 0 <= args.psnr <= 200:
         raise AeropendError(f'--psnr must be in [0, 200] dB (0 = no noise), got {args.psnr}')
     if not 0 <= args.seed <= 2**31 - 1:
@@ -99,6 +116,11 @@ def main(args) -> int:
     # Demo traffic stays on this machine unless the user chose otherwise.
     from aeropend_ros._ros_env import ensure_ros_environment
     ensure_ros_environment(local_only=True)
+    if args.json == '-':
+        # standard output carries the JSON object only; everything a person reads goes to standard error
+        import contextlib
+        with contextlib.redirect_stdout(sys.stderr):
+            return _run(args)
     return _run(args)
 
 
@@ -204,7 +226,7 @@ def _run(args) -> int:
         print(f'recorded: {bag_folder}')
     if args.no_diagnose:
         return 130 if interrupted else 0
-    return _diagnose(bag_folder, memory, args.model_effect, interrupted)
+    return _diagnose(bag_folder, memory, args, interrupted)
 
 
 def _raise_keyboard_interrupt(signum, frame) -> None:
@@ -304,13 +326,9 @@ class _MemoryRecorder:
         return from_columns(columns, source='samples in memory')
 
 
-def _diagnose(bag_folder, memory, model_effects, interrupted: bool) -> int:
+def _diagnose(bag_folder, memory, args, interrupted: bool) -> int:
     from aeropend_core.errors import InsufficientDataError
-    try:
-        from aeropend_core.diagnosis.diagnose import diagnose
-    except ImportError:
-        print('aeropend run: the diagnosis module is not available; skipping the diagnosis', file=sys.stderr)
-        return 130 if interrupted else 0
+    from aeropend_core.diagnosis.diagnose import diagnose
     if bag_folder is not None:
         from aeropend_core.io.recording import load_recording
         recording = load_recording(bag_folder)
@@ -321,13 +339,47 @@ def _diagnose(bag_folder, memory, model_effects, interrupted: bool) -> int:
     print(f'\nDiagnosis of {len(recording)} samples ({recording.time[-1] - recording.time[0]:.1f} s) '
           f'from {recording.source or "the run"}:', flush=True)
     try:
-        diagnosis = diagnose(recording, effects=tuple(model_effects),
+        diagnosis = diagnose(recording, effects=tuple(args.model_effect),
                              progress=lambda message: print(f'  ... {message}', flush=True))
     except InsufficientDataError as error:
         print(f'aeropend run: cannot diagnose: {error}', file=sys.stderr)
         return 130 if interrupted else 1
     print(diagnosis.summary())
+    if args.report:
+        from aeropend_core.present.report import write_report
+        print(f'report: {write_report(diagnosis, args.report, source=str(bag_folder or "samples in memory"))}')
+    if args.json:
+        _write_json(args.json, {'recording': str(bag_folder) if bag_folder is not None else None,
+                                'samples': len(recording), 'interrupted': interrupted,
+                                'diagnosis': diagnosis.to_dict()})
+    print(_next_step(diagnosis, bag_folder, args))
     return 130 if interrupted else 0
+
+
+def _write_json(target: str, value: dict) -> None:
+    """One JSON object (NaN/inf as null) to standard output (``-``) or a file."""
+    import json
+
+    from aeropend_core.cli.diagnose import finite_json
+    text = json.dumps(finite_json(value), indent=2, allow_nan=False)
+    if target == '-':
+        sys.__stdout__.write(text + '\n')
+        sys.__stdout__.flush()
+    else:
+        Path(target).write_text(text + '\n', encoding='utf-8')
+        print(f'json: {target}')
+
+
+def _next_step(diagnosis, bag_folder, args) -> str:
+    """What to do next, as a command the user can paste."""
+    data = str(bag_folder) if bag_folder is not None else '<your recording>'
+    named = list(getattr(diagnosis, 'missing_effects', None) or
+                 ([diagnosis.missing_effect] if getattr(diagnosis, 'missing_effect', None) else []))
+    if named:
+        adds = ' '.join(f'--add {name}' for name in [*args.model_effect, *named])
+        return (f'Next: add it and watch the error fall: aeropend diagnose {data} {adds} --report report.html '
+                f'(or run again with {" ".join(f"--add {n}" for n in named)})')
+    return f'Next: the full report of this recording: aeropend diagnose {data} --report report.html'
 
 
 if __name__ == '__main__':  # pragma: no cover - use `aeropend run`
