@@ -24,22 +24,15 @@ _ROS_MODULE = re.compile(r'^(from|import) (rclpy|sensor_msgs|std_msgs|diagnostic
 _seen: dict[object, bool] = {}
 
 
-def _source_uses_ros(function) -> bool:
-    if function not in _seen:
+def _source_matches(obj, pattern: re.Pattern) -> bool:
+    """Whether the source of a function or module matches `pattern` (remembered per object)."""
+    key = (obj, pattern.pattern)
+    if key not in _seen:
         try:
-            _seen[function] = bool(_ROS_USE.search(inspect.getsource(function)))
+            _seen[key] = bool(pattern.search(inspect.getsource(obj)))
         except (OSError, TypeError):
-            _seen[function] = False
-    return _seen[function]
-
-
-def _module_needs_ros(module) -> bool:
-    if module not in _seen:
-        try:
-            _seen[module] = bool(_ROS_MODULE.search(inspect.getsource(module)))
-        except (OSError, TypeError):
-            _seen[module] = False
-    return _seen[module]
+            _seen[key] = False
+    return _seen[key]
 
 
 def pytest_collection_modifyitems(config, items):
@@ -48,8 +41,8 @@ def pytest_collection_modifyitems(config, items):
         fixtures = getattr(getattr(item, '_fixtureinfo', None), 'name2fixturedefs', {})
         functions = [function] + [d.func for defs in fixtures.values() for d in defs]
         module = getattr(item, 'module', None)
-        if (module is not None and _module_needs_ros(module)) or any(
-                f is not None and _source_uses_ros(f) for f in functions):
+        if (module is not None and _source_matches(module, _ROS_MODULE)) or any(
+                f is not None and _source_matches(f, _ROS_USE) for f in functions):
             item.add_marker(pytest.mark.ros)
 
 
