@@ -1,6 +1,6 @@
 """Compare a model with measurements: fit on a training part, judge on a held-out part, localise the error.
 
-Conventions (stated so nobody has to guess, NOTES.md section 3):
+Conventions (stated so nobody has to guess; ``docs/method.md`` section 2.4):
 
 * **fit %** is MATLAB ``compare``'s NRMSE fit of the *free-run simulation* of the angle on the held-out part:
   ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)`` (can be negative). The simulation is driven by the measured Va

@@ -52,7 +52,7 @@ CONFOUNDING_FACTOR = 1.3
 #: An effect parameter correlated beyond this with a nominal parameter is not separable from it in this data.
 CORRELATION_LIMIT = 0.97
 
-#: What experiment separates an effect from what it is confused with (NOTES.md section 7).
+#: What experiment separates an effect from what it is confused with (``docs/method.md`` section 4).
 SEPARATING_EXPERIMENT = {
     frozenset({'cable_torque', 'gravity_stiffness'}):
         'excite larger angles (70-85 deg): the cable\'s linear torque departs from gravity\'s sin(angle) only there',

@@ -1,4 +1,5 @@
-"""Aeropendulum identification with weak SINDy: the live-rig pendulum fit and the paper's full-state fit.
+"""Aeropendulum identification with weak SINDy: the live-rig pendulum fit and the full-state fit of the paper
+"Data-Driven System Identification of an Aeropendulum" (``docs/method.md`` section 1.10).
 
 Two problem shapes (paper eqs (1)–(7); :mod:`aeropend_core.wsindy.weak_form` does the regression):
 

@@ -185,7 +185,7 @@ def parse_effect_assignments(assignments: list[str]) -> dict[str, dict[str, floa
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# Built-in catalog. Typical values are physically plausible for this rig (NOTES.md section 4) and detectable.
+# Built-in catalog. Typical values are physically plausible for this rig (docs/model.md section 5) and detectable.
 
 #: Width [rad/s] of the smooth sign used for dry friction: tanh(W / width). Below it the pivot is "stuck".
 FRICTION_SMOOTHING = 0.01

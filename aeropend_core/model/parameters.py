@@ -1,4 +1,5 @@
-"""The aeropendulum's physical model: the paper's equations (1)-(8) with named, unit-carrying parameters.
+"""The aeropendulum's physical model: equations (1)-(8) of the paper "Data-Driven System Identification of an
+Aeropendulum" with named, unit-carrying parameters (described in ``docs/model.md``).
 
 State of the full model (SI units)::
 
@@ -30,8 +31,9 @@ GRAVITY = 9.80665
 class RigParameters:
     """Nominal parameters of the rig. Every field is SI; per-inertia pendulum parameters as they enter dW/dt.
 
-    The defaults are the calibrated, physically consistent set (see the module-level comment block
-    ``_DEFAULT_CHOICES`` for where each number comes from). :data:`PAPER_TABLE1` is the paper's Table 1 literally.
+    The defaults are the calibrated, physically consistent set (the comment block above
+    :data:`DEFAULT_PARAMETERS` says where each number comes from; ``docs/model.md`` section 3).
+    :data:`PAPER_TABLE1` is the paper's Table 1 literally.
     """
 
     # --- electrical, measured in the paper (section 3.6) -----------------------------------------------------
@@ -137,7 +139,7 @@ class RigParameters:
                 'angle': angle}
 
 
-#: Calibrated default set (physically consistent; NOTES.md section 1 explains why Table 1 is not).
+#: Calibrated default set (physically consistent; docs/model.md section 4 explains why Table 1 is not).
 #: Choices, with reasons:
 #:  * Ra, La, Kw, eq (8), mgd/J, c/J, L/J and the gear are the paper's measured / tabulated values, kept as they are.
 #:  * Kt = Kw: in SI a DC motor's torque and back-EMF constants are equal; Table 1's 0.235 N m/A is 350x Kw.

@@ -1,4 +1,5 @@
-"""Excitation design: a true Latin hypercube over (step amplitude, dwell time), as in the paper's section 5.2.
+"""Excitation design: a true Latin hypercube over (step amplitude, dwell time), as in section 5.2 of the paper
+"Data-Driven System Identification of an Aeropendulum".
 
 scipy's :class:`scipy.stats.qmc.LatinHypercube` draws `n_strata` points so that each of the `n_strata` equal
 intervals of amplitude and of dwell holds exactly one point. Each point is one duty step: hold the amplitude for
