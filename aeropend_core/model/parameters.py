@@ -34,6 +34,37 @@ class RigParameters:
     The defaults are the calibrated, physically consistent set (the comment block above
     :data:`DEFAULT_PARAMETERS` says where each number comes from; ``docs/model.md`` section 3).
     :data:`PAPER_TABLE1` is the paper's Table 1 literally.
+
+    Parameters
+    ----------
+    armature_resistance : float [ohm]
+        Ra, eq (1).
+    armature_inductance : float [H]
+        La, eq (1).
+    back_emf_constant : float [V s/rad]
+        Kw, eq (1).
+    torque_constant : float [N m/A]
+        Kt, eq (2).
+    motor_inertia : float [kg m^2]
+        Jm, rotor plus propeller as seen from the motor shaft, eq (2).
+    motor_friction : float [N m s/rad]
+        F, viscous friction of the motor, eq (2).
+    propeller_torque_coefficient : float [N m s^2]
+        Kd, propeller drag torque Kd w2|w2| at the propeller, eq (2).
+    gear_ratio : float, dimensionless
+        N1/N2 = w1/w2, eq (4).
+    thrust_coefficient : float [N s^2]
+        Kq, thrust f = Kq w2|w2|, eq (3).
+    gravity_stiffness : float [1/s^2]
+        mgd/J, eq (6).
+    damping : float [1/s]
+        c/J, eq (6).
+    lever_per_inertia : float [1/(kg m)]
+        L/J, eq (6).
+    duty_voltage_k0, duty_voltage_k1 : float [V]
+        k0, k1 of eq (8).
+    duty_voltage_k2, duty_voltage_k3 : float, dimensionless
+        k2, k3 of eq (8) (duty as a fraction 0..1).
     """
 
     # --- electrical, measured in the paper (section 3.6) -----------------------------------------------------
