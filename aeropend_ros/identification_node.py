@@ -1,9 +1,11 @@
 """identification_node: weak SINDy on sliding windows of ``/aeropend/samples``, live.
 
 Every ``hop_s`` seconds of acquisition time, the last ``window_s`` seconds of samples are analysed in a worker
-thread (the executor keeps receiving meanwhile; a window that comes due while the previous one is still being
-computed is skipped and counted) by :func:`aeropend_core.diagnosis.online.analyze_window`: weak SINDy on the first
-part of the window, output-error refinement with the model's ``effects``, and a free-run fit on the held-out end.
+process (spawned, so the DDS threads are not forked; a worker thread would hold the GIL for most of a fit and the
+executor would drop samples). The executor keeps receiving meanwhile; a window that comes due while the previous
+one is still being computed is skipped and counted. The analysis is
+:func:`aeropend_core.diagnosis.online.analyze_window`: weak SINDy on the first part of the window, output-error
+refinement with the model's ``effects``, and a free-run fit on the held-out end.
 
 Published (all ``sensor_msgs/JointState`` so that every value is plottable by name; ``header.stamp`` = end of the
 window in acquisition time; ``name`` = quantity names, ``position`` = values, ``velocity`` = 1σ standard errors):

@@ -1,8 +1,9 @@
 """Benchmark: aeropend's WSINDy against pysindy's WeakPDELibrary + STLSQ on the same data and library.
 
-Problem: the paper's full-state case on one 10 s window (4,900 samples at 490 Hz) of the simulated rig,
-X = [Ia, ω1, y, Ω] with input Va, PSNR (default 40 dB) on every signal; 18 candidate terms (constant, linear,
-products and squares of the states, sin y, cos y, Va linear only), four equations dIa/dt, dω1/dt, dy/dt, dΩ/dt.
+Problem: the full-state case of the paper "Data-Driven System Identification of an Aeropendulum" on one 10 s
+window (4,900 samples at 490 Hz) of the simulated rig, X = [Ia, ω1, y, Ω] with input Va, PSNR (default 40 dB)
+on every signal; 18 candidate terms (constant, linear, products and squares of the states, sin y, cos y, Va
+linear only), four equations dIa/dt, dω1/dt, dy/dt, dΩ/dt.
 Rows: the full method (one reweighted, bias-compensated GLS pass after the target-only one, MSTLS + greedy
 paths + exhaustive small supports, significance guard) and the plain one (GLS with Σ ∝ V'V'ᵀ, MSTLS + greedy
 paths; no reweighting, bias compensation, exhaustive search or guard) on exactly pysindy's library, and

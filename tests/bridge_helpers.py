@@ -18,7 +18,7 @@ from tests.ros_helpers import wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 FIRMWARE = ROOT / 'firmware'
-#: Discovery plus the first message can take several seconds on a loaded machine (NOTES.md section 5).
+#: Discovery plus the first message can take several seconds on a loaded machine (docs/ros.md section 4).
 DISCOVERY_TIMEOUT = 25.0
 
 

@@ -31,7 +31,7 @@ from aeropend_core.sim.simulate import simulate
 PARAMETER_TOLERANCE = 0.15
 ERROR_FALL = 2.0
 
-#: Hidden effects at plausible magnitudes (NOTES.md section 4): Fc 4 rad/s^2 (~3 % of gravity's 131.75),
+#: Hidden effects at plausible magnitudes (docs/model.md section 5): Fc 4 rad/s^2 (~3 % of gravity's 131.75),
 #: Cd 4 1/rad, a cable spring 20 1/s^2 (15 % of gravity), a 2.9 deg sensor offset, a 0.15 s thrust lag,
 #: a dead zone up to 0.6 V (duty ~0.1).
 HIDDEN = {'coulomb_friction': 4.0, 'quadratic_drag': 4.0, 'cable_torque': 20.0, 'angle_offset': 0.05,

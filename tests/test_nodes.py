@@ -28,7 +28,7 @@ from aeropend_ros import topics  # noqa: E402
 
 pytestmark = pytest.mark.timeout(180)
 
-#: Discovery plus the first message can take a few seconds on a loaded machine (NOTES.md section 5).
+#: Discovery plus the first message can take a few seconds on a loaded machine (docs/ros.md section 4).
 DISCOVERY_TIMEOUT = 20.0
 
 
@@ -311,7 +311,7 @@ def test_identification_matches_truth_and_improves_when_effect_added(own_domain)
     assert np.median(excess_before) > 3.0, excess_before
     for parameters, fit in after:
         assert fit['rms_error'][0] < 2.0 * fit['noise_rms'][0], fit      # at the measurement-noise floor
-        # Per-inertia parameters share the weakly identified inertia scale (NOTES.md section 7): each within 8 %,
+        # Per-inertia parameters share the weakly identified inertia scale (docs/model.md section 5): each within 8 %,
         # their ratio thrust gain / gravity (the static thrust-to-angle map) within 3 %.
         assert parameters['gravity_stiffness'][0] == pytest.approx(truth.gravity_stiffness, rel=0.08)
         assert parameters['damping'][0] == pytest.approx(truth.damping, rel=0.08)

@@ -6,8 +6,9 @@ measures), optionally simulator truth columns (true_motor_speed [rad/s], true_an
 Models:
   pendulum    (default) the live-rig fit from Va, Ia and angle only:
               d²y/dt² = −(mgd/J) sin y − (c/J) dy/dt + θ1 Va² + θ2 Va Ia + θ3 Ia²
-  full-state  the paper's four first-order equations from [Va, Ia, ω1, y, Ω] (needs motor_speed and
-              angular_rate columns, i.e. a simulation)
+  full-state  the four first-order equations of the paper "Data-Driven System Identification of an
+              Aeropendulum" from [Va, Ia, ω1, y, Ω] (needs motor_speed and angular_rate columns, i.e. a
+              simulation)
 
 Examples:
   aeropend simulate -o run.csv --duration 60 --psnr 50 --quantise

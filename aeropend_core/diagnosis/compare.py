@@ -1,6 +1,6 @@
 """Compare a model with measurements: fit on a training part, judge on a held-out part, localise the error.
 
-Conventions (stated so nobody has to guess, NOTES.md section 3):
+Conventions (stated so nobody has to guess; ``docs/method.md`` section 2.4):
 
 * **fit %** is MATLAB ``compare``'s NRMSE fit of the *free-run simulation* of the angle on the held-out part:
   ``100 (1 - ||y - y_sim|| / ||y - mean(y)||)`` (can be negative). The simulation is driven by the measured Va
@@ -530,7 +530,24 @@ class Comparison:
 
 def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
             start: dict[str, float] | None = None) -> Comparison:
-    """Fit nominal + `effects` on the training part and evaluate on the held-out part (see module docstring)."""
+    """Fit nominal + `effects` on the training part and evaluate on the held-out part (see module docstring).
+
+    Parameters
+    ----------
+    recording : Recording or PreparedRecord [-]
+        At least 20 s with ``armature_voltage`` [V], ``armature_current`` [A] and ``angle`` [rad] (other columns
+        are ignored); a :class:`PreparedRecord` is used as it is.
+    effects : sequence of str [-]
+        Catalog effects in the model besides the nominal terms.
+    start : dict of str -> float, optional [SI unit of each parameter]
+        Starting values of parameters (e.g. the current model's), by name.
+
+    Returns
+    -------
+    Comparison
+        The output-error fit (parameters SI, ± 1σ) and its held-out evaluation: ``fit_percent`` [%],
+        ``rms_error`` and ``noise_rms`` [rad], residual tests, error by regime and the worst windows.
+    """
     prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
     fit = fit_model(prep, effects, start)
     if 'threshold_interval' in fit.extra:

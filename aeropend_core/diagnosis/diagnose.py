@@ -52,7 +52,7 @@ CONFOUNDING_FACTOR = 1.3
 #: An effect parameter correlated beyond this with a nominal parameter is not separable from it in this data.
 CORRELATION_LIMIT = 0.97
 
-#: What experiment separates an effect from what it is confused with (NOTES.md section 7).
+#: What experiment separates an effect from what it is confused with (``docs/method.md`` section 4).
 SEPARATING_EXPERIMENT = {
     frozenset({'cable_torque', 'gravity_stiffness'}):
         'excite larger angles (70-85 deg): the cable\'s linear torque departs from gravity\'s sin(angle) only there',
@@ -302,14 +302,21 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
 
     Parameters
     ----------
-    recording : Recording or PreparedRecord
+    recording : Recording or PreparedRecord [-]
         At least 20 s of samples with ``armature_voltage`` [V], ``armature_current`` [A], ``angle`` [rad].
-    effects : sequence of str
+    effects : sequence of str [-]
         Effects already in the model (``--add``). The result also compares with the model without them.
-    candidates : sequence of str, optional
+    candidates : sequence of str, optional [-]
         Effects to try (default: every catalog effect not in `effects`, users' registered ones included).
-    progress : callable, optional
+    progress : callable, optional [-]
         Called with a short message before each fit.
+
+    Returns
+    -------
+    Diagnosis
+        The current model's comparison, every candidate (best first) and the verdict: ``missing_effect``,
+        ``verdict`` ('nothing_missing', 'effect_found', 'confounded' or 'unexplained'), ``message`` and
+        ``notes``; angles in rad, parameters SI.
     """
     started = time.perf_counter()
     say = progress or (lambda message: None)

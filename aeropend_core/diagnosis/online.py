@@ -35,7 +35,7 @@ from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigP
 
 #: Effects the angle-only weak form can carry as library terms (others only enter the output-error stage).
 WEAK_FORM_EFFECTS = ('cable_torque', 'angle_offset')
-#: Output-error segment length [s] (NOTES.md section 7: ~10 s segments are stable, ~3 s collapse).
+#: Output-error segment length [s] (``docs/method.md`` section 2.3: ~10 s segments are stable, ~3 s collapse).
 SEGMENT_SECONDS = 10.0
 
 

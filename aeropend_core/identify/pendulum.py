@@ -1,4 +1,5 @@
-"""Aeropendulum identification with weak SINDy: the live-rig pendulum fit and the paper's full-state fit.
+"""Aeropendulum identification with weak SINDy: the live-rig pendulum fit and the full-state fit of the paper
+"Data-Driven System Identification of an Aeropendulum" (``docs/method.md`` section 1.10).
 
 Two problem shapes (paper eqs (1)–(7); :mod:`aeropend_core.wsindy.weak_form` does the regression):
 
@@ -271,39 +272,46 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
 
     Parameters
     ----------
-    time : ndarray, shape (n,) [s], uniformly sampled — or a sequence of such arrays (segments fitted together).
-    armature_voltage : ndarray, shape (n,) [V] (or sequence). Held over each sample interval (duty via eq (8)).
-    armature_current : ndarray, shape (n,) [A] (or sequence), sampled at t_k.
-    angle : ndarray, shape (n,) [rad] (or sequence).
-    effects : sequence of str
+    time : ndarray, shape (n,) [s]
+        Uniformly sampled times, or a sequence of such arrays (segments fitted together).
+    armature_voltage : ndarray, shape (n,) [V]
+        Va (or a sequence, one per segment), held over each sample interval (from the duty by eq (8)).
+    armature_current : ndarray, shape (n,) [A]
+        Ia (or a sequence), sampled at t_k.
+    angle : ndarray, shape (n,) [rad]
+        Rod angle (or a sequence).
+    effects : sequence of str [-]
         Catalog effects to add as candidate terms (thresholded by MSTLS; the nominal terms are always kept):
         ``cable_torque`` (term angle → ``cable_stiffness`` Kc [1/s²]) and ``angle_offset`` (term cos(angle) →
         ``angle_offset`` [rad]). Effects needing the angular rate inside a nonlinearity (friction, drag) or the
         thrust history (lag, dead zone) cannot be written in this weak form: use the output-error diagnosis.
-    step_handling : {'invert', 'mask', 'none'}
+    step_handling : {'invert', 'mask', 'none'} [-]
         Duty-step transient handling (module docstring).
-    parameters : RigParameters
+    parameters : RigParameters [SI, see RigParameters]
         Known values used for derived quantities: gear ratio, Kω, L/J (for Kq) and La/Ra (for 'invert').
-    electrical_time_constant : float, optional
-        La/Ra [s] for 'invert'; default ``parameters.electrical_time_constant``.
-    mask_samples : int
+    electrical_time_constant : float, optional [s]
+        La/Ra for 'invert'; default ``parameters.electrical_time_constant``.
+    mask_samples : int [samples]
         Samples after each step excluded with 'mask'.
-    half_width : int, optional
-        Test-function half-width [samples]; default from the angle's spectrum.
-    min_voltage_range : float
-        Required peak-to-peak armature voltage [V]; less means no excitation and raises.
-    denoise : bool
+    half_width : int, optional [samples]
+        Test-function half-width; default from the angle's spectrum.
+    min_voltage_range : float [V]
+        Required peak-to-peak armature voltage; less means no excitation and raises.
+    denoise : bool [-]
         Denoise Va and Ia before forming the thrust terms (:func:`denoise_inputs`, with R0 =
-        ``parameters.armature_resistance`` and ``input_cutoff`` [Hz]).
-    duty : ndarray, shape (n,) (or sequence), optional
-        The commanded duty [fraction]. Where it is constant, Va is held, so Va is averaged there (removes Va
-        noise, ~1-2 % of bias at 50 dB otherwise). Give it whenever it is recorded.
-    **wsindy_options
+        ``parameters.armature_resistance``).
+    input_cutoff : float [Hz]
+        Cut-off of the zero-phase low-pass in :func:`denoise_inputs`.
+    duty : ndarray, shape (n,), optional, dimensionless
+        The commanded duty fraction (or a sequence). Where it is constant, Va is held, so Va is averaged there
+        (removes Va noise, ~1-2 % of bias at 50 dB otherwise). Give it whenever it is recorded.
+    **wsindy_options : [as fit_weak_sindy]
         Passed to :func:`aeropend_core.wsindy.weak_form.fit_weak_sindy` (e.g. ``threshold``, ``ridge``).
 
     Returns
     -------
     PendulumFit
+        Derived parameters in SI with 1σ standard errors (``parameters``, ``standard_errors``) and the regression.
 
     Raises
     ------

@@ -25,13 +25,14 @@ REQUIRED_COLUMNS = {'t': 's', 'armature_voltage': 'V', 'armature_current': 'A', 
 class Recording:
     """Samples of one record.
 
-    Attributes
+    Parameters
     ----------
-    time : ndarray, shape (n,)
-        Sample times [s].
-    signals : dict of str -> ndarray, shape (n,)
-        Every other column, SI units.
-    source : str
+    time : ndarray, shape (n,) [s]
+        Sample times.
+    signals : dict of str -> ndarray, shape (n,) [SI unit of each column]
+        Every other column: ``armature_voltage`` [V], ``armature_current`` [A], ``angle`` [rad], ``duty``
+        (dimensionless fraction), ``true_*`` truth columns of a simulation.
+    source : str [-]
         Where it came from (file path), for messages.
     """
 
@@ -61,7 +62,26 @@ class Recording:
 
 
 def from_columns(columns: Mapping[str, np.ndarray], source: str = '') -> Recording:
-    """A :class:`Recording` from a mapping with a ``t`` column (e.g. ``Trajectory.columns()``)."""
+    """A :class:`Recording` from a mapping with a ``t`` column (e.g. ``Trajectory.columns()``).
+
+    Parameters
+    ----------
+    columns : mapping of str -> ndarray, shape (n,) [SI unit of each column]
+        ``t`` [s], ``armature_voltage`` [V], ``armature_current`` [A], ``angle`` [rad] at least; any other
+        column is kept as a signal.
+    source : str [-]
+        Where the data came from, for messages.
+
+    Returns
+    -------
+    Recording
+        The columns as float arrays (``t`` becomes ``time``).
+
+    Raises
+    ------
+    AeropendError
+        A required column is missing, or a column's length differs from ``t``.
+    """
     missing = [c for c in REQUIRED_COLUMNS if c not in columns]
     if missing:
         raise AeropendError(f'{source or "data"} lacks required column(s) {missing}; need '
@@ -109,7 +129,23 @@ def load_csv(path: str | Path) -> Recording:
 
 def load_recording(path: str | Path) -> Recording:
     """Load a recording by file type: ``.csv``, or an MCAP bag (``.mcap`` file or bag folder, its
-    ``/aeropend/samples``; a file cut short by a killed recorder is read up to its last complete chunk)."""
+    ``/aeropend/samples``; a file cut short by a killed recorder is read up to its last complete chunk).
+
+    Parameters
+    ----------
+    path : str or Path [-]
+        A ``.csv`` file, an ``.mcap`` file or a bag folder.
+
+    Returns
+    -------
+    Recording
+        Time [s] and the signals in SI units, with the time stamps checked (:func:`checked_time`).
+
+    Raises
+    ------
+    AeropendError
+        No such file, an unknown file type, unreadable content or time stamps that do not increase.
+    """
     path = Path(path)
     if not path.exists():
         raise AeropendError(f'no such file or folder: {path}')

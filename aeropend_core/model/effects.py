@@ -44,7 +44,21 @@ EQUATION_OF_KIND = {
 
 @dataclass(frozen=True)
 class EffectParameter:
-    """One parameter of an effect: name, SI unit, meaning, a typical (physically plausible) value and bounds."""
+    """One parameter of an effect: name, SI unit, meaning, a typical (physically plausible) value and bounds.
+
+    Parameters
+    ----------
+    name : str [-]
+        Parameter name, unique across the catalog (it names the value in every output).
+    unit : str [-]
+        Its SI unit as text, e.g. ``'rad/s^2'``.
+    description : str [-]
+        What it means, one line.
+    typical : float [unit]
+        A typical, physically plausible value (simulation default; the fit starts from a fraction of it).
+    lower, upper : float [unit]
+        Bounds of the value (the fit keeps it inside them).
+    """
 
     name: str
     unit: str
@@ -115,7 +129,31 @@ def add_effect(effect: Effect, *, replace: bool = False) -> Effect:
 
 def register_effect(name: str, description: str, *, parameters: list[EffectParameter], signature: str = '',
                     kind: str = PENDULUM, replace: bool = False) -> Callable[[Callable], Callable]:
-    """Decorator registering a user's effect function in the catalog (see the module docstring)."""
+    """Decorator registering a user's effect function in the catalog (see the module docstring).
+
+    Parameters
+    ----------
+    name : str [-]
+        Name of the effect (``--add NAME``, ``effects={NAME: ...}``); must not be taken unless `replace`.
+    description : str [-]
+        One-line physical description.
+    parameters : list of EffectParameter [-]
+        Its parameters, SI units, with typical values and bounds.
+    signature : str [-]
+        The trace it leaves in the data, e.g. ``'residual ~ angle^3'``.
+    kind : {'pendulum', 'measurement', 'thrust_gate'} [-]
+        Where the function enters: ``pendulum`` returns an angular acceleration [rad/s^2] added to dW/dt from
+        ``(angle [rad], angular_rate [rad/s], **params)``; ``measurement`` returns the measured angle [rad] from
+        ``(angle, **params)``; ``thrust_gate`` returns a factor 0..1 on the thrust from
+        ``(armature_voltage [V], **params)``.
+    replace : bool [-]
+        Overwrite an effect of the same name instead of refusing.
+
+    Returns
+    -------
+    callable
+        The decorator; it returns the function unchanged.
+    """
 
     def decorator(function: Callable) -> Callable:
         add_effect(Effect(name=name, description=description, signature=signature or 'user-defined', kind=kind,
@@ -185,7 +223,7 @@ def parse_effect_assignments(assignments: list[str]) -> dict[str, dict[str, floa
 
 
 # ----------------------------------------------------------------------------------------------------------------
-# Built-in catalog. Typical values are physically plausible for this rig (NOTES.md section 4) and detectable.
+# Built-in catalog. Typical values are physically plausible for this rig (docs/model.md section 5) and detectable.
 
 #: Width [rad/s] of the smooth sign used for dry friction: tanh(W / width). Below it the pivot is "stuck".
 FRICTION_SMOOTHING = 0.01

@@ -1,4 +1,5 @@
-"""The aeropendulum's physical model: the paper's equations (1)-(8) with named, unit-carrying parameters.
+"""The aeropendulum's physical model: equations (1)-(8) of the paper "Data-Driven System Identification of an
+Aeropendulum" with named, unit-carrying parameters (described in ``docs/model.md``).
 
 State of the full model (SI units)::
 
@@ -30,8 +31,40 @@ GRAVITY = 9.80665
 class RigParameters:
     """Nominal parameters of the rig. Every field is SI; per-inertia pendulum parameters as they enter dW/dt.
 
-    The defaults are the calibrated, physically consistent set (see the module-level comment block
-    ``_DEFAULT_CHOICES`` for where each number comes from). :data:`PAPER_TABLE1` is the paper's Table 1 literally.
+    The defaults are the calibrated, physically consistent set (the comment block above
+    :data:`DEFAULT_PARAMETERS` says where each number comes from; ``docs/model.md`` section 3).
+    :data:`PAPER_TABLE1` is the paper's Table 1 literally.
+
+    Parameters
+    ----------
+    armature_resistance : float [ohm]
+        Ra, eq (1).
+    armature_inductance : float [H]
+        La, eq (1).
+    back_emf_constant : float [V s/rad]
+        Kw, eq (1).
+    torque_constant : float [N m/A]
+        Kt, eq (2).
+    motor_inertia : float [kg m^2]
+        Jm, rotor plus propeller as seen from the motor shaft, eq (2).
+    motor_friction : float [N m s/rad]
+        F, viscous friction of the motor, eq (2).
+    propeller_torque_coefficient : float [N m s^2]
+        Kd, propeller drag torque Kd w2|w2| at the propeller, eq (2).
+    gear_ratio : float, dimensionless
+        N1/N2 = w1/w2, eq (4).
+    thrust_coefficient : float [N s^2]
+        Kq, thrust f = Kq w2|w2|, eq (3).
+    gravity_stiffness : float [1/s^2]
+        mgd/J, eq (6).
+    damping : float [1/s]
+        c/J, eq (6).
+    lever_per_inertia : float [1/(kg m)]
+        L/J, eq (6).
+    duty_voltage_k0, duty_voltage_k1 : float [V]
+        k0, k1 of eq (8).
+    duty_voltage_k2, duty_voltage_k3 : float, dimensionless
+        k2, k3 of eq (8) (duty as a fraction 0..1).
     """
 
     # --- electrical, measured in the paper (section 3.6) -----------------------------------------------------
@@ -137,7 +170,7 @@ class RigParameters:
                 'angle': angle}
 
 
-#: Calibrated default set (physically consistent; NOTES.md section 1 explains why Table 1 is not).
+#: Calibrated default set (physically consistent; docs/model.md section 4 explains why Table 1 is not).
 #: Choices, with reasons:
 #:  * Ra, La, Kw, eq (8), mgd/J, c/J, L/J and the gear are the paper's measured / tabulated values, kept as they are.
 #:  * Kt = Kw: in SI a DC motor's torque and back-EMF constants are equal; Table 1's 0.235 N m/A is 350x Kw.

@@ -485,12 +485,17 @@ def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = No
 
     Parameters
     ----------
-    diagnosis : Diagnosis
+    diagnosis : Diagnosis [-]
         The result of :func:`aeropend_core.diagnosis.diagnose.diagnose` (it carries the prepared recording).
-    path : str or Path
+    path : str or Path [-]
         Output file, e.g. ``report.html``; its folder must exist.
-    source : str, optional
+    source : str, optional [-]
         Name of the recording, shown in the title.
+
+    Returns
+    -------
+    Path
+        The file written.
     """
     path = Path(path)
     if not path.parent.is_dir():

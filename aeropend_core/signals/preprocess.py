@@ -1,6 +1,6 @@
 """Conditioning of measured Va, Ia and angle before an output-error fit.
 
-Two things matter (NOTES.md section 7):
+Two things matter (``docs/method.md`` section 2.2):
 
 * At each duty step the quasi-static motor speed (Va - Ra Ia)/Kw of eq (5) has a spurious kick, because eq (5)
   neglects La dIa/dt and the electrical time constant La/Ra ~ 2 ms is one sample. The true motor speed is

@@ -1,4 +1,5 @@
-"""Excitation design: a true Latin hypercube over (step amplitude, dwell time), as in the paper's section 5.2.
+"""Excitation design: a true Latin hypercube over (step amplitude, dwell time), as in section 5.2 of the paper
+"Data-Driven System Identification of an Aeropendulum".
 
 scipy's :class:`scipy.stats.qmc.LatinHypercube` draws `n_strata` points so that each of the `n_strata` equal
 intervals of amplitude and of dwell holds exactly one point. Each point is one duty step: hold the amplitude for
@@ -90,6 +91,26 @@ def lhc_schedule(duration: float, n_strata: int = DEFAULT_STRATA,
     """Chain Latin hypercubes of `n_strata` steps until `duration` [s] is covered.
 
     The first hypercube uses `seed`; the next ones use seeds spawned from it, so the schedule is reproducible.
+
+    Parameters
+    ----------
+    duration : float [s]
+        Length to cover; the last hypercube may run past it (cut with ``StepSchedule.duty(duration=...)``).
+    n_strata : int [-]
+        Steps per hypercube: each of the `n_strata` intervals of amplitude and of dwell holds exactly one step.
+    duty_range : (float, float), dimensionless
+        Lowest and highest step duty, fractions 0..1 (the paper's 0-0.7).
+    dwell_range : (float, float) [s]
+        Shortest and longest dwell of a step (the paper's 0.6-2 s).
+    seed : int or None [-]
+        Seed of the first hypercube; None draws a fresh one.
+    duty_cap : float, dimensionless
+        Safety cap applied to every step (duty fraction; 0.7 keeps the rod below 90 deg).
+
+    Returns
+    -------
+    StepSchedule
+        Amplitudes (duty fractions), dwells [s] and the unit-cube design points.
     """
     if not duration > 0:
         raise AeropendError(f'duration must be positive, got {duration!r} s')

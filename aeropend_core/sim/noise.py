@@ -54,15 +54,15 @@ def quantise(signal: np.ndarray, step: float) -> np.ndarray:
 class MeasurementNoise:
     """Noise added to the rig's measured signals.
 
-    Attributes
+    Parameters
     ----------
-    psnr_db : float or None
-        PSNR [dB] of additive Gaussian noise on each signal in `signals`; None for no noise.
-    quantise : bool
+    psnr_db : float or None [dB]
+        PSNR of additive Gaussian noise on each signal in `signals`, 20 log10(max|x| / sigma); None for no noise.
+    quantise : bool [-]
         Also quantise the angle (10 bit) and the current (2.96 mA) like the rig's ADC.
-    signals : tuple of str
+    signals : tuple of str [-]
         Which signals get noise; Va is computed from the duty on the rig, but noise on it models the fit error.
-    peaks : mapping
+    peaks : mapping of str -> float [unit of each signal]
         Peak |x| per signal for the PSNR of a stream (batch simulation uses each record's own max).
     """
 

@@ -116,20 +116,20 @@ class RigSimulator:
 
     Parameters
     ----------
-    parameters : RigParameters
+    parameters : RigParameters [SI, see RigParameters]
         Nominal parameters of the rig.
-    effects : mapping, optional
+    effects : mapping, optional [SI unit of each effect parameter]
         Hidden effects, ``{name: {parameter: value}}`` or ``{name: value}`` for one-parameter effects.
-    sample_time : float
-        Ts [s]; 1/490 s on the rig.
-    noise : MeasurementNoise, optional
+    sample_time : float [s]
+        Ts; 1/490 s on the rig.
+    noise : MeasurementNoise, optional [-]
         Measurement noise and ADC quantisation added to Va, Ia and the angle. For a stream the PSNR refers to the
         fixed peaks in ``noise.peaks`` (defaults: the rig's full-scale values).
-    seed : int, optional
+    seed : int, optional [-]
         Seed of the noise generator; the simulation itself is deterministic.
-    initial_angle : float
-        Initial rod angle [rad], at rest.
-    method : {'auto', 'compiled', 'lsoda'}
+    initial_angle : float [rad]
+        Initial rod angle, at rest.
+    method : {'auto', 'compiled', 'lsoda'} [-]
         'compiled': fixed-step RK4 (Ts/8) compiled with numba, built-in effects only; 'lsoda': scipy's LSODA on
         each stretch of constant input (any effect, the reference); 'auto' picks 'compiled' when it can.
     """
@@ -303,7 +303,32 @@ def simulate(duty: np.ndarray, parameters: RigParameters = DEFAULT_PARAMETERS,
              seed: int | None = None, initial_angle: float = 0.0, method: str = 'auto') -> Trajectory:
     """Simulate a whole record from rest. With `noise`, the PSNR refers to each signal's own max |x| in the record.
 
-    Parameters and returns as :class:`RigSimulator` / :class:`Trajectory`; deterministic for a given seed.
+    Deterministic for a given seed.
+
+    Parameters
+    ----------
+    duty : ndarray, shape (n,), dimensionless
+        PWM duty fraction 0..1 per sample, held over [t_k, t_k + Ts) (Va from it by eq (8)).
+    parameters : RigParameters [SI, see RigParameters]
+        Nominal parameters of the rig.
+    effects : mapping, optional [SI unit of each effect parameter]
+        Hidden effects, ``{name: {parameter: value}}`` or ``{name: value}`` for one-parameter effects.
+    sample_time : float [s]
+        Ts; 1/490 s on the rig.
+    noise : MeasurementNoise, optional [-]
+        Measurement noise and quantisation of Va, Ia and the angle (PSNR against each record's own peak).
+    seed : int, optional [-]
+        Seed of the noise generator.
+    initial_angle : float [rad]
+        Initial rod angle, at rest.
+    method : {'auto', 'compiled', 'lsoda'} [-]
+        Integration path, as :class:`RigSimulator`.
+
+    Returns
+    -------
+    Trajectory
+        ``time`` [s], ``duty``, the measured ``armature_voltage`` [V], ``armature_current`` [A], ``angle`` [rad]
+        and the noise-free ``truth`` (shape (n,) each).
     """
     simulator = RigSimulator(parameters, effects, sample_time, None, seed, initial_angle, method)
     trajectory = simulator.run(duty)

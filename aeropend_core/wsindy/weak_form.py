@@ -90,13 +90,13 @@ class Equation:
 
     Parameters
     ----------
-    target : str
+    target : str [-]
         Name of the signal whose derivative is the left-hand side.
-    terms : sequence of Term
+    terms : sequence of Term [-]
         Candidate terms (:mod:`aeropend_core.wsindy.library`).
-    order : int
+    order : int [-]
         Derivative order of the left-hand side (1 for first-order systems, 2 for the pendulum from the angle).
-    keep : sequence of str
+    keep : sequence of str [-]
         Names of terms never thresholded away (known structure); others are subject to MSTLS.
     """
 
@@ -244,31 +244,37 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
 
     Parameters
     ----------
-    time : ndarray, shape (n_samples,), s — or a sequence of such arrays, one per segment/experiment.
-    signals : mapping name -> ndarray, shape (n_samples,) — or a sequence of mappings, one per segment.
-        SI units; every name a term or target uses must be present. Segments are fitted together.
-    equations : sequence of Equation
+    time : ndarray, shape (n_samples,) [s]
+        Uniform sample times, or a sequence of such arrays, one per segment/experiment.
+    signals : mapping name -> ndarray, shape (n_samples,) [SI unit of each signal]
+        Or a sequence of mappings, one per segment; every name a term or target uses must be present. Segments
+        are fitted together.
+    equations : sequence of Equation [-]
         What to identify (targets, derivative orders, candidate terms).
-    half_width : int or mapping target -> int, optional
-        Test-function half-width m in samples (support 2m+1). Default (or targets missing from the mapping):
-        chosen per equation from the target signal's spectrum (:func:`choose_support`, median over segments).
-    stride : int, optional
+    half_width : int or mapping target -> int, optional [samples]
+        Test-function half-width m (support 2m+1). Default (or targets missing from the mapping): chosen per
+        equation from the target signal's spectrum (:func:`choose_support`, median over segments).
+    stride : int, optional [samples]
         Samples between test-function centres; default max(1, m // 4).
-    threshold : 'auto', float in (0, 1] or None
+    threshold : 'auto', float in (0, 1] or None, dimensionless
         MSTLS λ: 'auto' searches the grid 10^[-4..0]; a number fixes it; None gives the plain (ridge) GLS fit
         of all candidates (no sparsification).
-    ridge : float
+    ridge : float, dimensionless
         Tikhonov term added to the normalised (unit-diagonal) Gram matrix.
-    alpha : float
+    alpha : float, dimensionless
         Weight of accuracy vs sparsity in the λ loss.
-    decay_tolerance, spectral_width, min_half_width, max_half_width
-        Test-function selection (see :func:`choose_support`).
-    exclude : ndarray of bool, shape (n_samples,), or one per segment, optional
+    decay_tolerance : float, dimensionless
+        φ at the first interior sample of its support must fall below this (sets the power p).
+    spectral_width : float, dimensionless
+        Scale of the half-width chosen from the spectrum's corner (see :func:`choose_support`).
+    min_half_width, max_half_width : int [samples]
+        Bounds of the half-width chosen from the spectrum.
+    exclude : ndarray of bool, shape (n_samples,), or one per segment, optional [-]
         Samples no test-function support may cover (e.g. transients the model does not describe).
-    noise_std : mapping signal -> float, optional
-        Measurement-noise standard deviation per signal (signal units), for the residual covariance. Signals not
-        given are estimated from the data (:func:`estimate_noise_std`); give 0 for an exactly known signal.
-    irls_iterations : int
+    noise_std : mapping signal -> float, optional [unit of each signal]
+        Measurement-noise standard deviation per signal, for the residual covariance. Signals not given are
+        estimated from the data (:func:`estimate_noise_std`); give 0 for an exactly known signal.
+    irls_iterations : int [-]
         Reweighting passes: after a first fit with Σ ∝ V^(k)V^(k)ᵀ (noise on the target only), Σ is rebuilt from
         the linearised response of the whole residual to the noise on every signal (target, derivative terms,
         nonlinear terms) and the fit repeated. This removes most of the errors-in-variables bias that a
@@ -276,20 +282,20 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         is enough: a second one changed no support and no error by more than noise (full state: Kq rms error
         0.14 % at 50 dB, 1.48 % -> 1.37 % at 30 dB; live rig at 40 dB: worst parameter 2.1 % -> 1.5 %, with one
         pass; 4 to 8 records each) and costs a third more time.
-    bias_correction : bool
+    bias_correction : bool [-]
         Subtract the expected noise contributions from the normal equations (bias-compensated least squares,
         :func:`_noise_gram`), using the per-signal noise levels; removes the errors-in-variables attenuation.
         Applied in the reweighted passes (so it needs ``irls_iterations >= 1``).
-    process_noise : bool
+    process_noise : bool [-]
         In the reweighted passes, add q·V Vᵀ to the residual covariance, q ≥ 0 estimated from the previous
         pass's residual (method of moments): unmodelled forces act like noise in the equation itself. With
         q = 0 (an exact model) nothing changes; with a missing effect (e.g. 3 rad/s² of pivot friction) the
         measurement-only whitening would otherwise wipe out the fit (all coefficients -99 %).
-    exhaustive_terms : int
+    exhaustive_terms : int [-]
         With ``threshold='auto'``, every support of up to this many free terms (besides ``keep``) is scored with
         the loss as well, in the last pass (sum of C(J, k), k <= 4: 3,214 supports for J = 17, depth-first with
         one Cholesky row per added term).
-    significance : float, optional
+    significance : float, optional, dimensionless
         With thresholding on, drop selected free terms whose |w|/σ_w is below the two-sided normal critical value
         at family-wise level ``significance`` over the J free candidates (Bonferroni: z = Φ⁻¹(1 − s/(2J)),
         2.99 for s = 0.05, J = 18), weakest first, refitting after each removal. None (default) skips the test.
@@ -297,6 +303,8 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
     Returns
     -------
     WeakSindyResult
+        One :class:`EquationFit` per equation: selected coefficients [lhs unit / term unit] with 1σ standard
+        errors and covariance, λ, relative residual, test-function half-width and power.
 
     Raises
     ------

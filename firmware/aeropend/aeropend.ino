@@ -1,5 +1,6 @@
 /*
- * aeropend firmware for the Arduino Mega 2560 + Arduino Motor Shield Rev3 (paper section 3).
+ * aeropend firmware for the Arduino Mega 2560 + Arduino Motor Shield Rev3 (section 3 of the paper "Data-Driven
+ * System Identification of an Aeropendulum"; docs/model.md section 1).
  *
  * - Timer1 drives the motor PWM on OC1A (D11) at 490.196 Hz, prescaler 64:
  *     default (real chip): phase-correct PWM, mode 10, TOP = ICR1 = 255  -> 16 MHz / (2 * 64 * 255);

@@ -16,7 +16,7 @@
  * - Measures the PWM on OC1A (PB5, Arduino D11) edge by edge and prints
  *   "pwm <sim_time_s> <duty> <freq_hz> <high> <low>" every 0.5 s of simulated time: the duty over the last 0.5 s,
  *   and how many ADC conversions of the current channel (--current-channel, default 0) started while the PWM
- *   output was high / low (the paper samples while it is high). --pwm-to-adc CH also feeds that duty (times
+ *   output was high / low (the rig samples while it is high, as in docs/model.md section 1). --pwm-to-adc CH also feeds that duty (times
  *   5000 mV) into analog input CH, standing in for an RC-filtered armature-voltage divider.
  * - Paces the simulation to the wall clock (FACTOR 1 = real time; 0 = as fast as possible).
  */
