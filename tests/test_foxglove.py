@@ -164,6 +164,23 @@ def test_shipped_layouts_are_the_generated_ones():
     assert (ROOT / 'config' / layouts.PLOTJUGGLER_FILE).read_text() == layouts.plotjuggler_layout_xml()
 
 
+def test_layout_names_are_the_published_ones():
+    """The names the layouts rely on come from the publishers, not from the layout module itself."""
+    import ast
+
+    from aeropend_core.diagnosis.output_error import NOMINAL_PARAMETERS
+    from aeropend_core.model.effects import CATALOG
+    from aeropend_ros import layouts
+    expected = set(NOMINAL_PARAMETERS) | {'thrust_coefficient'} | {p.name for e in CATALOG.values()
+                                                                     for p in e.parameters}
+    assert set(layouts.BAND_PARAMETERS) == expected
+    # the fit message's names, in order, as identification_node builds it (fit = {...})
+    tree = ast.parse((ROOT / 'aeropend_ros' / 'identification_node.py').read_text())
+    fits = [node.value for node in ast.walk(tree) if isinstance(node, ast.Assign) and isinstance(node.value, ast.Dict)
+            and any(isinstance(t, ast.Name) and t.id == 'fit' for t in node.targets)]
+    assert len(fits) == 1 and tuple(ast.literal_eval(k) for k in fits[0].keys) == layouts.FIT_NAMES
+
+
 def test_layouts_name_only_published_fields():
     """Every plotted path is a topic of the graph and a field/name that the nodes publish."""
     from aeropend_ros import layouts
