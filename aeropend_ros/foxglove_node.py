@@ -6,7 +6,7 @@ transient local when every publisher is), and each message is forwarded **as rec
 the type's ``ros2msg`` definition as the channel schema (the same schema text the recorder writes into the bags).
 Foxglove decodes CDR natively, so the live view shows exactly the field paths of a recorded bag
 (``/aeropend/samples.position[0]`` is the angle) and one layout (``config/aeropend.foxglove.json``) serves both;
-nothing is deserialised or converted in Python (about 20 us of CPU per message). JSON encoding would cost a
+nothing is deserialised or converted in Python. JSON encoding would cost a
 conversion per message and give different field paths live and in the bags.
 
 The server listens on ``ws://<host>:<port>`` (default ``ws://127.0.0.1:8765``, Foxglove's default: open
