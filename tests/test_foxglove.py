@@ -224,3 +224,27 @@ def test_layouts_name_only_published_fields():
     for name in layouts.BAND_PARAMETERS:
         assert f'{name} +1 sigma' in curves and f'{name} -1 sigma' in curves
     assert Path(ROOT / 'config' / layouts.PLOTJUGGLER_FILE).read_text().startswith('<?xml')
+
+
+def test_foxglove_node_refuses_bad_parameters_in_one_line():
+    ensure_ros_environment(local_only=True)
+    from rclpy.parameter import Parameter
+
+    from aeropend_ros._node_util import ParameterError
+    from aeropend_ros.foxglove_node import FoxgloveNode
+    from tests.ros_helpers import own_context
+    cases = [({'include_regex': '(unclosed'}, 'include_regex'), ({'port': 70000}, 'port'),
+             ({'prot': 0}, "has no parameter 'prot' (did you mean 'port'?")]
+    with own_context(private_domain_id()) as context:
+        for values, expected in cases:
+            with pytest.raises(ParameterError, match=re.escape(expected)) as error:
+                FoxgloveNode(context=context, parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+            assert '\n' not in str(error.value)
+        node = FoxgloveNode(context=context, parameter_overrides=[Parameter('port', value=0)])
+        try:
+            assert node.port > 0 and node.url == f'ws://127.0.0.1:{node.port}'
+            with pytest.raises(ParameterError, match='cannot serve Foxglove on 127.0.0.1'):
+                FoxgloveNode(context=context, node_name='second', parameter_overrides=[
+                    Parameter('port', value=node.port)])
+        finally:
+            node.destroy_node()
