@@ -12,7 +12,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),
-        ('share/' + package_name + '/config', glob('config/*.yaml')),
+        ('share/' + package_name + '/config', glob('config/*.yaml') + glob('config/*.json') + glob('config/*.xml')),
+        ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     package_data={'aeropend_core': ['py.typed']},
     install_requires=['setuptools'],
@@ -30,6 +31,7 @@ setup(
             'recorder_node = aeropend_ros.recorder_node:main',
             'identification_node = aeropend_ros.identification_node:main',
             'serial_bridge_node = aeropend_ros.serial_bridge_node:main',
+            'foxglove_node = aeropend_ros.foxglove_node:main',
         ],
         # verbs of the `aeropend` command that need ROS; the core finds them here and never names aeropend_ros
         'aeropend.verbs': [

@@ -70,6 +70,7 @@ BENCHES = [
     Bench('bench_decoder', 'bridge serial frame decoder throughput', [], ['--frames', '100000', '--repeat', '2']),
     Bench('bench_recorder', 'recorder throughput and loss', [], ['--rates', '20000', '--seconds', '3']),
     Bench('bench_sim_node', 'sim node rate and jitter', ['--seconds', '30'], ['--seconds', '10']),
+    Bench('bench_foxglove', 'Foxglove forwarding: CPU and delivery', ['--seconds', '20'], ['--seconds', '8']),
     Bench('robustness', 'noise robustness of the missing-physics diagnosis', [], ['--quick'], optional=True,
           pass_out=True),
     Bench('load_test', '10-minute full-graph load test', [], [], optional=True, opt_in='with_load_test',

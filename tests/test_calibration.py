@@ -72,7 +72,7 @@ def test_calibrate_cli_against_the_emulator(capsys, tmp_path):
         assert status == 0, err
         assert value_of(out, 'angle_zero') == pytest.approx(530.0, abs=0.5)
         assert value_of(out, 'current_offset') == pytest.approx(6.0, abs=0.5)
-        written = yaml.safe_load(config.read_text())['serial_bridge_node']['ros__parameters']
+        written = yaml.safe_load(config.read_text())['/**/serial_bridge_node']['ros__parameters']
         assert written['angle_zero'] == pytest.approx(530.0, abs=0.5)
         assert written['max_duty'] == 0.7 and '# [s] the firmware stops' in config.read_text()   # rest untouched
 

@@ -23,7 +23,8 @@ from aeropend_ros._ros_env import local_ros_environment
 from tests.ros_helpers import private_domain_id, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGE_FILES = ['package.xml', 'setup.py', 'setup.cfg', 'resource', 'aeropend_ros', 'aeropend_core', 'config']
+PACKAGE_FILES = ['package.xml', 'setup.py', 'setup.cfg', 'resource', 'aeropend_ros', 'aeropend_core', 'config',
+                 'launch']
 COLCON = shutil.which('colcon', path=str(Path(sys.executable).parent)) or shutil.which('colcon')
 
 pytestmark = [pytest.mark.timeout(240),
@@ -70,6 +71,14 @@ def test_install_layout(workspace):
     assert (install / 'share' / 'aeropend_ros' / 'package.xml').is_file()
     assert (install / 'share' / 'ament_index' / 'resource_index' / 'packages' / 'aeropend_ros').is_file()
     assert (install / 'share' / 'aeropend_ros' / 'config' / 'recorder_node.yaml').is_file()
+    # ros2 launch aeropend_ros sim.launch.py / rig.launch.py find them here; the layouts ship next to the YAML
+    share = install / 'share' / 'aeropend_ros'
+    assert sorted(p.name for p in (share / 'launch').glob('*.launch.py')) == \
+        sorted(p.name for p in (ROOT / 'launch').glob('*.launch.py')) == ['rig.launch.py', 'sim.launch.py']
+    for name in ['foxglove_node.yaml', 'aeropend.foxglove.json', 'aeropend.plotjuggler.xml']:
+        assert (share / 'config' / name).is_file(), name
+    path = install / 'lib' / 'aeropend_ros' / 'foxglove_node'
+    assert path.is_file() and os.access(path, os.X_OK), 'foxglove_node not installed where ros2 run looks'
     # the installed copy, not the source tree, is what the environment imports
     probe = subprocess.run([sys.executable, '-c', 'import aeropend_ros.recorder_node as m; print(m.__file__)'],
                            env=installed_environment(workspace), capture_output=True, text=True, timeout=60,

@@ -30,7 +30,7 @@ from aeropend_core.rig import protocol as P
 from aeropend_core.errors import AeropendError
 
 STEPS = ('zero', 'angle-scale', 'locked-rotor', 'back-emf')
-NODE_KEY = 'serial_bridge_node'
+NODE_KEY = '/**/serial_bridge_node'     # the shipped file's key: the node in any namespace
 
 
 def _fractions(text: str) -> list[float]:
@@ -117,7 +117,8 @@ def load_calibration(path: Path | None) -> tuple[P.Calibration, dict]:
         document = yaml.safe_load(path.read_text()) or {}
     except (OSError, yaml.YAMLError) as error:
         raise AeropendError(f'cannot read {path}: {error}') from error
-    values = (document.get(NODE_KEY) or {}).get('ros__parameters') or {}
+    section = document.get(NODE_KEY) or document.get(NODE_KEY.removeprefix('/**/')) or {}   # old files: no '/**/'
+    values = section.get('ros__parameters') or {}
     default = P.Calibration()
     try:
         calibration = P.Calibration(

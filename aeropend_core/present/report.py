@@ -1,9 +1,12 @@
-"""A self-contained HTML report of a diagnosis: one file, plots embedded as PNG, no external resources.
+"""A self-contained HTML report of a diagnosis: one file, no external resources; the time traces are interactive
+(plotly, its library inlined once: :mod:`aeropend_core.present.interactive`), the other plots embedded PNGs.
 
 The page answers, top to bottom: what is missing (the verdict and the key numbers with units), where the model
 fails (measured vs simulated angle, error vs time with the worst windows, error by regime, residual correlation
 tests like MATLAB ``resid``), which effect explains it (the candidate ranking with parameters +- 1 sigma), and
-what adding it changed (before -> after). Angles on the plots are in degrees; numbers in the text are in mrad.
+what adding it changed (before -> after); then the model itself (:mod:`aeropend_core.present.model_sections`):
+the motor observer, the identified equation, the parameter correlation matrix and a CSV export of every trace.
+Angles on the plots are in degrees; numbers in the text are in mrad.
 
 Plots are drawn with matplotlib's object API on an Agg canvas (no pyplot, no global backend state), so
 :func:`write_report` is safe to call from a library, a CLI or a thread.
@@ -39,6 +42,8 @@ from aeropend_core.present.formatting import (
     _sig,
     _unit_and_meaning,
 )
+from aeropend_core.present import interactive
+from aeropend_core.present.model_sections import model_sections
 from aeropend_core.present.plots import (
     _plot_candidates,
     _plot_error,
@@ -93,6 +98,13 @@ nav { font-size: 13px; margin: 6px 0 0; color: #555; }
 nav a { color: #1f63b4; text-decoration: none; margin-right: 12px; }
 footer { margin-top: 30px; font-size: 12px; color: #666; border-top: 1px solid #e3e6ea; padding-top: 8px; }
 code { font-family: 'DejaVu Sans Mono', monospace; font-size: 92%; }
+.plot { margin: 6px 0 10px; }
+.equation { font-family: 'DejaVu Serif', Georgia, serif; font-size: 17px; line-height: 1.8; background: #f7f8fa;
+  border-left: 4px solid #1f63b4; padding: 8px 14px; margin: 8px 0; }
+.terms { font-size: 13.5px; margin: 4px 0 10px; } .terms .term { display: inline-block; margin-right: 14px; }
+table.correlation td, table.correlation th { text-align: center; padding: 4px 7px; }
+button { font-size: 14px; padding: 6px 14px; border-radius: 4px; border: 1px solid #1f63b4; background: #eaf1fb;
+  cursor: pointer; }
 """
 
 
@@ -375,6 +387,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
         raise AeropendError('this diagnosis carries no prepared recording; run diagnose() on a recording to '
                             'make a report')
     best = _best_candidate(diagnosis)
+    live = interactive.available()          # interactive plots (plotly), else the PNGs
     prep = diagnosis.prepared
     model = _model_name(diagnosis.effects)
     heldout_from = prep.time[prep.split]
@@ -386,6 +399,8 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
     if diagnosis.before is not None:
         nav.append('<a href="#before-after">6 before &rarr; after</a>')
     nav.append('<a href="#parameters">parameters</a>')
+    nav += ['<a href="#observer">motor observer</a>', '<a href="#equation">equation</a>',
+            '<a href="#correlation">correlation</a>', '<a href="#export">CSV</a>']
     if diagnosis.notes:
         nav.append('<a href="#notes">notes</a>')
     if diagnosis.residual_structure:
@@ -410,10 +425,14 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
         'the numbers in the text are mrad). Shaded yellow: the held-out part, simulated free-running from the '
         'measured Va and Ia after estimating its initial state on its first second; the fit % is computed there. '
         'On the training part each ~10 s segment (dotted lines) restarts from a fitted initial state. Bottom: the '
-        'armature voltage driving the rig.</p>'
-        + _img(_plot_overlay(diagnosis, best), 'measured and simulated angle over the whole record')
+        'armature voltage driving the rig' + (' and the armature current. Interactive plots: drag to zoom, '
+                                              'double-click to reset, click a legend entry to hide a trace.</p>'
+                                              if live else '.</p>')
+        + (interactive.time_figure('overlay', diagnosis, best)
+           or _img(_plot_overlay(diagnosis, best), 'measured and simulated angle over the whole record'))
         + '<h3>Held-out part, enlarged</h3>'
-        + _img(_plot_heldout_zoom(diagnosis, best), 'measured and simulated angle on the held-out part'))
+        + (interactive.time_figure('heldout', diagnosis, best)
+           or _img(_plot_heldout_zoom(diagnosis, best), 'measured and simulated angle on the held-out part')))
 
     sections.append(
         '<h2 id="error">2. Error vs time: where the model fails</h2>'
@@ -421,7 +440,8 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
         f'{SMOOTHING_SECONDS:g} s running mean (bold) that shows the model error under the noise. Grey band: '
         '&plusmn; the measurement noise RMS; an error that stays inside it is noise. Salmon spans #1&ndash;#5: the '
         'one-second windows with the largest RMS error (table below). Yellow: held-out part.</p>'
-        + _img(_plot_error(diagnosis, best), 'simulation error against time with the worst windows marked')
+        + (interactive.time_figure('error', diagnosis, best)
+           or _img(_plot_error(diagnosis, best), 'simulation error against time with the worst windows marked'))
         + _worst_windows_html(diagnosis))
 
     sections.append(
@@ -463,6 +483,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
                     '&plusmn; 1&sigma; from the Gauss-Newton covariance, inflated for residual correlation. '
                     'Per unit inertia, as they enter the angular acceleration.</p>'
                     + _parameter_rows(diagnosis.current, diagnosis))
+    sections += model_sections(diagnosis, best, live, Path(source).stem if source else 'aeropend')
 
     if diagnosis.notes:
         sections.append('<h2 id="notes">Notes: confounding and suggested experiments</h2><ul class="notes">'
@@ -473,15 +494,17 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
     stamp = datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%d %H:%M UTC')
     sections.append(f'<footer>Generated by <code>aeropend diagnose</code> on {stamp}; the diagnosis took '
                     f'{diagnosis.seconds:.1f} s. Angles in rad/mrad in the text, degrees on the plots; parameters in '
-                    'SI. Self-contained: no external resources.</footer>')
+                    'SI. Self-contained: no external resources'
+                    + ('; interactive plots drawn by plotly.js, inlined in this page' if live else '') + '.</footer>')
     return ('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             '<meta name="viewport" content="width=device-width, initial-scale=1">'
-            f'<title>{_esc(title)}</title><style>{CSS}</style></head><body><main>'
+            f'<title>{_esc(title)}</title><style>{CSS}</style>' + (interactive.library_html() if live else '')
+            + '</head><body><main>'
             + '\n'.join(sections) + '</main></body></html>\n')
 
 
 def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = None) -> Path:
-    """Write the diagnosis as one self-contained HTML file (plots embedded as PNG) and return its path.
+    """Write the diagnosis as one self-contained HTML file (plots and data embedded) and return its path.
 
     Parameters
     ----------

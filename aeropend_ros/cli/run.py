@@ -11,6 +11,7 @@ Examples:
   aeropend run --report report.html --json run.json
   aeropend run --effect coulomb_friction=4 --realtime-factor 4
   aeropend run --port /dev/ttyACM0 --duration 90 # the real rig through the serial bridge
+  aeropend run --foxglove                        # also serve the live graph to Foxglove on ws://127.0.0.1:8765
 
 ROS_AUTOMATIC_DISCOVERY_RANGE is set to LOCALHOST for this demo unless you set it yourself.
 """
@@ -57,6 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--report', metavar='FILE.html', help='write the diagnosis as a self-contained HTML report')
     parser.add_argument('--json', metavar='FILE', help='write the run and its diagnosis as one JSON object to FILE '
                                                       '(- for standard output; the text then goes to standard error)')
+    parser.add_argument('--foxglove', nargs='?', type=int, const=8765, default=None, metavar='PORT',
+                        help='serve the live graph to Foxglove on ws://127.0.0.1:PORT (default 8765; 0 = any free '
+                             'port); layout: config/aeropend.foxglove.json')
 
 
 def _check_arguments(args) -> None:
@@ -96,6 +100,11 @@ def _check_arguments(args) -> None:
     if args.effect and args.effect != ['none']:
         parse_effect_assignments(args.effect)
     check_effect_names(args.model_effect)
+    if args.foxglove is not None:
+        if not 0 <= args.foxglove <= 65535:
+            raise AeropendError(f'--foxglove PORT must be in [0, 65535] (0 = any free port), got {args.foxglove}')
+        from aeropend_ros.foxglove_node import foxglove_sdk
+        foxglove_sdk()
     if not args.no_record:
         _check_record_folder(Path(args.record))
 
@@ -179,6 +188,11 @@ def _run(args) -> int:
         else:
             memory = _MemoryRecorder()
             nodes.append(memory.node)
+        if args.foxglove is not None:
+            from aeropend_ros.foxglove_node import FoxgloveNode
+            foxglove = FoxgloveNode(parameter_overrides=overrides(port=int(args.foxglove)))
+            nodes.append(foxglove)
+            print(f'aeropend run: Foxglove: open a Foxglove WebSocket connection to {foxglove.url}', flush=True)
         # One single-threaded executor per node, each spinning in its own thread: cheaper per callback than a
         # MultiThreadedExecutor, and a busy node (the recorder) never delays the sim's timer.
         for node in nodes:

@@ -1,0 +1,294 @@
+"""Report sections about the identified model itself: the motor observer the thrust relies on, the identified
+equation written out with numbers and units, the parameter correlation matrix of the output-error fit, and the CSV
+export of every trace.
+
+Each function returns an HTML fragment (a ``<section>`` with its own ``id``); :func:`model_sections` returns all of
+them for :func:`aeropend_core.present.report.render_report`. Figures are interactive with plotly, PNG otherwise.
+"""
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+
+from aeropend_core.diagnosis.compare import Comparison
+from aeropend_core.diagnosis.diagnose import Candidate, Diagnosis
+from aeropend_core.model.effects import CATALOG
+from aeropend_core.present.formatting import _esc, _model_name, _sig, _unit_and_meaning
+
+#: |correlation| above which two parameters are hard to tell apart from this record (highlighted).
+STRONG_CORRELATION = 0.9
+
+#: Name of the downloaded CSV file (the page's title is added in front).
+CSV_SUFFIX = '_traces.csv'
+
+
+# -- motor observer -------------------------------------------------------------------------------------------------
+
+def observer_traces(diagnosis: Diagnosis) -> dict[str, np.ndarray | None]:
+    """The motor-observer quantities over the whole record.
+
+    Returns
+    -------
+    dict
+        ``model_current`` [A]: the observer's current (Va - e)/Rm, passed through the electrical lag
+        tau_e = La/Rm when the observer was fitted with it (None without an observer); ``thrust_voltage`` [V]: the
+        back-EMF e that drives the thrust k e|e| (Va - R Ia from the measurements when no observer is used);
+        ``measured_emf`` [V]: Va - R Ia from the measured samples (noisy), for comparison.
+    """
+    prep = diagnosis.prepared
+    motor = prep.motor
+    resistance = diagnosis.current.parameters.get('thrust_resistance', 0.0)
+    thrust_voltage = prep.voltage - resistance * prep.current
+    if motor is None:
+        measured = prep.armature_voltage - resistance * prep.armature_current
+        return {'model_current': None, 'thrust_voltage': thrust_voltage, 'measured_emf': measured}
+    rm = motor.parameters['motor_resistance']
+    drive = prep.gate_voltage if prep.gate_voltage is not None else prep.armature_voltage
+    quasi_static = (drive - motor.back_emf) / rm
+    tau = motor.parameters.get('electrical_time_constant')
+    if tau:
+        # exact first-order lag of the piecewise-constant quasi-static current over each sample
+        decay = math.exp(-prep.sample_time / tau)
+        current = np.empty_like(quasi_static)
+        current[0] = prep.armature_current[0] if np.isfinite(prep.armature_current[0]) else quasi_static[0]
+        for k in range(1, current.size):
+            current[k] = decay * current[k - 1] + (1.0 - decay) * quasi_static[k - 1]
+    else:
+        current = quasi_static
+    measured = prep.armature_voltage - rm * prep.armature_current
+    return {'model_current': current, 'thrust_voltage': thrust_voltage, 'measured_emf': measured}
+
+
+def observer_section(diagnosis: Diagnosis, interactive: bool) -> str:
+    """Measured Ia vs the observer's model current, and the back-EMF used for the thrust."""
+    prep = diagnosis.prepared
+    motor = prep.motor
+    traces = observer_traces(diagnosis)
+    if motor is None:
+        text = ('<p class="caption"><b>The motor observer was not used</b> for this record: it could not explain the '
+                'armature current to within 1.5&times; its noise (or Va is not a step input), so the thrust input is '
+                'the measured <code>Va &minus; R&middot;Ia</code> with R fitted '
+                f'({_sig(diagnosis.current.parameters.get("thrust_resistance"))} &Omega;). Its current noise reaches '
+                'the thrust: expect a higher error floor.</p>')
+    else:
+        units = {'motor_drive_rate': '1/s', 'motor_friction_rate': '1/s', 'motor_drag_rate': '1/(V&middot;s)',
+                 'motor_resistance': '&Omega;', 'electrical_time_constant': 's'}
+        values = ', '.join(f'<code>{_esc(name)}</code> = {_sig(value)} {units.get(name, "")}'
+                           for name, value in motor.parameters.items())
+        ratio = motor.current_rms_error / motor.current_noise_rms if motor.current_noise_rms > 0 else float('nan')
+        text = ('<p class="caption">The thrust is computed from the back-EMF <i>e</i> = K&omega;&middot;&omega;<sub>1'
+                '</sub> of a small motor model fitted to the measured Ia (<code>Ia = (Va &minus; e)/Rm</code>, '
+                '<code>de/dt = p1(Va &minus; e) &minus; p2&middot;e &minus; p3&middot;e|e|</code>), not from the '
+                'noisy <code>Va &minus; R&middot;Ia</code>. Top: measured Ia (grey) and the observer\'s current '
+                '(orange); they must agree to within the current\'s noise, or the thrust input is wrong. Bottom: the '
+                'back-EMF used for the thrust (blue) against <code>Va &minus; Rm&middot;Ia</code> from the samples '
+                f'(grey). Fitted: {values}. Current RMS error {motor.current_rms_error * 1e3:.2f} mA against a noise '
+                f'of {motor.current_noise_rms * 1e3:.2f} mA ({ratio:.2f}&times;; the observer is used below '
+                '1.5&times;).</p>')
+    if interactive:
+        from aeropend_core.present.interactive import observer_figure
+        figure = observer_figure(prep.time, prep.armature_current, traces['model_current'], traces['thrust_voltage'],
+                                 traces['measured_emf'], float(prep.time[prep.split]))
+    else:
+        figure = _observer_png(diagnosis, traces)
+    return ('<section id="observer"><h2>Motor observer: armature current and back-EMF</h2>' + text + figure
+            + '</section>')
+
+
+def _observer_png(diagnosis: Diagnosis, traces: dict) -> str:
+    from aeropend_core.present.formatting import HELDOUT_SHADE, MEASURED, _figure, _finite_trace, _img, _png
+    prep = diagnosis.prepared
+    figure = _figure(12.5, 5.0)
+    top, bottom = figure.subplots(2, 1, sharex=True)
+    for axes in (top, bottom):
+        axes.axvspan(prep.time[prep.split], prep.time[-1], color=HELDOUT_SHADE, zorder=0)
+        axes.grid(alpha=0.3)
+    top.plot(*_finite_trace(prep.time, prep.armature_current), color=MEASURED, lw=0.6, label='measured Ia')
+    if traces['model_current'] is not None:
+        top.plot(*_finite_trace(prep.time, traces['model_current']), color='#e66101', lw=1.2,
+                 label='observer model current')
+    bottom.plot(*_finite_trace(prep.time, traces['measured_emf']), color=MEASURED, lw=0.6, label='Va - R Ia measured')
+    bottom.plot(*_finite_trace(prep.time, traces['thrust_voltage']), color='#1f63b4', lw=1.2,
+                label='back-EMF used for the thrust')
+    top.set_ylabel('Ia [A]')
+    bottom.set_ylabel('back-EMF [V]')
+    bottom.set_xlabel('time [s]')
+    top.legend(fontsize=8, loc='upper right')
+    bottom.legend(fontsize=8, loc='upper right')
+    return _img(_png(figure), 'measured armature current against the motor observer, and the back-EMF')
+
+
+# -- the identified equation ----------------------------------------------------------------------------------------
+
+def _value(comparison: Comparison, name: str, symbol: str) -> str:
+    value = comparison.parameters.get(name, float('nan'))
+    sigma = comparison.fit.standard_errors.get(name, float('nan'))
+    unit, _ = _unit_and_meaning(name)
+    spread = f' &plusmn; {_sig(sigma, 2)}' if np.isfinite(sigma) and sigma > 0 else ''
+    return (f'<span class="term" title="{_esc(name)}">{symbol} = <b>{_sig(value)}{spread}</b> '
+            f'{_esc(unit)}</span>')
+
+
+def _effect_term(name: str) -> str:
+    """The term an effect adds to dΩ/dt (for the effects it changes elsewhere, an empty string)."""
+    from aeropend_core.model.effects import FRICTION_SMOOTHING
+    return {'coulomb_friction': f' &minus; F<sub>c</sub>&middot;tanh(&Omega; / {FRICTION_SMOOTHING:g}&nbsp;rad/s)',
+            'quadratic_drag': ' &minus; C<sub>d</sub>&middot;&Omega;|&Omega;|',
+            'cable_torque': ' &minus; K<sub>c</sub>&middot;y'}.get(name, '')
+
+
+def equation_html(comparison: Comparison, observer: bool) -> str:
+    """The identified model as equations with the fitted numbers (&plusmn; 1 sigma) and SI units."""
+    effects = comparison.effects
+    thrust = 'f' if 'thrust_lag' in effects else 'k&middot;e|e|' + (
+        '&middot;[Va &ge; V<sub>0</sub>]' if 'dead_zone' in effects else '')
+    user = [e for e in effects if e in CATALOG and not CATALOG[e].builtin]
+    builtin_terms = ''.join(_effect_term(e) for e in effects)
+    user_terms = ''.join(f' + g<sub>{_esc(e)}</sub>(y, &Omega;)' for e in user)
+    lines = ['dy/dt = &Omega;',
+             f'd&Omega;/dt = &minus;a&middot;sin y &minus; b&middot;&Omega; + {thrust}{builtin_terms}{user_terms}']
+    if 'thrust_lag' in effects:
+        lines.append('&tau;&middot;df/dt = k&middot;e|e|' + ('&middot;[Va &ge; V<sub>0</sub>]' if 'dead_zone' in effects
+                                                            else '') + ' &minus; f')
+    lines.append('e = back-EMF of the motor observer [V] (fitted to Ia)' if observer else
+                 'e = Va &minus; R&middot;Ia [V] (measured)')
+    if 'angle_offset' in effects:
+        lines.append('measured angle = y + y<sub>0</sub>')
+    symbols = {'gravity_stiffness': 'a', 'damping': 'b', 'thrust_gain': 'k', 'friction_acceleration': 'F<sub>c</sub>',
+               'drag_coefficient': 'C<sub>d</sub>', 'cable_stiffness': 'K<sub>c</sub>', 'offset': 'y<sub>0</sub>',
+               'time_constant': '&tau;', 'threshold_voltage': 'V<sub>0</sub>'}
+    if not observer:
+        symbols['thrust_resistance'] = 'R'
+    shown = [name for name in comparison.parameters if not (observer and name == 'thrust_resistance')]   # R = 0
+    values = [_value(comparison, name, symbols.get(name, f'<code>{_esc(name)}</code>')) for name in shown]
+    notes = [f'g<sub>{_esc(e)}</sub>: {_esc(CATALOG[e].equation)}' for e in user]
+    return ('<div class="equation">' + '<br>'.join(lines) + '</div><div class="terms">' + ' &nbsp; '.join(values)
+            + '</div>' + ''.join(f'<p class="caption">{n}</p>' for n in notes))
+
+
+def equation_section(diagnosis: Diagnosis, best: Candidate | None) -> str:
+    observer = diagnosis.prepared.motor is not None
+    parts = ['<section id="equation"><h2>The identified equation</h2><p class="caption">The model as given '
+             f'(<b>{_esc(_model_name(diagnosis.effects))}</b>), fitted by output error on the training part; y is the '
+             'rod angle [rad], &Omega; its rate [rad/s]; &plusmn; 1&sigma; as in the parameter table.</p>',
+             equation_html(diagnosis.current, observer)]
+    if best is not None and best.significant and best.comparison is not None:
+        parts.append(f'<h3>With the missing effect added (+ {_esc(best.effect)})</h3>'
+                     + equation_html(best.comparison, observer))
+    return ''.join(parts) + '</section>'
+
+
+# -- parameter correlation ------------------------------------------------------------------------------------------
+
+def _cell_colour(r: float) -> str:
+    """White at 0, red for +1, blue for -1."""
+    if not np.isfinite(r):
+        return '#eeeeee'
+    strength = min(abs(r), 1.0)
+    low = round(255 - 150 * strength)
+    return f'rgb(255,{low},{low})' if r > 0 else f'rgb({low},{low},255)'
+
+
+def correlation_table(comparison: Comparison) -> str:
+    """The parameter correlation matrix of the output-error fit (from its covariance) as a coloured table."""
+    names = list(comparison.fit.free_names)
+    matrix = np.asarray(comparison.fit.correlation, dtype=float)
+    if not names or matrix.shape != (len(names), len(names)):
+        return '<p class="caption">No correlation matrix: the fit has no free parameters.</p>'
+    head = '<tr><th></th>' + ''.join(f'<th><code>{_esc(n)}</code></th>' for n in names) + '</tr>'
+    rows = []
+    for i, name in enumerate(names):
+        cells = []
+        for j in range(len(names)):
+            r = matrix[i, j]
+            strong = i != j and np.isfinite(r) and abs(r) > STRONG_CORRELATION
+            style = f'background:{_cell_colour(r)}' + (';font-weight:bold;outline:2px solid #b2182b' if strong else '')
+            cells.append(f'<td class="num" style="{style}">{r:+.2f}</td>' if np.isfinite(r) else
+                         '<td class="num">&mdash;</td>')
+        rows.append(f'<tr><th><code>{_esc(name)}</code></th>' + ''.join(cells) + '</tr>')
+    return '<table class="correlation" style="width:auto">' + head + ''.join(rows) + '</table>'
+
+
+def correlation_section(diagnosis: Diagnosis, best: Candidate | None) -> str:
+    names = list(diagnosis.current.fit.free_names)
+    matrix = np.asarray(diagnosis.current.fit.correlation, dtype=float)
+    strong = [(names[i], names[j], matrix[i, j]) for i in range(len(names)) for j in range(i + 1, len(names))
+              if matrix.shape == (len(names), len(names)) and np.isfinite(matrix[i, j])
+              and abs(matrix[i, j]) > STRONG_CORRELATION]
+    verdict = ('Strongly correlated (|r| &gt; ' + f'{STRONG_CORRELATION:g}, outlined): '
+               + '; '.join(f'<code>{_esc(a)}</code> / <code>{_esc(b)}</code> ({r:+.2f})' for a, b, r in strong)
+               + '. This record cannot tell them apart well: their individual values are uncertain together (the '
+               '&plusmn;1&sigma; of each already includes it); an experiment that moves them differently separates '
+               'them.') if strong else (f'No pair above |r| = {STRONG_CORRELATION:g}: every parameter is determined '
+                                        'by this record on its own.')
+    parts = ['<section id="correlation"><h2>Parameter correlation</h2><p class="caption">Correlation matrix of the '
+             'fitted parameters from the output-error fit\'s Gauss-Newton covariance (free parameters only; '
+             f'red positive, blue negative). {verdict}</p>', correlation_table(diagnosis.current)]
+    if best is not None and best.significant and best.comparison is not None:
+        parts.append(f'<h3>With + {_esc(best.effect)}</h3>' + correlation_table(best.comparison))
+    return ''.join(parts) + '</section>'
+
+
+# -- CSV export -----------------------------------------------------------------------------------------------------
+
+def traces_csv(diagnosis: Diagnosis, best: Candidate | None) -> str:
+    """Every sample of the record and of the models as CSV text (SI units; empty field = not simulated there)."""
+    prep = diagnosis.prepared
+    traces = observer_traces(diagnosis)
+    columns = {'time_s': (prep.time, '%.6f'), 'armature_voltage_V': (prep.armature_voltage, '%.6g'),
+               'armature_current_A': (prep.armature_current, '%.6g'), 'angle_rad': (prep.angle, '%.7g'),
+               'held_out': ((np.arange(prep.time.size) >= prep.split).astype(float), '%.0f'),
+               'simulated_angle_rad': (diagnosis.current.evaluation.simulated, '%.7g')}
+    if diagnosis.before is not None:
+        columns['simulated_angle_before_rad'] = (diagnosis.before.evaluation.simulated, '%.7g')
+    if best is not None and best.comparison is not None:
+        effect = ''.join(c if c.isalnum() else '_' for c in best.effect)      # a plain column name
+        columns[f'simulated_angle_with_{effect}_rad'] = (best.comparison.evaluation.simulated, '%.7g')
+    if traces['model_current'] is not None:
+        columns['observer_current_A'] = (traces['model_current'], '%.6g')
+    columns['thrust_back_emf_V'] = (traces['thrust_voltage'], '%.6g')
+    buffer = io.StringIO()
+    buffer.write(','.join(columns) + '\n')
+    data = np.column_stack([np.asarray(values, dtype=float) for values, _ in columns.values()])
+    formats = [fmt for _, fmt in columns.values()]
+    for row in data:
+        buffer.write(','.join('' if not np.isfinite(v) else fmt % v for v, fmt in zip(row, formats)) + '\n')
+    return buffer.getvalue()
+
+
+DOWNLOAD_SCRIPT = """<script>
+function aeropendDownloadCsv(name) {
+  var text = document.getElementById('traces-csv').textContent.replace(/^\\s+/, '');
+  var link = document.createElement('a');
+  link.href = URL.createObjectURL(new Blob([text], {type: 'text/csv'}));
+  link.download = name;
+  document.body.appendChild(link);
+  link.click();
+  setTimeout(function () { URL.revokeObjectURL(link.href); link.remove(); }, 1000);
+}
+</script>"""
+
+
+def csv_section(diagnosis: Diagnosis, best: Candidate | None, file_stem: str = 'aeropend') -> str:
+    """A download button for the traces as CSV (the CSV text is embedded in the page; no server, no network)."""
+    text = traces_csv(diagnosis, best)
+    header = text.split('\n', 1)[0]
+    rows = text.count('\n') - 1
+    name = ''.join(c if c.isalnum() or c in '-_.' else '_' for c in file_stem) + CSV_SUFFIX
+    return ('<section id="export"><h2>Export the traces</h2><p class="caption">Every sample (not decimated) of the '
+            f'measured and simulated traces, SI units, {rows} rows; columns: <code>{_esc(header)}</code>. '
+            '<code>held_out</code> is 1 on the held-out part; an empty field has no simulated value at that sample '
+            '(the simulation is kept at every second sample, from the first fitted state of each segment on).</p>'
+            f'<p><button type="button" onclick="aeropendDownloadCsv({_esc(repr(name))})">Download {_esc(name)}'
+            f'</button></p><script type="text/csv" id="traces-csv">\n{text}</script>' + DOWNLOAD_SCRIPT + '</section>')
+
+
+def model_sections(diagnosis: Diagnosis, best: Candidate | None, interactive: bool, file_stem: str) -> list[str]:
+    """The sections of this module in page order."""
+    return [observer_section(diagnosis, interactive), equation_section(diagnosis, best),
+            correlation_section(diagnosis, best), csv_section(diagnosis, best, file_stem)]
+
+
+__all__ = ['correlation_table', 'csv_section', 'equation_html', 'model_sections', 'observer_traces', 'traces_csv']
