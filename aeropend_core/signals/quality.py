@@ -1,0 +1,636 @@
+"""One data-quality gate for every recording that is about to be fitted (identify, diagnose, the online windows).
+
+:func:`check_recording` looks at a :class:`~aeropend_core.io.recording.Recording` the way a careful person would
+before trusting a number computed from it, and returns a :class:`QualityReport`: the data with every unambiguous
+defect repaired, and one :class:`Finding` per defect, each saying what is wrong, where (time range [s], sample
+index) and what to do. A defect that no repair can make trustworthy is *refused*: :class:`DataQualityError` (an
+:class:`~aeropend_core.errors.AeropendError`, exit status 2 in the CLI) with the finding's message.
+
+The checks use robust statistics (medians, median absolute deviations) and the rig's physics (a pendulum driven by
+a small DC motor sampled at 490 Hz), never the values of one particular bad file:
+
+==========================  ===========  ===================================================================
+code                        severity     when
+==========================  ===========  ===================================================================
+``byte_order_mark``         repaired     the CSV starts with a UTF-8 byte-order mark (Excel); it is skipped
+``duplicate_column``        refused      two columns share a name (which one is right cannot be told)
+``duplicate_sample``        repaired     a sample repeated exactly (same stamp, same values); dropped
+``non_finite``              repaired /   NaN/inf samples: a few short runs are interpolated; more are refused
+                            refused
+``absurd_value``            repaired /   values beyond any unit mistake (abs > 1e6: 1e300, 1e308): as NaN
+                            refused
+``time_in_milliseconds``    repaired     the stamps step 1000 x the declared sample time: divided by 1000
+``time_precision``          repaired /   stamps rounded (or jittered) by more than 1 % of the step: replaced by
+                            refused      the uniform grid they fit, or refused when no grid fits them
+``sample_rate_mismatch``    refused      stamps (or stamps per sequence count) disagree with the declared rate
+``lost_samples``            warning      gaps in the stamps / sequence numbers (not filled here)
+``angle_in_degrees``        repaired     the angle spans more than a turn and moves faster than the rod can in
+                                         radians, but plausibly in degrees: converted
+``angle_range``             warning      the angle spans more than a turn at a plausible rate (over the top, or
+                                         slow degrees): said, not changed
+``angle_wrapped``           repaired     the angle jumps by one turn at the ends of a 2 pi interval: unwrapped
+``angle_jump``              repaired /   a one-turn jump inside the range (encoder glitch): unwrapped; any
+                            refused      other jump faster than the rod can move is refused
+``current_in_milliamps``    repaired     the current is beyond a small DC motor's amperes but plausible in mA
+``voltage_in_millivolts``   repaired     the same for the armature voltage
+``duty_in_percent``         repaired     the duty column holds 0..100 instead of 0..1
+``outlier``                 repaired /   isolated samples far from their neighbours (Hampel filter on the
+                            refused      deviation from a 7-sample running median): interpolated
+``stuck_sensor``            refused      a signal frozen at one value while the input steps
+==========================  ===========  ===================================================================
+
+Every check that repairs also says so (severity ``repaired``): nothing is changed silently.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aeropend_core.errors import AeropendError
+
+#: Finding severities, mildest first.
+SEVERITIES = ('repaired', 'warning', 'refused')
+#: The signals the gate checks (others, e.g. simulator truth, pass unchanged).
+MEASURED = ('angle', 'armature_voltage', 'armature_current', 'duty')
+#: Magnitude beyond which a value is absurd for every signal whatever its unit (rad, deg, V, mV, A, mA, s, ms).
+ABSURD = 1e6
+#: Largest plausible magnitudes for the rig, SI: a small DC motor (Ra ~ 1 ohm on a few volts) and its supply.
+MAX_CURRENT = 20.0          # A
+MAX_VOLTAGE = 30.0          # V
+#: Rate of the angle [rad/s] (99th percentile over the record) above which the rod cannot be moving in radians:
+#: the propeller's terminal spin is ~75 rad/s, a swinging rod stays below ~10 rad/s; degrees read 57 x faster.
+MAX_ANGULAR_RATE = 40.0
+#: Largest believable one-sample change of the angle [rad] at any rig rate (245 rad/s at 490 Hz).
+MAX_ANGLE_STEP = 0.5
+#: Hampel filter: running-median width [samples] and threshold in robust standard deviations.
+HAMPEL_WIDTH = 7
+HAMPEL_SIGMAS = 10.0
+#: Isolated defects (NaN, absurd values, outliers) are repaired up to this fraction of the samples...
+MAX_REPAIRED_FRACTION = 0.005
+#: ... in runs of at most this many samples; more is refused.
+MAX_REPAIRED_RUN = 5
+#: Shortest frozen span that counts as a stuck sensor [s] (when the input steps within it).
+STUCK_SECONDS = 0.5
+#: Time a sensor is given to respond to an input change before its silence counts [s].
+STUCK_RESPONSE = 0.25
+#: Relative tolerance on the sample rate against the declared one.
+RATE_TOLERANCE = 0.02
+#: Stamps rounded or jittered by more than this fraction of the step cannot give the rate by themselves.
+PRECISION_FRACTION = 0.01
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One defect of a recording.
+
+    Attributes
+    ----------
+    code : str
+        Stable snake_case name (see the module table), for programs.
+    severity : str
+        ``'repaired'`` (fixed, said), ``'warning'`` (kept as is, said) or ``'refused'`` (no number can be trusted).
+    message : str
+        One line: the problem, where in the record, what was done or what to do.
+    where : tuple of float or None
+        ``(t_start, t_stop)`` [s] of the affected span in the record's time, or None for the whole file.
+    count : int
+        How many samples (or columns) are affected.
+    """
+
+    code: str
+    severity: str
+    message: str
+    where: tuple[float, float] | None = None
+    count: int = 0
+
+    def __post_init__(self) -> None:
+        if self.severity not in SEVERITIES:
+            raise ValueError(f'severity must be one of {SEVERITIES}, got {self.severity!r}')
+
+    def to_dict(self) -> dict:
+        """Plain JSON types: ``{code, severity, message, where: [t_start, t_stop] or null, count}``."""
+        where = None if self.where is None else [float(self.where[0]), float(self.where[1])]
+        return {'code': self.code, 'severity': self.severity, 'message': self.message, 'where': where,
+                'count': int(self.count)}
+
+    def line(self) -> str:
+        """``severity (code): message`` for logs and reports."""
+        return f'{self.severity} ({self.code}): {self.message}'
+
+
+class DataQualityError(AeropendError):
+    """A recording refused by the gate. ``finding`` is the refusal, ``findings`` everything found before it."""
+
+    def __init__(self, finding: Finding, findings: Sequence[Finding] = ()) -> None:
+        super().__init__(finding.message)
+        self.finding = finding
+        self.findings = tuple(findings)
+
+
+@dataclass(frozen=True, eq=False)
+class QualityReport:
+    """The gate's answer: the repaired recording and every finding (the recording carries them too)."""
+
+    recording: object
+    findings: list[Finding] = field(default_factory=list)
+
+    @property
+    def clean(self) -> bool:
+        return not self.findings
+
+    def codes(self) -> list[str]:
+        return [f.code for f in self.findings]
+
+    def worst(self) -> str | None:
+        """The most severe severity present, or None when clean."""
+        present = [SEVERITIES.index(f.severity) for f in self.findings]
+        return SEVERITIES[max(present)] if present else None
+
+
+def findings_to_json(findings: Iterable[Finding]) -> list[dict]:
+    """The ``"warnings": [...]`` list of every ``--json`` output."""
+    return [f.to_dict() for f in findings]
+
+
+# ------------------------------------------------------------------------------------------------------ helpers
+class _Gate:
+    """State of one check: the arrays being repaired and the findings so far."""
+
+    def __init__(self, time: np.ndarray, signals: dict[str, np.ndarray], source: str, context: str,
+                 findings: Sequence[Finding]) -> None:
+        self.time = np.array(time, dtype=float)
+        self.signals = {k: np.array(v, dtype=float) for k, v in signals.items()}
+        self.source = source
+        self.context = context
+        self.findings: list[Finding] = list(findings)
+
+    # where / what to do -------------------------------------------------------------------------------------
+    def t(self, index: int) -> float:
+        index = int(min(max(index, 0), len(self.time) - 1))
+        value = self.time[index]
+        return float(value) if math.isfinite(value) else float('nan')
+
+    def span(self, first: int, last: int) -> tuple[float, float]:
+        return (self.t(first), self.t(last))
+
+    def at(self, first: int, last: int | None = None) -> str:
+        """'sample 12 (t = 0.0245 s)' or 'samples 12-40 (t = 0.0245-0.0816 s)'."""
+        if last is None or last == first:
+            return f'sample {first} (t = {self.t(first):.4f} s)'
+        return f'samples {first}-{last} (t = {self.t(first):.4f}-{self.t(last):.4f} s)'
+
+    @property
+    def cut_hint(self) -> str:
+        if self.context == 'window':
+            return 'the window is not analysed'
+        return 'cut the record around it (identify --start/--stop) or fix the file'
+
+    def add(self, code: str, severity: str, message: str, where: tuple[float, float] | None = None,
+            count: int = 0) -> None:
+        finding = Finding(code, severity, f'{self.source}: {message}', where, int(count))
+        if severity == 'refused':
+            raise DataQualityError(finding, self.findings)
+        self.findings.append(finding)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) index pairs of the runs of True in a boolean mask."""
+    if not mask.any():
+        return []
+    padded = np.concatenate(([False], mask, [False])).astype(np.int8)
+    edges = np.flatnonzero(np.diff(padded))
+    return [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2])]
+
+
+def _interpolate(values: np.ndarray, bad: np.ndarray) -> np.ndarray:
+    good = np.flatnonzero(~bad)
+    out = values.copy()
+    out[bad] = np.interp(np.flatnonzero(bad), good, values[good])
+    return out
+
+
+def _robust_sigma(values: np.ndarray) -> float:
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+
+
+def _quantum(values: np.ndarray, scale: float = 0.0) -> float:
+    """Smallest difference between distinct values (the resolution of quantised data), or 0; differences below
+    float rounding at magnitude `scale` (e.g. of stamps around t = 1e5 s) do not count."""
+    distinct = np.unique(values[np.isfinite(values)])
+    if distinct.size < 2:
+        return 0.0
+    gaps = np.diff(distinct)
+    gaps = gaps[gaps > 64 * np.spacing(max(scale, float(np.max(np.abs(distinct)))))]
+    return float(np.min(gaps)) if gaps.size else 0.0
+
+
+def _running_median(values: np.ndarray, width: int = HAMPEL_WIDTH) -> np.ndarray:
+    from scipy.ndimage import median_filter
+    return median_filter(values, size=width, mode='nearest')
+
+
+def _typical_rate(values: np.ndarray, sample_time: float) -> float:
+    """99th percentile of the rate of change [unit/s] of a signal smoothed by a 0.1 s running median (noise
+    barely reaches it)."""
+    width = max(int(0.1 / sample_time) | 1, 3)
+    if values.size < 3 * width:
+        return 0.0
+    smooth = _running_median(values, width)
+    rate = np.abs(smooth[width:] - smooth[:-width]) / (width * sample_time)
+    return float(np.percentile(rate[np.isfinite(rate)], 99))
+
+
+def _robust_extent(values: np.ndarray) -> float:
+    """Largest magnitude once the 0.1 % most extreme samples on each side are set aside."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return 0.0
+    low, high = np.percentile(finite, [0.1, 99.9])
+    return float(max(abs(low), abs(high)))
+
+
+# ------------------------------------------------------------------------------------------------------- checks
+def _check_time(gate: _Gate, sample_time: float | None) -> None:
+    time = gate.time
+    bad = np.flatnonzero(~np.isfinite(time))
+    if bad.size:
+        gate.add('non_finite', 'refused', f'{bad.size} time stamp(s) are not finite numbers (first at sample '
+                 f'{bad[0]}); fix or remove those samples', count=bad.size)
+    if time.size < 2:
+        return
+    step = np.diff(time)
+    # Exact repeats (a message recorded twice) are dropped; the precision check below looks at the rest.
+    repeated = np.flatnonzero(step == 0) + 1
+    if repeated.size:
+        same = np.ones(repeated.size, dtype=bool)
+        for values in gate.signals.values():
+            a, b = values[repeated], values[repeated - 1]
+            same &= (a == b) | (np.isnan(a) & np.isnan(b))
+        if same.any():
+            drop = repeated[same]
+            keep = np.ones(time.size, dtype=bool)
+            keep[drop] = False
+            gate.add('duplicate_sample', 'repaired', f'dropped {drop.size} duplicated sample(s) (same time stamp and '
+                     f'values as the one before; first at sample {drop[0]})', gate.span(drop[0], drop[-1]),
+                     drop.size)
+            gate.time, time = time[keep], time[keep]
+            gate.signals = {k: v[keep] for k, v in gate.signals.items()}
+            step = np.diff(time)
+    backwards = np.flatnonzero(step < 0) + 1
+    if backwards.size:
+        k = int(backwards[0])
+        gate.add('time_backwards', 'refused', f'time stamps go backwards at sample {k} (t = {time[k - 1]:.6f} s then '
+                 f'{time[k]:.6f} s; {backwards.size} place(s) in all); the samples are out of order: sort them by time '
+                 'or split the record there', gate.span(k - 1, k), backwards.size)
+    _check_precision(gate, sample_time)
+    time = gate.time
+    step = np.diff(time)
+    zero = np.flatnonzero(step == 0) + 1
+    if zero.size:
+        k = int(zero[0])
+        gate.add('time_not_increasing', 'refused', f'samples {k - 1} and {k} have the same time stamp t = '
+                 f'{time[k]:.6f} s but different values; which one is right cannot be told: fix the time stamps',
+                 gate.span(k - 1, k), zero.size)
+    typical = float(np.median(step))
+    if sample_time is not None and abs(typical / 1000.0 / sample_time - 1.0) < 5 * RATE_TOLERANCE:
+        gate.time = time = time * 1e-3
+        gate.add('time_in_milliseconds', 'repaired', f'the t column steps {typical:.6g} per sample, 1000 x the '
+                 f'{sample_time * 1e3:.4g} ms sample time: it is in milliseconds; converted to seconds (write t '
+                 'in seconds)', gate.span(0, time.size - 1), time.size)
+        step, typical = np.diff(time), typical * 1e-3
+    if typical > 0.05:
+        gate.add('sample_rate_mismatch', 'refused', f'samples are {typical:g} time units apart; the t column must be '
+                 f'in seconds (the rig samples every 1/490 s = 0.00204 s; divide milliseconds by 1000)',
+                 gate.span(0, time.size - 1), time.size)
+    if sample_time is not None and abs(typical / sample_time - 1.0) > RATE_TOLERANCE:
+        gate.add('sample_rate_mismatch', 'refused', f'samples are {typical * 1e3:.4g} ms apart ({1 / typical:.4g} Hz) '
+                 f'but the acquisition rate is {1 / sample_time:.4g} Hz: a decimated or resampled record breaks the '
+                 'held-input and current-kick model; record every sample (or, if your rig runs at that rate, give '
+                 f'--sample-rate {1 / typical:.4g})', gate.span(0, time.size - 1), time.size)
+    _check_sequence(gate, sample_time or typical)
+    _check_gaps(gate, typical)
+
+
+def _check_precision(gate: _Gate, sample_time: float | None) -> None:
+    """Stamps rounded (``%.9g`` of a large t, epoch seconds in a spreadsheet) or jittered: a uniform grid if one
+    fits them within their resolution, else refused."""
+    time = gate.time
+    n = time.size
+    if n < 3:
+        return
+    step = np.diff(time)
+    mean_step = float((time[-1] - time[0]) / (n - 1))
+    if mean_step <= 0:
+        return
+    positive = step[step > 0]
+    typical = float(np.median(positive)) if positive.size else mean_step
+    quantum = _quantum(step[step < 1.6 * typical], float(np.max(np.abs(time))))     # gaps are not resolution
+    regular = step[(step > 0.4 * typical) & (step < 1.6 * typical)]
+    jitter = float(np.max(np.abs(regular - typical))) if regular.size else 0.0
+    if quantum <= PRECISION_FRACTION * mean_step and jitter <= 0.1 * typical:
+        return
+    index = np.arange(n, dtype=float)
+    slope, offset = np.polyfit(index, time - time[0], 1)
+    grid = time[0] + offset + slope * index
+    deviation = float(np.max(np.abs(time - grid)))
+    resolution = max(quantum, jitter)
+    if deviation <= 0.5 * resolution + 0.25 * slope and slope > 0:
+        gate.time = grid
+        gate.add('time_precision', 'repaired', f'time stamps are rounded or jittered by up to {resolution:.3g} s '
+                 f'({100 * resolution / slope:.0f} % of the {slope * 1e3:.4g} ms step), too coarse to give the rate '
+                 f'sample by sample; replaced by the uniform grid they fit ({1 / slope:.6g} Hz, largest correction '
+                 f'{deviation:.3g} s); write time with more digits', gate.span(0, n - 1), n)
+        return
+    gate.add('time_precision', 'refused', f'time stamps are rounded or jittered by up to {resolution:.3g} s '
+             f'({100 * resolution / typical:.0f} % of the {typical * 1e3:.4g} ms step) and no uniform grid fits '
+             'them (lost samples too?): the rate cannot be trusted; write time with more digits (1 us)',
+             gate.span(0, n - 1), n)
+
+
+def _check_sequence(gate: _Gate, sample_time: float) -> None:
+    """Stamps against sample counters: per counted sample the stamps must advance by the sample time."""
+    sequence = gate.signals.get('sequence')
+    if sequence is None or gate.time.size < 3 or not np.all(np.isfinite(sequence)):
+        return
+    counted = np.diff(sequence)
+    advancing = counted > 0
+    if not advancing.any():
+        return
+    per_count = float(np.median(np.diff(gate.time)[advancing] / counted[advancing]))
+    if abs(per_count / sample_time - 1.0) > RATE_TOLERANCE:
+        gate.add('sample_rate_mismatch', 'refused', f'the stamps advance {per_count * 1e3:.4g} ms per sequence count '
+                 f'({1 / per_count:.4g} Hz) but the acquisition rate is {1 / sample_time:.4g} Hz: the source does '
+                 'not sample at the rate assumed; set the right rate (--sample-rate) or fix the source',
+                 gate.span(0, gate.time.size - 1), gate.time.size)
+
+
+def _check_gaps(gate: _Gate, typical: float) -> None:
+    step = np.diff(gate.time)
+    gaps = np.flatnonzero(step > 1.5 * typical)
+    sequence = gate.signals.get('sequence')
+    if sequence is not None and np.all(np.isfinite(sequence)):
+        gaps = np.union1d(gaps, np.flatnonzero(np.diff(sequence) > 1))
+    if not gaps.size:
+        return
+    lost = np.maximum(np.round(step[gaps] / typical).astype(int) - 1, 1)
+    if sequence is not None and np.all(np.isfinite(sequence)):
+        lost = np.maximum(lost, np.diff(sequence)[gaps].astype(int) - 1)
+    longest = int(np.argmax(lost))
+    k = int(gaps[longest])
+    gate.add('lost_samples', 'warning', f'{int(lost.sum())} sample(s) lost in {gaps.size} gap(s), the longest '
+             f'{lost[longest] * typical:.3g} s ({lost[longest]} samples) after sample {k} (t = {gate.t(k):.4f}-'
+             f'{gate.t(k + 1):.4f} s); they are not filled: the record is not continuous there',
+             (gate.t(int(gaps[0])), gate.t(int(gaps[-1]) + 1)), int(lost.sum()))
+
+
+def _check_finite(gate: _Gate, name: str) -> None:
+    values = gate.signals[name]
+    with np.errstate(invalid='ignore'):
+        absurd = np.isfinite(values) & (np.abs(values) > ABSURD)
+    missing = ~np.isfinite(values)
+    bad = absurd | missing
+    if not bad.any():
+        return
+    runs = _runs(bad)
+    longest = max(b - a + 1 for a, b in runs)
+    first = int(np.flatnonzero(bad)[0])
+    code = 'absurd_value' if absurd.any() and not missing.any() else 'non_finite'
+    what = (f'{int(missing.sum())} NaN/inf' if missing.any() else '') + \
+        (' and ' if missing.any() and absurd.any() else '') + \
+        (f'{int(absurd.sum())} absurd (|x| > {ABSURD:g}, e.g. {values[absurd][0]:.3g})' if absurd.any() else '')
+    if bad.sum() > MAX_REPAIRED_FRACTION * values.size or longest > MAX_REPAIRED_RUN or bad.all():
+        gate.add(code, 'refused', f'{what} value(s) in {name!r} (first at {gate.at(first)}, longest run {longest} '
+                 f'samples): too many to interpolate; remove or fix them, or split the record into clean segments',
+                 gate.span(first, int(np.flatnonzero(bad)[-1])), int(bad.sum()))
+    gate.signals[name] = _interpolate(values, bad)
+    gate.add(code, 'repaired', f'{what} value(s) in {name!r} (first at {gate.at(first)}; {len(runs)} run(s) of at '
+             f'most {longest} samples) replaced by linear interpolation of their neighbours',
+             gate.span(first, int(np.flatnonzero(bad)[-1])), int(bad.sum()))
+
+
+def _check_units(gate: _Gate) -> None:
+    """Unit mistakes a factor away from the rig's physics: degrees, mA, mV, percent."""
+    signals = gate.signals
+    n = gate.time.size
+    whole = gate.span(0, n - 1)
+    if 'angle' in signals:
+        extent = _robust_extent(_unwrap_turns(signals['angle'])[0])
+        if extent > 2 * math.pi * 1.05:
+            extent = _robust_extent(signals['angle'])
+            rate = _typical_rate(signals['angle'], float(np.median(np.diff(gate.time))) if n > 1 else 1.0)
+            if math.radians(extent) <= 2 * math.pi * 1.05 and rate > MAX_ANGULAR_RATE:
+                signals['angle'] = np.radians(signals['angle'])
+                gate.add('angle_in_degrees', 'repaired', f"'angle' reaches {extent:.4g} and moves at {rate:.3g} per s "
+                         f'(99th percentile): more than a turn and faster than the rod in radians, '
+                         f'{math.radians(extent):.3g} rad and {math.radians(rate):.3g} rad/s in degrees: it is in '
+                         'degrees; converted to radians (write the angle in rad)', whole, n)
+            elif math.radians(extent) <= 2 * math.pi * 1.05:
+                gate.add('angle_range', 'warning', f"'angle' spans {extent:.4g} rad ({extent / (2 * math.pi):.2g} "
+                         f'turns) at a plausible rate ({rate:.3g} rad/s): either the rod went over the top, or the '
+                         f'angle is in degrees ({math.radians(extent):.3g} rad); if degrees, convert it to rad',
+                         whole, n)
+            else:
+                gate.add('absurd_value', 'refused', f"'angle' reaches {extent:.4g} (rad or deg: many turns), not a "
+                         'pendulum angle; write the angle in rad', whole, n)
+    for name, limit, unit, code in (('armature_current', MAX_CURRENT, 'A', 'current_in_milliamps'),
+                                    ('armature_voltage', MAX_VOLTAGE, 'V', 'voltage_in_millivolts')):
+        if name not in signals:
+            continue
+        extent = _robust_extent(signals[name])
+        if extent > limit:
+            if extent / 1000.0 <= limit:
+                signals[name] = signals[name] * 1e-3
+                gate.add(code, 'repaired', f'{name!r} reaches {extent:.4g}, beyond the {limit:g} {unit} a small DC '
+                         f'motor allows, and {extent / 1000:.3g} {unit} if in milli{unit}: converted to {unit} (write '
+                         f'it in {unit})', whole, n)
+            else:
+                gate.add('absurd_value', 'refused', f'{name!r} reaches {extent:.4g}, beyond what the rig can give in '
+                         f'{unit} or m{unit}; check the column', whole, n)
+    if 'duty' in signals:
+        extent = _robust_extent(signals['duty'])
+        if 1.05 < extent <= 105.0:
+            signals['duty'] = signals['duty'] * 0.01
+            gate.add('duty_in_percent', 'repaired', f"'duty' reaches {extent:.4g}: it is in percent; converted to a "
+                     'fraction 0..1', whole, n)
+
+
+def _unwrap_turns(angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(angle with one-turn jumps between samples removed and its median brought within half a turn of 0,
+    indices k of the jumps between k and k + 1)."""
+    turn = 2 * math.pi
+    if angle.size < 3:
+        return angle, np.zeros(0, dtype=int)
+    step = np.diff(angle)
+    with np.errstate(invalid='ignore'):
+        wraps = np.flatnonzero((np.abs(step) > math.pi) & (np.abs(np.abs(step) - turn) < 1.0))
+    if not wraps.size or _robust_sigma(step) > 0.1:
+        return angle, wraps[:0]       # none, or noise so large (> 0.1 rad a sample) that a turn is ambiguous
+    correction = np.zeros_like(angle)
+    correction[wraps + 1] = -turn * np.sign(step[wraps])
+    unwrapped = angle + np.cumsum(correction)
+    return unwrapped - turn * round(float(np.median(unwrapped)) / turn), wraps
+
+
+def _check_angle_turns(gate: _Gate) -> None:
+    """One-turn jumps: the encoder wrapped (angle kept in [0, 2 pi) or (-pi, pi]) or glitched by a turn."""
+    angle = gate.signals['angle']
+    unwrapped, wraps = _unwrap_turns(angle)
+    if not wraps.size:
+        return
+    turn = 2 * math.pi
+    raw_range = float(np.ptp(angle))
+    gate.signals['angle'] = unwrapped
+    where = gate.span(int(wraps[0]), int(wraps[-1]) + 1)
+    if raw_range <= turn + 0.3:
+        gate.add('angle_wrapped', 'repaired', f"'angle' is wrapped into a 2 pi interval ({np.min(angle):.3g} to "
+                 f'{np.max(angle):.3g} rad): {wraps.size} one-turn jump(s), first at {gate.at(int(wraps[0]) + 1)}; '
+                 'unwrapped', where, wraps.size)
+    else:
+        gate.add('angle_jump', 'repaired', f"'angle' jumps by one turn (2 pi) {wraps.size} time(s), first at "
+                 f'{gate.at(int(wraps[0]) + 1)} (an encoder glitch or wrap); unwrapped', where, wraps.size)
+
+
+def _check_outliers(gate: _Gate, name: str) -> None:
+    """Hampel filter: samples far from the 7-sample running median (edges of steps are kept by the median)."""
+    values = gate.signals[name]
+    if values.size < 4 * HAMPEL_WIDTH:
+        return
+    deviation = values - _running_median(values)
+    # MAD alone is 0 on quantised signals whose deviations are mostly exactly 0: a trimmed RMS bounds it below
+    trimmed = np.sort(np.abs(deviation))[:int(0.999 * deviation.size)]
+    sigma = max(_robust_sigma(deviation), 0.5 * float(np.sqrt(np.mean(trimmed ** 2))))
+    spread = float(np.subtract(*np.percentile(values, [99.5, 0.5])))
+    floor = max(5.0 * _quantum(values[:20000]), 0.01 * spread, 1e-12)
+    threshold = max(HAMPEL_SIGMAS * sigma, floor)
+    bad = np.abs(deviation) > threshold
+    if not bad.any():
+        return
+    count = int(bad.sum())
+    first, last = int(np.flatnonzero(bad)[0]), int(np.flatnonzero(bad)[-1])
+    worst = int(np.argmax(np.abs(deviation)))
+    if count > MAX_REPAIRED_FRACTION * values.size:
+        gate.add('outlier', 'refused', f'{count} samples of {name!r} lie far from their neighbours (more than '
+                 f'{threshold:.3g} off the running median; worst {values[worst]:.4g} at {gate.at(worst)}): too many to '
+                 'be isolated glitches; check the sensor and its wiring', gate.span(first, last), count)
+    gate.signals[name] = _interpolate(values, bad)
+    gate.add('outlier', 'repaired', f'{count} isolated outlier(s) in {name!r} (worst {values[worst]:.4g} at '
+             f'{gate.at(worst)}, {abs(deviation[worst]) / max(sigma, 1e-300):.3g} robust sigmas off its neighbours) '
+             'replaced by linear interpolation', gate.span(first, last), count)
+
+
+def _check_angle_jumps(gate: _Gate) -> None:
+    """Steps of the angle faster than the rod can move, lasting longer than an outlier: refused."""
+    angle = gate.signals['angle']
+    step = np.diff(angle)
+    if step.size < 3:
+        return
+    threshold = max(MAX_ANGLE_STEP, 12.0 * _robust_sigma(step))
+    big = np.flatnonzero(np.abs(step) > threshold)
+    if big.size:
+        k = int(big[0])
+        gate.add('angle_jump', 'refused', f"'angle' jumps by {step[k]:+.3g} rad from {gate.at(k)} to the next sample, "
+                 f'faster than the rod can move ({big.size} such jump(s)); the encoder glitched: {gate.cut_hint}',
+                 gate.span(k, int(big[-1]) + 1), big.size)
+
+
+def _check_stuck(gate: _Gate, name: str, driver: str, sample_time: float) -> None:
+    """A signal frozen at one value for STUCK_SECONDS or more while its driver (the input) steps."""
+    if name not in gate.signals or driver not in gate.signals:
+        return
+    values, drive = gate.signals[name], gate.signals[driver]
+    if values.size < 3:
+        return
+    starts = np.concatenate(([0], np.flatnonzero(np.diff(values) != 0) + 1))
+    stops = np.concatenate((starts[1:], [values.size])) - 1            # inclusive
+    smooth = _running_median(drive)
+    span = float(np.subtract(*np.percentile(smooth, [99, 1])))
+    if span <= 0:
+        return
+    minimum = max(int(STUCK_SECONDS / sample_time), 20)
+    response = int(STUCK_RESPONSE / sample_time)
+    for first, last in zip(starts, stops):
+        if last - first + 1 < minimum + response:
+            continue
+        moved = float(np.ptp(smooth[first:last + 1 - response]))   # an input change the sensor had time to see
+        if moved > 0.2 * span:
+            gate.add('stuck_sensor', 'refused', f'{name!r} is stuck at {values[first]:.6g} for '
+                     f'{(last - first) * sample_time:.3g} s ({gate.at(first, last)}) while {driver!r} changes by '
+                     f'{moved:.3g}: the sensor froze; {gate.cut_hint}', gate.span(first, last), last - first + 1)
+
+
+# ---------------------------------------------------------------------------------------------------- the gate
+def check_recording(recording, *, sample_time: float | None = None, context: str = 'file') -> QualityReport:
+    """Check a recording before fitting it; repair what is unambiguous, refuse what is not.
+
+    Parameters
+    ----------
+    recording : Recording
+        Time [s] and signals (``angle`` rad, ``armature_voltage`` V, ``armature_current`` A, ``duty`` 1, optional
+        ``sequence`` counts). Its ``findings`` (e.g. from the CSV reader) are carried over.
+    sample_time : float, optional
+        The declared acquisition period [s] (the rig: 1/490 s). Given, a record at another rate is refused and
+        one stamped in milliseconds is converted; None checks the stamps against themselves only.
+    context : str
+        ``'file'`` (identify, diagnose) or ``'window'`` (the online identification): only the advice differs.
+
+    Returns
+    -------
+    QualityReport
+        ``recording`` (repaired; its ``findings`` hold every finding) and ``findings``.
+
+    Raises
+    ------
+    DataQualityError
+        A refused finding (its message names the problem, where, and what to do).
+    """
+    from aeropend_core.io.recording import Recording
+    source = recording.source or ('the window' if context == 'window' else 'the recording')
+    previous = tuple(getattr(recording, 'findings', ()))
+    gate = _Gate(recording.time, recording.signals, source, context, previous)
+    if gate.time.size:
+        _check_time(gate, sample_time)
+    measured = [name for name in MEASURED if name in gate.signals]
+    for name in measured:
+        _check_finite(gate, name)
+    _check_units(gate)
+    if 'angle' in gate.signals:
+        _check_angle_turns(gate)
+    for name in ('angle', 'armature_voltage', 'armature_current'):
+        if name in gate.signals:
+            _check_outliers(gate, name)
+    if 'angle' in gate.signals:
+        _check_angle_jumps(gate)
+    if gate.time.size > 2:
+        period = float(np.median(np.diff(gate.time)))
+        _check_stuck(gate, 'angle', 'armature_voltage', period)
+        _check_stuck(gate, 'armature_current', 'armature_voltage', period)
+        _check_stuck(gate, 'armature_voltage', 'duty', period)
+    findings = gate.findings
+    repaired = Recording(gate.time, gate.signals, recording.source, tuple(findings))
+    return QualityReport(repaired, [f for f in findings if f not in previous])
+
+
+def require_finite(names: Sequence[str], arrays: Sequence[np.ndarray], label: str = '') -> None:
+    """Refuse (``non_finite``) arrays holding NaN/inf or of another shape than the first; for callers that take
+    plain arrays (identify_pendulum) and so have already passed the gate or never will."""
+    from aeropend_core.errors import InsufficientDataError
+    for name, x in zip(names, arrays):
+        if x.shape != arrays[0].shape:
+            raise AeropendError(f'{label}{name} has shape {x.shape}, time has {arrays[0].shape}')
+        with np.errstate(invalid='ignore'):
+            bad = ~np.isfinite(x) | (np.abs(x) > ABSURD)
+        if bad.any():
+            raise InsufficientDataError(
+                f'{label}{name} has {int(bad.sum())} NaN/inf or absurd (|x| > {ABSURD:g}) value(s), first at sample '
+                f'{int(np.argmax(bad))}; pass the data through aeropend_core.signals.quality.check_recording, or '
+                'remove or interpolate them')
+
+
+__all__ = ['Finding', 'QualityReport', 'DataQualityError', 'check_recording', 'findings_to_json', 'require_finite',
+           'SEVERITIES']
