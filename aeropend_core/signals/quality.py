@@ -37,6 +37,8 @@ code                        severity     when
 ``outlier``                 repaired /   isolated samples far from their neighbours (Hampel filter on the
                             refused      deviation from a 7-sample running median): interpolated
 ``stuck_sensor``            refused      a signal frozen at one value while the input steps
+``noisy_signal``            warning /    PSNR of the angle or current below 15 dB (warning) or 6 dB (refused)
+                            refused
 ==========================  ===========  ===================================================================
 
 Every check that repairs also says so (severity ``repaired``): nothing is changed silently.
@@ -76,6 +78,9 @@ MAX_REPAIRED_RUN = 5
 STUCK_SECONDS = 0.5
 #: Time a sensor is given to respond to an input change before its silence counts [s].
 STUCK_RESPONSE = 0.25
+#: Peak signal-to-noise ratios [dB] below which a measured signal is refused / said to be very noisy.
+MIN_PSNR_DB = 6.0
+WARN_PSNR_DB = 15.0
 #: Relative tolerance on the sample rate against the declared one.
 RATE_TOLERANCE = 0.02
 #: Stamps rounded or jittered by more than this fraction of the step cannot give the rate by themselves.
@@ -155,6 +160,15 @@ def findings_to_json(findings: Iterable[Finding]) -> list[dict]:
     return [f.to_dict() for f in findings]
 
 
+def quality_lines(findings: Sequence[Finding]) -> str:
+    """The "Data quality" section of a text report: ``Data quality: clean`` or one line per finding."""
+    if not findings:
+        return 'Data quality: clean (no repairs, no warnings)'
+    lines = [f'Data quality: {len(findings)} finding(s); every number below comes from the data as repaired:']
+    lines += [f'  {f.severity} ({f.code}): {f.message}' for f in findings]
+    return '\n'.join(lines)
+
+
 # ------------------------------------------------------------------------------------------------------ helpers
 class _Gate:
     """State of one check: the arrays being repaired and the findings so far."""
@@ -193,7 +207,8 @@ class _Gate:
         finding = Finding(code, severity, f'{self.source}: {message}', where, int(count))
         if severity == 'refused':
             raise DataQualityError(finding, self.findings)
-        self.findings.append(finding)
+        if finding not in self.findings:          # a recording checked twice keeps one copy of each finding
+            self.findings.append(finding)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -399,19 +414,22 @@ def _check_finite(gate: _Gate, name: str) -> None:
         return
     runs = _runs(bad)
     longest = max(b - a + 1 for a, b in runs)
-    first = int(np.flatnonzero(bad)[0])
-    code = 'absurd_value' if absurd.any() and not missing.any() else 'non_finite'
-    what = (f'{int(missing.sum())} NaN/inf' if missing.any() else '') + \
-        (' and ' if missing.any() and absurd.any() else '') + \
-        (f'{int(absurd.sum())} absurd (|x| > {ABSURD:g}, e.g. {values[absurd][0]:.3g})' if absurd.any() else '')
+    first, last = int(np.flatnonzero(bad)[0]), int(np.flatnonzero(bad)[-1])
     if bad.sum() > MAX_REPAIRED_FRACTION * values.size or longest > MAX_REPAIRED_RUN or bad.all():
-        gate.add(code, 'refused', f'{what} value(s) in {name!r} (first at {gate.at(first)}, longest run {longest} '
-                 f'samples): too many to interpolate; remove or fix them, or split the record into clean segments',
-                 gate.span(first, int(np.flatnonzero(bad)[-1])), int(bad.sum()))
+        what = f'{int(missing.sum())} NaN/inf and {int(absurd.sum())} absurd (|x| > {ABSURD:g})'
+        gate.add('absurd_value' if absurd.sum() > missing.sum() else 'non_finite', 'refused',
+                 f'{what} value(s) in {name!r} (first at {gate.at(first)}, longest run {longest} samples): too many to '
+                 'interpolate; remove or fix them, or split the record into clean segments', gate.span(first, last),
+                 int(bad.sum()))
     gate.signals[name] = _interpolate(values, bad)
-    gate.add(code, 'repaired', f'{what} value(s) in {name!r} (first at {gate.at(first)}; {len(runs)} run(s) of at '
-             f'most {longest} samples) replaced by linear interpolation of their neighbours',
-             gate.span(first, int(np.flatnonzero(bad)[-1])), int(bad.sum()))
+    for code, kind in (('non_finite', missing), ('absurd_value', absurd)):
+        if not kind.any():
+            continue
+        where = np.flatnonzero(kind)
+        what = 'NaN/inf' if code == 'non_finite' else f'absurd (|x| > {ABSURD:g}, e.g. {values[where[0]]:.3g})'
+        gate.add(code, 'repaired', f'{where.size} {what} value(s) in {name!r} (first at {gate.at(int(where[0]))}; '
+                 f'runs of at most {longest} samples) replaced by linear interpolation of their neighbours',
+                 gate.span(int(where[0]), int(where[-1])), where.size)
 
 
 def _check_units(gate: _Gate) -> None:
@@ -422,7 +440,7 @@ def _check_units(gate: _Gate) -> None:
     if 'angle' in signals:
         extent = _robust_extent(_unwrap_turns(signals['angle'])[0])
         if extent > 2 * math.pi * 1.05:
-            extent = _robust_extent(signals['angle'])
+            extent = _robust_extent(_unwrap_turns(signals['angle'], 360.0)[0])     # as if in degrees
             rate = _typical_rate(signals['angle'], float(np.median(np.diff(gate.time))) if n > 1 else 1.0)
             if math.radians(extent) <= 2 * math.pi * 1.05 and rate > MAX_ANGULAR_RATE:
                 signals['angle'] = np.radians(signals['angle'])
@@ -460,16 +478,16 @@ def _check_units(gate: _Gate) -> None:
                      'fraction 0..1', whole, n)
 
 
-def _unwrap_turns(angle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _unwrap_turns(angle: np.ndarray, turn: float = 2 * math.pi) -> tuple[np.ndarray, np.ndarray]:
     """(angle with one-turn jumps between samples removed and its median brought within half a turn of 0,
-    indices k of the jumps between k and k + 1)."""
-    turn = 2 * math.pi
+    indices k of the jumps between k and k + 1). `turn` is 2 pi (rad) or 360 (deg)."""
+    scale = turn / (2 * math.pi)
     if angle.size < 3:
         return angle, np.zeros(0, dtype=int)
     step = np.diff(angle)
     with np.errstate(invalid='ignore'):
-        wraps = np.flatnonzero((np.abs(step) > math.pi) & (np.abs(np.abs(step) - turn) < 1.0))
-    if not wraps.size or _robust_sigma(step) > 0.1:
+        wraps = np.flatnonzero((np.abs(step) > 0.5 * turn) & (np.abs(np.abs(step) - turn) < 1.0 * scale))
+    if not wraps.size or _robust_sigma(step) > 0.1 * scale:
         return angle, wraps[:0]       # none, or noise so large (> 0.1 rad a sample) that a turn is ambiguous
     correction = np.zeros_like(angle)
     correction[wraps + 1] = -turn * np.sign(step[wraps])
@@ -484,12 +502,13 @@ def _check_angle_turns(gate: _Gate) -> None:
     if not wraps.size:
         return
     turn = 2 * math.pi
-    raw_range = float(np.ptp(angle))
+    raw_range = float(np.subtract(*np.percentile(angle, [99.9, 0.1])))
     gate.signals['angle'] = unwrapped
     where = gate.span(int(wraps[0]), int(wraps[-1]) + 1)
     if raw_range <= turn + 0.3:
         gate.add('angle_wrapped', 'repaired', f"'angle' is wrapped into a 2 pi interval ({np.min(angle):.3g} to "
-                 f'{np.max(angle):.3g} rad): {wraps.size} one-turn jump(s), first at {gate.at(int(wraps[0]) + 1)}; '
+                 f'{np.max(angle):.3g} rad, i.e. [0, 2 pi) or [-pi, pi)): {wraps.size} one-turn jump(s), first at '
+                 f'{gate.at(int(wraps[0]) + 1)}; '
                  'unwrapped', where, wraps.size)
     else:
         gate.add('angle_jump', 'repaired', f"'angle' jumps by one turn (2 pi) {wraps.size} time(s), first at "
@@ -522,6 +541,27 @@ def _check_outliers(gate: _Gate, name: str) -> None:
     gate.add('outlier', 'repaired', f'{count} isolated outlier(s) in {name!r} (worst {values[worst]:.4g} at '
              f'{gate.at(worst)}, {abs(deviation[worst]) / max(sigma, 1e-300):.3g} robust sigmas off its neighbours) '
              'replaced by linear interpolation', gate.span(first, last), count)
+
+
+def _check_noise(gate: _Gate, name: str) -> None:
+    """Peak signal-to-noise ratio 20 log10(max|x| / noise RMS): a signal that is mostly noise gives no numbers."""
+    from aeropend_core.signals.preprocess import noise_rms
+    values = gate.signals[name]
+    if values.size < 100:
+        return
+    noise = noise_rms(values)
+    peak = float(np.percentile(np.abs(values), 99.9))
+    if not (noise > 0 and peak > 0):
+        return
+    psnr = 20 * math.log10(peak / noise)
+    whole = gate.span(0, values.size - 1)
+    if psnr < MIN_PSNR_DB:
+        gate.add('noisy_signal', 'refused', f'{name!r} is mostly noise: PSNR {psnr:.1f} dB (noise RMS {noise:.3g}, '
+                 f'peak {peak:.3g}); nothing can be identified from it: check the sensor, its wiring and its units',
+                 whole, values.size)
+    elif psnr < WARN_PSNR_DB:
+        gate.add('noisy_signal', 'warning', f'{name!r} is very noisy: PSNR {psnr:.1f} dB (noise RMS {noise:.3g}, '
+                 f'peak {peak:.3g}); estimates will be poor and small effects unseen', whole, values.size)
 
 
 def _check_angle_jumps(gate: _Gate) -> None:
@@ -606,6 +646,9 @@ def check_recording(recording, *, sample_time: float | None = None, context: str
             _check_outliers(gate, name)
     if 'angle' in gate.signals:
         _check_angle_jumps(gate)
+    for name in ('angle', 'armature_current'):
+        if name in gate.signals:
+            _check_noise(gate, name)
     if gate.time.size > 2:
         period = float(np.median(np.diff(gate.time)))
         _check_stuck(gate, 'angle', 'armature_voltage', period)
@@ -633,4 +676,5 @@ def require_finite(names: Sequence[str], arrays: Sequence[np.ndarray], label: st
 
 
 __all__ = ['Finding', 'QualityReport', 'DataQualityError', 'check_recording', 'findings_to_json', 'require_finite',
+           'quality_lines',
            'SEVERITIES']

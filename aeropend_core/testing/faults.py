@@ -110,25 +110,28 @@ class Fault:
     apply: Callable[[Columns], Columns]
     code: str
     severity: str
+    #: When in a recording's life it happens (faults of a pair are applied in this order): 0 the sensor or the
+    #: physics, 1 the encoder's range, 2 the units it is logged in, 3 the logging and its clock, 4 the file.
+    stage: int = 0
 
 
 #: The faults of issue 12 with what the gate must answer (code, severity).
 FAULTS = [
-    Fault('angle_in_degrees', degrees, 'angle_in_degrees', 'repaired'),
-    Fault('current_in_milliamps', milliamps, 'current_in_milliamps', 'repaired'),
-    Fault('time_in_milliseconds', milliseconds, 'time_in_milliseconds', 'repaired'),
-    Fault('angle_wrapped_0_2pi', wrapped_0_2pi, 'angle_wrapped', 'repaired'),
+    Fault('angle_in_degrees', degrees, 'angle_in_degrees', 'repaired', 2),
+    Fault('current_in_milliamps', milliamps, 'current_in_milliamps', 'repaired', 2),
+    Fault('angle_wrapped_0_2pi', wrapped_0_2pi, 'angle_wrapped', 'repaired', 1),
 
     Fault('glitch_2pi', glitch_2pi, 'angle_jump', 'repaired'),
     Fault('jump_2pi', jump_2pi, 'angle_jump', 'repaired'),
     Fault('outlier_100rad', outlier, 'outlier', 'repaired'),
-    Fault('outlier_1e300', lambda c: outlier(c, 1e300), 'absurd_value', 'repaired'),
-    Fault('outlier_1e308', lambda c: outlier(c, 1e308), 'absurd_value', 'repaired'),
-    Fault('current_outlier', lambda c: outlier(c, 50.0, name='armature_current'), 'outlier', 'repaired'),
+    Fault('outlier_1e300', lambda c: outlier(c, 1e300, at=16.0), 'absurd_value', 'repaired', 4),
+    Fault('outlier_1e308', lambda c: outlier(c, 1e308, at=17.0), 'absurd_value', 'repaired', 4),
+    Fault('current_outlier', lambda c: outlier(c, 50.0, at=18.0, name='armature_current'), 'outlier', 'repaired'),
     Fault('angle_stuck_6s', stuck, 'stuck_sensor', 'refused'),
     Fault('current_stuck_6s', lambda c: stuck(c, name='armature_current'), 'stuck_sensor', 'refused'),
-    Fault('logged_at_98hz', decimated, 'sample_rate_mismatch', 'refused'),
-    Fault('nan_sample', nan_sample, 'non_finite', 'repaired'),
-    Fault('lost_1s', lost_samples, 'lost_samples', 'warning'),
-    Fault('time_rounded_1e5s', coarse_time, 'time_precision', 'repaired'),
+    Fault('logged_at_98hz', decimated, 'sample_rate_mismatch', 'refused', 3),
+    Fault('nan_sample', nan_sample, 'non_finite', 'repaired', 4),
+    Fault('lost_1s', lost_samples, 'lost_samples', 'warning', 3),
+    Fault('time_rounded_1e5s', coarse_time, 'time_precision', 'repaired', 3),
+    Fault('time_in_milliseconds', milliseconds, 'time_in_milliseconds', 'repaired', 3),
 ]
