@@ -79,11 +79,11 @@ def test_window_refuses_non_finite_or_non_uniform_data():
     run = simulate(duty, seed=2)
     angle = run.angle.copy()
     angle[100] = np.nan
-    with pytest.raises(AeropendError, match='angle holds 1 NaN/inf'):
+    with pytest.raises(AeropendError, match='angle has 1 NaN/inf'):
         analyze_window(run.time, run.armature_voltage, run.armature_current, angle)
     current = run.armature_current.copy()
     current[-1] = np.inf
-    with pytest.raises(AeropendError, match='armature_current holds 1 NaN/inf'):
+    with pytest.raises(AeropendError, match='armature_current has 1 NaN/inf'):
         analyze_window(run.time, run.armature_voltage, current, run.angle)
     time = run.time.copy()
     time[500:] += 0.5 * SAMPLE_TIME                   # a stamp glitch that was not put on the grid

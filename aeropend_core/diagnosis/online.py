@@ -125,22 +125,20 @@ def check_excitation(armature_voltage: np.ndarray, angle: np.ndarray, n_train: i
 
 
 def check_window_data(time: np.ndarray, columns: dict[str, np.ndarray], sample_time: float) -> None:
-    """Refuse data the analysis would turn into wrong numbers: unequal lengths, NaN/inf, a time axis that is not
-    increasing by `sample_time` [s] (within 1 %).
+    """Refuse data the analysis would turn into wrong numbers: unequal lengths, NaN/inf or absurd values (the
+    data-quality gate's rule, :func:`aeropend_core.signals.quality.require_finite`), a time axis that is not
+    increasing by `sample_time` [s] (within 1 %). The node passes each window through the whole gate first.
 
     Raises
     ------
     AeropendError
         Naming the column and how many values are bad (the node rejects such samples before they get here).
     """
+    from aeropend_core.signals.quality import require_finite
     for name, values in columns.items():
         if values.shape != time.shape:
             raise AeropendError(f'{name} has {values.size} values for {time.size} times')
-        bad = int(np.count_nonzero(~np.isfinite(values)))
-        if bad:
-            raise AeropendError(f'{name} holds {bad} NaN/inf value(s) of {values.size}: drop or fill them first')
-    if not np.all(np.isfinite(time)):
-        raise AeropendError('time holds NaN/inf values')
+    require_finite(['time', *columns], [time, *columns.values()])
     steps = np.diff(time)
     if steps.size and np.max(np.abs(steps - sample_time)) > 0.01 * sample_time:
         raise AeropendError(f'time is not uniform: steps from {steps.min():.6g} to {steps.max():.6g} s, expected '

@@ -197,6 +197,12 @@ class _Gate:
         return f'samples {first}-{last} (t = {self.t(first):.4f}-{self.t(last):.4f} s)'
 
     @property
+    def rate_hint(self) -> str:
+        if self.context == 'window':
+            return 'the identification assumes the rig\'s rate: fix the source (or its stamps)'
+        return 'record every sample (or, if your rig really runs at that rate, give --sample-rate)'
+
+    @property
     def cut_hint(self) -> str:
         if self.context == 'window':
             return 'the window is not analysed'
@@ -326,8 +332,7 @@ def _check_time(gate: _Gate, sample_time: float | None) -> None:
     if sample_time is not None and abs(typical / sample_time - 1.0) > RATE_TOLERANCE:
         gate.add('sample_rate_mismatch', 'refused', f'samples are {typical * 1e3:.4g} ms apart ({1 / typical:.4g} Hz) '
                  f'but the acquisition rate is {1 / sample_time:.4g} Hz: a decimated or resampled record breaks the '
-                 'held-input and current-kick model; record every sample (or, if your rig runs at that rate, give '
-                 f'--sample-rate {1 / typical:.4g})', gate.span(0, time.size - 1), time.size)
+                 f'held-input and current-kick model; {gate.rate_hint}', gate.span(0, time.size - 1), time.size)
     _check_sequence(gate, sample_time or typical)
     _check_gaps(gate, typical)
 
@@ -381,7 +386,7 @@ def _check_sequence(gate: _Gate, sample_time: float) -> None:
     if abs(per_count / sample_time - 1.0) > RATE_TOLERANCE:
         gate.add('sample_rate_mismatch', 'refused', f'the stamps advance {per_count * 1e3:.4g} ms per sequence count '
                  f'({1 / per_count:.4g} Hz) but the acquisition rate is {1 / sample_time:.4g} Hz: the source does '
-                 'not sample at the rate assumed; set the right rate (--sample-rate) or fix the source',
+                 f'not sample at the rate assumed; {gate.rate_hint}',
                  gate.span(0, gate.time.size - 1), gate.time.size)
 
 
@@ -400,7 +405,9 @@ def _check_gaps(gate: _Gate, typical: float) -> None:
     k = int(gaps[longest])
     gate.add('lost_samples', 'warning', f'{int(lost.sum())} sample(s) lost in {gaps.size} gap(s), the longest '
              f'{lost[longest] * typical:.3g} s ({lost[longest]} samples) after sample {k} (t = {gate.t(k):.4f}-'
-             f'{gate.t(k + 1):.4f} s); they are not filled: the record is not continuous there',
+             f'{gate.t(k + 1):.4f} s); ' + ('filled by linear interpolation for the analysis'
+                                            if gate.context == 'window'
+                                            else 'they are not filled: the record is not continuous there'),
              (gate.t(int(gaps[0])), gate.t(int(gaps[-1]) + 1)), int(lost.sum()))
 
 
