@@ -37,7 +37,7 @@ code                        severity     when
 ``outlier``                 repaired /   isolated samples far from their neighbours (Hampel filter on the
                             refused      deviation from a 7-sample running median): interpolated
 ``stuck_sensor``            refused      a signal frozen at one value while the input steps
-``noisy_signal``            warning /    PSNR of the angle or current below 15 dB (warning) or 6 dB (refused)
+``noisy_signal``            warning /    PSNR of the angle or current below 17 dB (warning) or 12 dB (refused)
                             refused
 ==========================  ===========  ===================================================================
 
@@ -79,8 +79,8 @@ STUCK_SECONDS = 0.5
 #: Time a sensor is given to respond to an input change before its silence counts [s].
 STUCK_RESPONSE = 0.25
 #: Peak signal-to-noise ratios [dB] below which a measured signal is refused / said to be very noisy.
-MIN_PSNR_DB = 6.0
-WARN_PSNR_DB = 15.0
+MIN_PSNR_DB = 12.0
+WARN_PSNR_DB = 17.0
 #: Relative tolerance on the sample rate against the declared one.
 RATE_TOLERANCE = 0.02
 #: Stamps rounded or jittered by more than this fraction of the step cannot give the rate by themselves.
@@ -210,6 +210,8 @@ class _Gate:
 
     def add(self, code: str, severity: str, message: str, where: tuple[float, float] | None = None,
             count: int = 0) -> None:
+        if where is not None and 't = ' not in message:        # every message says where
+            message += f' (t = {where[0]:.4f}-{where[1]:.4f} s)'
         finding = Finding(code, severity, f'{self.source}: {message}', where, int(count))
         if severity == 'refused':
             raise DataQualityError(finding, self.findings)
@@ -360,7 +362,7 @@ def _check_precision(gate: _Gate, sample_time: float | None) -> None:
     grid = time[0] + offset + slope * index
     deviation = float(np.max(np.abs(time - grid)))
     resolution = max(quantum, jitter)
-    if deviation <= 0.5 * resolution + 0.25 * slope and slope > 0:
+    if deviation <= resolution + 0.25 * slope and slope > 0:
         gate.time = grid
         gate.add('time_precision', 'repaired', f'time stamps are rounded or jittered by up to {resolution:.3g} s '
                  f'({100 * resolution / slope:.0f} % of the {slope * 1e3:.4g} ms step), too coarse to give the rate '
@@ -674,7 +676,7 @@ def require_finite(names: Sequence[str], arrays: Sequence[np.ndarray], label: st
         if x.shape != arrays[0].shape:
             raise AeropendError(f'{label}{name} has shape {x.shape}, time has {arrays[0].shape}')
         with np.errstate(invalid='ignore'):
-            bad = ~np.isfinite(x) | (np.abs(x) > ABSURD)
+            bad = ~np.isfinite(x) | ((np.abs(x) > ABSURD) if name not in ('time', 't') else False)
         if bad.any():
             raise InsufficientDataError(
                 f'{label}{name} has {int(bad.sum())} NaN/inf or absurd (|x| > {ABSURD:g}) value(s), first at sample '
