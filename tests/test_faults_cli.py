@@ -520,9 +520,9 @@ def test_diagnose_gate_runs_before_the_fit(faulted, name, monkeypatch, capsys):
     assert len(warned) == len(given[0].findings) and err.index('warning') < err.index('interrupted'), err
 
 
-def diagnose_json(path: Path) -> dict:
+def diagnose_json(path: Path, *extra: str) -> dict:
     result = aeropend(['diagnose', str(path), '--json', '--quiet', '--only', 'cable_torque', '--only',
-                       'coulomb_friction'], timeout=300)
+                       'coulomb_friction', *extra], timeout=300)
     assert result.returncode == 0, result.stderr
     return json.loads(result.stdout)
 
@@ -537,7 +537,11 @@ def test_diagnose_repaired_record_gives_the_clean_verdict(faulted, clean_diagnos
     """Full diagnoses on representative faults: the 2 pi encoder glitch once named cable_torque as the missing
     effect; repaired and said, the verdict and the fit are the clean record's."""
     clean = clean_diagnosis
-    out = diagnose_json(faulted / f'{name}.csv')
+    report = faulted / f'{name}.html'
+    out = diagnose_json(faulted / f'{name}.csv', '--report', str(report))
+    page = report.read_text()
+    assert 'Data quality: 1 finding(s)' in page and FAULT_BY_NAME[name].code in page     # the report says it too
+    assert page.index('id="data-quality"') < page.index('id="verdict"')
     assert clean['warnings'] == [] and FAULT_BY_NAME[name].code in {w['code'] for w in out['warnings']}
     assert out['verdict'] == clean['verdict'] == 'nothing_missing' and out['missing_effect'] is None
     assert out['fit_percent'] == pytest.approx(clean['fit_percent'], abs=0.5)
