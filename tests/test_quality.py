@@ -278,3 +278,32 @@ def test_simulate_writes_time_to_the_microsecond_at_1e5_s(tmp_path):
     assert math.isclose(float(np.median(np.diff(back.time))), SAMPLE_TIME, rel_tol=1e-4)
     report = check_recording(back, sample_time=SAMPLE_TIME)
     assert 'time_precision' not in [f.code for f in report.findings]
+
+
+@pytest.mark.parametrize('name, code', [('angle', 'angle_sign'), ('armature_current', 'current_sign'),
+                                        ('armature_voltage', 'voltage_sign')])
+def test_reversed_sign_is_negated_and_said(clean, clean_fit, name, code):
+    """The rig's conventions (Va >= 0, the current follows Va, thrust lifts the angle) expose a mirrored sensor."""
+    report = gate({**clean, name: -clean[name]})
+    assert [(f.code, f.severity) for f in report.findings] == [(code, 'repaired')]
+    np.testing.assert_array_equal(report.recording.signals[name], clean[name])
+    assert_same_numbers(report.recording, clean_fit)
+
+
+def test_header_names_and_units_are_read_and_said(tmp_path, clean, clean_fit):
+    """A spreadsheet header with other spellings and units: read as SI (even small degrees, which the data alone
+    cannot tell from radians), every rename and conversion said; an unknown unit is refused."""
+    path = tmp_path / 'sheet.csv'
+    columns = {'Time [ms]': clean['t'] * 1e3, 'duty (%)': clean['duty'] * 100,
+               'Voltage [V]': clean['armature_voltage'], 'Current [mA]': clean['armature_current'] * 1e3,
+               'Angle [deg]': np.degrees(clean['angle'])}
+    write(path, columns)
+    recording = load_recording(path)
+    codes = [f.code for f in recording.findings]
+    assert codes == ['column_names', 'time_in_milliseconds', 'duty_in_percent', 'current_in_milliamps',
+                     'angle_in_degrees'], codes
+    np.testing.assert_allclose(recording.signals['angle'], clean['angle'], atol=1e-9)
+    assert_same_numbers(recording, clean_fit)
+    write(path, {**columns, 'Angle [grad]': columns.pop('Angle [deg]')})
+    with pytest.raises(DataQualityError, match="unit 'grad' is not known for angle; write it in rad"):
+        load_csv(path)

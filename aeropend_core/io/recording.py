@@ -78,6 +78,50 @@ def from_columns(columns: Mapping[str, np.ndarray], source: str = '', findings: 
     return Recording(time, signals, source, tuple(findings))
 
 
+#: Other spellings of the column names (lower case) -> the name used here.
+COLUMN_ALIASES = {'time': 't', 'theta': 'angle', 'voltage': 'armature_voltage', 'current': 'armature_current',
+                  'va': 'armature_voltage', 'ia': 'armature_current'}
+#: (column, unit written in its header) -> (factor to SI, finding code). SI units are accepted as they are.
+UNIT_CONVERSIONS = {('t', 'ms'): (1e-3, 'time_in_milliseconds'), ('angle', 'deg'): (np.pi / 180, 'angle_in_degrees'),
+                    ('angle', 'degree'): (np.pi / 180, 'angle_in_degrees'),
+                    ('angle', 'degrees'): (np.pi / 180, 'angle_in_degrees'),
+                    ('armature_current', 'ma'): (1e-3, 'current_in_milliamps'),
+                    ('armature_voltage', 'mv'): (1e-3, 'voltage_in_millivolts'),
+                    ('duty', '%'): (1e-2, 'duty_in_percent')}
+SI_UNITS = {'t': 's', 'angle': 'rad', 'armature_current': 'a', 'armature_voltage': 'v', 'duty': '1'}
+
+
+def _normalise_header(header: list[str], path: Path) -> tuple[list[str], dict[int, float], list]:
+    """Column names as used here (``Angle [deg]`` -> ``angle``, scaled to rad), the factor of each converted
+    column, and one finding per change (nothing renamed or converted silently)."""
+    import re
+
+    from aeropend_core.signals.quality import DataQualityError, Finding
+    names, scales, findings, renamed = [], {}, [], []
+    for index, raw in enumerate(header):
+        match = re.fullmatch(r'\s*([^\[\(]*?)\s*[\[\(]\s*([^\]\)]*?)\s*[\]\)]\s*', raw)
+        name, unit = (match.group(1), match.group(2)) if match else (raw.strip(), '')
+        key = name.strip().lower().replace(' ', '_')
+        key = COLUMN_ALIASES.get(key, key)
+        if key not in SI_UNITS and key != 'sequence' and not key.startswith('true_'):
+            key = name.strip()              # not ours: keep it as written
+        unit_key = unit.strip().lower()
+        if unit_key and key in SI_UNITS and unit_key not in (SI_UNITS[key], '-', ''):
+            if (key, unit_key) not in UNIT_CONVERSIONS:
+                raise DataQualityError(Finding('unknown_unit', 'refused', f'{path}: column {index + 1} {raw!r}: unit '
+                                               f'{unit!r} is not known for {key}; write it in {SI_UNITS[key]}'))
+            factor, code = UNIT_CONVERSIONS[(key, unit_key)]
+            scales[index] = factor
+            findings.append(Finding(code, 'repaired', f'{path}: column {raw!r} is in {unit} by its header; converted '
+                                    f'to {SI_UNITS[key].replace("a", "A").replace("v", "V")} (x {factor:.6g})'))
+        if key != raw:
+            renamed.append(f'{raw!r} -> {key!r}')
+        names.append(key)
+    if renamed:
+        findings.insert(0, Finding('column_names', 'repaired', f'{path}: column names read as ' + ', '.join(renamed)))
+    return names, scales, findings
+
+
 def load_csv(path: str | Path) -> Recording:
     """Read a CSV with a header row (``t,duty,armature_voltage,armature_current,angle[,true_...]``)."""
     from aeropend_core.signals.quality import DataQualityError, Finding
@@ -100,12 +144,16 @@ def load_csv(path: str | Path) -> Recording:
     if bom:
         findings.append(Finding('byte_order_mark', 'repaired', f'{path}: starts with a UTF-8 byte-order mark (as Excel '
                                 'writes); skipped'))
+    written = list(header)
+    header, scales, notes = _normalise_header(header, path)
+    findings.extend(notes)
     seen: dict[str, int] = {}
     for index, name in enumerate(header):
         if name in seen:
             raise DataQualityError(Finding(
-                'duplicate_column', 'refused', f'{path}: columns {seen[name] + 1} and {index + 1} are both named '
-                f'{name!r}; which one holds the data cannot be told: delete or rename one', count=2), findings)
+                'duplicate_column', 'refused', f'{path}: columns {seen[name] + 1} and {index + 1} '
+                f'({written[seen[name]]!r}, {written[index]!r}) are both named {name!r}; which one holds the data '
+                'cannot be told: delete or rename one', count=2), findings)
         seen[name] = index
     if len(header) == 1 and any(sep in header[0] for sep in ';\t'):
         raise AeropendError(f'{path}: the header {header[0]!r} is not comma-separated; write the fields separated '
@@ -122,6 +170,8 @@ def load_csv(path: str | Path) -> Recording:
         raise AeropendError(f'{path} has a header but no samples')
     if table.ndim != 2 or table.shape[1] != len(header):
         raise AeropendError(f'{path}: rows have a different number of fields than the header ({len(header)})')
+    for index, factor in scales.items():
+        table[:, index] *= factor
     return from_columns({name: table[:, i] for i, name in enumerate(header)}, source=str(path),
                         findings=tuple(findings))
 

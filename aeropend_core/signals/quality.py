@@ -36,6 +36,9 @@ code                        severity     when
 ``duty_in_percent``         repaired     the duty column holds 0..100 instead of 0..1
 ``outlier``                 repaired /   isolated samples far from their neighbours (Hampel filter on the
                             refused      deviation from a 7-sample running median): interpolated
+``voltage_sign`` /          repaired     Va negative throughout; the current falling as Va rises; the angle
+``current_sign`` /                       falling as the thrust rises (correlation < -0.5): negated
+``angle_sign``
 ``stuck_sensor``            refused      a signal frozen at one value while the input steps
 ``noisy_signal``            warning /    PSNR of the angle or current below 17 dB (warning) or 12 dB (refused)
                             refused
@@ -588,6 +591,41 @@ def _check_angle_jumps(gate: _Gate) -> None:
                  gate.span(k, int(big[-1]) + 1), big.size)
 
 
+def _check_signs(gate: _Gate) -> None:
+    """The rig's sign conventions: Va >= 0 (a PWM drive), the current follows Va, and the thrust lifts the angle.
+    A column whose relation to its cause is clearly reversed (correlation < -0.5) was logged with the opposite
+    sign (a mirrored encoder, a current probe the other way round): negated, and said."""
+    signals = gate.signals
+    n = gate.time.size
+    if n < 200 or 'armature_voltage' not in signals:
+        return
+    whole = gate.span(0, n - 1)
+    voltage = signals['armature_voltage']
+    magnitude = float(np.percentile(np.abs(voltage), 99))
+    if magnitude > 0 and float(np.percentile(voltage, 99)) < 0.05 * magnitude:
+        signals['armature_voltage'] = voltage = -voltage
+        gate.add('voltage_sign', 'repaired', "'armature_voltage' is negative throughout (the PWM drive gives Va >= 0): "
+                 'its sign is reversed; negated', whole, n)
+    width = max(int(0.1 / max(float(np.median(np.diff(gate.time))), 1e-9)) | 1, 3)
+    thrust = voltage * np.abs(voltage)
+    if np.ptp(thrust) <= 0:
+        return
+    for name, cause, label in (('armature_current', voltage, 'the armature voltage'),
+                               ('angle', thrust, 'the thrust (Va^2)')):
+        if name not in signals or np.ptp(signals[name]) <= 0:
+            continue
+        correlation = float(np.corrcoef(_running_median(signals[name], width), cause)[0, 1])
+        if correlation < -0.5:
+            code = f'{"current" if name == "armature_current" else "angle"}_sign'
+            text = f'{name!r} falls when {label} rises (correlation {correlation:.2f}): its sign is reversed ' \
+                   '(mirrored sensor or probe)'
+            if gate.context == 'window':          # a few seconds are not enough to change data on: said only
+                gate.add(code, 'warning', text + '; check the sensor\'s sign', whole, n)
+            else:
+                signals[name] = -signals[name]
+                gate.add(code, 'repaired', text + '; negated', whole, n)
+
+
 def _check_stuck(gate: _Gate, name: str, driver: str, sample_time: float) -> None:
     """A signal frozen at one value for STUCK_SECONDS or more while its driver (the input) steps."""
     if name not in gate.signals or driver not in gate.signals:
@@ -655,6 +693,7 @@ def check_recording(recording, *, sample_time: float | None = None, context: str
             _check_outliers(gate, name)
     if 'angle' in gate.signals:
         _check_angle_jumps(gate)
+    _check_signs(gate)
     for name in ('angle', 'armature_current'):
         if name in gate.signals:
             _check_noise(gate, name)
