@@ -307,3 +307,11 @@ def test_header_names_and_units_are_read_and_said(tmp_path, clean, clean_fit):
     write(path, {**columns, 'Angle [grad]': columns.pop('Angle [deg]')})
     with pytest.raises(DataQualityError, match="unit 'grad' is not known for angle; write it in rad"):
         load_csv(path)
+
+
+@pytest.mark.parametrize('factor, code', [(1e6, 'time_in_microseconds'), (1e9, 'time_in_nanoseconds')])
+def test_time_in_micro_or_nanoseconds_is_converted(clean, clean_fit, factor, code):
+    """Stamps in us or integer ns (a ROS stamp written as is): converted to s and said."""
+    report = gate({**clean, 't': np.round((1.7637e9 + clean['t']) * factor) if factor == 1e9 else clean['t'] * factor})
+    assert [f.code for f in report.findings] == [code]
+    assert_same_numbers(report.recording, clean_fit)

@@ -19,7 +19,9 @@ code                        severity     when
                             refused
 ``absurd_value``            repaired /   values beyond any unit mistake (abs > 1e6: 1e300, 1e308): as NaN
                             refused
-``time_in_milliseconds``    repaired     the stamps step 1000 x the declared sample time: divided by 1000
+``time_in_milliseconds``    repaired     the stamps step 1e3 (1e6, 1e9) x the declared sample time: converted
+(``_microseconds``,
+``_nanoseconds``)
 ``time_precision``          repaired /   stamps rounded (or jittered) by more than 1 % of the step: replaced by
                             refused      the uniform grid they fit, or refused when no grid fits them
 ``sample_rate_mismatch``    refused      stamps (or stamps per sequence count) disagree with the declared rate
@@ -324,12 +326,14 @@ def _check_time(gate: _Gate, sample_time: float | None) -> None:
                  f'{time[k]:.6f} s but different values; which one is right cannot be told: fix the time stamps',
                  gate.span(k - 1, k), zero.size)
     typical = float(np.median(step))
-    if sample_time is not None and abs(typical / 1000.0 / sample_time - 1.0) < 5 * RATE_TOLERANCE:
-        gate.time = time = time * 1e-3
-        gate.add('time_in_milliseconds', 'repaired', f'the t column steps {typical:.6g} per sample, 1000 x the '
-                 f'{sample_time * 1e3:.4g} ms sample time: it is in milliseconds; converted to seconds (write t '
-                 'in seconds)', gate.span(0, time.size - 1), time.size)
-        step, typical = np.diff(time), typical * 1e-3
+    for factor, unit in ((1e-3, 'milliseconds'), (1e-6, 'microseconds'), (1e-9, 'nanoseconds')):
+        if sample_time is not None and abs(typical * factor / sample_time - 1.0) < 5 * RATE_TOLERANCE:
+            gate.time = time = time * factor
+            gate.add(f'time_in_{unit}', 'repaired', f'the t column steps {typical:.6g} per sample, {1 / factor:.0e} x '
+                     f'the {sample_time * 1e3:.4g} ms sample time: it is in {unit}; converted to seconds (write t '
+                     'in seconds)', gate.span(0, time.size - 1), time.size)
+            step, typical = np.diff(time), typical * factor
+            break
     if typical > 0.05:
         gate.add('sample_rate_mismatch', 'refused', f'samples are {typical:g} time units apart; the t column must be '
                  f'in seconds (the rig samples every 1/490 s = 0.00204 s; divide milliseconds by 1000)',
@@ -586,7 +590,9 @@ def _check_angle_jumps(gate: _Gate) -> None:
     if step.size < 3:
         return
     threshold = max(MAX_ANGLE_STEP, 12.0 * _robust_sigma(step))
-    big = np.flatnonzero(np.abs(step) > threshold)
+    interval = np.diff(gate.time)
+    regular = interval <= 1.5 * float(np.median(interval))     # across a gap the rod may have moved anywhere
+    big = np.flatnonzero((np.abs(step) > threshold) & regular)
     if big.size:
         k = int(big[0])
         gate.add('angle_jump', 'refused', f"'angle' jumps by {step[k]:+.3g} rad from {gate.at(k)} to the next sample, "
@@ -694,17 +700,17 @@ def check_recording(recording, *, sample_time: float | None = None, context: str
     for name in ('angle', 'armature_voltage', 'armature_current'):
         if name in gate.signals:
             _check_outliers(gate, name)
+    if gate.time.size > 2:              # a frozen sensor first: its thaw is a jump that it explains
+        period = float(np.median(np.diff(gate.time)))
+        _check_stuck(gate, 'angle', 'armature_voltage', period)
+        _check_stuck(gate, 'armature_current', 'armature_voltage', period)
+        _check_stuck(gate, 'armature_voltage', 'duty', period)
     if 'angle' in gate.signals:
         _check_angle_jumps(gate)
     _check_signs(gate)
     for name in ('angle', 'armature_current'):
         if name in gate.signals:
             _check_noise(gate, name)
-    if gate.time.size > 2:
-        period = float(np.median(np.diff(gate.time)))
-        _check_stuck(gate, 'angle', 'armature_voltage', period)
-        _check_stuck(gate, 'armature_current', 'armature_voltage', period)
-        _check_stuck(gate, 'armature_voltage', 'duty', period)
     findings = gate.findings
     repaired = Recording(gate.time, gate.signals, recording.source, tuple(findings))
     return QualityReport(repaired, [f for f in findings if f not in previous])
