@@ -30,7 +30,7 @@ files) before it is analysed: a refused window (a frozen sensor, stamps that dis
 the 490 Hz rate, an angle jump no repair explains, ...) is not analysed and said at ERROR, naming the finding; a
 repaired or warned window (a wrap unwrapped, an outlier interpolated, lost samples filled) is analysed and published
 with its status at WARN and the findings in ``data_quality`` / ``data_quality_detail``. A run of lost samples
-longer than 0.1 s is not filled: the window is withheld (ERROR).
+longer than 0.5 s (about one swing of the rod) is not filled: the window is withheld (ERROR).
 
 Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
 are changeable at runtime (``ros2 param set /identification_node effects "['angle_offset']"``); unknown effect
@@ -71,9 +71,10 @@ FIT_TOPIC = '/aeropend/identification/fit'
 DIAGNOSTIC_NAME = 'aeropend: identification'
 #: Fraction of lost samples above which a window is not analysed.
 MAX_LOST_FRACTION = 0.05
-#: Longest run of lost samples [s] a window may have filled by interpolation; a longer one withholds the window
-#: (an interpolated second of current shifted the parameters by 4 sigma while the window said OK).
-MAX_FILLED_GAP_S = 0.1
+#: Longest run of lost samples [s] a window may have filled by interpolation (about one swing of the rod, whose
+#: period is ~0.55 s); a longer one withholds the window (an interpolated second of current shifted the parameters
+#: by 4 sigma while the window said OK). Any filled sample makes the window WARN.
+MAX_FILLED_GAP_S = 0.5
 #: Largest believable mismatch between a stamp step and the sequence step times Ts: 0.1 s + 5 % of the step.
 STAMP_JUMP_TOLERANCE = (0.1, 0.05)
 #: Why a received sample is rejected (not buffered; it counts as lost, filled like one if the window still has
