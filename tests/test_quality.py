@@ -315,3 +315,27 @@ def test_time_in_micro_or_nanoseconds_is_converted(clean, clean_fit, factor, cod
     report = gate({**clean, 't': np.round((1.7637e9 + clean['t']) * factor) if factor == 1e9 else clean['t'] * factor})
     assert [f.code for f in report.findings] == [code]
     assert_same_numbers(report.recording, clean_fit)
+
+
+def test_angle_in_milliradians_is_converted_and_counts_refused(clean, clean_fit):
+    report = gate({**clean, 'angle': clean['angle'] * 1e3})
+    assert [f.code for f in report.findings] == ['angle_in_milliradians']
+    assert_same_numbers(report.recording, clean_fit)
+    counts = np.round(clean['angle'] * 4096 / (2 * math.pi))          # a 12-bit encoder's counts
+    with pytest.raises(DataQualityError) as caught:
+        gate({**clean, 'angle': counts})
+    assert caught.value.finding.code == 'angle_in_counts'
+
+
+def test_angle_zero_away_from_hanging_is_said(clean):
+    """Encoder zero at the top (hanging reads pi): sin(angle) changes sign in every model; a warning says so."""
+    report = gate({**clean, 'angle': clean['angle'] + math.pi})
+    assert [(f.code, f.severity) for f in report.findings] == [('angle_zero', 'warning')]
+    assert 'extrapolates to 3.1' in report.findings[0].message and '178 deg from 0' in report.findings[0].message
+
+
+def test_sensor_read_slower_than_the_log_is_said(clean):
+    held = clean['angle'][(np.arange(clean['angle'].size) // 5) * 5]      # a 98 Hz sensor in a 490 Hz log
+    report = gate({**clean, 'angle': held})
+    assert ('held_samples', 'warning') in [(f.code, f.severity) for f in report.findings]
+    assert 'every 5 samples (98 Hz)' in next(f.message for f in report.findings if f.code == 'held_samples')

@@ -41,6 +41,10 @@ code                        severity     when
 ``voltage_sign`` /          repaired     Va negative throughout; the current falling as Va rises; the angle
 ``current_sign`` /                       falling as the thrust rises (correlation < -0.5): negated
 ``angle_sign``
+``angle_in_milliradians``   repaired     many turns in rad and deg, a plausible range in mrad: converted
+``angle_in_counts``         refused      whole numbers beyond a turn: encoder counts (scale unknown)
+``angle_zero``              warning      the rod at rest with no thrust reads more than 20 deg from 0
+``held_samples``            warning      a signal changes only every L samples (a slower sensor)
 ``stuck_sensor``            refused      a signal frozen at one value while the input steps
 ``noisy_signal``            warning /    PSNR of the angle or current below 17 dB (warning) or 12 dB (refused)
                             refused
@@ -70,6 +74,8 @@ MAX_VOLTAGE = 30.0          # V
 #: Rate of the angle [rad/s] (99th percentile over the record) above which the rod cannot be moving in radians:
 #: the propeller's terminal spin is ~75 rad/s, a swinging rod stays below ~10 rad/s; degrees read 57 x faster.
 MAX_ANGULAR_RATE = 40.0
+#: Offset of the hanging angle [rad] beyond which the angle's zero is said to be wrong (20 deg).
+REST_ANGLE_LIMIT = math.radians(20.0)
 #: Largest believable one-sample change of the angle [rad] at any rig rate (245 rad/s at 490 Hz).
 MAX_ANGLE_STEP = 0.5
 #: Hampel filter: running-median width [samples] and threshold in robust standard deviations.
@@ -458,6 +464,11 @@ def _check_units(gate: _Gate) -> None:
     whole = gate.span(0, n - 1)
     if 'angle' in signals:
         extent = _robust_extent(_unwrap_turns(signals['angle'])[0])
+        finite = signals['angle'][np.isfinite(signals['angle'])]
+        if extent > 2 * math.pi * 1.05 and np.unique(finite).size > 2 and np.all(finite == np.round(finite)):
+            gate.add('angle_in_counts', 'refused', f"'angle' holds whole numbers up to {extent:.0f}: encoder counts "
+                     '(or whole degrees); which scale cannot be told from the data: convert it to rad '
+                     '(2 pi / counts per turn)', whole, n)
         if extent > 2 * math.pi * 1.05:
             extent = _robust_extent(_unwrap_turns(signals['angle'], 360.0)[0])     # as if in degrees
             rate = _typical_rate(signals['angle'], float(np.median(np.diff(gate.time))) if n > 1 else 1.0)
@@ -472,9 +483,14 @@ def _check_units(gate: _Gate) -> None:
                          f'turns) at a plausible rate ({rate:.3g} rad/s): either the rod went over the top, or the '
                          f'angle is in degrees ({math.radians(extent):.3g} rad); if degrees, convert it to rad',
                          whole, n)
+            elif extent / 1000.0 <= 2 * math.pi * 1.05 and math.radians(rate) > MAX_ANGULAR_RATE:
+                # too fast for degrees of a spinning rod, plausible in mrad
+                signals['angle'] = signals['angle'] * 1e-3
+                gate.add('angle_in_milliradians', 'repaired', f"'angle' reaches {extent:.4g}: many turns in rad or "
+                         f'deg, {extent / 1000:.3g} rad in mrad: it is in milliradians; converted to rad', whole, n)
             else:
-                gate.add('absurd_value', 'refused', f"'angle' reaches {extent:.4g} (rad or deg: many turns), not a "
-                         'pendulum angle; write the angle in rad', whole, n)
+                gate.add('absurd_value', 'refused', f"'angle' reaches {extent:.4g} (rad, deg or mrad: many turns), "
+                         'not a pendulum angle; write the angle in rad', whole, n)
     for name, limit, unit, code in (('armature_current', MAX_CURRENT, 'A', 'current_in_milliamps'),
                                     ('armature_voltage', MAX_VOLTAGE, 'V', 'voltage_in_millivolts')):
         if name not in signals:
@@ -635,6 +651,58 @@ def _check_signs(gate: _Gate) -> None:
                 gate.add(code, 'repaired', text + '; negated', whole, n)
 
 
+def _check_rest_angle(gate: _Gate, sample_time: float) -> None:
+    """With no thrust the rod hangs: the angle should read 0 there (mod 2 pi). The settled angle of each held input
+    level, extrapolated to zero thrust (a line through the lower half of the levels, thrust ~ Va|Va|), estimates
+    it; an offset beyond 20 deg (more than the catalog's small angle_offset) breaks sin(angle) in every model."""
+    from aeropend_core.signals.preprocess import detect_steps
+    if 'angle' not in gate.signals or 'armature_voltage' not in gate.signals or gate.time.size < 500 \
+            or gate.context == 'window':              # a window's few levels extrapolate too loosely
+        return
+    voltage, angle = gate.signals['armature_voltage'], gate.signals['angle']
+    if np.subtract(*np.percentile(angle, [99.9, 0.1])) > 2 * math.pi:
+        return                                          # the rod went over the top: no single resting angle
+    bounds = np.concatenate(([0], detect_steps(voltage, sample_time), [voltage.size]))
+    levels, settled = [], []
+    for first, stop in zip(bounds[:-1], bounds[1:]):
+        if (stop - first) * sample_time < 0.5:
+            continue
+        level = float(np.median(voltage[first:stop]))
+        levels.append(level * abs(level))
+        settled.append(float(np.median(angle[first + int(0.6 * (stop - first)):stop])))
+    if len(levels) < 6:
+        return
+    levels, settled = np.array(levels), np.array(settled)
+    lower = levels <= np.median(levels)
+    if lower.sum() < 3 or np.ptp(levels[lower]) <= 0:
+        return
+    slope, rest = np.polyfit(levels[lower], settled[lower], 1)
+    offset = rest - 2 * math.pi * round(rest / (2 * math.pi))
+    if abs(offset) > REST_ANGLE_LIMIT:
+        gate.add('angle_zero', 'warning', f"with no thrust the rod hangs, but 'angle' extrapolates to {rest:.3g} rad "
+                 f'there ({math.degrees(offset):+.0f} deg from 0, from the settled angle of {len(levels)} input '
+                 'levels): the angle\'s zero is not the hanging position; subtract the offset (small offsets: '
+                 '--add angle_offset)', gate.span(0, angle.size - 1), angle.size)
+
+
+def _check_held(gate: _Gate, name: str) -> None:
+    """A sensor read slower than the logger: each value repeated L times (e.g. 98 Hz in a 490 Hz log). The data
+    are true but coarser than their stamps say: said."""
+    values = gate.signals.get(name)
+    if values is None or values.size < 500:
+        return
+    changes = np.flatnonzero(np.diff(values) != 0)
+    if changes.size < 20:
+        return
+    lengths = np.diff(changes)
+    common = int(np.bincount(lengths).argmax())
+    if common >= 2 and np.mean(lengths == common) > 0.8:
+        rate = 1.0 / (common * float(np.median(np.diff(gate.time))))
+        gate.add('held_samples', 'warning', f'{name!r} changes only every {common} samples ({rate:.4g} Hz): the sensor '
+                 'is read slower than the record is sampled; the fit sees steps that are not the physics',
+                 gate.span(0, values.size - 1), values.size)
+
+
 def _check_stuck(gate: _Gate, name: str, driver: str, sample_time: float) -> None:
     """A signal frozen at one value for STUCK_SECONDS or more while its driver (the input) steps."""
     if name not in gate.signals or driver not in gate.signals:
@@ -711,6 +779,9 @@ def check_recording(recording, *, sample_time: float | None = None, context: str
     for name in ('angle', 'armature_current'):
         if name in gate.signals:
             _check_noise(gate, name)
+            _check_held(gate, name)
+    if gate.time.size > 2:
+        _check_rest_angle(gate, float(np.median(np.diff(gate.time))))
     findings = gate.findings
     repaired = Recording(gate.time, gate.signals, recording.source, tuple(findings))
     return QualityReport(repaired, [f for f in findings if f not in previous])
