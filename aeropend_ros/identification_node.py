@@ -424,6 +424,11 @@ class IdentificationNode(Node):
             self._report(f'window failed: {error}', DiagnosticStatus.ERROR, health, effects=effects)
             self.get_logger().error(f'window analysis failed: {error!r}')
             return
+        seen = {f.code for f in findings}
+        findings = tuple(findings) + tuple(f for f in result.findings if f.code not in seen)
+        if findings:
+            health['data_quality'] = ','.join(f'{f.code}:{f.severity}' for f in findings)
+            health['data_quality_detail'] = ' | '.join(f.message for f in findings)
         bad = self._non_finite(result)
         if bad:
             self._report(f'window not published: {", ".join(bad)} not finite (the fit diverged)',
