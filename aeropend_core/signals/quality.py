@@ -19,9 +19,8 @@ code                        severity     when
                             refused
 ``absurd_value``            repaired /   values beyond any unit mistake (abs > 1e6: 1e300, 1e308): as NaN
                             refused
-``time_in_milliseconds``    repaired     the stamps step 1e3 (1e6, 1e9) x the declared sample time: converted
-(``_microseconds``,
-``_nanoseconds``)
+``time_in_milliseconds``    repaired     the stamps step 1e3 x the declared sample time: converted to s
+``time_in_microseconds``    repaired     ... 1e6 x (``time_in_nanoseconds``: 1e9 x)
 ``time_precision``          repaired /   stamps rounded (or jittered) by more than 1 % of the step: replaced by
                             refused      the uniform grid they fit, or refused when no grid fits them
 ``sample_rate_mismatch``    refused      stamps (or stamps per sequence count) disagree with the declared rate
@@ -38,9 +37,13 @@ code                        severity     when
 ``duty_in_percent``         repaired     the duty column holds 0..100 instead of 0..1
 ``outlier``                 repaired /   isolated samples far from their neighbours (Hampel filter on the
                             refused      deviation from a 7-sample running median): interpolated
-``voltage_sign`` /          repaired     Va negative throughout; the current falling as Va rises; the angle
-``current_sign`` /                       falling as the thrust rises (correlation < -0.5): negated
-``angle_sign``
+``voltage_sign``            repaired     Va negative throughout (a PWM drive gives Va >= 0): negated
+``current_sign``            repaired     the current falls as Va rises (correlation < -0.5): negated
+``angle_sign``              repaired     the angle falls as the thrust rises: negated (a node window: warning)
+``column_names``            repaired     CSV header spellings and units (``Angle [deg]``): read as SI, said
+``unknown_unit``            refused      a unit in the header that is not known for its column
+``time_backwards``          refused      stamps going back (samples out of order)
+``time_not_increasing``     refused      two different samples with one stamp
 ``angle_in_milliradians``   repaired     many turns in rad and deg, a plausible range in mrad: converted
 ``angle_in_counts``         refused      whole numbers beyond a turn: encoder counts (scale unknown)
 ``angle_zero``              warning      the rod at rest with no thrust reads more than 20 deg from 0
