@@ -27,6 +27,13 @@ that jump against the sequence numbers (by more than 0.1 s + 5 %) clear the buff
 A window whose excitation is insufficient (e.g. constant duty) is refused with the reason (WARN), and a result with
 a non-finite value is not published (ERROR).
 
+Every window passes the data-quality gate (:func:`aeropend_core.signals.quality.check_recording`, the same as for
+files) before it is analysed: a refused window (a frozen sensor, stamps that disagree with the sequence numbers and
+the 490 Hz rate, an angle jump no repair explains, ...) is not analysed and said at ERROR, naming the finding; a
+repaired or warned window (a wrap unwrapped, an outlier interpolated, lost samples filled) is analysed and published
+with its status at WARN and the findings in ``data_quality`` / ``data_quality_detail``. A run of lost samples
+longer than 0.5 s (about one swing of the rod) is not filled: the window is withheld (ERROR).
+
 Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
 are changeable at runtime (``ros2 param set /identification_node effects "['angle_offset']"``); unknown effect
 names are rejected with the reason. The new values apply from the next window.
@@ -54,8 +61,10 @@ from sensor_msgs.msg import JointState
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.parameters import SAMPLE_TIME
+from aeropend_core.signals.quality import DataQualityError, check_recording
 from aeropend_ros import topics
 from aeropend_core.diagnosis.online import WindowResult, analyze_window, check_effect_names, fill_gaps
+from aeropend_core.io.recording import Recording
 
 COEFFICIENTS_TOPIC = '/aeropend/identification/coefficients'
 PARAMETERS_TOPIC = '/aeropend/identification/parameters'
@@ -64,6 +73,10 @@ FIT_TOPIC = '/aeropend/identification/fit'
 DIAGNOSTIC_NAME = 'aeropend: identification'
 #: Fraction of lost samples above which a window is not analysed.
 MAX_LOST_FRACTION = 0.05
+#: Longest run of lost samples [s] a window may have filled by interpolation (about one swing of the rod, whose
+#: period is ~0.55 s); a longer one withholds the window (an interpolated second of current shifted the parameters
+#: by 4 sigma while the window said OK). Any filled sample makes the window WARN.
+MAX_FILLED_GAP_S = 0.5
 #: Largest believable mismatch between a stamp step and the sequence step times Ts: 0.1 s + 5 % of the step.
 STAMP_JUMP_TOLERANCE = (0.1, 0.05)
 #: Why a received sample is rejected (not buffered; it counts as lost, filled like one if the window still has
@@ -345,17 +358,43 @@ class IdentificationNode(Node):
         rejected, rejected_text = self._rejected_text(self.rejected, self._rejected_at_window)
         self._rejected_at_window = dict(self.rejected)
         health['rejected_samples'] = str(rejected)
+        # The data-quality gate, the same as for files: stamps against sequence numbers and the rate, units,
+        # wraps and jumps, outliers, stuck sensors. A refusal withholds the window (ERROR); repairs and warnings
+        # let it through, flagged (WARN, data_quality in the key/values).
+        findings = ()
+        if self.first_stamp_ns is not None:
+            window = Recording((snapshot['stamp_ns'] - self.first_stamp_ns) * 1e-9,
+                               {**{k: snapshot[k] for k in self.signals}, 'sequence': sequence.astype(float)},
+                               source='window')
+            try:
+                report = check_recording(window, sample_time=SAMPLE_TIME, context='window')
+            except DataQualityError as error:
+                health['data_quality'] = f'{error.finding.code}:refused'
+                self._report(f'window not analysed, data quality: {error}', DiagnosticStatus.ERROR, health,
+                             effects=effects)
+                return
+            findings = tuple(report.recording.findings)
+            sequence = report.recording.signals['sequence'].astype(np.int64)
+            snapshot = {**snapshot, **{k: report.recording.signals[k] for k in self.signals}}
         grid, filled, missing = fill_gaps(sequence, {k: snapshot[k] for k in self.signals})
         # Samples missing from the whole window (also before its first received sample), rejected ones included.
         expected = int(round(self._window_s() / SAMPLE_TIME))
+        longest_gap = int(np.max(np.diff(sequence)) - 1) if sequence.size > 1 else 0
         missing = max(missing, expected - int(sequence.size))
         health['lost_samples'] = str(missing)
-        if missing > MAX_LOST_FRACTION * expected:
-            message = (f'window not analysed: {missing} of {expected} samples lost (> {MAX_LOST_FRACTION:.0%})'
-                       + (f', of them rejected: {rejected_text}' if rejected else '')
+        health['longest_filled_gap_s'] = f'{longest_gap * SAMPLE_TIME:.4f}'
+        if missing > MAX_LOST_FRACTION * expected or longest_gap * SAMPLE_TIME > MAX_FILLED_GAP_S:
+            why = (f'{missing} of {expected} samples lost (> {MAX_LOST_FRACTION:.0%})'
+                   if missing > MAX_LOST_FRACTION * expected else
+                   f'{longest_gap} samples ({longest_gap * SAMPLE_TIME:.3f} s) lost in a row, more than the '
+                   f'{MAX_FILLED_GAP_S:g} s that interpolation may fill')
+            message = (f'window not analysed: {why}' + (f', of them rejected: {rejected_text}' if rejected else '')
                        + '; check the link, the load or the source')
-            self._report(message, DiagnosticStatus.WARN, health, effects=effects)
+            self._report(message, DiagnosticStatus.ERROR, health, effects=effects)
             return
+        if findings:
+            health['data_quality'] = ','.join(f'{f.code}:{f.severity}' for f in findings)
+            health['data_quality_detail'] = ' | '.join(f.message for f in findings)
         if rejected:
             health['rejected'] = rejected_text
         # Times from the window start: epoch seconds (~1.8e9 s) in float64 would jitter the 2 ms steps by ~2e-4.
@@ -363,7 +402,8 @@ class IdentificationNode(Node):
         time = (grid - grid[0]) * SAMPLE_TIME
         self.pending = self.worker.submit(_analyze_in_worker, time, filled['armature_voltage'],
                                           filled['armature_current'], filled['angle'], effects, holdout_fraction)
-        self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects, start_s))
+        self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects, start_s,
+                                                                      findings))
 
     @staticmethod
     def _non_finite(result: WindowResult) -> list[str]:
@@ -373,7 +413,8 @@ class IdentificationNode(Node):
         values.update({'fit_percent': result.fit_percent, 'rms_error': result.rms_error})
         return [name for name, value in values.items() if not math.isfinite(value)]
 
-    def _on_result(self, future, stop_ns: int, health: dict, effects: tuple[str, ...], start_s: float = 0.0) -> None:
+    def _on_result(self, future, stop_ns: int, health: dict, effects: tuple[str, ...], start_s: float = 0.0,
+                   findings: tuple = ()) -> None:
         try:
             result = future.result()
             result.start += start_s          # back to acquisition time
@@ -385,6 +426,11 @@ class IdentificationNode(Node):
             self._report(f'window failed: {error}', DiagnosticStatus.ERROR, health, effects=effects)
             self.get_logger().error(f'window analysis failed: {error!r}')
             return
+        seen = {f.code for f in findings}
+        findings = tuple(findings) + tuple(f for f in result.findings if f.code not in seen)
+        if findings:
+            health['data_quality'] = ','.join(f'{f.code}:{f.severity}' for f in findings)
+            health['data_quality_detail'] = ' | '.join(f.message for f in findings)
         bad = self._non_finite(result)
         if bad:
             self._report(f'window not published: {", ".join(bad)} not finite (the fit diverged)',
@@ -408,6 +454,12 @@ class IdentificationNode(Node):
         if 'rejected' in health:
             message += (f'; {health["lost_samples"]} samples filled by interpolation, rejected: '
                         f'{health["rejected"]}')
+            level = DiagnosticStatus.WARN
+        elif health.get('lost_samples', '0') != '0':
+            message += f'; {health["lost_samples"]} lost samples filled by interpolation'
+            level = DiagnosticStatus.WARN
+        if findings:      # the numbers are published, flagged: every doubt about the data goes with them
+            message += '; data quality: ' + '; '.join(f'{f.code} ({f.severity})' for f in findings)
             level = DiagnosticStatus.WARN
         self._report(message, level, health, excitation='sufficient', effects=effects)
 

@@ -180,15 +180,24 @@ def test_too_short_or_unexcited_or_broken_data_is_refused_clearly(tmp_path, caps
         diagnose(recording)
     flat = measured_recording(None, seed=2, duration=30.0, max_duty=0.7)
     flat.signals['armature_voltage'][:] = 1.2
+    with pytest.raises(AeropendError, match="'armature_voltage' is stuck at 1.2 .* while 'duty' changes"):
+        diagnose(flat)                                  # the data-quality gate: Va frozen while the duty steps
+    if 'duty' in flat.signals:
+        flat.signals['duty'][:] = 0.4
     with pytest.raises(AeropendError, match='barely changes'):
         diagnose(flat)
     broken = measured_recording(None, seed=2, duration=30.0)
-    broken.signals['angle'][100] = np.nan
-    with pytest.raises(AeropendError, match='non-finite'):
+    broken.signals['angle'][100:200] = np.nan
+    with pytest.raises(AeropendError, match="100 NaN/inf .* in 'angle'"):
         diagnose(broken)
+    from aeropend_core.diagnosis.compare import prepare
+    one = measured_recording(None, seed=2, duration=30.0)
+    one.signals['angle'][100] = np.nan
+    prepared = prepare(one)                             # one NaN: interpolated, and the diagnosis says so
+    assert [f.code for f in prepared.findings] == ['non_finite'] and np.all(np.isfinite(prepared.angle))
     backwards = measured_recording(None, seed=2, duration=30.0)
     backwards.time[50] = backwards.time[49]
-    with pytest.raises(AeropendError, match='not increasing'):
+    with pytest.raises(AeropendError, match='same time stamp'):
         diagnose(backwards)
 
 

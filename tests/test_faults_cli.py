@@ -163,8 +163,6 @@ BAD_RECORDINGS = [
     pytest.param('text.csv', ('non-numeric',), id='csv-non-numeric'),
     pytest.param('ragged.csv', ('row 2', 'fields'), id='csv-ragged-rows'),
     pytest.param('binary.csv', ('not a text CSV',), id='csv-binary'),
-    pytest.param('nan.csv', ('angle', 'sample 1000'), id='nan-sample'),
-    pytest.param('inf.csv', ('armature_current', 'sample 700'), id='inf-sample'),
     pytest.param('nan_time.csv', ('time stamp', 'not finite', 'sample 300'), id='nan-time-stamp'),
     pytest.param('backwards.csv', ('backwards', 'sample 1001'), id='non-monotonic-stamps'),
     pytest.param('clash.csv', ('same time stamp', 'samples 1999 and 2000'), id='same-stamp-different-values'),
@@ -175,7 +173,6 @@ BAD_RECORDINGS = [
     pytest.param('no_mcap', ('no .mcap file',), id='folder-without-mcap'),
     pytest.param('cut_tiny.mcap', ('cut short', 'bag-recover'), id='mcap-truncated-before-first-chunk'),
     pytest.param('wrong_topic', ('no /aeropend/samples', '/other/samples'), id='bag-wrong-topics'),
-    pytest.param('nan_bag', ('angle', 'sample 600'), id='bag-nan-sample'),
     pytest.param('backwards_bag', ('backwards', 'sample 1000'), id='bag-non-monotonic-stamps'),
 ]
 
@@ -206,6 +203,19 @@ def test_duplicated_samples_are_dropped_with_a_warning_and_change_nothing(files,
     assert 'warning: ' in err and f'dropped {dropped} duplicated sample(s)' in err, err
     assert repeated['samples'] == clean['samples']
     assert repeated['coefficients'] == clean['coefficients']
+    assert clean['warnings'] == [] and [w['code'] for w in repeated['warnings']] == ['duplicate_sample']
+
+
+@pytest.mark.parametrize('name, keywords', [('nan.csv', ('angle', 'sample 1000', 'interpolation')),
+                                            ('inf.csv', ('armature_current', 'sample 700', 'interpolation')),
+                                            ('nan_bag', ('angle', 'sample 600', 'interpolation'))])
+def test_isolated_non_finite_sample_is_interpolated_and_said(files, name, keywords):
+    """One NaN/inf sample: interpolated by the data-quality gate, one warning line naming it, and the same
+    "warnings" entry in --json (never a number without its warning)."""
+    out, err = identify_json(files, name)
+    lines = [line for line in err.splitlines() if 'warning: ' in line]
+    assert len(lines) == 1 and all(k.lower() in lines[0].lower() for k in keywords), err
+    assert [w['code'] for w in out['warnings']] == ['non_finite'] and out['warnings'][0]['severity'] == 'repaired'
 
 
 def test_truncated_bag_is_read_to_its_last_chunk_with_a_warning(files):
@@ -388,3 +398,171 @@ def test_os_error_nobody_handled_names_the_file_and_the_reason(monkeypatch, caps
     assert cli.main(['effects']) == 1
     err = capsys.readouterr().err
     assert err.strip() == 'aeropend effects: error: catalog.json: Permission denied (errno 13)'
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# Corrupted recordings (issue 12): the data-quality gate, for identify and diagnose
+# ------------------------------------------------------------------------------------------------------------------
+from aeropend_core.testing.faults import FAULTS  # noqa: E402
+
+#: A word of the refusal message for each refused finding code.
+REFUSAL_WORDS = {'stuck_sensor': 'stuck', 'sample_rate_mismatch': '490 Hz', 'time_precision': 'rounded',
+                 'duplicate_column': 'both named'}
+FAULT_BY_NAME = {fault.name: fault for fault in FAULTS}
+#: Pairs tried on the command line (all pairs are tried on the gate itself in test_quality).
+CLI_PAIRS = [('angle_wrapped_0_2pi', 'angle_in_degrees'), ('outlier_100rad', 'time_in_milliseconds'),
+             ('glitch_2pi', 'nan_sample'), ('current_outlier', 'current_in_milliamps'),
+             ('outlier_1e308', 'outlier_1e300'), ('angle_stuck_6s', 'angle_in_degrees'),
+             ('lost_1s', 'time_rounded_1e5s')]
+
+
+@pytest.fixture(scope='module')
+def faulted(tmp_path_factory) -> Path:
+    """One clean 60 s record (known truth) and every fault of aeropend_core.testing.faults applied to it."""
+    from aeropend_core.cli.simulate import write_csv as write_full
+    d = tmp_path_factory.mktemp('faulted')
+    schedule = lhc_schedule(60.0, duty_range=(0.0, 0.7), seed=1, duty_cap=0.7)
+    trajectory = simulate(schedule.duty(SAMPLE_TIME, 60.0), noise=MeasurementNoise(40.0, True), seed=1)
+    clean = {k: np.asarray(v, dtype=float) for k, v in trajectory.columns(with_truth=False).items()}
+    write_full(str(d / 'clean.csv'), clean)
+    for fault in FAULTS:
+        write_full(str(d / f'{fault.name}.csv'), fault.apply(clean))
+    for first, second in CLI_PAIRS:
+        a, b = sorted((FAULT_BY_NAME[first], FAULT_BY_NAME[second]), key=lambda f: f.stage)
+        write_full(str(d / f'{first}+{second}.csv'), b.apply(a.apply(clean)))
+    text = (d / 'clean.csv').read_text()
+    (d / 'excel.csv').write_bytes(b'\xef\xbb\xbf' + text.encode())
+    header, _, body = text.partition('\n')
+    rows = [row + ',' + row.split(',')[4] for row in body.splitlines()]
+    (d / 'twice.csv').write_text(header + ',angle\n' + '\n'.join(rows) + '\n')
+    return d
+
+
+@pytest.fixture(scope='module')
+def clean_identify(faulted) -> dict:
+    result = aeropend(['identify', str(faulted / 'clean.csv'), '--json'])
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out['warnings'] == [] and 'warning' not in result.stderr
+    assert out['parameters']['gravity_stiffness'] == pytest.approx(131.75, rel=0.03)     # the truth
+    return out
+
+
+def expected_codes(name: str) -> tuple[set[str], set[str]]:
+    """(codes that must be reported, codes of which one must refuse) for a fault or a pair 'a+b'."""
+    faults = [FAULT_BY_NAME[part] for part in name.split('+')]
+    codes = {f.code for f in faults}
+    refused = {f.code for f in faults if f.severity == 'refused'}
+    if name == 'lost_1s+time_rounded_1e5s':
+        refused = {'time_precision'}             # no uniform grid fits rounded stamps with a gap in them
+    if 'angle_wrapped' in codes:
+        codes.discard('angle_jump')
+    return codes, refused
+
+
+CLI_CASES = [fault.name for fault in FAULTS] + [f'{a}+{b}' for a, b in CLI_PAIRS]
+
+
+@pytest.mark.parametrize('name', CLI_CASES)
+def test_identify_refuses_or_says_every_repair(faulted, clean_identify, name):
+    """Refused (exit 2, one line naming the problem) or exit 0 with a warning line per finding, the same list in
+    --json "warnings", and the clean record's numbers (lost samples: said first, then refused by the uniform-grid
+    fit until the fit takes segments)."""
+    codes, refused = expected_codes(name)
+    result = aeropend(['identify', str(faulted / f'{name}.csv'), '--json'])
+    if refused:
+        assert_refused(result, (REFUSAL_WORDS[next(iter(refused))], 't = '))
+        return
+    if 'lost_samples' in codes:
+        lines = result.stderr.splitlines()
+        assert result.returncode == 2 and 'lost_samples' in lines[0] and 'error' in lines[-1], result.stderr
+        return
+    assert result.returncode == 0 and 'Traceback' not in result.stderr, result.stderr
+    out = json.loads(result.stdout)
+    assert codes <= {w['code'] for w in out['warnings']}, out['warnings']
+    warned = [line for line in result.stderr.splitlines() if 'aeropend identify: warning: ' in line]
+    assert len(warned) == len(out['warnings']) and all(f"[{w['code']}, " in line
+                                                       for w, line in zip(out['warnings'], warned))
+    for key in ('gravity_stiffness', 'damping', 'thrust_acceleration_coefficient'):
+        reference = clean_identify['parameters'][key]
+        tolerance = max(0.01 * abs(reference), clean_identify['parameter_standard_errors'][key])
+        assert abs(out['parameters'][key] - reference) <= tolerance, (key, out['parameters'][key], reference)
+
+
+def test_identify_text_output_has_a_data_quality_section(faulted):
+    result = aeropend(['identify', str(faulted / 'glitch_2pi.csv')])
+    assert result.returncode == 0, result.stderr
+    assert 'Data quality: 1 finding(s)' in result.stdout and 'angle_jump' in result.stdout
+    assert result.stdout.index('Data quality') < result.stdout.index('gravity_stiffness')
+
+
+@pytest.mark.parametrize('name', [fault.name for fault in FAULTS])
+def test_diagnose_gate_runs_before_the_fit(faulted, name, monkeypatch, capsys):
+    """The gate's findings are printed before the (slow) diagnosis starts, and a refusal costs no fit: the fit is
+    replaced by a probe that records what it was given and stops the command."""
+    import aeropend_core.diagnosis.diagnose as diagnosis_module
+    from aeropend_core.cli import main
+    given = []
+
+    def probe(recording, **kwargs):
+        given.append(recording)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(diagnosis_module, 'diagnose', probe)
+    status = main(['diagnose', str(faulted / f'{name}.csv'), '--quiet'])
+    err = capsys.readouterr().err
+    codes, refused = expected_codes(name)
+    if refused:
+        assert status == 2 and not given and 'error: ' in err and REFUSAL_WORDS[next(iter(refused))] in err, err
+        return
+    assert status == 130 and len(given) == 1, err
+    assert codes <= {f.code for f in given[0].findings}
+    warned = [line for line in err.splitlines() if line.startswith('aeropend diagnose: warning: ')]
+    assert len(warned) == len(given[0].findings) and err.index('warning') < err.index('interrupted'), err
+
+
+def diagnose_json(path: Path, *extra: str) -> dict:
+    result = aeropend(['diagnose', str(path), '--json', '--quiet', '--only', 'cable_torque', '--only',
+                       'coulomb_friction', *extra], timeout=300)
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+@pytest.fixture(scope='module')
+def clean_diagnosis(faulted) -> dict:
+    return diagnose_json(faulted / 'clean.csv')
+
+
+@pytest.mark.parametrize('name', ['glitch_2pi', 'angle_in_degrees', 'outlier_1e308'])
+def test_diagnose_repaired_record_gives_the_clean_verdict(faulted, clean_diagnosis, name):
+    """Full diagnoses on representative faults: the 2 pi encoder glitch once named cable_torque as the missing
+    effect; repaired and said, the verdict and the fit are the clean record's."""
+    clean = clean_diagnosis
+    report = faulted / f'{name}.html'
+    out = diagnose_json(faulted / f'{name}.csv', '--report', str(report))
+    page = report.read_text()
+    assert 'Data quality: 1 finding(s)' in page and FAULT_BY_NAME[name].code in page     # the report says it too
+    assert page.index('id="data-quality"') < page.index('id="verdict"')
+    assert clean['warnings'] == [] and FAULT_BY_NAME[name].code in {w['code'] for w in out['warnings']}
+    assert out['verdict'] == clean['verdict'] == 'nothing_missing' and out['missing_effect'] is None
+    assert out['fit_percent'] == pytest.approx(clean['fit_percent'], abs=0.5)
+
+
+def test_excel_byte_order_mark_loads_with_a_note(faulted, clean_identify):
+    result = aeropend(['identify', str(faulted / 'excel.csv'), '--json'])
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert [w['code'] for w in out['warnings']] == ['byte_order_mark'] and 'byte-order mark' in result.stderr
+    assert out['parameters'] == clean_identify['parameters']
+
+
+@pytest.mark.parametrize('verb', ['identify', 'diagnose'])
+def test_duplicated_angle_column_is_refused(faulted, verb):
+    assert_refused(aeropend([verb, str(faulted / 'twice.csv')]), ('columns 5 and 6', "both named 'angle'"))
+
+
+def test_lost_samples_are_the_first_thing_said(files):
+    """A gap: the gate's warning (how many, where) comes before anything else, then the fit's own answer."""
+    result = aeropend(['diagnose', str(files / 'gap.csv'), '--quiet'])
+    first = result.stderr.splitlines()[0]
+    assert 'warning' in first and '10 sample(s) lost' in first and 'lost_samples' in first, result.stderr

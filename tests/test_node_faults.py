@@ -620,15 +620,103 @@ def test_non_monotonic_and_out_of_order_samples_rejected(tester, clean_window):
 
 
 def test_gap_of_lost_samples_skips_the_window(tester, identification):
-    """1 s lost (17 % of the window): not analysed, WARN naming the loss, nothing published for it."""
+    """1 s lost (17 % of the window): not analysed, ERROR naming the loss (withheld), nothing published for it."""
     stream = Stream(excited_duty(32), seed=8)
     publish(tester, [stream.sample(k) for k in range(round(WINDOW_S / SAMPLE_TIME) + 1)
                      if not 1000 <= k < 1490])
     status = window_report(tester, stream)
-    assert status.level == DiagnosticStatus.WARN, status.message
+    assert status.level == DiagnosticStatus.ERROR, status.message
     assert 'not analysed' in status.message and '490 of 2940' in status.message, status.message
     tester.spin_for(1.0)
     assert stream.window_stop_ns() not in tester.fits and stream.window_stop_ns() not in tester.parameters
+
+
+# ------------------------------------------------------------------------ the data-quality gate, per window
+def window_samples(stream: Stream, **spans) -> list[topics.Sample]:
+    """The first window's samples with `spans` = {name: (first, stop, function(k, value) -> value)} applied."""
+    samples = []
+    for k in range(round(WINDOW_S / SAMPLE_TIME) + 1):
+        changes = {}
+        for name, (first, stop, change) in spans.items():
+            if first <= k < stop:
+                changes[name] = change(k, float(stream.columns[name][k]))
+        samples.append(stream.sample(k, **changes))
+    return samples
+
+
+def test_short_gap_is_filled_and_flagged(tester, clean_window):
+    """25 samples (0.05 s) lost: filled by interpolation, published, but WARN saying so (not OK)."""
+    stream = Stream(excited_duty(31), seed=7)
+    publish(tester, [sample for k, sample in enumerate(window_samples(stream)) if not 1500 <= k < 1525])
+    status = window_report(tester, stream)
+    values = status_values(status)
+    assert status.level == DiagnosticStatus.WARN and 'filled by interpolation' in status.message, status.message
+    assert values['lost_samples'] == '25' and 'lost_samples:warning' in values['data_quality'], values
+    assert stream.window_stop_ns() in tester.parameters
+
+
+def test_encoder_glitch_of_a_turn_is_unwrapped_and_flagged(tester, clean_window):
+    """0.5 s of angle + 2 pi (the issue's 20-sigma-off window at OK): unwrapped, published with the clean window's
+    numbers, WARN naming angle_jump."""
+    _, _, clean_parameters = clean_window
+    stream = Stream(excited_duty(31), seed=7)
+    publish(tester, window_samples(stream, angle=(1500, 1745, lambda k, v: v + 2 * math.pi)))
+    status = window_report(tester, stream)
+    values = status_values(status)
+    assert status.level == DiagnosticStatus.WARN and 'angle_jump (repaired)' in status.message, status.message
+    assert values['data_quality'] == 'angle_jump:repaired' and 'one turn' in values['data_quality_detail']
+    parameters = tester.parameters[stream.window_stop_ns()]
+    for name, (value, _) in clean_parameters.items():
+        assert parameters[name][0] == pytest.approx(value, rel=1e-6, abs=1e-9), name
+
+
+def test_outlier_and_glitch_together_are_both_said(tester, clean_window):
+    """A pair: a 100 rad sample and a one-turn glitch in the same window; both named, numbers as clean (2 %)."""
+    _, _, clean_parameters = clean_window
+    stream = Stream(excited_duty(31), seed=7)
+    publish(tester, window_samples(stream, angle=(1500, 1745, lambda k, v: v + 2 * math.pi if k != 1600 else 100.0)))
+    status = window_report(tester, stream)
+    assert status.level == DiagnosticStatus.WARN, status.message
+    assert {'angle_jump:repaired', 'outlier:repaired'} <= set(status_values(status)['data_quality'].split(','))
+    parameters = tester.parameters[stream.window_stop_ns()]
+    for name in ('gravity_stiffness', 'damping', 'thrust_gain'):
+        assert parameters[name][0] == pytest.approx(clean_parameters[name][0], rel=0.02), name
+
+
+def test_frozen_angle_withholds_the_window(tester, identification):
+    """The angle frozen for 3 s while the duty steps (the issue's mgd/J 0.01 +- 0.28 at OK): ERROR naming
+    stuck_sensor, nothing published."""
+    stream = Stream(excited_duty(31), seed=7)
+    frozen = float(stream.columns['angle'][1000])
+    volts = stream.columns['armature_voltage'][1000:2350]
+    assert np.ptp(volts) > 0.3 * np.ptp(stream.columns['armature_voltage'])      # the input steps meanwhile
+    publish(tester, window_samples(stream, angle=(1000, 2470, lambda k, v: frozen)))
+    status = window_report(tester, stream)
+    assert status.level == DiagnosticStatus.ERROR and 'stuck' in status.message, status.message
+    assert status_values(status)['data_quality'] == 'stuck_sensor:refused'
+    tester.spin_for(1.0)
+    assert stream.window_stop_ns() not in tester.fits and stream.window_stop_ns() not in tester.parameters
+
+
+def test_source_at_another_rate_withholds_the_window(tester, identification):
+    """A 1 kHz source whose counter steps by one (the issue's fit 98 % on time taken as sequence/490): the stamps
+    say 1 ms a count, the rig 2.04 ms: ERROR naming sample_rate_mismatch, nothing published."""
+    from aeropend_ros.identification_node import DIAGNOSTIC_NAME
+    duration = 2 * WINDOW_S + 1.0
+    stream = Stream(lhc_schedule(duration, seed=36).duty(duration=duration), seed=13)
+    n = int(WINDOW_S / 1e-3) + 2
+    tester.statuses.clear()
+    publish(tester, [stream.sample(k, stamp_ns=stream.start_ns + k * 1_000_000) for k in range(n)], rate_hz=2000.0)
+
+    def refused():
+        return [s for s in tester.statuses_named(DIAGNOSTIC_NAME)
+                if status_values(s).get('data_quality') == 'sample_rate_mismatch:refused']
+    assert tester.wait_for(lambda: refused(), 60.0), [s.message for s in tester.statuses_named(DIAGNOSTIC_NAME)]
+    status = refused()[0]
+    assert status.level == DiagnosticStatus.ERROR and '1000 Hz' in status.message, status.message
+    stop_ns = int(status_values(status)['window_stop_ns'])
+    tester.spin_for(1.0)
+    assert stop_ns not in tester.parameters and stop_ns not in tester.fits
 
 
 def test_unexcited_window_refused(tester, identification):

@@ -79,11 +79,11 @@ def test_window_refuses_non_finite_or_non_uniform_data():
     run = simulate(duty, seed=2)
     angle = run.angle.copy()
     angle[100] = np.nan
-    with pytest.raises(AeropendError, match='angle holds 1 NaN/inf'):
+    with pytest.raises(AeropendError, match='angle has 1 NaN/inf'):
         analyze_window(run.time, run.armature_voltage, run.armature_current, angle)
     current = run.armature_current.copy()
     current[-1] = np.inf
-    with pytest.raises(AeropendError, match='armature_current holds 1 NaN/inf'):
+    with pytest.raises(AeropendError, match='armature_current has 1 NaN/inf'):
         analyze_window(run.time, run.armature_voltage, current, run.angle)
     time = run.time.copy()
     time[500:] += 0.5 * SAMPLE_TIME                   # a stamp glitch that was not put on the grid
@@ -91,3 +91,23 @@ def test_window_refuses_non_finite_or_non_uniform_data():
         analyze_window(time, run.armature_voltage, run.armature_current, run.angle)
     with pytest.raises(AeropendError, match='values for'):
         analyze_window(run.time, run.armature_voltage[:-1], run.armature_current, run.angle)
+
+
+def test_window_passes_the_data_quality_gate():
+    """analyze_window itself applies the gate: a one-turn glitch is unwrapped and listed with the result (the
+    numbers are those of the clean window); a frozen angle is refused."""
+    from aeropend_core.signals.quality import DataQualityError
+    duty = lhc_schedule(8.0, seed=3).duty(duration=8.0)
+    run = simulate(duty, noise=MeasurementNoise(50, True), seed=2)
+    clean = analyze_window(run.time, run.armature_voltage, run.armature_current, run.angle)
+    assert clean.findings == ()
+    glitched = run.angle.copy()
+    glitched[1500:1745] += 2 * np.pi
+    result = analyze_window(run.time, run.armature_voltage, run.armature_current, glitched)
+    assert [f.code for f in result.findings] == ['angle_jump']
+    assert result.parameters['gravity_stiffness'][0] == pytest.approx(clean.parameters['gravity_stiffness'][0],
+                                                                      rel=1e-6)
+    frozen = run.angle.copy()
+    frozen[1000:2500] = frozen[1000]
+    with pytest.raises(DataQualityError, match='stuck'):
+        analyze_window(run.time, run.armature_voltage, run.armature_current, frozen)

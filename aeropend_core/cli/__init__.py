@@ -106,6 +106,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             return int(args._main(args) or 0)
         except AeropendError as error:
+            for finding in getattr(error, 'findings', ()):          # what the data-quality gate found before it
+                print(f'{prefix}: warning: {finding.message} [{finding.code}, {finding.severity}]', file=sys.stderr)
             print(f'{prefix}: error: {error}', file=sys.stderr)
             return int(getattr(error, 'exit_status', 2))
         except KeyboardInterrupt:

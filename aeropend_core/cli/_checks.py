@@ -28,3 +28,30 @@ def check_report_path(path: str | None, option: str = '--report') -> None:
         raise AeropendError(f'cannot write the report to {report} ({option}): '
                             + ('it is a folder; give a file name such as report.html' if report.is_dir()
                                else f'the folder {report.parent} does not exist'))
+
+
+def print_findings(verb: str, findings) -> None:
+    """Every data-quality finding as one line on standard error: ``aeropend VERB: warning: <message> [code,
+    severity]`` (repairs too: nothing is changed silently)."""
+    import sys
+    for finding in findings:
+        if finding.severity != 'refused':
+            print(f'aeropend {verb}: warning: {finding.message} [{finding.code}, {finding.severity}]', file=sys.stderr,
+                  flush=True)
+
+
+def add_sample_rate_argument(parser) -> None:
+    """``--sample-rate HZ``: the acquisition rate the data must have (the rig's 490 Hz by default)."""
+    from aeropend_core.model.parameters import SAMPLE_TIME
+    parser.add_argument('--sample-rate', type=float, default=1.0 / SAMPLE_TIME, metavar='HZ',
+                        help=f'acquisition rate of the recording [Hz] (default: the rig\'s {1.0 / SAMPLE_TIME:g}); a '
+                             'record at another rate is refused, one stamped in ms converted')
+
+
+def sample_time_from(args) -> float:
+    """The declared sample time [s] from --sample-rate, refused unless a finite rate > 0."""
+    import math
+    rate = args.sample_rate
+    if not (math.isfinite(rate) and 0 < rate <= 1e6):
+        raise AeropendError(f'--sample-rate must be a rate in Hz in (0, 1e6], got {rate}')
+    return 1.0 / rate

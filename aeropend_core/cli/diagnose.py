@@ -33,6 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--report', metavar='FILE.html', help='write a self-contained HTML report')
     parser.add_argument('--json', action='store_true', help='print one JSON object instead of the text summary')
     parser.add_argument('--quiet', action='store_true', help='no progress messages on standard error')
+    from aeropend_core.cli._checks import add_sample_rate_argument
+    add_sample_rate_argument(parser)
 
 
 def load_effects_module(path: str) -> None:
@@ -53,7 +55,7 @@ def load_effects_module(path: str) -> None:
 def main(args: argparse.Namespace) -> int:
     from aeropend_core.io.recording import load_recording
 
-    from aeropend_core.cli._checks import check_effect_names
+    from aeropend_core.cli._checks import check_effect_names, print_findings, sample_time_from
     for path in args.effects_module:
         load_effects_module(path)
     check_effect_names(args.add, '--add')
@@ -64,7 +66,8 @@ def main(args: argparse.Namespace) -> int:
             raise AeropendError(f'cannot write the report to {report}: '
                                 + ('it is a folder; give a file name such as report.html' if report.is_dir()
                                    else f'the folder {report.parent} does not exist'))
-    recording = load_recording(args.data)
+    recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
+    print_findings('diagnose', recording.findings)          # first: before minutes of fitting, or a refusal
     from aeropend_core.diagnosis.diagnose import diagnose      # scipy and numba: imported once the input is known good
 
     def progress(message: str) -> None:

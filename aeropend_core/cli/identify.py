@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from aeropend_core.cli._checks import add_sample_rate_argument
 from aeropend_core.cli.diagnose import finite_json
 from aeropend_core.errors import AeropendError
 from aeropend_core.io.recording import load_recording
@@ -38,6 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='pendulum model: add a catalog effect as a candidate term (cable_torque, angle_offset)')
     parser.add_argument('--start', type=float, default=None, help='use samples from this time [s]')
     parser.add_argument('--stop', type=float, default=None, help='use samples before this time [s]')
+    add_sample_rate_argument(parser)
 
 
 def _window(recording, start: float | None, stop: float | None):
@@ -56,13 +58,15 @@ def _window(recording, start: float | None, stop: float | None):
 
 
 def main(args: argparse.Namespace) -> int:
-    from aeropend_core.cli._checks import check_effect_names
+    from aeropend_core.cli._checks import check_effect_names, print_findings, sample_time_from
     check_effect_names(args.effect, '--effect')
-    recording = load_recording(args.data)
+    recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
     if args.start is not None or args.stop is not None:
         recording = _window(recording, args.start, args.stop)
+    print_findings('identify', recording.findings)          # first, before any number
     # the fitting stack (scipy, numba) is imported once the input is known good: bad input is refused at once
     from aeropend_core.identify.pendulum import PARAMETER_UNITS, identify_full_state, identify_pendulum
+    from aeropend_core.signals.quality import findings_to_json, quality_lines
     if args.model == 'pendulum':
         fit = identify_pendulum(recording.time, recording.signal('armature_voltage'),
                                 recording.signal('armature_current'), recording.signal('angle'),
@@ -79,10 +83,12 @@ def main(args: argparse.Namespace) -> int:
             'units': {k: PARAMETER_UNITS.get(k, '') for k in fit.parameters},
             'samples': len(recording),
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
+            'warnings': findings_to_json(recording.findings),
         }
         print(json.dumps(out, indent=2))
     else:
         duration = len(recording) * float(np.median(np.diff(recording.time))) if len(recording) > 1 else 0.0
         print(f'{args.data}: {len(recording)} samples ({duration:.3g} s), model {args.model}')
+        print(quality_lines(recording.findings))
         print(fit.format())
     return 0

@@ -144,6 +144,11 @@ class Diagnosis:
     seconds: float = 0.0
 
     @property
+    def findings(self) -> tuple:
+        """The data-quality gate's findings on the record (:mod:`aeropend_core.signals.quality`)."""
+        return tuple(self.prepared.findings) if self.prepared is not None else ()
+
+    @property
     def noise_rms(self) -> float:
         return self.current.noise_rms
 
@@ -177,6 +182,7 @@ class Diagnosis:
             'worst_windows': current.evaluation.worst_windows,
             'residual_structure': self.residual_structure,
             'seconds': round(self.seconds, 2),
+            'warnings': [finding.to_dict() for finding in self.findings],
         }
         result['signal_errors'] = {'angle': {'rms_error': _finite(current.rms_error), 'unit': 'rad',
                                              'noise_rms': _finite(current.noise_rms)}}
@@ -444,7 +450,8 @@ def format_summary(diagnosis: Diagnosis) -> str:
     """The text report printed by ``aeropend diagnose``."""
     current = diagnosis.current
     noise = current.noise_rms
-    lines = []
+    from aeropend_core.signals.quality import quality_lines
+    lines = [quality_lines(diagnosis.findings)]
     model = 'nominal' + ''.join(f' + {e}' for e in diagnosis.effects)
     lines.append(f'Model: {model}')
     lines.append(f'Held-out free-run simulation of the angle: fit {current.fit_percent:.2f} % (NRMSE, MATLAB '

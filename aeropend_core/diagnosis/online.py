@@ -2,6 +2,8 @@
 
 Per window (time-first arrays of shape ``(n,)``, SI units):
 
+0. **Data quality** — :func:`aeropend_core.signals.quality.check_recording` on the window (refusals raise
+   :class:`~aeropend_core.signals.quality.DataQualityError`; repairs are used and listed in ``findings``).
 1. **Excitation check** — the first ``1 - holdout_fraction`` of the window (training part) must hold at least
    ``min_steps`` steps of the armature voltage and a voltage range of ``min_voltage_range`` V, and the held-out
    part must move the rod by more than a few noise levels; otherwise :class:`InsufficientDataError` says why.
@@ -65,6 +67,8 @@ class WindowResult:
     method : str
         ``'compare'`` (:func:`aeropend_core.diagnosis.compare.compare`, windows of at least its 20 s)
         or ``'window'`` (this module's own output-error fit, for shorter windows).
+    findings : tuple of aeropend_core.signals.quality.Finding
+        What the data-quality gate repaired or warned about in this window (empty: clean).
     """
 
     start: float
@@ -78,6 +82,7 @@ class WindowResult:
     held_out_seconds: float = 0.0
     compute_time: float = 0.0
     method: str = ''
+    findings: tuple = ()
 
 
 def check_effect_names(names: Sequence[str]) -> tuple[str, ...]:
@@ -125,22 +130,20 @@ def check_excitation(armature_voltage: np.ndarray, angle: np.ndarray, n_train: i
 
 
 def check_window_data(time: np.ndarray, columns: dict[str, np.ndarray], sample_time: float) -> None:
-    """Refuse data the analysis would turn into wrong numbers: unequal lengths, NaN/inf, a time axis that is not
-    increasing by `sample_time` [s] (within 1 %).
+    """Refuse data the analysis would turn into wrong numbers: unequal lengths, NaN/inf or absurd values (the
+    data-quality gate's rule, :func:`aeropend_core.signals.quality.require_finite`), a time axis that is not
+    increasing by `sample_time` [s] (within 1 %). The node passes each window through the whole gate first.
 
     Raises
     ------
     AeropendError
         Naming the column and how many values are bad (the node rejects such samples before they get here).
     """
+    from aeropend_core.signals.quality import require_finite
     for name, values in columns.items():
         if values.shape != time.shape:
             raise AeropendError(f'{name} has {values.size} values for {time.size} times')
-        bad = int(np.count_nonzero(~np.isfinite(values)))
-        if bad:
-            raise AeropendError(f'{name} holds {bad} NaN/inf value(s) of {values.size}: drop or fill them first')
-    if not np.all(np.isfinite(time)):
-        raise AeropendError('time holds NaN/inf values')
+    require_finite(['time', *columns], [time, *columns.values()])
     steps = np.diff(time)
     if steps.size and np.max(np.abs(steps - sample_time)) > 0.01 * sample_time:
         raise AeropendError(f'time is not uniform: steps from {steps.min():.6g} to {steps.max():.6g} s, expected '
@@ -179,6 +182,13 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     angle = np.asarray(angle, dtype=float)
     n = time.size
     check_window_data(time, {'armature_voltage': voltage, 'armature_current': current, 'angle': angle}, sample_time)
+    # The data-quality gate (the same as for files): refusals raise, repairs are used and kept with the result.
+    from aeropend_core.io.recording import Recording
+    from aeropend_core.signals.quality import check_recording
+    checked = check_recording(Recording(time, {'armature_voltage': voltage, 'armature_current': current,
+                                               'angle': angle}, source='window'),
+                              sample_time=sample_time, context='window').recording
+    voltage, current, angle = (checked.signals[k] for k in ('armature_voltage', 'armature_current', 'angle'))
     if not 0.0 < holdout_fraction < 1.0:
         raise AeropendError(f'holdout_fraction must be in (0, 1), got {holdout_fraction}')
     n_train = int(round(n * (1.0 - holdout_fraction)))
@@ -219,7 +229,8 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
         start=float(time[0]), stop=float(time[-1] + sample_time), effects=effects, coefficients=coefficients,
         parameters={name: (float(values[name]), float(errors.get(name, float('nan')))) for name in values},
         fit_percent=float(fit_percent), rms_error=float(rms_error), noise_rms=float(noise),
-        held_out_seconds=(n - n_train) * sample_time, compute_time=_time.perf_counter() - started, method=method)
+        held_out_seconds=(n - n_train) * sample_time, compute_time=_time.perf_counter() - started, method=method,
+        findings=tuple(checked.findings))
 
 
 def _compare_min_duration() -> float:

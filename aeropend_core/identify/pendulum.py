@@ -186,14 +186,9 @@ def _segments(*arrays):
 
 
 def _check_finite(names, arrays, label):
-    for name, x in zip(names, arrays):
-        bad = ~np.isfinite(x)
-        if bad.any():
-            raise InsufficientDataError(
-                f'{label}{name} has {int(bad.sum())} NaN/inf value(s), first at sample {int(np.argmax(bad))}; '
-                'remove or interpolate them, or split the record into clean segments')
-        if x.shape != arrays[0].shape:
-            raise AeropendError(f'{label}{name} has shape {x.shape}, time has {arrays[0].shape}')
+    """Refuse NaN/inf/absurd values and shape mismatches (the data-quality gate's rule for plain arrays)."""
+    from aeropend_core.signals.quality import require_finite
+    require_finite(names, arrays, label)
 
 
 def step_indices(armature_voltage: np.ndarray, threshold: float | None = None) -> np.ndarray:

@@ -8,7 +8,6 @@ truth columns of the same quantity: :meth:`Recording.signal` looks up ``name`` t
 from __future__ import annotations
 
 import csv
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_core.errors import AeropendError
+from aeropend_core.model.parameters import SAMPLE_TIME
 
 #: Columns every recording must have (what the rig measures), with units.
 REQUIRED_COLUMNS = {'t': 's', 'armature_voltage': 'V', 'armature_current': 'A', 'angle': 'rad'}
@@ -34,11 +34,14 @@ class Recording:
         (dimensionless fraction), ``true_*`` truth columns of a simulation.
     source : str [-]
         Where it came from (file path), for messages.
+    findings : tuple of aeropend_core.signals.quality.Finding
+        What the reader and the data-quality gate found and repaired (empty: clean, or not checked yet).
     """
 
     time: np.ndarray
     signals: dict[str, np.ndarray] = field(default_factory=dict)
     source: str = ''
+    findings: tuple = ()
 
     def __len__(self) -> int:
         return len(self.time)
@@ -58,10 +61,11 @@ class Recording:
     def window(self, start: float, stop: float) -> Recording:
         """The samples with start <= t < stop [s]."""
         keep = (self.time >= start) & (self.time < stop)
-        return Recording(self.time[keep], {k: v[keep] for k, v in self.signals.items()}, self.source)
+        findings = tuple(f for f in self.findings if f.where is None or (f.where[1] >= start and f.where[0] < stop))
+        return Recording(self.time[keep], {k: v[keep] for k, v in self.signals.items()}, self.source, findings)
 
 
-def from_columns(columns: Mapping[str, np.ndarray], source: str = '') -> Recording:
+def from_columns(columns: Mapping[str, np.ndarray], source: str = '', findings: tuple = ()) -> Recording:
     """A :class:`Recording` from a mapping with a ``t`` column (e.g. ``Trajectory.columns()``).
 
     Parameters
@@ -71,6 +75,8 @@ def from_columns(columns: Mapping[str, np.ndarray], source: str = '') -> Recordi
         column is kept as a signal.
     source : str [-]
         Where the data came from, for messages.
+    findings : tuple of Finding [-]
+        Data-quality findings already made about these columns (by a reader), kept with the recording.
 
     Returns
     -------
@@ -91,14 +97,62 @@ def from_columns(columns: Mapping[str, np.ndarray], source: str = '') -> Recordi
     for k, v in signals.items():
         if v.shape != time.shape:
             raise AeropendError(f'{source or "data"}: column {k!r} has {v.shape} samples, t has {time.shape}')
-    return Recording(time, signals, source)
+    return Recording(time, signals, source, tuple(findings))
+
+
+#: Other spellings of the column names (lower case) -> the name used here.
+COLUMN_ALIASES = {'time': 't', 'theta': 'angle', 'voltage': 'armature_voltage', 'current': 'armature_current',
+                  'va': 'armature_voltage', 'ia': 'armature_current'}
+#: (column, unit written in its header) -> (factor to SI, finding code). SI units are accepted as they are.
+UNIT_CONVERSIONS = {('t', 'ms'): (1e-3, 'time_in_milliseconds'), ('angle', 'deg'): (np.pi / 180, 'angle_in_degrees'),
+                    ('angle', 'degree'): (np.pi / 180, 'angle_in_degrees'),
+                    ('angle', 'degrees'): (np.pi / 180, 'angle_in_degrees'),
+                    ('armature_current', 'ma'): (1e-3, 'current_in_milliamps'),
+                    ('armature_voltage', 'mv'): (1e-3, 'voltage_in_millivolts'),
+                    ('duty', '%'): (1e-2, 'duty_in_percent')}
+SI_UNITS = {'t': 's', 'angle': 'rad', 'armature_current': 'a', 'armature_voltage': 'v', 'duty': '1'}
+
+
+def _normalise_header(header: list[str], path: Path) -> tuple[list[str], dict[int, float], list]:
+    """Column names as used here (``Angle [deg]`` -> ``angle``, scaled to rad), the factor of each converted
+    column, and one finding per change (nothing renamed or converted silently)."""
+    import re
+
+    from aeropend_core.signals.quality import DataQualityError, Finding
+    names, scales, findings, renamed = [], {}, [], []
+    for index, raw in enumerate(header):
+        match = re.fullmatch(r'\s*([^\[\(]*?)\s*[\[\(]\s*([^\]\)]*?)\s*[\]\)]\s*', raw)
+        name, unit = (match.group(1), match.group(2)) if match else (raw.strip(), '')
+        key = name.strip().lower().replace(' ', '_')
+        key = COLUMN_ALIASES.get(key, key)
+        if key not in SI_UNITS and key != 'sequence' and not key.startswith('true_'):
+            key = name.strip()              # not ours: keep it as written
+        unit_key = unit.strip().lower()
+        if unit_key and key in SI_UNITS and unit_key not in (SI_UNITS[key], '-', ''):
+            if (key, unit_key) not in UNIT_CONVERSIONS:
+                raise DataQualityError(Finding('unknown_unit', 'refused', f'{path}: column {index + 1} {raw!r}: unit '
+                                               f'{unit!r} is not known for {key}; write it in {SI_UNITS[key]}'))
+            factor, code = UNIT_CONVERSIONS[(key, unit_key)]
+            scales[index] = factor
+            findings.append(Finding(code, 'repaired', f'{path}: column {raw!r} is in {unit} by its header; converted '
+                                    f'to {SI_UNITS[key].replace("a", "A").replace("v", "V")} (x {factor:.6g})'))
+        if key != raw:
+            renamed.append(f'{raw!r} -> {key!r}')
+        names.append(key)
+    if renamed:
+        findings.insert(0, Finding('column_names', 'repaired', f'{path}: column names read as ' + ', '.join(renamed)))
+    return names, scales, findings
 
 
 def load_csv(path: str | Path) -> Recording:
     """Read a CSV with a header row (``t,duty,armature_voltage,armature_current,angle[,true_...]``)."""
+    from aeropend_core.signals.quality import DataQualityError, Finding
     path = Path(path)
+    findings = []
     try:
-        with path.open(newline='') as handle:
+        with path.open('rb') as raw:
+            bom = raw.read(3) == b'\xef\xbb\xbf'
+        with path.open(newline='', encoding='utf-8-sig') as handle:
             reader = csv.reader(handle)
             header = [h.strip() for h in next(reader, [])]
             rows = [row for row in reader if row and any(cell.strip() for cell in row)]
@@ -109,6 +163,20 @@ def load_csv(path: str | Path) -> Recording:
                             'and comma-separated numbers') from None
     if not header:
         raise AeropendError(f'{path} is empty; expected a CSV header t,duty,armature_voltage,...')
+    if bom:
+        findings.append(Finding('byte_order_mark', 'repaired', f'{path}: starts with a UTF-8 byte-order mark (as Excel '
+                                'writes); skipped'))
+    written = list(header)
+    header, scales, notes = _normalise_header(header, path)
+    findings.extend(notes)
+    seen: dict[str, int] = {}
+    for index, name in enumerate(header):
+        if name in seen:
+            raise DataQualityError(Finding(
+                'duplicate_column', 'refused', f'{path}: columns {seen[name] + 1} and {index + 1} '
+                f'({written[seen[name]]!r}, {written[index]!r}) are both named {name!r}; which one holds the data '
+                'cannot be told: delete or rename one', count=2), findings)
+        seen[name] = index
     if len(header) == 1 and any(sep in header[0] for sep in ';\t'):
         raise AeropendError(f'{path}: the header {header[0]!r} is not comma-separated; write the fields separated '
                             'by commas')
@@ -124,82 +192,45 @@ def load_csv(path: str | Path) -> Recording:
         raise AeropendError(f'{path} has a header but no samples')
     if table.ndim != 2 or table.shape[1] != len(header):
         raise AeropendError(f'{path}: rows have a different number of fields than the header ({len(header)})')
-    return from_columns({name: table[:, i] for i, name in enumerate(header)}, source=str(path))
+    for index, factor in scales.items():
+        table[:, index] *= factor
+    return from_columns({name: table[:, i] for i, name in enumerate(header)}, source=str(path),
+                        findings=tuple(findings))
 
 
-def load_recording(path: str | Path) -> Recording:
+def load_recording(path: str | Path, sample_time: float | None = SAMPLE_TIME) -> Recording:
     """Load a recording by file type: ``.csv``, or an MCAP bag (``.mcap`` file or bag folder, its
-    ``/aeropend/samples``; a file cut short by a killed recorder is read up to its last complete chunk).
+    ``/aeropend/samples``; a file cut short by a killed recorder is read up to its last complete chunk), and pass it
+    through the data-quality gate (:func:`aeropend_core.signals.quality.check_recording`).
 
     Parameters
     ----------
     path : str or Path [-]
         A ``.csv`` file, an ``.mcap`` file or a bag folder.
+    sample_time : float or None [s]
+        The declared sample time (the rig's 1/490 s); None: the stamps are checked against themselves only.
 
     Returns
     -------
     Recording
-        Time [s] and the signals in SI units, with the time stamps checked (:func:`checked_time`).
+        The repaired recording, time [s] and the signals in SI units; its ``findings`` say every repair and warning.
 
     Raises
     ------
     AeropendError
-        No such file, an unknown file type, unreadable content or time stamps that do not increase.
+        Unreadable files, and data the gate refuses (:class:`~aeropend_core.signals.quality.DataQualityError`).
     """
+    from aeropend_core.signals.quality import check_recording
     path = Path(path)
     if not path.exists():
         raise AeropendError(f'no such file or folder: {path}')
     if path.suffix.lower() == '.csv':
-        return checked_time(load_csv(path))
-    if path.suffix.lower() == '.mcap' or path.is_dir():
-        return checked_time(_load_bag(path))
-    raise AeropendError(f'{path}: unknown recording type {path.suffix!r}; give a .csv (or an MCAP bag)')
-
-
-def checked_time(recording: Recording) -> Recording:
-    """The recording with its time stamps checked: finite and strictly increasing.
-
-    A sample repeated exactly (same time stamp and the same value in every column, e.g. a message recorded twice)
-    is dropped, with a warning saying how many and where. Anything else that does not move forward in time (a
-    stamp going back, or two different samples with the same stamp) is refused with the index of the first one:
-    reordering or averaging them would be a guess.
-
-    Raises
-    ------
-    AeropendError
-        Non-finite stamps, or stamps that do not increase.
-    """
-    time, where = recording.time, recording.source or 'the recording'
-    bad = np.flatnonzero(~np.isfinite(time))
-    if bad.size:
-        raise AeropendError(f'{where}: {bad.size} time stamp(s) are not finite numbers (first at sample {bad[0]}); '
-                            'fix or remove those samples')
-    if len(time) < 2:
-        return recording
-    step = np.diff(time)
-    repeated = np.flatnonzero(step == 0) + 1
-    if repeated.size:
-        same = np.ones(repeated.size, dtype=bool)
-        for values in recording.signals.values():
-            a, b = values[repeated], values[repeated - 1]
-            same &= (a == b) | (np.isnan(a) & np.isnan(b))
-        if not same.all():
-            k = int(repeated[~same][0])
-            raise AeropendError(f'{where}: samples {k - 1} and {k} have the same time stamp t = {time[k]:.6f} s but '
-                                'different values; which one is right cannot be told: fix the time stamps')
-    backwards = np.flatnonzero(step < 0) + 1
-    if backwards.size:
-        k = int(backwards[0])
-        raise AeropendError(f'{where}: time stamps go backwards at sample {k} (t = {time[k - 1]:.6f} s then '
-                            f'{time[k]:.6f} s; {backwards.size} place(s) in all); the samples are out of order: '
-                            'sort them by time or split the record there')
-    if repeated.size:
-        keep = np.ones(len(time), dtype=bool)
-        keep[repeated] = False
-        warnings.warn(f'{where}: dropped {repeated.size} duplicated sample(s) (same time stamp and values as the '
-                      f'one before; first at sample {repeated[0]})', stacklevel=2)
-        return Recording(time[keep], {k: v[keep] for k, v in recording.signals.items()}, recording.source)
-    return recording
+        recording = load_csv(path)
+    elif path.suffix.lower() == '.mcap' or path.is_dir():
+        recording = _load_bag(path)
+    else:
+        raise AeropendError(f'{path}: unknown recording type {path.suffix!r}; give a .csv (or an MCAP bag)')
+    return check_recording(recording, sample_time=sample_time).recording
 
 
 def _load_bag(path: Path) -> Recording:

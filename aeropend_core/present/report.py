@@ -136,6 +136,17 @@ def _verdict_html(diagnosis: Diagnosis, source: str | None = None) -> str:
     return ''.join(parts)
 
 
+def _quality_html(diagnosis: Diagnosis) -> str:
+    """The data-quality gate's findings, above the verdict: every repair and warning the numbers depend on."""
+    findings = diagnosis.findings
+    if not findings:
+        return '<p class="sub" id="data-quality">Data quality: clean (no repairs, no warnings).</p>'
+    items = ''.join(f'<li><b>{_esc(f.severity)}</b> ({_esc(f.code)}): {_esc(f.message)}</li>' for f in findings)
+    return (f'<section class="verdict warn" id="data-quality"><div class="title">Data quality: {len(findings)} '
+            f'finding(s)</div><div>Every number on this page comes from the data as repaired:</div><ul>{items}</ul>'
+            '</section>')
+
+
 def _within_noise_text(excess: float, noise: float) -> str:
     ratio = excess / noise if noise > 0 else float('inf')
     if excess <= WITHIN_NOISE * noise:
@@ -412,7 +423,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
               + f' &middot; {prep.duration:.1f} s recorded at {1 / prep.sample_time:.0f} Hz; fitted on '
               f't &lt; {heldout_from:.1f} s, judged on the held-out t &ge; {heldout_from:.1f} s &middot; only Va, '
               f'Ia and the angle are used</p><nav>' + ''.join(nav) + '</nav>')
-    sections.append(header + _verdict_html(diagnosis, source) + _cards_html(diagnosis))
+    sections.append(header + _quality_html(diagnosis) + _verdict_html(diagnosis, source) + _cards_html(diagnosis))
 
     best_text = (f', the best candidate (<span style="color:{CANDIDATE}">+ {_esc(best.effect)}</span>, dashed)'
                  if best is not None else '')
