@@ -34,7 +34,7 @@ class Recording:
         (dimensionless fraction), ``true_*`` truth columns of a simulation.
     source : str [-]
         Where it came from (file path), for messages.
-    findings : tuple of aeropend_core.signals.quality.Finding
+    findings : tuple of aeropend_core.signals.quality.Finding [-]
         What the reader and the data-quality gate found and repaired (empty: clean, or not checked yet).
     """
 
