@@ -286,7 +286,8 @@ def test_bridge_node_on_the_firmware(build, tmp_path, ros_context):
     with Harness(build, port, adc={0: current_mv, 2: angle_mv}, pwm_to_adc=3) as harness:
         listener = Listener(ros_context)
         bridge = NodeProcess('aeropend_ros.serial_bridge_node',
-                             ['-p', f'port:={port}', '-p', 'watchdog_timeout:=0.5', '-p', 'max_duty:=0.7'],
+                             ['-p', f'port:={port}', '-p', 'watchdog_timeout:=0.5', '-p', 'max_duty:=0.7',
+                              '-p', 'command_timeout:=0.0'],          # one duty command, held
                              domain_id=DOMAIN_ID)
         try:
             assert poll(lambda: len(listener.samples) > 50, DISCOVERY_TIMEOUT), bridge.output()

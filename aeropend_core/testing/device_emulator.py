@@ -18,7 +18,18 @@ Faults (all thread-safe, take effect at the next emission):
   the device (sequence back to 0, configuration back to defaults: what a USB power cycle does).
 
 Every emitted sample is logged in :attr:`emitted` as ``(sequence, state)`` with state ``'intact'``, ``'corrupt'``,
-``'truncated'`` or ``'lost'`` (not written: paused with loss, or unplugged), so tests know the truth.
+``'truncated'`` or ``'lost'`` (not written: paused with loss, unplugged, or no program has the port open), so tests
+know the truth.
+
+**Auto-reset and bootloader** (``auto_reset=True``, the default: an Arduino Mega 2560). Opening the port asserts DTR,
+which resets the board; the stk500v2 bootloader then listens for ``config.boot_delay`` (~1 s) and answers nothing.
+If no byte arrives in that time it starts the sketch (sequence 0, STATUS with the boot flag, samples); if any byte
+arrives it stays in programming mode and never starts the sketch, until the next reset (the port opened again).
+:attr:`state` is ``'bootloader'``, ``'programming'`` or ``'running'``; :attr:`resets` counts resets and
+:attr:`bootloader_bytes` the bytes the bootloader swallowed. While no program has the port open nothing is written
+(the USB-serial chip drops it). ``auto_reset=False`` is a board whose auto-reset is disabled (or a device powered
+from elsewhere): it streams from :meth:`start` on, whoever opens the port. Opening and closing are noticed at the
+emulator's emission cadence (~20 ms): a close and reopen within that time is one open.
 
 No ROS or serial library is needed: the emulator uses ``os.openpty``.
 """
@@ -27,6 +38,7 @@ from __future__ import annotations
 import math
 import os
 import random
+import select
 import threading
 import time
 import tty
@@ -53,6 +65,7 @@ class EmulatorConfig:
     watchdog_timeout: float = 0.5   #: s
     pwm_mode: int = P.PWM_PHASE_CORRECT
     status_every: int = 490         #: samples
+    boot_delay: float = 1.0         #: s the bootloader listens (silent) after a reset before starting the sketch
 
 
 @dataclass
@@ -84,12 +97,15 @@ class DeviceEmulator:
     block : int
         Samples simulated per emission (default 10: one write every ~20 ms, like USB bulk transfers).
     clock_ppm : float
-        Deviation of the emulated crystal from nominal (positive = the device samples slower), parts per million.
+        Deviation of the emulated clock from nominal (positive = the device samples slower), parts per million
+        (the Mega 2560's ceramic resonator: up to ~5000).
+    auto_reset : bool
+        Model the Mega's DTR auto-reset and bootloader (see the module docstring); default True.
     """
 
     def __init__(self, link: str | os.PathLike | None = None, simulator: RigSimulator | None = None,
                  calibration: P.Calibration | None = None, config: EmulatorConfig | None = None,
-                 seed: int = 0, block: int = 10, clock_ppm: float = 0.0) -> None:
+                 seed: int = 0, block: int = 10, clock_ppm: float = 0.0, auto_reset: bool = True) -> None:
         if link is None:
             import tempfile
             self._tmpdir = tempfile.mkdtemp(prefix='aeropend-emu-')
@@ -118,6 +134,17 @@ class DeviceEmulator:
         #: Hold the propeller (locked-rotor calibration): no back-EMF, no thrust.
         self.locked_rotor = False
         self._locked_current = 0.0
+        self.auto_reset = bool(auto_reset)
+        #: 'bootloader' (silent after a reset), 'programming' (bytes arrived during it: stuck), 'running' (sketch)
+        self.state = 'running'
+        #: resets of the board (power-up included) when `auto_reset`
+        self.resets = 0
+        self.bootloader_bytes = 0
+        #: times [s, time.monotonic] at which a program opened the port, and at which the sketch started
+        self.host_opens: list[float] = []
+        self.sketch_starts: list[float] = []
+        self._host_open = False
+        self._boot_until = 0.0
         self._reset_device()
 
     # -------------------------------------------------------------------------------------------------- life cycle
@@ -135,6 +162,11 @@ class DeviceEmulator:
         self._status_due = True
         self._boot = True
         self._decoder.reset()
+        if self.auto_reset:
+            # The bootloader runs first (a power-up or a DTR reset); the sketch starts after it, if left alone.
+            self.state = 'bootloader'
+            self._boot_until = time.monotonic() + self.config.boot_delay
+            self.resets += 1
 
     def start(self) -> DeviceEmulator:
         """Open the pty and start streaming; returns self."""
@@ -177,11 +209,16 @@ class DeviceEmulator:
         master, slave = os.openpty()
         tty.setraw(slave)
         os.set_blocking(master, False)
-        self._master, self._slave = master, slave
+        name = os.ttyname(slave)
+        # The slave is closed here, so the master sees (POLLHUP) whether a program has the port open: that is
+        # when the Mega's DTR auto-reset happens.
+        os.close(slave)
+        self._master, self._slave = master, -1
+        self._host_open = False
         tmp = self.link.with_name(self.link.name + '.new')
         if tmp.is_symlink() or tmp.exists():
             tmp.unlink()
-        os.symlink(os.ttyname(slave), tmp)
+        os.symlink(name, tmp)
         os.replace(tmp, self.link)
 
     def _close_pty(self) -> None:
@@ -191,6 +228,41 @@ class DeviceEmulator:
             if fd >= 0:
                 os.close(fd)
         self._master = self._slave = -1
+        self._host_open = False
+
+    def _check_host(self) -> None:
+        """Notice a program opening or closing the port; opening resets the board when `auto_reset`."""
+        if self._master < 0:
+            return
+        poller = select.poll()
+        poller.register(self._master, select.POLLHUP)
+        is_open = not any(event & select.POLLHUP for _, event in poller.poll(0))
+        if is_open and not self._host_open:
+            self.host_opens.append(time.monotonic())
+            if self.auto_reset:
+                self._held.clear()
+                self._reset_device()
+        self._host_open = is_open
+
+    def _bootloader(self) -> bool:
+        """Run the bootloader's part of an emission; True while the sketch is not running."""
+        if self.state == 'running':
+            return False
+        data = b''
+        if self._master >= 0:
+            try:
+                data = os.read(self._master, 4096)
+            except (BlockingIOError, OSError):
+                data = b''
+        if data:
+            # stk500v2: a byte during the listening window enters programming mode, which waits for a programmer.
+            self.bootloader_bytes += len(data)
+            self.state = 'programming'
+        if self.state == 'bootloader' and time.monotonic() >= self._boot_until:
+            self.state = 'running'
+            self.sketch_starts.append(time.monotonic())
+            return False
+        return True
 
     # ------------------------------------------------------------------------------------------------------ faults
     def inject_garbage(self, data: bytes | int) -> None:
@@ -243,6 +315,10 @@ class DeviceEmulator:
                 time.sleep(max(0.0005, (produced + self.block) * period - (now - start)))
                 continue
             with self._lock:
+                self._check_host()
+                if self._bootloader():
+                    produced = due          # not sampling: the sketch is not running
+                    continue
                 self._read_commands()
                 n = due - produced
                 self._emit_samples(n)
@@ -367,8 +443,9 @@ class DeviceEmulator:
     def _write(self, data: bytes, samples: int) -> None:
         faults = self._faults
         paused = time.monotonic() < faults.pause_until
-        if self._master < 0 or (paused and faults.pause_drop):
-            self._mark_lost(samples)
+        if self._master < 0 or (paused and faults.pause_drop) or not self._host_open:
+            self._mark_lost(samples)     # unplugged, dropped, or nobody has the port open (the chip drops it)
+            self._held.clear()
             return
         self._held += data
         if paused:
