@@ -3,9 +3,12 @@
 :class:`DeviceEmulator` opens a pty, points a stable symlink at it (like ``/dev/serial/by-id/...``), and streams
 SAMPLE frames at the firmware's 490.196 Hz in real time. The measured values come from
 :class:`aeropend_core.sim.simulate.RigSimulator` (hidden effects and measurement noise as configured), converted to raw
-ADC counts with the inverse of the bridge's :class:`~aeropend_core.rig.protocol.Calibration`. Commands written to the
-port behave as on the firmware: SET_DUTY clamped to the maximum duty, a watchdog that cuts the duty when no valid
-command arrives in time (checked every emission, ~20 ms), STATUS on boot, after configuration and every second.
+ADC counts through the rig's analog front end (:mod:`aeropend_core.testing.measurement_chain`: the angle's RC
+filter and encoder wrap, the current read at the hold instant of a PWM-resolved armature current, ADC noise) and the
+inverse of the bridge's :class:`~aeropend_core.rig.protocol.Calibration` (``chain=None``: ideal counts).
+Commands written to the port behave as on the firmware: SET_DUTY clamped to the maximum duty, a watchdog that cuts
+the duty when no valid command arrives in time (checked every emission, ~20 ms), STATUS on boot, after
+configuration and every second.
 
 Faults (all thread-safe, take effect at the next emission):
 
@@ -19,7 +22,7 @@ Faults (all thread-safe, take effect at the next emission):
 
 Every emitted sample is logged in :attr:`emitted` as ``(sequence, state)`` with state ``'intact'``, ``'corrupt'``,
 ``'truncated'`` or ``'lost'`` (not written: paused with loss, unplugged, or no program has the port open), so tests
-know the truth.
+know the truth (``keep_log=False`` keeps only the counts, for long runs: :meth:`samples_sent`).
 
 **Auto-reset and bootloader** (``auto_reset=True``, the default: an Arduino Mega 2560). Opening the port asserts DTR,
 which resets the board; the stk500v2 bootloader then listens for ``config.boot_delay`` (~1 s) and answers nothing.
@@ -49,6 +52,7 @@ import numpy as np
 
 from aeropend_core.rig import protocol as P
 from aeropend_core.sim.simulate import RigSimulator
+from aeropend_core.testing.measurement_chain import MeasurementChain
 
 __all__ = ['DeviceEmulator', 'EmulatorConfig']
 
@@ -101,11 +105,18 @@ class DeviceEmulator:
         (the Mega 2560's ceramic resonator: up to ~5000).
     auto_reset : bool
         Model the Mega's DTR auto-reset and bootloader (see the module docstring); default True.
+    keep_log : bool
+        Log every emitted sample in :attr:`emitted` (default True; False for long runs).
+    chain : MeasurementChain or None
+        The analog front end between the physics and the counts (default: the rig's, see
+        :mod:`aeropend_core.testing.measurement_chain`); None sends the ideal counts of the simulator's values.
     """
 
     def __init__(self, link: str | os.PathLike | None = None, simulator: RigSimulator | None = None,
                  calibration: P.Calibration | None = None, config: EmulatorConfig | None = None,
-                 seed: int = 0, block: int = 10, clock_ppm: float = 0.0, auto_reset: bool = True) -> None:
+                 seed: int = 0, block: int = 10, clock_ppm: float = 0.0, auto_reset: bool = True,
+                 chain: MeasurementChain | None = MeasurementChain(),  # noqa: B008 - frozen settings
+                 keep_log: bool = True) -> None:
         if link is None:
             import tempfile
             self._tmpdir = tempfile.mkdtemp(prefix='aeropend-emu-')
@@ -122,6 +133,9 @@ class DeviceEmulator:
         self.emitted: list[tuple[int, str]] = []
         self.commands: list[tuple[float, P.CommandFrame]] = []
         self.samples_written = 0
+        self.keep_log = bool(keep_log)
+        self._sent = 0
+        self._lost = 0
         self.bytes_written = 0
         self._lock = threading.RLock()
         self._faults = _Faults()
@@ -135,6 +149,9 @@ class DeviceEmulator:
         self.locked_rotor = False
         self._locked_current = 0.0
         self.auto_reset = bool(auto_reset)
+        self.chain = chain
+        self._front_end = chain.start(self.calibration, self.simulator.parameters, self.config.pwm_mode,
+                                      seed) if chain is not None else None
         #: 'bootloader' (silent after a reset), 'programming' (bytes arrived during it: stuck), 'running' (sketch)
         self.state = 'running'
         #: resets of the board (power-up included) when `auto_reset`
@@ -200,6 +217,11 @@ class DeviceEmulator:
     def port(self) -> str:
         """The port name to open (the symlink)."""
         return str(self.link)
+
+    @property
+    def host_open(self) -> bool:
+        """Whether a program has the port open (as last seen, every ~20 ms)."""
+        return self._host_open
 
     @property
     def plugged(self) -> bool:
@@ -399,13 +421,18 @@ class DeviceEmulator:
             trajectory = self.simulator.run(duties)
             self._locked_current = 0.0
             measured_current, measured_voltage = trajectory.armature_current, trajectory.armature_voltage
+        if self._front_end is not None:
+            counts = self._front_end.counts(trajectory.angle, measured_current, measured_voltage, duties)
+        else:
+            counts = np.array([self.calibration.to_counts(float(trajectory.angle[k]), float(measured_current[k]),
+                                                          float(measured_voltage[k])) for k in range(n)],
+                              dtype=np.int64).reshape(n, 3).T
         out = bytearray()
         for k in range(n):
             sequence = self.sequence
             self.sequence += 1
-            current, angle, voltage = self.calibration.to_counts(
-                float(trajectory.angle[k]), float(measured_current[k]), float(measured_voltage[k]))
-            wire = P.encode_sample(P.SampleFrame(sequence, current, angle, voltage, int(applied[k]), int(flags[k])))
+            wire = P.encode_sample(P.SampleFrame(sequence, int(counts[0][k]), int(counts[1][k]), int(counts[2][k]),
+                                                 int(applied[k]), int(flags[k])))
             out += self._apply_faults(sequence, wire)
             if self._status_due or sequence % self.config.status_every == self.config.status_every - 1:
                 out += self._status_frame()
@@ -430,14 +457,14 @@ class DeviceEmulator:
             data = bytearray(wire)
             index = self.rng.randrange(1, len(data) - 1)   # inside the frame, delimiters untouched
             data[index] ^= 1 << self.rng.randrange(8)
-            self.emitted.append((sequence, 'corrupt'))
+            self._log(sequence, 'corrupt')
             return prefix + bytes(data)
         if faults.truncate:
             faults.truncate -= 1
             cut = self.rng.randrange(2, len(wire) - 2)
-            self.emitted.append((sequence, 'truncated'))
+            self._log(sequence, 'truncated')
             return prefix + wire[:cut] + (b'\x00' if faults.truncate_keep_delimiter else b'')
-        self.emitted.append((sequence, 'intact'))
+        self._log(sequence, 'intact')
         return prefix + wire
 
     def _write(self, data: bytes, samples: int) -> None:
@@ -448,6 +475,7 @@ class DeviceEmulator:
             self._held.clear()
             return
         self._held += data
+        self._sent += samples
         if paused:
             return
         try:
@@ -455,6 +483,7 @@ class DeviceEmulator:
         except BlockingIOError:
             written = 0
         except OSError:
+            self._sent -= samples
             self._mark_lost(samples)
             self._held.clear()
             return
@@ -464,9 +493,19 @@ class DeviceEmulator:
             # Nobody reads: like the USB-serial chip, keep a small FIFO and drop the rest.
             del self._held[DEVICE_BUFFER:]
 
+    def _log(self, sequence: int, state: str) -> None:
+        if self.keep_log:
+            self.emitted.append((sequence, state))
+
     def _mark_lost(self, samples: int) -> None:
-        for index in range(len(self.emitted) - samples, len(self.emitted)):
-            self.emitted[index] = (self.emitted[index][0], 'lost')
+        self._lost += samples
+        if self.keep_log:
+            for index in range(len(self.emitted) - samples, len(self.emitted)):
+                self.emitted[index] = (self.emitted[index][0], 'lost')
+
+    def samples_sent(self) -> int:
+        """Samples produced by the running sketch and written to the port (damaged ones included)."""
+        return self._sent
 
     # ---------------------------------------------------------------------------------------------------- queries
     def sequences(self, state: str = 'intact') -> list[int]:
