@@ -51,8 +51,9 @@ class Harness:
         if pwm_to_adc is not None:
             command += ['--pwm-to-adc', str(pwm_to_adc)]
         self.link = link
-        #: (wall time, sim time, duty, frequency, current sample-and-holds with the pin high, ... low, shortest and
-        #: longest delay of the sample-and-hold after the Timer1 overflow [us], -1 when none) per 0.5 s report
+        #: (wall time read, sim time, duty, frequency, current sample-and-holds with the pin high, ... low, shortest
+        #: and longest delay of the sample-and-hold after the Timer1 overflow [us] (-1 when none), the harness's
+        #: time.monotonic() when it reported) per 0.5 s of simulated time
         self.pwm: list[tuple[float, ...]] = []
         self.log: list[str] = []
         self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
@@ -72,7 +73,7 @@ class Harness:
             if match:
                 self.pty = match.group(1)
                 self._ready.set()
-            match = re.match(r'pwm (\S+) (\S+) (\S+) (\S+) (\S+) (\S+) (\S+)', line)
+            match = re.match(r'pwm (\S+) (\S+) (\S+) (\S+) (\S+) (\S+) (\S+) (\S+)', line)
             if match:
                 self.pwm.append((time.monotonic(), *(float(value) for value in match.groups())))
 

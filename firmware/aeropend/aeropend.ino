@@ -91,8 +91,8 @@ static const uint8_t adc_channels[3] = {CURRENT_ADC_CHANNEL, ANGLE_ADC_CHANNEL, 
 static volatile uint32_t sequence;              /* Timer1 overflows since reset */
 static volatile uint16_t commanded_duty_q16;    /* after clamping; 0 when the watchdog tripped */
 static volatile uint16_t applied_duty_q16;      /* the duty of the PWM period being sampled */
-/* The next PWM period, precomputed outside the interrupt by prepare_duty(): compare value, whether the pin is
- * connected to the timer (fast PWM disconnects it at duty 0), and the duty the pin really gets. */
+/* The next PWM period, precomputed in the main loop by duty_setting(): compare value, whether the pin is connected
+ * to the timer (fast PWM disconnects it at duty 0), and the duty the pin really gets. */
 static volatile uint16_t next_ocr;
 static volatile uint8_t next_pin_on;
 static volatile uint16_t next_applied_q16;
@@ -130,24 +130,41 @@ static uint16_t watchdog_ticks(uint16_t ms)
     return ticks ? (uint16_t)ticks : 1;
 }
 
-/* Precompute the compare value for `q16` (duty fraction * 65535) and the duty the pin really gets; the overflow
- * interrupt only copies them (call with interrupts disabled, or from the interrupt). */
-static void prepare_duty(uint16_t q16)
+/* The PWM setting for a duty: compare value, pin connected, and the duty the pin really gets (q16). */
+struct pwm_setting {
+    uint16_t ocr;
+    uint8_t pin_on;
+    uint16_t applied_q16;
+};
+
+/* Compute the setting for `q16` (duty fraction * 65535): pure arithmetic (two 32-bit divisions, ~70 us), run in the
+ * main loop with interrupts enabled, never in an interrupt or a critical section. */
+static struct pwm_setting duty_setting(uint16_t q16)
 {
+    struct pwm_setting setting;
 #if AEROPEND_FAST_PWM
     /* Fast PWM, non-inverting: duty = (OCR1A + 1) / (TOP + 1); OCR1A = 0 would still give a 1-tick pulse, so
      * duty 0 disconnects the pin (held low by PORTB). */
     uint16_t high = (uint16_t)(((uint32_t)q16 * (PWM_TOP + 1) + 32767UL) / 65535UL);
-    next_pin_on = high != 0;
-    next_ocr = high ? high - 1 : 0;
-    next_applied_q16 = (uint16_t)(((uint32_t)high * 65535UL) / (PWM_TOP + 1));
+    setting.pin_on = high != 0;
+    setting.ocr = high ? high - 1 : 0;
+    setting.applied_q16 = (uint16_t)(((uint32_t)high * 65535UL) / (PWM_TOP + 1));
 #else
     /* Phase-correct PWM, non-inverting: duty = OCR1A / TOP exactly (0 = always low, TOP = always high). */
     uint16_t ocr = (uint16_t)(((uint32_t)q16 * PWM_TOP + 32767UL) / 65535UL);
-    next_pin_on = 1;
-    next_ocr = ocr;
-    next_applied_q16 = (uint16_t)(((uint32_t)ocr * 65535UL) / PWM_TOP);
+    setting.pin_on = 1;
+    setting.ocr = ocr;
+    setting.applied_q16 = (uint16_t)(((uint32_t)ocr * 65535UL) / PWM_TOP);
 #endif
+    return setting;
+}
+
+/* Hand a precomputed setting to the overflow interrupt (call with interrupts disabled). */
+static inline void store_setting(const struct pwm_setting *setting)
+{
+    next_ocr = setting->ocr;
+    next_pin_on = setting->pin_on;
+    next_applied_q16 = setting->applied_q16;
 }
 
 /* Cut the motor from inside the interrupt (watchdog): no arithmetic. */
@@ -327,30 +344,34 @@ static void send_status(void)
 
 static void handle_command(uint8_t kind, uint16_t value)
 {
+    /* The arithmetic first, with interrupts enabled (max_duty_q16 and watchdog_ms only change here). */
+    uint16_t limit = max_duty_q16;
+    uint16_t duty = kind == AP_CMD_SET_DUTY ? (value > limit ? limit : value) : value;
+    struct pwm_setting setting = duty_setting(duty);
+    uint8_t watchdog_valid = value >= 10 && value <= 60000;
+    uint16_t ticks = watchdog_ticks(kind == AP_CMD_SET_WATCHDOG && watchdog_valid ? value : watchdog_ms);
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
         switch (kind) {
         case AP_CMD_SET_DUTY:
-            if (value > max_duty_q16) {
-                value = max_duty_q16;
+            if (value > limit)
                 flags |= AP_FLAG_DUTY_CLAMPED;
-            } else {
+            else
                 flags &= (uint8_t)~AP_FLAG_DUTY_CLAMPED;
-            }
-            commanded_duty_q16 = value;
-            prepare_duty(value);
+            commanded_duty_q16 = duty;
+            store_setting(&setting);
             flags &= (uint8_t)~AP_FLAG_WATCHDOG_TRIPPED;
             break;
         case AP_CMD_SET_MAX_DUTY:
             max_duty_q16 = value;
             if (commanded_duty_q16 > value) {
                 commanded_duty_q16 = value;
-                prepare_duty(value);
+                store_setting(&setting);
                 flags |= AP_FLAG_DUTY_CLAMPED;
             }
             status_due = 1;
             break;
         case AP_CMD_SET_WATCHDOG:
-            if (value < 10 || value > 60000) {
+            if (!watchdog_valid) {
                 rx_bad_frames++;
                 status_due = 1;
                 return; /* rejected: does not feed the watchdog */
@@ -365,7 +386,7 @@ static void handle_command(uint8_t kind, uint16_t value)
             rx_bad_frames++;
             return;
         }
-        watchdog_ticks_left = watchdog_ticks(watchdog_ms); /* every valid command feeds the watchdog */
+        watchdog_ticks_left = ticks; /* every valid command feeds the watchdog */
     }
 }
 

@@ -14,7 +14,8 @@
  * - Drives the ADC inputs: --adc CH=MV holds analog input CH at MV millivolts (AVCC = 5000 mV). At run time, lines
  *   "adc CH MV" on stdin change them; "quit", SIGTERM/SIGINT or the end of a piped stdin end the simulation.
  * - Measures the PWM on OC1A (PB5, Arduino D11) edge by edge and prints
- *   "pwm <sim_time_s> <duty> <freq_hz> <high> <low> <delay_min_us> <delay_max_us>" every 0.5 s of simulated time:
+ *   "pwm <sim_time_s> <duty> <freq_hz> <high> <low> <delay_min_us> <delay_max_us> <wall_s>" every 0.5 s of
+ *   simulated time (wall_s: CLOCK_MONOTONIC, to see whether the simulation keeps real time):
  *   the duty over the last 0.5 s; how many sample-and-holds of the current channel (--current-channel, default 0)
  *   fell while the PWM output was high / low (the paper samples while it is high); and the shortest / longest
  *   time from the Timer1 overflow to that sample-and-hold [us] (-1 when none). simavr reports when a conversion
@@ -178,6 +179,13 @@ static void pwm_pin_hook(struct avr_irq_t *irq, uint32_t value, void *param)
     pwm_level = level;
 }
 
+static double wall_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return ts.tv_sec + ts.tv_nsec * 1e-9;
+}
+
 static void pwm_report(void)
 {
     avr_cycle_count_t now = avr->cycle;
@@ -187,8 +195,9 @@ static void pwm_report(void)
     avr_cycle_count_t high = pwm_high_cycles + (pwm_level ? now - pwm_last_edge : 0);
     double duty = (double)high / (double)span;
     double seconds = (double)span / avr->frequency;
-    printf("pwm %.6f %.6f %.3f %lu %lu %.3f %.3f\n", (double)now / avr->frequency, duty,
-           pwm_rising_edges / seconds, trigger_high, trigger_low, hold_delay_min_us, hold_delay_max_us);
+    printf("pwm %.6f %.6f %.3f %lu %lu %.3f %.3f %.6f\n", (double)now / avr->frequency, duty,
+           pwm_rising_edges / seconds, trigger_high, trigger_low, hold_delay_min_us, hold_delay_max_us,
+           wall_seconds());
     trigger_high = trigger_low = 0;
     hold_delay_min_us = hold_delay_max_us = -1;
     fflush(stdout);
@@ -203,13 +212,6 @@ static void pwm_report(void)
 static void sleep_hook(avr_t *a, avr_cycle_count_t how_long)
 {
     (void)a; (void)how_long; /* pacing is done in the main loop */
-}
-
-static double wall_seconds(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return ts.tv_sec + ts.tv_nsec * 1e-9;
 }
 
 static void set_adc(int channel, long millivolts)
