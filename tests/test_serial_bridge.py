@@ -311,8 +311,9 @@ def test_bridge_writes_nothing_until_the_device_talks(ros_context, tmp_path):
 
 def test_bridge_starts_the_emulated_mega(ros_context):
     """Port opened -> the emulated Mega resets, its bootloader listens in silence, the sketch starts, and only then
-    does the bridge configure it and send duty commands."""
-    with DeviceEmulator(seed=15) as emulator:
+    does the bridge configure it and send duty commands. Its resonator runs 0.5 % slow: the bridge's default clock
+    limit (0.6 %) follows it, and the stamps are spaced by the device's true period."""
+    with DeviceEmulator(seed=15, clock_ppm=5000.0) as emulator:
         listener = Listener(ros_context)
         try:
             with NodeProcess('aeropend_ros.serial_bridge_node',
@@ -328,6 +329,20 @@ def test_bridge_starts_the_emulated_mega(ros_context):
                 assert commands and commands[0][0] >= started                      # nothing before the sketch
                 assert poll(lambda: emulator.watchdog_ms == 400, 5.0)                # configured
                 assert poll(lambda: listener.last_diagnostics().get('device_talking') == 'True', 5.0)
-                assert min(s.sequence for s in listener.samples) < 490               # from the sketch's start
+                # The bridge published the run from the sketch's sequence 0 (the listener itself may join later).
+                diagnostics = listener.last_diagnostics()
+                assert diagnostics['samples_lost'] == '0' and diagnostics['device_resets'] == '0', diagnostics
+                assert int(diagnostics['samples_published']) >= int(diagnostics['last_sequence']) - 1, diagnostics
+                # Clock: the drift estimate within 500 ppm of the truth, and (once the line has caught up, ~10 s)
+                # the stamps of the last second spaced by the device's period (1.005 Ts), not the nominal one.
+                assert poll(lambda: abs(float(listener.last_diagnostics().get('clock_drift_ppm', 0)) - 5000) < 500,
+                            25.0), listener.last_diagnostics()
+
+                def spacing() -> float:
+                    recent = listener.samples[-490:]
+                    steps = np.diff([s.stamp_ns for s in recent]) * 1e-9 / np.diff([s.sequence for s in recent])
+                    return float(np.median(steps))
+                assert poll(lambda: len(listener.samples) > 980 and
+                            abs(spacing() / (P.SAMPLE_PERIOD * 1.005) - 1) < 5e-4, 30.0, period=0.2), spacing()
         finally:
             listener.close()
