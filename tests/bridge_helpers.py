@@ -44,8 +44,10 @@ class Harness:
     """The firmware in simavr with UART0 on a pty (see firmware/sim/harness.c)."""
 
     def __init__(self, build_dir: Path, link: Path, adc: dict[int, int] | None = None,
-                 pwm_to_adc: int | None = None, firmware: str = 'aeropend_sim.elf') -> None:
-        command = [str(build_dir / 'aeropend_harness'), str(build_dir / firmware), '--link', str(link)]
+                 pwm_to_adc: int | None = None, firmware: str = 'aeropend_sim.elf',
+                 options: list[str] | None = None) -> None:
+        command = [str(build_dir / 'aeropend_harness'), str(build_dir / firmware), '--link', str(link),
+                   *(options or [])]
         for channel, millivolts in (adc or {}).items():
             command += ['--adc', f'{channel}={millivolts}']
         if pwm_to_adc is not None:

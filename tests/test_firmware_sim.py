@@ -243,21 +243,31 @@ def test_timer1_and_adc_set_up_in_the_running_build(build, firmware, mode, top, 
     assert r['ADMUX'] == (1 << REFS0) | 0                              # AVCC reference, current channel A0
 
 
-def test_current_is_held_inside_the_pulse_at_every_duty(build, tmp_path):
+@pytest.mark.parametrize(('firmware', 'options', 'top'), [
+    ('aeropend_sim.elf', [], 509),                               # fast PWM, simavr's own Timer1
+    ('aeropend.elf', ['--phase-correct-timer1'], 255),           # the shipped build, the harness's mode-10 model
+])
+def test_current_is_held_inside_the_pulse_at_every_duty(build, tmp_path, firmware, options, top):
     """Sample-and-hold of the current against the PWM pin, measured by the harness at duties 0.02-0.7.
 
     The firmware lets the Timer1 overflow trigger the conversion in hardware; the harness places the hold by the
-    datasheet's fixed delay after the conversion starts and reads the pin there. Fast PWM (this build): the pulse
-    starts at the overflow and lasts duty x 2040 us. The shipped phase-correct build holds the same delay after
-    BOTTOM, the pulse centre, where duty x 1020 us of pulse remain: checked against the measured delay.
+    datasheet's fixed delay after the conversion starts and reads the pin there. Fast PWM (simulation build): the
+    pulse starts at the overflow and lasts duty x 2040 us. Phase-correct (the shipped build, in the harness's
+    Timer1 model): the overflow is BOTTOM, the pulse centre, and duty x 1020 us of pulse remain after it.
     """
     import serial
-    with Harness(build, tmp_path / 'ttyMEGA', adc={0: 1650}) as harness, \
+    phase_correct = top == 255
+    with Harness(build, tmp_path / 'ttyMEGA', adc={0: 1650}, firmware=firmware, options=options) as harness, \
             serial.Serial(str(tmp_path / 'ttyMEGA'), 250000, timeout=0.02) as link:
         decoder = P.FrameDecoder()
-        read_messages(link, decoder, 10.0, until=lambda ms: len(samples_of(ms)) > 0)
+        messages = read_messages(link, decoder, 10.0, until=lambda ms: any(isinstance(m, P.StatusFrame) for m in ms)
+                                 and len(samples_of(ms)) > 0)
+        status = next(m for m in messages if isinstance(m, P.StatusFrame))
+        assert status.pwm_mode == (P.PWM_PHASE_CORRECT if phase_correct else P.PWM_FAST) and status.pwm_top == top
         for duty in (0.02, 0.05, 0.11, 0.3, 0.7):
-            on_pin = round(duty * 510) / 510
+            q16 = P.duty_to_q16(duty)         # the firmware's integer arithmetic (rounds halves up)
+            on_pin = ((q16 * top + 32767) // 65535) / top if phase_correct else \
+                ((q16 * (top + 1) + 32767) // 65535) / (top + 1)
 
             def settled() -> bool:
                 link.write(P.encode_command(P.SET_DUTY, duty))
@@ -267,13 +277,13 @@ def test_current_is_held_inside_the_pulse_at_every_duty(build, tmp_path):
             assert poll(settled, 20.0, period=0.05), (duty, harness.pwm[-3:])
             _, _, pin_duty, frequency, held_high, held_low, delay_min_us, delay_max_us, _ = [
                 r for r in harness.pwm if abs(r[2] - on_pin) < 0.002][-1]
+            assert frequency == pytest.approx(490.196, abs=0.6)
             assert held_low == 0 and held_high == pytest.approx(0.5 * frequency, abs=2), (duty, harness.pwm[-1])
             # Auto-triggered: the datasheet's fixed delay, no CPU latency in it.
             assert delay_min_us == pytest.approx(HOLD_DELAY * 1e6, abs=0.07)
             assert delay_max_us == pytest.approx(HOLD_DELAY * 1e6, abs=0.07)
-            assert delay_max_us * 1e-6 < on_pin * P.SAMPLE_PERIOD                 # fast PWM: inside the pulse
-            phase_correct_duty = round(duty * 255) / 255
-            assert delay_max_us * 1e-6 < phase_correct_duty * P.SAMPLE_PERIOD / 2  # phase-correct: after BOTTOM
+            pulse_after_overflow = on_pin * P.SAMPLE_PERIOD / (2 if phase_correct else 1)
+            assert delay_max_us * 1e-6 < pulse_after_overflow
 
 
 @pytest.fixture()

@@ -27,6 +27,12 @@
  *   The harness wires the missing one as the chip does: on each rising edge of the Timer1 overflow flag, when the
  *   firmware has set ADATE and ADTS2:0 = 110 (Timer/Counter1 Overflow), it raises the ADC's trigger input, which
  *   starts a conversion unless one is running. A firmware that does not configure the trigger gets no conversion.
+ * - --phase-correct-timer1: a model of Timer1 in mode 10 (phase-correct PWM, TOP = ICR1), which simavr 1.6 lacks
+ *   (it falls back to overflows at ~9.3 kHz and no PWM). simavr's own Timer1 overflow interrupt is silenced and the
+ *   harness raises it instead, at BOTTOM every 2 x ICR1 timer ticks, while the firmware has mode 10 and a clock
+ *   selected (CS12:0; prescaler 1/8/64/256/1024); it drives OC1A (PB5) high while TCNT1 < OCR1A, i.e. for
+ *   OCR1A ticks either side of BOTTOM (non-inverting COM1A1), with OCR1A latched at TOP (double-buffered). So the
+ *   shipped build runs in the loop: frames, duty on the pin and the sampling instant can be measured.
  * - --dump-registers SECONDS: run that long in simulated time, print "reg NAME VALUE" for the Timer1 and ADC
  *   set-up registers (TCCR1A, TCCR1B, ICR1, OCR1A, TIMSK1, ADMUX, ADCSRA, ADCSRB) and exit; this works for the
  *   shipped phase-correct build too, whose timer simavr 1.6 does not run.
@@ -162,6 +168,94 @@ static void timer1_overflow_hook(struct avr_irq_t *irq, uint32_t value, void *pa
     }
 }
 
+/* Timer1 mode 10 model (--phase-correct-timer1, see the header comment) */
+#define REG_TIFR1 0x36
+static avr_int_vector_t model_overflow;          /* replaces simavr's Timer1 overflow vector */
+static avr_irq_t *pb5_irq;
+static avr_cycle_count_t model_events[4];        /* pin high, BOTTOM, pin low, next TOP (absolute cycles) */
+static int model_kinds[4], model_count, model_next;
+enum { EVENT_HIGH, EVENT_BOTTOM, EVENT_LOW, EVENT_TOP };
+
+static unsigned timer1_prescaler(void)
+{
+    static const unsigned prescalers[8] = {0, 1, 8, 64, 256, 1024, 0, 0};   /* 0: stopped or external clock */
+    return prescalers[avr->data[REG_TCCR1B] & 7];
+}
+
+static int timer1_mode(void)
+{
+    return ((avr->data[REG_TCCR1B] >> 3) & 3) << 2 | (avr->data[REG_TCCR1A] & 3);
+}
+
+static void model_plan(avr_cycle_count_t top)
+{
+    /* one period from this TOP: OCR1A latched here; TCNT1 counts down TOP..0 (BOTTOM) and up again */
+    unsigned icr = avr->data[REG_ICR1L] | (avr->data[REG_ICR1L + 1] << 8);
+    unsigned ocr = avr->data[REG_OCR1AL] | (avr->data[REG_OCR1AL + 1] << 8);
+    unsigned prescaler = timer1_prescaler();
+    int running = timer1_mode() == 10 && prescaler && icr > 0;
+    avr_cycle_count_t tick = prescaler ? prescaler : 64;
+    if (!icr)
+        icr = 255;
+    model_count = model_next = 0;
+    if (running && (avr->data[REG_TCCR1A] & 0x80)) {    /* COM1A1: non-inverting output on OC1A */
+        if (ocr > icr)
+            ocr = icr;
+        if (ocr > 0) {
+            model_events[model_count] = top + (icr - ocr) * tick;
+            model_kinds[model_count++] = EVENT_HIGH;
+        }
+    }
+    model_events[model_count] = top + icr * tick;
+    model_kinds[model_count++] = running ? EVENT_BOTTOM : -1;
+    if (running && (avr->data[REG_TCCR1A] & 0x80) && ocr > 0 && ocr < icr) {
+        model_events[model_count] = top + (icr + ocr) * tick;
+        model_kinds[model_count++] = EVENT_LOW;
+    }
+    model_events[model_count] = top + 2 * icr * tick;
+    model_kinds[model_count++] = EVENT_TOP;
+}
+
+static avr_cycle_count_t timer1_model_event(avr_t *a, avr_cycle_count_t when, void *param)
+{
+    (void)a; (void)param;
+    int kind = model_kinds[model_next];
+    avr_cycle_count_t at = model_events[model_next];
+    model_next++;
+    if (kind == EVENT_HIGH)
+        avr_raise_irq(pb5_irq, 1);
+    else if (kind == EVENT_LOW)
+        avr_raise_irq(pb5_irq, 0);
+    else if (kind == EVENT_BOTTOM)
+        avr_raise_interrupt(avr, &model_overflow);
+    else if (kind == EVENT_TOP)
+        model_plan(at);
+    if (model_next >= model_count)
+        model_plan(at);   /* not reached: TOP is always last */
+    (void)when;
+    return model_events[model_next];
+}
+
+static int start_timer1_model(void)
+{
+    avr_int_table_p table = &avr->interrupts;
+    avr_int_vector_t *simavr_overflow = NULL;
+    for (int i = 0; i < table->vector_count; i++)
+        if (table->vector[i]->vector == TIMER1_OVF_VECTOR)
+            simavr_overflow = table->vector[i];
+    if (!simavr_overflow)
+        return -1;
+    model_overflow.vector = TIMER1_OVF_VECTOR;
+    model_overflow.enable = simavr_overflow->enable;   /* TIMSK1.TOIE1 */
+    model_overflow.raised = simavr_overflow->raised;   /* TIFR1.TOV1 */
+    simavr_overflow->vector = 0;                        /* simavr's raises of it now return at once */
+    avr_register_vector(avr, &model_overflow);
+    pb5_irq = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 5);
+    model_plan(avr->cycle);
+    avr_cycle_timer_register(avr, model_events[0] - avr->cycle, timer1_model_event, NULL);
+    return 0;
+}
+
 static void pwm_pin_hook(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq; (void)param;
@@ -251,7 +345,7 @@ static void dump_registers(void)
 static void usage(const char *name)
 {
     fprintf(stderr, "usage: %s FIRMWARE.elf [--link PATH] [--adc CH=MV]... [--pwm-to-adc CH] [--current-channel CH]"
-            " [--speed FACTOR] [--dump-registers SECONDS]\n", name);
+            " [--speed FACTOR] [--phase-correct-timer1] [--dump-registers SECONDS]\n", name);
     exit(2);
 }
 
@@ -260,6 +354,7 @@ int main(int argc, char **argv)
     const char *firmware_path = NULL, *link_path = NULL;
     double speed = 1.0;
     double dump_after = -1.0;
+    int timer1_model = 0;
     int adc_channels[16];
     long adc_values[16];
     int adc_count = 0;
@@ -277,6 +372,8 @@ int main(int argc, char **argv)
             current_channel = atoi(argv[++i]);
         } else if (!strcmp(argv[i], "--speed") && i + 1 < argc) {
             speed = atof(argv[++i]);
+        } else if (!strcmp(argv[i], "--phase-correct-timer1")) {
+            timer1_model = 1;
         } else if (!strcmp(argv[i], "--dump-registers") && i + 1 < argc) {
             dump_after = atof(argv[++i]);
         } else if (argv[i][0] == '-' || firmware_path) {
@@ -329,6 +426,10 @@ int main(int argc, char **argv)
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 5), pwm_pin_hook, NULL);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_OUT_TRIGGER), adc_trigger_hook, NULL);
     adc_trigger_in = avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_IN_TRIGGER);
+    if (timer1_model && start_timer1_model() != 0) {
+        fprintf(stderr, "harness: no Timer1 overflow vector to replace in this MCU model\n");
+        return 1;
+    }
     avr_irq_t *overflow_irq = avr_get_interrupt_irq(avr, TIMER1_OVF_VECTOR);
     if (!overflow_irq || !adc_trigger_in) {
         fprintf(stderr, "harness: no Timer1 overflow interrupt or ADC trigger input in this MCU model\n");
