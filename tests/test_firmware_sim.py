@@ -221,10 +221,10 @@ def bit(value: int, number: int) -> int:
 def test_timer1_and_adc_set_up_in_the_running_build(build, firmware, mode, top, frequency_formula):
     """The registers the running firmware wrote, read back from simavr, against the documented set-up.
 
-    simavr 1.6 does not run Timer1 in mode 10 (it falls back to overflows at ~9.3 kHz and no PWM on the pin), so
-    the shipped build's PWM cannot be measured edge by edge; its set-up can: mode 10 with ICR1 = 255 and
-    prescaler 64 is 490.196 Hz, the ADC is auto-triggered by the Timer1 overflow, and the motor is off (OCR1A = 0)
-    when the firmware starts.
+    simavr 1.6 alone does not run Timer1 in mode 10 (it falls back to overflows at ~9.3 kHz and no PWM on the pin;
+    the harness's --phase-correct-timer1 models it, see the next test), so the set-up the model starts from is
+    checked here: mode 10 with ICR1 = 255 and prescaler 64 is 490.196 Hz, the ADC is auto-triggered by the Timer1
+    overflow, and the motor is off (OCR1A = 0) when the firmware starts.
     """
     r = dump_registers(build, firmware)
     wgm = (bit(r['TCCR1B'], WGM13) << 3) | (bit(r['TCCR1B'], WGM12) << 2) | (bit(r['TCCR1A'], WGM11) << 1) \
