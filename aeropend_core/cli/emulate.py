@@ -115,11 +115,11 @@ def main(args: argparse.Namespace) -> int:
     # Ctrl-C stops it even when started from a shell that ignores SIGINT for background jobs.
     previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
     emulator.locked_rotor = args.locked_rotor
-    emulator.start()
+    start = last_status = last_fault = time.monotonic()
     try:
+        emulator.start()
         print(emulator.port, flush=True)
         describe(args, effects, chain)
-        start = last_status = last_fault = time.monotonic()
         while not args.duration or time.monotonic() - start < args.duration:
             time.sleep(0.05)
             now = time.monotonic()
