@@ -153,8 +153,16 @@ def test_firmware_over_pty(build, tmp_path):
         assert last.flags & P.FLAG_DUTY_CLAMPED
         sequences = [s.sequence for s in samples_of(messages)]
         assert sequences == list(range(sequences[0], sequences[0] + len(sequences)))   # no gap
-        assert poll(lambda: len(harness.pwm) >= pwm_reports + 2, 5.0)
-        _, _, pin_duty, frequency, held_high, held_low, _, _, _ = harness.pwm[-1]
+        # A report (0.5 s of simulated time) with the clamped duty on the pin; the commands keep coming, so a
+        # test process stalled past the 0.2 s watchdog on a loaded machine only delays it.
+
+        def report_at_clamped_duty() -> bool:
+            link.write(P.encode_command(P.SET_DUTY, 0.9))
+            link.read(link.in_waiting or 1)
+            return any(abs(r[2] - 0.6) < 0.003 for r in harness.pwm[pwm_reports:])
+        assert poll(report_at_clamped_duty, 20.0, period=0.05), harness.pwm[-3:]
+        _, _, pin_duty, frequency, held_high, held_low, _, _, _ = next(
+            r for r in harness.pwm[pwm_reports:] if abs(r[2] - 0.6) < 0.003)
         assert pin_duty == pytest.approx(0.6, abs=0.003)
         assert frequency == pytest.approx(16e6 / 64 / 510, abs=0.5)
         # Timing diagram: every current sample-and-hold (one per Timer1 overflow) falls while the output is high.
@@ -170,6 +178,8 @@ def test_firmware_over_pty(build, tmp_path):
             isinstance(m, P.StatusFrame) and m.rx_bad_frames >= 1 for m in ms))
         status = [m for m in messages if isinstance(m, P.StatusFrame)][-1]
         assert status.rx_bad_frames == 1
+        if not samples_of(messages):          # the STATUS came alone in its read
+            messages += read_messages(link, decoder, 3.0, until=lambda ms: len(samples_of(ms)) > 0)
         assert samples_of(messages)[-1].duty == pytest.approx(0.6, abs=1e-3)   # the bad SET_DUTY did nothing
 
         # Watchdog: no command for 0.2 s (98 samples) -> duty 0 and flagged, until the next SET_DUTY.
@@ -336,7 +346,8 @@ def test_bridge_node_on_the_firmware(build, tmp_path, ros_context):
             assert walls[0] < window_start
             pace = (np.interp(window_end, walls, simulated) - np.interp(window_start, walls, simulated)) / elapsed
             assert pace > 0.2, pace
-            assert rate == pytest.approx(pace / P.SAMPLE_PERIOD, rel=0.02), (rate, pace, elapsed)
+            # (5 %: a bridge process starved for a moment reads late at one end of the window)
+            assert rate == pytest.approx(pace / P.SAMPLE_PERIOD, rel=0.05), (rate, pace, elapsed)
             # Continuous: no sequence gap at the bridge, nor a corrupt frame; the window itself has no gap
             # either (the listener's queue is deep enough for best effort to lose nothing on this machine).
             diagnostics = listener.last_diagnostics()

@@ -117,8 +117,16 @@ class RigLink:
                 next_command = time.monotonic() + 0.1
             samples += [m for m in self.decoder.feed(self.link.read(max(1, self.link.in_waiting)))
                         if isinstance(m, P.SampleFrame)]
-        if len(samples) < 0.5 * seconds / P.SAMPLE_PERIOD:
-            raise AeropendError(f'only {len(samples)} samples in {seconds:g} s: the serial link is losing data')
+        if not samples:
+            raise AeropendError(f'no samples in {seconds:g} s: is the device still streaming?')
+        # Lost on the way (sequence gaps) is a bad link; few but contiguous is a slow device (or a starved host).
+        span = samples[-1].sequence - samples[0].sequence + 1
+        if len(samples) < 0.9 * span:
+            raise AeropendError(f'only {len(samples)} of {span} samples arrived in {seconds:g} s: the serial link '
+                                'is losing data')
+        if len(samples) < 0.25 * seconds / P.SAMPLE_PERIOD:
+            raise AeropendError(f'only {len(samples)} samples in {seconds:g} s (the firmware sends '
+                                f'{1 / P.SAMPLE_PERIOD:.0f} per second): is the right firmware running?')
         return samples
 
     def close(self) -> None:
