@@ -6,6 +6,13 @@ acquisition sample on ``/aeropend/samples`` (SensorData QoS). Each sample is sta
 the device's sample counter x Ts anchored to the node clock with drift correction
 (:class:`aeropend_core.rig.sample_clock.SampleClock`), never its arrival time.
 
+**Nothing is written to the port until the device has spoken.** Opening the port resets an Arduino Mega (DTR
+auto-reset); its stk500v2 bootloader then listens for ~1 s and, if any byte arrives in that time, stays in
+programming mode and never starts the sketch. So after each (re)open the node only reads: the configuration (maximum
+duty, watchdog, duty) goes out with the first valid frame that arrives at least ``boot_delay`` after opening (earlier
+frames can only be left-overs from before the reset, buffered in the USB chip). Until then no heartbeat and no
+duty command is sent either.
+
 Duty commands from ``/aeropend/duty_cmd`` (``std_msgs/Float64``, fraction 0..1) are forwarded to the device
 (clamped to ``max_duty`` here and again by the firmware) and repeated every ``heartbeat_period`` so the firmware's
 watchdog (``watchdog_timeout``) only cuts the motor when this node, or its link, dies.
@@ -77,8 +84,12 @@ class SerialBridgeNode(Node):
                                         low=0.005, high=10.0)
         self.reconnect_period = declare(self, 'reconnect_period', 2.0, 'retry period [s] when the port is '
                                         'missing or failed', read_only=True, low=0.05, high=60.0)
-        declare(self, 'command_timeout', 0.0, 'set the duty to 0 when no duty command arrived for this long '
-                '[s]; 0 = hold the last command', low=0.0, high=3600.0)
+        declare(self, 'command_timeout', 1.0, 'set the duty to 0 when no duty command arrived for this long '
+                '[s] (the controller died); 0 = hold the last command forever', low=0.0, high=3600.0)
+        self.boot_delay = declare(self, 'boot_delay', 1.0, 'after opening the port, write nothing until a valid '
+                                  'frame arrives at least this long [s] after the open (the Mega resets on open and '
+                                  'its bootloader hangs if it receives bytes in its first second)', read_only=True,
+                                  low=0.0, high=30.0)
         declare(self, 'current_scale', P.DEFAULT_CURRENT_SCALE, 'armature current per ADC count [A/count] '
                 '(shield: 5 V/1024 * 2 A/3.3 V)', low=-1.0, high=1.0)
         declare(self, 'current_offset', 0.0, 'ADC counts at zero current (calibrate: aeropend calibrate zero)',
@@ -98,9 +109,9 @@ class SerialBridgeNode(Node):
                     f'eq (8) coefficient k{index}: Va = k0 + k1 sqrt(k2 duty + k3)', low=-1e9, high=1e9)
         self.clock_latency = declare(self, 'clock_latency', 0.0, 'known minimum link latency [s] subtracted '
                                      'from the stamps', read_only=True, low=0.0, high=1.0)
-        clock_max_drift = declare(self, 'clock_max_drift', 2e-4, 'largest believable relative error of the '
-                                  "device's clock (2e-4 = 200 ppm, a crystal; ~5e-3 for a ceramic resonator)",
-                                  read_only=True, low=0.0, high=0.05)
+        clock_max_drift = declare(self, 'clock_max_drift', SampleClock.DEFAULT_MAX_DRIFT, 'largest believable '
+                                  "relative error of the device's clock (6e-3 = 0.6 %: the Mega 2560's ceramic "
+                                  'resonator; 2e-4 for a crystal)', read_only=True, low=0.0, high=0.05)
         diagnostics_period = declare(self, 'diagnostics_period', 1.0, 'period [s] of /diagnostics', read_only=True,
                                      low=0.05, high=60.0)
         check_unknown_overrides(self)
@@ -138,6 +149,9 @@ class SerialBridgeNode(Node):
                       'outage_samples_lost': 0, 'last_outage_lost': 0, 'watchdog_trips': 0,
                       'clamped_commands': 0}
         self._after_reconnect = False
+        self._device_spoke = False         # a valid frame arrived >= boot_delay after the port opened
+        self._opened_at = time.monotonic()
+        self._silence_warned = False
         self._last_sequence: int | None = None
         self._last_flags = 0
         self._last_arrival = None
@@ -218,13 +232,18 @@ class SerialBridgeNode(Node):
             self.decoder.reset()
             with self._serial_lock:
                 self._serial = link
+                self._device_spoke = False
+                self._opened_at = time.monotonic()
+                self._silence_warned = False
             self.connected = True
             self._after_reconnect = True
             if self._disconnected_at is not None:
                 self.stats['reconnects'] += 1
                 logger.info(f'{self.port} is back after {time.monotonic() - self._disconnected_at:.1f} s; '
-                            're-sending the configuration')
-            self._send_configuration()
+                            'the configuration follows once the device talks')
+            else:
+                logger.info(f'opened {self.port}; writing nothing until the device talks (an Arduino resets when '
+                            'its port opens; its bootloader must not receive bytes for ~1 s)')
             try:
                 while not self._stop.is_set():
                     data = link.read(max(1, min(link.in_waiting, 65536)))
@@ -246,9 +265,10 @@ class SerialBridgeNode(Node):
             self._stop.wait(self.reconnect_period)
 
     def _write(self, data: bytes) -> bool:
+        """Write to the device; refused (False) while not connected or the device has not spoken yet."""
         with self._serial_lock:
             link = self._serial
-            if link is None:
+            if link is None or not self._device_spoke:
                 return False
             try:
                 link.write(data)
@@ -266,13 +286,36 @@ class SerialBridgeNode(Node):
                     + P.encode_command(P.REQUEST_STATUS))
 
     # ---------------------------------------------------------------------------------------------------- decoding
+    def _device_talks(self, messages: list) -> None:
+        """The first valid frame at least boot_delay after opening: the sketch runs, configure it."""
+        since_open = time.monotonic() - self._opened_at
+        if messages and since_open >= self.boot_delay:
+            with self._serial_lock:
+                self._device_spoke = True
+            self.get_logger().info(f'device on {self.port} is talking ({since_open:.1f} s after opening): sending '
+                                   'the configuration')
+            self._send_configuration()
+
+    def _warn_if_silent(self) -> None:
+        """One warning when the open port stays silent well past the boot delay."""
+        since_open = time.monotonic() - self._opened_at
+        if self.connected and since_open > self.boot_delay + 5.0 and not self._silence_warned:
+            self._silence_warned = True
+            self.get_logger().warning(f'no valid frame from {self.port} in {since_open:.0f} s since opening (nothing '
+                                      'was written to it): is firmware/aeropend uploaded, the baud rate '
+                                      f'{self.baud}, the right port?')
+
     def _handle_bytes(self, data: bytes) -> None:
         now_ns = self.get_clock().now().nanoseconds
         arrival = (now_ns - self._epoch_ns) * 1e-9
         run: list[P.SampleFrame] = []         # samples since the last device reset in this read
-        for message in self.decoder.feed(data):
+        messages = self.decoder.feed(data)
+        if not self._device_spoke:
+            self._device_talks(messages)
+        for index, message in enumerate(messages):
             if type(message) is P.SampleFrame:
-                if self._check_sequence(message, arrival):   # the device restarted: stamp the old run first
+                if self._check_sequence(message, arrival, messages, index):   # the device restarted: stamp the
+                    # old run first
                     self._publish_run(run, arrival)
                     self._flush_priming()
                     run = []
@@ -282,8 +325,9 @@ class SerialBridgeNode(Node):
                 self._handle_status(message)
         self._publish_run(run, arrival)
 
-    def _check_sequence(self, frame: P.SampleFrame, arrival: float) -> bool:
-        """Update loss statistics with one sample; True when it reveals a device reset."""
+    def _check_sequence(self, frame: P.SampleFrame, arrival: float, messages: list, index: int) -> bool:
+        """Update loss statistics with one sample (``messages[index]`` of the read that arrived at `arrival`);
+        True when it reveals a device reset."""
         last = self._last_sequence
         reset = False
         if last is not None:
@@ -295,7 +339,9 @@ class SerialBridgeNode(Node):
                     self.get_logger().warning(f'link restored: {gap} samples lost during the outage '
                                               f'(sequence {last} -> {frame.sequence})')
             elif frame.sequence <= last:
-                self._device_reset(arrival)
+                newest = max(m.sequence for m in messages[index:] if type(m) is P.SampleFrame
+                             and m.sequence >= frame.sequence)
+                self._device_reset(arrival, frame.sequence, newest)
                 reset = True
         self._after_reconnect = False
         if frame.flags & P.FLAG_WATCHDOG_TRIPPED and not self._last_flags & P.FLAG_WATCHDOG_TRIPPED:
@@ -349,17 +395,24 @@ class SerialBridgeNode(Node):
                     self._message))
             self.stats['samples_published'] += len(run)
 
-    def _device_reset(self, arrival: float) -> None:
-        """The sequence went backwards: the device restarted (power cycle, DTR reset, brown-out)."""
+    def _device_reset(self, arrival: float, first: int, newest: int) -> None:
+        """The sequence went backwards: the device restarted (power cycle, DTR reset, brown-out).
+
+        `first` is the new run's first sequence number received and `newest` the newest one in the same read, which
+        arrived at `arrival` [s]. Samples lost: the new device's ``first`` samples before the first one received,
+        plus the sample periods between the last old sample's arrival and the new device's sample 0 (acquired about
+        ``newest`` periods before this read arrived). A read that brings a backlog of the new run is therefore not
+        counted as lost; the reset and boot time itself is (its length is unknown): an upper estimate.
+        """
         self.stats['device_resets'] += 1
         if self._last_arrival is not None:
-            # Samples the device would have taken between the last old and the first new one, minus those it
-            # reports since its boot: an estimate (the reset time itself is unknown).
-            missing = max(0, round((arrival - self._last_arrival) / self.clock_model.period) - 1)
+            period = self.clock_model.period
+            restart = arrival - newest * period
+            missing = first + max(0, round((restart - self._last_arrival) / period) - 1)
             self.stats['outage_samples_lost'] += missing
             self.stats['last_outage_lost'] = missing
-            self.get_logger().warning(f'device reset detected; about {missing} samples lost; re-sending the '
-                                      'configuration')
+            self.get_logger().warning(f'device reset detected; about {missing} samples lost (the new run starts at '
+                                      f'sequence {first}); re-sending the configuration')
         self._send_configuration()
 
     def _handle_status(self, status) -> None:
@@ -384,6 +437,8 @@ class SerialBridgeNode(Node):
         self._write(P.encode_command(P.SET_DUTY, duty))
 
     def _on_heartbeat(self) -> None:
+        if not self._device_spoke:
+            self._warn_if_silent()
         timeout = float(self.get_parameter('command_timeout').value)
         if timeout > 0.0 and self.duty > 0.0 and time.monotonic() - self._last_command_time > timeout:
             self.get_logger().warning(f'no duty command for {timeout:g} s: duty set to 0')
@@ -404,6 +459,7 @@ class SerialBridgeNode(Node):
             'frames_corrupt': str(counters.corrupt), 'bytes_received': str(counters.bytes_received),
             'clock_drift_ppm': f'{self.clock_model.drift_ppm:.1f}', 'duty_command': f'{self.duty:.4f}',
             'last_sequence': str(self._last_sequence if self._last_sequence is not None else -1),
+            'device_talking': str(self._device_spoke),
         }
         values.update({name: str(count) for name, count in self.stats.items()})
         if self.status is not None:
@@ -425,6 +481,9 @@ class SerialBridgeNode(Node):
         status = DiagnosticStatus(name=f'{self.get_name()}: rig serial link', hardware_id=self.port)
         if not self.connected:
             status.level, status.message = DiagnosticStatus.ERROR, f'{self.port} not connected (retrying)'
+        elif not self._device_spoke and time.monotonic() - self._opened_at < self.boot_delay + 5.0:
+            status.level = DiagnosticStatus.WARN
+            status.message = 'port open, waiting for the device to talk (booting); nothing written yet'
         elif new_samples == 0:
             status.level, status.message = DiagnosticStatus.ERROR, 'connected but no samples'
         elif new_lost or new_corrupt or self._last_flags & P.FLAG_WATCHDOG_TRIPPED:

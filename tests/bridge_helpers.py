@@ -44,15 +44,19 @@ class Harness:
     """The firmware in simavr with UART0 on a pty (see firmware/sim/harness.c)."""
 
     def __init__(self, build_dir: Path, link: Path, adc: dict[int, int] | None = None,
-                 pwm_to_adc: int | None = None) -> None:
-        command = [str(build_dir / 'aeropend_harness'), str(build_dir / 'aeropend_sim.elf'), '--link', str(link)]
+                 pwm_to_adc: int | None = None, firmware: str = 'aeropend_sim.elf',
+                 options: list[str] | None = None) -> None:
+        command = [str(build_dir / 'aeropend_harness'), str(build_dir / firmware), '--link', str(link),
+                   *(options or [])]
         for channel, millivolts in (adc or {}).items():
             command += ['--adc', f'{channel}={millivolts}']
         if pwm_to_adc is not None:
             command += ['--pwm-to-adc', str(pwm_to_adc)]
         self.link = link
-        #: (wall time, sim time, duty, frequency, current conversions started with the pin high, ... low)
-        self.pwm: list[tuple[float, float, float, float, float, float]] = []
+        #: (wall time read, sim time, duty, frequency, current sample-and-holds with the pin high, ... low, shortest
+        #: and longest delay of the sample-and-hold after the Timer1 overflow [us] (-1 when none), the harness's
+        #: time.monotonic() when it reported) per 0.5 s of simulated time
+        self.pwm: list[tuple[float, ...]] = []
         self.log: list[str] = []
         self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                         stderr=subprocess.STDOUT, text=True, bufsize=1)
@@ -71,7 +75,7 @@ class Harness:
             if match:
                 self.pty = match.group(1)
                 self._ready.set()
-            match = re.match(r'pwm (\S+) (\S+) (\S+) (\S+) (\S+)', line)
+            match = re.match(r'pwm (\S+) (\S+) (\S+) (\S+) (\S+) (\S+) (\S+) (\S+)', line)
             if match:
                 self.pwm.append((time.monotonic(), *(float(value) for value in match.groups())))
 

@@ -144,19 +144,29 @@ def test_firmware_over_pty(build, tmp_path):
         while time.monotonic() - start < 1.6:
             link.write(P.encode_command(P.SET_DUTY, 0.9))
             messages += read_messages(link, decoder, 0.05)
-        duty_samples = [s for s in samples_of(messages) if s.duty_q16]
+        # (A test process stalled > 0.2 s on a loaded machine lets the watchdog trip in between: such samples are
+        # flagged, and the next command restores the duty; judge the clamping on an untripped one.)
+        duty_samples = [s for s in samples_of(messages) if s.duty_q16 and not s.flags & P.FLAG_WATCHDOG_TRIPPED]
         assert duty_samples, 'no sample with the commanded duty'
         last = duty_samples[-1]
         assert last.duty == pytest.approx(306 / 510, abs=1e-4)
-        assert last.flags & P.FLAG_DUTY_CLAMPED and not last.flags & P.FLAG_WATCHDOG_TRIPPED
+        assert last.flags & P.FLAG_DUTY_CLAMPED
         sequences = [s.sequence for s in samples_of(messages)]
         assert sequences == list(range(sequences[0], sequences[0] + len(sequences)))   # no gap
-        assert poll(lambda: len(harness.pwm) >= pwm_reports + 2, 5.0)
-        _, _, pin_duty, frequency, started_high, started_low = harness.pwm[-1]
+        # A report (0.5 s of simulated time) with the clamped duty on the pin; the commands keep coming, so a
+        # test process stalled past the 0.2 s watchdog on a loaded machine only delays it.
+
+        def report_at_clamped_duty() -> bool:
+            link.write(P.encode_command(P.SET_DUTY, 0.9))
+            link.read(link.in_waiting or 1)
+            return any(abs(r[2] - 0.6) < 0.003 for r in harness.pwm[pwm_reports:])
+        assert poll(report_at_clamped_duty, 20.0, period=0.05), harness.pwm[-3:]
+        _, _, pin_duty, frequency, held_high, held_low, _, _, _ = next(
+            r for r in harness.pwm[pwm_reports:] if abs(r[2] - 0.6) < 0.003)
         assert pin_duty == pytest.approx(0.6, abs=0.003)
         assert frequency == pytest.approx(16e6 / 64 / 510, abs=0.5)
-        # Timing diagram: every current conversion (one per Timer1 overflow) starts while the output is high.
-        assert started_high == pytest.approx(0.5 * frequency, abs=2) and started_low == 0
+        # Timing diagram: every current sample-and-hold (one per Timer1 overflow) falls while the output is high.
+        assert held_high == pytest.approx(0.5 * frequency, abs=2) and held_low == 0
         # The harness feeds the pin's duty into A3: the firmware reads it back.
         assert last.voltage_counts == pytest.approx(0.6 * 1023, abs=4)
 
@@ -168,6 +178,8 @@ def test_firmware_over_pty(build, tmp_path):
             isinstance(m, P.StatusFrame) and m.rx_bad_frames >= 1 for m in ms))
         status = [m for m in messages if isinstance(m, P.StatusFrame)][-1]
         assert status.rx_bad_frames == 1
+        if not samples_of(messages):          # the STATUS came alone in its read
+            messages += read_messages(link, decoder, 3.0, until=lambda ms: len(samples_of(ms)) > 0)
         assert samples_of(messages)[-1].duty == pytest.approx(0.6, abs=1e-3)   # the bad SET_DUTY did nothing
 
         # Watchdog: no command for 0.2 s (98 samples) -> duty 0 and flagged, until the next SET_DUTY.
@@ -184,6 +196,108 @@ def test_firmware_over_pty(build, tmp_path):
         assert harness.pwm[-1][2] == 0.0   # the pin stays low
 
 
+#: ATmega2560 register bits (datasheet sections 17.11 and 26.8)
+COM1A1, WGM11, WGM10 = 7, 1, 0
+WGM13, WGM12, CS12, CS11, CS10 = 4, 3, 2, 1, 0
+ADEN, ADATE, ADIE = 7, 5, 3
+TOIE1 = 0
+REFS0 = 6
+#: ADTS2:0 = 110: Timer/Counter1 Overflow as the ADC auto-trigger source (datasheet table 26-6)
+ADTS_TIMER1_OVERFLOW = 0b110
+#: the datasheet's delay of an auto-triggered sample-and-hold: 2 ADC clocks (prescaler 128) + 3 CPU cycles [s]
+HOLD_DELAY = (2 * 128 + 3) / 16e6
+
+
+def dump_registers(build: Path, firmware: str) -> dict[str, int]:
+    """Timer1 and ADC registers of `firmware` after 50 ms of simulated time in the harness."""
+    result = subprocess.run([str(build / 'aeropend_harness'), str(build / firmware), '--dump-registers', '0.05'],
+                            capture_output=True, text=True, check=True, timeout=60)
+    registers = {}
+    for line in result.stdout.splitlines():
+        if line.startswith('reg '):
+            _, name, value = line.split()
+            registers[name] = int(value, 0)
+    return registers
+
+
+def bit(value: int, number: int) -> int:
+    return (value >> number) & 1
+
+
+@pytest.mark.parametrize('firmware, mode, top, frequency_formula', [
+    ('aeropend.elf', 10, 255, lambda icr: 16e6 / (2 * 64 * icr)),          # shipped: phase-correct, TOP = ICR1
+    ('aeropend_sim.elf', 14, 509, lambda icr: 16e6 / (64 * (icr + 1))),    # simulation: fast PWM, TOP = ICR1
+])
+def test_timer1_and_adc_set_up_in_the_running_build(build, firmware, mode, top, frequency_formula):
+    """The registers the running firmware wrote, read back from simavr, against the documented set-up.
+
+    simavr 1.6 alone does not run Timer1 in mode 10 (it falls back to overflows at ~9.3 kHz and no PWM on the pin;
+    the harness's --phase-correct-timer1 models it, see the next test), so the set-up the model starts from is
+    checked here: mode 10 with ICR1 = 255 and prescaler 64 is 490.196 Hz, the ADC is auto-triggered by the Timer1
+    overflow, and the motor is off (OCR1A = 0) when the firmware starts.
+    """
+    r = dump_registers(build, firmware)
+    wgm = (bit(r['TCCR1B'], WGM13) << 3) | (bit(r['TCCR1B'], WGM12) << 2) | (bit(r['TCCR1A'], WGM11) << 1) \
+        | bit(r['TCCR1A'], WGM10)
+    assert wgm == mode, r
+    assert r['TCCR1B'] & 0b111 == 0b011, r                           # CS12:0 = 011: clk / 64
+    assert r['ICR1'] == top
+    assert frequency_formula(r['ICR1']) == pytest.approx(490.196, abs=1e-3)
+    if mode == 10:
+        assert bit(r['TCCR1A'], COM1A1) and not bit(r['TCCR1A'], 6)   # non-inverting OC1A
+    assert r['OCR1A'] == 0                                             # motor off until a command arrives
+    assert bit(r['TIMSK1'], TOIE1)
+    assert bit(r['ADCSRA'], ADEN) and bit(r['ADCSRA'], ADATE) and bit(r['ADCSRA'], ADIE)
+    assert r['ADCSRA'] & 0b111 == 0b111                                # prescaler 128: 125 kHz ADC clock
+    assert r['ADCSRB'] & 0b111 == ADTS_TIMER1_OVERFLOW
+    assert r['ADMUX'] == (1 << REFS0) | 0                              # AVCC reference, current channel A0
+
+
+@pytest.mark.parametrize(('firmware', 'options', 'top'), [
+    ('aeropend_sim.elf', [], 509),                               # fast PWM, simavr's own Timer1
+    ('aeropend.elf', ['--phase-correct-timer1'], 255),           # the shipped build, the harness's mode-10 model
+])
+def test_current_is_held_inside_the_pulse_at_every_duty(build, tmp_path, firmware, options, top):
+    """Sample-and-hold of the current against the PWM pin, measured by the harness at duties 0.02-0.7.
+
+    The firmware lets the Timer1 overflow trigger the conversion in hardware; the harness places the hold by the
+    datasheet's fixed delay after the conversion starts and reads the pin there. Fast PWM (simulation build): the
+    pulse starts at the overflow and lasts duty x 2040 us. Phase-correct (the shipped build, in the harness's
+    Timer1 model): the overflow is BOTTOM, the pulse centre, and duty x 1020 us of pulse remain after it.
+    """
+    import serial
+    phase_correct = top == 255
+    with Harness(build, tmp_path / 'ttyMEGA', adc={0: 1650}, firmware=firmware, options=options) as harness, \
+            serial.Serial(str(tmp_path / 'ttyMEGA'), 250000, timeout=0.02) as link:
+        decoder = P.FrameDecoder()
+        messages = read_messages(link, decoder, 10.0, until=lambda ms: any(isinstance(m, P.StatusFrame) for m in ms)
+                                 and len(samples_of(ms)) > 0)
+        status = next(m for m in messages if isinstance(m, P.StatusFrame))
+        assert status.pwm_mode == (P.PWM_PHASE_CORRECT if phase_correct else P.PWM_FAST) and status.pwm_top == top
+        link.write(P.encode_command(P.SET_WATCHDOG, 5.0))   # a test process stalled on a loaded machine must not
+        #                                                     let the watchdog cut the pulse being measured
+        for duty in (0.02, 0.05, 0.11, 0.3, 0.7):
+            q16 = P.duty_to_q16(duty)         # the firmware's integer arithmetic (rounds halves up)
+            on_pin = ((q16 * top + 32767) // 65535) / top if phase_correct else \
+                ((q16 * (top + 1) + 32767) // 65535) / (top + 1)
+
+            def settled() -> bool:
+                link.write(P.encode_command(P.SET_DUTY, duty))
+                link.read(link.in_waiting or 1)
+                reports = [r for r in harness.pwm if abs(r[2] - on_pin) < 0.002]
+                return len(reports) >= 2
+            assert poll(settled, 20.0, period=0.05), (duty, harness.pwm[-3:])
+            _, _, pin_duty, frequency, held_high, held_low, delay_min_us, delay_max_us, _ = [
+                r for r in harness.pwm if abs(r[2] - on_pin) < 0.002][-1]
+            assert frequency == pytest.approx(490.196, abs=3.0)     # (not simavr's 9.3 kHz fallback)
+            assert held_low == 0 and held_high == pytest.approx(0.5 * frequency, abs=2), (duty, harness.pwm[-1])
+            # Auto-triggered: the datasheet's fixed delay, no CPU latency in it.
+            assert delay_min_us == pytest.approx(HOLD_DELAY * 1e6, abs=0.07)
+            assert delay_max_us == pytest.approx(HOLD_DELAY * 1e6, abs=0.07)
+            pulse_after_overflow = on_pin * P.SAMPLE_PERIOD / (2 if phase_correct else 1)
+            assert delay_max_us * 1e-6 < pulse_after_overflow
+
+
 @pytest.fixture()
 def ros_context():
     with own_context(DOMAIN_ID) as context:
@@ -197,7 +311,8 @@ def test_bridge_node_on_the_firmware(build, tmp_path, ros_context):
     with Harness(build, port, adc={0: current_mv, 2: angle_mv}, pwm_to_adc=3) as harness:
         listener = Listener(ros_context)
         bridge = NodeProcess('aeropend_ros.serial_bridge_node',
-                             ['-p', f'port:={port}', '-p', 'watchdog_timeout:=0.5', '-p', 'max_duty:=0.7'],
+                             ['-p', f'port:={port}', '-p', 'watchdog_timeout:=0.5', '-p', 'max_duty:=0.7',
+                              '-p', 'command_timeout:=0.0'],          # one duty command, held
                              domain_id=DOMAIN_ID)
         try:
             assert poll(lambda: len(listener.samples) > 50, DISCOVERY_TIMEOUT), bridge.output()
@@ -219,7 +334,20 @@ def test_bridge_node_on_the_firmware(build, tmp_path, ros_context):
             d_first, d_last = listener.diagnostics[diagnostics_before], listener.diagnostics[-1]
             elapsed = listener.diagnostic_stamps[-1] - listener.diagnostic_stamps[diagnostics_before]
             rate = (int(d_last['last_sequence']) - int(d_first['last_sequence'])) / elapsed
-            assert rate == pytest.approx(1 / P.SAMPLE_PERIOD, rel=0.01), (rate, elapsed)
+            # On a loaded machine simavr falls behind the wall clock (the harness paces, it cannot speed up): the
+            # device's rate is 490.196 Hz of *simulated* time, so compare with the simulation's own pace over the
+            # same window (its 0.5 s PWM reports carry simulated time against the wall clock).
+            to_monotonic = time.time() - time.monotonic()
+            window_start = listener.diagnostic_stamps[diagnostics_before] - to_monotonic
+            window_end = listener.diagnostic_stamps[-1] - to_monotonic
+            assert poll(lambda: harness.pwm[-1][8] > window_end, 5.0)     # reports on both sides of the window
+            walls = np.array([r[8] for r in harness.pwm])
+            simulated = np.array([r[1] for r in harness.pwm])
+            assert walls[0] < window_start
+            pace = (np.interp(window_end, walls, simulated) - np.interp(window_start, walls, simulated)) / elapsed
+            assert pace > 0.2, pace
+            # (5 %: a bridge process starved for a moment reads late at one end of the window)
+            assert rate == pytest.approx(pace / P.SAMPLE_PERIOD, rel=0.05), (rate, pace, elapsed)
             # Continuous: no sequence gap at the bridge, nor a corrupt frame; the window itself has no gap
             # either (the listener's queue is deep enough for best effort to lose nothing on this machine).
             diagnostics = listener.last_diagnostics()

@@ -262,3 +262,33 @@ def test_sample_clock_spreads_a_backlog_read_at_once():
     assert np.allclose(np.diff(stamps), period)
     later = clock.stamp_many([300, 301, 302], 50.0 + 3 * period + 0.0004)
     assert np.allclose(np.diff([stamps[-1], *later]), period)
+
+
+@pytest.mark.parametrize('error', [+5e-3, -5e-3])
+def test_sample_clock_follows_a_ceramic_resonator(error):
+    """The Mega 2560's resonator 0.5 % slow or fast, read in USB-like blocks of ~10 samples with jitter and a
+    stalled host: with the defaults (limit +-0.6 %) the stamps are within 2 ms of the acquisition times from 10 s on
+    and after 60 s, and the drift estimate is right."""
+    rng = np.random.default_rng(21)
+    period = P.SAMPLE_PERIOD
+    n = 490 * 70
+    sequence = np.arange(n)
+    acquisition = 300.0 + sequence * period * (1 + error)
+    min_latency = 0.001
+    clock = SampleClock(period)
+    assert clock.max_drift == pytest.approx(6e-3)
+    stamps = np.empty(n)
+    start = 0
+    while start < n:
+        stop = min(n, start + int(rng.integers(5, 16)))
+        arrival = acquisition[stop - 1] + min_latency + rng.exponential(0.0015)
+        if 490 * 30 <= start < 490 * 32:
+            arrival += rng.uniform(0.02, 0.05)         # the host stalls for 2 s
+        stamps[start:stop] = clock.stamp_many([int(s) for s in sequence[start:stop]], arrival)
+        start = stop
+    error_s = stamps - acquisition - min_latency
+    settled = acquisition - acquisition[0] >= 10.0
+    assert np.max(np.abs(error_s[settled])) < 2e-3, np.max(np.abs(error_s[settled]))
+    assert np.max(np.abs(error_s[acquisition - acquisition[0] >= 60.0])) < 2e-3
+    assert clock.drift_ppm == pytest.approx(error * 1e6, abs=50.0)
+    assert np.all(np.diff(stamps) > 0.5 * period)      # still evenly spaced

@@ -39,6 +39,7 @@ VERBS: dict[str, tuple[str, str]] = {
     'effects': ('aeropend_core.cli.effects', 'list the catalog of physical effects'),
     'bag-recover': ('aeropend_core.cli.bag_recover', 'repair a bag whose recorder was killed'),
     'calibrate': ('aeropend_core.cli.calibrate', 'measure sensor zeros, angle scale, Ra and Kw on the rig (serial)'),
+    'emulate': ('aeropend_core.cli.emulate', 'start the fake rig (device emulator) on a pty and print its port'),
 }
 
 

@@ -14,6 +14,14 @@ Steps, in this order (each prints the YAML lines for config/serial_bridge_node.y
 Raw counts are converted with the calibration in --config (default: the bridge's defaults); Va comes from the
 duty by eq (8) unless the config says voltage_source: adc. The motor is driven with the firmware's watchdog armed
 (0.5 s) and set to 0 at the end, on Ctrl-C and on any error.
+
+The firmware reads the current at the pulse centre, where the PWM ripple (La/Ra ~ one period) puts it above the
+period average that Va = Ra Ia + e needs. locked-rotor and back-emf subtract the first-order estimate of that
+ripple (armature inductance --inductance, default 2.2 mH) and print it; --no-ripple-correction keeps the raw
+readings.
+
+The port is opened and then left alone until the device sends its first frame (opening resets an Arduino Mega; its
+bootloader must not receive bytes in its first second).
 """
 from __future__ import annotations
 
@@ -28,6 +36,7 @@ import numpy as np
 from aeropend_core.rig import calibration as C
 from aeropend_core.rig import protocol as P
 from aeropend_core.errors import AeropendError
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 
 STEPS = ('zero', 'angle-scale', 'locked-rotor', 'back-emf')
 NODE_KEY = '/**/serial_bridge_node'     # the shipped file's key: the node in any namespace
@@ -57,6 +66,11 @@ def add_arguments(parser) -> None:
                         'one per --duty [rpm]')
     parser.add_argument('--resistance', type=float, help='Ra [ohm] for back-emf (from locked-rotor)')
     parser.add_argument('--max-duty', type=float, default=0.7, help='safety cap sent to the firmware')
+    parser.add_argument('--inductance', type=float, default=DEFAULT_PARAMETERS.armature_inductance,
+                        help='armature inductance La [H] for the PWM-ripple correction of the current (default '
+                        f'{DEFAULT_PARAMETERS.armature_inductance:g}, the paper\'s)')
+    parser.add_argument('--no-ripple-correction', action='store_true',
+                        help='use the current as read at the pulse centre, without the ripple correction')
 
 
 class RigLink:
@@ -71,9 +85,16 @@ class RigLink:
                                 'still running on it?)') from error
         self.decoder = P.FrameDecoder()
         self.max_duty = max_duty
-        # The Mega resets when the port opens: wait for its frames (bootloader ~1-2 s).
+        self.phase_correct = True          # the shipped firmware; a STATUS says otherwise
+        # The Mega resets when the port opens: write nothing until its frames come (bootloader ~1 s).
         deadline = time.monotonic() + 6.0
-        while not any(isinstance(m, P.SampleFrame) for m in self.decoder.feed(self.link.read(4096))):
+        while True:
+            messages = self.decoder.feed(self.link.read(4096))
+            for message in messages:
+                if isinstance(message, P.StatusFrame):
+                    self.phase_correct = message.pwm_mode == P.PWM_PHASE_CORRECT
+            if any(isinstance(m, P.SampleFrame) for m in messages):
+                break
             if time.monotonic() > deadline:
                 self.link.close()
                 raise AeropendError(f'no aeropend frames from {port} in 6 s: is firmware/aeropend uploaded, and '
@@ -96,8 +117,16 @@ class RigLink:
                 next_command = time.monotonic() + 0.1
             samples += [m for m in self.decoder.feed(self.link.read(max(1, self.link.in_waiting)))
                         if isinstance(m, P.SampleFrame)]
-        if len(samples) < 0.5 * seconds / P.SAMPLE_PERIOD:
-            raise AeropendError(f'only {len(samples)} samples in {seconds:g} s: the serial link is losing data')
+        if not samples:
+            raise AeropendError(f'no samples in {seconds:g} s: is the device still streaming?')
+        # Lost on the way (sequence gaps) is a bad link; few but contiguous is a slow device (or a starved host).
+        span = samples[-1].sequence - samples[0].sequence + 1
+        if len(samples) < 0.9 * span:
+            raise AeropendError(f'only {len(samples)} of {span} samples arrived in {seconds:g} s: the serial link '
+                                'is losing data')
+        if len(samples) < 0.25 * seconds / P.SAMPLE_PERIOD:
+            raise AeropendError(f'only {len(samples)} samples in {seconds:g} s (the firmware sends '
+                                f'{1 / P.SAMPLE_PERIOD:.0f} per second): is the right firmware running?')
         return samples
 
     def close(self) -> None:
@@ -152,6 +181,14 @@ def _to_si(calibration: P.Calibration, samples: list[P.SampleFrame]) -> np.ndarr
     return np.array([calibration.to_si(s) for s in samples])
 
 
+def ripple_correction(args, rig: RigLink, duty: float, voltage: float, resistance: float) -> float:
+    """Estimated excess [A] of the current read at the pulse centre over the period average (0 when disabled)."""
+    if args.no_ripple_correction:
+        return 0.0
+    hold = C.hold_after_pulse_start(duty, P.SAMPLE_PERIOD, rig.phase_correct)
+    return float(C.held_current_offset(duty, voltage, resistance, args.inductance, P.SAMPLE_PERIOD, hold))
+
+
 def check_arguments(args) -> None:
     """Refuse out-of-range settings before the port is opened and the motor driven (AeropendError)."""
     def positive(option: str, value: float, unit: str) -> None:
@@ -163,6 +200,7 @@ def check_arguments(args) -> None:
     positive('--baud', args.baud, '')
     positive('--seconds', args.seconds, ' of seconds')
     positive('--dwell', args.dwell, ' of seconds')
+    positive('--inductance', args.inductance, ' of henries (e.g. 0.0022)')
     if not 10 <= abs(args.reference_deg) <= 180:
         raise AeropendError(f'--reference-deg must be a rod angle of 10 to 180 degrees (e.g. 90, the rod '
                             f'horizontal), got {args.reference_deg}')
@@ -206,14 +244,23 @@ def main(args) -> int:
                   f'counts (zero {calibration.angle_zero:g}); nominal 2 pi/1024 = {P.DEFAULT_ANGLE_SCALE:.6g}')
             updates = {'angle_scale': float(f'{scale:.8g}')}
         elif args.step == 'locked-rotor':
-            voltages, currents = [], []
+            voltages, currents, applied = [], [], []
             for duty in args.duties:
                 values = _to_si(calibration, rig.record(duty, args.dwell))
                 voltages.append(C.steady_mean(values[:, 1]))
                 currents.append(C.steady_mean(values[:, 2]))
-                print(f'# duty {duty:.3f}: Va {voltages[-1]:.4f} V, Ia {currents[-1]:.4f} A')
+                applied.append(C.steady_mean(values[:, 3]))
+                print(f'# duty {duty:.3f}: Va {voltages[-1]:.4f} V, Ia {currents[-1]:.4f} A (read at the pulse centre)')
             rig.record(0.0, 0.2)
             fit = C.locked_rotor_resistance(voltages, currents)
+            if not args.no_ripple_correction:
+                for _ in range(3):      # the ripple depends on Ra: a few fixed-point passes
+                    excess = [ripple_correction(args, rig, d, v, fit.value) for d, v in zip(applied, voltages)]
+                    fit = C.locked_rotor_resistance(voltages, np.subtract(currents, excess))
+                print(f'# PWM ripple: the current at the pulse centre exceeds the period average by '
+                      f'{min(excess) * 1e3:.1f}-{max(excess) * 1e3:.1f} mA at these duties (La = '
+                      f'{args.inductance:g} H, first-order estimate); subtracted (--no-ripple-correction keeps the '
+                      'raw readings)')
             print(f'# Ra = {fit.value:.4f} +- {fit.sigma:.4f} ohm (drop {fit.intercept:+.4f} V, {fit.points} steps)')
             updates = {'armature_resistance': round(fit.value, 5)}
         else:  # back-emf
@@ -221,8 +268,12 @@ def main(args) -> int:
             for duty in args.duty:
                 values = _to_si(calibration, rig.record(duty, max(args.dwell, 2.0)))
                 voltages.append(C.steady_mean(values[:, 1]))
-                currents.append(C.steady_mean(values[:, 2]))
-                print(f'# duty {duty:.3f}: Va {voltages[-1]:.4f} V, Ia {currents[-1]:.4f} A')
+                read = C.steady_mean(values[:, 2])
+                excess = ripple_correction(args, rig, C.steady_mean(values[:, 3]), voltages[-1], args.resistance)
+                currents.append(read - excess)
+                note = (f', {excess * 1e3:.1f} mA of PWM ripple subtracted (La = {args.inductance:g} H)'
+                        if not args.no_ripple_correction else ' (raw, read at the pulse centre)')
+                print(f'# duty {duty:.3f}: Va {voltages[-1]:.4f} V, Ia {currents[-1]:.4f} A{note}')
             speeds = np.array(args.motor_speed_rpm) * 2 * math.pi / 60
             fit = C.back_emf_constant(voltages, currents, speeds, args.resistance)
             sigma = '' if math.isnan(fit.sigma) else f' +- {fit.sigma:.3g}'

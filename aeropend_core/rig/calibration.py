@@ -10,6 +10,10 @@ from the device and calls these. Every function checks that its data can support
   Va = Ra Ia: the slope of Va against Ia over the steps is Ra [ohm] (an intercept absorbs a brush/bridge drop);
 * back-EMF: motor spinning freely at a steady duty, speed measured externally (optical tachometer) ->
   Kw = (Va - Ra Ia) / w1 [V s/rad].
+
+The firmware reads the current once per PWM period, at the pulse centre (phase-correct PWM). With La/Ra about one
+period the armature current ripples, and that reading exceeds the period average (:func:`held_current_offset`,
+a first-order armature under a square-wave drive: tens of mA). The calibration subtracts this estimate and says so.
 """
 from __future__ import annotations
 
@@ -20,11 +24,17 @@ import numpy as np
 
 from aeropend_core.errors import InsufficientDataError
 
+#: The firmware's current sample-and-hold after the Timer1 overflow [s]: an auto-triggered conversion holds 2 ADC
+#: clocks (prescaler 128) + 3 CPU cycles after its trigger (ATmega2560 datasheet), at 16 MHz.
+HOLD_DELAY = (2 * 128 + 3) / 16e6
+
 __all__ = [
     'LineFit',
     'ZeroResult',
     'angle_scale_from_reference',
     'back_emf_constant',
+    'held_current_offset',
+    'hold_after_pulse_start',
     'locked_rotor_resistance',
     'steady_mean',
     'zero_offsets',
@@ -147,3 +157,40 @@ def back_emf_constant(armature_voltage: np.ndarray, armature_current: np.ndarray
         slope = float((emf[1] - emf[0]) / (speed[1] - speed[0]))
         return LineFit(slope, float('nan'), float(emf[0] - slope * speed[0]), 2)
     return _line(speed, emf)
+
+
+def held_current_offset(duty, armature_voltage, resistance: float, inductance: float, period: float,
+                        hold_after_pulse_start) -> np.ndarray:
+    """Armature current at the hold instant minus the period average [A], in periodic steady state.
+
+    The drive is ``armature_voltage / duty`` for ``duty x period`` from the pulse start, 0 for the rest;
+    ``La dI/dt = v(t) - Ra I - e`` with a back-EMF ``e`` constant over a period (the motor is ~100 times slower),
+    so the ripple does not depend on ``e``. Arrays broadcast; duty 0 gives 0.
+    """
+    duty = np.asarray(duty, dtype=float)
+    voltage = np.asarray(armature_voltage, dtype=float)
+    hold = np.asarray(hold_after_pulse_start, dtype=float)
+    tau = inductance / resistance
+    on = duty > 0
+    safe_duty = np.where(on, duty, 1.0)
+    drive = np.where(on, voltage / safe_duty, 0.0) / resistance           # current the pulse drives towards [A]
+    pulse = safe_duty * period
+    a = np.exp(-pulse / tau)
+    b = np.exp(-(period - pulse) / tau)
+    high = drive * (1 - a) / np.maximum(1 - a * b, 1e-300)               # at the pulse end
+    low = b * high                                                       # at the pulse start
+    inside = hold <= pulse
+    during = low * np.exp(-hold / tau) + drive * (1 - np.exp(-hold / tau))
+    after = high * np.exp(-(hold - pulse) / tau)
+    value = np.where(inside, during, after) - voltage / resistance
+    return np.where(on, value, 0.0)
+
+
+def hold_after_pulse_start(duty, period: float, phase_correct: bool = True):
+    """When the firmware holds the current, measured from the start of the pulse [s].
+
+    Phase-correct PWM (the shipped build): the overflow is at BOTTOM, the pulse centre, so ``duty x period / 2``
+    after the pulse start, plus :data:`HOLD_DELAY`; fast PWM: :data:`HOLD_DELAY` after the pulse start.
+    """
+    duty = np.asarray(duty, dtype=float)
+    return (duty * period / 2 if phase_correct else 0.0 * duty) + HOLD_DELAY

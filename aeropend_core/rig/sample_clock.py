@@ -7,10 +7,16 @@ Stamping with the arrival time would put that jitter into the data. Instead :cla
     stamp(sequence) = anchor + period * sequence
 
 and fits ``anchor`` and ``period`` to the *lower envelope* of the arrival times: per window of samples only the
-earliest arrival relative to the model is kept (the least-delayed sample), and a straight line through the recent
-window minima gives the drift-corrected period of the device's crystal as seen by the host clock. Stamps are
-therefore the acquisition times plus the link's minimum latency (a constant, ~1 ms on USB; subtract it with
-`latency` if known). Delayed bursts never pull the stamps later.
+earliest arrival relative to the model is kept (the least-delayed sample), and the lower convex hull of the recent
+window minima gives the drift-corrected period of the device's clock as seen by the host clock (the hull edge
+under the middle of the history: the line below every minimum that is closest to them on average, as in Moon,
+Skelly and Towsley's clock-skew estimate for network delays). Late windows (a stalled host, a burst) lie above
+the hull and cannot bend it. Stamps are therefore the acquisition times plus the link's minimum latency (a
+constant, ~1 ms on USB; subtract it with `latency` if known). Delayed bursts never pull the stamps later.
+
+The Arduino Mega 2560 R3 clocks its ATmega2560 from a ceramic resonator (tolerance about +-0.5 %, not a crystal's
++-100 ppm), so the believable drift defaults to +-0.6 % and the first slope is taken after 3 windows (~3 s); a
+device 0.5 % off is stamped within 2 ms of its acquisition times from ~10 s on.
 """
 from __future__ import annotations
 
@@ -33,25 +39,26 @@ class SampleClock:
     history : int
         Window minima used for the line fit (default 60: the drift estimate spans about a minute).
     max_drift : float
-        Largest believable relative deviation of the device period from nominal (default 2e-4 = 200 ppm: the Mega
-        2560's 16 MHz crystal is within ~100 ppm; boards clocked by a ceramic resonator need ~5e-3). A heavily
-        loaded host delays whole windows of samples and biases the slope; the bound limits the damage.
+        Largest believable relative deviation of the device period from nominal (default 6e-3 = 0.6 %: the Mega
+        2560's 16 MHz ceramic resonator; a crystal-clocked board is within ~1e-4). Slopes outside are clamped.
     latency : float
         Known constant minimum latency of the link [s], subtracted from the stamps.
     min_span : int
-        Windows between two minima used for a slope (default 20, ~20 s): shorter baselines make the period
-        estimate follow latency noise (a host stalled for a second biases it); until then the nominal period is
-        used (a 100 ppm crystal drifts 2 ms in 20 s).
+        Windows between the first and the last minimum before their slope replaces the nominal period (default 3,
+        ~3 s: a 0.5 % clock error is then 15 ms, removed within the next few windows).
     min_spacing : float
         Smallest spacing of consecutive stamps, in sample periods per sequence step (default 0.6).
     max_slew : float
-        Largest move of the line per window when the fit changes, in sample periods (default 0.25: 0.5 ms per
-        second on the rig, 500 ppm).
+        Largest move of the line per window when the fit changes, in sample periods (default 3: 6 ms per second
+        on the rig, spread over the next window as a period change of at most 0.6 %, so stamps never jump).
     """
 
-    def __init__(self, sample_period: float, window: int = 490, history: int = 60, max_drift: float = 2e-4,
-                 latency: float = 0.0, min_span: int = 20, min_spacing: float = 0.6,
-                 max_slew: float = 0.25) -> None:
+    #: default believable clock error: a ceramic resonator
+    DEFAULT_MAX_DRIFT = 6e-3
+
+    def __init__(self, sample_period: float, window: int = 490, history: int = 60,
+                 max_drift: float = DEFAULT_MAX_DRIFT, latency: float = 0.0, min_span: int = 3,
+                 min_spacing: float = 0.6, max_slew: float = 3.0) -> None:
         if not sample_period > 0:
             raise ValueError(f'sample_period must be positive, got {sample_period!r}')
         if window < 2 or history < 2:
@@ -69,8 +76,9 @@ class SampleClock:
     def reset(self) -> None:
         """Forget the anchor (the device restarted its counter): the next sample anchors again."""
         self._reference = None          # host time [s] that relative times are measured from
-        self._period = self.nominal_period
-        self._anchor = 0.0              # relative host time of sequence 0
+        self._slope = self.nominal_period    # estimated device period [host s]
+        self._period = self.nominal_period   # period of the stamping line (the slope plus a slew correction)
+        self._anchor = 0.0              # relative host time of sequence 0 on the stamping line
         self._minima: deque[tuple[int, float]] = deque(maxlen=self.history)
         self._window_start = None
         self._window_best: tuple[int, float] | None = None
@@ -82,12 +90,12 @@ class SampleClock:
     @property
     def period(self) -> float:
         """Current estimate of the device's sampling period in host seconds."""
-        return self._period
+        return self._slope
 
     @property
     def drift_ppm(self) -> float:
         """Estimated deviation of the device period from nominal, parts per million."""
-        return (self._period / self.nominal_period - 1.0) * 1e6
+        return (self._slope / self.nominal_period - 1.0) * 1e6
 
     def stamp(self, sequence: int, arrival: float) -> float:
         """Acquisition time [s, host clock] of sample `sequence` that arrived at host time `arrival` [s].
@@ -117,7 +125,7 @@ class SampleClock:
         self.observed += 1
         relative = arrival - self._reference
         # Window minimum of the arrival relative to a line of the current period (fixed within a window).
-        key = relative - self._period * sequence
+        key = relative - self._slope * sequence
         if self._window_best is None or key < self._window_best[2]:
             self._window_best = (sequence, relative, key)
         if sequence - self._window_start >= self.window:
@@ -150,29 +158,48 @@ class SampleClock:
         return stamps
 
     def _close_window(self, now: int) -> None:
-        """Add the window's minimum, refit the line and move towards it (slewed at sequence `now`)."""
+        """Add the window's minimum, refit the line and steer towards it over the next window (from sequence `now`)."""
         sequence, relative, _ = self._window_best
         self._window_best = None
         self._minima.append((sequence, relative))
         points = np.array(self._minima, dtype=float)
         sequences, times = points[:, 0], points[:, 1]
-        slope = self._period
-        # Theil-Sen slope over pairs of window minima at least `min_span` windows apart: robust to the odd late
-        # window (start-up bursts, a stalled host) that a least-squares line would follow.
-        i, j = np.triu_indices(len(points), k=1)
-        far = sequences[j] - sequences[i] >= self.min_span * self.window
-        if np.any(far):
-            slopes = (times[j[far]] - times[i[far]]) / (sequences[j[far]] - sequences[i[far]])
+        slope = self._slope
+        if sequences[-1] - sequences[0] >= self.min_span * self.window:
             low = self.nominal_period * (1.0 - self.max_drift)
             high = self.nominal_period * (1.0 + self.max_drift)
-            slope = min(high, max(low, float(np.median(slopes))))
-        # Lower envelope: the line with that slope under every window minimum. Moved towards gradually (at most
-        # `max_slew` x Ts per window, measured at the newest sequence), so stamps never jump when the estimate
-        # changes; a sample arriving below the line still lowers it at once (observe).
+            slope = min(high, max(low, _hull_slope(sequences, times)))
+        # Lower envelope: the line with that slope under every window minimum. Steered towards over the next
+        # window (at most `max_slew` x Ts), as a change of the stamping period, so stamps never jump; a sample
+        # arriving below the line still lowers it at once (observe).
         target = float(np.min(times - slope * sequences))
         current = self._anchor + self._period * now
         wanted = target + slope * now
         step = self.max_slew * self.nominal_period
-        value = current + min(step, max(-step, wanted - current))
-        self._period = slope
-        self._anchor = value - slope * now
+        correction = min(step, max(-step, wanted - current))
+        self._slope = slope
+        self._period = slope + correction / self.window
+        self._anchor = current - self._period * now
+
+
+def _hull_slope(x: np.ndarray, y: np.ndarray) -> float:
+    """Slope of the lower convex hull of the points (x ascending) at the mean of x.
+
+    Of all lines below every point, this one minimises the summed vertical distance to them (Moon, Skelly and
+    Towsley 1999); points above the hull (delayed arrivals) do not move it.
+    """
+    hull: list[int] = []
+    for k in range(len(x)):
+        while len(hull) >= 2:
+            i, j = hull[-2], hull[-1]
+            # keep j only if i -> j -> k turns left (counter-clockwise): j is then below the chord i -> k
+            if (x[j] - x[i]) * (y[k] - y[i]) - (y[j] - y[i]) * (x[k] - x[i]) > 0:
+                break
+            hull.pop()
+        hull.append(k)
+    middle = float(np.mean(x))
+    for i, j in zip(hull[:-1], hull[1:]):
+        if x[j] >= middle:
+            return float((y[j] - y[i]) / (x[j] - x[i]))
+    i, j = hull[-2], hull[-1]
+    return float((y[j] - y[i]) / (x[j] - x[i]))

@@ -3,9 +3,12 @@
 :class:`DeviceEmulator` opens a pty, points a stable symlink at it (like ``/dev/serial/by-id/...``), and streams
 SAMPLE frames at the firmware's 490.196 Hz in real time. The measured values come from
 :class:`aeropend_core.sim.simulate.RigSimulator` (hidden effects and measurement noise as configured), converted to raw
-ADC counts with the inverse of the bridge's :class:`~aeropend_core.rig.protocol.Calibration`. Commands written to the
-port behave as on the firmware: SET_DUTY clamped to the maximum duty, a watchdog that cuts the duty when no valid
-command arrives in time (checked every emission, ~20 ms), STATUS on boot, after configuration and every second.
+ADC counts through the rig's analog front end (:mod:`aeropend_core.testing.measurement_chain`: the angle's RC
+filter and encoder wrap, the current read at the hold instant of a PWM-resolved armature current, ADC noise) and the
+inverse of the bridge's :class:`~aeropend_core.rig.protocol.Calibration` (``chain=None``: ideal counts).
+Commands written to the port behave as on the firmware: SET_DUTY clamped to the maximum duty, a watchdog that cuts
+the duty when no valid command arrives in time (checked every emission, ~20 ms), STATUS on boot, after
+configuration and every second.
 
 Faults (all thread-safe, take effect at the next emission):
 
@@ -18,7 +21,18 @@ Faults (all thread-safe, take effect at the next emission):
   the device (sequence back to 0, configuration back to defaults: what a USB power cycle does).
 
 Every emitted sample is logged in :attr:`emitted` as ``(sequence, state)`` with state ``'intact'``, ``'corrupt'``,
-``'truncated'`` or ``'lost'`` (not written: paused with loss, or unplugged), so tests know the truth.
+``'truncated'`` or ``'lost'`` (not written: paused with loss, unplugged, or no program has the port open), so tests
+know the truth (``keep_log=False`` keeps only the counts, for long runs: :meth:`samples_sent`).
+
+**Auto-reset and bootloader** (``auto_reset=True``, the default: an Arduino Mega 2560). Opening the port asserts DTR,
+which resets the board; the stk500v2 bootloader then listens for ``config.boot_delay`` (~1 s) and answers nothing.
+If no byte arrives in that time it starts the sketch (sequence 0, STATUS with the boot flag, samples); if any byte
+arrives it stays in programming mode and never starts the sketch, until the next reset (the port opened again).
+:attr:`state` is ``'bootloader'``, ``'programming'`` or ``'running'``; :attr:`resets` counts resets and
+:attr:`bootloader_bytes` the bytes the bootloader swallowed. While no program has the port open nothing is written
+(the USB-serial chip drops it). ``auto_reset=False`` is a board whose auto-reset is disabled (or a device powered
+from elsewhere): it streams from :meth:`start` on, whoever opens the port. Opening and closing are noticed at the
+emulator's emission cadence (~20 ms): a close and reopen within that time is one open.
 
 No ROS or serial library is needed: the emulator uses ``os.openpty``.
 """
@@ -27,6 +41,7 @@ from __future__ import annotations
 import math
 import os
 import random
+import select
 import threading
 import time
 import tty
@@ -37,6 +52,7 @@ import numpy as np
 
 from aeropend_core.rig import protocol as P
 from aeropend_core.sim.simulate import RigSimulator
+from aeropend_core.testing.measurement_chain import MeasurementChain
 
 __all__ = ['DeviceEmulator', 'EmulatorConfig']
 
@@ -53,6 +69,7 @@ class EmulatorConfig:
     watchdog_timeout: float = 0.5   #: s
     pwm_mode: int = P.PWM_PHASE_CORRECT
     status_every: int = 490         #: samples
+    boot_delay: float = 1.0         #: s the bootloader listens (silent) after a reset before starting the sketch
 
 
 @dataclass
@@ -84,12 +101,22 @@ class DeviceEmulator:
     block : int
         Samples simulated per emission (default 10: one write every ~20 ms, like USB bulk transfers).
     clock_ppm : float
-        Deviation of the emulated crystal from nominal (positive = the device samples slower), parts per million.
+        Deviation of the emulated clock from nominal (positive = the device samples slower), parts per million
+        (the Mega 2560's ceramic resonator: up to ~5000).
+    auto_reset : bool
+        Model the Mega's DTR auto-reset and bootloader (see the module docstring); default True.
+    keep_log : bool
+        Log every emitted sample in :attr:`emitted` (default True; False for long runs).
+    chain : MeasurementChain or None
+        The analog front end between the physics and the counts (default: the rig's, see
+        :mod:`aeropend_core.testing.measurement_chain`); None sends the ideal counts of the simulator's values.
     """
 
     def __init__(self, link: str | os.PathLike | None = None, simulator: RigSimulator | None = None,
                  calibration: P.Calibration | None = None, config: EmulatorConfig | None = None,
-                 seed: int = 0, block: int = 10, clock_ppm: float = 0.0) -> None:
+                 seed: int = 0, block: int = 10, clock_ppm: float = 0.0, auto_reset: bool = True,
+                 chain: MeasurementChain | None = MeasurementChain(),  # noqa: B008 - frozen settings
+                 keep_log: bool = True) -> None:
         if link is None:
             import tempfile
             self._tmpdir = tempfile.mkdtemp(prefix='aeropend-emu-')
@@ -106,6 +133,9 @@ class DeviceEmulator:
         self.emitted: list[tuple[int, str]] = []
         self.commands: list[tuple[float, P.CommandFrame]] = []
         self.samples_written = 0
+        self.keep_log = bool(keep_log)
+        self._sent = 0
+        self._lost = 0
         self.bytes_written = 0
         self._lock = threading.RLock()
         self._faults = _Faults()
@@ -118,6 +148,20 @@ class DeviceEmulator:
         #: Hold the propeller (locked-rotor calibration): no back-EMF, no thrust.
         self.locked_rotor = False
         self._locked_current = 0.0
+        self.auto_reset = bool(auto_reset)
+        self.chain = chain
+        self._front_end = chain.start(self.calibration, self.simulator.parameters, self.config.pwm_mode,
+                                      seed) if chain is not None else None
+        #: 'bootloader' (silent after a reset), 'programming' (bytes arrived during it: stuck), 'running' (sketch)
+        self.state = 'running'
+        #: resets of the board (power-up included) when `auto_reset`
+        self.resets = 0
+        self.bootloader_bytes = 0
+        #: times [s, time.monotonic] at which a program opened the port, and at which the sketch started
+        self.host_opens: list[float] = []
+        self.sketch_starts: list[float] = []
+        self._host_open = False
+        self._boot_until = 0.0
         self._reset_device()
 
     # -------------------------------------------------------------------------------------------------- life cycle
@@ -135,6 +179,11 @@ class DeviceEmulator:
         self._status_due = True
         self._boot = True
         self._decoder.reset()
+        if self.auto_reset:
+            # The bootloader runs first (a power-up or a DTR reset); the sketch starts after it, if left alone.
+            self.state = 'bootloader'
+            self._boot_until = time.monotonic() + self.config.boot_delay
+            self.resets += 1
 
     def start(self) -> DeviceEmulator:
         """Open the pty and start streaming; returns self."""
@@ -170,6 +219,11 @@ class DeviceEmulator:
         return str(self.link)
 
     @property
+    def host_open(self) -> bool:
+        """Whether a program has the port open (as last seen, every ~20 ms)."""
+        return self._host_open
+
+    @property
     def plugged(self) -> bool:
         return self._master >= 0
 
@@ -177,11 +231,16 @@ class DeviceEmulator:
         master, slave = os.openpty()
         tty.setraw(slave)
         os.set_blocking(master, False)
-        self._master, self._slave = master, slave
+        name = os.ttyname(slave)
+        # The slave is closed here, so the master sees (POLLHUP) whether a program has the port open: that is
+        # when the Mega's DTR auto-reset happens.
+        os.close(slave)
+        self._master, self._slave = master, -1
+        self._host_open = False
         tmp = self.link.with_name(self.link.name + '.new')
         if tmp.is_symlink() or tmp.exists():
             tmp.unlink()
-        os.symlink(os.ttyname(slave), tmp)
+        os.symlink(name, tmp)
         os.replace(tmp, self.link)
 
     def _close_pty(self) -> None:
@@ -191,6 +250,41 @@ class DeviceEmulator:
             if fd >= 0:
                 os.close(fd)
         self._master = self._slave = -1
+        self._host_open = False
+
+    def _check_host(self) -> None:
+        """Notice a program opening or closing the port; opening resets the board when `auto_reset`."""
+        if self._master < 0:
+            return
+        poller = select.poll()
+        poller.register(self._master, select.POLLHUP)
+        is_open = not any(event & select.POLLHUP for _, event in poller.poll(0))
+        if is_open and not self._host_open:
+            self.host_opens.append(time.monotonic())
+            if self.auto_reset:
+                self._held.clear()
+                self._reset_device()
+        self._host_open = is_open
+
+    def _bootloader(self) -> bool:
+        """Run the bootloader's part of an emission; True while the sketch is not running."""
+        if self.state == 'running':
+            return False
+        data = b''
+        if self._master >= 0:
+            try:
+                data = os.read(self._master, 4096)
+            except (BlockingIOError, OSError):
+                data = b''
+        if data:
+            # stk500v2: a byte during the listening window enters programming mode, which waits for a programmer.
+            self.bootloader_bytes += len(data)
+            self.state = 'programming'
+        if self.state == 'bootloader' and time.monotonic() >= self._boot_until:
+            self.state = 'running'
+            self.sketch_starts.append(time.monotonic())
+            return False
+        return True
 
     # ------------------------------------------------------------------------------------------------------ faults
     def inject_garbage(self, data: bytes | int) -> None:
@@ -243,6 +337,10 @@ class DeviceEmulator:
                 time.sleep(max(0.0005, (produced + self.block) * period - (now - start)))
                 continue
             with self._lock:
+                self._check_host()
+                if self._bootloader():
+                    produced = due          # not sampling: the sketch is not running
+                    continue
                 self._read_commands()
                 n = due - produced
                 self._emit_samples(n)
@@ -323,13 +421,18 @@ class DeviceEmulator:
             trajectory = self.simulator.run(duties)
             self._locked_current = 0.0
             measured_current, measured_voltage = trajectory.armature_current, trajectory.armature_voltage
+        if self._front_end is not None:
+            counts = self._front_end.counts(trajectory.angle, measured_current, measured_voltage, duties)
+        else:
+            counts = np.array([self.calibration.to_counts(float(trajectory.angle[k]), float(measured_current[k]),
+                                                          float(measured_voltage[k])) for k in range(n)],
+                              dtype=np.int64).reshape(n, 3).T
         out = bytearray()
         for k in range(n):
             sequence = self.sequence
             self.sequence += 1
-            current, angle, voltage = self.calibration.to_counts(
-                float(trajectory.angle[k]), float(measured_current[k]), float(measured_voltage[k]))
-            wire = P.encode_sample(P.SampleFrame(sequence, current, angle, voltage, int(applied[k]), int(flags[k])))
+            wire = P.encode_sample(P.SampleFrame(sequence, int(counts[0][k]), int(counts[1][k]), int(counts[2][k]),
+                                                 int(applied[k]), int(flags[k])))
             out += self._apply_faults(sequence, wire)
             if self._status_due or sequence % self.config.status_every == self.config.status_every - 1:
                 out += self._status_frame()
@@ -354,23 +457,25 @@ class DeviceEmulator:
             data = bytearray(wire)
             index = self.rng.randrange(1, len(data) - 1)   # inside the frame, delimiters untouched
             data[index] ^= 1 << self.rng.randrange(8)
-            self.emitted.append((sequence, 'corrupt'))
+            self._log(sequence, 'corrupt')
             return prefix + bytes(data)
         if faults.truncate:
             faults.truncate -= 1
             cut = self.rng.randrange(2, len(wire) - 2)
-            self.emitted.append((sequence, 'truncated'))
+            self._log(sequence, 'truncated')
             return prefix + wire[:cut] + (b'\x00' if faults.truncate_keep_delimiter else b'')
-        self.emitted.append((sequence, 'intact'))
+        self._log(sequence, 'intact')
         return prefix + wire
 
     def _write(self, data: bytes, samples: int) -> None:
         faults = self._faults
         paused = time.monotonic() < faults.pause_until
-        if self._master < 0 or (paused and faults.pause_drop):
-            self._mark_lost(samples)
+        if self._master < 0 or (paused and faults.pause_drop) or not self._host_open:
+            self._mark_lost(samples)     # unplugged, dropped, or nobody has the port open (the chip drops it)
+            self._held.clear()
             return
         self._held += data
+        self._sent += samples
         if paused:
             return
         try:
@@ -378,6 +483,7 @@ class DeviceEmulator:
         except BlockingIOError:
             written = 0
         except OSError:
+            self._sent -= samples
             self._mark_lost(samples)
             self._held.clear()
             return
@@ -387,9 +493,19 @@ class DeviceEmulator:
             # Nobody reads: like the USB-serial chip, keep a small FIFO and drop the rest.
             del self._held[DEVICE_BUFFER:]
 
+    def _log(self, sequence: int, state: str) -> None:
+        if self.keep_log:
+            self.emitted.append((sequence, state))
+
     def _mark_lost(self, samples: int) -> None:
-        for index in range(len(self.emitted) - samples, len(self.emitted)):
-            self.emitted[index] = (self.emitted[index][0], 'lost')
+        self._lost += samples
+        if self.keep_log:
+            for index in range(len(self.emitted) - samples, len(self.emitted)):
+                self.emitted[index] = (self.emitted[index][0], 'lost')
+
+    def samples_sent(self) -> int:
+        """Samples produced by the running sketch and written to the port (damaged ones included)."""
+        return self._sent
 
     # ---------------------------------------------------------------------------------------------------- queries
     def sequences(self, state: str = 'intact') -> list[int]:

@@ -6,9 +6,13 @@
  *     default (real chip): phase-correct PWM, mode 10, TOP = ICR1 = 255  -> 16 MHz / (2 * 64 * 255);
  *     -DAEROPEND_FAST_PWM=1 (simavr 1.6 lacks phase-correct PWM): fast PWM, mode 14, TOP = ICR1 = 509
  *                                                                         -> 16 MHz / (64 * 510).
- *   Both give Ts = 2.04 ms. The Timer1 overflow interrupt fires while the output is high (at BOTTOM, the centre of
- *   the pulse, in phase-correct mode; at the start of the pulse in fast mode) and starts the sample: ADC
- *   conversions of current, angle and voltage chained through the ADC interrupt, then one SAMPLE frame.
+ *   Both give Ts = 2.04 ms. The Timer1 overflow (at BOTTOM, the centre of the pulse, in phase-correct mode; at the
+ *   start of the pulse in fast mode) *auto-triggers* the current's ADC conversion in hardware (ADATE, ADTS = 110
+ *   "Timer/Counter1 Overflow" in ADCSRB): the sample-and-hold closes 2 ADC clocks + 3 CPU cycles = 16.2 us after
+ *   the overflow, whatever the CPU is doing, so the current is sampled inside the high pulse down to duty 0.016
+ *   (phase-correct: duty x 1020 us of pulse remain after BOTTOM). Angle and voltage follow, chained through the
+ *   ADC interrupt, then one SAMPLE frame. The overflow interrupt itself only writes precomputed values (the duty
+ *   arithmetic runs when a command arrives, not in the interrupt).
  * - ADC (AVCC = 5 V reference, 10 bit, 125 kHz ADC clock):
  *     current: shield channel A sense on A0 (channel B: A1), 3.3 V <-> 2 A;
  *     angle:   A2, the AS5040's PWM output through a 2nd-order RC low-pass (R >= 4.7 kOhm, C >= 1 uF);
@@ -88,6 +92,11 @@ static const uint8_t adc_channels[3] = {CURRENT_ADC_CHANNEL, ANGLE_ADC_CHANNEL, 
 static volatile uint32_t sequence;              /* Timer1 overflows since reset */
 static volatile uint16_t commanded_duty_q16;    /* after clamping; 0 when the watchdog tripped */
 static volatile uint16_t applied_duty_q16;      /* the duty of the PWM period being sampled */
+/* The next PWM period, precomputed in the main loop by duty_setting(): compare value, whether the pin is connected
+ * to the timer (fast PWM disconnects it at duty 0), and the duty the pin really gets. */
+static volatile uint16_t next_ocr;
+static volatile uint8_t next_pin_on;
+static volatile uint16_t next_applied_q16;
 static volatile uint16_t max_duty_q16 = AEROPEND_DEFAULT_MAX_DUTY_Q16;
 static volatile uint16_t watchdog_ms = AEROPEND_DEFAULT_WATCHDOG_MS;
 static volatile uint16_t watchdog_ticks_left;   /* 0 = not armed (no command yet) */
@@ -122,14 +131,56 @@ static uint16_t watchdog_ticks(uint16_t ms)
     return ticks ? (uint16_t)ticks : 1;
 }
 
-/* Write the PWM compare value for `q16` (duty fraction * 65535); returns the duty the pin really gets. */
-static uint16_t pwm_write(uint16_t q16)
+/* The PWM setting for a duty: compare value, pin connected, and the duty the pin really gets (q16). */
+struct pwm_setting {
+    uint16_t ocr;
+    uint8_t pin_on;
+    uint16_t applied_q16;
+};
+
+/* Compute the setting for `q16` (duty fraction * 65535): pure arithmetic (two 32-bit divisions, ~70 us), run in the
+ * main loop with interrupts enabled, never in an interrupt or a critical section. */
+static struct pwm_setting duty_setting(uint16_t q16)
 {
+    struct pwm_setting setting;
 #if AEROPEND_FAST_PWM
     /* Fast PWM, non-inverting: duty = (OCR1A + 1) / (TOP + 1); OCR1A = 0 would still give a 1-tick pulse, so
      * duty 0 disconnects the pin (held low by PORTB). */
     uint16_t high = (uint16_t)(((uint32_t)q16 * (PWM_TOP + 1) + 32767UL) / 65535UL);
-    if (high == 0) {
+    setting.pin_on = high != 0;
+    setting.ocr = high ? high - 1 : 0;
+    setting.applied_q16 = (uint16_t)(((uint32_t)high * 65535UL) / (PWM_TOP + 1));
+#else
+    /* Phase-correct PWM, non-inverting: duty = OCR1A / TOP exactly (0 = always low, TOP = always high). */
+    uint16_t ocr = (uint16_t)(((uint32_t)q16 * PWM_TOP + 32767UL) / 65535UL);
+    setting.pin_on = 1;
+    setting.ocr = ocr;
+    setting.applied_q16 = (uint16_t)(((uint32_t)ocr * 65535UL) / PWM_TOP);
+#endif
+    return setting;
+}
+
+/* Hand a precomputed setting to the overflow interrupt (call with interrupts disabled). */
+static inline void store_setting(const struct pwm_setting *setting)
+{
+    next_ocr = setting->ocr;
+    next_pin_on = setting->pin_on;
+    next_applied_q16 = setting->applied_q16;
+}
+
+/* Cut the motor from inside the interrupt (watchdog): no arithmetic. */
+static inline void prepare_zero_duty(void)
+{
+    next_ocr = 0;
+    next_pin_on = AEROPEND_FAST_PWM ? 0 : 1;
+    next_applied_q16 = 0;
+}
+
+/* Write the precomputed compare value (takes effect from the next period on: OCR1A is double-buffered). */
+static inline void pwm_apply(void)
+{
+#if AEROPEND_FAST_PWM
+    if (!next_pin_on) {
         if (TCCR1A & _BV(COM1A1)) {
             TCCR1A &= (uint8_t)~_BV(COM1A1);
 #if AEROPEND_SIMAVR
@@ -139,16 +190,12 @@ static uint16_t pwm_write(uint16_t q16)
             PORTB &= (uint8_t)~_BV(PB5);
 #endif
         }
-        return 0;
+        return;
     }
-    OCR1A = high - 1;
+    OCR1A = next_ocr;
     TCCR1A |= _BV(COM1A1);
-    return (uint16_t)(((uint32_t)high * 65535UL) / (PWM_TOP + 1));
 #else
-    /* Phase-correct PWM, non-inverting: duty = OCR1A / TOP exactly (0 = always low, TOP = always high). */
-    uint16_t ocr = (uint16_t)(((uint32_t)q16 * PWM_TOP + 32767UL) / 65535UL);
-    OCR1A = ocr;
-    return (uint16_t)(((uint32_t)ocr * 65535UL) / PWM_TOP);
+    OCR1A = next_ocr;
 #endif
 }
 
@@ -194,7 +241,8 @@ ISR(USART0_RX_vect)
     }
 }
 
-/* Sample trigger: Timer1 overflow (the PWM output is high here). */
+/* Timer1 overflow (the PWM output is high here). The hardware has already started the current's conversion on
+ * this overflow (ADC auto-trigger), so nothing here is on the sampling's critical path. */
 ISR(TIMER1_OVF_vect)
 {
     uint32_t seq = sequence;
@@ -205,16 +253,17 @@ ISR(TIMER1_OVF_vect)
     if (watchdog_ticks_left) {
         if (--watchdog_ticks_left == 0) {
             commanded_duty_q16 = 0;
+            prepare_zero_duty();
             flags |= AP_FLAG_WATCHDOG_TRIPPED;
         }
     }
-    /* The compare value written now takes effect from the next period on (double-buffered OCR1A). */
-    applied_duty_q16 = pwm_write(commanded_duty_q16);
+    pwm_apply();
+    applied_duty_q16 = next_applied_q16;
     adc_index = 0;
-    ADMUX = _BV(REFS0) | adc_channels[0];
-    ADCSRA |= _BV(ADSC);
 }
 
+/* Conversion complete: the current (auto-triggered), then angle and voltage started here by hand; ADMUX is back on
+ * the current channel long before the next overflow triggers it. */
 ISR(ADC_vect)
 {
     uint8_t i = adc_index;
@@ -226,6 +275,8 @@ ISR(ADC_vect)
         ADCSRA |= _BV(ADSC);
         return;
     }
+    adc_index = i;
+    ADMUX = _BV(REFS0) | adc_channels[0];
     ready_sequence = adc_sequence;
     ready_duty = adc_duty;
     ready_adc[0] = adc_result[0];
@@ -294,28 +345,34 @@ static void send_status(void)
 
 static void handle_command(uint8_t kind, uint16_t value)
 {
+    /* The arithmetic first, with interrupts enabled (max_duty_q16 and watchdog_ms only change here). */
+    uint16_t limit = max_duty_q16;
+    uint16_t duty = kind == AP_CMD_SET_DUTY ? (value > limit ? limit : value) : value;
+    struct pwm_setting setting = duty_setting(duty);
+    uint8_t watchdog_valid = value >= 10 && value <= 60000;
+    uint16_t ticks = watchdog_ticks(kind == AP_CMD_SET_WATCHDOG && watchdog_valid ? value : watchdog_ms);
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
         switch (kind) {
         case AP_CMD_SET_DUTY:
-            if (value > max_duty_q16) {
-                value = max_duty_q16;
+            if (value > limit)
                 flags |= AP_FLAG_DUTY_CLAMPED;
-            } else {
+            else
                 flags &= (uint8_t)~AP_FLAG_DUTY_CLAMPED;
-            }
-            commanded_duty_q16 = value;
+            commanded_duty_q16 = duty;
+            store_setting(&setting);
             flags &= (uint8_t)~AP_FLAG_WATCHDOG_TRIPPED;
             break;
         case AP_CMD_SET_MAX_DUTY:
             max_duty_q16 = value;
             if (commanded_duty_q16 > value) {
                 commanded_duty_q16 = value;
+                store_setting(&setting);
                 flags |= AP_FLAG_DUTY_CLAMPED;
             }
             status_due = 1;
             break;
         case AP_CMD_SET_WATCHDOG:
-            if (value < 10 || value > 60000) {
+            if (!watchdog_valid) {
                 rx_bad_frames++;
                 status_due = 1;
                 return; /* rejected: does not feed the watchdog */
@@ -330,7 +387,7 @@ static void handle_command(uint8_t kind, uint16_t value)
             rx_bad_frames++;
             return;
         }
-        watchdog_ticks_left = watchdog_ticks(watchdog_ms); /* every valid command feeds the watchdog */
+        watchdog_ticks_left = ticks; /* every valid command feeds the watchdog */
     }
 }
 
@@ -392,10 +449,11 @@ void setup(void)
     TIFR1 = _BV(TOV1);
     TIMSK1 = _BV(TOIE1);
 
-    /* ADC: AVCC reference, prescaler 128 (125 kHz), interrupt on completion. */
+    /* ADC: AVCC reference, prescaler 128 (125 kHz), interrupt on completion, auto-triggered by the Timer1
+     * overflow (ADTS2:0 = 110): the current's sample-and-hold is 2 ADC clocks + 3 CPU cycles after each overflow. */
     ADMUX = _BV(REFS0) | adc_channels[0];
-    ADCSRB = 0;
-    ADCSRA = _BV(ADEN) | _BV(ADIE) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0);
+    ADCSRB = _BV(ADTS2) | _BV(ADTS1);
+    ADCSRA = _BV(ADEN) | _BV(ADATE) | _BV(ADIE) | _BV(ADPS2) | _BV(ADPS1) | _BV(ADPS0);
     DIDR0 = _BV(ADC0D) | _BV(ADC1D) | _BV(ADC2D) | _BV(ADC3D);
 
     /* USART0: 250000 baud with U2X (UBRR = 7, exact), 8N1, RX interrupt. */
