@@ -26,8 +26,8 @@ A window whose excitation is insufficient (e.g. constant duty) is refused with t
 a non-finite value is not published (ERROR).
 
 Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
-are changeable at runtime (``ros2 param set /identification_node effects "['angle_offset']"``); unknown effect
-names are rejected with the reason. The new values apply from the next window.
+are changeable at runtime (``ros2 param set /identification_node effects "['NAME']"``, names from
+``aeropend effects``); unknown effect names are rejected with the reason. The new values apply from the next window.
 """
 from __future__ import annotations
 

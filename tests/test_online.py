@@ -48,11 +48,11 @@ def test_window_recovers_truth_and_hidden_offset(duration, method):
     assert with_offset.rms_error < 2 * with_offset.noise_rms < without.rms_error
     p = with_offset.parameters
     truth = DEFAULT_PARAMETERS
-    assert p['offset'][0] == pytest.approx(0.06, abs=0.005)
+    assert p['angle_offset'][0] == pytest.approx(0.06, abs=0.005)
     assert p['gravity_stiffness'][0] == pytest.approx(truth.gravity_stiffness, rel=0.08)
-    assert p['thrust_gain'][0] == pytest.approx(truth.thrust_acceleration_coefficient, rel=0.08)
+    assert p['thrust_gain'][0] == pytest.approx(truth.thrust_gain, rel=0.08)
     assert p['thrust_gain'][0] / p['gravity_stiffness'][0] == pytest.approx(
-        truth.thrust_acceleration_coefficient / truth.gravity_stiffness, rel=0.03)
+        truth.thrust_gain / truth.gravity_stiffness, rel=0.03)
     assert 'sin(angle)' in with_offset.coefficients and 'cos(angle)' in with_offset.coefficients
 
 

@@ -25,6 +25,7 @@ import numpy as np
 from aeropend_core.cli.diagnose import finite_json
 from aeropend_core.errors import AeropendError
 from aeropend_core.io.recording import load_recording
+from aeropend_core.model.effects import CATALOG
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--model', choices=('pendulum', 'full-state'), default='pendulum',
                         help='which equations to identify (default: pendulum, the live-rig case)')
     parser.add_argument('--effect', action='append', default=[], metavar='NAME',
-                        help='pendulum model: add a catalog effect as a candidate term (cable_torque, angle_offset)')
+                        help='pendulum model: add a catalog effect as a candidate term (those with a weak form: '
+                             f'{", ".join(n for n, e in CATALOG.items() if e.weak_form)})')
     parser.add_argument('--start', type=float, default=None, help='use samples from this time [s]')
     parser.add_argument('--stop', type=float, default=None, help='use samples before this time [s]')
 
@@ -61,7 +63,7 @@ def main(args: argparse.Namespace) -> int:
     if args.start is not None or args.stop is not None:
         recording = _window(recording, args.start, args.stop)
     # the fitting stack (scipy, numba) is imported once the input is known good: bad input is refused at once
-    from aeropend_core.identify.pendulum import PARAMETER_UNITS, identify_full_state, identify_pendulum
+    from aeropend_core.identify.pendulum import identify_full_state, parameter_unit_of, identify_pendulum
     if args.model == 'pendulum':
         fit = identify_pendulum(recording.time, recording.signal('armature_voltage'),
                                 recording.signal('armature_current'), recording.signal('angle'),
@@ -75,7 +77,8 @@ def main(args: argparse.Namespace) -> int:
             'standard_errors': fit.result.standard_errors,
             'parameters': finite_json(fit.parameters),
             'parameter_standard_errors': finite_json(fit.standard_errors),
-            'units': {k: PARAMETER_UNITS.get(k, '') for k in fit.parameters},
+            'units': {k: parameter_unit_of(k) for k in fit.parameters},
+            'estimator': 'weak_sindy',
             'samples': len(recording),
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
         }

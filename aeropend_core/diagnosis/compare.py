@@ -251,19 +251,16 @@ def initial_guess(prep: PreparedRecord, threshold_voltage: float | None = None) 
         gain = float(np.dot(np.sin(y), thrust) / max(np.dot(thrust, thrust), 1e-12) * gravity)
     damping = damping if damping > 0 else 0.1 * math.sqrt(gravity)
     return {'gravity_stiffness': float(gravity), 'damping': float(damping), 'thrust_gain': float(max(gain, 1e-6)),
-            'thrust_resistance': float(resistance)}
+            'armature_resistance': float(resistance)}
 
 
 def effect_start_values(effects: Sequence[str]) -> dict[str, float]:
-    """Starting values of effect parameters (a fraction of the catalog's typical value; 0 offset)."""
+    """Starting values of effect parameters (from each catalog record: by default a fraction of the typical
+    value)."""
     from aeropend_core.model.effects import get_effect
     start = {}
     for name in effects:
-        for parameter in get_effect(name).parameters:
-            value = parameter.typical * EFFECT_START_FRACTION
-            if parameter.name == 'offset':
-                value = 0.0
-            start[parameter.name] = float(np.clip(value, parameter.lower, parameter.upper))
+        start.update(get_effect(name).start_parameters())
     return start
 
 
@@ -276,7 +273,7 @@ def input_levels(prep: PreparedRecord, stop: int | None = None) -> np.ndarray:
     return np.unique(np.round(levels[levels > 0.05], 4))
 
 
-def dead_zone_thresholds(prep: PreparedRecord) -> np.ndarray:
+def gate_thresholds(prep: PreparedRecord) -> np.ndarray:
     """Candidate dead-zone thresholds [V]: midpoints between the training part's input levels (below 75 % of the
     largest).
 
@@ -299,22 +296,24 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     structure = Structure(tuple(effects))
     data = data if data is not None else prep.train
     values = dict(initial_guess(prep))
-    fixed_base = {'thrust_resistance': 0.0} if prep.motor is not None else {}
+    fixed_base = {'armature_resistance': 0.0} if prep.motor is not None else {}
     values.update(effect_start_values(effects))
     if start:
         values.update({k: v for k, v in start.items() if k in structure.parameter_names})
-    if 'dead_zone' not in effects:
+    gate = structure.gate_parameter
+    if gate is None:
         return fit_output_error(data, structure, values, fixed=fixed_base)
-    thresholds = dead_zone_thresholds(prep)
+    thresholds = gate_thresholds(prep)
     if thresholds.size == 0:
-        raise InsufficientDataError('a dead zone needs steps at several small duty levels; none are in the data')
+        raise InsufficientDataError('a thrust threshold (dead zone) needs steps at several small duty levels; '
+                                    'none are in the data')
     # Profile: rank thresholds by one simulation each, then refit the best few. Each threshold is simulated from
     # the given start values and from nominal values fitted by equation error with that threshold's gate: a large
     # dead zone leaves the nominal fit (the given start) far off, and ranking only from it picks a wrong level.
-    initial = initial_states_from_data(data, values.get('offset', 0.0))
+    initial = initial_states_from_data(data, values.get(structure.offset_parameter, 0.0))
     trials = [(t, values) for t in thresholds]
     trials += [(t, {**values, **initial_guess(prep, t), **fixed_base}) for t in thresholds]
-    rows = np.array([structure.row({**start_values, **fixed_base, 'threshold_voltage': t})
+    rows = np.array([structure.row({**start_values, **fixed_base, gate: t})
                      for t, start_values in trials])
     simulated = data.simulate(structure, rows, np.repeat(initial[None], len(rows), axis=0))
     index = data.residual_index
@@ -329,16 +328,16 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     best = None
     for k in chosen:
         threshold, start_values = trials[k]
-        fit = fit_output_error(data, structure, start_values, fixed={**fixed_base, 'threshold_voltage': threshold})
+        fit = fit_output_error(data, structure, start_values, fixed={**fixed_base, gate: threshold})
         if best is None or fit.residual_rms < best.residual_rms:
             best = fit
     levels = input_levels(prep, prep.split)
-    threshold = best.parameters['threshold_voltage']
+    threshold = best.parameters[gate]
     low = float(levels[levels < threshold].max()) if np.any(levels < threshold) else 0.0
     high = float(levels[levels > threshold].min()) if np.any(levels > threshold) else threshold
     best.extra['threshold_interval'] = (low, high)
     # Anywhere between the two levels fits equally: a uniform uncertainty over that interval.
-    best.standard_errors['threshold_voltage'] = (high - low) / math.sqrt(12.0)
+    best.standard_errors[gate] = (high - low) / math.sqrt(12.0)
     return best
 
 
@@ -392,7 +391,7 @@ def _k_step_prediction(prep: PreparedRecord, fit: OutputErrorFit, horizon: float
     segments = [(int(s), int(s) + k + STRIDE) for s in starts]
     data = SegmentedData(prep.voltage, prep.current, prep.angle, segments, prep.sample_time,
                               prep.gate_voltage)
-    offset = fit.parameters.get('offset', 0.0)
+    offset = fit.parameters.get(fit.structure.offset_parameter, 0.0)
     initial = np.column_stack([prep.smoothed_angle[starts] - offset, prep.smoothed_rate[starts]])
     predicted = data.simulate(fit.structure, fit.structure.row(fit.parameters)[None], initial[None])[0]
     return starts + k, predicted[starts + k]
@@ -453,7 +452,7 @@ def evaluate(prep: PreparedRecord, fit: OutputErrorFit) -> Evaluation:
     predicted_index, predicted = _k_step_prediction(prep, fit, PREDICTION_HORIZON)
     prediction_rms = float(np.sqrt(np.mean((prep.angle[predicted_index] - predicted) ** 2))) \
         if predicted.size else float('nan')
-    e = prep.voltage - fit.parameters['thrust_resistance'] * prep.current
+    e = prep.voltage - fit.parameters['armature_resistance'] * prep.current
     thrust_input = (e * np.abs(e))[index]
     autocorrelation = _correlation(residual, residual, RESIDUAL_LAGS)[RESIDUAL_LAGS:]
     cross = _correlation(residual, thrust_input, RESIDUAL_LAGS)
@@ -548,6 +547,7 @@ def _place_threshold_among_heldout_levels(prep: PreparedRecord, fit: OutputError
     interval narrows to it. One discrete choice among models that fit the training part equally, not a refit.
     """
     low, high = fit.extra['threshold_interval']
+    gate = fit.structure.gate_parameter
     held = np.unique(np.round(prep.gate_voltage[prep.split:], 6))
     inside = held[(held > low) & (held < high)]
     if inside.size == 0:
@@ -556,7 +556,7 @@ def _place_threshold_among_heldout_levels(prep: PreparedRecord, fit: OutputError
     index = prep.heldout.residual_index
     best = None
     for a, b in zip(edges[:-1], edges[1:]):
-        trial = replace(fit, parameters={**fit.parameters, 'threshold_voltage': float(0.5 * (a + b))})
+        trial = replace(fit, parameters={**fit.parameters, gate: float(0.5 * (a + b))})
         simulated = _heldout_simulation(prep, trial)
         rms = float(np.sqrt(np.mean((prep.angle[index] - simulated[index]) ** 2)))
         if np.isfinite(rms) and (best is None or rms < best[0]):
@@ -565,7 +565,7 @@ def _place_threshold_among_heldout_levels(prep: PreparedRecord, fit: OutputError
         return fit
     _, chosen, a, b = best
     chosen.extra = {**fit.extra, 'threshold_interval': (a, b), 'threshold_interval_training': (low, high)}
-    chosen.standard_errors = {**fit.standard_errors, 'threshold_voltage': (b - a) / math.sqrt(12.0)}
+    chosen.standard_errors = {**fit.standard_errors, gate: (b - a) / math.sqrt(12.0)}
     return chosen
 
 

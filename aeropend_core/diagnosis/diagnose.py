@@ -28,9 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
-from aeropend_core.model.effects import CATALOG, find_parameter, get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.diagnosis.output_error import NOMINAL_PARAMETERS
+from aeropend_core.model.effects import CATALOG, find_parameter, get_effect
+from aeropend_core.model.effects import separating_experiment as record_experiment
+from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.io.recording import Recording
 
 #: A candidate must lower the training BIC by more than this.
@@ -52,40 +53,18 @@ CONFOUNDING_FACTOR = 1.3
 #: An effect parameter correlated beyond this with a nominal parameter is not separable from it in this data.
 CORRELATION_LIMIT = 0.97
 
-#: What experiment separates an effect from what it is confused with (NOTES.md section 7).
-SEPARATING_EXPERIMENT = {
-    frozenset({'cable_torque', 'gravity_stiffness'}):
-        'excite larger angles (70-85 deg): the cable\'s linear torque departs from gravity\'s sin(angle) only there',
-    frozenset({'angle_offset', 'gravity_stiffness'}):
-        'add rests at duty 0 (rod hanging): the offset is the angle read at rest',
-    frozenset({'cable_torque', 'angle_offset'}):
-        'add rests at the bottom (duty 0) and large excursions (70-85 deg)',
-    frozenset({'thrust_lag', 'damping'}):
-        'add zero-thrust rests longer than the motor spin-down and free-decay segments (they pin the damping)',
-    frozenset({'thrust_lag', 'gravity_stiffness'}):
-        'add free-decay segments (duty 0 after a large step): they pin the inertia scale without thrust',
-    frozenset({'coulomb_friction', 'gravity_stiffness'}):
-        'add free decays (duty 0 after large steps): dry friction stops the swing early, away from the bottom',
-    frozenset({'coulomb_friction', 'thrust_gain'}):
-        'add steps both up and down through the same levels: friction makes the angle depend on the direction',
-    frozenset({'coulomb_friction', 'damping'}):
-        'add free decays of several amplitudes: dry friction decays linearly, viscous damping exponentially',
-    frozenset({'quadratic_drag', 'damping'}):
-        'add larger, faster swings (big duty steps): drag grows with the square of the speed',
-    frozenset({'dead_zone', 'thrust_gain'}):
-        'add steps at small duty (5-20 %): the dead zone shows only there',
-}
 DEFAULT_EXPERIMENT = 'vary the step amplitudes and add rests at duty 0; longer records narrow the uncertainty'
 
 
 def separating_experiment(a: str, b: str) -> str:
-    return SEPARATING_EXPERIMENT.get(frozenset({a, b}), DEFAULT_EXPERIMENT)
+    """The experiment that separates `a` from `b` (effects or nominal parameters), from the catalog's records."""
+    return record_experiment(a, b) or DEFAULT_EXPERIMENT
 
 
 def excitation_advice(effect: str) -> str:
     """The experiment that shows `effect` best: the one separating it from a nominal parameter, if known."""
     for nominal in NOMINAL_PARAMETERS:
-        advice = SEPARATING_EXPERIMENT.get(frozenset({effect, nominal}))
+        advice = record_experiment(effect, nominal)
         if advice:
             return advice
     return DEFAULT_EXPERIMENT
@@ -148,11 +127,19 @@ class Diagnosis:
         return self.current.noise_rms
 
     def reported_parameters(self, comparison: Comparison) -> dict[str, float]:
-        """Fitted parameters in SI; with the motor observer, `thrust_resistance` is the observer's fitted Rm."""
+        """Fitted parameters in SI; with the motor observer, `armature_resistance` is the observer's fitted Rm."""
         parameters = dict(comparison.parameters)
         if self.prepared is not None and self.prepared.motor is not None:
-            parameters['thrust_resistance'] = self.prepared.motor.parameters['motor_resistance']
+            parameters['armature_resistance'] = self.prepared.motor.parameters['motor_resistance']
         return parameters
+
+    def estimators(self, comparison: Comparison) -> dict[str, str]:
+        """Which estimator gave each reported parameter (``output_error``, or ``motor_observer`` for the
+        armature resistance when the observer's back-EMF drives the thrust)."""
+        estimators = dict.fromkeys(comparison.parameters, 'output_error')
+        if self.prepared is not None and self.prepared.motor is not None:
+            estimators['armature_resistance'] = 'motor_observer'
+        return estimators
 
     def to_dict(self) -> dict:
         """The machine-readable form printed by ``aeropend diagnose --json``."""
@@ -168,6 +155,8 @@ class Diagnosis:
             'prediction_horizon': current.evaluation.prediction_horizon,
             'parameters': self.reported_parameters(current),
             'standard_errors': current.fit.standard_errors,
+            'estimator': 'output_error',
+            'estimators': self.estimators(current),
             'missing_effect': self.missing_effect,
             'verdict': self.verdict,
             'message': self.message,
@@ -274,7 +263,7 @@ def residual_structure(prep: PreparedRecord, comparison: Comparison, count: int 
     available = np.isfinite(simulated)
     residual = prep.angle - np.nan_to_num(simulated)
     angle, rate = prep.smoothed_angle, prep.smoothed_rate
-    e = prep.voltage - comparison.parameters.get('thrust_resistance', 0.0) * prep.current
+    e = prep.voltage - comparison.parameters.get('armature_resistance', 0.0) * prep.current
     thrust = e * np.abs(e)
     delay = int(round(0.1 / prep.sample_time))
     delayed = np.concatenate([np.full(delay, thrust[0]), thrust[:-delay]])
@@ -344,8 +333,9 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         delta_bic = augmented.fit.bic - current.fit.bic
         nonzero = all(abs(v) > 3 * s for v, s in ((values[k], errors.get(k, 0.0)) for k in values)
                       if np.isfinite(s) and s > 0) if values else False
-        if name == 'dead_zone':  # profiled, no standard error: require a threshold inside the data's range
-            nonzero = values.get('threshold_voltage', 0.0) > 0.0
+        gate = augmented.fit.structure.gate_parameter
+        if gate in values:  # profiled, no standard error: require a threshold inside the data's range
+            nonzero = values[gate] > 0.0
         improved = (excess_after <= (1.0 - MIN_IMPROVEMENT) * excess_now
                     and excess_now ** 2 - excess_after ** 2 >= (MIN_ABSOLUTE * noise) ** 2)
         relevant = improved and nonzero and excess_now > WITHIN_NOISE * noise
@@ -355,7 +345,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                               confounded_with=_correlated_nominals(augmented, name), evidence=evidence,
                               heldout_only=bool(relevant and not significant))
         candidate.explanation = _explain(name, values, errors, excess_now, excess_after, evidence)
-        if name == 'dead_zone' and 'threshold_interval' in augmented.fit.extra:
+        if gate in values and 'threshold_interval' in augmented.fit.extra:
             low, high = augmented.fit.extra['threshold_interval']
             candidate.explanation += (f' The threshold lies between the input levels {low:.3f} V and {high:.3f} V '
                                       f'present in the data.')
@@ -455,7 +445,7 @@ def format_summary(diagnosis: Diagnosis) -> str:
         error = current.fit.standard_errors.get(name, float('nan'))
         found = find_parameter(name)
         unit = NOMINAL_PARAMETERS[name][0] if name in NOMINAL_PARAMETERS else (found[1].unit if found else '')
-        if name == 'thrust_resistance' and observer:
+        if name == 'armature_resistance' and observer:
             lines.append(f'  {name:24s} {value:12.5g} {unit} (from the motor observer fitted to Ia)')
             continue
         lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit}')
@@ -466,7 +456,7 @@ def format_summary(diagnosis: Diagnosis) -> str:
                      f'{excess_error(before.rms_error, noise) * 1e3:.2f} -> '
                      f'{excess_error(current.rms_error, noise) * 1e3:.2f} mrad')
         for name in NOMINAL_PARAMETERS:
-            if name in before.parameters and name in current.parameters and name != 'thrust_resistance':
+            if name in before.parameters and name in current.parameters and name != 'armature_resistance':
                 old, new = before.parameters[name], current.parameters[name]
                 lines.append(f'  {name:24s} {old:10.4g} -> {new:10.4g} ({(new - old) / old * 100:+.1f} %)')
         for name, stats in current.evaluation.regimes.items():

@@ -6,8 +6,8 @@ Per window (time-first arrays of shape ``(n,)``, SI units):
    ``min_steps`` steps of the armature voltage and a voltage range of ``min_voltage_range`` V, and the held-out
    part must move the rod by more than a few noise levels; otherwise :class:`InsufficientDataError` says why.
 2. **Weak SINDy** on the training part (:func:`aeropend_core.identify.pendulum.identify_pendulum`): the coefficients of
-   ``d²angle/dt² = Σ w_j θ_j`` with standard errors and the derived parameters. Effects that the angle-only weak
-   form can express (``cable_torque``, ``angle_offset``) enter its library.
+   ``d²angle/dt² = Σ w_j θ_j`` with standard errors and the derived parameters. Effects whose catalog record has
+   a weak form enter its library.
 3. **Output-error refinement** on the training part, started from the weak-SINDy values, with *every* requested
    effect (friction, drag, lag, dead zone included): the physical parameters ± 1σ.
 4. **Held-out fit**: free-run simulation of the refined model over the held-out part, driven by the measured
@@ -33,8 +33,6 @@ from aeropend_core.model.effects import get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
 
-#: Effects the angle-only weak form can carry as library terms (others only enter the output-error stage).
-WEAK_FORM_EFFECTS = ('cable_torque', 'angle_offset')
 #: Output-error segment length [s] (NOTES.md section 7: ~10 s segments are stable, ~3 s collapse).
 SEGMENT_SECONDS = 10.0
 
@@ -53,7 +51,13 @@ class WindowResult:
         Weak-SINDy coefficients of d²angle/dt² [rad/s² per unit term] by term name.
     parameters : dict
         Physical parameters of the refined model (``gravity_stiffness`` 1/s², ``damping`` 1/s, ``thrust_gain``
-        rad/s²/V², ``thrust_resistance`` Ω, ``thrust_coefficient`` Kq N·s², plus each effect's parameters).
+        rad/s²/V², ``armature_resistance`` Ω, ``thrust_coefficient`` Kq N·s², plus each effect's parameters), in
+        the one vocabulary of :mod:`aeropend_core.model.names`.
+    estimators : dict
+        Which estimator gave each of ``parameters`` (``'output_error'``, ``'motor_observer'``); the weak-SINDy
+        values of the same quantities are in ``weak_parameters``.
+    weak_parameters : dict
+        The same quantities as estimated by weak SINDy on the training part (estimator ``'weak_sindy'``).
     fit_percent : float
         Held-out free-run fit [%] (100 is perfect; can be negative).
     rms_error, noise_rms : float
@@ -78,6 +82,8 @@ class WindowResult:
     held_out_seconds: float = 0.0
     compute_time: float = 0.0
     method: str = ''
+    estimators: dict[str, str] = field(default_factory=dict)
+    weak_parameters: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 def check_effect_names(names: Sequence[str]) -> tuple[str, ...]:
@@ -169,7 +175,7 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     InsufficientDataError
         Excitation too poor, or too few samples.
     """
-    from aeropend_core.identify.pendulum import identify_pendulum
+    from aeropend_core.identify.pendulum import identify_pendulum, weak_form_effects
 
     started = _time.perf_counter()
     effects = check_effect_names(effects)
@@ -187,22 +193,23 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
                                     '0.5 s held out')
     check_excitation(voltage, angle, n_train, sample_time)
 
-    weak_effects = [name for name in effects if name in WEAK_FORM_EFFECTS]
+    weak_effects = [name for name in effects if name in weak_form_effects()]
     weak = identify_pendulum(time[:n_train], voltage[:n_train], current[:n_train], angle[:n_train],
                              effects=weak_effects, parameters=parameters)
     equation = weak.equation
     coefficients = {name: (float(value), float(equation.standard_errors.get(name, float('nan'))))
                     for name, value in equation.coefficients.items()}
 
-    # Output-error refinement with every requested effect, started from the weak-form values.
+    # Output-error refinement with every requested effect, started from the weak-form values (same names).
     p = weak.parameters
     start = {'gravity_stiffness': max(p.get('gravity_stiffness', 0.0), 1.0), 'damping': max(p.get('damping', 0.0), 0.1),
-             'thrust_gain': max(p.get('thrust_acceleration_coefficient', 0.0), 1.0),
-             'thrust_resistance': min(max(p.get('armature_resistance', 1.0), 0.1), 5.0)}
-    if 'angle_offset' in p and math.isfinite(p['angle_offset']):
-        start['offset'] = float(np.clip(p['angle_offset'], -0.49, 0.49))
-    if 'cable_stiffness' in p and math.isfinite(p['cable_stiffness']):
-        start['cable_stiffness'] = max(p['cable_stiffness'], 0.0)
+             'thrust_gain': max(p.get('thrust_gain', 0.0), 1.0),
+             'armature_resistance': min(max(p.get('armature_resistance', 1.0), 0.1), 5.0)}
+    for name in weak_effects:
+        for parameter in get_effect(name).parameters:
+            value = p.get(parameter.name, float('nan'))
+            if math.isfinite(value):   # the fit moves starts off the bounds itself
+                start[parameter.name] = float(np.clip(value, parameter.lower, parameter.upper))
     scale = (parameters.gear_ratio * parameters.back_emf_constant) ** 2 / parameters.lever_per_inertia
     if (n - 1) * sample_time >= _compare_min_duration():
         values, errors, fit_percent, rms_error, noise = _held_out_by_compare(
@@ -215,11 +222,17 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
         method = 'window'
     values['thrust_coefficient'] = values['thrust_gain'] * scale
     errors['thrust_coefficient'] = errors.get('thrust_gain', float('nan')) * scale
+    estimators = {name: 'output_error' for name in values}
+    if method == 'compare' and not math.isfinite(errors.get('armature_resistance', 0.0)):
+        estimators['armature_resistance'] = 'motor_observer'
+    weak_parameters = {name: (float(p[name]), float(weak.standard_errors.get(name, float('nan'))))
+                       for name in values if name in p}
     return WindowResult(
         start=float(time[0]), stop=float(time[-1] + sample_time), effects=effects, coefficients=coefficients,
         parameters={name: (float(values[name]), float(errors.get(name, float('nan')))) for name in values},
         fit_percent=float(fit_percent), rms_error=float(rms_error), noise_rms=float(noise),
-        held_out_seconds=(n - n_train) * sample_time, compute_time=_time.perf_counter() - started, method=method)
+        held_out_seconds=(n - n_train) * sample_time, compute_time=_time.perf_counter() - started, method=method,
+        estimators=estimators, weak_parameters=weak_parameters)
 
 
 def _compare_min_duration() -> float:
@@ -243,8 +256,8 @@ def _held_out_by_compare(time, voltage, current, angle, effects, holdout_fractio
     if prepared.motor is not None:
         # With the motor observer the thrust voltage is its back-EMF (R = 0 in the pendulum model); the armature
         # resistance then comes from the observer fitted to Ia.
-        values['thrust_resistance'] = float(prepared.motor.parameters['motor_resistance'])
-        errors['thrust_resistance'] = float('nan')
+        values['armature_resistance'] = float(prepared.motor.parameters['motor_resistance'])
+        errors['armature_resistance'] = float('nan')
     return values, errors, comparison.fit_percent, comparison.rms_error, comparison.noise_rms
 
 
@@ -266,7 +279,8 @@ def _held_out_by_window(voltage, current, angle, effects, n_train, sample_time, 
     values = dict(refined.parameters)
     errors = dict(refined.standard_errors)
     held = oe.SegmentedData(cv[n_train:], ci[n_train:], angle[n_train:], [(0, n - n_train)], sample_time)
-    initial = oe.initial_states_from_data(held, values.get('offset', 0.0))
+    offset = structure.offset_parameter
+    initial = oe.initial_states_from_data(held, values.get(offset, 0.0) if offset else 0.0)
     predicted = oe.simulate_angle(held, refined.parameters, structure, initial)
     landed = np.isfinite(predicted)
     measured = angle[n_train:][landed]

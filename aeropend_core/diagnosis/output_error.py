@@ -28,24 +28,14 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from aeropend_core.model.effects import PENDULUM, find_parameter, get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.model.effects import KERNEL_KINDS, PENDULUM, find_parameter, get_effect, kernel_parameter
+from aeropend_core.model.names import NOMINAL_PARAMETERS
 
-#: Nominal parameters of the pendulum equation, their units and meanings.
-NOMINAL_PARAMETERS = {
-    'gravity_stiffness': ('1/s^2', 'mgd/J, gravity term per unit sin(angle)'),
-    'damping': ('1/s', 'c/J, viscous damping of the pivot'),
-    'thrust_gain': ('rad/s^2/V^2', '(L/J) Kq (N2/(N1 Kw))^2, thrust term per (Va - R Ia)^2'),
-    'thrust_resistance': ('ohm', 'R in Va - R Ia: armature resistance as seen by the thrust'),
-}
-#: Column of each built-in parameter in the kernel's parameter row.
-BUILTIN_COLUMNS = {'gravity_stiffness': 0, 'damping': 1, 'thrust_gain': 2, 'thrust_resistance': 3,
-                   'friction_acceleration': 4, 'drag_coefficient': 5, 'cable_stiffness': 6, 'offset': 7,
-                   'time_constant': 8, 'threshold_voltage': 9}
-BUILTIN_EFFECT_PARAMETER = {'coulomb_friction': 'friction_acceleration', 'quadratic_drag': 'drag_coefficient',
-                            'cable_torque': 'cable_stiffness', 'angle_offset': 'offset',
-                            'thrust_lag': 'time_constant', 'dead_zone': 'threshold_voltage'}
-N_BUILTIN = 10
+#: Column of each nominal parameter, then of each kernel kind, in the kernel's parameter row.
+NOMINAL_COLUMNS = {name: column for column, name in enumerate(NOMINAL_PARAMETERS)}
+KIND_COLUMNS = {kind: len(NOMINAL_PARAMETERS) + i for i, kind in enumerate(KERNEL_KINDS)}
+N_BUILTIN = len(NOMINAL_COLUMNS) + len(KIND_COLUMNS)
 #: Samples per integration step (RK4 half step lands on a sample).
 STRIDE = 2
 #: Smallest thrust-lag time constant the explicit RK4 step handles [s].
@@ -55,7 +45,10 @@ MIN_TIME_CONSTANT = 0.005
 @numba.njit(cache=True, nogil=True)
 def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, initial, sample_time, lag_on, gate_on,
                      out):
-    """RK4 free-run of every parameter row over every segment; writes predicted measured angle into `out`."""
+    """RK4 free-run of every parameter row over every segment; writes predicted measured angle into `out`.
+
+    Row columns: the nominal parameters, then the kernel kinds in ``KERNEL_KINDS`` order (rate_sign, rate_square,
+    angle_linear, measured_offset, thrust_lag_time, thrust_threshold)."""
     h = STRIDE * sample_time
     n_rows = theta.shape[0]
     for row in range(n_rows):
@@ -204,7 +197,7 @@ class Structure:
     def __post_init__(self) -> None:
         for name in self.effects:
             effect = get_effect(name)
-            if not effect.builtin and effect.kind != PENDULUM:
+            if not effect.compiled and effect.kind != PENDULUM:
                 raise AeropendError(f'effect {name!r}: only pendulum-kind user effects can be fitted '
                                     f'(it is {effect.kind!r})')
 
@@ -218,18 +211,36 @@ class Structure:
 
     @property
     def lag_on(self) -> bool:
-        return 'thrust_lag' in self.effects
+        return kernel_parameter(self.effects, 'thrust_lag_time') is not None
 
     @property
     def gate_on(self) -> bool:
-        return 'dead_zone' in self.effects
+        return kernel_parameter(self.effects, 'thrust_threshold') is not None
+
+    @property
+    def offset_parameter(self) -> str | None:
+        """The parameter that offsets the measured angle, if an effect in the model has one."""
+        return kernel_parameter(self.effects, 'measured_offset')
+
+    @property
+    def gate_parameter(self) -> str | None:
+        """The thrust gate's threshold parameter [V] (profiled over the input levels), if any."""
+        return kernel_parameter(self.effects, 'thrust_threshold')
+
+    def kernel_columns(self) -> dict[str, int]:
+        """Row column of each compiled effect parameter."""
+        columns = {}
+        for name in self.effects:
+            for kind, parameter in get_effect(name).kernel_terms:
+                columns[parameter] = KIND_COLUMNS[kind]
+        return columns
 
     def user_terms(self) -> list[tuple]:
         """User (non-built-in) effects with the row column of each of their parameters."""
         terms, column = [], N_BUILTIN
         for name in self.effects:
             effect = get_effect(name)
-            if effect.builtin:
+            if effect.compiled:
                 continue
             columns = {}
             for parameter in effect.parameter_names:
@@ -243,9 +254,10 @@ class Structure:
         terms = self.user_terms()
         width = N_BUILTIN + sum(len(columns) for _, columns in terms)
         row = np.zeros(width)
+        columns = {**NOMINAL_COLUMNS, **self.kernel_columns()}
         for name, value in values.items():
-            if name in BUILTIN_COLUMNS:
-                row[BUILTIN_COLUMNS[name]] = value
+            if name in columns:
+                row[columns[name]] += value
         for _, columns in terms:
             for name, column in columns.items():
                 row[column] = values[name]
@@ -308,7 +320,8 @@ class SegmentedData:
 
 @dataclass
 class OutputErrorFit:
-    """Result of :func:`fit_output_error`. Parameter dicts are SI (see :data:`NOMINAL_PARAMETERS` and the catalog).
+    """Result of :func:`fit_output_error`. Parameter dicts are SI (see :data:`NOMINAL_PARAMETERS` and the catalog);
+    ``estimator`` is ``'output_error'``.
 
     ``standard_errors`` are 1-sigma from the Gauss-Newton covariance, inflated for residual correlation.
     ``correlation`` is the parameter correlation matrix in ``free_names`` order.
@@ -347,10 +360,14 @@ def initial_states_from_data(data: SegmentedData, offset: float = 0.0) -> np.nda
     return states
 
 
+#: Magnitude of a meaningful change of each nominal parameter (optimiser scaling).
+_NOMINAL_SCALE = {'gravity_stiffness': 100.0, 'damping': 10.0, 'thrust_gain': 100.0, 'armature_resistance': 1.0}
+
+
 def _default_scale(name: str, value: float) -> float:
-    typical = {'gravity_stiffness': 100.0, 'damping': 10.0, 'thrust_gain': 100.0, 'thrust_resistance': 1.0,
-               'offset': 0.05, 'time_constant': 0.1}
-    return max(abs(value), typical.get(name, 1.0) * 0.1, 1e-6)
+    found = find_parameter(name)
+    typical = _NOMINAL_SCALE.get(name, (found[1].scale if found and found[1].scale else 1.0))
+    return max(abs(value), typical * 0.1, 1e-6)
 
 
 def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str, float],
@@ -376,7 +393,9 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     lower, upper = _bounds(free)
     x0 = np.clip(np.array([start[n] for n in free]), lower + 1e-9 * scale, upper - 1e-9 * scale) / scale
     n_seg = len(data.segments)
-    initial0 = initial_states_from_data(data, start.get('offset', fixed.get('offset', 0.0)))
+    offset_name = structure.offset_parameter
+    initial0 = initial_states_from_data(data, start.get(offset_name, fixed.get(offset_name, 0.0)) if offset_name
+                                        else 0.0)
     ic_scale = np.array([0.1, 1.0])
     z0 = np.concatenate([x0, (initial0 / ic_scale).ravel()])
     base_values = {n: fixed.get(n, start.get(n)) for n in names}
@@ -473,15 +492,13 @@ def _bounded(residuals: np.ndarray) -> np.ndarray:
 def _bounds(free: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
     lower, upper = [], []
     for name in free:
-        if name in ('offset',):
-            lo, hi = -0.5, 0.5
-        elif name == 'time_constant':
-            lo, hi = MIN_TIME_CONSTANT, 5.0
-        elif name in NOMINAL_PARAMETERS:
-            lo, hi = (0.0, np.inf) if name != 'thrust_resistance' else (0.0, 20.0)
+        if name in NOMINAL_PARAMETERS:
+            lo, hi = (0.0, np.inf) if name != 'armature_resistance' else (0.0, 20.0)
         else:
             found = find_parameter(name)
             lo, hi = (found[1].lower, found[1].upper) if found else (-np.inf, np.inf)
+            if found and ('thrust_lag_time', name) in found[0].kernel_terms:
+                lo = max(lo, MIN_TIME_CONSTANT)     # the explicit RK4 step's smallest lag
         lower.append(lo)
         upper.append(hi)
     return np.array(lower, dtype=float), np.array(upper, dtype=float)

@@ -26,7 +26,7 @@ from aeropend_core.diagnosis.diagnose import (BIC_MARGIN, MIN_ABSOLUTE, MIN_IMPR
                                     Diagnosis)
 from aeropend_core.model.effects import find_parameter
 from aeropend_core.errors import AeropendError
-from aeropend_core.diagnosis.output_error import NOMINAL_PARAMETERS
+from aeropend_core.model.names import NOMINAL_PARAMETERS
 
 #: Resolution of the embedded PNGs [dots per inch]; with the figure sizes below a page stays well under 2 MB.
 DPI = 90
@@ -532,7 +532,7 @@ def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
         sigma = comparison.fit.standard_errors.get(name, float('nan'))
         relative = abs(sigma / value) * 100 if value and np.isfinite(sigma) else float('nan')
         shown = f'{_sig(value)} &plusmn; {_sig(sigma, 2)}'
-        if name == 'thrust_resistance' and motor is not None:
+        if name == 'armature_resistance' and motor is not None:
             shown = f'{_sig(motor.parameters["motor_resistance"])} (motor observer)'
             meaning = ('the motor observer\'s back-EMF is the thrust input, so R is 0 in the pendulum model; '
                        'shown: the armature resistance the observer estimated')
@@ -673,7 +673,7 @@ def _before_after_html(diagnosis: Diagnosis) -> str:
     motor = diagnosis.prepared.motor if diagnosis.prepared is not None else None
     for name, new in current.parameters.items():
         unit, meaning = _unit_and_meaning(name)
-        if name == 'thrust_resistance' and motor is not None:
+        if name == 'armature_resistance' and motor is not None:
             continue
         meaning = _observer_meaning(name, motor, meaning)
         old = before.parameters.get(name)

@@ -96,6 +96,8 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
     if status:
         lines.append(f'identification: {status}'[:width])
     lines.append('')
+    lines.append('parameters of the refined model (estimator: output error; armature_resistance from the motor '
+                 'observer when its ±1σ is nan):')
     lines.append(f'{"parameter (SI)":26s} {"value":>13s} {"±1σ":>11s} {"running mean":>13s}  drift')
     for name, (value, error) in parameters.items():
         mean, deviation, drifting = drift.get(name, (float('nan'), None, False))
@@ -103,7 +105,8 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
         lines.append(f'{name:26s} {value:13.6g} {error:11.3g} {mean:13.6g}  {flag}')
     if coefficients:
         lines.append('')
-        lines.append('weak-SINDy coefficients of d²angle/dt² [rad/s² per unit term]:')
+        lines.append('estimator weak SINDy: coefficients of d²angle/dt² [rad/s² per unit term] (-sin(angle) '
+                     'coefficient = its gravity_stiffness, the start of the refinement above):')
         for name, (value, error) in coefficients.items():
             lines.append(f'  {name:38s} {value:13.6g} ± {error:.3g}')
     return '\n'.join(lines)
