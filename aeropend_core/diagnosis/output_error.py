@@ -28,9 +28,11 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
+from aeropend_core.diagnosis.evidence import effective_samples, hac_covariance
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import KERNEL_KINDS, PENDULUM, find_parameter, get_effect, kernel_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.model.sensor_filter import filter_angle
 
 #: Column of each nominal parameter, then of each kernel kind, in the kernel's parameter row.
 NOMINAL_COLUMNS = {name: column for column, name in enumerate(NOMINAL_PARAMETERS)}
@@ -218,6 +220,10 @@ class Structure:
         return kernel_parameter(self.effects, 'thrust_threshold') is not None
 
     @property
+    def filter_on(self) -> bool:
+        return kernel_parameter(self.effects, 'measured_lowpass') is not None
+
+    @property
     def offset_parameter(self) -> str | None:
         """The parameter that offsets the measured angle, if an effect in the model has one."""
         return kernel_parameter(self.effects, 'measured_offset')
@@ -280,7 +286,9 @@ class SegmentedData:
     sample_time : float
         Ts [s].
     gate_signal : ndarray, shape (n,), optional
-        The armature voltage [V] a dead zone compares with its threshold (default: `voltage`).
+        The armature voltage [V] a thrust gate compares with its threshold (default: `voltage`).
+    valid : ndarray of bool, shape (n,), optional
+        Samples that were measured (False: filled in a gap of lost samples); only valid samples give residuals.
     """
 
     voltage: np.ndarray
@@ -289,6 +297,7 @@ class SegmentedData:
     segments: list[tuple[int, int]]
     sample_time: float
     gate_signal: np.ndarray | None = None
+    valid: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.gate_signal is None:
@@ -302,6 +311,10 @@ class SegmentedData:
         self.residual_index = np.concatenate([np.arange(s, e, STRIDE) for s, e in self.segments])
         self.segment_of_residual = np.concatenate([np.full(len(range(s, e, STRIDE)), i)
                                                    for i, (s, e) in enumerate(self.segments)])
+        if self.valid is not None:
+            keep = np.asarray(self.valid, dtype=bool)[self.residual_index]
+            self.residual_index = self.residual_index[keep]
+            self.segment_of_residual = self.segment_of_residual[keep]
 
     def simulate(self, structure: Structure, rows: np.ndarray, initial: np.ndarray) -> np.ndarray:
         """Predicted measured angle for each row: array (n_rows, n); NaN outside the residual samples."""
@@ -315,6 +328,18 @@ class SegmentedData:
         else:
             _simulate_kernel(rows, self.voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
                              self.sample_time, structure.lag_on, structure.gate_on, out)
+        if structure.filter_on:
+            # the sensor's low-pass acts on the simulated measured angle (linear: after the offset is the same)
+            column = KIND_COLUMNS['measured_lowpass']
+            for row in range(len(rows)):
+                delay = rows[row, column]
+                if delay <= 0:
+                    continue
+                for s, (start, stop) in enumerate(zip(self.seg_start, self.seg_stop)):
+                    index = np.arange(start, stop, STRIDE)
+                    index = index[np.isfinite(out[row, index])]
+                    out[row, index] = filter_angle(out[row, index], delay, STRIDE * self.sample_time,
+                                                   initial[row, s, 1])
         return out
 
 
@@ -323,7 +348,9 @@ class OutputErrorFit:
     """Result of :func:`fit_output_error`. Parameter dicts are SI (see :data:`NOMINAL_PARAMETERS` and the catalog);
     ``estimator`` is ``'output_error'``.
 
-    ``standard_errors`` are 1-sigma from the Gauss-Newton covariance, inflated for residual correlation.
+    ``standard_errors`` are 1-sigma from the sandwich (HAC) covariance, valid under correlated residuals
+    (:mod:`aeropend_core.diagnosis.evidence`); ``residuals`` are the training residuals [rad] at
+    ``data.residual_index``.
     ``correlation`` is the parameter correlation matrix in ``free_names`` order.
     """
 
@@ -339,6 +366,7 @@ class OutputErrorFit:
     effective_samples: float
     success: bool
     message: str = ''
+    residuals: np.ndarray | None = field(default=None, repr=False)
     extra: dict = field(default_factory=dict)
 
     @property
@@ -458,12 +486,12 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     r = result.fun
     n = len(r)
     rms = float(np.sqrt(np.mean(r ** 2)))
-    effective = _effective_samples(r)
+    effective = effective_samples(r)
     jac = result.jac
     p = jac.shape[1]
-    dof_sigma2 = float(np.sum(r ** 2) / max(n - p, 1))
     try:
-        covariance_z = np.linalg.pinv(jac.T @ jac) * dof_sigma2 * (n / effective)
+        # sandwich covariance with block sums of the scores within segments: honest under correlated residuals
+        covariance_z = hac_covariance(jac, r, data.segment_of_residual) * n / max(n - p, 1)
     except np.linalg.LinAlgError:  # pragma: no cover - pinv rarely fails
         covariance_z = np.full((p, p), np.nan)
     cov = covariance_z[:n_free, :n_free] * np.outer(scale, scale)
@@ -476,7 +504,7 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     return OutputErrorFit(structure=structure, parameters=parameters, standard_errors=errors,
                           initial_states=initial, residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg,
                           free_names=free, correlation=correlation, effective_samples=effective,
-                          success=bool(result.success), message=str(result.message))
+                          success=bool(result.success), message=str(result.message), residuals=r)
 
 
 #: A simulation that diverges (unstable parameter trial) is scored as this many radians off, so the optimiser
@@ -502,17 +530,6 @@ def _bounds(free: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
         lower.append(lo)
         upper.append(hi)
     return np.array(lower, dtype=float), np.array(upper, dtype=float)
-
-
-def _effective_samples(residuals: np.ndarray) -> float:
-    """Number of effectively independent residuals, from the lag-1 autocorrelation (AR(1) approximation)."""
-    r = residuals - residuals.mean()
-    denominator = float(np.dot(r, r))
-    if denominator <= 0:
-        return float(len(r))
-    rho = float(np.dot(r[1:], r[:-1]) / denominator)
-    rho = min(max(rho, 0.0), 0.999)
-    return float(len(r) * (1 - rho) / (1 + rho))
 
 
 def simulate_angle(data: SegmentedData, fit_parameters: dict[str, float], structure: Structure,

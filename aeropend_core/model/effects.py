@@ -12,6 +12,8 @@ enters, and SI parameters. Four kinds say where it enters:
     a factor 0..1 on the thrust given the armature voltage: ``function(armature_voltage, **params)``.
 ``thrust_lag``
     thrust dynamics: the thrust follows its quasi-static value through a first-order lag (built in).
+``measurement_filter``
+    the measured angle is read through a low-pass filter (built in, :mod:`aeropend_core.model.sensor_filter`).
 
 Parameters of pendulum-side effects are per unit inertia, as they enter dW/dt.  Parameter names are unique across
 the catalog (they are the names every output uses, :mod:`aeropend_core.model.names`).
@@ -40,12 +42,14 @@ import numpy as np
 from aeropend_core.errors import AeropendError, UnknownEffectError
 
 PENDULUM, MEASUREMENT, THRUST_GATE, THRUST_LAG = 'pendulum', 'measurement', 'thrust_gate', 'thrust_lag'
-KINDS = (PENDULUM, MEASUREMENT, THRUST_GATE, THRUST_LAG)
+MEASUREMENT_FILTER = 'measurement_filter'
+KINDS = (PENDULUM, MEASUREMENT, THRUST_GATE, THRUST_LAG, MEASUREMENT_FILTER)
 EQUATION_OF_KIND = {
     PENDULUM: 'eq (6): dW/dt = ... + term(angle, W)',
     MEASUREMENT: 'measured angle = h(angle)',
     THRUST_GATE: 'eq (6): thrust f -> gate(Va) * f',
     THRUST_LAG: 'eq (6): f -> lagged thrust, time_constant * df/dt = f_eq5 - f',
+    MEASUREMENT_FILTER: 'measured angle = low-pass(angle)',
 }
 
 
@@ -81,8 +85,10 @@ class EffectParameter:
 #: ``measured_offset``  measured angle += p                       (p in rad)
 #: ``thrust_lag_time``  p df/dt = f_eq5 - f, f drives dW/dt      (p in s; 0 = no lag)
 #: ``thrust_threshold`` f = 0 where Va < p                        (p in V; gate)
+#: ``measured_lowpass`` measured angle through the 2nd-order RC ladder with DC delay p (p in s; 0 = none;
+#:                      :mod:`aeropend_core.model.sensor_filter`)
 KERNEL_KINDS = ('rate_sign', 'rate_square', 'angle_linear', 'measured_offset', 'thrust_lag_time',
-                'thrust_threshold')
+                'thrust_threshold', 'measured_lowpass')
 
 
 @dataclass(frozen=True)
@@ -124,7 +130,7 @@ class Effect:
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f'effect {self.name!r}: kind must be one of {KINDS}, got {self.kind!r}')
-        if self.kind != THRUST_LAG and self.function is None:
+        if self.kind not in (THRUST_LAG, MEASUREMENT_FILTER) and self.function is None:
             raise ValueError(f'effect {self.name!r} of kind {self.kind!r} needs a function')
         if not self.equation:
             object.__setattr__(self, 'equation', EQUATION_OF_KIND[self.kind])
@@ -404,6 +410,23 @@ add_effect(Effect(
 def _dead_zone(armature_voltage, threshold_voltage):
     return (np.asarray(armature_voltage) >= threshold_voltage).astype(float)
 
+
+add_effect(Effect(
+    'angle_filter', 'the angle is read through the sensor\'s 2nd-order RC low-pass (the AS5040\'s PWM output '
+    'filtered by R1 = R2 = 4.7 kOhm, C1 = C2 = 1 uF on the rig: delay 3RC = 14.1 ms, cut-off 12.7 Hz)',
+    'the measured angle lags the model by a constant delay after every change, also in free decays; like a '
+    'thrust lag in the linear regime (lags commute)', MEASUREMENT_FILTER,
+    (EffectParameter('filter_delay', 's', 'DC group delay of the angle filter, 3RC for the RC ladder (cut-off '
+                     '0.1787/delay Hz; at most 50 ms: a cut-off below 3.6 Hz would blur the pendulum itself)',
+                     0.0141, 0.0, 0.05, scale=0.01),),
+    None, 'measured angle = H(s) angle, H = 1/((d s/3)^2 + d s + 1)',
+    kernel_terms=(('measured_lowpass', 'filter_delay'),),
+    separated_from={
+        'thrust_lag': 'fix the filter at its hardware value (--fix angle_filter=0.0141 for R1 = R2 = 4.7 kOhm, '
+                      'C1 = C2 = 1 uF) or add free decays from large angles (duty 0 after the thrust has died '
+                      'away): the filter delays every angle change, the thrust lag only the thrust',
+        'damping': 'add free decays of several amplitudes and fast duty steps: the filter delays, damping dissipates',
+    }))
 
 for _effect in CATALOG.values():
     object.__setattr__(_effect, 'builtin', True)

@@ -21,6 +21,7 @@ from aeropend_core.model.effects import (FRICTION_SMOOTHING, MEASUREMENT, PENDUL
                                          get_effect, kernel_coefficients, kernel_parameter, resolve_effects)
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
+from aeropend_core.model.sensor_filter import StreamingFilter
 from aeropend_core.sim.noise import MeasurementNoise, apply_measurement_noise
 
 #: RK4 sub-steps per sample in the compiled path: h = Ts/8 = 0.26 ms, an eighth of La/Ra (error < 1e-6 rad).
@@ -172,6 +173,8 @@ class RigSimulator:
                                 'method="lsoda" for your own')
         self.method = 'compiled' if method == 'auto' and compiled else ('lsoda' if method == 'auto' else method)
         self._coefficients = kernel_coefficients(self.effects)
+        delay = self._coefficients['measured_lowpass']
+        self._sensor_filter = StreamingFilter(delay, self.sample_time) if delay > 0 else None
         # State: Ia [A], w1 [rad/s], y [rad], W [rad/s] (+ lagged thrust f [N]).
         self.state = np.zeros(5 if self._has_lag else 4)
         self.state[2] = initial_angle
@@ -286,6 +289,8 @@ class RigSimulator:
         measured_angle = states[:, 2]
         for function, values in self._measurement_terms:
             measured_angle = function(measured_angle, **values)
+        if self._sensor_filter is not None:
+            measured_angle = self._sensor_filter(measured_angle)
         measured = {'armature_voltage': voltage.copy(), 'armature_current': states[:, 0].copy(),
                     'angle': np.asarray(measured_angle, dtype=float).copy()}
         if self.noise is not None:
