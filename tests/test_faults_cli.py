@@ -169,7 +169,6 @@ BAD_RECORDINGS = [
     pytest.param('clash.csv', ('same time stamp', 'samples 1999 and 2000'), id='same-stamp-different-values'),
     pytest.param('rate_zero.csv', ('same time stamp', 'samples 0 and 1'), id='sample-rate-zero'),
     pytest.param('unexcited.csv', ('excit',), id='unexcited-constant-duty'),
-    pytest.param('gap.csv', ('gap',), id='lost-samples-gap'),
     pytest.param('garbage.mcap', ('not an MCAP file',), id='not-an-mcap'),
     pytest.param('no_mcap', ('no .mcap file',), id='folder-without-mcap'),
     pytest.param('cut_tiny.mcap', ('cut short', 'bag-recover'), id='mcap-truncated-before-first-chunk'),
@@ -183,6 +182,17 @@ BAD_RECORDINGS = [
 @pytest.mark.parametrize('name, keywords', BAD_RECORDINGS)
 def test_bad_recording_is_refused_clearly(files, verb, name, keywords):
     assert_refused(aeropend([verb, str(files / name)]), keywords)
+
+
+def test_lost_samples_identify_refuses_and_diagnose_splits_the_record_at_the_gap(files):
+    assert_refused(aeropend(['identify', str(files / 'gap.csv')]), ('gap',))
+    result = aeropend(['diagnose', str(files / 'gap.csv'), '--json', '--quiet'])
+    assert result.returncode == 0 and 'Traceback' not in result.stderr, result.stderr
+    report = json.loads(result.stdout)
+    gaps = report['gaps']
+    assert (gaps['count'], gaps['lost_samples']) == (1, 10)
+    assert gaps['longest_seconds'] == pytest.approx(10 * SAMPLE_TIME, rel=1e-3)
+    assert any('gap' in note for note in report['notes'])
 
 
 def test_too_short_for_the_diagnosis(files):

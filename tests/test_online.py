@@ -91,3 +91,17 @@ def test_window_refuses_non_finite_or_non_uniform_data():
         analyze_window(time, run.armature_voltage, run.armature_current, run.angle)
     with pytest.raises(AeropendError, match='values for'):
         analyze_window(run.time, run.armature_voltage[:-1], run.armature_current, run.angle)
+
+
+def test_parameter_trends_use_non_overlapping_windows_and_flag_a_sagging_gain():
+    from aeropend_core.diagnosis.online import ParameterTrends
+    trends = ParameterTrends(window_seconds=25.0)
+    rng = np.random.default_rng(4)
+    for k in range(60):                          # a window every 5 s for 300 s; the gain sags 15 % over it
+        stop = 25.0 + 5.0 * k
+        gain = 140.0 * (1 - 0.15 * (stop - 12.5) / 300.0) + rng.normal(scale=0.3)
+        report = trends.add(stop, {'thrust_gain': (gain, 0.3), 'damping': (13.8 + rng.normal(scale=0.05), 0.05)})
+    assert report['thrust_gain']['drifting'] and report['thrust_gain']['stretches'] == 12
+    assert report['thrust_gain']['change'] == pytest.approx(-0.14, abs=0.03)
+    assert not report['damping']['drifting']
+    assert trends.add(330.0, {'thrust_gain': (120.0, 0.3)})['thrust_gain']['stretches'] == 1   # model changed

@@ -30,7 +30,7 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
                                         initial_states_from_data)
 from aeropend_core.signals.motor import MotorFit, fit_motor
-from aeropend_core.signals.preprocess import condition_inputs, noise_rms, piecewise_constant
+from aeropend_core.signals.preprocess import condition_inputs, noise_rms, piecewise_constant, quantisation_step
 from aeropend_core.io.recording import Recording
 
 #: Fraction of the record used for training; the rest is held out.
@@ -86,6 +86,9 @@ class PreparedRecord:
     motor: MotorFit | None = None
     gate_voltage: np.ndarray | None = None
     gaps: Gaps | None = None
+    #: The angle's ADC step [rad] (0 when the angle is not quantised); a slow signal quantised without dither
+    #: carries an error up to step/sqrt(12) that the noise estimate (third differences) does not see.
+    angle_step: float = 0.0
     train: SegmentedData = field(init=False)
     heldout: SegmentedData = field(init=False)
 
@@ -328,7 +331,7 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
                           sample_time=sample_time, voltage=thrust_voltage, current=thrust_current,
                           step_indices=conditioned.step_indices, noise_rms=noise_rms(angle[valid]), split=split,
                           motor=motor, gate_voltage=stepped if stepped is not None else conditioned.armature_voltage,
-                          gaps=gaps)
+                          gaps=gaps, angle_step=quantisation_step(angle[valid]))
 
 
 def initial_guess(prep: PreparedRecord, threshold_voltage: float | None = None) -> dict[str, float]:

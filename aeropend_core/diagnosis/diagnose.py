@@ -53,9 +53,12 @@ DM_MIN = 2.33
 #: ... or above DM_WEAK when it removes at least MAJOR_SHARE of the held-out mean-square error beyond the noise ...
 DM_WEAK = 1.0
 MAJOR_SHARE = 0.5
-#: ... and the held-out mean-square error must fall by more than (this x the noise RMS)^2 (1 % of the noise
+#: ... and the held-out mean-square error must fall by more than (this x the noise RMS)^2 (0.25 % of the noise
 #: variance: below that an improvement is immaterial however certain).
-MATERIAL = 0.1
+MATERIAL = 0.05
+#: A candidate removing less than MAJOR_SHARE of the error beyond the noise must remove more than (this x the noise
+#: RMS)^2 of mean-square error.
+SMALL = 0.3
 #: "Unexplained" (the best set leaves error no catalog effect explains) is claimed beyond this multiple of the
 #: noise RMS: a smaller excess can come from the noise estimate itself (quantisation that does not dither is partly
 #: a slow bias).
@@ -402,7 +405,11 @@ def assess(prep: PreparedRecord, base: Comparison, augmented: Comparison, name: 
     # The held-out part is short and model errors are slow: it may hold only a few independent pieces of evidence,
     # so a candidate that removes most of its error beyond the noise needs only a positive DM above DM_WEAK.
     predictive = np.isfinite(dm) and (dm >= DM_MIN or (dm >= DM_WEAK and share >= MAJOR_SHARE))
-    supported = bool(t_statistic >= T_MIN and predictive and np.isfinite(gain) and gain >= (MATERIAL * noise) ** 2)
+    # A candidate that removes only a small part of a small error is more likely soaking up the nominal model's
+    # own imperfection than a missing effect: it must remove most of the error, or a non-small amount of it.
+    material = np.isfinite(gain) and gain >= (MATERIAL * noise) ** 2 and (
+        share >= MAJOR_SHARE or gain >= (SMALL * noise) ** 2)
+    supported = bool(t_statistic >= T_MIN and predictive and material)
     significant = bool(supported and delta_bic < -BIC_MARGIN)
     evidence = _regime_evidence(base, augmented)
     candidate = Candidate(name, augmented, values, errors, delta_bic, excess_before, excess_after, significant,
@@ -608,7 +615,11 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     drifting = [row for row in drift_rows if row['drifting']]
     # ---- verdict
     excess_final = excess_error(final.rms_error, noise)
-    remainder = excess_final > UNEXPLAINED_NOISE * noise
+    # quantisation without dither (a slow signal, little noise) leaves an error up to step/sqrt(12) that the noise
+    # estimate does not see: the remainder must exceed that too
+    # (counted on top of the noise estimate: conservative for the claim that something is missing)
+    quantisation = prep.angle_step ** 2 / 12.0
+    remainder = final.rms_error ** 2 - noise ** 2 - quantisation > (UNEXPLAINED_NOISE * noise) ** 2
     structure: list[dict] = []
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]

@@ -313,3 +313,36 @@ def fill_gaps(sequence: np.ndarray, columns: dict[str, np.ndarray]) -> tuple[np.
     if missing == 0:
         return grid, {k: np.asarray(v, dtype=float) for k, v in columns.items()}, 0
     return grid, {k: np.interp(grid, sequence, np.asarray(v, dtype=float)) for k, v in columns.items()}, missing
+
+
+class ParameterTrends:
+    """The diagnosis's drift test (:func:`aeropend_core.diagnosis.drift.trend_test`) over the online windows.
+
+    Consecutive windows overlap (a 25 s window every 5 s), so their estimates are not independent: the trend is
+    tested on windows that do not overlap (the latest one and every earlier one ending before the next kept one
+    starts). The history restarts when the set of parameter names changes (the model's effects changed).
+
+    Parameters
+    ----------
+    window_seconds : float
+        Length of the windows [s] (the node's ``window_s``).
+    """
+
+    def __init__(self, window_seconds: float = 25.0) -> None:
+        self.window_seconds = float(window_seconds)
+        self.history: list[tuple[float, dict[str, float]]] = []
+
+    def add(self, stop: float, values: dict[str, tuple[float, float] | float]) -> dict[str, dict]:
+        """Add the window ending at `stop` [s]; returns ``{name: trend row}`` (``drifting`` flags a drift)."""
+        from aeropend_core.diagnosis.drift import trend_test
+        plain = {name: float(v[0] if isinstance(v, tuple) else v) for name, v in values.items()}
+        if self.history and set(self.history[-1][1]) != set(plain):
+            self.history = []
+        self.history.append((float(stop), plain))
+        kept = [self.history[-1]]
+        for stop_time, row in reversed(self.history[:-1]):
+            if stop_time <= kept[-1][0] - self.window_seconds:
+                kept.append((stop_time, row))
+        kept.reverse()
+        times = np.array([t - 0.5 * self.window_seconds for t, _ in kept])
+        return {name: trend_test(times, np.array([row[name] for _, row in kept]), name) for name in plain}
