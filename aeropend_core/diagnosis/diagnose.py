@@ -415,7 +415,9 @@ def assess(prep: PreparedRecord, base: Comparison, augmented: Comparison, name: 
     evidence = _regime_evidence(base, augmented)
     candidate = Candidate(name, augmented, values, errors, delta_bic, excess_before, excess_after, significant,
                           confounded_with=_correlated_nominals(augmented, name), evidence=evidence,
-                          heldout_only=bool(supported and not significant), t_statistic=float(t_statistic),
+                          heldout_only=bool(not significant and t_statistic >= T_MIN and material
+                                            and (predictive or (dm > 0 and share >= MAJOR_SHARE))),
+                          t_statistic=float(t_statistic),
                           dm_statistic=float(dm), mse_gain=float(gain), share_removed=share)
     candidate.explanation = _explain(name, values, errors, excess_before, excess_after, evidence)
     candidate.explanation += (f' Evidence: parameter {t_statistic:.1f} HAC standard errors from zero, training BIC '
@@ -618,9 +620,11 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     excess_final = excess_error(final.rms_error, noise)
     # quantisation without dither (a slow signal, little noise) leaves an error up to step/sqrt(12) that the noise
     # estimate does not see: the remainder must exceed that too
-    # (counted on top of the noise estimate: conservative for the claim that something is missing)
+    # (counted on top of the noise estimate: conservative for the claim that something is missing), and an error
+    # within half an encoder count is no evidence: the reference is at least half a count
     quantisation = prep.angle_step ** 2 / 12.0
-    remainder = final.rms_error ** 2 - noise ** 2 - quantisation > (UNEXPLAINED_NOISE * noise) ** 2
+    reference = max(noise, 0.5 * prep.angle_step)
+    remainder = final.rms_error ** 2 - noise ** 2 - quantisation > (UNEXPLAINED_NOISE * reference) ** 2
     structure: list[dict] = []
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]

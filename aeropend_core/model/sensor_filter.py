@@ -23,6 +23,9 @@ from scipy.signal import cont2discrete, lfilter, lfilter_zi, lfiltic
 RIG_RESISTANCE = 4.7e3
 RIG_CAPACITANCE = 1e-6
 RIG_FILTER_DELAY = 3.0 * RIG_RESISTANCE * RIG_CAPACITANCE
+#: Delays below this [s] are read as no filter (far below any sample step; the discretisation is ill-conditioned
+#: there).
+MIN_DELAY = 1e-4
 
 
 def cutoff_frequency(delay: float) -> float:
@@ -46,7 +49,7 @@ def filter_angle(angle: np.ndarray, delay: float, step: float, rate: float = 0.0
     first sample with that rate (so the filter output starts at ``angle[0] - delay * rate``).
     """
     angle = np.asarray(angle, dtype=float)
-    if delay <= 0 or angle.size == 0:
+    if not delay >= MIN_DELAY or angle.size == 0:
         return angle.copy()
     b, a = coefficients(float(delay), float(step))
     order = max(len(a), len(b)) - 1
@@ -61,7 +64,7 @@ class StreamingFilter:
     """The same filter over consecutive blocks of samples (the streaming simulator); starts at rest."""
 
     def __init__(self, delay: float, step: float) -> None:
-        self.b, self.a = coefficients(float(delay), float(step))
+        self.b, self.a = coefficients(max(float(delay), MIN_DELAY), float(step))
         self.state: np.ndarray | None = None
 
     def __call__(self, angle: np.ndarray) -> np.ndarray:
