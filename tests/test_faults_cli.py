@@ -184,8 +184,10 @@ def test_bad_recording_is_refused_clearly(files, verb, name, keywords):
     assert_refused(aeropend([verb, str(files / name)]), keywords)
 
 
-def test_lost_samples_identify_refuses_and_diagnose_splits_the_record_at_the_gap(files):
-    assert_refused(aeropend(['identify', str(files / 'gap.csv')]), ('gap',))
+def test_lost_samples_split_the_record_at_the_gap_for_identify_and_diagnose(files):
+    fitted = aeropend(['identify', str(files / 'gap.csv'), '--json'])
+    assert fitted.returncode == 0 and 'gap' in fitted.stderr, fitted.stderr
+    assert json.loads(fitted.stdout)['gaps'] == {'count': 1, 'pieces': 2}
     result = aeropend(['diagnose', str(files / 'gap.csv'), '--json', '--quiet'])
     assert result.returncode == 0 and 'Traceback' not in result.stderr, result.stderr
     report = json.loads(result.stdout)

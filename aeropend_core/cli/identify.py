@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 
 import numpy as np
 
@@ -56,6 +57,19 @@ def _window(recording, start: float | None, stop: float | None):
     return window
 
 
+def _pieces_between_gaps(time: np.ndarray, shortest: float = 1.0) -> list[tuple[int, int]]:
+    """Sample ranges between gaps (a step over 1.5 median steps) at least `shortest` [s] long (all: no gap)."""
+    if time.size < 3:
+        return [(0, time.size)]
+    steps = np.diff(time)
+    step = float(np.median(steps))
+    cuts = np.flatnonzero(steps > 1.5 * step) + 1
+    if cuts.size == 0 or not step > 0:
+        return [(0, time.size)]
+    bounds = np.concatenate(([0], cuts, [time.size]))
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if (b - a) * step >= shortest]
+
+
 def main(args: argparse.Namespace) -> int:
     from aeropend_core.cli._checks import check_effect_names
     check_effect_names(args.effect, '--effect')
@@ -64,10 +78,19 @@ def main(args: argparse.Namespace) -> int:
         recording = _window(recording, args.start, args.stop)
     # the fitting stack (scipy, numba) is imported once the input is known good: bad input is refused at once
     from aeropend_core.identify.pendulum import identify_full_state, parameter_unit_of, identify_pendulum
+    pieces = _pieces_between_gaps(np.asarray(recording.time, dtype=float))
     if args.model == 'pendulum':
-        fit = identify_pendulum(recording.time, recording.signal('armature_voltage'),
-                                recording.signal('armature_current'), recording.signal('angle'),
-                                duty=recording.signals.get('duty'), effects=args.effect)
+        names = ('armature_voltage', 'armature_current', 'angle')
+        columns = [np.asarray(recording.signal(name), dtype=float) for name in names]
+        duty = recording.signals.get('duty')
+        if len(pieces) > 1:    # lost samples: the weak form is fitted on the pieces between the gaps, together
+            cut = [[c[a:b] for a, b in pieces] for c in [np.asarray(recording.time, dtype=float), *columns]]
+            fit = identify_pendulum(*cut, duty=None if duty is None else [duty[a:b] for a, b in pieces],
+                                    effects=args.effect)
+            print(f'aeropend identify: {len(pieces) - 1} gap(s) of lost samples in the time stamps: fitted on the '
+                  f'{len(pieces)} pieces between them together', file=sys.stderr)
+        else:
+            fit = identify_pendulum(recording.time, *columns, duty=duty, effects=args.effect)
     else:
         fit = identify_full_state(recording)
     if args.json:
@@ -79,6 +102,7 @@ def main(args: argparse.Namespace) -> int:
             'parameter_standard_errors': finite_json(fit.standard_errors),
             'units': {k: parameter_unit_of(k) for k in fit.parameters},
             'estimator': 'weak_sindy',
+            'gaps': {'count': len(pieces) - 1, 'pieces': len(pieces)},
             'samples': len(recording),
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
         }
