@@ -35,8 +35,8 @@ with its status at WARN and the findings in ``data_quality`` / ``data_quality_de
 longer than 0.5 s (about one swing of the rod) is not filled: the window is withheld (ERROR).
 
 Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
-are changeable at runtime (``ros2 param set /identification_node effects "['angle_offset']"``); unknown effect
-names are rejected with the reason. The new values apply from the next window.
+are changeable at runtime (``ros2 param set /identification_node effects "['NAME']"``, names from
+``aeropend effects``); unknown effect names are rejected with the reason. The new values apply from the next window.
 """
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ The parameters travel as ``sensor_msgs/JointState`` (``name[i]``, value ``positi
 Foxglove a small user script (saved in the layout) turns each message into ``/foxglove_script/aeropend_parameters``
 with one field per parameter name, ``{value, sigma, plus_sigma, minus_sigma}``, so the plots address parameters by name
 whatever effects the model has; PlotJuggler names JointState entries itself (``.../parameters/damping/position``) and
-the bands are custom series (Lua ``value ± v1``). A parameter whose σ is unknown (NaN, e.g. ``thrust_resistance``
+the bands are custom series (Lua ``value ± v1``). A parameter whose σ is unknown (NaN, e.g. ``armature_resistance``
 from the motor observer) shows no band.
 
 Regenerate after changing the topics: ``python -m aeropend_ros.layouts`` (tests/test_foxglove.py checks that the
@@ -38,14 +38,16 @@ SCRIPT_TOPIC = '/foxglove_script/aeropend_parameters'
 #: ``name`` of the fit messages, in order (identification_node publishes them so).
 FIT_NAMES = ('fit_percent', 'rms_error', 'noise_rms', 'held_out_seconds', 'compute_time', 'window_start')
 
-#: Parameters of the model as published (nominal first), with their SI unit: plotted with their ±1σ band.
-NOMINAL_BANDS = {
-    'gravity_stiffness': 'mgd/J [1/s²]',
-    'damping': 'c/J [1/s]',
-    'thrust_gain': 'k [rad/s²/V²]',
-    'thrust_coefficient': 'Kq [N·s²]',
-    'thrust_resistance': 'R [Ω]',
-}
+#: Symbols shown next to the nominal parameters' names (the names and units come from aeropend_core.model.names).
+_SYMBOLS = {'gravity_stiffness': 'mgd/J', 'damping': 'c/J', 'thrust_gain': 'k', 'thrust_coefficient': 'Kq',
+            'armature_resistance': 'R'}
+
+
+def _nominal_bands() -> dict[str, str]:
+    """The nominal and derived parameters as published (nominal first), titled with symbol and SI unit."""
+    from aeropend_core.model.names import NOMINAL_PARAMETERS, parameter_unit
+    names = [*NOMINAL_PARAMETERS, 'thrust_coefficient']
+    return {name: f'{_SYMBOLS.get(name, name)} [{parameter_unit(name)}]' for name in names}
 
 
 def _effect_bands() -> dict[str, str]:
@@ -60,7 +62,7 @@ def _effect_bands() -> dict[str, str]:
 
 def band_parameters() -> dict[str, str]:
     """Name -> plot title of every parameter drawn with its band (nominal, then the effects')."""
-    return {**NOMINAL_BANDS, **_effect_bands()}
+    return {**_nominal_bands(), **_effect_bands()}
 
 
 BAND_PARAMETERS = tuple(band_parameters())
@@ -142,7 +144,7 @@ def foxglove_layout():
             (_fit('rms_error'), 'RMS error [rad]', '#d7301f', 'solid'),
             (_fit('noise_rms'), 'noise RMS [rad]', '#555555', 'dashed')]),
     ])
-    nominal = column([band(name, f'{title} ± 1σ') for name, title in NOMINAL_BANDS.items()])
+    nominal = column([band(name, f'{title} ± 1σ') for name, title in _nominal_bands().items()])
     effects = column([band(name, f'{title} ± 1σ') for name, title in _effect_bands().items()])
     diagnostics = fl.SplitContainer(direction='row', items=[
         fl.SplitItem(content=fl.DiagnosticsSummaryPanel(title='Diagnostics', config=fl.DiagnosticsSummaryConfig(
@@ -205,7 +207,7 @@ def plotjuggler_layout_xml() -> str:
                 f'   <additional_sources>\n    <v1>{escape(sigma)}</v1>\n   </additional_sources>\n  </snippet>\n')
         return plot([(value, '#1f63b4'), (f'{name} +1 sigma', '#7fa8d9'), (f'{name} -1 sigma', '#7fa8d9')])
 
-    nominal = [band(name) for name in NOMINAL_BANDS]
+    nominal = [band(name) for name in _nominal_bands()]
     effects = [band(name) for name in _effect_bands()]
     topics = [samples, PARAMETERS_TOPIC, FIT_TOPIC, DIAGNOSTICS_TOPIC, '/aeropend/duty_cmd',
               '/aeropend/identification/coefficients']

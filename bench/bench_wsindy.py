@@ -53,7 +53,7 @@ def run_live_rig(seed: int, repeats: int):
         fit = identify_pendulum(*args, duty=tr.duty)
         times.append(time.perf_counter() - t0)
     errors = {k: fit.parameters[k] / getattr(P, k) - 1 for k in
-              ('gravity_stiffness', 'damping', 'thrust_acceleration_coefficient')}
+              ('gravity_stiffness', 'damping', 'thrust_gain')}
     return statistics.median(times), errors
 
 

@@ -20,8 +20,9 @@ Every run is classified:
 ``confounded_truth``   verdict confounded, the hidden effect among the named ones (honest uncertainty, not correct)
 ``confounded_other``   verdict confounded, the hidden effect not among them
 ``missed``             verdict nothing_missing
-``wrong``              verdict effect_found naming another effect
+``wrong``              verdict effect_found naming another effect (or more than the hidden one)
 ``unexplained``        verdict unexplained (model off, no catalog effect helps)
+``drift``              verdict drift (a nominal parameter trends in time)
 ``crash``              the diagnosis raised (the traceback is kept in the JSON)
 
 For the clean case ``missed`` (nothing_missing) is the right answer; every other outcome is a false alarm.
@@ -75,7 +76,7 @@ RELIABLE = 0.75
 #: An effect still reliably found at the smallest tested magnitude is tried at half of it, and so on, down to
 #: this multiple of its typical value (so that every curve shows where detection fails).
 SMALLEST_FACTOR = 1 / 256
-OUTCOMES = ('correct', 'confounded_truth', 'confounded_other', 'missed', 'wrong', 'unexplained', 'crash')
+OUTCOMES = ('correct', 'confounded_truth', 'confounded_other', 'missed', 'wrong', 'unexplained', 'drift', 'crash')
 CLEAN = 'none'
 #: --varied: every nominal parameter moved by 20 % (as tests/test_diagnose.py), so that nothing leans on defaults.
 VARIED_PARAMETERS = DEFAULT_PARAMETERS.scaled(
@@ -142,10 +143,9 @@ def run_case(case: dict) -> dict:
         return result
     named = []
     if found.verdict == 'effect_found':
-        named = [found.missing_effect]
+        named = list(found.missing_effects)
     elif found.verdict == 'confounded':
-        best = next(c for c in found.candidates if c.significant)
-        named = [best.effect] + [n for n in best.confounded_with if n in CATALOG and n != best.effect]
+        named = [n for f in found.found for n in [f.effect, *f.confounded_with] if n in CATALOG]
     result.update(verdict=found.verdict, named=named, noise_rms=found.noise_rms,
                   excess_now=_excess(found.current.rms_error, found.noise_rms),
                   max_true_angle_deg=math.degrees(float(abs(trajectory.truth['angle']).max())),
@@ -173,13 +173,13 @@ def _excess(rms: float, noise: float) -> float:
 def classify(effect: str, verdict: str, named: list[str]) -> str:
     """One of OUTCOMES for a diagnosis of data with `effect` hidden (CLEAN: nothing hidden)."""
     if verdict == 'effect_found':
-        return 'correct' if named and named[0] == effect else 'wrong'
+        return 'correct' if named == [effect] else 'wrong'
     if verdict == 'confounded':
         return 'confounded_truth' if effect in named else 'confounded_other'
     if verdict == 'nothing_missing':
         return 'missed'
-    if verdict == 'unexplained':
-        return 'unexplained'
+    if verdict in ('unexplained', 'drift'):
+        return verdict
     return 'crash'
 
 
@@ -322,7 +322,7 @@ def plot(report: dict, out: Path) -> list[str]:
     effects = list(report['thresholds'])
     styles = {'correct': ('C2', 'o', 'correct'), 'confounded_truth': ('C0', 's', 'confounded incl. truth'),
               'missed': ('C7', 'v', 'missed (nothing missing)'), 'wrong': ('C3', 'x', 'wrong name / confounded w/o'),
-              'unexplained': ('C1', 'd', 'unexplained'), 'crash': ('k', '*', 'crash')}
+              'unexplained': ('C1', 'd', 'unexplained'), 'drift': ('C4', '^', 'drift'), 'crash': ('k', '*', 'crash')}
     written = []
 
     def rates(points, key):

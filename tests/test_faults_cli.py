@@ -168,7 +168,6 @@ BAD_RECORDINGS = [
     pytest.param('clash.csv', ('same time stamp', 'samples 1999 and 2000'), id='same-stamp-different-values'),
     pytest.param('rate_zero.csv', ('same time stamp', 'samples 0 and 1'), id='sample-rate-zero'),
     pytest.param('unexcited.csv', ('excit',), id='unexcited-constant-duty'),
-    pytest.param('gap.csv', ('gap',), id='lost-samples-gap'),
     pytest.param('garbage.mcap', ('not an MCAP file',), id='not-an-mcap'),
     pytest.param('no_mcap', ('no .mcap file',), id='folder-without-mcap'),
     pytest.param('cut_tiny.mcap', ('cut short', 'bag-recover'), id='mcap-truncated-before-first-chunk'),
@@ -181,6 +180,19 @@ BAD_RECORDINGS = [
 @pytest.mark.parametrize('name, keywords', BAD_RECORDINGS)
 def test_bad_recording_is_refused_clearly(files, verb, name, keywords):
     assert_refused(aeropend([verb, str(files / name)]), keywords)
+
+
+def test_lost_samples_split_the_record_at_the_gap_for_identify_and_diagnose(files):
+    fitted = aeropend(['identify', str(files / 'gap.csv'), '--json'])
+    assert fitted.returncode == 0 and 'gap' in fitted.stderr, fitted.stderr
+    assert json.loads(fitted.stdout)['gaps'] == {'count': 1, 'pieces': 2}
+    result = aeropend(['diagnose', str(files / 'gap.csv'), '--json', '--quiet'])
+    assert result.returncode == 0 and 'Traceback' not in result.stderr, result.stderr
+    report = json.loads(result.stdout)
+    gaps = report['gaps']
+    assert (gaps['count'], gaps['lost_samples']) == (1, 10)
+    assert gaps['longest_seconds'] == pytest.approx(10 * SAMPLE_TIME, rel=1e-3)
+    assert any('gap' in note for note in report['notes'])
 
 
 def test_too_short_for_the_diagnosis(files):
@@ -483,7 +495,7 @@ def test_identify_refuses_or_says_every_repair(faulted, clean_identify, name):
     warned = [line for line in result.stderr.splitlines() if 'aeropend identify: warning: ' in line]
     assert len(warned) == len(out['warnings']) and all(f"[{w['code']}, " in line
                                                        for w, line in zip(out['warnings'], warned))
-    for key in ('gravity_stiffness', 'damping', 'thrust_acceleration_coefficient'):
+    for key in ('gravity_stiffness', 'damping', 'thrust_gain'):
         reference = clean_identify['parameters'][key]
         tolerance = max(0.01 * abs(reference), clean_identify['parameter_standard_errors'][key])
         assert abs(out['parameters'][key] - reference) <= tolerance, (key, out['parameters'][key], reference)

@@ -26,7 +26,7 @@ from aeropend_core.io.recording import load_recording
 from aeropend_core.sim.simulate import simulate
 
 LIVE_TRUTH = {'gravity_stiffness': P.gravity_stiffness, 'damping': P.damping,
-              'thrust_acceleration_coefficient': P.thrust_acceleration_coefficient}
+              'thrust_gain': P.thrust_gain}
 
 
 def rig_record(seed, duration, noise=None, sample_time=SAMPLE_TIME):
@@ -65,7 +65,7 @@ def test_live_rig_step_kick_must_be_handled(live_records):
     """Without the La·dIa/dt handling the thrust kick at each step biases the fit far beyond 2 %."""
     tr = live_records[0]
     raw = identify_pendulum(tr.time, tr.armature_voltage, tr.armature_current, tr.angle, step_handling='none')
-    assert abs(raw.parameters['thrust_acceleration_coefficient'] / P.thrust_acceleration_coefficient - 1) > 0.05
+    assert abs(raw.parameters['thrust_gain'] / P.thrust_gain - 1) > 0.05
 
 
 def test_interval_current_removes_the_kick():

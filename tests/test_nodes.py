@@ -291,12 +291,12 @@ def test_identification_matches_truth_and_improves_when_effect_added(own_domain)
             good = set_parameters(ros_context, '/identification_node',
                                   [Parameter('effects', value=['angle_offset'])])
             assert good[0].successful, good[0].reason
-            assert wait_for(lambda: len(results.windows(with_parameter='offset')) >= 2, 90.0, executor=spin), \
+            assert wait_for(lambda: len(results.windows(with_parameter='angle_offset')) >= 2, 90.0, executor=spin), \
                 identification.output()
     finally:
         results.close()
-    before = results.windows(without_parameter='offset')
-    after = results.windows(with_parameter='offset')
+    before = results.windows(without_parameter='angle_offset')
+    after = results.windows(with_parameter='angle_offset')
     fits_before = [fit['fit_percent'][0] for _, fit in before]
     fits_after = [fit['fit_percent'][0] for _, fit in after]
     excess_before = [fit['rms_error'][0] / fit['noise_rms'][0] for _, fit in before]
@@ -315,17 +315,17 @@ def test_identification_matches_truth_and_improves_when_effect_added(own_domain)
         # their ratio thrust gain / gravity (the static thrust-to-angle map) within 3 %.
         assert parameters['gravity_stiffness'][0] == pytest.approx(truth.gravity_stiffness, rel=0.08)
         assert parameters['damping'][0] == pytest.approx(truth.damping, rel=0.08)
-        assert parameters['thrust_gain'][0] == pytest.approx(truth.thrust_acceleration_coefficient, rel=0.08)
+        assert parameters['thrust_gain'][0] == pytest.approx(truth.thrust_gain, rel=0.08)
         assert parameters['thrust_gain'][0] / parameters['gravity_stiffness'][0] == pytest.approx(
-            truth.thrust_acceleration_coefficient / truth.gravity_stiffness, rel=0.03)
-        assert parameters['thrust_resistance'][0] == pytest.approx(truth.armature_resistance, rel=0.05)
-        assert parameters['offset'][0] == pytest.approx(0.08, abs=0.01)
+            truth.thrust_gain / truth.gravity_stiffness, rel=0.03)
+        assert parameters['armature_resistance'][0] == pytest.approx(truth.armature_resistance, rel=0.05)
+        assert parameters['angle_offset'][0] == pytest.approx(0.08, abs=0.01)
         assert parameters['thrust_coefficient'][0] == pytest.approx(truth.thrust_coefficient, rel=0.08)
         # The weak-SINDy stage alone (coefficients of d2angle/dt2 on the training part of a window) within 10 %.
         coefficients = fit['coefficients']
         assert -coefficients['sin(angle)'][0] == pytest.approx(truth.gravity_stiffness, rel=0.10)
         assert -coefficients['dangle/dt'][0] == pytest.approx(truth.damping, rel=0.10)
-        assert coefficients['armature_voltage^2'][0] == pytest.approx(truth.thrust_acceleration_coefficient, rel=0.10)
+        assert coefficients['armature_voltage^2'][0] == pytest.approx(truth.thrust_gain, rel=0.10)
         assert 'cos(angle)' in coefficients and coefficients['cos(angle)'][1] > 0
         assert all(math.isfinite(error) and error > 0 for _, error in
                    (parameters[k] for k in ('gravity_stiffness', 'damping', 'thrust_gain')))

@@ -48,11 +48,11 @@ def test_window_recovers_truth_and_hidden_offset(duration, method):
     assert with_offset.rms_error < 2 * with_offset.noise_rms < without.rms_error
     p = with_offset.parameters
     truth = DEFAULT_PARAMETERS
-    assert p['offset'][0] == pytest.approx(0.06, abs=0.005)
+    assert p['angle_offset'][0] == pytest.approx(0.06, abs=0.005)
     assert p['gravity_stiffness'][0] == pytest.approx(truth.gravity_stiffness, rel=0.08)
-    assert p['thrust_gain'][0] == pytest.approx(truth.thrust_acceleration_coefficient, rel=0.08)
+    assert p['thrust_gain'][0] == pytest.approx(truth.thrust_gain, rel=0.08)
     assert p['thrust_gain'][0] / p['gravity_stiffness'][0] == pytest.approx(
-        truth.thrust_acceleration_coefficient / truth.gravity_stiffness, rel=0.03)
+        truth.thrust_gain / truth.gravity_stiffness, rel=0.03)
     assert 'sin(angle)' in with_offset.coefficients and 'cos(angle)' in with_offset.coefficients
 
 
@@ -111,3 +111,17 @@ def test_window_passes_the_data_quality_gate():
     frozen[1000:2500] = frozen[1000]
     with pytest.raises(DataQualityError, match='stuck'):
         analyze_window(run.time, run.armature_voltage, run.armature_current, frozen)
+
+
+def test_parameter_trends_use_non_overlapping_windows_and_flag_a_sagging_gain():
+    from aeropend_core.diagnosis.online import ParameterTrends
+    trends = ParameterTrends(window_seconds=25.0)
+    rng = np.random.default_rng(4)
+    for k in range(60):                          # a window every 5 s for 300 s; the gain sags 15 % over it
+        stop = 25.0 + 5.0 * k
+        gain = 140.0 * (1 - 0.15 * (stop - 12.5) / 300.0) + rng.normal(scale=0.3)
+        report = trends.add(stop, {'thrust_gain': (gain, 0.3), 'damping': (13.8 + rng.normal(scale=0.05), 0.05)})
+    assert report['thrust_gain']['drifting'] and report['thrust_gain']['stretches'] == 12
+    assert report['thrust_gain']['change'] == pytest.approx(-0.14, abs=0.03)
+    assert not report['damping']['drifting']
+    assert trends.add(330.0, {'thrust_gain': (120.0, 0.3)})['thrust_gain']['stretches'] == 1   # model changed

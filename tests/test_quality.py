@@ -65,7 +65,7 @@ def gate(columns, sample_time=SAMPLE_TIME):
 def assert_same_numbers(recording, clean_fit, rel=0.01, sigmas=1.0):
     """The repaired record identifies as the clean one: within `sigmas` standard errors or `rel`."""
     result = fit_recording(recording)
-    for name in ('gravity_stiffness', 'damping', 'thrust_acceleration_coefficient'):
+    for name in ('gravity_stiffness', 'damping', 'thrust_gain'):
         value, reference = result.parameters[name], clean_fit.parameters[name]
         tolerance = max(rel * abs(reference), sigmas * clean_fit.standard_errors[name])
         assert abs(value - reference) <= tolerance, (name, value, reference, tolerance)

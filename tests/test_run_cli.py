@@ -105,7 +105,7 @@ def test_drift_tracker_flags_a_jump_and_restarts_on_model_change():
         assert not report['damping'][2]
     report = tracker.update({'damping': (11.5, 0.2)})           # 7.5 sigma above the running mean 10.0
     assert report['damping'][2] and report['damping'][1] == pytest.approx(7.5)
-    report = tracker.update({'damping': (11.5, 0.2), 'offset': (0.05, 0.001)})   # effect added: restart
+    report = tracker.update({'damping': (11.5, 0.2), 'angle_offset': (0.05, 0.001)})   # effect added: restart
     assert not any(flag for _, _, flag in report.values())
     assert Path(ROOT / 'aeropend_ros' / 'cli' / 'monitor.py').exists()
 

@@ -9,6 +9,7 @@ Examples:
   aeropend diagnose bags/exercise.csv
   aeropend diagnose bags/exercise.csv --add coulomb_friction --report report.html
   aeropend diagnose run.csv --json
+  aeropend diagnose run.csv --fix angle_filter=0.0141          # a known hardware value (the rig's RC filter)
   aeropend diagnose run.csv --effects-module my_effects.py     # your own registered effects become candidates
 """
 from __future__ import annotations
@@ -26,6 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('data', help='recording: .csv, .mcap or an MCAP bag folder')
     parser.add_argument('--add', action='append', default=[], metavar='EFFECT',
                         help='effect to include in the model (repeatable); see `aeropend effects`')
+    parser.add_argument('--fix', action='append', default=[], metavar='EFFECT=VALUE',
+                        help='effect with a known hardware value, held in the model (repeatable), e.g. '
+                             'angle_filter=0.0141 (the rig\'s RC filter delay [s]) or NAME.PARAMETER=VALUE')
+    parser.add_argument('--no-drift', action='store_true', help='skip the per-segment drift test')
     parser.add_argument('--only', action='append', default=None, metavar='EFFECT',
                         help='try only these candidate effects (repeatable; default: the whole catalog)')
     parser.add_argument('--effects-module', action='append', default=[], metavar='FILE.py',
@@ -60,6 +65,11 @@ def main(args: argparse.Namespace) -> int:
         load_effects_module(path)
     check_effect_names(args.add, '--add')
     check_effect_names(args.only or [], '--only')
+    from aeropend_core.model.effects import parse_effect_assignments
+    fixed = parse_effect_assignments(args.fix)
+    both = sorted(set(fixed) & set(args.add))
+    if both:
+        raise AeropendError(f'{", ".join(both)} given with both --add and --fix; --fix already puts it in the model')
     if args.report:                          # refuse now, not after minutes of diagnosis
         report = Path(args.report)
         if report.is_dir() or not report.parent.is_dir():
@@ -74,7 +84,8 @@ def main(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f'diagnose: {message}', file=sys.stderr, flush=True)
 
-    diagnosis = diagnose(recording, effects=args.add, candidates=args.only, progress=progress)
+    diagnosis = diagnose(recording, effects=args.add, candidates=args.only, progress=progress, fixed=fixed,
+                         drift=not args.no_drift)
     if args.report:
         from aeropend_core.present.report import write_report
         written = write_report(diagnosis, args.report, source=args.data)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 
 import numpy as np
 
@@ -27,6 +28,7 @@ from aeropend_core.cli._checks import add_sample_rate_argument
 from aeropend_core.cli.diagnose import finite_json
 from aeropend_core.errors import AeropendError
 from aeropend_core.io.recording import load_recording
+from aeropend_core.model.effects import CATALOG
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--model', choices=('pendulum', 'full-state'), default='pendulum',
                         help='which equations to identify (default: pendulum, the live-rig case)')
     parser.add_argument('--effect', action='append', default=[], metavar='NAME',
-                        help='pendulum model: add a catalog effect as a candidate term (cable_torque, angle_offset)')
+                        help='pendulum model: add a catalog effect as a candidate term (those with a weak form: '
+                             f'{", ".join(n for n, e in CATALOG.items() if e.weak_form)})')
     parser.add_argument('--start', type=float, default=None, help='use samples from this time [s]')
     parser.add_argument('--stop', type=float, default=None, help='use samples before this time [s]')
     add_sample_rate_argument(parser)
@@ -57,6 +60,19 @@ def _window(recording, start: float | None, stop: float | None):
     return window
 
 
+def _pieces_between_gaps(time: np.ndarray, shortest: float = 1.0) -> list[tuple[int, int]]:
+    """Sample ranges between gaps (a step over 1.5 median steps) at least `shortest` [s] long (all: no gap)."""
+    if time.size < 3:
+        return [(0, time.size)]
+    steps = np.diff(time)
+    step = float(np.median(steps))
+    cuts = np.flatnonzero(steps > 1.5 * step) + 1
+    if cuts.size == 0 or not step > 0:
+        return [(0, time.size)]
+    bounds = np.concatenate(([0], cuts, [time.size]))
+    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if (b - a) * step >= shortest]
+
+
 def main(args: argparse.Namespace) -> int:
     from aeropend_core.cli._checks import check_effect_names, print_findings, sample_time_from
     check_effect_names(args.effect, '--effect')
@@ -65,12 +81,21 @@ def main(args: argparse.Namespace) -> int:
         recording = _window(recording, args.start, args.stop)
     print_findings('identify', recording.findings)          # first, before any number
     # the fitting stack (scipy, numba) is imported once the input is known good: bad input is refused at once
-    from aeropend_core.identify.pendulum import PARAMETER_UNITS, identify_full_state, identify_pendulum
+    from aeropend_core.identify.pendulum import identify_full_state, identify_pendulum, parameter_unit_of
     from aeropend_core.signals.quality import findings_to_json, quality_lines
+    pieces = _pieces_between_gaps(np.asarray(recording.time, dtype=float))
     if args.model == 'pendulum':
-        fit = identify_pendulum(recording.time, recording.signal('armature_voltage'),
-                                recording.signal('armature_current'), recording.signal('angle'),
-                                duty=recording.signals.get('duty'), effects=args.effect)
+        names = ('armature_voltage', 'armature_current', 'angle')
+        columns = [np.asarray(recording.signal(name), dtype=float) for name in names]
+        duty = recording.signals.get('duty')
+        if len(pieces) > 1:    # lost samples: the weak form is fitted on the pieces between the gaps, together
+            cut = [[c[a:b] for a, b in pieces] for c in [np.asarray(recording.time, dtype=float), *columns]]
+            fit = identify_pendulum(*cut, duty=None if duty is None else [duty[a:b] for a, b in pieces],
+                                    effects=args.effect)
+            print(f'aeropend identify: {len(pieces) - 1} gap(s) of lost samples in the time stamps: fitted on the '
+                  f'{len(pieces)} pieces between them together', file=sys.stderr)
+        else:
+            fit = identify_pendulum(recording.time, *columns, duty=duty, effects=args.effect)
     else:
         fit = identify_full_state(recording)
     if args.json:
@@ -80,7 +105,9 @@ def main(args: argparse.Namespace) -> int:
             'standard_errors': fit.result.standard_errors,
             'parameters': finite_json(fit.parameters),
             'parameter_standard_errors': finite_json(fit.standard_errors),
-            'units': {k: PARAMETER_UNITS.get(k, '') for k in fit.parameters},
+            'units': {k: parameter_unit_of(k) for k in fit.parameters},
+            'estimator': 'weak_sindy',
+            'gaps': {'count': len(pieces) - 1, 'pieces': len(pieces)},
             'samples': len(recording),
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
             'warnings': findings_to_json(recording.findings),

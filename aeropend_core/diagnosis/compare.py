@@ -30,7 +30,7 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
                                         initial_states_from_data)
 from aeropend_core.signals.motor import MotorFit, fit_motor
-from aeropend_core.signals.preprocess import condition_inputs, noise_rms, piecewise_constant
+from aeropend_core.signals.preprocess import condition_inputs, noise_rms, piecewise_constant, quantisation_step
 from aeropend_core.io.recording import Recording
 
 #: Fraction of the record used for training; the rest is held out.
@@ -86,17 +86,29 @@ class PreparedRecord:
     motor: MotorFit | None = None
     gate_voltage: np.ndarray | None = None
     findings: tuple = ()
+    gaps: Gaps | None = None
+    #: The angle's ADC step [rad] (0 when the angle is not quantised); a slow signal quantised without dither
+    #: carries an error up to step/sqrt(12) that the noise estimate (third differences) does not see.
+    angle_step: float = 0.0
     train: SegmentedData = field(init=False)
     heldout: SegmentedData = field(init=False)
 
     def __post_init__(self) -> None:
         n = len(self.time)
+        if self.gaps is None:
+            self.gaps = Gaps(np.ones(n, dtype=bool), self.sample_time)
         first = min(STEP_GUARD, n // 10)   # skip a possible step transient at the very start
-        train_segments = segment_at_steps(first, self.split, self.step_indices, self.sample_time)
+        train_segments = [piece for a, b in self.gaps.pieces(first, self.split)
+                          for piece in segment_at_steps(a, b, self.step_indices, self.sample_time)]
         self.train = SegmentedData(self.voltage, self.current, self.angle, train_segments, self.sample_time,
-                                   self.gate_voltage)
-        self.heldout = SegmentedData(self.voltage, self.current, self.angle, [(self.split, n)], self.sample_time,
-                                   self.gate_voltage)
+                                   self.gate_voltage, self.valid)
+        self.heldout = SegmentedData(self.voltage, self.current, self.angle, self.gaps.pieces(self.split, n),
+                                     self.sample_time, self.gate_voltage, self.valid)
+
+    @property
+    def valid(self) -> np.ndarray | None:
+        """Measured samples (False where a gap of lost samples was filled), or None without gaps."""
+        return self.gaps.valid if self.gaps is not None and self.gaps.count else None
 
     @property
     def smoothing_window(self) -> int:
@@ -145,6 +157,111 @@ def segment_at_steps(start: int, stop: int, steps: np.ndarray, sample_time: floa
     return [(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b - a > 4 * STRIDE]
 
 
+#: A piece between gaps shorter than this [s] is not used for fitting (too short for its own initial state).
+SHORTEST_PIECE = 0.5
+#: More than this fraction of the record lost: refused.
+MAX_LOST_FRACTION = 0.3
+
+
+@dataclass
+class Gaps:
+    """Lost samples (dropped frames) of a record put on the uniform sample grid.
+
+    ``valid`` (n,) is False where a sample was lost and filled by linear interpolation; filled samples give no
+    residuals, and the multiple-shooting segments and the held-out part restart after each gap.
+    """
+
+    valid: np.ndarray
+    sample_time: float
+    source: str = 'time stamps'
+
+    @property
+    def starts(self) -> np.ndarray:
+        """First lost sample of each gap."""
+        edges = np.diff(np.concatenate(([1], self.valid.astype(int), [1])))
+        return np.flatnonzero(edges == -1)
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """Lost samples per gap."""
+        edges = np.diff(np.concatenate(([1], self.valid.astype(int), [1])))
+        return np.flatnonzero(edges == 1) - np.flatnonzero(edges == -1)
+
+    @property
+    def count(self) -> int:
+        return int(self.starts.size)
+
+    @property
+    def lost(self) -> int:
+        return int(np.count_nonzero(~self.valid))
+
+    @property
+    def longest_seconds(self) -> float:
+        return float(self.lengths.max() * self.sample_time) if self.count else 0.0
+
+    @property
+    def measured_seconds(self) -> float:
+        return float(np.count_nonzero(self.valid) * self.sample_time)
+
+    @property
+    def lost_text(self) -> str:
+        return f' of measured samples ({self.lost} lost in {self.count} gap(s))' if self.count else ''
+
+    def pieces(self, start: int, stop: int) -> list[tuple[int, int]]:
+        """[start, stop) without the gaps, as runs of measured samples at least SHORTEST_PIECE long."""
+        shortest = max(4 * STRIDE + 1, int(round(SHORTEST_PIECE / self.sample_time)))
+        valid = self.valid[start:stop]
+        edges = np.diff(np.concatenate(([0], valid.astype(int), [0])))
+        runs = zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1))
+        return [(start + int(a), start + int(b)) for a, b in runs if b - a >= shortest]
+
+    def to_dict(self) -> dict:
+        return {'count': self.count, 'lost_samples': self.lost, 'longest_seconds': self.longest_seconds,
+                'detected_from': self.source}
+
+    def describe(self) -> str:
+        return (f'the record has {self.count} gap(s) of lost samples ({self.lost} samples, the longest '
+                f'{self.longest_seconds * 1e3:.0f} ms, detected from the {self.source}): they were filled by '
+                f'interpolation only to keep the sample grid; no residual is taken there and the fitted segments '
+                f'restart after each gap.')
+
+
+def split_at_gaps(time: np.ndarray, columns: dict[str, np.ndarray], sample_time: float, source: str,
+                  sequence: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, np.ndarray], Gaps]:
+    """Put samples with lost ones (gaps in the time stamps or the sequence counter) on the uniform grid.
+
+    Returns the grid times [s], the columns on the grid (lost samples linearly interpolated, never used as data)
+    and the :class:`Gaps`. Raises :class:`AeropendError` for spacing that is not a whole number of samples and
+    :class:`InsufficientDataError` when more than MAX_LOST_FRACTION of the record is lost.
+    """
+    if sequence is not None and np.all(np.isfinite(sequence)) and np.all(np.diff(sequence) > 0):
+        index = np.rint(np.asarray(sequence, dtype=float) - float(sequence[0])).astype(np.int64)
+        detected = 'sequence counter'
+    else:
+        offsets = (time - time[0]) / sample_time
+        index = np.rint(offsets).astype(np.int64)
+        if np.max(np.abs(offsets - index)) > 0.25 or np.any(np.diff(index) <= 0):
+            steps = np.diff(time)
+            k = int(np.argmax(np.abs(steps - sample_time * np.maximum(np.rint(steps / sample_time), 1))))
+            raise AeropendError(f'{source}: samples are not evenly spaced (step of {steps[k]:.4f} s at t = '
+                                f'{time[k]:.3f} s, not a whole number of {sample_time:.4f} s samples); the time '
+                                f'stamps must be the acquisition clock (sample counter x Ts)')
+        detected = 'time stamps'
+    n = int(index[-1]) + 1
+    valid = np.zeros(n, dtype=bool)
+    valid[index] = True
+    gaps = Gaps(valid, sample_time, detected)
+    if gaps.lost == 0:
+        return time, columns, gaps
+    if gaps.lost > MAX_LOST_FRACTION * n:
+        raise InsufficientDataError(f'{source}: {gaps.lost} of {n} samples are lost ({gaps.count} gaps, the '
+                                    f'longest {gaps.longest_seconds:.3f} s); too little remains to diagnose: '
+                                    f'record again with a reliable link')
+    grid = np.arange(n)
+    filled = {name: np.interp(grid, index, values) for name, values in columns.items()}
+    return time[0] + grid * sample_time, filled, gaps
+
+
 def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
             use_motor_observer: bool = True) -> PreparedRecord:
     """Validate a recording (only Va, Ia and angle are used) and condition it for fitting.
@@ -168,14 +285,17 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         raise InsufficientDataError(f'{source} has only {time.size} samples; record at least {MIN_DURATION:g} s')
     steps = np.diff(time)
     sample_time = float(np.median(steps))
-    if np.max(np.abs(steps - sample_time)) > 0.5 * sample_time:
-        k = int(np.argmax(np.abs(steps - sample_time)))
-        raise AeropendError(f'{source}: samples are not evenly spaced (gap of {steps[k]:.4f} s at t = '
-                            f'{time[k]:.3f} s, expected {sample_time:.4f} s); lost samples must be filled first')
-    duration = time[-1] - time[0]
+    if sample_time > 0.05:
+        raise AeropendError(f'{source}: samples are {sample_time:g} time units apart; the t column must be in '
+                            f'seconds (the rig samples every 1/490 s = 0.00204 s)')
+    sequence = recording.signals.get('sequence')
+    time, filled, gaps = split_at_gaps(time, {'armature_voltage': voltage, 'armature_current': current,
+                                               'angle': angle}, sample_time, source, sequence)
+    voltage, current, angle = filled['armature_voltage'], filled['armature_current'], filled['angle']
+    duration = gaps.measured_seconds
     if duration < MIN_DURATION:
-        raise InsufficientDataError(f'{source} lasts {duration:.1f} s; the comparison needs at least '
-                                    f'{MIN_DURATION:g} s (training and held-out parts of ~10 s segments)')
+        raise InsufficientDataError(f'{source} lasts {duration:.1f} s{gaps.lost_text}; the comparison needs at '
+                                    f'least {MIN_DURATION:g} s (training and held-out parts of ~10 s segments)')
     if np.ptp(voltage) < 0.05 * max(np.max(np.abs(voltage)), 1e-9) or np.ptp(voltage) < 1e-3:
         raise InsufficientDataError(f'{source}: the armature voltage barely changes ({np.ptp(voltage):.3g} V '
                                     f'peak to peak); excite the rig with duty steps (aeropend simulate / the '
@@ -201,10 +321,12 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
             thrust_voltage, thrust_current = motor.back_emf, np.zeros_like(current)
         else:
             motor = None
+    valid = gaps.valid
     return PreparedRecord(time=time, armature_voltage=voltage, armature_current=current, angle=angle,
                           sample_time=sample_time, voltage=thrust_voltage, current=thrust_current,
-                          step_indices=conditioned.step_indices, noise_rms=noise_rms(angle), split=split,
+                          step_indices=conditioned.step_indices, noise_rms=noise_rms(angle[valid]), split=split,
                           motor=motor, gate_voltage=stepped if stepped is not None else conditioned.armature_voltage,
+                          gaps=gaps, angle_step=quantisation_step(angle[valid]),
                           findings=tuple(checked.findings))
 
 
@@ -244,19 +366,16 @@ def initial_guess(prep: PreparedRecord, threshold_voltage: float | None = None) 
         gain = float(np.dot(np.sin(y), thrust) / max(np.dot(thrust, thrust), 1e-12) * gravity)
     damping = damping if damping > 0 else 0.1 * math.sqrt(gravity)
     return {'gravity_stiffness': float(gravity), 'damping': float(damping), 'thrust_gain': float(max(gain, 1e-6)),
-            'thrust_resistance': float(resistance)}
+            'armature_resistance': float(resistance)}
 
 
 def effect_start_values(effects: Sequence[str]) -> dict[str, float]:
-    """Starting values of effect parameters (a fraction of the catalog's typical value; 0 offset)."""
+    """Starting values of effect parameters (from each catalog record: by default a fraction of the typical
+    value)."""
     from aeropend_core.model.effects import get_effect
     start = {}
     for name in effects:
-        for parameter in get_effect(name).parameters:
-            value = parameter.typical * EFFECT_START_FRACTION
-            if parameter.name == 'offset':
-                value = 0.0
-            start[parameter.name] = float(np.clip(value, parameter.lower, parameter.upper))
+        start.update(get_effect(name).start_parameters())
     return start
 
 
@@ -269,7 +388,7 @@ def input_levels(prep: PreparedRecord, stop: int | None = None) -> np.ndarray:
     return np.unique(np.round(levels[levels > 0.05], 4))
 
 
-def dead_zone_thresholds(prep: PreparedRecord) -> np.ndarray:
+def gate_thresholds(prep: PreparedRecord) -> np.ndarray:
     """Candidate dead-zone thresholds [V]: midpoints between the training part's input levels (below 75 % of the
     largest).
 
@@ -284,30 +403,35 @@ def dead_zone_thresholds(prep: PreparedRecord) -> np.ndarray:
 
 
 def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str, float] | None = None,
-              data: SegmentedData | None = None) -> OutputErrorFit:
+              data: SegmentedData | None = None, fixed: dict[str, float] | None = None) -> OutputErrorFit:
     """Output-error fit of nominal + `effects` on the training segments (or `data`).
 
-    A dead zone's threshold is profiled over the input levels present (the residual is flat between them).
+    A thrust gate's threshold is profiled over the input levels present (the residual is flat between them).
+    `fixed` holds parameters at known values (SI; e.g. a hardware filter's delay).
     """
     structure = Structure(tuple(effects))
     data = data if data is not None else prep.train
     values = dict(initial_guess(prep))
-    fixed_base = {'thrust_resistance': 0.0} if prep.motor is not None else {}
+    fixed_base = {'armature_resistance': 0.0} if prep.motor is not None else {}
     values.update(effect_start_values(effects))
     if start:
         values.update({k: v for k, v in start.items() if k in structure.parameter_names})
-    if 'dead_zone' not in effects:
+    fixed_base.update({k: float(v) for k, v in (fixed or {}).items() if k in structure.parameter_names})
+    values.update(fixed_base)
+    gate = structure.gate_parameter
+    if gate is None:
         return fit_output_error(data, structure, values, fixed=fixed_base)
-    thresholds = dead_zone_thresholds(prep)
+    thresholds = gate_thresholds(prep)
     if thresholds.size == 0:
-        raise InsufficientDataError('a dead zone needs steps at several small duty levels; none are in the data')
+        raise InsufficientDataError('a thrust threshold (dead zone) needs steps at several small duty levels; '
+                                    'none are in the data')
     # Profile: rank thresholds by one simulation each, then refit the best few. Each threshold is simulated from
     # the given start values and from nominal values fitted by equation error with that threshold's gate: a large
     # dead zone leaves the nominal fit (the given start) far off, and ranking only from it picks a wrong level.
-    initial = initial_states_from_data(data, values.get('offset', 0.0))
+    initial = initial_states_from_data(data, values.get(structure.offset_parameter, 0.0))
     trials = [(t, values) for t in thresholds]
     trials += [(t, {**values, **initial_guess(prep, t), **fixed_base}) for t in thresholds]
-    rows = np.array([structure.row({**start_values, **fixed_base, 'threshold_voltage': t})
+    rows = np.array([structure.row({**start_values, **fixed_base, gate: t})
                      for t, start_values in trials])
     simulated = data.simulate(structure, rows, np.repeat(initial[None], len(rows), axis=0))
     index = data.residual_index
@@ -322,16 +446,16 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     best = None
     for k in chosen:
         threshold, start_values = trials[k]
-        fit = fit_output_error(data, structure, start_values, fixed={**fixed_base, 'threshold_voltage': threshold})
+        fit = fit_output_error(data, structure, start_values, fixed={**fixed_base, gate: threshold})
         if best is None or fit.residual_rms < best.residual_rms:
             best = fit
     levels = input_levels(prep, prep.split)
-    threshold = best.parameters['threshold_voltage']
+    threshold = best.parameters[gate]
     low = float(levels[levels < threshold].max()) if np.any(levels < threshold) else 0.0
     high = float(levels[levels > threshold].min()) if np.any(levels > threshold) else threshold
     best.extra['threshold_interval'] = (low, high)
     # Anywhere between the two levels fits equally: a uniform uncertainty over that interval.
-    best.standard_errors['threshold_voltage'] = (high - low) / math.sqrt(12.0)
+    best.standard_errors[gate] = (high - low) / math.sqrt(12.0)
     return best
 
 
@@ -366,11 +490,12 @@ class Evaluation:
 def _heldout_simulation(prep: PreparedRecord, fit: OutputErrorFit) -> np.ndarray:
     """Free-run simulation over the held-out part, initial state estimated on its first second."""
     structure = fit.structure
-    start, stop = prep.split, len(prep.time)
-    head = min(stop, start + int(round(HELDOUT_INITIAL_SECONDS / prep.sample_time)))
+    head = int(round(HELDOUT_INITIAL_SECONDS / prep.sample_time))
     fixed = dict(fit.parameters)
-    head_data = SegmentedData(prep.voltage, prep.current, prep.angle, [(start, head)], prep.sample_time,
-                              prep.gate_voltage)
+    # one head per held-out piece (the held-out part restarts after each gap of lost samples)
+    head_data = SegmentedData(prep.voltage, prep.current, prep.angle,
+                              [(a, min(b, a + head)) for a, b in prep.heldout.segments], prep.sample_time,
+                              prep.gate_voltage, prep.valid)
     ic_fit = fit_output_error(head_data, structure, fixed, fixed=fixed, max_iterations=30)
     return prep.heldout.simulate(structure, structure.row(fit.parameters)[None],
                                  ic_fit.initial_states[None])[0]
@@ -380,12 +505,14 @@ def _k_step_prediction(prep: PreparedRecord, fit: OutputErrorFit, horizon: float
     """Predictions exactly k samples ahead on the held-out part: (indices, predicted angle)."""
     k = max(STRIDE, int(round(horizon / prep.sample_time / STRIDE)) * STRIDE)
     starts = np.arange(prep.split, len(prep.time) - k - STRIDE, k + STRIDE)
+    if prep.valid is not None:   # no prediction across a gap of lost samples
+        starts = np.array([s for s in starts if prep.valid[s:s + k + STRIDE].all()], dtype=int)
     if starts.size == 0:
         return np.zeros(0, dtype=int), np.zeros(0)
     segments = [(int(s), int(s) + k + STRIDE) for s in starts]
     data = SegmentedData(prep.voltage, prep.current, prep.angle, segments, prep.sample_time,
                               prep.gate_voltage)
-    offset = fit.parameters.get('offset', 0.0)
+    offset = fit.parameters.get(fit.structure.offset_parameter, 0.0)
     initial = np.column_stack([prep.smoothed_angle[starts] - offset, prep.smoothed_rate[starts]])
     predicted = data.simulate(fit.structure, fit.structure.row(fit.parameters)[None], initial[None])[0]
     return starts + k, predicted[starts + k]
@@ -446,7 +573,7 @@ def evaluate(prep: PreparedRecord, fit: OutputErrorFit) -> Evaluation:
     predicted_index, predicted = _k_step_prediction(prep, fit, PREDICTION_HORIZON)
     prediction_rms = float(np.sqrt(np.mean((prep.angle[predicted_index] - predicted) ** 2))) \
         if predicted.size else float('nan')
-    e = prep.voltage - fit.parameters['thrust_resistance'] * prep.current
+    e = prep.voltage - fit.parameters['armature_resistance'] * prep.current
     thrust_input = (e * np.abs(e))[index]
     autocorrelation = _correlation(residual, residual, RESIDUAL_LAGS)[RESIDUAL_LAGS:]
     cross = _correlation(residual, thrust_input, RESIDUAL_LAGS)
@@ -522,7 +649,7 @@ class Comparison:
 
 
 def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
-            start: dict[str, float] | None = None) -> Comparison:
+            start: dict[str, float] | None = None, fixed: dict[str, float] | None = None) -> Comparison:
     """Fit nominal + `effects` on the training part and evaluate on the held-out part (see module docstring).
 
     Parameters
@@ -534,6 +661,8 @@ def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         Catalog effects in the model besides the nominal terms.
     start : dict of str -> float, optional [SI unit of each parameter]
         Starting values of parameters (e.g. the current model's), by name.
+    fixed : dict of str -> float, optional [SI unit of each parameter]
+        Parameters held at given values (known hardware values), by name.
 
     Returns
     -------
@@ -542,7 +671,7 @@ def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         ``rms_error`` and ``noise_rms`` [rad], residual tests, error by regime and the worst windows.
     """
     prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
-    fit = fit_model(prep, effects, start)
+    fit = fit_model(prep, effects, start, fixed=fixed)
     if 'threshold_interval' in fit.extra:
         fit = _place_threshold_among_heldout_levels(prep, fit)
     return Comparison(tuple(effects), fit, evaluate(prep, fit))
@@ -558,6 +687,7 @@ def _place_threshold_among_heldout_levels(prep: PreparedRecord, fit: OutputError
     interval narrows to it. One discrete choice among models that fit the training part equally, not a refit.
     """
     low, high = fit.extra['threshold_interval']
+    gate = fit.structure.gate_parameter
     held = np.unique(np.round(prep.gate_voltage[prep.split:], 6))
     inside = held[(held > low) & (held < high)]
     if inside.size == 0:
@@ -566,7 +696,7 @@ def _place_threshold_among_heldout_levels(prep: PreparedRecord, fit: OutputError
     index = prep.heldout.residual_index
     best = None
     for a, b in zip(edges[:-1], edges[1:]):
-        trial = replace(fit, parameters={**fit.parameters, 'threshold_voltage': float(0.5 * (a + b))})
+        trial = replace(fit, parameters={**fit.parameters, gate: float(0.5 * (a + b))})
         simulated = _heldout_simulation(prep, trial)
         rms = float(np.sqrt(np.mean((prep.angle[index] - simulated[index]) ** 2)))
         if np.isfinite(rms) and (best is None or rms < best[0]):
@@ -575,7 +705,7 @@ def _place_threshold_among_heldout_levels(prep: PreparedRecord, fit: OutputError
         return fit
     _, chosen, a, b = best
     chosen.extra = {**fit.extra, 'threshold_interval': (a, b), 'threshold_interval_training': (low, high)}
-    chosen.standard_errors = {**fit.standard_errors, 'threshold_voltage': (b - a) / math.sqrt(12.0)}
+    chosen.standard_errors = {**fit.standard_errors, gate: (b - a) / math.sqrt(12.0)}
     return chosen
 
 

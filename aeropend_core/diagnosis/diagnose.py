@@ -1,91 +1,92 @@
-"""Which physical effect is missing? Test every catalog effect as an augmentation of the current model.
+"""Which physical effects are missing? Search the catalog for the set that the data supports.
 
-For the current model (nominal + the effects already added) and for each candidate effect not yet in it, the
-model is fitted on the training part (output error,
-:mod:`aeropend_core.diagnosis.compare`) and judged on the held-out part.
-A candidate counts as **significant** only if all of these hold:
+For the current model (nominal + the effects already added with ``--add``/``--fix``) every catalog effect not yet
+in it is tried as an augmentation: the model is fitted on the training part (output error,
+:mod:`aeropend_core.diagnosis.compare`) and judged on the held-out part. The evidence is valid under correlated
+residuals (:mod:`aeropend_core.diagnosis.evidence`). A candidate is **significant** when all of these hold:
 
-* the current model is not already within the noise (error beyond the noise above ``WITHIN_NOISE`` x noise RMS);
-* it lowers the training BIC (computed with the effective number of independent residuals) by more than
-  ``BIC_MARGIN``;
-* it lowers the held-out model error beyond the noise, sqrt(rms^2 - noise^2), by at least ``MIN_IMPROVEMENT``
-  (a fraction), and the held-out mean-square error by more than ``MIN_ABSOLUTE^2`` x the noise variance (so that
-  a model already within the noise is not "improved" by fitting it);
-* its parameter is nonzero by more than three standard errors.
+* its parameter is nonzero by more than ``T_MIN`` standard errors of the sandwich (HAC) covariance (a profiled
+  threshold: inside the data's input range);
+* the training BIC, computed with the effective number of independent residuals (from the long-run variance),
+  falls by more than ``BIC_MARGIN``;
+* the held-out prediction improves: Diebold--Mariano statistic of the squared-error difference with a HAC
+  variance above ``DM_MIN`` (above ``DM_WEAK`` when the candidate removes at least ``MAJOR_SHARE`` of the held-out
+  error beyond the noise: a short held-out part with slow errors holds few independent pieces of evidence), and
+  the held-out mean-square error falls by more than (``MATERIAL`` x noise RMS)^2.
 
-Candidates are ranked by held-out error. The recommendation is the best significant candidate unless another
-significant one explains the data about as well (then they are reported as confounded, with the experiment that
-separates them). If the current model is already within the noise, nothing is reported missing; if it is not and
-no candidate helps, the residual's structure is shown so a user can write a new effect.
+There is no "the model is already within the noise" override: a small effect that the data support strongly is
+found and reported with its size and the share of the error it removes ("significant, within the noise").
+
+**Several effects at once** -- forward selection with backward elimination, scored by the same evidence: the
+strongest significant candidate (largest BIC drop) is added, the others are tried again on top of it, an effect
+that a later one makes redundant is dropped again, until nothing significant remains. Two candidates are reported
+as **confounded** only when they are interchangeable on this data (adding either one makes the other
+insignificant), with the experiment or hardware value that separates them. When the best set still leaves error
+beyond the noise, the verdict says so with the size of the remainder and the residual's structure (outside the
+catalog). Nominal parameters are also fitted per segment and tested for a trend (**drift**,
+:mod:`aeropend_core.diagnosis.drift`).
 """
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
-from aeropend_core.model.effects import CATALOG, find_parameter, get_effect
+from aeropend_core.diagnosis.evidence import diebold_mariano
+from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.diagnosis.output_error import NOMINAL_PARAMETERS
 from aeropend_core.io.recording import Recording
+from aeropend_core.model.effects import CATALOG, get_effect
+from aeropend_core.model.effects import separating_experiment as record_experiment
+from aeropend_core.model.names import NOMINAL_PARAMETERS
 
-#: A candidate must lower the training BIC by more than this.
+#: A candidate's parameter must be this many (HAC) standard errors from zero ...
+T_MIN = 4.0
+#: ... it must lower the training BIC by more than this ...
 BIC_MARGIN = 10.0
-#: ... and the held-out error beyond the noise by at least this fraction ...
-MIN_IMPROVEMENT = 0.25
-#: ... and the held-out mean-square error by more than (this x the noise RMS)^2.
-MIN_ABSOLUTE = 0.25
-#: The current model is "within the noise" when its error beyond the noise is below this multiple of the noise
-#: (its RMS error is then within 5 % of the noise RMS): then no candidate is reported, whatever it absorbs.
-WITHIN_NOISE = 0.3
-#: "Unexplained" (no catalog effect helps) is claimed only beyond this multiple of the noise: a smaller excess can
-#: come from the noise estimate itself (quantisation that does not dither is partly a slow bias).
+#: ... its held-out Diebold-Mariano statistic must exceed this (one-sided, ~2.3 sigma) ...
+DM_MIN = 2.33
+#: ... or above DM_WEAK when it removes at least MAJOR_SHARE of the held-out mean-square error beyond the noise ...
+DM_WEAK = 1.0
+MAJOR_SHARE = 0.5
+#: ... and the held-out mean-square error must fall by more than (this x the noise RMS)^2 (0.25 % of the noise
+#: variance: below that an improvement is immaterial however certain).
+MATERIAL = 0.05
+#: A candidate removing less than MAJOR_SHARE of the error beyond the noise must remove more than (this x the noise
+#: RMS)^2 of mean-square error.
+SMALL = 0.3
+#: "Unexplained" (the best set leaves error no catalog effect explains) is claimed beyond this multiple of the
+#: noise RMS: a smaller excess can come from the noise estimate itself (quantisation that does not dither is partly
+#: a slow bias).
 UNEXPLAINED_NOISE = 0.5
 #: Angle [rad] above which the record is flagged: the rod went above the horizontal, towards the unstable upright.
 UPRIGHT_WARNING = math.radians(95.0)
-#: Two significant candidates are confounded when the runner-up's excess error is within this factor of the best.
+#: A significant runner-up is tested for interchangeability with the best when its held-out error beyond the noise
+#: is within this factor of the best's.
 CONFOUNDING_FACTOR = 1.3
 #: An effect parameter correlated beyond this with a nominal parameter is not separable from it in this data.
 CORRELATION_LIMIT = 0.97
-
-#: What experiment separates an effect from what it is confused with (``docs/method.md`` section 4).
-SEPARATING_EXPERIMENT = {
-    frozenset({'cable_torque', 'gravity_stiffness'}):
-        'excite larger angles (70-85 deg): the cable\'s linear torque departs from gravity\'s sin(angle) only there',
-    frozenset({'angle_offset', 'gravity_stiffness'}):
-        'add rests at duty 0 (rod hanging): the offset is the angle read at rest',
-    frozenset({'cable_torque', 'angle_offset'}):
-        'add rests at the bottom (duty 0) and large excursions (70-85 deg)',
-    frozenset({'thrust_lag', 'damping'}):
-        'add zero-thrust rests longer than the motor spin-down and free-decay segments (they pin the damping)',
-    frozenset({'thrust_lag', 'gravity_stiffness'}):
-        'add free-decay segments (duty 0 after a large step): they pin the inertia scale without thrust',
-    frozenset({'coulomb_friction', 'gravity_stiffness'}):
-        'add free decays (duty 0 after large steps): dry friction stops the swing early, away from the bottom',
-    frozenset({'coulomb_friction', 'thrust_gain'}):
-        'add steps both up and down through the same levels: friction makes the angle depend on the direction',
-    frozenset({'coulomb_friction', 'damping'}):
-        'add free decays of several amplitudes: dry friction decays linearly, viscous damping exponentially',
-    frozenset({'quadratic_drag', 'damping'}):
-        'add larger, faster swings (big duty steps): drag grows with the square of the speed',
-    frozenset({'dead_zone', 'thrust_gain'}):
-        'add steps at small duty (5-20 %): the dead zone shows only there',
-}
+#: Candidates set aside in the first round (no training evidence) are tried again once, on top of the effects found,
+#: while the error beyond the noise exceeds this multiple of the noise RMS (an effect masked by others).
+RETRY_NOISE = 0.25
+#: At most this many effects are added by the search.
+MAX_EFFECTS = 4
 DEFAULT_EXPERIMENT = 'vary the step amplitudes and add rests at duty 0; longer records narrow the uncertainty'
 
 
 def separating_experiment(a: str, b: str) -> str:
-    return SEPARATING_EXPERIMENT.get(frozenset({a, b}), DEFAULT_EXPERIMENT)
+    """The experiment that separates `a` from `b` (effects or nominal parameters), from the catalog's records."""
+    return record_experiment(a, b) or DEFAULT_EXPERIMENT
 
 
 def excitation_advice(effect: str) -> str:
     """The experiment that shows `effect` best: the one separating it from a nominal parameter, if known."""
     for nominal in NOMINAL_PARAMETERS:
-        advice = SEPARATING_EXPERIMENT.get(frozenset({effect, nominal}))
+        advice = record_experiment(effect, nominal)
         if advice:
             return advice
     return DEFAULT_EXPERIMENT
@@ -110,6 +111,14 @@ class Candidate:
     #: It explains the held-out error (enough improvement, parameter nonzero) but the training part shows no
     #: evidence for it (its BIC does not fall): the held-out part holds conditions the training part lacks.
     heldout_only: bool = False
+    #: Smallest |parameter| / HAC standard error over its parameters (inf for a profiled threshold in range).
+    t_statistic: float = float('nan')
+    #: Held-out Diebold-Mariano statistic (positive: predicts better than the model it was added to).
+    dm_statistic: float = float('nan')
+    #: Held-out mean-square error removed [rad^2].
+    mse_gain: float = float('nan')
+    #: Share of the held-out error beyond the noise that it removes (0..1; of the mean-square error beyond it).
+    share_removed: float = float('nan')
 
     @property
     def fit_percent(self) -> float:
@@ -125,6 +134,33 @@ class Candidate:
         if self.excess_before <= 0:
             return 0.0
         return 1.0 - self.excess_after / self.excess_before
+
+    @property
+    def strength(self) -> float:
+        """Training evidence for the search's ordering: the BIC drop (larger is stronger)."""
+        return -self.delta_bic if np.isfinite(self.delta_bic) else -np.inf
+
+
+@dataclass
+class Found:
+    """One effect of the selected set, with what it contributes and whether the data can pin it."""
+
+    effect: str
+    parameters: dict[str, float]
+    standard_errors: dict[str, float]
+    excess_before: float
+    excess_after: float
+    share_removed: float
+    t_statistic: float
+    dm_statistic: float
+    confounded_with: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {'effect': self.effect, 'parameters': self.parameters, 'standard_errors': self.standard_errors,
+                'error_beyond_noise_before': _finite(self.excess_before),
+                'error_beyond_noise_after': _finite(self.excess_after),
+                'share_of_error_removed': _finite(self.share_removed), 't_statistic': _finite(self.t_statistic),
+                'dm_statistic': _finite(self.dm_statistic), 'confounded_with': self.confounded_with}
 
 
 @dataclass
@@ -142,6 +178,24 @@ class Diagnosis:
     residual_structure: list[dict[str, float | str]] = field(default_factory=list)
     prepared: PreparedRecord | None = None
     seconds: float = 0.0
+    #: The selected set of missing effects, in the order the search added them (confounded ones included).
+    found: list[Found] = field(default_factory=list)
+    #: The model with the selected set (None when nothing was selected).
+    selected: Comparison | None = None
+    #: Per-segment drift test of the nominal parameters (:func:`aeropend_core.diagnosis.drift.drift_test`).
+    drift: list[dict] = field(default_factory=list)
+    #: Parameters held at given values (``--fix``), SI.
+    fixed: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def missing_effects(self) -> list[str]:
+        """Names of the selected effects (those the data pins, then the confounded ones)."""
+        return [f.effect for f in self.found]
+
+    @property
+    def add_arguments(self) -> str:
+        """The single "add these" step for the command line."""
+        return ' '.join(f'--add {f.effect}' for f in self.found if not f.confounded_with)
 
     @property
     def findings(self) -> tuple:
@@ -153,11 +207,24 @@ class Diagnosis:
         return self.current.noise_rms
 
     def reported_parameters(self, comparison: Comparison) -> dict[str, float]:
-        """Fitted parameters in SI; with the motor observer, `thrust_resistance` is the observer's fitted Rm."""
+        """Fitted parameters in SI; with the motor observer, `armature_resistance` is the observer's fitted Rm."""
         parameters = dict(comparison.parameters)
         if self.prepared is not None and self.prepared.motor is not None:
-            parameters['thrust_resistance'] = self.prepared.motor.parameters['motor_resistance']
+            parameters['armature_resistance'] = self.prepared.motor.parameters['motor_resistance']
         return parameters
+
+    @property
+    def final(self) -> Comparison:
+        """The model with the selected set (the current model when nothing was selected)."""
+        return self.selected if self.selected is not None else self.current
+
+    def estimators(self, comparison: Comparison) -> dict[str, str]:
+        """Which estimator gave each reported parameter (``output_error``, or ``motor_observer`` for the
+        armature resistance when the observer's back-EMF drives the thrust)."""
+        estimators = dict.fromkeys(comparison.parameters, 'output_error')
+        if self.prepared is not None and self.prepared.motor is not None:
+            estimators['armature_resistance'] = 'motor_observer'
+        return estimators
 
     def to_dict(self) -> dict:
         """The machine-readable form printed by ``aeropend diagnose --json``."""
@@ -173,10 +240,19 @@ class Diagnosis:
             'prediction_horizon': current.evaluation.prediction_horizon,
             'parameters': self.reported_parameters(current),
             'standard_errors': current.fit.standard_errors,
+            'estimator': 'output_error',
+            'estimators': self.estimators(current),
             'missing_effect': self.missing_effect,
             'verdict': self.verdict,
             'message': self.message,
             'notes': self.notes,
+            'missing_effects': [f.to_dict() for f in self.found],
+            'add': [f.effect for f in self.found if not f.confounded_with],
+            'remaining_error_beyond_noise': _finite(excess_error(self.final.rms_error, self.final.noise_rms)),
+            'drift': self.drift,
+            'gaps': self.prepared.gaps.to_dict() if self.prepared is not None and self.prepared.gaps is not None
+            else None,
+            'fixed': self.fixed,
             'candidates': [_candidate_dict(c) for c in self.candidates],
             'regimes': current.evaluation.regimes,
             'worst_windows': current.evaluation.worst_windows,
@@ -204,6 +280,7 @@ class Diagnosis:
 
     def summary(self) -> str:
         """A person-readable report of the diagnosis (units stated)."""
+        from aeropend_core.present.summary import format_summary
         return format_summary(self)
 
 
@@ -218,7 +295,9 @@ def _candidate_dict(candidate: Candidate) -> dict:
             'delta_bic': _finite(candidate.delta_bic), 'significant': candidate.significant,
             'confounded_with': candidate.confounded_with, 'evidence': candidate.evidence,
             'explanation': candidate.explanation, 'error': candidate.error,
-            'heldout_only': candidate.heldout_only}
+            'heldout_only': candidate.heldout_only, 't_statistic': _finite(candidate.t_statistic),
+            'dm_statistic': _finite(candidate.dm_statistic), 'mse_gain': _finite(candidate.mse_gain),
+            'share_of_error_removed': _finite(candidate.share_removed)}
 
 
 def _effect_parameters(comparison: Comparison, effect: str) -> tuple[dict[str, float], dict[str, float]]:
@@ -280,7 +359,7 @@ def residual_structure(prep: PreparedRecord, comparison: Comparison, count: int 
     available = np.isfinite(simulated)
     residual = prep.angle - np.nan_to_num(simulated)
     angle, rate = prep.smoothed_angle, prep.smoothed_rate
-    e = prep.voltage - comparison.parameters.get('thrust_resistance', 0.0) * prep.current
+    e = prep.voltage - comparison.parameters.get('armature_resistance', 0.0) * prep.current
     thrust = e * np.abs(e)
     delay = int(round(0.1 / prep.sample_time))
     delayed = np.concatenate([np.full(delay, thrust[0]), thrust[:-delay]])
@@ -301,10 +380,110 @@ def residual_structure(prep: PreparedRecord, comparison: Comparison, count: int 
     return rows[:count]
 
 
+def _heldout_error(prep: PreparedRecord, comparison: Comparison) -> np.ndarray:
+    index = prep.heldout.residual_index
+    return prep.angle[index] - comparison.evaluation.simulated[index]
+
+
+def assess(prep: PreparedRecord, base: Comparison, augmented: Comparison, name: str) -> Candidate:
+    """The evidence that `augmented` (= `base` + effect `name`) explains the data better (module docstring)."""
+    noise = prep.noise_rms
+    values, errors = _effect_parameters(augmented, name)
+    excess_before = excess_error(base.rms_error, noise)
+    excess_after = excess_error(augmented.rms_error, noise)
+    effective = max(augmented.fit.effective_samples, 2.0)
+    rss_ratio = (base.fit.residual_rms / max(augmented.fit.residual_rms, 1e-300)) ** 2
+    added = augmented.fit.n_free - base.fit.n_free
+    delta_bic = float(-effective * math.log(max(rss_ratio, 1e-300)) + added * math.log(effective))
+    gate = augmented.fit.structure.gate_parameter
+    if gate in values:   # profiled, no standard error: a threshold inside the data's range counts
+        t_statistic = math.inf if values[gate] > 0.0 else 0.0
+    else:
+        # a parameter pinned at a positive lower bound of the fit (the smallest lag the integrator takes) is "off"
+        lower = dict(zip(values, _bounds(tuple(values))[0]))
+        ratios = [0.0 if lower[k] > 0 and v <= lower[k] * (1 + 1e-6) else abs(v) / s
+                  for k, v, s in ((k, values[k], errors.get(k, float('nan'))) for k in values)
+                  if np.isfinite(s) and s > 0]
+        t_statistic = min(ratios) if ratios else 0.0
+    dm, gain = diebold_mariano(_heldout_error(prep, base), _heldout_error(prep, augmented))
+    beyond = max(base.rms_error ** 2 - noise ** 2, 0.0)
+    share = float(np.clip(gain / beyond, 0.0, 1.0)) if beyond > 0 and np.isfinite(gain) else (
+        1.0 if np.isfinite(gain) and gain > 0 else 0.0)
+    # The held-out part is short and model errors are slow: it may hold only a few independent pieces of evidence,
+    # so a candidate that removes most of its error beyond the noise needs only a positive DM above DM_WEAK.
+    predictive = np.isfinite(dm) and (dm >= DM_MIN or (dm >= DM_WEAK and share >= MAJOR_SHARE))
+    # A candidate that removes only a small part of a small error is more likely soaking up the nominal model's
+    # own imperfection than a missing effect: it must remove most of the error, or a non-small amount of it.
+    material = np.isfinite(gain) and gain >= (MATERIAL * noise) ** 2 and (
+        share >= MAJOR_SHARE or gain >= (SMALL * noise) ** 2)
+    supported = bool(t_statistic >= T_MIN and predictive and material)
+    significant = bool(supported and delta_bic < -BIC_MARGIN)
+    evidence = _regime_evidence(base, augmented)
+    candidate = Candidate(name, augmented, values, errors, delta_bic, excess_before, excess_after, significant,
+                          confounded_with=_correlated_nominals(augmented, name), evidence=evidence,
+                          heldout_only=bool(not significant and t_statistic >= T_MIN and material
+                                            and (predictive or (dm > 0 and share >= MAJOR_SHARE))),
+                          t_statistic=float(t_statistic),
+                          dm_statistic=float(dm), mse_gain=float(gain), share_removed=share)
+    candidate.explanation = _explain(name, values, errors, excess_before, excess_after, evidence)
+    candidate.explanation += (f' Evidence: parameter {t_statistic:.1f} HAC standard errors from zero, training BIC '
+                              f'{delta_bic:+.1f}, held-out Diebold-Mariano {dm:+.1f}; it removes {share * 100:.0f} % '
+                              f'of the held-out mean-square error beyond the noise.')
+    if gate in values and 'threshold_interval' in augmented.fit.extra:
+        low, high = augmented.fit.extra['threshold_interval']
+        candidate.explanation += (f' The threshold lies between the input levels {low:.3f} V and {high:.3f} V '
+                                  f'present in the data.')
+    return candidate
+
+
+def _try(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], name: str,
+         fixed: Mapping[str, float]) -> Candidate:
+    excess_now = excess_error(base.rms_error, prep.noise_rms)
+    try:
+        augmented = compare(prep, model + (name,), start=base.parameters, fixed=dict(fixed))
+    except InsufficientDataError as error:
+        return Candidate(name, None, {}, {}, float('nan'), excess_now, float('nan'), False,
+                         error=str(error), explanation=f'not testable on this data: {error}')
+    return assess(prep, base, augmented, name)
+
+
+def _interchangeable(prep: PreparedRecord, model: tuple[str, ...], best: Candidate, rival: Candidate,
+                     fixed: Mapping[str, float]) -> bool:
+    """True when adding either one makes the other insignificant (on this data they explain the same thing)."""
+    try:
+        both = compare(prep, model + (best.effect, rival.effect), start={**rival.comparison.parameters,
+                                                                          **best.comparison.parameters},
+                       fixed=dict(fixed))
+    except InsufficientDataError:
+        return True
+    rival_over_best = assess(prep, best.comparison, both, rival.effect)
+    best_over_rival = assess(prep, rival.comparison, both, best.effect)
+    return not rival_over_best.significant and not best_over_rival.significant
+
+
+def _judge_pair(prep: PreparedRecord, model: tuple[str, ...], final: Comparison, chosen: str, rival: str,
+                fixed: Mapping[str, float]) -> str:
+    """On the final model (which holds `chosen`): 'interchangeable' (adding both adds nothing over either),
+    'both' (the rival is significant on top of it) or 'chosen' (the data prefer the chosen one)."""
+    try:
+        both = compare(prep, model + (rival,), start=final.parameters, fixed=dict(fixed))
+        swapped = compare(prep, tuple(n for n in model if n != chosen) + (rival,), start=final.parameters,
+                          fixed=dict(fixed))
+    except InsufficientDataError:
+        return 'interchangeable'
+    if assess(prep, final, both, rival).significant:
+        return 'both'
+    if assess(prep, swapped, both, chosen).significant:
+        return 'chosen'
+    return 'interchangeable'
+
+
 def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
              candidates: Sequence[str] | None = None,
-             progress: Callable[[str], None] | None = None) -> Diagnosis:
-    """Diagnose which effect is missing from nominal + `effects`, using only Va, Ia and the angle.
+             progress: Callable[[str], None] | None = None,
+             fixed: Mapping[str, Mapping[str, float] | float] | None = None,
+             drift: bool = True) -> Diagnosis:
+    """Diagnose which effects are missing from nominal + `effects`, using only Va, Ia and the angle.
 
     Parameters
     ----------
@@ -316,107 +495,199 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         Effects to try (default: every catalog effect not in `effects`, users' registered ones included).
     progress : callable, optional [-]
         Called with a short message before each fit.
+    fixed : mapping of str -> float or mapping, optional [SI unit of each parameter]
+        Effects with known parameter values (``--fix``): ``{effect: value}`` or ``{effect: {parameter: value}}``.
+        They join the model with those values held.
+    drift : bool [-]
+        Also fit the nominal parameters per segment and test them for a trend.
 
     Returns
     -------
     Diagnosis
-        The current model's comparison, every candidate (best first) and the verdict: ``missing_effect``,
-        ``verdict`` ('nothing_missing', 'effect_found', 'confounded' or 'unexplained'), ``message`` and
-        ``notes``; angles in rad, parameters SI.
+        The current model's comparison, every candidate (best first) and the verdict: ``missing_effects`` (the
+        set to add), ``verdict``, ``message`` and ``notes``; angles in rad, parameters SI.
     """
+    from aeropend_core.diagnosis.drift import drift_message, drift_test
+    from aeropend_core.model.effects import resolve_effects
     started = time.perf_counter()
     say = progress or (lambda message: None)
-    effects = tuple(effects)
+    fixed_effects = resolve_effects(fixed)
+    effects = tuple(effects) + tuple(name for name in fixed_effects if name not in effects)
     for name in effects:
         get_effect(name)
     if len(set(effects)) != len(effects):
         raise AeropendError(f'an effect is listed twice in {list(effects)}')
+    held = {parameter: value for values in fixed_effects.values() for parameter, value in values.items()}
     say('preparing the data (input conditioning, motor observer)')
     prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
     say(f'fitting the current model: nominal{"".join(" + " + e for e in effects)}')
-    current = compare(prep, effects)
+    current = compare(prep, effects, fixed=held)
     before = None
     if effects:
         say('fitting the model without the added effects (for before -> after)')
         before = compare(prep, ())
     noise = prep.noise_rms
-    excess_now = excess_error(current.rms_error, noise)
     pool = [name for name in (candidates if candidates is not None else CATALOG) if name not in effects]
-    results: list[Candidate] = []
-    for index, name in enumerate(pool, 1):
+    for name in pool:
         get_effect(name)
-        say(f'[{index}/{len(pool)}] trying {name}')
-        try:
-            augmented = compare(prep, effects + (name,), start=current.parameters)
-        except InsufficientDataError as error:
-            results.append(Candidate(name, None, {}, {}, float('nan'), excess_now, float('nan'), False,
-                                     error=str(error), explanation=f'not testable on this data: {error}'))
-            continue
-        values, errors = _effect_parameters(augmented, name)
-        excess_after = excess_error(augmented.rms_error, noise)
-        delta_bic = augmented.fit.bic - current.fit.bic
-        nonzero = all(abs(v) > 3 * s for v, s in ((values[k], errors.get(k, 0.0)) for k in values)
-                      if np.isfinite(s) and s > 0) if values else False
-        if name == 'dead_zone':  # profiled, no standard error: require a threshold inside the data's range
-            nonzero = values.get('threshold_voltage', 0.0) > 0.0
-        improved = (excess_after <= (1.0 - MIN_IMPROVEMENT) * excess_now
-                    and excess_now ** 2 - excess_after ** 2 >= (MIN_ABSOLUTE * noise) ** 2)
-        relevant = improved and nonzero and excess_now > WITHIN_NOISE * noise
-        significant = bool(delta_bic < -BIC_MARGIN and relevant)
-        evidence = _regime_evidence(current, augmented)
-        candidate = Candidate(name, augmented, values, errors, delta_bic, excess_now, excess_after, significant,
-                              confounded_with=_correlated_nominals(augmented, name), evidence=evidence,
-                              heldout_only=bool(relevant and not significant))
-        candidate.explanation = _explain(name, values, errors, excess_now, excess_after, evidence)
-        if name == 'dead_zone' and 'threshold_interval' in augmented.fit.extra:
-            low, high = augmented.fit.extra['threshold_interval']
-            candidate.explanation += (f' The threshold lies between the input levels {low:.3f} V and {high:.3f} V '
-                                      f'present in the data.')
-        results.append(candidate)
-    results.sort(key=lambda c: (not np.isfinite(c.rms_error), c.rms_error if np.isfinite(c.rms_error) else 0.0))
-    significant = [c for c in results if c.significant]
+    # ---- forward selection with backward elimination, scored by the same evidence
+    def masking_possible(comparison: Comparison) -> bool:
+        # set-aside candidates are tried again only while error beyond the noise remains to be explained
+        return excess_error(comparison.rms_error, noise) > RETRY_NOISE * noise
+
+    model, base = effects, current
+    steps: list[tuple[Candidate, list[str]]] = []     # (the added candidate, what it is confounded with)
+    first_round: list[Candidate] = []
+    hopeless: set[str] = set()
+    interchangeable: set[str] = set()
+    retried = False
     notes: list[str] = []
-    missing = None
-    structure: list[dict] = []
-    if significant:
+    for round_index in range(2 * MAX_EFFECTS):
+        if len(steps) >= MAX_EFFECTS:
+            break
+        remaining = [n for n in pool if n not in model and n not in hopeless]
+        if not remaining and steps and not retried and hopeless - interchangeable and masking_possible(base):
+            retried = True          # an effect can be masked while others are missing: try the set-aside again
+            hopeless = set(interchangeable)
+            remaining = [n for n in pool if n not in model and n not in hopeless]
+        if not remaining:
+            break
+        tried: list[Candidate] = []
+        for index, name in enumerate(remaining, 1):
+            say(f'[round {round_index + 1}, {index}/{len(remaining)}] trying {name}')
+            tried.append(_try(prep, base, model, name, held))
+        if round_index == 0:
+            first_round = tried
+        # a candidate without training evidence (BIC not lower by the margin) is not tried again in later rounds
+        hopeless.update(c.effect for c in tried if not (np.isfinite(c.delta_bic) and c.delta_bic < -BIC_MARGIN))
+        significant = sorted((c for c in tried if c.significant), key=lambda c: -c.strength)
+        if not significant:
+            # An effect can be masked while others are missing: once, try the set-aside candidates again.
+            if steps and not retried and hopeless - interchangeable and masking_possible(base):
+                retried = True
+                hopeless = set(interchangeable)
+                continue
+            break
         best = significant[0]
-        rivals = [c for c in significant[1:] if c.excess_after <= CONFOUNDING_FACTOR * max(best.excess_after,
-                                                                                               0.2 * noise)]
-        if best.confounded_with:
-            # Only this effect explains the error, but its parameter trades off against a nominal one here:
-            # name the effect, say the value is uncertain, and which experiment would pin it.
-            for nominal in best.confounded_with:
-                notes.append(f'the {best.effect} parameter is correlated with {nominal} in this data (correlation '
-                             f'> {CORRELATION_LIMIT}), so its value is uncertain; '
-                             f'{separating_experiment(best.effect, nominal)}.')
-        if rivals:
-            verdict = 'confounded'
-            names = [best.effect] + [c.effect for c in rivals]
-            for rival in rivals:
-                best.confounded_with.append(rival.effect)
-                notes.append(f'{best.effect} and {rival.effect} explain the data about equally well '
-                             f'({best.excess_after * 1e3:.2f} vs {rival.excess_after * 1e3:.2f} mrad beyond the '
-                             f'noise); {separating_experiment(best.effect, rival.effect)}.')
-            message = f'one of {", ".join(names)} is missing, but this data cannot tell which; see notes.'
-        else:
-            verdict = 'effect_found'
-            missing = best.effect
-            message = (f'missing effect: {best.effect}. Add it (--add {best.effect}): the held-out error beyond '
-                       f'the noise falls from {best.excess_before * 1e3:.2f} to {best.excess_after * 1e3:.2f} mrad.')
-    elif excess_now <= UNEXPLAINED_NOISE * noise:
+        confounded = []
+        for rival in significant[1:]:
+            close = rival.excess_after <= CONFOUNDING_FACTOR * max(best.excess_after, 0.2 * noise)
+            if close and _interchangeable(prep, model, best, rival, held):
+                confounded.append(rival.effect)
+        say(f'adding {best.effect}')
+        model, base = model + (best.effect,), best.comparison
+        steps.append((best, confounded))
+        hopeless.update(confounded)     # interchangeable with one in the model: adds nothing over it
+        interchangeable.update(confounded)
+        # backward elimination: an effect added earlier that the new one makes redundant is dropped
+        for earlier, _ in list(steps[:-1]):
+            if earlier.effect not in model:
+                continue
+            reduced_model = tuple(n for n in model if n != earlier.effect)
+            say(f'checking {earlier.effect} is still needed')
+            try:
+                reduced = compare(prep, reduced_model, start=base.parameters, fixed=dict(held))
+            except InsufficientDataError:
+                continue
+            if not assess(prep, reduced, base, earlier.effect).significant:
+                notes.append(f'{earlier.effect} was dropped again: with {best.effect} in the model it adds nothing '
+                             f'significant.')
+                model, base = reduced_model, reduced
+                steps = [(c, g) for c, g in steps if c.effect != earlier.effect]
+    # Confounding judged in an early round, with other effects still missing, is judged again on the final model.
+    for position, (chosen, rivals) in enumerate(steps):
+        still = []
+        for rival_name in rivals:
+            if rival_name in model:
+                continue
+            say(f'checking whether {chosen.effect} and {rival_name} are interchangeable')
+            verdict = _judge_pair(prep, model, base, chosen.effect, rival_name, held)
+            if verdict == 'interchangeable':
+                still.append(rival_name)
+            elif verdict == 'both':
+                rival = _try(prep, base, model, rival_name, held)
+                model, base = model + (rival_name,), rival.comparison
+                steps.append((rival, []))
+        steps[position] = (chosen, still)
+    results = first_round
+    results.sort(key=lambda c: (not np.isfinite(c.rms_error), c.rms_error if np.isfinite(c.rms_error) else 0.0))
+    selected = base if steps else None
+    final = base
+    found: list[Found] = []
+    for candidate, confounded in steps:
+        values, errors = _effect_parameters(final, candidate.effect)
+        found.append(Found(candidate.effect, values, errors, candidate.excess_before, candidate.excess_after,
+                           candidate.share_removed, candidate.t_statistic, candidate.dm_statistic,
+                           confounded_with=list(confounded)))
+    # ---- drift of the nominal parameters (per segment, trend test)
+    drift_rows: list[dict] = []
+    if drift:
+        say('testing the nominal parameters for drift (per-segment fits)')
+        try:
+            drift_rows = drift_test(prep, final)
+        except InsufficientDataError as error:
+            notes.append(f'drift not tested: {error}')
+    drifting = [row for row in drift_rows if row['drifting']]
+    # ---- verdict
+    excess_final = excess_error(final.rms_error, noise)
+    # quantisation without dither (a slow signal, little noise) leaves an error up to step/sqrt(12) that the noise
+    # estimate does not see: the remainder must exceed that too
+    # (counted on top of the noise estimate: conservative for the claim that something is missing), and an error
+    # within half an encoder count is no evidence: the reference is at least half a count
+    quantisation = prep.angle_step ** 2 / 12.0
+    reference = max(noise, 0.5 * prep.angle_step)
+    remainder = final.rms_error ** 2 - noise ** 2 - quantisation > (UNEXPLAINED_NOISE * reference) ** 2
+    structure: list[dict] = []
+    pinned = [f for f in found if not f.confounded_with]
+    unsure = [f for f in found if f.confounded_with]
+    missing = pinned[0].effect if pinned else None
+    sizes = '; '.join(size_text(f) for f in found)
+    if drifting:
+        verdict = 'drift'
+        message = drift_message(drifting, final)
+        if found:
+            message += f' The effect search also selected {sizes}; a drifting parameter can mimic effects.'
+    elif found and remainder:
+        verdict = 'unexplained'
+        structure = residual_structure(prep, final)
+        message = (f'{sizes} {"explain" if len(found) > 1 else "explains"} part of the error, but '
+                   f'{excess_final * 1e3:.2f} mrad beyond the noise ({noise * 1e3:.2f} mrad) remain that no catalog '
+                   f'effect explains (outside the catalog). The residual correlates most with '
+                   f'{structure[0]["signature"]} (r = {structure[0]["correlation"]:+.2f}); consider writing an effect '
+                   f'with that signature (aeropend_core.model.effects.register_effect).')
+        missing = None
+    elif unsure:
+        verdict = 'confounded'
+        parts = []
+        for f in unsure:
+            names = [f.effect] + f.confounded_with
+            parts.append(f'one of {", ".join(names)}')
+            for other in f.confounded_with:
+                notes.append(f'{f.effect} and {other} are interchangeable on this data (adding either makes the other '
+                             f'insignificant); {separating_experiment(f.effect, other)}.')
+        message = (f'{" and ".join(parts)} is missing, but this data cannot tell which; see notes.'
+                   + (f' Also missing, with confidence: {"; ".join(size_text(f) for f in pinned)}. Add them '
+                      f'({" ".join("--add " + f.effect for f in pinned)}).' if pinned else ''))
+    elif found:
+        verdict = 'effect_found'
+        within = excess_error(current.rms_error, noise) <= UNEXPLAINED_NOISE * noise
+        label = 'missing effect' if len(found) == 1 else 'missing effects'
+        message = (f'{label}: {sizes}. Add {"it" if len(found) == 1 else "them"} '
+                   f'({" ".join("--add " + f.effect for f in found)}): the held-out error beyond the noise falls '
+                   f'from {excess_error(current.rms_error, noise) * 1e3:.2f} to {excess_final * 1e3:.2f} mrad.'
+                   + (' Significant, within the noise: small, but the data support it strongly.' if within else ''))
+    elif not remainder:
         verdict = 'nothing_missing'
         message = (f'nothing significant is missing: the model error beyond the measurement noise is '
-                   f'{excess_now * 1e3:.2f} mrad against {noise * 1e3:.2f} mrad of noise, and no catalog effect '
-                   f'improves the held-out fit significantly.')
+                   f'{excess_final * 1e3:.2f} mrad against {noise * 1e3:.2f} mrad of noise, and no catalog effect '
+                   f'improves the fit significantly.')
     else:
         verdict = 'unexplained'
         structure = residual_structure(prep, current)
         heldout_only = [c for c in results if c.heldout_only]
         if heldout_only:
-            # Something explains the held-out error, but the training part cannot confirm it: name it, do not
-            # recommend it, and say which data would decide.
             lead = heldout_only[0]
-            message = (f'the model misses the held-out data by {excess_now * 1e3:.2f} mrad beyond the noise '
+            message = (f'the model misses the held-out data by {excess_final * 1e3:.2f} mrad beyond the noise '
                        f'({noise * 1e3:.2f} mrad). {lead.effect} would explain it ({lead.excess_before * 1e3:.2f} '
                        f'-> {lead.excess_after * 1e3:.2f} mrad) but the training part shows no evidence for it '
                        f'(its BIC does not fall), so it is not recommended: the held-out part holds conditions '
@@ -425,93 +696,43 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                 notes.append(f'{other.effect} would also explain the held-out error ({other.excess_after * 1e3:.2f} '
                              f'mrad beyond the noise) without training evidence.')
         else:
-            message = (f'the model misses the data by {excess_now * 1e3:.2f} mrad beyond the noise '
-                       f'({noise * 1e3:.2f} mrad), and no catalog effect explains it. The residual correlates most '
-                       f'with: {structure[0]["signature"]} (r = {structure[0]["correlation"]:+.2f}); consider '
-                       f'writing an effect with that signature (aeropend_core.model.effects.register_effect).')
+            message = (f'the model misses the data by {excess_final * 1e3:.2f} mrad beyond the noise '
+                       f'({noise * 1e3:.2f} mrad), and no catalog effect explains it (outside the catalog). The '
+                       f'residual correlates most with: {structure[0]["signature"]} (r = '
+                       f'{structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
+                       f'(aeropend_core.model.effects.register_effect).')
+    if found and verdict in ('effect_found', 'confounded'):
+        for f in found:
+            step = next(c for c, _ in steps if c.effect == f.effect)
+            for nominal in step.confounded_with:
+                notes.append(f'the {f.effect} parameter is correlated with {nominal} in this data (correlation '
+                             f'> {CORRELATION_LIMIT}), so its value is uncertain; '
+                             f'{separating_experiment(f.effect, nominal)}.')
     highest = float(np.max(np.abs(prep.smoothed_angle)))
     if highest > UPRIGHT_WARNING:
         notes.append(f'the rod went {math.degrees(highest):.0f} deg from hanging (above the horizontal'
                      f'{"; past the upright it went over the top" if highest > math.pi else ""}): near the upright '
                      f'position tiny model errors decide which way the rod falls, so the free-run comparison is '
                      f'unreliable there; keep the duty steps below the level that holds the rod at ~85 deg.')
-    # Identifiability warnings for effects that could not be seen at all in this data.
-    for candidate in results:
-        if candidate.confounded_with and not candidate.significant:
+    # Identifiability warnings for effects that could not be seen at all in this data (when none was found: with
+    # effects missing, the first round's correlations say little about the final model).
+    for candidate in results if not found else ():
+        if candidate.confounded_with and not candidate.significant and candidate.effect not in model:
             for nominal in candidate.confounded_with:
                 notes.append(f'{candidate.effect} cannot be told apart from {nominal} in this data; '
                              f'{separating_experiment(candidate.effect, nominal)}.')
+    gaps = getattr(prep, 'gaps', None)
+    if gaps is not None and gaps.count:
+        notes.append(gaps.describe())
     return Diagnosis(effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
                      message=message, notes=notes, before=before, residual_structure=structure, prepared=prep,
-                     seconds=time.perf_counter() - started)
+                     seconds=time.perf_counter() - started, found=found, selected=selected, drift=drift_rows,
+                     fixed=held)
 
 
-def format_summary(diagnosis: Diagnosis) -> str:
-    """The text report printed by ``aeropend diagnose``."""
-    current = diagnosis.current
-    noise = current.noise_rms
-    from aeropend_core.signals.quality import quality_lines
-    lines = [quality_lines(diagnosis.findings)]
-    model = 'nominal' + ''.join(f' + {e}' for e in diagnosis.effects)
-    lines.append(f'Model: {model}')
-    lines.append(f'Held-out free-run simulation of the angle: fit {current.fit_percent:.2f} % (NRMSE, MATLAB '
-                 f'compare), RMS error {current.rms_error * 1e3:.2f} mrad, measurement noise {noise * 1e3:.2f} mrad, '
-                 f'error beyond noise {excess_error(current.rms_error, noise) * 1e3:.2f} mrad')
-    lines.append(f'{current.evaluation.prediction_horizon:g} s-ahead prediction RMS error '
-                 f'{current.evaluation.prediction_rms * 1e3:.2f} mrad')
-    if diagnosis.prepared is not None and diagnosis.prepared.motor is not None:
-        motor = diagnosis.prepared.motor
-        lines.append(f'Armature current by the motor observer: RMS error {motor.current_rms_error * 1e3:.2f} mA, '
-                     f'current noise {motor.current_noise_rms * 1e3:.2f} mA')
-    lines.append('Parameters (SI, +- 1 sigma):')
-    observer = diagnosis.prepared is not None and diagnosis.prepared.motor is not None
-    for name, value in diagnosis.reported_parameters(current).items():
-        error = current.fit.standard_errors.get(name, float('nan'))
-        found = find_parameter(name)
-        unit = NOMINAL_PARAMETERS[name][0] if name in NOMINAL_PARAMETERS else (found[1].unit if found else '')
-        if name == 'thrust_resistance' and observer:
-            lines.append(f'  {name:24s} {value:12.5g} {unit} (from the motor observer fitted to Ia)')
-            continue
-        lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit}')
-    if diagnosis.before is not None:
-        before = diagnosis.before
-        lines.append('Before -> after adding ' + ', '.join(diagnosis.effects) + ':')
-        lines.append(f'  fit {before.fit_percent:.2f} % -> {current.fit_percent:.2f} %; error beyond noise '
-                     f'{excess_error(before.rms_error, noise) * 1e3:.2f} -> '
-                     f'{excess_error(current.rms_error, noise) * 1e3:.2f} mrad')
-        for name in NOMINAL_PARAMETERS:
-            if name in before.parameters and name in current.parameters and name != 'thrust_resistance':
-                old, new = before.parameters[name], current.parameters[name]
-                lines.append(f'  {name:24s} {old:10.4g} -> {new:10.4g} ({(new - old) / old * 100:+.1f} %)')
-        for name, stats in current.evaluation.regimes.items():
-            if name in before.evaluation.regimes:
-                lines.append(f'  {name}: {before.evaluation.regimes[name]["rms_error"] * 1e3:.1f} -> '
-                             f'{stats["rms_error"] * 1e3:.1f} mrad')
-    lines.append('Where the model fails (RMS error by regime, mrad; ratio to overall):')
-    for name, stats in sorted(current.evaluation.regimes.items(), key=lambda kv: -kv[1]['ratio_to_overall']):
-        lines.append(f'  {stats["rms_error"] * 1e3:7.2f}  x{stats["ratio_to_overall"]:.2f}  {name} '
-                     f'({stats["fraction_of_samples"] * 100:.0f} % of samples)')
-    lines.append('Worst 1-s windows:')
-    for window in current.evaluation.worst_windows[:3]:
-        lines.append(f'  t = {window["start"]:.1f}-{window["stop"]:.1f} s ({window["part"]}): '
-                     f'{window["rms_error"] * 1e3:.2f} mrad, input {window["input"]}')
-    lines.append('Candidates (best first):')
-    for candidate in diagnosis.candidates:
-        if candidate.comparison is None:
-            lines.append(f'  {candidate.effect:18s} not testable: {candidate.error}')
-            continue
-        flag = 'SIGNIFICANT' if candidate.significant else ('held-out' if candidate.heldout_only else 'no')
-        params = ', '.join(f'{k} = {v:.4g}' for k, v in candidate.parameters.items())
-        lines.append(f'  {candidate.effect:18s} fit {candidate.fit_percent:6.2f} %  beyond noise '
-                     f'{candidate.excess_after * 1e3:6.2f} mrad  dBIC {candidate.delta_bic:9.1f}  {flag:11s} '
-                     f'{params}')
-    lines.append('Verdict: ' + diagnosis.message)
-    for note in diagnosis.notes:
-        lines.append('Note: ' + note)
-    for row in diagnosis.residual_structure:
-        lines.append(f'  residual vs {row["signature"]}: r = {row["correlation"]:+.2f}')
-    if diagnosis.missing_effect:
-        best = next(c for c in diagnosis.candidates if c.effect == diagnosis.missing_effect)
-        lines.append('Why: ' + best.explanation)
-    lines.append(f'({diagnosis.seconds:.1f} s)')
-    return '\n'.join(lines)
+def size_text(found: Found) -> str:
+    entry = get_effect(found.effect)
+    units = {p.name: p.unit for p in entry.parameters}
+    values = ', '.join(f'{name} = {value:.4g} +- {found.standard_errors.get(name, float("nan")):.2g} {units[name]}'
+                       for name, value in found.parameters.items())
+    return f'{found.effect} ({values}; removes {found.share_removed * 100:.0f} % of the error beyond the noise)'

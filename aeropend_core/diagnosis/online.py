@@ -8,8 +8,8 @@ Per window (time-first arrays of shape ``(n,)``, SI units):
    ``min_steps`` steps of the armature voltage and a voltage range of ``min_voltage_range`` V, and the held-out
    part must move the rod by more than a few noise levels; otherwise :class:`InsufficientDataError` says why.
 2. **Weak SINDy** on the training part (:func:`aeropend_core.identify.pendulum.identify_pendulum`): the coefficients of
-   ``d²angle/dt² = Σ w_j θ_j`` with standard errors and the derived parameters. Effects that the angle-only weak
-   form can express (``cable_torque``, ``angle_offset``) enter its library.
+   ``d²angle/dt² = Σ w_j θ_j`` with standard errors and the derived parameters. Effects whose catalog record has
+   a weak form enter its library.
 3. **Output-error refinement** on the training part, started from the weak-SINDy values, with *every* requested
    effect (friction, drag, lag, dead zone included): the physical parameters ± 1σ.
 4. **Held-out fit**: free-run simulation of the refined model over the held-out part, driven by the measured
@@ -35,8 +35,6 @@ from aeropend_core.model.effects import get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
 
-#: Effects the angle-only weak form can carry as library terms (others only enter the output-error stage).
-WEAK_FORM_EFFECTS = ('cable_torque', 'angle_offset')
 #: Output-error segment length [s] (``docs/method.md`` section 2.3: ~10 s segments are stable, ~3 s collapse).
 SEGMENT_SECONDS = 10.0
 
@@ -55,7 +53,13 @@ class WindowResult:
         Weak-SINDy coefficients of d²angle/dt² [rad/s² per unit term] by term name.
     parameters : dict
         Physical parameters of the refined model (``gravity_stiffness`` 1/s², ``damping`` 1/s, ``thrust_gain``
-        rad/s²/V², ``thrust_resistance`` Ω, ``thrust_coefficient`` Kq N·s², plus each effect's parameters).
+        rad/s²/V², ``armature_resistance`` Ω, ``thrust_coefficient`` Kq N·s², plus each effect's parameters), in
+        the one vocabulary of :mod:`aeropend_core.model.names`.
+    estimators : dict
+        Which estimator gave each of ``parameters`` (``'output_error'``, ``'motor_observer'``); the weak-SINDy
+        values of the same quantities are in ``weak_parameters``.
+    weak_parameters : dict
+        The same quantities as estimated by weak SINDy on the training part (estimator ``'weak_sindy'``).
     fit_percent : float
         Held-out free-run fit [%] (100 is perfect; can be negative).
     rms_error, noise_rms : float
@@ -83,6 +87,8 @@ class WindowResult:
     compute_time: float = 0.0
     method: str = ''
     findings: tuple = ()
+    estimators: dict[str, str] = field(default_factory=dict)
+    weak_parameters: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 def check_effect_names(names: Sequence[str]) -> tuple[str, ...]:
@@ -172,7 +178,7 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     InsufficientDataError
         Excitation too poor, or too few samples.
     """
-    from aeropend_core.identify.pendulum import identify_pendulum
+    from aeropend_core.identify.pendulum import identify_pendulum, weak_form_effects
 
     started = _time.perf_counter()
     effects = check_effect_names(effects)
@@ -197,22 +203,23 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
                                     '0.5 s held out')
     check_excitation(voltage, angle, n_train, sample_time)
 
-    weak_effects = [name for name in effects if name in WEAK_FORM_EFFECTS]
+    weak_effects = [name for name in effects if name in weak_form_effects()]
     weak = identify_pendulum(time[:n_train], voltage[:n_train], current[:n_train], angle[:n_train],
                              effects=weak_effects, parameters=parameters)
     equation = weak.equation
     coefficients = {name: (float(value), float(equation.standard_errors.get(name, float('nan'))))
                     for name, value in equation.coefficients.items()}
 
-    # Output-error refinement with every requested effect, started from the weak-form values.
+    # Output-error refinement with every requested effect, started from the weak-form values (same names).
     p = weak.parameters
     start = {'gravity_stiffness': max(p.get('gravity_stiffness', 0.0), 1.0), 'damping': max(p.get('damping', 0.0), 0.1),
-             'thrust_gain': max(p.get('thrust_acceleration_coefficient', 0.0), 1.0),
-             'thrust_resistance': min(max(p.get('armature_resistance', 1.0), 0.1), 5.0)}
-    if 'angle_offset' in p and math.isfinite(p['angle_offset']):
-        start['offset'] = float(np.clip(p['angle_offset'], -0.49, 0.49))
-    if 'cable_stiffness' in p and math.isfinite(p['cable_stiffness']):
-        start['cable_stiffness'] = max(p['cable_stiffness'], 0.0)
+             'thrust_gain': max(p.get('thrust_gain', 0.0), 1.0),
+             'armature_resistance': min(max(p.get('armature_resistance', 1.0), 0.1), 5.0)}
+    for name in weak_effects:
+        for parameter in get_effect(name).parameters:
+            value = p.get(parameter.name, float('nan'))
+            if math.isfinite(value):   # the fit moves starts off the bounds itself
+                start[parameter.name] = float(np.clip(value, parameter.lower, parameter.upper))
     scale = (parameters.gear_ratio * parameters.back_emf_constant) ** 2 / parameters.lever_per_inertia
     if (n - 1) * sample_time >= _compare_min_duration():
         values, errors, fit_percent, rms_error, noise = _held_out_by_compare(
@@ -225,12 +232,17 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
         method = 'window'
     values['thrust_coefficient'] = values['thrust_gain'] * scale
     errors['thrust_coefficient'] = errors.get('thrust_gain', float('nan')) * scale
+    estimators = {name: 'output_error' for name in values}
+    if method == 'compare' and not math.isfinite(errors.get('armature_resistance', 0.0)):
+        estimators['armature_resistance'] = 'motor_observer'
+    weak_parameters = {name: (float(p[name]), float(weak.standard_errors.get(name, float('nan'))))
+                       for name in values if name in p}
     return WindowResult(
         start=float(time[0]), stop=float(time[-1] + sample_time), effects=effects, coefficients=coefficients,
         parameters={name: (float(values[name]), float(errors.get(name, float('nan')))) for name in values},
         fit_percent=float(fit_percent), rms_error=float(rms_error), noise_rms=float(noise),
         held_out_seconds=(n - n_train) * sample_time, compute_time=_time.perf_counter() - started, method=method,
-        findings=tuple(checked.findings))
+        estimators=estimators, weak_parameters=weak_parameters, findings=tuple(checked.findings))
 
 
 def _compare_min_duration() -> float:
@@ -254,8 +266,8 @@ def _held_out_by_compare(time, voltage, current, angle, effects, holdout_fractio
     if prepared.motor is not None:
         # With the motor observer the thrust voltage is its back-EMF (R = 0 in the pendulum model); the armature
         # resistance then comes from the observer fitted to Ia.
-        values['thrust_resistance'] = float(prepared.motor.parameters['motor_resistance'])
-        errors['thrust_resistance'] = float('nan')
+        values['armature_resistance'] = float(prepared.motor.parameters['motor_resistance'])
+        errors['armature_resistance'] = float('nan')
     return values, errors, comparison.fit_percent, comparison.rms_error, comparison.noise_rms
 
 
@@ -277,7 +289,8 @@ def _held_out_by_window(voltage, current, angle, effects, n_train, sample_time, 
     values = dict(refined.parameters)
     errors = dict(refined.standard_errors)
     held = oe.SegmentedData(cv[n_train:], ci[n_train:], angle[n_train:], [(0, n - n_train)], sample_time)
-    initial = oe.initial_states_from_data(held, values.get('offset', 0.0))
+    offset = structure.offset_parameter
+    initial = oe.initial_states_from_data(held, values.get(offset, 0.0) if offset else 0.0)
     predicted = oe.simulate_angle(held, refined.parameters, structure, initial)
     landed = np.isfinite(predicted)
     measured = angle[n_train:][landed]
@@ -310,3 +323,36 @@ def fill_gaps(sequence: np.ndarray, columns: dict[str, np.ndarray]) -> tuple[np.
     if missing == 0:
         return grid, {k: np.asarray(v, dtype=float) for k, v in columns.items()}, 0
     return grid, {k: np.interp(grid, sequence, np.asarray(v, dtype=float)) for k, v in columns.items()}, missing
+
+
+class ParameterTrends:
+    """The diagnosis's drift test (:func:`aeropend_core.diagnosis.drift.trend_test`) over the online windows.
+
+    Consecutive windows overlap (a 25 s window every 5 s), so their estimates are not independent: the trend is
+    tested on windows that do not overlap (the latest one and every earlier one ending before the next kept one
+    starts). The history restarts when the set of parameter names changes (the model's effects changed).
+
+    Parameters
+    ----------
+    window_seconds : float
+        Length of the windows [s] (the node's ``window_s``).
+    """
+
+    def __init__(self, window_seconds: float = 25.0) -> None:
+        self.window_seconds = float(window_seconds)
+        self.history: list[tuple[float, dict[str, float]]] = []
+
+    def add(self, stop: float, values: dict[str, tuple[float, float] | float]) -> dict[str, dict]:
+        """Add the window ending at `stop` [s]; returns ``{name: trend row}`` (``drifting`` flags a drift)."""
+        from aeropend_core.diagnosis.drift import trend_test
+        plain = {name: float(v[0] if isinstance(v, tuple) else v) for name, v in values.items()}
+        if self.history and set(self.history[-1][1]) != set(plain):
+            self.history = []
+        self.history.append((float(stop), plain))
+        kept = [self.history[-1]]
+        for stop_time, row in reversed(self.history[:-1]):
+            if stop_time <= kept[-1][0] - self.window_seconds:
+                kept.append((stop_time, row))
+        kept.reverse()
+        times = np.array([t - 0.5 * self.window_seconds for t, _ in kept])
+        return {name: trend_test(times, np.array([row[name] for _, row in kept]), name) for name in plain}

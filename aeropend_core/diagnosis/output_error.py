@@ -28,24 +28,16 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from aeropend_core.model.effects import PENDULUM, find_parameter, get_effect
+from aeropend_core.diagnosis.evidence import effective_samples, hac_covariance
 from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.model.effects import KERNEL_KINDS, PENDULUM, find_parameter, get_effect, kernel_parameter
+from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.model.sensor_filter import filter_angle
 
-#: Nominal parameters of the pendulum equation, their units and meanings.
-NOMINAL_PARAMETERS = {
-    'gravity_stiffness': ('1/s^2', 'mgd/J, gravity term per unit sin(angle)'),
-    'damping': ('1/s', 'c/J, viscous damping of the pivot'),
-    'thrust_gain': ('rad/s^2/V^2', '(L/J) Kq (N2/(N1 Kw))^2, thrust term per (Va - R Ia)^2'),
-    'thrust_resistance': ('ohm', 'R in Va - R Ia: armature resistance as seen by the thrust'),
-}
-#: Column of each built-in parameter in the kernel's parameter row.
-BUILTIN_COLUMNS = {'gravity_stiffness': 0, 'damping': 1, 'thrust_gain': 2, 'thrust_resistance': 3,
-                   'friction_acceleration': 4, 'drag_coefficient': 5, 'cable_stiffness': 6, 'offset': 7,
-                   'time_constant': 8, 'threshold_voltage': 9}
-BUILTIN_EFFECT_PARAMETER = {'coulomb_friction': 'friction_acceleration', 'quadratic_drag': 'drag_coefficient',
-                            'cable_torque': 'cable_stiffness', 'angle_offset': 'offset',
-                            'thrust_lag': 'time_constant', 'dead_zone': 'threshold_voltage'}
-N_BUILTIN = 10
+#: Column of each nominal parameter, then of each kernel kind, in the kernel's parameter row.
+NOMINAL_COLUMNS = {name: column for column, name in enumerate(NOMINAL_PARAMETERS)}
+KIND_COLUMNS = {kind: len(NOMINAL_PARAMETERS) + i for i, kind in enumerate(KERNEL_KINDS)}
+N_BUILTIN = len(NOMINAL_COLUMNS) + len(KIND_COLUMNS)
 #: Samples per integration step (RK4 half step lands on a sample).
 STRIDE = 2
 #: Smallest thrust-lag time constant the explicit RK4 step handles [s].
@@ -55,7 +47,10 @@ MIN_TIME_CONSTANT = 0.005
 @numba.njit(cache=True, nogil=True)
 def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, initial, sample_time, lag_on, gate_on,
                      out):
-    """RK4 free-run of every parameter row over every segment; writes predicted measured angle into `out`."""
+    """RK4 free-run of every parameter row over every segment; writes predicted measured angle into `out`.
+
+    Row columns: the nominal parameters, then the kernel kinds in ``KERNEL_KINDS`` order (rate_sign, rate_square,
+    angle_linear, measured_offset, thrust_lag_time, thrust_threshold)."""
     h = STRIDE * sample_time
     n_rows = theta.shape[0]
     for row in range(n_rows):
@@ -204,7 +199,7 @@ class Structure:
     def __post_init__(self) -> None:
         for name in self.effects:
             effect = get_effect(name)
-            if not effect.builtin and effect.kind != PENDULUM:
+            if not effect.compiled and effect.kind != PENDULUM:
                 raise AeropendError(f'effect {name!r}: only pendulum-kind user effects can be fitted '
                                     f'(it is {effect.kind!r})')
 
@@ -218,18 +213,40 @@ class Structure:
 
     @property
     def lag_on(self) -> bool:
-        return 'thrust_lag' in self.effects
+        return kernel_parameter(self.effects, 'thrust_lag_time') is not None
 
     @property
     def gate_on(self) -> bool:
-        return 'dead_zone' in self.effects
+        return kernel_parameter(self.effects, 'thrust_threshold') is not None
+
+    @property
+    def filter_on(self) -> bool:
+        return kernel_parameter(self.effects, 'measured_lowpass') is not None
+
+    @property
+    def offset_parameter(self) -> str | None:
+        """The parameter that offsets the measured angle, if an effect in the model has one."""
+        return kernel_parameter(self.effects, 'measured_offset')
+
+    @property
+    def gate_parameter(self) -> str | None:
+        """The thrust gate's threshold parameter [V] (profiled over the input levels), if any."""
+        return kernel_parameter(self.effects, 'thrust_threshold')
+
+    def kernel_columns(self) -> dict[str, int]:
+        """Row column of each compiled effect parameter."""
+        columns = {}
+        for name in self.effects:
+            for kind, parameter in get_effect(name).kernel_terms:
+                columns[parameter] = KIND_COLUMNS[kind]
+        return columns
 
     def user_terms(self) -> list[tuple]:
         """User (non-built-in) effects with the row column of each of their parameters."""
         terms, column = [], N_BUILTIN
         for name in self.effects:
             effect = get_effect(name)
-            if effect.builtin:
+            if effect.compiled:
                 continue
             columns = {}
             for parameter in effect.parameter_names:
@@ -243,9 +260,10 @@ class Structure:
         terms = self.user_terms()
         width = N_BUILTIN + sum(len(columns) for _, columns in terms)
         row = np.zeros(width)
+        columns = {**NOMINAL_COLUMNS, **self.kernel_columns()}
         for name, value in values.items():
-            if name in BUILTIN_COLUMNS:
-                row[BUILTIN_COLUMNS[name]] = value
+            if name in columns:
+                row[columns[name]] += value
         for _, columns in terms:
             for name, column in columns.items():
                 row[column] = values[name]
@@ -268,7 +286,9 @@ class SegmentedData:
     sample_time : float
         Ts [s].
     gate_signal : ndarray, shape (n,), optional
-        The armature voltage [V] a dead zone compares with its threshold (default: `voltage`).
+        The armature voltage [V] a thrust gate compares with its threshold (default: `voltage`).
+    valid : ndarray of bool, shape (n,), optional
+        Samples that were measured (False: filled in a gap of lost samples); only valid samples give residuals.
     """
 
     voltage: np.ndarray
@@ -277,6 +297,7 @@ class SegmentedData:
     segments: list[tuple[int, int]]
     sample_time: float
     gate_signal: np.ndarray | None = None
+    valid: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.gate_signal is None:
@@ -290,6 +311,10 @@ class SegmentedData:
         self.residual_index = np.concatenate([np.arange(s, e, STRIDE) for s, e in self.segments])
         self.segment_of_residual = np.concatenate([np.full(len(range(s, e, STRIDE)), i)
                                                    for i, (s, e) in enumerate(self.segments)])
+        if self.valid is not None:
+            keep = np.asarray(self.valid, dtype=bool)[self.residual_index]
+            self.residual_index = self.residual_index[keep]
+            self.segment_of_residual = self.segment_of_residual[keep]
 
     def simulate(self, structure: Structure, rows: np.ndarray, initial: np.ndarray) -> np.ndarray:
         """Predicted measured angle for each row: array (n_rows, n); NaN outside the residual samples."""
@@ -303,14 +328,29 @@ class SegmentedData:
         else:
             _simulate_kernel(rows, self.voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
                              self.sample_time, structure.lag_on, structure.gate_on, out)
+        if structure.filter_on:
+            # the sensor's low-pass acts on the simulated measured angle (linear: after the offset is the same)
+            column = KIND_COLUMNS['measured_lowpass']
+            for row in range(len(rows)):
+                delay = rows[row, column]
+                if delay <= 0:
+                    continue
+                for s, (start, stop) in enumerate(zip(self.seg_start, self.seg_stop)):
+                    index = np.arange(start, stop, STRIDE)
+                    index = index[np.isfinite(out[row, index])]
+                    out[row, index] = filter_angle(out[row, index], delay, STRIDE * self.sample_time,
+                                                   initial[row, s, 1])
         return out
 
 
 @dataclass
 class OutputErrorFit:
-    """Result of :func:`fit_output_error`. Parameter dicts are SI (see :data:`NOMINAL_PARAMETERS` and the catalog).
+    """Result of :func:`fit_output_error`. Parameter dicts are SI (see :data:`NOMINAL_PARAMETERS` and the catalog);
+    ``estimator`` is ``'output_error'``.
 
-    ``standard_errors`` are 1-sigma from the Gauss-Newton covariance, inflated for residual correlation.
+    ``standard_errors`` are 1-sigma from the sandwich (HAC) covariance, valid under correlated residuals
+    (:mod:`aeropend_core.diagnosis.evidence`); ``residuals`` are the training residuals [rad] at
+    ``data.residual_index``.
     ``correlation`` is the parameter correlation matrix in ``free_names`` order.
     """
 
@@ -326,6 +366,7 @@ class OutputErrorFit:
     effective_samples: float
     success: bool
     message: str = ''
+    residuals: np.ndarray | None = field(default=None, repr=False)
     extra: dict = field(default_factory=dict)
 
     @property
@@ -347,10 +388,14 @@ def initial_states_from_data(data: SegmentedData, offset: float = 0.0) -> np.nda
     return states
 
 
+#: Magnitude of a meaningful change of each nominal parameter (optimiser scaling).
+_NOMINAL_SCALE = {'gravity_stiffness': 100.0, 'damping': 10.0, 'thrust_gain': 100.0, 'armature_resistance': 1.0}
+
+
 def _default_scale(name: str, value: float) -> float:
-    typical = {'gravity_stiffness': 100.0, 'damping': 10.0, 'thrust_gain': 100.0, 'thrust_resistance': 1.0,
-               'offset': 0.05, 'time_constant': 0.1}
-    return max(abs(value), typical.get(name, 1.0) * 0.1, 1e-6)
+    found = find_parameter(name)
+    typical = _NOMINAL_SCALE.get(name, (found[1].scale if found and found[1].scale else 1.0))
+    return max(abs(value), typical * 0.1, 1e-6)
 
 
 def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str, float],
@@ -376,7 +421,9 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     lower, upper = _bounds(free)
     x0 = np.clip(np.array([start[n] for n in free]), lower + 1e-9 * scale, upper - 1e-9 * scale) / scale
     n_seg = len(data.segments)
-    initial0 = initial_states_from_data(data, start.get('offset', fixed.get('offset', 0.0)))
+    offset_name = structure.offset_parameter
+    initial0 = initial_states_from_data(data, start.get(offset_name, fixed.get(offset_name, 0.0)) if offset_name
+                                        else 0.0)
     ic_scale = np.array([0.1, 1.0])
     z0 = np.concatenate([x0, (initial0 / ic_scale).ravel()])
     base_values = {n: fixed.get(n, start.get(n)) for n in names}
@@ -439,12 +486,12 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     r = result.fun
     n = len(r)
     rms = float(np.sqrt(np.mean(r ** 2)))
-    effective = _effective_samples(r)
+    effective = effective_samples(r)
     jac = result.jac
     p = jac.shape[1]
-    dof_sigma2 = float(np.sum(r ** 2) / max(n - p, 1))
     try:
-        covariance_z = np.linalg.pinv(jac.T @ jac) * dof_sigma2 * (n / effective)
+        # sandwich covariance with block sums of the scores within segments: honest under correlated residuals
+        covariance_z = hac_covariance(jac, r, data.segment_of_residual) * n / max(n - p, 1)
     except np.linalg.LinAlgError:  # pragma: no cover - pinv rarely fails
         covariance_z = np.full((p, p), np.nan)
     cov = covariance_z[:n_free, :n_free] * np.outer(scale, scale)
@@ -457,7 +504,7 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     return OutputErrorFit(structure=structure, parameters=parameters, standard_errors=errors,
                           initial_states=initial, residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg,
                           free_names=free, correlation=correlation, effective_samples=effective,
-                          success=bool(result.success), message=str(result.message))
+                          success=bool(result.success), message=str(result.message), residuals=r)
 
 
 #: A simulation that diverges (unstable parameter trial) is scored as this many radians off, so the optimiser
@@ -473,29 +520,16 @@ def _bounded(residuals: np.ndarray) -> np.ndarray:
 def _bounds(free: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
     lower, upper = [], []
     for name in free:
-        if name in ('offset',):
-            lo, hi = -0.5, 0.5
-        elif name == 'time_constant':
-            lo, hi = MIN_TIME_CONSTANT, 5.0
-        elif name in NOMINAL_PARAMETERS:
-            lo, hi = (0.0, np.inf) if name != 'thrust_resistance' else (0.0, 20.0)
+        if name in NOMINAL_PARAMETERS:
+            lo, hi = (0.0, np.inf) if name != 'armature_resistance' else (0.0, 20.0)
         else:
             found = find_parameter(name)
             lo, hi = (found[1].lower, found[1].upper) if found else (-np.inf, np.inf)
+            if found and ('thrust_lag_time', name) in found[0].kernel_terms:
+                lo = max(lo, MIN_TIME_CONSTANT)     # the explicit RK4 step's smallest lag
         lower.append(lo)
         upper.append(hi)
     return np.array(lower, dtype=float), np.array(upper, dtype=float)
-
-
-def _effective_samples(residuals: np.ndarray) -> float:
-    """Number of effectively independent residuals, from the lag-1 autocorrelation (AR(1) approximation)."""
-    r = residuals - residuals.mean()
-    denominator = float(np.dot(r, r))
-    if denominator <= 0:
-        return float(len(r))
-    rho = float(np.dot(r[1:], r[:-1]) / denominator)
-    rho = min(max(rho, 0.0), 0.999)
-    return float(len(r) * (1 - rho) / (1 + rho))
 
 
 def simulate_angle(data: SegmentedData, fit_parameters: dict[str, float], structure: Structure,

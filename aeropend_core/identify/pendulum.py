@@ -10,7 +10,7 @@ pendulum equation is second order in y, with the thrust of eq (5) written in the
 
 The weak form integrates by parts twice (∫φ ÿ = ∫φ'' y; the damping term ∫φ ẏ = −∫φ' y), so neither the rate nor
 the acceleration is differentiated from data. Derived: mgd/J [1/s²], c/J [1/s], the voltage-thrust acceleration
-coefficient k_v = θ1 = (L/J)·Kq / (N1/N2 · Kω)² [rad/s² per V²] (the model's ``thrust_acceleration_coefficient``:
+coefficient k_v = θ1 = (L/J)·Kq / (N1/N2 · Kω)² [rad/s² per V²] (the model's ``thrust_gain``:
 ω2 = ω1·N2/N1 as in eq (4); eq (5) prints the gear ratio inverted), and Ra = −θ2/(2θ1) [Ω] (also √(θ3/θ1)).
 
 *Step transients.* Eq (5) assumes Kω·ω1 = Va − Ra·Ia, neglecting La·dIa/dt. With La/Ra ≈ 2 ms ≈ one sample, the
@@ -40,7 +40,8 @@ from itertools import pairwise
 import numpy as np
 
 from aeropend_core.wsindy import library as lib
-from aeropend_core.model.effects import get_effect
+from aeropend_core.model.effects import CATALOG, get_effect
+from aeropend_core.model.names import parameter_unit
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, RigParameters
 from aeropend_core.io.recording import Recording
@@ -52,23 +53,28 @@ from aeropend_core.wsindy.weak_form import (
 )
 from aeropend_core.signals.preprocess import estimate_noise_std
 
-#: Units of the derived parameters.
+#: Units of the full-state fit's derived parameters (the pendulum fit's come from the shared vocabulary,
+#: :func:`aeropend_core.model.names.parameter_unit`).
 PARAMETER_UNITS = {
-    'gravity_stiffness': '1/s^2', 'damping': '1/s', 'thrust_acceleration_coefficient': 'rad/s^2/V^2',
-    'armature_resistance': 'ohm', 'armature_resistance_from_current_square': 'ohm', 'thrust_coefficient': 'N s^2',
-    'cable_stiffness': '1/s^2', 'angle_offset': 'rad', 'armature_inductance': 'H', 'back_emf_constant': 'V s/rad',
-    'motor_inertia_per_torque_constant': 'kg m^2/(N m/A)',
+    'armature_inductance': 'H', 'back_emf_constant': 'V s/rad', 'motor_inertia_per_torque_constant': 'kg m^2/(N m/A)',
     'lever_per_inertia_times_thrust_coefficient': '1/(kg m) N s^2',
 }
+
+
+def parameter_unit_of(name: str) -> str:
+    """SI unit of a parameter this module reports."""
+    return PARAMETER_UNITS.get(name) or parameter_unit(name)
+
+
 #: Units of each signal, for printing equations.
 SIGNAL_UNITS = {'angle': 'rad', 'armature_voltage': 'V', 'armature_current': 'A', 'motor_speed': 'rad/s',
                 'angular_rate': 'rad/s'}
 
-#: Catalog effects that the angle-only weak form can carry as an extra library term: effect -> term.
-_EFFECT_TERMS = {
-    'cable_torque': lambda: lib.variable('angle'),
-    'angle_offset': lambda: lib.cosine('angle'),
-}
+
+
+def weak_form_effects() -> list[str]:
+    """Catalog effects that the angle-only weak form can carry as extra library terms (their records say how)."""
+    return [name for name, effect in CATALOG.items() if effect.weak_form is not None]
 
 _SIN, _RATE, _VV, _VI, _II = ('sin(angle)', 'dangle/dt', 'armature_voltage^2',
                              'armature_voltage*armature_current', 'armature_current^2')
@@ -82,9 +88,12 @@ class PendulumFit:
     ----------
     parameters : dict
         Derived physical parameters, SI (see :data:`PARAMETER_UNITS`): ``gravity_stiffness`` mgd/J [1/s²],
-        ``damping`` c/J [1/s], ``thrust_acceleration_coefficient`` k_v [rad/s²/V²], ``armature_resistance`` Ra [Ω],
+        ``damping`` c/J [1/s], ``thrust_gain`` k_v [rad/s²/V²], ``armature_resistance`` Ra [Ω],
         ``armature_resistance_from_current_square`` √(θ3/θ1) [Ω], ``thrust_coefficient`` Kq [N s²] (from k_v with
-        the known gear, Kω and L/J), plus ``cable_stiffness`` / ``angle_offset`` when those effects were asked for.
+        the known gear, Kω and L/J), plus the parameters of the effects asked for (names as in the catalog and
+        in the output-error fit: one vocabulary, :mod:`aeropend_core.model.names`).
+    estimator : str
+        ``'weak_sindy'``.
     standard_errors : dict
         1σ of each parameter (delta method on the coefficient covariance).
     result : WeakSindyResult
@@ -97,6 +106,7 @@ class PendulumFit:
     standard_errors: dict[str, float]
     result: WeakSindyResult = field(repr=False)
     step_handling: str = 'invert'
+    estimator: str = 'weak_sindy'
 
     @property
     def equation(self):
@@ -105,12 +115,13 @@ class PendulumFit:
     def format(self) -> str:
         lines = [f'{self.equation.name} [rad/s^2] = '
                  + _format_terms(self.equation.coefficients, self.equation.standard_errors, self.equation.name)]
+        effect_parameters = {p for name in weak_form_effects() for p in get_effect(name).parameter_names}
         for k, v in self.parameters.items():
             se = self.standard_errors.get(k, float('nan'))
-            if k in ('cable_stiffness', 'angle_offset') and not math.isfinite(se):
-                lines.append(f'  {k} = 0 {PARAMETER_UNITS.get(k, "")} (term not selected: no evidence of the effect)')
+            if k in effect_parameters and not math.isfinite(se):
+                lines.append(f'  {k} = 0 {parameter_unit_of(k)} (term not selected: no evidence of the effect)')
             else:
-                lines.append(f'  {k} = {v:.6g} ± {se:.2g} {PARAMETER_UNITS.get(k, "")}')
+                lines.append(f'  {k} = {v:.6g} ± {se:.2g} {parameter_unit_of(k)}')
         return '\n'.join(lines)
 
 
@@ -125,7 +136,7 @@ class FullStateFit:
     def format(self) -> str:
         lines = [f'{eq.name} [{_lhs_unit(eq.name)}] = ' + _format_terms(eq.coefficients, eq.standard_errors, eq.name)
                  for eq in self.result.equations]
-        lines += [f'  {k} = {v:.6g} ± {self.standard_errors.get(k, float("nan")):.2g} {PARAMETER_UNITS.get(k, "")}'
+        lines += [f'  {k} = {v:.6g} ± {self.standard_errors.get(k, float("nan")):.2g} {parameter_unit_of(k)}'
                   for k, v in self.parameters.items()]
         return '\n'.join(lines)
 
@@ -276,10 +287,10 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
     angle : ndarray, shape (n,) [rad]
         Rod angle (or a sequence).
     effects : sequence of str [-]
-        Catalog effects to add as candidate terms (thresholded by MSTLS; the nominal terms are always kept):
-        ``cable_torque`` (term angle → ``cable_stiffness`` Kc [1/s²]) and ``angle_offset`` (term cos(angle) →
-        ``angle_offset`` [rad]). Effects needing the angular rate inside a nonlinearity (friction, drag) or the
-        thrust history (lag, dead zone) cannot be written in this weak form: use the output-error diagnosis.
+        Catalog effects to add as candidate terms (thresholded by MSTLS; the nominal terms are always kept): those
+        whose record has a weak form (:func:`weak_form_effects`: a cable spring as the term angle, a sensor offset
+        as cos(angle)). Effects needing the angular rate inside a nonlinearity (friction, drag) or the thrust
+        history (lag, dead zone) cannot be written in this weak form: use the output-error diagnosis.
     step_handling : {'invert', 'mask', 'none'} [-]
         Duty-step transient handling (module docstring).
     parameters : RigParameters [SI, see RigParameters]
@@ -319,11 +330,12 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
         raise AeropendError(f"step_handling must be 'invert', 'mask' or 'none', got {step_handling!r}")
     extra = []
     for name in effects:
-        get_effect(name)            # unknown name -> UnknownEffectError listing the catalog
-        if name not in _EFFECT_TERMS:
+        weak = get_effect(name).weak_form        # unknown name -> UnknownEffectError listing the catalog
+        if weak is None:
             raise AeropendError(f'effect {name!r} cannot be written as a term of the angle-only weak form; '
-                                f'identify_pendulum supports {sorted(_EFFECT_TERMS)} (use the diagnosis for others)')
-        extra.append((name, _EFFECT_TERMS[name]()))
+                                f'identify_pendulum supports {sorted(weak_form_effects())} (use the diagnosis for '
+                                f'others)')
+        extra.extend((name, term) for term in weak.terms())
     segments = _segments(time, armature_voltage, armature_current, angle)
     duties = [None] * len(segments) if duty is None else [d for (d,) in _segments(duty)]
     if len(duties) != len(segments):
@@ -401,8 +413,8 @@ def _pendulum_parameters(result: WeakSindyResult, parameters: RigParameters, eff
     errors['gravity_stiffness'] = _delta({_SIN: -1.0}, cov, names)
     values['damping'] = -c.get(_RATE, 0.0)
     errors['damping'] = _delta({_RATE: -1.0}, cov, names)
-    values['thrust_acceleration_coefficient'] = th1
-    errors['thrust_acceleration_coefficient'] = _delta({_VV: 1.0}, cov, names)
+    values['thrust_gain'] = th1
+    errors['thrust_gain'] = _delta({_VV: 1.0}, cov, names)
     if th1 != 0.0:
         values['armature_resistance'] = -th2 / (2 * th1)
         errors['armature_resistance'] = _delta({_VI: -1 / (2 * th1), _VV: th2 / (2 * th1 ** 2)}, cov, names)
@@ -414,18 +426,12 @@ def _pendulum_parameters(result: WeakSindyResult, parameters: RigParameters, eff
                 {_II: 0.5 / (r * th1), _VV: -0.5 * th3 / (r * th1 ** 2)}, cov, names)
     scale = (parameters.gear_ratio * parameters.back_emf_constant) ** 2 / parameters.lever_per_inertia
     values['thrust_coefficient'] = th1 * scale
-    errors['thrust_coefficient'] = errors['thrust_acceleration_coefficient'] * scale
-    if 'cable_torque' in effects:
-        # 0 with no error bar when MSTLS dropped the term (no evidence of a cable torque)
-        values['cable_stiffness'] = -c['angle'] if 'angle' in c else 0.0
-        errors['cable_stiffness'] = _delta({'angle': -1.0}, cov, names) if 'angle' in c else float('nan')
-    if 'angle_offset' in effects:
-        # measured y_m = y + δ: −a·sin(y_m − δ) = −a·cos δ·sin y_m + a·sin δ·cos y_m
-        wc = c.get('cos(angle)', 0.0)
-        ratio = wc / a if a else 0.0
-        values['angle_offset'] = math.asin(max(-1.0, min(1.0, ratio)))
-        errors['angle_offset'] = (_delta({'cos(angle)': 1 / a, _SIN: wc / a ** 2}, cov, names)
-                                  if a and 'cos(angle)' in c else float('nan'))
+    errors['thrust_coefficient'] = errors['thrust_gain'] * scale
+    for name in dict.fromkeys(effects):
+        effect_values, effect_errors = get_effect(name).weak_form.parameters(
+            c, lambda gradient: _delta(gradient, cov, names))
+        values.update(effect_values)
+        errors.update(effect_errors)
     return PendulumFit(values, errors, result, step_handling)
 
 

@@ -121,7 +121,7 @@ class RigParameters:
         return self.thrust_coefficient / (self.gear_ratio * self.back_emf_constant) ** 2
 
     @property
-    def thrust_acceleration_coefficient(self) -> float:
+    def thrust_gain(self) -> float:
         """(L/J) Kq (N2/(N1 Kw))^2 [rad/s^2 per V^2]: the pendulum's thrust term in (Va - Ra Ia)^2."""
         return self.lever_per_inertia * self.thrust_voltage_coefficient
 

@@ -15,7 +15,7 @@ from aeropend_core.diagnosis.compare import Comparison, excess_error
 from aeropend_core.diagnosis.diagnose import (Candidate,
                                     Diagnosis)
 from aeropend_core.model.effects import find_parameter
-from aeropend_core.diagnosis.output_error import NOMINAL_PARAMETERS
+from aeropend_core.model.names import NOMINAL_PARAMETERS
 
 
 #: Resolution of the embedded PNGs [dots per inch]; with the figure sizes below a page stays well under 2 MB.
@@ -45,11 +45,12 @@ VERDICT_TITLES = {
     'nothing_missing': 'Nothing significant is missing',
     'confounded': 'Confounded: the data cannot tell which effect is missing',
     'unexplained': 'Unexplained error: no catalog effect explains it',
+    'drift': 'Parameter drift',
 }
 
 
 VERDICT_CLASSES = {'effect_found': 'found', 'nothing_missing': 'ok', 'confounded': 'warn',
-                   'unexplained': 'bad'}
+                   'unexplained': 'bad', 'drift': 'warn'}
 
 
 def _esc(value: object) -> str:

@@ -39,7 +39,7 @@ def observer_traces(diagnosis: Diagnosis) -> dict[str, np.ndarray | None]:
     """
     prep = diagnosis.prepared
     motor = prep.motor
-    resistance = diagnosis.current.parameters.get('thrust_resistance', 0.0)
+    resistance = diagnosis.current.parameters.get('armature_resistance', 0.0)
     thrust_voltage = prep.voltage - resistance * prep.current
     if motor is None:
         measured = prep.armature_voltage - resistance * prep.armature_current
@@ -70,7 +70,7 @@ def observer_section(diagnosis: Diagnosis, interactive: bool) -> str:
         text = ('<p class="caption"><b>The motor observer was not used</b> for this record: it could not explain the '
                 'armature current to within 1.5&times; its noise (or Va is not a step input), so the thrust input is '
                 'the measured <code>Va &minus; R&middot;Ia</code> with R fitted '
-                f'({_sig(diagnosis.current.parameters.get("thrust_resistance"))} &Omega;). Its current noise reaches '
+                f'({_sig(diagnosis.current.parameters.get("armature_resistance"))} &Omega;). Its current noise reaches '
                 'the thrust: expect a higher error floor.</p>')
     else:
         units = {'motor_drive_rate': '1/s', 'motor_friction_rate': '1/s', 'motor_drag_rate': '1/(V&middot;s)',
@@ -160,8 +160,8 @@ def equation_html(comparison: Comparison, observer: bool) -> str:
                'drag_coefficient': 'C<sub>d</sub>', 'cable_stiffness': 'K<sub>c</sub>', 'offset': 'y<sub>0</sub>',
                'time_constant': '&tau;', 'threshold_voltage': 'V<sub>0</sub>'}
     if not observer:
-        symbols['thrust_resistance'] = 'R'
-    shown = [name for name in comparison.parameters if not (observer and name == 'thrust_resistance')]   # R = 0
+        symbols['armature_resistance'] = 'R'
+    shown = [name for name in comparison.parameters if not (observer and name == 'armature_resistance')]   # R = 0
     values = [_value(comparison, name, symbols.get(name, f'<code>{_esc(name)}</code>')) for name in shown]
     notes = [f'g<sub>{_esc(e)}</sub>: {_esc(CATALOG[e].equation)}' for e in user]
     return ('<div class="equation">' + '<br>'.join(lines) + '</div><div class="terms">' + ' &nbsp; '.join(values)

@@ -3,12 +3,12 @@ windows, error by regime, residual tests (MATLAB ``resid`` style) and the candid
 """
 from __future__ import annotations
 
+import math
 
 import numpy as np
 
 from aeropend_core.diagnosis.compare import excess_error
-from aeropend_core.diagnosis.diagnose import (BIC_MARGIN, MIN_ABSOLUTE, MIN_IMPROVEMENT, Candidate,
-                                    Diagnosis)
+from aeropend_core.diagnosis.diagnose import BIC_MARGIN, MATERIAL, Candidate, Diagnosis
 from aeropend_core.present.formatting import (
     BEFORE,
     CANDIDATE,
@@ -230,7 +230,7 @@ def _plot_candidates(diagnosis: Diagnosis) -> str | None:
         return None
     noise = diagnosis.noise_rms * 1e3
     now = _excess(diagnosis.current) * 1e3
-    needed = max(now - max(MIN_IMPROVEMENT * now, MIN_ABSOLUTE * noise), 0.0)
+    needed = math.sqrt(max(now ** 2 - (MATERIAL * noise) ** 2, 0.0))
     figure = _figure(12.5, 0.9 + 0.38 * len(testable))
     axes = figure.add_subplot()
     positions = np.arange(len(testable))[::-1]

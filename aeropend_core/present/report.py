@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison
-from aeropend_core.diagnosis.diagnose import (BIC_MARGIN, MIN_ABSOLUTE, MIN_IMPROVEMENT, WITHIN_NOISE, Candidate,
-                                    Diagnosis)
+from aeropend_core.diagnosis.diagnose import (BIC_MARGIN, DM_MIN, MATERIAL, T_MIN, UNEXPLAINED_NOISE, Candidate,
+                                              Diagnosis)
 from aeropend_core.errors import AeropendError
 from aeropend_core.present.formatting import (
     BEFORE,
@@ -117,7 +117,8 @@ def _noise_limited_fit(diagnosis: Diagnosis) -> float:
 
 
 def _verdict_html(diagnosis: Diagnosis, source: str | None = None) -> str:
-    title = VERDICT_TITLES.get(diagnosis.verdict, diagnosis.verdict).format(missing=diagnosis.missing_effect)
+    title = VERDICT_TITLES.get(diagnosis.verdict, diagnosis.verdict).format(
+        missing=', '.join(diagnosis.missing_effects) or diagnosis.missing_effect)
     css = VERDICT_CLASSES.get(diagnosis.verdict, 'warn')
     parts = [f'<section class="verdict {css}" id="verdict"><div class="title">{_esc(title)}</div>',
              f'<div>{_esc(diagnosis.message)}</div>']
@@ -149,10 +150,10 @@ def _quality_html(diagnosis: Diagnosis) -> str:
 
 def _within_noise_text(excess: float, noise: float) -> str:
     ratio = excess / noise if noise > 0 else float('inf')
-    if excess <= WITHIN_NOISE * noise:
-        return f'within the noise ({ratio:.2f}&times; the noise RMS; limit {WITHIN_NOISE:g}&times;)'
+    if excess <= UNEXPLAINED_NOISE * noise:
+        return f'within the noise ({ratio:.2f}&times; the noise RMS; limit {UNEXPLAINED_NOISE:g}&times;)'
     return (f'{ratio:.2f}&times; the noise RMS: the model misses the data (within the noise below '
-            f'{WITHIN_NOISE:g}&times;)')
+            f'{UNEXPLAINED_NOISE:g}&times;)')
 
 
 def _card(label: str, value: str, hint: str, key: str = '', was: str = '') -> str:
@@ -186,7 +187,7 @@ def _cards_html(diagnosis: Diagnosis) -> str:
         _card('Model error beyond noise', _mrad(_excess(current)),
               f'<b>{_within_noise_text(_excess(current), noise)}</b>. '
               '&radic;(RMS error&sup2; &minus; noise&sup2;) on the held-out part: the number to watch.',
-              key='ok' if _excess(current) <= WITHIN_NOISE * noise else 'bad',
+              key='ok' if _excess(current) <= UNEXPLAINED_NOISE * noise else 'bad',
               was=was(_excess(before), _excess(current), _mrad(_excess(before))) if before is not None else ''),
         _card('Held-out RMS error', _mrad(current.rms_error),
               f'measured &minus; simulated angle ({_num(current.rms_error, 2, 180 / math.pi)}&deg;)',
@@ -215,7 +216,7 @@ def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
         sigma = comparison.fit.standard_errors.get(name, float('nan'))
         relative = abs(sigma / value) * 100 if value and np.isfinite(sigma) else float('nan')
         shown = f'{_sig(value)} &plusmn; {_sig(sigma, 2)}'
-        if name == 'thrust_resistance' and motor is not None:
+        if name == 'armature_resistance' and motor is not None:
             shown = f'{_sig(motor.parameters["motor_resistance"])} (motor observer)'
             meaning = ('the motor observer\'s back-EMF is the thrust input, so R is 0 in the pendulum model; '
                        'shown: the armature resistance the observer estimated')
@@ -356,7 +357,7 @@ def _before_after_html(diagnosis: Diagnosis) -> str:
     motor = diagnosis.prepared.motor if diagnosis.prepared is not None else None
     for name, new in current.parameters.items():
         unit, meaning = _unit_and_meaning(name)
-        if name == 'thrust_resistance' and motor is not None:
+        if name == 'armature_resistance' and motor is not None:
             continue
         meaning = _observer_meaning(name, motor, meaning)
         old = before.parameters.get(name)
@@ -477,10 +478,12 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
     sections.append(
         '<h2 id="candidates">5. Which effect is missing: candidate ranking</h2>'
         f'<p class="caption">Each catalog effect not yet in the model was added, the model refitted on the training '
-        f'part and judged on the held-out part. Best first. A candidate is <b>significant</b> when it lowers the '
-        f'training BIC by more than {BIC_MARGIN:g}, lowers the held-out error beyond the noise by at least '
-        f'{MIN_IMPROVEMENT * 100:.0f} % (and by more than {MIN_ABSOLUTE:g}&times; the noise), and its parameter '
-        f'is more than 3&sigma; from zero. Green: significant.</p>'
+        f'part and judged on the held-out part. Best first. A candidate is <b>significant</b> when its parameter '
+        f'is more than {T_MIN:g} HAC standard errors from zero, it lowers the training BIC (effective sample '
+        f'count) by more than {BIC_MARGIN:g}, and it predicts the held-out part better (Diebold-Mariano above '
+        f'{DM_MIN:g}, mean-square error lower by more than ({MATERIAL:g}&times; the noise)&sup2;). Green: '
+        f'significant. The search then adds the strongest, tries the others on top of it and drops effects made '
+        f'redundant (the selected set is in the verdict).</p>'
         + (_img(chart, 'held-out error beyond the noise per candidate') if chart else '')
         + _candidates_table(diagnosis))
 

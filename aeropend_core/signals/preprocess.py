@@ -27,6 +27,25 @@ STEP_SETTLING_SAMPLES = 5
 INPUT_CUTOFF_HZ = 25.0
 
 
+def quantisation_step(signal: np.ndarray) -> float:
+    """The ADC step of a quantised signal [its unit] (0 when its values do not lie on a grid).
+
+    The smallest gap between distinct values is the candidate step; the signal counts as quantised when at least
+    99 % of its values are whole multiples of it (from the smallest value) within 1 %.
+    """
+    signal = np.asarray(signal, dtype=float)
+    values = np.unique(signal[np.isfinite(signal)])
+    if values.size < 3:
+        return 0.0
+    gaps = np.diff(values)
+    step = float(np.min(gaps))
+    if not step > 0:
+        return 0.0
+    units = (signal - values[0]) / step
+    on_grid = np.abs(units - np.round(units)) < 0.01
+    return step if np.mean(on_grid) >= 0.99 and values.size < 0.5 * signal.size else 0.0
+
+
 def noise_rms(signal: np.ndarray) -> float:
     """Robust estimate of the white measurement-noise RMS of a smooth signal sampled fast (same units as signal).
 

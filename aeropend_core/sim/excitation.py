@@ -126,3 +126,13 @@ def lhc_schedule(duration: float, n_strata: int = DEFAULT_STRATA,
     return StepSchedule(amplitudes=np.concatenate([p.amplitudes for p in parts]),
                         dwells=np.concatenate([p.dwells for p in parts]),
                         design_points=np.concatenate([p.design_points for p in parts]))
+
+
+def staircase_schedule(step: float = 0.05, dwell: float = 2.0, top: float = 0.7, rest: float = 2.0) -> StepSchedule:
+    """The paper's staircase: duty steps of `step` (fraction) held `dwell` [s] up to `top` and back down to 0,
+    with `rest` [s] at duty 0 first and last (60 s for the defaults: 5 % steps of 2 s up to 70 % and down)."""
+    count = int(round(top / step))
+    up = step * np.arange(1, count + 1)
+    amplitudes = np.concatenate(([0.0], up, up[-2::-1], [0.0]))
+    dwells = np.concatenate(([rest], np.full(2 * count - 1, dwell), [rest]))
+    return StepSchedule(amplitudes, dwells, np.zeros((0, 2)))

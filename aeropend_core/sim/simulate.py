@@ -18,9 +18,10 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from aeropend_core.model.effects import (FRICTION_SMOOTHING, MEASUREMENT, PENDULUM, THRUST_GATE, THRUST_LAG,
-                                   get_effect, resolve_effects)
+                                         get_effect, kernel_coefficients, kernel_parameter, resolve_effects)
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
+from aeropend_core.model.sensor_filter import StreamingFilter
 from aeropend_core.sim.noise import MeasurementNoise, apply_measurement_noise
 
 #: RK4 sub-steps per sample in the compiled path: h = Ts/8 = 0.26 ms, an eighth of La/Ra (error < 1e-6 rad).
@@ -28,12 +29,13 @@ SUBSTEPS = 8
 
 
 @numba.njit(cache=True, nogil=True)
-def _rig_kernel(constants, voltage, gate, state, sample_time, friction, drag, cable, lag_time_constant,
-                smoothing, states_out):
+def _rig_kernel(constants, voltage, gate, state, sample_time, rate_sign, rate_square, angle_linear,
+                lag_time_constant, smoothing, states_out):
     """Full rig model, RK4 with SUBSTEPS fixed sub-steps per sample, input held over each sample.
 
     constants: Ra, La, Kw, Kt, Jm, F, Kd, N1/N2, Kq, mgd/J, c/J, L/J. State: Ia, w1, y, W, lagged thrust.
-    Built-in pendulum effects enter as coefficients (friction Fc, drag Cd, cable Kc); lag_time_constant 0 = no lag.
+    Compiled effects enter as the coefficients of the generic kernel kinds (``KERNEL_KINDS`` of the catalog):
+    -rate_sign tanh(W/smoothing), -rate_square W|W|, -angle_linear y; lag_time_constant 0 = no lag.
     Writes the state at the start of each sample into states_out (n, 5); returns the final state.
     """
     ra, la, kw, kt, jm, fr, kd, gear, kq, grav, damp, lever = (constants[0], constants[1], constants[2],
@@ -68,7 +70,8 @@ def _rig_kernel(constants, voltage, gate, state, sample_time, friction, drag, ca
                 k[stage, 1] = (kt * current - fr * speed - kd * prop_sq / gear) / jm
                 k[stage, 2] = rate
                 k[stage, 3] = (-grav * math.sin(angle) - damp * rate + lever * thrust
-                               - friction * math.tanh(rate / smoothing) - drag * rate * abs(rate) - cable * angle)
+                               - rate_sign * math.tanh(rate / smoothing) - rate_square * rate * abs(rate)
+                               - angle_linear * angle)
                 k[stage, 4] = (thrust_now - lagged) / lag_time_constant if lag else 0.0
             for j in range(5):
                 x[j] += h / 6.0 * (k[0, j] + 2.0 * k[1, j] + 2.0 * k[2, j] + k[3, j])
@@ -150,6 +153,7 @@ class RigSimulator:
         self._measurement_terms = []
         self._gates = []
         self._lag_time_constant = 0.0
+        lag_parameter = kernel_parameter(list(self.effects), 'thrust_lag_time')
         for name, values in self.effects.items():
             effect = get_effect(name)
             if effect.kind == PENDULUM:
@@ -159,15 +163,18 @@ class RigSimulator:
             elif effect.kind == THRUST_GATE:
                 self._gates.append((effect.function, values))
             elif effect.kind == THRUST_LAG:
-                self._lag_time_constant = values['time_constant']
+                self._lag_time_constant = values[lag_parameter]
         self._has_lag = self._lag_time_constant > 0.0
         if method not in ('auto', 'compiled', 'lsoda'):
             raise AeropendError(f"method must be 'auto', 'compiled' or 'lsoda', got {method!r}")
-        builtin = all(get_effect(name).builtin for name in self.effects)
-        if method == 'compiled' and not builtin:
-            raise AeropendError('the compiled path runs only built-in effects; use method="lsoda" for your own')
-        self.method = 'compiled' if method == 'auto' and builtin else ('lsoda' if method == 'auto' else method)
-        self._coefficients = {name: next(iter(values.values())) for name, values in self.effects.items()}
+        compiled = all(get_effect(name).compiled for name in self.effects)
+        if method == 'compiled' and not compiled:
+            raise AeropendError('the compiled path runs only effects with kernel terms (the built-in ones); use '
+                                'method="lsoda" for your own')
+        self.method = 'compiled' if method == 'auto' and compiled else ('lsoda' if method == 'auto' else method)
+        self._coefficients = kernel_coefficients(self.effects)
+        delay = self._coefficients['measured_lowpass']
+        self._sensor_filter = StreamingFilter(delay, self.sample_time) if delay > 0 else None
         # State: Ia [A], w1 [rad/s], y [rad], W [rad/s] (+ lagged thrust f [N]).
         self.state = np.zeros(5 if self._has_lag else 4)
         self.state[2] = initial_angle
@@ -262,7 +269,7 @@ class RigSimulator:
             state[4] = 0.0
         states = np.empty((n, 5))
         final = _rig_kernel(np.array(self._constants, dtype=float), voltage, gate, state, self.sample_time,
-                            c.get('coulomb_friction', 0.0), c.get('quadratic_drag', 0.0), c.get('cable_torque', 0.0),
+                            c['rate_sign'], c['rate_square'], c['angle_linear'],
                             self._lag_time_constant, FRICTION_SMOOTHING, states)
         self.state = _flush_denormals(final[:len(self.state)])
         time = (self.sample_index + np.arange(n)) * self.sample_time
@@ -282,6 +289,8 @@ class RigSimulator:
         measured_angle = states[:, 2]
         for function, values in self._measurement_terms:
             measured_angle = function(measured_angle, **values)
+        if self._sensor_filter is not None:
+            measured_angle = self._sensor_filter(measured_angle)
         measured = {'armature_voltage': voltage.copy(), 'armature_current': states[:, 0].copy(),
                     'angle': np.asarray(measured_angle, dtype=float).copy()}
         if self.noise is not None:

@@ -27,6 +27,9 @@ def add_arguments(parser) -> None:
                         help='with --once: how long to wait for a result [s] (default 30)')
     parser.add_argument('--duration', type=float, default=0.0, metavar='S',
                         help='exit after this many seconds (default: run until Ctrl-C)')
+    parser.add_argument('--window', type=float, default=25.0, metavar='S',
+                        help='the identification windows\' length [s] (the node\'s window_s; trends use windows that '
+                             'do not overlap)')
     parser.add_argument('--drift-sigma', type=float, default=3.0, metavar='K',
                         help='flag a parameter more than K standard errors from its running mean (default 3)')
     parser.add_argument('--no-clear', action='store_true',
@@ -78,7 +81,7 @@ class DriftTracker:
         return report
 
 
-def render(parameters, coefficients, fit, status, drift, windows: int, width: int = 100) -> str:
+def render(parameters, coefficients, fit, status, drift, windows: int, width: int = 100, trends=None) -> str:
     """The text table of one refresh (all arguments may be empty before the first window)."""
     lines = []
     if not parameters and not fit:
@@ -96,14 +99,22 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
     if status:
         lines.append(f'identification: {status}'[:width])
     lines.append('')
+    lines.append('parameters of the refined model (estimator: output error; armature_resistance from the motor '
+                 'observer when its ±1σ is nan):')
     lines.append(f'{"parameter (SI)":26s} {"value":>13s} {"±1σ":>11s} {"running mean":>13s}  drift')
+    trends = trends or {}
     for name, (value, error) in parameters.items():
         mean, deviation, drifting = drift.get(name, (float('nan'), None, False))
         flag = f'DRIFT ({deviation:+.1f}σ)' if drifting else (f'{deviation:+.1f}σ' if deviation is not None else '')
+        trend = trends.get(name)
+        if trend is not None and trend['stretches'] >= 4 and math.isfinite(trend['change']):
+            flag += (f'  trend {trend["change"] * 100:+.0f} % over {trend["span"]:.0f} s'
+                     + (' PARAMETER DRIFT' if trend['drifting'] else ''))
         lines.append(f'{name:26s} {value:13.6g} {error:11.3g} {mean:13.6g}  {flag}')
     if coefficients:
         lines.append('')
-        lines.append('weak-SINDy coefficients of d²angle/dt² [rad/s² per unit term]:')
+        lines.append('estimator weak SINDy: coefficients of d²angle/dt² [rad/s² per unit term] (-sin(angle) '
+                     'coefficient = its gravity_stiffness, the start of the refinement above):')
         for name, (value, error) in coefficients.items():
             lines.append(f'  {name:38s} {value:13.6g} ± {error:.3g}')
     return '\n'.join(lines)
@@ -111,6 +122,8 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
 
 def check_arguments(args) -> None:
     """Refuse negative, zero or non-finite times and thresholds (AeropendError)."""
+    if not 0 < args.window < math.inf:
+        raise AeropendError(f'--window must be a positive number of seconds, got {args.window}')
     if not 0 < args.timeout < math.inf:
         raise AeropendError(f'--timeout must be a positive number of seconds, got {args.timeout}')
     if not 0 <= args.duration < math.inf:
@@ -136,11 +149,14 @@ def main(args) -> int:
     state = {'parameters': {}, 'coefficients': {}, 'fit': {}, 'status': '', 'drift': {}, 'windows': 0,
              'dirty': False}
     tracker = DriftTracker(sigma=args.drift_sigma)
+    from aeropend_core.diagnosis.online import ParameterTrends
+    trends = ParameterTrends(args.window)
 
     def on_parameters(msg):
         values = msg_to_named_values(msg)
         state['parameters'] = values
         state['drift'] = tracker.update(values)
+        state['trends'] = trends.add(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, values)
         state['windows'] += 1
         state['dirty'] = True
 
@@ -181,7 +197,7 @@ def main(args) -> int:
                     while time.monotonic() < end:
                         rclpy.spin_once(node, timeout_sec=0.05)
                     print(render(state['parameters'], state['coefficients'], state['fit'], state['status'],
-                                 state['drift'], state['windows']))
+                                 state['drift'], state['windows'], trends=state.get('trends')))
                     break
                 if now - started > args.timeout:
                     print(f'aeropend monitor: no identification result within {args.timeout:g} s (is '
@@ -195,7 +211,8 @@ def main(args) -> int:
             # One redraw per window: its parameters, coefficients, fit and status arrive within milliseconds.
             if (state['dirty'] and now - last_draw > 0.5) or (not state['parameters'] and now - last_draw > 2.0):
                 text = render(state['parameters'], state['coefficients'], state['fit'], state['status'],
-                              state['drift'], state['windows'], shutil.get_terminal_size().columns)
+                              state['drift'], state['windows'], shutil.get_terminal_size().columns,
+                              trends=state.get('trends'))
                 print(('\x1b[H\x1b[2J' if clear else '\n') + text, flush=True)
                 state['dirty'] = False
                 last_draw = now

@@ -1,0 +1,146 @@
+"""Evidence for a model change that stays valid when the residuals are correlated.
+
+Output-error residuals of the angle are not independent: measurement noise is white, but whatever the model
+misses is a smooth signal lasting seconds. Counting every residual as independent evidence would turn any small
+misfit into "overwhelming" significance. Three tools here account for it:
+
+* :func:`long_run_variance` -- the HAC (heteroskedasticity and autocorrelation consistent) variance of a mean:
+  Bartlett-kernel (Newey--West) weights with the bandwidth of Andrews' AR(1) plug-in rule, computed by
+  overlapping batch means (equivalent to the Bartlett estimator, and linear in the number of samples);
+* :func:`hac_covariance` -- the sandwich covariance of least-squares parameters, ``B M B`` with ``B = (J'J)^-1``
+  and ``M`` the long-run covariance of the scores ``J_t r_t`` (block sums within segments), so that a parameter's
+  t-statistic is honest under correlated residuals;
+* :func:`diebold_mariano` -- the held-out predictive test on the squared-error difference of two models,
+  ``d_t = e0_t^2 - e1_t^2``, with the HAC variance of its mean (Diebold & Mariano 1995).
+
+:func:`effective_samples` is the number of effectively independent residuals implied by the same long-run
+variance (n var(x) / LRV), used in the information criterion.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def bandwidth(x: np.ndarray) -> int:
+    """Bartlett-kernel bandwidth [samples] by Andrews' AR(1) plug-in rule, between 1 and n/8."""
+    x = np.asarray(x, dtype=float)
+    n = x.size
+    if n < 16:
+        return 1
+    centred = x - x.mean()
+    denominator = float(np.dot(centred, centred))
+    if denominator <= 0:
+        return 1
+    rho = float(np.dot(centred[1:], centred[:-1]) / denominator)
+    rho = min(max(rho, 0.0), 0.999)
+    alpha = 4.0 * rho ** 2 / ((1.0 - rho) ** 2 * (1.0 + rho) ** 2)
+    width = 1.1447 * (alpha * n) ** (1.0 / 3.0)
+    return int(min(max(round(width), 1), max(n // 8, 1)))
+
+
+def long_run_variance(x: np.ndarray, width: int | None = None) -> float:
+    """Long-run variance of the series `x` (the variance of sqrt(n) mean(x)): Bartlett/Newey--West estimate.
+
+    Computed as the overlapping-batch-means estimator with batches of `width` samples (default:
+    :func:`bandwidth`), which equals the Bartlett-kernel estimator up to edge terms.
+    """
+    x = np.asarray(x, dtype=float)
+    n = x.size
+    if n < 2:
+        return float('nan')
+    width = bandwidth(x) if width is None else int(max(1, min(width, n)))
+    centred = x - x.mean()
+    if width == 1:
+        return float(np.mean(centred ** 2))
+    cumulative = np.concatenate(([0.0], np.cumsum(centred)))
+    sums = cumulative[width:] - cumulative[:-width]
+    return float(np.mean(sums ** 2) / width * n / (n - width + 1))
+
+
+def effective_samples(x: np.ndarray) -> float:
+    """Number of effectively independent samples in `x`: n var(x) / long-run variance (at most n)."""
+    x = np.asarray(x, dtype=float)
+    n = x.size
+    variance = float(np.var(x))
+    lrv = long_run_variance(x)
+    if not (variance > 0 and lrv > 0):
+        return float(n)
+    return float(min(n, n * variance / lrv))
+
+
+def hac_covariance(jacobian: np.ndarray, residuals: np.ndarray, groups: np.ndarray | None = None,
+                   width: int | None = None) -> np.ndarray:
+    """Sandwich covariance of least-squares parameters under autocorrelated residuals.
+
+    Parameters
+    ----------
+    jacobian : ndarray, shape (n, p)
+        d residual / d parameter at the solution.
+    residuals : ndarray, shape (n,)
+    groups : ndarray of int, shape (n,), optional
+        Independent groups (multiple-shooting segments); block sums never cross a group boundary.
+    width : int, optional
+        Block length [samples] (default: :func:`bandwidth` of the residuals).
+
+    Returns
+    -------
+    ndarray, shape (p, p)
+        ``B M B`` with ``B = pinv(J'J)`` and ``M`` the sum over blocks of (sum of scores)(sum of scores)'.
+    """
+    jacobian = np.asarray(jacobian, dtype=float)
+    residuals = np.asarray(residuals, dtype=float)
+    n, p = jacobian.shape
+    width = bandwidth(residuals) if width is None else int(max(1, width))
+    groups = np.zeros(n, dtype=int) if groups is None else np.asarray(groups)
+    scores = jacobian * residuals[:, None]
+    # Blocks of `width` consecutive residuals within each group (half-overlapping: two offsets averaged).
+    meat = np.zeros((p, p))
+    for shift in (0, width // 2) if width > 1 else (0,):
+        block = np.empty(n, dtype=np.int64)
+        start = 0
+        label = 0
+        boundaries = np.flatnonzero(np.diff(groups)) + 1
+        for stop in list(boundaries) + [n]:
+            index = np.arange(stop - start)
+            block[start:stop] = label + (index + shift) // width
+            label = int(block[stop - 1]) + 1
+            start = stop
+        sums = np.zeros((label, p))
+        np.add.at(sums, block, scores)
+        meat += sums.T @ sums
+    meat /= 2 if width > 1 else 1
+    bread = np.linalg.pinv(jacobian.T @ jacobian)
+    return bread @ meat @ bread
+
+
+def diebold_mariano(error_reference: np.ndarray, error_candidate: np.ndarray) -> tuple[float, float]:
+    """Diebold--Mariano statistic for "the candidate predicts better" and the mean squared-error gain.
+
+    Parameters
+    ----------
+    error_reference, error_candidate : ndarray, shape (n,)
+        Held-out prediction errors [rad] of the reference and the candidate model at the same samples.
+
+    Returns
+    -------
+    statistic : float
+        mean(d) / sqrt(LRV(d) / n) with ``d = e_ref^2 - e_cand^2``: about N(0, 1) when both predict equally
+        well; large positive when the candidate is better.
+    gain : float
+        mean(d) [rad^2]: how much the mean-square error falls.
+    """
+    d = np.asarray(error_reference, dtype=float) ** 2 - np.asarray(error_candidate, dtype=float) ** 2
+    finite = np.isfinite(d)
+    d = d[finite]
+    if d.size < 10:
+        return float('nan'), float('nan')
+    mean = float(np.mean(d))
+    lrv = long_run_variance(d)
+    if not lrv > 0:
+        return (math.inf if mean > 0 else -math.inf if mean < 0 else 0.0), mean
+    return float(mean / math.sqrt(lrv / d.size)), mean
+
+
+__all__ = ['bandwidth', 'long_run_variance', 'effective_samples', 'hac_covariance', 'diebold_mariano']

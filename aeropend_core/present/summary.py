@@ -1,0 +1,96 @@
+"""The text report of a diagnosis, printed by ``aeropend diagnose`` (units stated on every number)."""
+from __future__ import annotations
+
+from aeropend_core.diagnosis.compare import excess_error
+from aeropend_core.diagnosis.diagnose import Diagnosis, size_text
+from aeropend_core.model.effects import find_parameter
+from aeropend_core.model.names import NOMINAL_PARAMETERS
+
+
+def format_summary(diagnosis: Diagnosis) -> str:
+    """The text report printed by ``aeropend diagnose``."""
+    current = diagnosis.current
+    noise = current.noise_rms
+    from aeropend_core.signals.quality import quality_lines
+    lines = [quality_lines(diagnosis.findings)]      # the data's doubts first, before any number
+    model = 'nominal' + ''.join(f' + {e}' for e in diagnosis.effects)
+    lines.append(f'Model: {model}')
+    lines.append(f'Held-out free-run simulation of the angle: fit {current.fit_percent:.2f} % (NRMSE, MATLAB '
+                 f'compare), RMS error {current.rms_error * 1e3:.2f} mrad, measurement noise {noise * 1e3:.2f} mrad, '
+                 f'error beyond noise {excess_error(current.rms_error, noise) * 1e3:.2f} mrad')
+    lines.append(f'{current.evaluation.prediction_horizon:g} s-ahead prediction RMS error '
+                 f'{current.evaluation.prediction_rms * 1e3:.2f} mrad')
+    if diagnosis.prepared is not None and diagnosis.prepared.motor is not None:
+        motor = diagnosis.prepared.motor
+        lines.append(f'Armature current by the motor observer: RMS error {motor.current_rms_error * 1e3:.2f} mA, '
+                     f'current noise {motor.current_noise_rms * 1e3:.2f} mA')
+    lines.append('Parameters (SI, +- 1 sigma):')
+    observer = diagnosis.prepared is not None and diagnosis.prepared.motor is not None
+    for name, value in diagnosis.reported_parameters(current).items():
+        error = current.fit.standard_errors.get(name, float('nan'))
+        found = find_parameter(name)
+        unit = NOMINAL_PARAMETERS[name][0] if name in NOMINAL_PARAMETERS else (found[1].unit if found else '')
+        if name == 'armature_resistance' and observer:
+            lines.append(f'  {name:24s} {value:12.5g} {unit} (from the motor observer fitted to Ia)')
+            continue
+        lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit}')
+    if diagnosis.before is not None:
+        before = diagnosis.before
+        lines.append('Before -> after adding ' + ', '.join(diagnosis.effects) + ':')
+        lines.append(f'  fit {before.fit_percent:.2f} % -> {current.fit_percent:.2f} %; error beyond noise '
+                     f'{excess_error(before.rms_error, noise) * 1e3:.2f} -> '
+                     f'{excess_error(current.rms_error, noise) * 1e3:.2f} mrad')
+        for name in NOMINAL_PARAMETERS:
+            if name in before.parameters and name in current.parameters and name != 'armature_resistance':
+                old, new = before.parameters[name], current.parameters[name]
+                lines.append(f'  {name:24s} {old:10.4g} -> {new:10.4g} ({(new - old) / old * 100:+.1f} %)')
+        for name, stats in current.evaluation.regimes.items():
+            if name in before.evaluation.regimes:
+                lines.append(f'  {name}: {before.evaluation.regimes[name]["rms_error"] * 1e3:.1f} -> '
+                             f'{stats["rms_error"] * 1e3:.1f} mrad')
+    lines.append('Where the model fails (RMS error by regime, mrad; ratio to overall):')
+    for name, stats in sorted(current.evaluation.regimes.items(), key=lambda kv: -kv[1]['ratio_to_overall']):
+        lines.append(f'  {stats["rms_error"] * 1e3:7.2f}  x{stats["ratio_to_overall"]:.2f}  {name} '
+                     f'({stats["fraction_of_samples"] * 100:.0f} % of samples)')
+    lines.append('Worst 1-s windows:')
+    for window in current.evaluation.worst_windows[:3]:
+        lines.append(f'  t = {window["start"]:.1f}-{window["stop"]:.1f} s ({window["part"]}): '
+                     f'{window["rms_error"] * 1e3:.2f} mrad, input {window["input"]}')
+    lines.append('Candidates (best first):')
+    for candidate in diagnosis.candidates:
+        if candidate.comparison is None:
+            lines.append(f'  {candidate.effect:18s} not testable: {candidate.error}')
+            continue
+        flag = 'SIGNIFICANT' if candidate.significant else ('held-out' if candidate.heldout_only else 'no')
+        params = ', '.join(f'{k} = {v:.4g}' for k, v in candidate.parameters.items())
+        lines.append(f'  {candidate.effect:18s} fit {candidate.fit_percent:6.2f} %  beyond noise '
+                     f'{candidate.excess_after * 1e3:6.2f} mrad  dBIC {candidate.delta_bic:9.1f}  {flag:11s} '
+                     f'{params}')
+    if diagnosis.found:
+        lines.append('Selected set (forward selection with backward elimination; error beyond noise when added):')
+        for f in diagnosis.found:
+            conf = f'  confounded with {", ".join(f.confounded_with)}' if f.confounded_with else ''
+            lines.append(f'  {size_text(f)}: {f.excess_before * 1e3:.2f} -> {f.excess_after * 1e3:.2f} mrad, '
+                         f't = {f.t_statistic:.1f}, DM = {f.dm_statistic:+.1f}{conf}')
+        final = diagnosis.final
+        lines.append(f'  with the set: fit {final.fit_percent:.2f} %, error beyond noise '
+                     f'{excess_error(final.rms_error, noise) * 1e3:.2f} mrad')
+    if diagnosis.drift:
+        lines.append('Drift test (nominal parameters fitted per stretch, trend against time):')
+        for row in diagnosis.drift:
+            lines.append(f'  {row["parameter"]:18s} change {row["change"] * 100:+6.1f} % over {row["span"]:.0f} s, '
+                         f't = {row["t_statistic"]:+.1f}, p = {row["p_value"]:.2g} '
+                         f'({row["stretches"]} stretches){"  DRIFT" if row["drifting"] else ""}')
+    lines.append('Verdict: ' + diagnosis.message)
+    for note in diagnosis.notes:
+        lines.append('Note: ' + note)
+    for row in diagnosis.residual_structure:
+        lines.append(f'  residual vs {row["signature"]}: r = {row["correlation"]:+.2f}')
+    if diagnosis.missing_effect:
+        best = next(c for c in diagnosis.candidates if c.effect == diagnosis.missing_effect)
+        lines.append('Why: ' + best.explanation)
+    lines.append(f'({diagnosis.seconds:.1f} s)')
+    return '\n'.join(lines)
+
+
+__all__ = ['format_summary']
