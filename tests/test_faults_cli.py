@@ -478,19 +478,18 @@ CLI_CASES = [fault.name for fault in FAULTS] + [f'{a}+{b}' for a, b in CLI_PAIRS
 @pytest.mark.parametrize('name', CLI_CASES)
 def test_identify_refuses_or_says_every_repair(faulted, clean_identify, name):
     """Refused (exit 2, one line naming the problem) or exit 0 with a warning line per finding, the same list in
-    --json "warnings", and the clean record's numbers (lost samples: said first, then refused by the uniform-grid
-    fit until the fit takes segments)."""
+    --json "warnings", and the clean record's numbers (lost samples: said first, then fitted on the pieces between
+    the gaps, JSON "gaps")."""
     codes, refused = expected_codes(name)
     result = aeropend(['identify', str(faulted / f'{name}.csv'), '--json'])
     if refused:
         assert_refused(result, (REFUSAL_WORDS[next(iter(refused))], 't = '))
         return
-    if 'lost_samples' in codes:
-        lines = result.stderr.splitlines()
-        assert result.returncode == 2 and 'lost_samples' in lines[0] and 'error' in lines[-1], result.stderr
-        return
     assert result.returncode == 0 and 'Traceback' not in result.stderr, result.stderr
     out = json.loads(result.stdout)
+    if 'lost_samples' in codes:     # said first, then the weak form is fitted on the pieces between the gaps
+        assert 'lost_samples' in result.stderr.splitlines()[0], result.stderr
+        assert out['gaps']['count'] >= 1, out['gaps']
     assert codes <= {w['code'] for w in out['warnings']}, out['warnings']
     warned = [line for line in result.stderr.splitlines() if 'aeropend identify: warning: ' in line]
     assert len(warned) == len(out['warnings']) and all(f"[{w['code']}, " in line

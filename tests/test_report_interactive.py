@@ -6,6 +6,7 @@ One diagnosis (~5 s) of a 30 s simulated record with dry friction hidden, PSNR 4
 from __future__ import annotations
 
 import csv
+import html
 import io
 import json
 import re
@@ -135,9 +136,11 @@ def test_identified_equation_carries_the_numbers_and_units(page, diagnosis):
         assert f'{symbol} = <b>{parameters[name]:.4g} &plusmn; {errors[name]:.2g}</b> {unit}' in section, name
     best = next(c for c in diagnosis.candidates if c.comparison is not None)
     assert best.effect == 'coulomb_friction' and best.significant
-    # the significant candidate's equation follows, with its friction term and value
+    # the significant candidate's equation follows: its record's line and its fitted value
+    from aeropend_core.model.effects import CATALOG
     value = best.comparison.parameters['friction_acceleration']
-    assert 'F<sub>c</sub>&middot;tanh(&Omega;' in section and f'F<sub>c</sub> = <b>{value:.4g}' in section
+    assert html.escape(CATALOG['coulomb_friction'].equation) in section
+    assert f'<code>friction_acceleration</code> = <b>{value:.4g}' in section
 
 
 def test_without_plotly_the_pngs_come_back(diagnosis, monkeypatch):

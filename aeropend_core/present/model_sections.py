@@ -131,41 +131,26 @@ def _value(comparison: Comparison, name: str, symbol: str) -> str:
             f'{_esc(unit)}</span>')
 
 
-def _effect_term(name: str) -> str:
-    """The term an effect adds to dΩ/dt (for the effects it changes elsewhere, an empty string)."""
-    from aeropend_core.model.effects import FRICTION_SMOOTHING
-    return {'coulomb_friction': f' &minus; F<sub>c</sub>&middot;tanh(&Omega; / {FRICTION_SMOOTHING:g}&nbsp;rad/s)',
-            'quadratic_drag': ' &minus; C<sub>d</sub>&middot;&Omega;|&Omega;|',
-            'cable_torque': ' &minus; K<sub>c</sub>&middot;y'}.get(name, '')
-
-
 def equation_html(comparison: Comparison, observer: bool) -> str:
-    """The identified model as equations with the fitted numbers (&plusmn; 1 sigma) and SI units."""
+    """The identified model as equations with the fitted numbers (&plusmn; 1 sigma) and SI units.
+
+    The nominal equation is written here; every effect in the model adds the line of its catalog record
+    (:mod:`aeropend_core.model.effects`), so no effect is named in this module.
+    """
     effects = comparison.effects
-    thrust = 'f' if 'thrust_lag' in effects else 'k&middot;e|e|' + (
-        '&middot;[Va &ge; V<sub>0</sub>]' if 'dead_zone' in effects else '')
-    user = [e for e in effects if e in CATALOG and not CATALOG[e].builtin]
-    builtin_terms = ''.join(_effect_term(e) for e in effects)
-    user_terms = ''.join(f' + g<sub>{_esc(e)}</sub>(y, &Omega;)' for e in user)
-    lines = ['dy/dt = &Omega;',
-             f'd&Omega;/dt = &minus;a&middot;sin y &minus; b&middot;&Omega; + {thrust}{builtin_terms}{user_terms}']
-    if 'thrust_lag' in effects:
-        lines.append('&tau;&middot;df/dt = k&middot;e|e|' + ('&middot;[Va &ge; V<sub>0</sub>]' if 'dead_zone' in effects
-                                                            else '') + ' &minus; f')
+    lines = ['dy/dt = &Omega;', 'd&Omega;/dt = &minus;a&middot;sin y &minus; b&middot;&Omega; + k&middot;e|e|'
+             + (' (+ the effects below)' if effects else '')]
+    lines += [f'{_esc(name)}: {_esc(CATALOG[name].equation or CATALOG[name].description)}'
+              for name in effects if name in CATALOG]
     lines.append('e = back-EMF of the motor observer [V] (fitted to Ia)' if observer else
                  'e = Va &minus; R&middot;Ia [V] (measured)')
-    if 'angle_offset' in effects:
-        lines.append('measured angle = y + y<sub>0</sub>')
-    symbols = {'gravity_stiffness': 'a', 'damping': 'b', 'thrust_gain': 'k', 'friction_acceleration': 'F<sub>c</sub>',
-               'drag_coefficient': 'C<sub>d</sub>', 'cable_stiffness': 'K<sub>c</sub>', 'offset': 'y<sub>0</sub>',
-               'time_constant': '&tau;', 'threshold_voltage': 'V<sub>0</sub>'}
+    symbols = {'gravity_stiffness': 'a', 'damping': 'b', 'thrust_gain': 'k'}
     if not observer:
         symbols['armature_resistance'] = 'R'
     shown = [name for name in comparison.parameters if not (observer and name == 'armature_resistance')]   # R = 0
     values = [_value(comparison, name, symbols.get(name, f'<code>{_esc(name)}</code>')) for name in shown]
-    notes = [f'g<sub>{_esc(e)}</sub>: {_esc(CATALOG[e].equation)}' for e in user]
     return ('<div class="equation">' + '<br>'.join(lines) + '</div><div class="terms">' + ' &nbsp; '.join(values)
-            + '</div>' + ''.join(f'<p class="caption">{n}</p>' for n in notes))
+            + '</div>')
 
 
 def equation_section(diagnosis: Diagnosis, best: Candidate | None) -> str:

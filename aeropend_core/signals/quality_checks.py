@@ -400,7 +400,8 @@ def _check_signs(gate: _Gate) -> None:
 def _check_rest_angle(gate: _Gate, sample_time: float) -> None:
     """With no thrust the rod hangs: the angle should read 0 there (mod 2 pi). The settled angle of each held input
     level, extrapolated to zero thrust (a line through the lower half of the levels, thrust ~ Va|Va|), estimates
-    it; an offset beyond 20 deg (more than the catalog's small angle_offset) breaks sin(angle) in every model."""
+    it; an offset beyond 20 deg (more than the catalog's small sensor-offset effect) breaks sin(angle) in every
+    model."""
     from aeropend_core.signals.preprocess import detect_steps
     if 'angle' not in gate.signals or 'armature_voltage' not in gate.signals or gate.time.size < 500 \
             or gate.context == 'window':              # a window's few levels extrapolate too loosely
@@ -428,7 +429,7 @@ def _check_rest_angle(gate: _Gate, sample_time: float) -> None:
         gate.add('angle_zero', 'warning', f"with no thrust the rod hangs, but 'angle' extrapolates to {rest:.3g} rad "
                  f'there ({math.degrees(offset):+.0f} deg from 0, from the settled angle of {len(levels)} input '
                  'levels): the angle\'s zero is not the hanging position; subtract the offset (small offsets: '
-                 '--add angle_offset)', gate.span(0, angle.size - 1), angle.size)
+                 f'--add {_offset_effect()})', gate.span(0, angle.size - 1), angle.size)
 
 
 def _check_held(gate: _Gate, name: str) -> None:
@@ -472,3 +473,10 @@ def _check_stuck(gate: _Gate, name: str, driver: str, sample_time: float) -> Non
             gate.add('stuck_sensor', 'refused', f'{name!r} is stuck at {values[first]:.6g} for '
                      f'{(last - first) * sample_time:.3g} s ({gate.at(first, last)}) while {driver!r} changes by '
                      f'{moved:.3g}: the sensor froze; {gate.cut_hint}', gate.span(first, last), last - first + 1)
+
+
+def _offset_effect() -> str:
+    """Name of the catalog effect that adds a constant to the measured angle (from its record's kernel term)."""
+    from aeropend_core.model.effects import CATALOG
+    return next((e.name for e in CATALOG.values() if any(kind == 'measured_offset' for kind, _ in e.kernel_terms)),
+                'the sensor-offset effect')
