@@ -41,6 +41,7 @@ import numpy as np
 import yaml
 
 from aeropend_core.errors import AeropendError, StorageError
+from aeropend_core.io import bag_lock
 
 __all__ = [
     'SAMPLE_CHANNELS',
@@ -306,7 +307,9 @@ class BagWriter:
     def __init__(self, folder: str | os.PathLike, *, max_file_bytes: int = 0, max_file_duration: float = 0.0,
                  chunk_size: int = 1024 * 1024, compression: str = 'zstd', ros_distro: str = 'jazzy'):
         self.folder = Path(folder)
-        if self.folder.exists() and (not self.folder.is_dir() or any(self.folder.iterdir())):
+        if self.folder.exists() and not self.folder.is_dir():
+            raise AeropendError(f'bag folder {self.folder} already exists and is not a folder: choose a new name')
+        if self.folder.exists() and any(self.folder.iterdir()):
             raise AeropendError(f'bag folder {self.folder} already exists and is not empty: choose a new name')
         if max_file_bytes < 0 or max_file_duration < 0:
             raise AeropendError('split limits must be >= 0 (0 means no split)')
@@ -315,9 +318,12 @@ class BagWriter:
         self._compression = _compression_type(compression)
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
+            self._lock = bag_lock.acquire(self.folder)   # marks the bag as being written until finish()
         except OSError as error:
             raise AeropendError(f'cannot create bag folder {self.folder}: {error.strerror or error}') from None
         self.name = self.folder.name
+        #: written to metadata.yaml's ``custom_data`` (string -> string), e.g. the recorder's loss accounting
+        self.custom_data: dict[str, str] = {}
         self.max_file_bytes = int(max_file_bytes)
         self.max_file_duration_ns = round(max_file_duration * NS_PER_S)
         self.chunk_size = int(chunk_size)
@@ -456,6 +462,7 @@ class BagWriter:
             _write_metadata_yaml(self.folder, self._metadata_dict())
         except OSError as error:
             self._fail(error)
+        bag_lock.release(self.folder)
 
     close = finish
 
@@ -491,6 +498,7 @@ class BagWriter:
             self._stream.close()
         self._writer = None
         self._stream = None
+        bag_lock.release(self.folder)   # nothing more is written: bag-recover may finalise it
         raise StorageError(self._failure) from None
 
     def _open_file(self) -> None:
@@ -535,14 +543,15 @@ class BagWriter:
         self._open_file()
 
     def _metadata_dict(self) -> dict[str, Any]:
-        return _metadata_dict(self.topics.values(), self.files, self.ros_distro)
+        return _metadata_dict(self.topics.values(), self.files, self.ros_distro, self.custom_data)
 
 
 def _dump_qos(profiles: list[dict[str, Any]]) -> str:
     return yaml.safe_dump(profiles, sort_keys=False).strip() if profiles else ''
 
 
-def _metadata_dict(topics: Iterable[TopicInfo], files: list[_FileInfo], ros_distro: str) -> dict[str, Any]:
+def _metadata_dict(topics: Iterable[TopicInfo], files: list[_FileInfo], ros_distro: str,
+                   custom_data: dict[str, str] | None = None) -> dict[str, Any]:
     starts = [f.start_ns for f in files if f.start_ns is not None]
     ends = [f.end_ns for f in files if f.end_ns is not None]
     start = min(starts) if starts else 0
@@ -566,7 +575,7 @@ def _metadata_dict(topics: Iterable[TopicInfo], files: list[_FileInfo], ros_dist
                    'duration': {'nanoseconds': (f.end_ns - f.start_ns) if f.start_ns is not None else 0},
                    'message_count': f.message_count}
                   for f in files],
-        'custom_data': {},
+        'custom_data': dict(custom_data or {}),
         'ros_distro': ros_distro,
     }
 
@@ -834,6 +843,15 @@ def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None,
             yield BagMessage(channel.topic, schema.name if schema else '', log_t, pub_t, data, seq)
         if not state.complete:
             in_bag = Path(path).is_dir() or (file.parent / 'metadata.yaml').is_file()
+            writer = bag_lock.live_writer(file)
+            if writer is not None:      # being recorded: no repair to advise, only that the end is still coming
+                message = (f'{file} is still being recorded by {writer.describe()}; read up to its last complete '
+                           'chunk (the newest samples are not in it yet; read it again once the recording ends)')
+                if on_incomplete == 'raise':
+                    raise AeropendError(message)
+                if on_incomplete == 'warn':
+                    warnings.warn(message, stacklevel=2)
+                continue
             message = (f'{file} is incomplete ({state.problem}); read up to its last complete chunk. '
                        f'Repair it with: aeropend bag-recover {file.parent if in_bag else file}')
             if on_incomplete == 'raise':
@@ -985,6 +1003,9 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
             datas.append(message.data)
             received.append(message.log_time_ns)
     incomplete = [w for w in cut if 'is incomplete' in str(w.message)]
+    live = [w for w in cut if 'is still being recorded' in str(w.message)]
+    if not datas and live:
+        raise AeropendError(f'no {topic} message in {path} yet: {live[0].message}')
     if not datas:
         if incomplete:
             raise AeropendError(f'no {topic} message in {path} before it is cut short: {incomplete[0].message}')
@@ -1017,6 +1038,7 @@ class RecoveryReport:
     message_count: int
     notes: list[str]
     metadata_yaml: Path | None = None      # the regenerated metadata.yaml (None for a lone .mcap file)
+    removed_lock: str = ''                 # the stale recording lock removed (its process is gone), if any
 
 
 def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> RecoveryReport:
@@ -1046,9 +1068,14 @@ def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> Recover
     path = Path(path)
     if not path.exists():
         raise AeropendError(f'{path} does not exist')
+    bag_lock.refuse_if_live(path, 'repair')
     folder, files, bag_folder = _recovery_targets(path)
     try:
-        return _recover_files(folder, files, bag_folder, keep_original)
+        report = _recover_files(folder, files, bag_folder, keep_original)
+        stale = bag_lock.remove_stale(folder)
+        if stale is not None:
+            report.removed_lock = f'removed the recording lock of {stale.describe()}, which no longer runs'
+        return report
     except OSError as error:
         raise StorageError(f'cannot repair {path}: {error.strerror or error}'
                            f'{" (" + str(error.filename) + ")" if error.filename else ""}; nothing was changed in '
