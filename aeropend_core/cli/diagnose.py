@@ -59,11 +59,8 @@ def main(args: argparse.Namespace) -> int:
     check_effect_names(args.add, '--add')
     check_effect_names(args.only or [], '--only')
     if args.report:                          # refuse now, not after minutes of diagnosis
-        report = Path(args.report)
-        if report.is_dir() or not report.parent.is_dir():
-            raise AeropendError(f'cannot write the report to {report}: '
-                                + ('it is a folder; give a file name such as report.html' if report.is_dir()
-                                   else f'the folder {report.parent} does not exist'))
+        from aeropend_core.io.output_path import output_target
+        output_target(args.report, '--report')    # a folder, device, FIFO, link loop or missing folder: refused
     recording = load_recording(args.data)
     from aeropend_core.diagnosis.diagnose import diagnose      # scipy and numba: imported once the input is known good
 
