@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from aeropend_core.errors import AeropendError
-from aeropend_core.io.output_path import output_target, write_atomically
+from aeropend_core.io.paths import output_target, write_atomically
 from aeropend_core.io.recording import load_csv
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -105,3 +105,33 @@ def test_report_and_calibration_writers_follow_the_same_rules(tmp_path):
         output_target(tmp_path)
     with pytest.raises(AeropendError, match='does not exist'):
         write_atomically(tmp_path / 'missing' / 'x.csv', lambda handle: handle.write('x'))
+
+
+def test_symlink_loop_and_permissions_get_the_same_rules_when_reading(tmp_path):
+    """A recording given through a symbolic link loop is named as a loop (not 'no such file'); a file the system
+    will not let us read is exit status 1 (the system refused), like a full disk; a missing one is 2."""
+    (tmp_path / 'a.csv').symlink_to(tmp_path / 'b.csv')
+    (tmp_path / 'b.csv').symlink_to(tmp_path / 'a.csv')
+    (tmp_path / 'bag').symlink_to(tmp_path / 'bag')
+    for verb, path in (('identify', 'a.csv'), ('diagnose', 'a.csv'), ('bag-recover', 'bag')):
+        result = subprocess.run([*AEROPEND, verb, str(tmp_path / path)], capture_output=True, text=True,
+                                timeout=120, cwd=ROOT, check=False)
+        assert 'symbolic link loop' in one_line_error(result), (verb, result.stderr)
+    result = subprocess.run([*AEROPEND, 'diagnose', str(ROOT / 'bags' / 'exercise.csv'), '--effects-module',
+                             str(tmp_path / 'a.csv')], capture_output=True, text=True, timeout=120, cwd=ROOT,
+                            check=False)
+    assert 'symbolic link loop' in one_line_error(result)
+    missing = subprocess.run([*AEROPEND, 'identify', str(tmp_path / 'missing.csv')], capture_output=True, text=True,
+                             timeout=120, cwd=ROOT, check=False)
+    assert 'no such file' in one_line_error(missing, 2)
+    if os.geteuid() != 0:               # root reads anything: the refusal cannot be staged
+        locked = tmp_path / 'locked.csv'
+        locked.write_text('t,duty,armature_voltage,armature_current,angle\n0,0,0,0,0\n')
+        locked.chmod(0)
+        result = subprocess.run([*AEROPEND, 'identify', str(locked)], capture_output=True, text=True, timeout=120,
+                                cwd=ROOT, check=False)
+        assert 'Permission denied' in one_line_error(result, 1)
+    from aeropend_core.errors import StorageError
+    from aeropend_core.io.paths import storage_error
+    assert isinstance(storage_error(PermissionError(13, 'Permission denied'), 'x'), StorageError)
+    assert not isinstance(storage_error(FileNotFoundError(2, 'No such file'), 'x'), StorageError)

@@ -198,7 +198,7 @@ def test_killed_recorder_leaves_readable_bag_and_recovers(tmp_path, watch):
             extra += 1
             watch.publish_sample(10**6 + extra)
             watch.wait_for(lambda: watch.received(bag, samples) > before
-                           and watch.value(bag, 'messages_written') == watch.received(bag, samples), 1.0)
+                           and watch.value(bag, 'messages_written') == watch.received(bag, samples), 20.0)
             assert extra < 100, 'the recorder does not receive the extra samples'
         on_disk, received = watch.value(bag, f'on disk {samples}'), watch.received(bag, samples)
         assert 0 < on_disk < received, (on_disk, received)

@@ -136,7 +136,7 @@ def load_calibration(path: Path | None) -> tuple[P.Calibration, dict]:
 
 def write_values(path: Path, updates: dict[str, float]) -> None:
     """Replace ``key: value`` lines of `path` in place (comments kept); missing keys are appended."""
-    from aeropend_core.io.output_path import output_target, write_atomically
+    from aeropend_core.io.paths import output_target, write_atomically
     output_target(path, '--write')              # a device or a FIFO is refused before reading it (it could block)
     text = path.read_text() if path.exists() else f'{NODE_KEY}:\n  ros__parameters:\n'
     for key, value in updates.items():

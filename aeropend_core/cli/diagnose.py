@@ -39,7 +39,8 @@ def load_effects_module(path: str) -> None:
     """Execute a user's Python file that registers effects with aeropend_core.model.effects.register_effect."""
     file = Path(path)
     if not file.is_file():
-        raise AeropendError(f'effects module {path} does not exist')
+        from aeropend_core.io.paths import path_problem
+        raise AeropendError(f'effects module {path} {path_problem(path) or "is not a file"}')
     spec = importlib.util.spec_from_file_location(f'aeropend_user_effects_{file.stem}', file)
     module = importlib.util.module_from_spec(spec)
     try:
@@ -59,7 +60,7 @@ def main(args: argparse.Namespace) -> int:
     check_effect_names(args.add, '--add')
     check_effect_names(args.only or [], '--only')
     if args.report:                          # refuse now, not after minutes of diagnosis
-        from aeropend_core.io.output_path import output_target
+        from aeropend_core.io.paths import output_target
         output_target(args.report, '--report')    # a folder, device, FIFO, link loop or missing folder: refused
     recording = load_recording(args.data)
     from aeropend_core.diagnosis.diagnose import diagnose      # scipy and numba: imported once the input is known good

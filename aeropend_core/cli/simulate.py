@@ -14,7 +14,7 @@ import sys
 import numpy as np
 
 from aeropend_core.errors import AeropendError
-from aeropend_core.io.output_path import output_target, write_atomically
+from aeropend_core.io.paths import output_target, write_atomically
 from aeropend_core.model.effects import parse_effect_assignments
 from aeropend_core.model.parameters import PRESETS, SAMPLE_TIME
 
@@ -78,7 +78,7 @@ def main(args: argparse.Namespace) -> int:
 
 def _check_output(path: str) -> None:
     """Refuse an --output that cannot be a new file before spending time on the simulation (a folder, a missing
-    folder, a device, a named pipe, a symbolic link loop; see :mod:`aeropend_core.io.output_path`)."""
+    folder, a device, a named pipe, a symbolic link loop; see :mod:`aeropend_core.io.paths`)."""
     output_target(path, '--output', stdout_hint=True)
 
 

@@ -42,6 +42,7 @@ import yaml
 
 from aeropend_core.errors import AeropendError, StorageError
 from aeropend_core.io import bag_lock
+from aeropend_core.io.paths import path_problem, storage_error
 
 __all__ = [
     'SAMPLE_CHANNELS',
@@ -320,7 +321,8 @@ class BagWriter:
             self.folder.mkdir(parents=True, exist_ok=True)
             self._lock = bag_lock.acquire(self.folder)   # marks the bag as being written until finish()
         except OSError as error:
-            raise AeropendError(f'cannot create bag folder {self.folder}: {error.strerror or error}') from None
+            raise storage_error(error, f'cannot create bag folder {self.folder}: {error.strerror or error}') \
+                from None
         self.name = self.folder.name
         #: written to metadata.yaml's ``custom_data`` (string -> string), e.g. the recorder's loss accounting
         self.custom_data: dict[str, str] = {}
@@ -691,7 +693,7 @@ def _scan_mcap(path: Path, state: _ScanState, want_messages: bool) -> Iterator[t
     try:
         handle = open(path, 'rb')  # noqa: SIM115 - closed in the finally below, after the generator is done
     except OSError as error:
-        raise AeropendError(f'cannot read {path}: {error.strerror or error}') from None
+        raise storage_error(error, f'cannot read {path}: {error.strerror or error}') from None
     mapped = None
     try:
         size = os.fstat(handle.fileno()).st_size
@@ -788,7 +790,7 @@ def bag_files(path: str | os.PathLike) -> list[Path]:
     """
     path = Path(path)
     if not path.exists():
-        raise AeropendError(f'{path} does not exist')
+        raise AeropendError(f'{path} {path_problem(path)}')
     if path.is_file():
         return [path]
     listed: list[Path] = []
@@ -1067,7 +1069,7 @@ def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> Recover
     """
     path = Path(path)
     if not path.exists():
-        raise AeropendError(f'{path} does not exist')
+        raise AeropendError(f'{path} {path_problem(path)}')
     bag_lock.refuse_if_live(path, 'repair')
     folder, files, bag_folder = _recovery_targets(path)
     try:

@@ -834,7 +834,7 @@ def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = No
     source : str, optional
         Name of the recording, shown in the title.
     """
-    from aeropend_core.io.output_path import output_target, write_atomically
+    from aeropend_core.io.paths import output_target, write_atomically
     output_target(path, '--report')                 # refused before the rendering: folder, device, FIFO, loop
     text = render_report(diagnosis, source)
     write_atomically(path, lambda handle: handle.write(text), '--report', 'the report')

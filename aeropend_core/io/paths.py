@@ -1,4 +1,5 @@
-"""Where results are written: regular files only, through symbolic links, replaced atomically.
+"""Paths: where results are written (regular files only, through symbolic links, replaced atomically), why a
+path cannot be opened, and which exit status an operating-system refusal gets.
 
 Every writer of a result file (``aeropend simulate -o`` CSV, ``diagnose --report`` HTML, ``calibrate --write``
 YAML) goes through :func:`output_target` and :func:`write_atomically`:
