@@ -39,6 +39,7 @@ Usage::
 from __future__ import annotations
 
 import collections
+import ctypes
 import importlib
 import re
 import signal
@@ -83,6 +84,31 @@ DEFAULT_ALLOWED_TYPES = [contract.SAMPLES_TYPE, contract.DUTY_COMMAND_TYPE, 'std
 _SEQUENCE_INDEX = contract.SAMPLE_NAMES.index('sequence')
 
 
+#: glibc mallopt parameters (malloc.h) and the values the recorder sets, see steady_allocator().
+_M_MMAP_THRESHOLD, _M_ARENA_MAX = -3, -8
+MMAP_THRESHOLD_BYTES = 64 * 1024
+
+
+def steady_allocator() -> bool:
+    """Keep the recorder's memory flat: fixed glibc mmap threshold (64 KiB), one malloc arena.
+
+    Why: every chunk passes through buffers of about ``chunk_size`` and more (the chunk being built, its
+    compressed copy, zstd's workspace). glibc serves such blocks with mmap and returns them on free, but its
+    *dynamic* threshold rises to the size of the first one freed, after which they come from the heap, where they
+    interleave with the small allocations of the messages and fragment it: the heap only grows (0.13-0.4 MB/min in
+    the full graph at 490 Hz, more with larger chunks, about a third with 64 KiB chunks; replaying a recorded
+    full-graph bag to a recorder reproduces it per message, not per second, and malloc_trim does not give it
+    back). A fixed threshold keeps those buffers in mmap; one arena keeps the writer thread's blocks with the
+    others. Measured in bench/load_test.py (README, "Load test"). No effect (returns False) outside glibc.
+    """
+    try:
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(mallopt(_M_ARENA_MAX, 1))
+
+
 def _never_called(_msg) -> None:  # the I/O node is never spun; _poll takes the messages
     raise AssertionError('recorder I/O subscriptions are polled, not spun')
 
@@ -113,6 +139,7 @@ class RecorderNode(Node):
     """Records topics into an MCAP bag folder; see the module docstring."""
 
     def __init__(self, **kwargs):
+        steady_allocator()              # before the writer thread and its buffers exist (see its docstring)
         super().__init__('recorder_node', **kwargs)
         self._declare_parameters()
         get = self.get_parameter
@@ -443,6 +470,7 @@ def _ignore_further_interrupts(quietly: bool = False) -> None:
 
 def main(args=None) -> int:
     """Entry point of ``recorder_node`` (``ros2 run aeropend_ros recorder_node``)."""
+    steady_allocator()                  # before rclpy starts the DDS threads
     rclpy.init(args=args)
     try:
         node = RecorderNode()
@@ -482,4 +510,4 @@ if __name__ == '__main__':
     sys.exit(main())
 
 
-__all__ = ['DEFAULT_ALLOWED_TYPES', 'DEFAULT_TOPICS', 'RecorderNode', 'main', 'message_class']
+__all__ = ['DEFAULT_ALLOWED_TYPES', 'DEFAULT_TOPICS', 'RecorderNode', 'main', 'message_class', 'steady_allocator']
