@@ -364,8 +364,9 @@ class RecorderNode(Node):
         data['aeropend.dropped'] = str(self._dropped)
         data['aeropend.loss_accounting'] = (
             f'lost = gaps in the sample counter (position[{_SEQUENCE_INDEX}]) of {contract.SAMPLES_TOPIC} and in '
-            'the DDS publication sequence numbers of topics while they had a single publisher; dropped = taken '
-            f'but not written (queue full or writing failed). {self._loss_details()}')
+            'the DDS publication sequence numbers of topics while they had a single publisher, whoever lost them; '
+            'dropped = taken but not written (queue full or writing failed), which shows among the gaps too. '
+            f'{self._loss_details()}')
         return data
 
     @property
@@ -405,8 +406,9 @@ class RecorderNode(Node):
             text = (f'bag {self.writer.folder} NOT finalised: {self._write_error}')
         else:
             lost = self.messages_lost
-            text = (f'bag {self.writer.folder} finalised: {self._written} messages, {self._dropped} dropped (queue '
-                    f'full), {lost} lost before the recorder took them (sequence gaps: {self._loss_details()}), '
+            text = (f'bag {self.writer.folder} finalised: {self._written} messages, {lost} lost by sequence gaps '
+                    f'({self._loss_details()}; gaps count whatever lost them: the link, the transport, a stall, or '
+                    f'the {self._dropped} message(s) dropped here because the queue was full), '
                     f'files {[p.name for p in self.writer.paths]}')
         if rclpy.ok():
             (self.get_logger().error if self._write_error else self.get_logger().info)(text)
@@ -428,7 +430,8 @@ class RecorderNode(Node):
         if new_lost:
             self.get_logger().warning(f'{new_lost} message(s) lost since the last report, {total_lost} in all '
                                       f'({self._loss_details()}): the recorder was stalled longer than its DDS '
-                                      'history holds (queue_depth) or the link or transport dropped them')
+                                      'history holds (queue_depth), its queue was full (messages_dropped), or '
+                                      'the link or transport dropped them')
         if self._write_error:
             status.level, status.message = DiagnosticStatus.ERROR, f'writing failed: {self._write_error}'
         elif self._dropped or new_lost:
