@@ -447,7 +447,8 @@ def write_summary(result: dict, path: Path) -> None:
                      f'{e["duplicates"]} | {e["out_of_order"]} |')
     lines += ['', f'Identification node: {i["samples_received"]} samples received, {i["samples_missed"]} missed '
               '(sequence gaps it saw); recorder: '
-              f'{result["recorder"].get("messages_dropped", "?")} messages dropped, queue length max '
+              f'{result["recorder"].get("messages_dropped", "?")} messages dropped, '
+              f'{result["recorder"].get("samples_lost", "?")} samples lost (its sequence-gap count), queue length max '
               f'{result["recorder"].get("queue_length_max", "?")}.', '',
               '## Identification', '',
               '| windows expected | estimates | not fitted | skipped | compute per window mean / p95 / max [s] '
@@ -596,6 +597,7 @@ def run(args) -> dict:
     if recorder_status:
         recorder = {'messages_written': int(recorder_status[-1].get('messages_written', 0)),
                     'messages_dropped': int(recorder_status[-1].get('messages_dropped', 0)),
+                    'samples_lost': int(recorder_status[-1].get('samples_lost', 0)),
                     'queue_length_max': max(int(v.get('queue_length', 0)) for v in recorder_status)}
     identification = identification_report(listener, args, published, int(independent['stamp_ns'].min()))
     end_time = sim_end if sim_end is not None else rows[-1]['t']
