@@ -250,6 +250,24 @@ class _DirectFile:
             self._fd = -1
 
 
+class _PackedChunkIndex(bytes):
+    """A chunk index record kept as its serialized bytes (~100 B) instead of a ChunkIndex object (~1 kB)."""
+
+    def write(self, stream) -> None:
+        stream.write(self)
+
+
+class _PackedChunkIndexes(list):
+    """The mcap writer's list of chunk indexes, kept serialized until the summary is written: the index of a
+    long recording is held in memory until its file is finished (23 chunks/min at 490 Hz)."""
+
+    def append(self, chunk_index) -> None:
+        from mcap.data_stream import RecordBuilder
+        builder = RecordBuilder()
+        chunk_index.write(builder)
+        super().append(_PackedChunkIndex(builder.end()))
+
+
 @dataclass
 class TopicInfo:
     """A topic in a bag: what ``metadata.yaml`` says about it."""
@@ -509,6 +527,8 @@ class BagWriter:
         self.files.append(info)
         self._stream = _DirectFile(self.folder / info.path)
         self._writer = Writer(self._stream, chunk_size=self.chunk_size, compression=self._compression)
+        if isinstance(getattr(self._writer, '_Writer__chunk_indices', None), list):
+            self._writer._Writer__chunk_indices = _PackedChunkIndexes()     # same summary bytes, less memory
         self._writer.start(profile=ROS2_PROFILE, library='aeropend')
         self._writer.add_metadata('rosbag2', {'ROS_DISTRO': self.ros_distro})
         self._schema_ids = {}
