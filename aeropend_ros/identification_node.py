@@ -79,6 +79,9 @@ MAX_LOST_FRACTION = 0.05
 MAX_FILLED_GAP_S = 0.5
 #: Largest believable mismatch between a stamp step and the sequence step times Ts: 0.1 s + 5 % of the step.
 STAMP_JUMP_TOLERANCE = (0.1, 0.05)
+#: Samples in order (counter +1.., stamps as expected) after a restart that end the restart condition: until then
+#: further restarts are counted, not reported again (two interleaved sources never give two in a row).
+STABLE_AFTER_RESTART = 50
 #: Why a received sample is rejected (not buffered; it counts as lost, filled like one if the window still has
 #: enough samples) -> the words used on /diagnostics and in the log.
 REJECTIONS = {
@@ -217,6 +220,12 @@ class IdentificationNode(Node):
         self._rejected_at_status = dict(self.rejected)
         #: Source restarts and stamp jumps (the buffer was cleared), since the start.
         self.restarts = 0
+        #: The kind of restart that began the current restart condition ('counter' or 'stamps'); None once
+        #: STABLE_AFTER_RESTART samples in a row arrive in order: restarts while it lasts (e.g. two sources with
+        #: different counters interleaving, ~1000 restarts/s) are counted, not reported again.
+        self._restart_condition: str | None = None
+        self._in_order_since_restart = 0
+        self._restarts_at_condition = 0
         self.last_result: WindowResult | None = None
         self.last_status = ('waiting for samples', DiagnosticStatus.OK)
 
@@ -267,6 +276,7 @@ class IdentificationNode(Node):
             return
         if self.first_stamp_ns is None:
             self.first_stamp_ns = sample.stamp_ns
+        stable_again = False
         with self.lock:
             if self.sequence:
                 last_sequence, last_stamp = self.sequence[-1], self.stamps[-1]
@@ -278,7 +288,7 @@ class IdentificationNode(Node):
                         self._reject('out_of_order', f'sample {sample.sequence} after {last_sequence}')
                         return
                     self._restart(f'sample counter went back from {last_sequence} to {sample.sequence} with a '
-                                  'later stamp: the source restarted (or two sources share the topic)')
+                                  'later stamp: the source restarted (or two sources share the topic)', 'counter')
                 elif sample.stamp_ns <= last_stamp:
                     self._reject('stamp_not_increasing', f'sample {sample.sequence} stamped '
                                  f'{(sample.stamp_ns - last_stamp) * 1e-9:+.6f} s after sample {last_sequence}')
@@ -288,15 +298,23 @@ class IdentificationNode(Node):
                     step = (sample.stamp_ns - last_stamp) * 1e-9
                     if abs(step - expected) > STAMP_JUMP_TOLERANCE[0] + STAMP_JUMP_TOLERANCE[1] * expected:
                         self._restart(f'stamps jumped by {step:.3f} s over {sample.sequence - last_sequence} '
-                                      f'sample(s) (expected {expected:.3f} s): the clock of the source jumped')
+                                      f'sample(s) (expected {expected:.3f} s): the clock of the source jumped',
+                                      'stamps')
                     else:
                         self.samples_missed += sample.sequence - last_sequence - 1
+                        self._in_order_since_restart += 1
+                        if self._restart_condition and self._in_order_since_restart >= STABLE_AFTER_RESTART:
+                            self._restart_condition = None
+                            stable_again = True
             self.samples_received += 1
             self.sequence.append(sample.sequence)
             self.stamps.append(sample.stamp_ns)
             self.signals['armature_voltage'].append(sample.armature_voltage)
             self.signals['armature_current'].append(sample.armature_current)
             self.signals['angle'].append(sample.angle)
+        if stable_again:                         # the end of a restart condition is a change too: say so once
+            self._report(f'samples in order again after {self.restarts - self._restarts_at_condition} restart(s); '
+                         'windows start from here', DiagnosticStatus.OK, {}, effects=self.effects)
         self._maybe_start_window(sample.stamp_ns)
 
     def _reject(self, reason: str, detail: str) -> None:
@@ -304,13 +322,22 @@ class IdentificationNode(Node):
         self.rejected[reason] += 1
         self.get_logger().warning(f'sample rejected, {REJECTIONS[reason]}: {detail}', throttle_duration_sec=5.0)
 
-    def _restart(self, why: str) -> None:
-        """The stream restarted (counter back, or stamps jumped): start the windows again from this sample."""
+    def _restart(self, why: str, kind: str) -> None:
+        """The stream restarted (counter back, or stamps jumped): start the windows again from this sample.
+
+        /diagnostics gets one WARN per condition change: while restarts keep coming (of either ``kind``, 'counter'
+        or 'stamps'; fewer than STABLE_AFTER_RESTART samples in order between them), they are counted
+        (``restarts``) and logged (throttled), not reported again.
+        """
         self.restarts += 1
+        self._in_order_since_restart = 0
         self._clear()
         message = f'{why}; buffer cleared, windows start again'
         self.get_logger().warning(message, throttle_duration_sec=5.0)
-        self._report(message, DiagnosticStatus.WARN, {}, effects=self.effects)
+        if self._restart_condition is None:     # two interleaved sources alternate the kinds: one condition
+            self._restart_condition = kind
+            self._restarts_at_condition = self.restarts - 1
+            self._report(message, DiagnosticStatus.WARN, {}, effects=self.effects)
 
     @staticmethod
     def _rejected_text(now: dict[str, int], before: dict[str, int]) -> tuple[int, str]:

@@ -14,7 +14,18 @@ That keeps the cost near 15-20 us of CPU per message at 20,000 msg/s and ~4 % of
 the bag (summary, footer, metadata.yaml). After a SIGKILL, run ``aeropend bag-recover <bag folder>``.
 
 The node publishes its own ``/diagnostics`` (messages written per topic, messages safe on disk, queue length,
-drops, current file) once per ``diagnostics_period``.
+drops, lost messages, current file) once per ``diagnostics_period``.
+
+Loss accounting by sequence number: every gap in the acquisition counter of ``/aeropend/samples`` (``position[4]``
+of each JointState) is counted as lost, whoever lost it (the link, the transport, or a recorder stalled so long
+that the DDS history of ``queue_depth`` messages overflowed); so is every gap in the DDS publication sequence
+number of a topic while it has a single publisher. Losses go to ``/diagnostics`` (``samples_lost``,
+``lost <topic>``; WARN while they grow), to the log (one line per diagnostics period with new losses) and into the
+bag's ``metadata.yaml`` (``custom_data``: ``aeropend.lost <topic>``, ``aeropend.loss_accounting``).
+
+Only messages of the types in ``allowed_types`` are recorded (by default the types of the aeropend topics and
+``/diagnostics``): a topic's type names a Python module the recorder would import, and any DDS participant can
+announce a topic under ``/aeropend/``.
 
 When the bag cannot be written (disk full, file size limit, permissions) the node logs the error, publishes an
 ERROR status on ``/diagnostics`` for a second, and exits with status 1. The file keeps every complete chunk
@@ -28,8 +39,10 @@ Usage::
 from __future__ import annotations
 
 import collections
+import ctypes
 import importlib
 import re
+import signal
 import sys
 import threading
 import time
@@ -40,6 +53,7 @@ ensure_ros_environment()
 
 import rclpy
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (
@@ -52,18 +66,56 @@ from rclpy.qos import (
 from aeropend_core.io.bag_writer import BagWriter
 from aeropend_core.io.mcap_format import msg_file_loader, msg_type_hash, offered_qos, ros2msg_definition
 from aeropend_core.errors import AeropendError
+from aeropend_core.io.sequence_gaps import SequenceGaps, joint_state_position
 from aeropend_ros import topics as contract
 from aeropend_ros._node_util import check_unknown_overrides, declare
 
 DEFAULT_TOPICS = [contract.SAMPLES_TOPIC, contract.DUTY_COMMAND_TOPIC, contract.DIAGNOSTICS_TOPIC]
+#: Message types recorded by default: those of the aeropend topics (samples and identification outputs are
+#: JointState, the duty command Float64, the excitation's done flag Bool) and /diagnostics.
+DEFAULT_ALLOWED_TYPES = [contract.SAMPLES_TYPE, contract.DUTY_COMMAND_TYPE, 'std_msgs/msg/Bool',
+                         contract.DIAGNOSTICS_TYPE]
+#: Index of the acquisition counter in a sample's ``position`` (topics.SAMPLE_NAMES).
+_SEQUENCE_INDEX = contract.SAMPLE_NAMES.index('sequence')
+
+
+#: glibc mallopt parameters (malloc.h) and the values the recorder sets, see steady_allocator().
+_M_MMAP_THRESHOLD, _M_ARENA_MAX = -3, -8
+MMAP_THRESHOLD_BYTES = 64 * 1024
+
+
+def steady_allocator() -> bool:
+    """Keep the recorder's memory flat: fixed glibc mmap threshold (64 KiB), one malloc arena.
+
+    Why: every chunk passes through buffers of about ``chunk_size`` and more (the chunk being built, its
+    compressed copy, zstd's workspace). glibc serves such blocks with mmap and returns them on free, but its
+    *dynamic* threshold rises to the size of the first one freed, after which they come from the heap, where they
+    interleave with the small allocations of the messages and fragment it: the heap only grows (0.13-0.4 MB/min in
+    the full graph at 490 Hz, more with larger chunks, about a third with 64 KiB chunks; replaying a recorded
+    full-graph bag to a recorder reproduces it per message, not per second, and malloc_trim does not give it
+    back). A fixed threshold keeps those buffers in mmap; one arena keeps the writer thread's blocks with the
+    others. Measured in bench/load_test.py (README, "Load test"). No effect (returns False) outside glibc.
+    """
+    try:
+        libc = ctypes.CDLL(None)
+        mallopt = libc.mallopt
+    except (OSError, AttributeError):
+        return False
+    return bool(mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)) and bool(mallopt(_M_ARENA_MAX, 1))
 
 
 def _never_called(_msg) -> None:  # the I/O node is never spun; _poll takes the messages
     raise AssertionError('recorder I/O subscriptions are polled, not spun')
 
 
-def message_class(type_name: str):
-    """The Python message class of ``pkg/msg/Type`` (imports ``pkg.msg``)."""
+def message_class(type_name: str, allowed: frozenset[str] | set[str] | None = None):
+    """The Python message class of ``pkg/msg/Type`` (imports ``pkg.msg``).
+
+    With ``allowed``, a type outside it raises ValueError before anything is imported.
+    """
+    if allowed is not None and type_name not in allowed:
+        raise ValueError(f'type {type_name} is not in allowed_types ({", ".join(sorted(allowed))}); add it to '
+                         'the parameter allowed_types if you trust the packages that define it')
     package, kind, name = type_name.split('/')
     return getattr(importlib.import_module(f'{package}.{kind}'), name)
 
@@ -82,6 +134,7 @@ class RecorderNode(Node):
     """Records topics into an MCAP bag folder; see the module docstring."""
 
     def __init__(self, **kwargs):
+        steady_allocator()              # before the writer thread and its buffers exist (see its docstring)
         super().__init__('recorder_node', **kwargs)
         self._declare_parameters()
         get = self.get_parameter
@@ -93,6 +146,12 @@ class RecorderNode(Node):
             raise AeropendError(f'include_regex {get("include_regex").value!r} is not a regular expression: '
                                 f'{error}') from None
         self._queue_depth = get('queue_depth').value
+        self._allowed_types = frozenset(t for t in get('allowed_types').value or [] if t)
+        #: loss accounting: the sample counter of the samples topic, DDS publication numbers of other topics
+        self._sample_gaps = SequenceGaps()
+        self._publication_gaps: dict[str, SequenceGaps] = {}
+        self._single_publisher: dict[str, bool] = {}
+        self._lost_reported = 0
         self.writer = BagWriter(output, max_file_bytes=get('max_file_bytes').value,
                                 max_file_duration=get('max_file_duration').value,
                                 chunk_size=get('chunk_size').value, compression=get('compression').value)
@@ -135,6 +194,8 @@ class RecorderNode(Node):
                 read_only=True)
         declare(self, 'include_regex', '^/aeropend/',
                 'also record every topic whose name matches this regular expression (empty: none)', read_only=True)
+        declare(self, 'allowed_types', DEFAULT_ALLOWED_TYPES, 'message types that may be recorded (pkg/msg/Type); '
+                'a topic of another type is not recorded: its type would name a module to import', read_only=True)
         declare(self, 'max_file_bytes', 0, 'start a new .mcap file at this size in bytes (0: never)', read_only=True,
                 low=0, high=2**62, integer=True)
         declare(self, 'max_file_duration', 0.0, 'start a new .mcap file after this many seconds of recording '
@@ -184,7 +245,7 @@ class RecorderNode(Node):
 
     def _subscribe(self, topic: str, type_name: str, publishers) -> None:
         try:
-            msg_type = message_class(type_name)
+            msg_type = message_class(type_name, self._allowed_types)
             schema_text = ros2msg_definition(type_name, self._load_msg)
         except (ImportError, AttributeError, ValueError, AeropendError) as error:
             self.get_logger().error(f'not recording {topic} ({type_name}): {error}')
@@ -211,6 +272,10 @@ class RecorderNode(Node):
     def _poll(self) -> None:
         taken_any = False
         for topic, subscription, msg_type in self._polled:
+            single = subscription.get_publisher_count() == 1
+            if single != self._single_publisher.get(topic):
+                self._single_publisher[topic] = single
+                self._publication_gaps.setdefault(topic, SequenceGaps()).reset()
             handle = subscription.handle
             with handle:
                 while True:
@@ -227,8 +292,10 @@ class RecorderNode(Node):
             self._dropped += 1
             return
         received = info.get('received_timestamp') or time.time_ns()
-        self._queue.append((topic, data, received, info.get('source_timestamp') or received,
-                            info.get('publication_sequence_number') or 0))
+        publication = info.get('publication_sequence_number') or 0
+        if publication and self._single_publisher.get(topic) and topic != contract.SAMPLES_TOPIC:
+            self._publication_gaps[topic].observe(publication)
+        self._queue.append((topic, data, received, info.get('source_timestamp') or received, publication))
         self._received[topic] += 1
 
     # -- writer thread -----------------------------------------------------------------------------------------------
@@ -246,6 +313,10 @@ class RecorderNode(Node):
                         writer.add_topic(topic, type_name, schema_text, qos, type_hash)
                         continue
                     topic, data, received, sent, sequence = item
+                    if topic == contract.SAMPLES_TOPIC:
+                        counter = joint_state_position(data, _SEQUENCE_INDEX)
+                        if counter is not None:
+                            self._sample_gaps.observe(int(counter))
                     writer.write(topic, data, received, sent, sequence)
                     self._written += 1
             except Exception as error:  # noqa: BLE001 - disk full, permissions...: report it, then main() exits 1
@@ -262,6 +333,36 @@ class RecorderNode(Node):
     def received_counts(self) -> dict[str, int]:
         """Messages received so far per topic (a copy)."""
         return dict(self._received)
+
+    def lost_counts(self) -> dict[str, int]:
+        """Messages lost per topic by sequence number (gaps), see the module docstring."""
+        counts = {contract.SAMPLES_TOPIC: self._sample_gaps.lost} if self._sample_gaps.last is not None else {}
+        counts.update({topic: gaps.lost for topic, gaps in self._publication_gaps.items() if gaps.lost})
+        return counts
+
+    @property
+    def messages_lost(self) -> int:
+        """Messages lost so far (all topics), counted by sequence gaps."""
+        return sum(self.lost_counts().values())
+
+    def _loss_details(self) -> str:
+        parts = []
+        if self._sample_gaps.last is not None:
+            parts.append(f'{contract.SAMPLES_TOPIC} (sample counter): {self._sample_gaps.describe()}')
+        parts += [f'{topic} (publication numbers): {gaps.describe()}'
+                  for topic, gaps in sorted(self._publication_gaps.items()) if gaps.lost]
+        return '; '.join(parts) or 'nothing tracked yet'
+
+    def _loss_metadata(self) -> dict[str, str]:
+        """The loss accounting as metadata.yaml custom_data (string -> string)."""
+        data = {f'aeropend.lost {topic}': str(count) for topic, count in self.lost_counts().items()}
+        data['aeropend.dropped'] = str(self._dropped)
+        data['aeropend.loss_accounting'] = (
+            f'lost = gaps in the sample counter (position[{_SEQUENCE_INDEX}]) of {contract.SAMPLES_TOPIC} and in '
+            'the DDS publication sequence numbers of topics while they had a single publisher, whoever lost them; '
+            'dropped = taken but not written (queue full or writing failed), which shows among the gaps too. '
+            f'{self._loss_details()}')
+        return data
 
     @property
     def messages_written(self) -> int:
@@ -290,6 +391,7 @@ class RecorderNode(Node):
         self._stop = True
         self._wake.set()
         self._thread.join()
+        self.writer.custom_data.update(self._loss_metadata())
         try:
             self.writer.finish()
         except AeropendError as error:          # the disk filled up while writing the last chunk or the summary
@@ -298,7 +400,10 @@ class RecorderNode(Node):
         if self._write_error:
             text = (f'bag {self.writer.folder} NOT finalised: {self._write_error}')
         else:
-            text = (f'bag {self.writer.folder} finalised: {self._written} messages, {self._dropped} dropped, '
+            lost = self.messages_lost
+            text = (f'bag {self.writer.folder} finalised: {self._written} messages, {lost} lost by sequence gaps '
+                    f'({self._loss_details()}; gaps count whatever lost them: the link, the transport, a stall, or '
+                    f'the {self._dropped} message(s) dropped here because the queue was full), '
                     f'files {[p.name for p in self.writer.paths]}')
         if rclpy.ok():
             (self.get_logger().error if self._write_error else self.get_logger().info)(text)
@@ -314,17 +419,31 @@ class RecorderNode(Node):
     def _publish_diagnostics(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
         status = DiagnosticStatus(name='recorder_node: bag', hardware_id=str(self.writer.folder))
+        lost = self.lost_counts()
+        total_lost = sum(lost.values())
+        new_lost, self._lost_reported = total_lost - self._lost_reported, total_lost
+        if new_lost:
+            self.get_logger().warning(f'{new_lost} message(s) lost since the last report, {total_lost} in all '
+                                      f'({self._loss_details()}): the recorder was stalled longer than its DDS '
+                                      'history holds (queue_depth), its queue was full (messages_dropped), or '
+                                      'the link or transport dropped them')
         if self._write_error:
             status.level, status.message = DiagnosticStatus.ERROR, f'writing failed: {self._write_error}'
-        elif self._dropped:
-            status.level, status.message = DiagnosticStatus.WARN, f'{self._dropped} messages dropped (queue full)'
+        elif self._dropped or new_lost:
+            problems = [f'{new_lost} messages lost since the last report (sequence gaps; {total_lost} in all)'] \
+                if new_lost else []
+            problems += [f'{self._dropped} messages dropped (queue full)'] if self._dropped else []
+            status.level, status.message = DiagnosticStatus.WARN, '; '.join(problems)
         else:
-            status.level, status.message = DiagnosticStatus.OK, 'recording'
+            status.level, status.message = DiagnosticStatus.OK, 'recording' + (
+                f' ({total_lost} messages lost earlier, sequence gaps)' if total_lost else '')
         values = [('messages_written', self._written), ('messages_on_disk', self.writer.messages_on_disk),
-                  ('messages_dropped', self._dropped),
+                  ('messages_dropped', self._dropped), ('messages_lost', total_lost),
+                  ('samples_lost', lost.get(contract.SAMPLES_TOPIC, 0)),
                   ('queue_length', len(self._queue)), ('file', self.writer.paths[-1].name if self.writer.paths else ''),
                   ('files', len(self.writer.paths))]
         values += [(f'received {topic}', count) for topic, count in sorted(self._received.items())]
+        values += [(f'lost {topic}', count) for topic, count in sorted(lost.items())]
         on_disk = self.writer.messages_on_disk_by_topic()
         values += [(f'on disk {topic}', count) for topic, count in sorted(on_disk.items())]
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values]
@@ -333,32 +452,52 @@ class RecorderNode(Node):
         self._diagnostics_pub.publish(array)
 
 
+def _ignore_further_interrupts(quietly: bool = False) -> None:
+    """While the bag is finalised, another Ctrl-C (or SIGTERM) only says to wait: finishing is what saves the
+    data, and an exception raised in the middle of it would print a traceback and leave the bag unfinished.
+    ``quietly``: ignore them without a word (once the bag is finished, on the way out)."""
+    def wait(signum, _frame) -> None:
+        print(f'[WARN] [recorder_node]: {signal.Signals(signum).name} ignored: finalising the bag, please wait '
+              '(SIGKILL would leave it for aeropend bag-recover)', file=sys.stderr, flush=True)
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(signum, signal.SIG_IGN if quietly else wait)
+        except (ValueError, OSError):   # not the main thread (e.g. inside `aeropend run`): nothing to do here
+            pass
+
+
 def main(args=None) -> int:
     """Entry point of ``recorder_node`` (``ros2 run aeropend_ros recorder_node``)."""
+    steady_allocator()                  # before rclpy starts the DDS threads
     rclpy.init(args=args)
     try:
         node = RecorderNode()
     except AeropendError as error:      # a bad parameter (its message names the node) or an unusable output
         print(f'{"" if str(error).startswith("recorder_node") else "recorder_node: "}error: {error}', file=sys.stderr)
         rclpy.try_shutdown()
-        return 2
+        return error.exit_status        # 2: fix the parameter; 1: the system refused (permissions, disk)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
         while rclpy.ok() and not node.failed:
             executor.spin_once(timeout_sec=0.1)
         if node.failed:
-            # tell /diagnostics listeners (a supervisor, `aeropend monitor`) for a second before exiting
+            # tell /diagnostics listeners (a supervisor, `aeropend monitor`) for a second before exiting, and make
+            # sure every matched listener has the ERROR (reliable delivery) even on a busy machine
             node._publish_diagnostics()
             deadline = time.monotonic() + 1.0
             while rclpy.ok() and time.monotonic() < deadline:
                 executor.spin_once(timeout_sec=0.1)
+            node._diagnostics_pub.wait_for_all_acked(Duration(seconds=10.0))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        _ignore_further_interrupts()
         node.finish()
         node.destroy_node()
         rclpy.try_shutdown()
+        _ignore_further_interrupts(quietly=True)    # rclpy's shutdown and the interpreter's exit would put the
+        #                                             default handler back: a late Ctrl-C would end us by a signal
     if node.failed:
         print(f'recorder_node: error: {node.write_error}', file=sys.stderr, flush=True)
         return 1
@@ -369,4 +508,4 @@ if __name__ == '__main__':
     sys.exit(main())
 
 
-__all__ = ['DEFAULT_TOPICS', 'RecorderNode', 'main', 'message_class']
+__all__ = ['DEFAULT_ALLOWED_TYPES', 'DEFAULT_TOPICS', 'RecorderNode', 'main', 'message_class', 'steady_allocator']

@@ -201,7 +201,7 @@ def start_graph(args, domain_id: int, bag_folder: Path, log_folder: Path) -> dic
     env = local_ros_environment(domain_id=domain_id)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
     ros_args = {
-        'recorder_node': ['-p', f'output:={bag_folder}'],
+        'recorder_node': ['-p', f'output:={bag_folder}', *(a for p in args.recorder_param for a in ('-p', p))],
         'identification_node': ['-p', f'window_s:={float(args.window)!r}', '-p', f'hop_s:={float(args.hop)!r}'],
         # Longer than the run: the duty keeps stepping until the sim stops (exit_when_done false: the load test
         # stops every node itself).
@@ -216,6 +216,9 @@ def start_graph(args, domain_id: int, bag_folder: Path, log_folder: Path) -> dic
     for name in ('recorder_node', 'identification_node', 'excitation_node', 'sim_node'):
         log = open(log_folder / f'{name}.log', 'w')      # noqa: SIM115 - closed with the process
         command = _executable(name) + ['--ros-args', *ros_args[name]]
+        if name == 'recorder_node' and args.trace_memory:
+            command = [sys.executable, str(ROOT / 'bench' / '_traced_node.py'), str(log_folder / 'tracemalloc.txt'),
+                       str(args.trace_memory), 'aeropend_ros.recorder_node', '--ros-args', *ros_args[name]]
         processes[name] = subprocess.Popen(command, env=env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
         log.close()
     return processes
@@ -433,7 +436,8 @@ def write_summary(result: dict, path: Path) -> None:
                      f'{e["duplicates"]} | {e["out_of_order"]} |')
     lines += ['', f'Identification node: {i["samples_received"]} samples received, {i["samples_missed"]} missed '
               '(sequence gaps it saw); recorder: '
-              f'{result["recorder"].get("messages_dropped", "?")} messages dropped, queue length max '
+              f'{result["recorder"].get("messages_dropped", "?")} messages dropped, '
+              f'{result["recorder"].get("samples_lost", "?")} samples lost (its sequence-gap count), queue length max '
               f'{result["recorder"].get("queue_length_max", "?")}.', '',
               '## Identification', '',
               '| windows expected | estimates | not fitted | skipped | compute per window mean / p95 / max [s] '
@@ -578,6 +582,7 @@ def run(args) -> dict:
     if recorder_status:
         recorder = {'messages_written': int(recorder_status[-1].get('messages_written', 0)),
                     'messages_dropped': int(recorder_status[-1].get('messages_dropped', 0)),
+                    'samples_lost': int(recorder_status[-1].get('samples_lost', 0)),
                     'queue_length_max': max(int(v.get('queue_length', 0)) for v in recorder_status)}
     identification = identification_report(listener, args, published, int(independent['stamp_ns'].min()))
     end_time = sim_end if sim_end is not None else rows[-1]['t']
@@ -635,6 +640,11 @@ def main(argv=None) -> int:
     parser.add_argument('--keep-bag', action='store_true',
                         help='keep the bag and the node logs in --out (default: a temporary folder, removed after a '
                              'successful run and kept after a failed one)')
+    parser.add_argument('--recorder-param', action='append', default=[], metavar='NAME:=VALUE',
+                        help='a recorder_node parameter (repeatable), e.g. chunk_size:=65536 for memory experiments')
+    parser.add_argument('--trace-memory', type=float, default=0.0, metavar='SECONDS',
+                        help='run the recorder under tracemalloc and write, every SECONDS, the source lines whose '
+                             'Python allocations grew to <logs>/tracemalloc.txt (use with --keep-bag)')
     parser.add_argument('--strict', action='store_true', help='exit 1 when a verdict fails')
     args = parser.parse_args(argv)
     if args.effect is None:

@@ -516,3 +516,118 @@ def test_other_compressions_read_by_both_readers(tmp_path, compression):
     assert stamps == [T0_NS + k * TS_NS for k in range(400)] and counts[SAMPLES] == 400
     assert mcap_ros2_samples(folder)[0] == stamps
     np.testing.assert_array_equal(read_samples(folder)['sequence'], np.arange(400))
+
+
+LIVE_WRITER = textwrap.dedent('''
+    import json, sys
+    sys.path.insert(0, {tests!r})
+    from test_bag import write_bag, SAMPLES, cdr_joint_state
+    from pathlib import Path
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.simulate import simulate
+    run = simulate(lhc_schedule(12.0, seed=3).duty(duration=12.0), seed=3)
+    columns = run.columns(with_truth=False)
+    writer = write_bag(Path({folder!r}), 0, chunk_size=16 * 1024)
+    for k in range(len(columns['t'])):
+        stamp = 1_763_700_000_000_000_000 + round(columns['t'][k] * 1e9)
+        values = [columns[name][k] for name in ('angle', 'armature_voltage', 'armature_current', 'duty')]
+        writer.write(SAMPLES, cdr_joint_state(stamp, [*values, float(k)]), log_time_ns=stamp, sequence=k + 1)
+    print(json.dumps({{'on_disk': writer.messages_on_disk_by_topic()[SAMPLES], 'written': k + 1}}), flush=True)
+    if sys.stdin.readline().strip() == 'finish':   # still recording until told
+        writer.finish()
+        print('finished', flush=True)
+''')
+
+
+def start_live_writer(folder: Path) -> tuple[subprocess.Popen, dict]:
+    """A process recording a 12 s simulated run into `folder` that stops before finishing (its chunk in progress
+    not on disk) and waits for a line on its standard input: 'finish' finalises the bag."""
+    import json
+    child = subprocess.Popen([sys.executable, '-c', LIVE_WRITER.format(tests=str(ROOT / 'tests'),
+                                                                       folder=str(folder))],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    return child, json.loads(child.stdout.readline())
+
+
+def test_live_bag_is_marked_refused_by_recover_and_read_without_repair_advice(tmp_path):
+    """While a bag is written: a lock names the process; bag-recover refuses it (exit 2, naming the pid) and
+    changes nothing; readers and `aeropend identify` read it up to its last complete chunk with a note that never
+    advises a repair. Finished: the lock is gone. Killed: the lock is stale and bag-recover repairs the bag."""
+    from aeropend_core.io import bag_lock
+    folder = tmp_path / 'live'
+    child, report = start_live_writer(folder)
+    try:
+        lock = bag_lock.read_lock(folder)
+        assert lock is not None and lock.pid == child.pid and lock.is_live(), lock
+        assert 0 < report['on_disk'] < report['written'], report
+        mcap = folder / 'live_0.mcap'
+        before = mcap.read_bytes()
+        result = subprocess.run([*AEROPEND, 'bag-recover', str(folder)], check=False, capture_output=True,
+                                text=True, cwd=ROOT, timeout=60)
+        assert result.returncode == 2, result.stderr
+        assert f'being written by process {child.pid}' in result.stderr and 'Traceback' not in result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+        assert mcap.read_bytes() == before and not list(folder.glob('*.recovering')), 'bag-recover touched it'
+        with pytest.raises(AeropendError, match='being written'):
+            recover_bag(mcap)
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always')
+            samples = read_samples(folder)
+        notes = [str(w.message) for w in caught]
+        assert any(f'still being recorded by process {child.pid}' in n for n in notes), notes
+        assert not any('bag-recover' in n for n in notes), notes
+        assert len(samples['sequence']) == report['on_disk']
+        np.testing.assert_array_equal(samples['sequence'], np.arange(report['on_disk']))
+
+        result = subprocess.run([*AEROPEND, 'identify', str(folder), '--json'], check=False, capture_output=True,
+                                text=True, cwd=ROOT, timeout=120)
+        assert result.returncode == 0, result.stderr
+        assert 'still being recorded' in result.stderr and 'bag-recover' not in result.stderr + result.stdout, \
+            result.stderr
+
+        child.stdin.write('finish\n')
+        child.stdin.flush()
+        assert child.stdout.readline().strip() == 'finished'
+        assert child.wait(30) == 0
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert bag_lock.read_lock(folder) is None, 'the lock outlived the finished bag'
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        assert len(read_samples(folder, on_incomplete='raise')['sequence']) == report['written']
+
+    # killed while writing: the lock stays but is stale; reading advises the repair, which removes the lock
+    killed = tmp_path / 'killed_live'
+    child, report = start_live_writer(killed)
+    child.kill()
+    child.wait()
+    lock = bag_lock.read_lock(killed)
+    assert lock is not None and not lock.is_live()
+    with pytest.warns(UserWarning, match='bag-recover'):
+        read_samples(killed)
+    result = subprocess.run([*AEROPEND, 'bag-recover', str(killed)], check=False, capture_output=True, text=True,
+                            cwd=ROOT, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert f'removed the recording lock of process {child.pid}' in result.stdout, result.stdout
+    assert bag_lock.read_lock(killed) is None
+    assert len(read_samples(killed, on_incomplete='raise')['sequence']) == report['on_disk']
+
+
+def test_lock_of_a_reused_pid_or_another_host_or_garbage(tmp_path):
+    """A lock whose pid now belongs to another process is stale; one written on another host cannot be checked
+    and counts as live (bag-recover names the host); a half-written lock is stale."""
+    import socket
+    from aeropend_core.io import bag_lock
+    write_bag(tmp_path / 'b', 200).finish()
+    lock_file = tmp_path / 'b' / bag_lock.LOCK_NAME
+    lock_file.write_text(yaml.safe_dump({'pid': os.getpid(), 'host': socket.gethostname(), 'process_start': 1}))
+    assert not bag_lock.read_lock(tmp_path / 'b').is_live()       # this pid, but started at another time
+    lock_file.write_text(yaml.safe_dump({'pid': 1, 'host': 'rig-pc-elsewhere'}))
+    with pytest.raises(AeropendError, match='rig-pc-elsewhere.*another machine'):
+        recover_bag(tmp_path / 'b')
+    lock_file.write_text('pid: [')
+    assert not bag_lock.read_lock(tmp_path / 'b').is_live()
+    assert recover_bag(tmp_path / 'b').removed_lock and not lock_file.exists()

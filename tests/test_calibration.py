@@ -102,7 +102,7 @@ def test_calibrate_cli_against_the_emulator(capsys, tmp_path):
         assert status == 0, err
         assert value_of(out, 'back_emf_constant') < 0.96 * DEFAULT_PARAMETERS.back_emf_constant
         # The motor is left at duty 0 (the emulator reads its input every ~20 ms).
-        assert poll(lambda: emulator.commands[-1][1] == P.CommandFrame(P.SET_DUTY, 0), 2.0)
+        assert poll(lambda: emulator.commands[-1][1] == P.CommandFrame(P.SET_DUTY, 0), 20.0)
 
 
 def test_calibrate_cli_user_errors(capsys, tmp_path):

@@ -13,7 +13,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -93,15 +92,19 @@ def test_installed_recorder_node_runs_and_stops_on_sigint(workspace, tmp_path):
     log = tmp_path / 'recorder.log'
     params = install / 'share' / 'aeropend_ros' / 'config' / 'recorder_node.yaml'
     command = [str(install / 'lib' / 'aeropend_ros' / 'recorder_node'), '--ros-args',
-               '--params-file', str(params), '-p', f'output:={bag}', '-p', 'diagnostics_period:=0.2']
+               '--params-file', str(params), '-p', f'output:={bag}', '-p', 'diagnostics_period:=0.2',
+               '-p', 'chunk_size:=1024']
     with open(log, 'w') as out:
         process = subprocess.Popen(command, env=installed_environment(workspace), cwd=tmp_path, stdout=out,
                                    stderr=subprocess.STDOUT)
         try:
             # it logs its start, then records its own /diagnostics (its publisher is discovered like any other)
             assert wait_for(lambda: 'recording /diagnostics' in log.read_text(), 30), log.read_text()
-            assert wait_for(lambda: process.poll() is None and (bag / 'metadata.yaml').is_file(), 10)
-            time.sleep(1.0)   # a measurement window: let a few diagnostics messages be recorded
+            assert wait_for(lambda: process.poll() is None and (bag / 'metadata.yaml').is_file(), 60)
+            # a 1 KiB chunk goes to disk after a diagnostics message or two: wait until the file grows by one
+            mcap = next(bag.glob('*.mcap'))
+            empty = mcap.stat().st_size
+            assert wait_for(lambda: mcap.stat().st_size > empty, 60), log.read_text()
             process.send_signal(signal.SIGINT)
             status = process.wait(30)
         finally:

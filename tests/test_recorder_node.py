@@ -6,6 +6,8 @@ sleeps.
 """
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -43,6 +45,7 @@ class RecorderWatch:
         self.executor.add_node(self.node)
         self.values: dict[str, dict[str, str]] = {}     # bag folder (hardware_id) -> status values
         self.status: dict[str, tuple[int, str]] = {}     # bag folder -> (level, message) of the latest status
+        self.history: dict[str, list[tuple[int, str]]] = {}  # bag folder -> every (level, message) seen
         self.node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS_TOPIC, self._on_diagnostics,
                                       topics.diagnostics_qos())
         self._publisher = None
@@ -54,6 +57,7 @@ class RecorderWatch:
                 self.status[status.hardware_id] = (int.from_bytes(status.level, 'little')
                                                    if isinstance(status.level, bytes) else int(status.level),
                                                    status.message)
+                self.history.setdefault(status.hardware_id, []).append(self.status[status.hardware_id])
 
     def value(self, bag: Path, key: str, default: int = -1) -> int:
         return int(self.values.get(str(bag), {}).get(key, default))
@@ -194,7 +198,7 @@ def test_killed_recorder_leaves_readable_bag_and_recovers(tmp_path, watch):
             extra += 1
             watch.publish_sample(10**6 + extra)
             watch.wait_for(lambda: watch.received(bag, samples) > before
-                           and watch.value(bag, 'messages_written') == watch.received(bag, samples), 1.0)
+                           and watch.value(bag, 'messages_written') == watch.received(bag, samples), 20.0)
             assert extra < 100, 'the recorder does not receive the extra samples'
         on_disk, received = watch.value(bag, f'on disk {samples}'), watch.received(bag, samples)
         assert 0 < on_disk < received, (on_disk, received)
@@ -242,6 +246,11 @@ def test_full_disk_stops_the_recorder_with_a_clear_error_and_keeps_what_was_writ
                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                     preexec_fn=preexec)
         try:
+            # the sim starts only once this test hears the recorder's /diagnostics: the recorder dies within a
+            # second of the first samples, and its ERROR must find a matched listener (it waits for the ack)
+            assert watch.wait_for(lambda: str(bag) in watch.values or recorder.poll() is not None,
+                                  DISCOVERY_TIMEOUT + 40), 'the recorder never published /diagnostics'
+            assert recorder.poll() is None, recorder.communicate(timeout=10)[0]
             with NodeProcess('aeropend_ros.sim_node', ['-p', 'psnr_db:=40.0', '-p', 'realtime_factor:=4.0'],
                              DOMAIN_ID) as sim:
                 assert watch.wait_for(lambda: recorder.poll() is not None, 90.0), sim.output()
@@ -254,7 +263,7 @@ def test_full_disk_stops_the_recorder_with_a_clear_error_and_keeps_what_was_writ
         assert 'Traceback' not in output, output
         assert 'No space left on device' in output or 'File too large' in output, (how, output)
         assert 'bag-recover' in output and 'NOT finalised' in output, output
-        watch.wait_for(lambda: watch.status.get(str(bag), (0, ''))[0] == 2, 3.0)
+        watch.wait_for(lambda: watch.status.get(str(bag), (0, ''))[0] == 2, 20.0)
         level, message = watch.status.get(str(bag), (0, ''))
         assert level == 2 and 'writing failed' in message, (level, message)   # DiagnosticStatus.ERROR
         on_disk = watch.value(bag, f'on disk {samples}')
@@ -274,3 +283,90 @@ def test_full_disk_stops_the_recorder_with_a_clear_error_and_keeps_what_was_writ
         with AnyReader([bag]) as reader:
             connections = [c for c in reader.connections if c.topic == samples]
             assert sum(1 for _ in reader.messages(connections=connections)) == kept
+
+
+def test_stalled_recorder_counts_every_gap_as_lost(tmp_path, watch):
+    """The recorder stopped (SIGSTOP, standing in for starvation) for 5 s with a 500-message DDS history while the
+    sim publishes 490 Hz: the samples that overflowed the history are lost, and the recorder says so by sequence
+    number (never '0 dropped'): a WARN on /diagnostics, a log line, and metadata.yaml's custom_data, each equal to
+    the gaps in the bag's sample counter. A topic whose type is not in allowed_types is not recorded (nor its
+    module imported)."""
+    from std_msgs.msg import String
+    samples = topics.SAMPLES_TOPIC
+    bag = tmp_path / 'stalled'
+    stall, depth = 5.0, 500
+    unlisted = watch.node.create_publisher(String, '/aeropend/unlisted_type', 10)
+    recorder_args = ['-p', f'output:={bag}', '-p', 'diagnostics_period:=0.2', '-p', f'queue_depth:={depth}']
+    try:
+        with NodeProcess('aeropend_ros.recorder_node', recorder_args, DOMAIN_ID) as recorder, \
+                NodeProcess('aeropend_ros.sim_node', ['-p', 'psnr_db:=40.0'], DOMAIN_ID) as sim:
+            assert watch.wait_for(lambda: watch.received(bag, samples) >= 500, DISCOVERY_TIMEOUT + 10), \
+                recorder.output() + sim.output()
+            assert watch.value(bag, 'samples_lost') == 0
+            os.kill(recorder.process.pid, signal.SIGSTOP)     # the stimulus: a stall, not a synchronisation sleep
+            time.sleep(stall)
+            os.kill(recorder.process.pid, signal.SIGCONT)
+            assert watch.wait_for(lambda: watch.value(bag, 'samples_lost') > 0, 30.0), recorder.output()
+            resumed = watch.received(bag, samples)
+            assert watch.wait_for(lambda: watch.received(bag, samples) > resumed + 200, 30.0), recorder.output()
+            sim.stop()
+            seen = {'received': -1, 'since': time.monotonic()}
+
+            def settled() -> bool:
+                received = watch.received(bag, samples)
+                if received != seen['received']:
+                    seen.update(received=received, since=time.monotonic())
+                return time.monotonic() - seen['since'] > 0.6 and watch.value(bag, 'queue_length') == 0
+            assert watch.wait_for(settled, 20.0), recorder.output()
+            reported = watch.value(bag, 'samples_lost')
+            assert recorder.stop() == 0, recorder.output()
+            output = recorder.output()
+    finally:
+        watch.node.destroy_publisher(unlisted)
+    sequence = read_samples(bag, on_incomplete='raise')['sequence']
+    gaps = int(np.sum(np.diff(sequence) - 1))
+    assert np.all(np.diff(sequence) >= 1)
+    # the stall overflowed the history: at least the samples published beyond its depth are missing
+    assert gaps >= 0.5 * (stall * 490 - depth), (gaps, output)
+    assert reported == gaps, (reported, gaps)
+    warnings = [message for level, message in watch.history[str(bag)] if level == 1]
+    assert any('lost since the last report' in m for m in warnings), watch.history[str(bag)]
+    assert 'message(s) lost since the last report' in output and 'sample counter' in output, output
+    assert f'{gaps} lost by sequence gaps' in output and 'the 0 message(s) dropped here' in output, output
+    info = yaml.safe_load((bag / 'metadata.yaml').read_text())['rosbag2_bagfile_information']
+    assert info['custom_data'][f'aeropend.lost {samples}'] == str(gaps), info['custom_data']
+    assert 'sample counter' in info['custom_data']['aeropend.loss_accounting']
+    # the unlisted type: refused by name, not recorded
+    assert 'not recording /aeropend/unlisted_type (std_msgs/msg/String)' in output and 'allowed_types' in output
+    from aeropend_core.io.bag import bag_topics
+    assert '/aeropend/unlisted_type' not in bag_topics(bag)
+
+
+def test_message_class_refuses_types_outside_the_allow_list_before_importing():
+    from aeropend_ros.recorder_node import DEFAULT_ALLOWED_TYPES, message_class
+    with pytest.raises(ValueError, match='allowed_types'):
+        message_class('aeropend_not_a_package/msg/Anything', frozenset(DEFAULT_ALLOWED_TYPES))
+    assert 'aeropend_not_a_package' not in sys.modules
+    assert message_class('std_msgs/msg/Float64', frozenset(DEFAULT_ALLOWED_TYPES)).__name__ == 'Float64'
+
+
+def test_repeated_interrupts_while_finishing_leave_a_finished_bag_and_no_traceback(tmp_path, watch):
+    """Ctrl-C pressed again and again while the recorder finalises: it says to wait, finishes the bag, exit 0."""
+    samples = topics.SAMPLES_TOPIC
+    bag = tmp_path / 'interrupted'
+    recorder_args = ['-p', f'output:={bag}', '-p', 'diagnostics_period:=0.2', '-p', 'chunk_size:=16777216',
+                     *ONLY_SAMPLES]
+    with NodeProcess('aeropend_ros.recorder_node', recorder_args, DOMAIN_ID) as recorder, \
+            NodeProcess('aeropend_ros.sim_node', ['-p', 'psnr_db:=40.0', '-p', 'realtime_factor:=4.0'],
+                        DOMAIN_ID) as sim:
+        assert watch.wait_for(lambda: watch.received(bag, samples) >= 5000, DISCOVERY_TIMEOUT + 30), \
+            recorder.output() + sim.output()
+        for _ in range(6):                       # the first starts the shutdown, the others land during it
+            recorder.process.send_signal(signal.SIGINT)
+            time.sleep(0.01)
+        assert recorder.process.wait(60) == 0, recorder.output()
+        output = recorder.output()
+        sim.stop()
+    assert 'Traceback' not in output and 'KeyboardInterrupt' not in output, output
+    assert 'finalised' in output, output
+    assert len(read_samples(bag, on_incomplete='raise')['sequence']) >= 5000

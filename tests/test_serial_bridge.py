@@ -30,12 +30,24 @@ use_domain(DOMAIN_ID)
 pytestmark = pytest.mark.timeout(240)
 
 
-def read_for(link, decoder, seconds: float, write=None) -> list:
+def read_until(link, decoder, condition, timeout: float = 30.0, write=None) -> list:
+    """Decode the link's frames until ``condition(messages)`` holds (a generous timeout: a loaded machine may
+    delay the emulator or this reader; the condition, not a window, decides). Writes ``write`` between reads."""
+    messages = []
+    end = time.monotonic() + timeout
+    while not condition(messages):
+        assert time.monotonic() < end, f'condition not met within {timeout} s; last messages {messages[-3:]}'
+        if write is not None:
+            link.write(write)
+        messages += decoder.feed(link.read(max(1, link.in_waiting)))
+    return messages
+
+
+def read_for(link, decoder, seconds: float) -> list:
+    """Everything decoded from the link during `seconds` (only to show that nothing arrives: a silence check)."""
     messages = []
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        if write is not None:
-            link.write(write)
         messages += decoder.feed(link.read(max(1, link.in_waiting)))
     return messages
 
@@ -62,25 +74,37 @@ def test_emulator_behaves_like_the_firmware():
         boot = next(m for m in first if isinstance(m, P.StatusFrame))
         assert boot.flags & P.FLAG_BOOT
         link.write(P.encode_command(P.SET_MAX_DUTY, 0.5) + P.encode_command(P.SET_WATCHDOG, 0.1))
-        messages = read_for(link, decoder, 1.0, write=P.encode_command(P.SET_DUTY, 0.8))
-        status = [m for m in messages if isinstance(m, P.StatusFrame)][-1]
-        assert status.max_duty_q16 == P.duty_to_q16(0.5) and status.watchdog_ms == 100
+
+        def configured(messages) -> bool:      # the STATUS with the new limits, then a clamped sample after it
+            status = [k for k, m in enumerate(messages) if isinstance(m, P.StatusFrame)
+                      and m.max_duty_q16 == P.duty_to_q16(0.5) and m.watchdog_ms == 100]
+            return bool(status) and any(isinstance(m, P.SampleFrame) and m.duty_q16 == P.duty_to_q16(0.5)
+                                        for m in messages[status[0]:])
+        messages = read_until(link, decoder, configured, write=P.encode_command(P.SET_DUTY, 0.8))
         samples = [m for m in messages if isinstance(m, P.SampleFrame)]
         assert samples[-1].duty_q16 == P.duty_to_q16(0.5) and samples[-1].flags & P.FLAG_DUTY_CLAMPED
-        # The simulated motor draws current at that duty.
-        _, voltage, current, _ = P.Calibration().to_si(samples[-1])
-        assert voltage == pytest.approx(P.Calibration().voltage_from_duty(0.5), abs=1e-3) and current > 0.1
-        # Watchdog: silence for 0.1 s cuts the duty.
-        messages = read_for(link, decoder, 0.5)
+        # The simulated motor draws current at that duty (once it has spun up: wait for it, not a fixed time).
+        messages = read_until(link, decoder, lambda ms: sum(isinstance(m, P.SampleFrame) for m in ms) > 200,
+                              write=P.encode_command(P.SET_DUTY, 0.8))
         last = [m for m in messages if isinstance(m, P.SampleFrame)][-1]
-        assert last.duty_q16 == 0 and last.flags & P.FLAG_WATCHDOG_TRIPPED
+        _, voltage, current, _ = P.Calibration().to_si(last)
+        assert voltage == pytest.approx(P.Calibration().voltage_from_duty(0.5), abs=1e-3) and current > 0.1
+        # Watchdog: silence (no command for more than its 0.1 s) cuts the duty and flags it.
+        messages = read_until(link, decoder, lambda ms: any(isinstance(m, P.SampleFrame) and m.duty_q16 == 0
+                                                            for m in ms))
+        tripped = next(m for m in messages if isinstance(m, P.SampleFrame) and m.duty_q16 == 0)
+        assert tripped.flags & P.FLAG_WATCHDOG_TRIPPED
         # Faults are labelled; damaged frames never decode.
         corrupt_before = decoder.counters.corrupt
         emulator.corrupt_frames(5)
         emulator.truncate_frames(5, keep_delimiter=False)
-        messages = read_for(link, decoder, 0.5)
+
+        def past_the_damage(messages) -> bool:
+            damaged = set(emulator.sequences('corrupt')) | set(emulator.sequences('truncated'))
+            return len(damaged) == 10 and any(isinstance(m, P.SampleFrame) and m.sequence > max(damaged) + 5
+                                              for m in messages)
+        messages = read_until(link, decoder, past_the_damage)
         damaged = set(emulator.sequences('corrupt')) | set(emulator.sequences('truncated'))
-        assert len(damaged) == 10
         received = {m.sequence for m in messages if isinstance(m, P.SampleFrame)}
         assert not received & damaged
         assert decoder.counters.corrupt - corrupt_before >= 10

@@ -12,6 +12,11 @@ Exit statuses and what reaches standard error:
 - 1 the system refused to store or read data (:class:`aeropend_core.errors.StorageError`: disk full, file size
   limit, permissions; or an ``OSError`` nobody turned into a clear message): one line naming the file and the
   operating system's reason;
+- the rule for files: **the operating system refusing is 1, a wrong path is 2**, reading and writing alike. 1 for
+  permission denied (EACCES, EPERM), a read-only file system, a full disk or quota, the file size limit and I/O
+  errors (:data:`aeropend_core.io.paths.SYSTEM_REFUSALS`, :func:`aeropend_core.io.paths.storage_error`); 2 for a
+  path that is missing, a folder where a file is expected, a device, FIFO or socket as an output, a symbolic link
+  loop, or a file whose content is not a recording;
 - 1 an internal error (any other exception, i.e. a bug in aeropend, not in the input): one line naming the
   exception, and how to get the traceback (``AEROPEND_DEBUG=1``) to report it. With ``AEROPEND_DEBUG=1`` every
   exception propagates with its full traceback;

@@ -19,15 +19,11 @@ def check_effect_names(names: list[str], option: str) -> None:
 
 
 def check_report_path(path: str | None, option: str = '--report') -> None:
-    """An HTML report can be written to `path` (a file name in an existing folder): refused before any work."""
-    if not path:
-        return
-    from pathlib import Path
-    report = Path(path)
-    if report.is_dir() or not report.parent.is_dir():
-        raise AeropendError(f'cannot write the report to {report} ({option}): '
-                            + ('it is a folder; give a file name such as report.html' if report.is_dir()
-                               else f'the folder {report.parent} does not exist'))
+    """An output file can be written to `path` (refused before any work: a folder, a missing folder, a device, a
+    named pipe, a symbolic link loop; see :func:`aeropend_core.io.paths.output_target`)."""
+    if path:
+        from aeropend_core.io.paths import output_target
+        output_target(path, option)
 
 
 def print_findings(verb: str, findings) -> None:

@@ -5,6 +5,10 @@ its metadata.yaml may be stale, so `ros2 bag`, rosbags and some viewers refuse i
 .mcap file with everything up to its last complete chunk (messages after it were never written and are lost),
 adds the summary, footer and rosbag2 metadata record, and regenerates metadata.yaml. Intact files are untouched.
 
+A bag that is still being recorded (its folder holds recording.lock naming a running process) is refused with
+exit status 2: stop the recorder instead (Ctrl-C finalises the bag). The lock of a process that no longer runs
+(killed) is stale: the bag is repaired and the lock removed.
+
 Example:
   aeropend bag-recover bags/run_2026_11_21
 """
@@ -25,6 +29,8 @@ def main(args: argparse.Namespace) -> int:
     report = recover_bag(args.bag, keep_original=args.keep_original)
     for note in report.notes:
         print(f'repaired {note}')
+    if report.removed_lock:
+        print(f'{args.bag}: {report.removed_lock}')
     files = len(report.repaired) + len(report.intact)
     if not report.repaired:
         print(f'{args.bag}: all {files} file(s) intact' + ('; metadata.yaml regenerated' if report.metadata_yaml

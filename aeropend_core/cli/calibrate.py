@@ -166,6 +166,8 @@ def load_calibration(path: Path | None) -> tuple[P.Calibration, dict]:
 
 def write_values(path: Path, updates: dict[str, float]) -> None:
     """Replace ``key: value`` lines of `path` in place (comments kept); missing keys are appended."""
+    from aeropend_core.io.paths import output_target, write_atomically
+    output_target(path, '--write')              # a device or a FIFO is refused before reading it (it could block)
     text = path.read_text() if path.exists() else f'{NODE_KEY}:\n  ros__parameters:\n'
     for key, value in updates.items():
         pattern = re.compile(rf'^(\s*{re.escape(key)}:\s*)([^#\n]*?)(\s*(#.*)?)$', re.MULTILINE)
@@ -173,7 +175,7 @@ def write_values(path: Path, updates: dict[str, float]) -> None:
             text = pattern.sub(lambda m, v=value: f'{m.group(1)}{v!r}{m.group(3)}', text, count=1)
         else:
             text = text.rstrip('\n') + f'\n    {key}: {value!r}\n'
-    path.write_text(text)
+    write_atomically(path, lambda handle: handle.write(text), '--write', 'the calibration')
 
 
 def _to_si(calibration: P.Calibration, samples: list[P.SampleFrame]) -> np.ndarray:

@@ -46,7 +46,8 @@ def load_effects_module(path: str) -> None:
     """Execute a user's Python file that registers effects with aeropend_core.model.effects.register_effect."""
     file = Path(path)
     if not file.is_file():
-        raise AeropendError(f'effects module {path} does not exist')
+        from aeropend_core.io.paths import path_problem
+        raise AeropendError(f'effects module {path} {path_problem(path) or "is not a file"}')
     spec = importlib.util.spec_from_file_location(f'aeropend_user_effects_{file.stem}', file)
     module = importlib.util.module_from_spec(spec)
     try:
@@ -71,11 +72,8 @@ def main(args: argparse.Namespace) -> int:
     if both:
         raise AeropendError(f'{", ".join(both)} given with both --add and --fix; --fix already puts it in the model')
     if args.report:                          # refuse now, not after minutes of diagnosis
-        report = Path(args.report)
-        if report.is_dir() or not report.parent.is_dir():
-            raise AeropendError(f'cannot write the report to {report}: '
-                                + ('it is a folder; give a file name such as report.html' if report.is_dir()
-                                   else f'the folder {report.parent} does not exist'))
+        from aeropend_core.cli._checks import check_report_path
+        check_report_path(args.report)    # a folder, device, FIFO, link loop or missing folder: refused
     recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
     print_findings('diagnose', recording.findings)          # first: before minutes of fitting, or a refusal
     from aeropend_core.diagnosis.diagnose import diagnose      # scipy and numba: imported once the input is known good

@@ -10,17 +10,18 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 import numpy as np
 
+from aeropend_core.errors import AeropendError
+from aeropend_core.io.paths import output_target, write_atomically
 from aeropend_core.model.effects import parse_effect_assignments
-from aeropend_core.errors import AeropendError, StorageError
 from aeropend_core.model.parameters import PRESETS, SAMPLE_TIME
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('-o', '--output', default='-', help='CSV file to write (default: standard output)')
+    parser.add_argument('-o', '--output', default='-', help='CSV file to write (default: standard output); a '
+                        'symbolic link is written through, a device or a named pipe refused')
     parser.add_argument('--duration', type=float, default=60.0, help='length of the record [s] (default 60)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the excitation and the noise (default 0)')
     parser.add_argument('--psnr', type=float, default=None,
@@ -76,19 +77,17 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _check_output(path: str) -> None:
-    """Refuse an --output that cannot be a new file before spending time on the simulation."""
-    target = Path(path)
-    if target.is_dir():
-        raise AeropendError(f'--output {target} is a folder; give a file name, e.g. {target / "run.csv"}')
-    if not target.parent.is_dir():
-        raise AeropendError(f'folder {target.parent} does not exist; create it or choose another --output')
+    """Refuse an --output that cannot be a new file before spending time on the simulation (a folder, a missing
+    folder, a device, a named pipe, a symbolic link loop; see :mod:`aeropend_core.io.paths`)."""
+    output_target(path, '--output', stdout_hint=True)
 
 
 def write_csv(path: str, columns: dict[str, np.ndarray]) -> None:
     """Write equal-length columns as CSV with a header row (``-`` for standard output).
 
     A file is written under a temporary name and renamed when complete, so a failure (disk full, no permission)
-    never leaves a shorter file that reads as a valid recording; the error says what the system refused.
+    never leaves a shorter file that reads as a valid recording; the error says what the system refused. A
+    symbolic link is written through (its target replaced); devices and named pipes are refused.
     """
     table = np.column_stack(list(columns.values()))
     header = ','.join(columns)
@@ -96,17 +95,8 @@ def write_csv(path: str, columns: dict[str, np.ndarray]) -> None:
     if path == '-':
         np.savetxt(sys.stdout, table, delimiter=',', header=header, comments='', fmt=fmt)
         return
-    target = Path(path)
-    _check_output(path)
-    partial = target.with_name(f'.{target.name}.partial')
-    try:
-        with open(partial, 'w', encoding='utf-8') as handle:
-            np.savetxt(handle, table, delimiter=',', header=header, comments='', fmt=fmt)
-        partial.replace(target)
-    except OSError as error:
-        partial.unlink(missing_ok=True)
-        raise StorageError(f'cannot write {target}: {error.strerror or error}; nothing was written (free space, '
-                           'check permissions or choose another --output)') from None
+    write_atomically(path, lambda handle: np.savetxt(handle, table, delimiter=',', header=header, comments='',
+                                                     fmt=fmt), '--output', 'the CSV')
 
 
 #: Significant digits of the measured and truth columns (float32-like: far below any sensor's resolution).

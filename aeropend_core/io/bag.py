@@ -43,6 +43,8 @@ import numpy as np
 import yaml
 
 from aeropend_core.errors import AeropendError
+from aeropend_core.io import bag_lock
+from aeropend_core.io.paths import path_problem, storage_error
 from aeropend_core.io.mcap_format import (
     _OP_CHANNEL,
     _OP_CHUNK,
@@ -168,7 +170,7 @@ def _scan_mcap(path: Path, state: _ScanState, want_messages: bool) -> Iterator[t
     try:
         handle = open(path, 'rb')  # noqa: SIM115 - closed in the finally below, after the generator is done
     except OSError as error:
-        raise AeropendError(f'cannot read {path}: {error.strerror or error}') from None
+        raise storage_error(error, f'cannot read {path}: {error.strerror or error}') from None
     mapped = None
     try:
         size = os.fstat(handle.fileno()).st_size
@@ -265,7 +267,7 @@ def bag_files(path: str | os.PathLike) -> list[Path]:
     """
     path = Path(path)
     if not path.exists():
-        raise AeropendError(f'{path} does not exist')
+        raise AeropendError(f'{path} {path_problem(path)}')
     if path.is_file():
         return [path]
     listed: list[Path] = []
@@ -320,6 +322,15 @@ def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None,
             yield BagMessage(channel.topic, schema.name if schema else '', log_t, pub_t, data, seq)
         if not state.complete:
             in_bag = Path(path).is_dir() or (file.parent / 'metadata.yaml').is_file()
+            writer = bag_lock.live_writer(file)
+            if writer is not None:      # being recorded: no repair to advise, only that the end is still coming
+                message = (f'{file} is still being recorded by {writer.describe()}; read up to its last complete '
+                           'chunk (the newest samples are not in it yet; read it again once the recording ends)')
+                if on_incomplete == 'raise':
+                    raise AeropendError(message)
+                if on_incomplete == 'warn':
+                    warnings.warn(message, stacklevel=2)
+                continue
             message = (f'{file} is incomplete ({state.problem}); read up to its last complete chunk. '
                        f'Repair it with: aeropend bag-recover {file.parent if in_bag else file}')
             if on_incomplete == 'raise':
@@ -471,6 +482,9 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
             datas.append(message.data)
             received.append(message.log_time_ns)
     incomplete = [w for w in cut if 'is incomplete' in str(w.message)]
+    live = [w for w in cut if 'is still being recorded' in str(w.message)]
+    if not datas and live:
+        raise AeropendError(f'no {topic} message in {path} yet: {live[0].message}')
     if not datas:
         if incomplete:
             raise AeropendError(f'no {topic} message in {path} before it is cut short: {incomplete[0].message}')

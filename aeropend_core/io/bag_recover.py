@@ -10,6 +10,8 @@ from pathlib import Path
 import yaml
 
 from aeropend_core.errors import AeropendError, StorageError
+from aeropend_core.io import bag_lock
+from aeropend_core.io.paths import path_problem
 from aeropend_core.io.bag import _ScanState, _scan_mcap, bag_files
 from aeropend_core.io.bag_writer import (
     TopicInfo,
@@ -35,6 +37,7 @@ class RecoveryReport:
     message_count: int
     notes: list[str]
     metadata_yaml: Path | None = None      # the regenerated metadata.yaml (None for a lone .mcap file)
+    removed_lock: str = ''                 # the stale recording lock removed (its process is gone), if any
 
 
 def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> RecoveryReport:
@@ -63,10 +66,15 @@ def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> Recover
     """
     path = Path(path)
     if not path.exists():
-        raise AeropendError(f'{path} does not exist')
+        raise AeropendError(f'{path} {path_problem(path)}')
+    bag_lock.refuse_if_live(path, 'repair')
     folder, files, bag_folder = _recovery_targets(path)
     try:
-        return _recover_files(folder, files, bag_folder, keep_original)
+        report = _recover_files(folder, files, bag_folder, keep_original)
+        stale = bag_lock.remove_stale(folder)
+        if stale is not None:
+            report.removed_lock = f'removed the recording lock of {stale.describe()}, which no longer runs'
+        return report
     except OSError as error:
         raise StorageError(f'cannot repair {path}: {error.strerror or error}'
                            f'{" (" + str(error.filename) + ")" if error.filename else ""}; nothing was changed in '

@@ -12,6 +12,8 @@ from typing import Any, Self
 import yaml
 
 from aeropend_core.errors import AeropendError, StorageError
+from aeropend_core.io import bag_lock
+from aeropend_core.io.paths import storage_error
 from aeropend_core.io.mcap_format import (
     MESSAGE_ENCODING,
     METADATA_VERSION,
@@ -63,6 +65,24 @@ class _DirectFile:
         if self._fd >= 0:
             os.close(self._fd)
             self._fd = -1
+
+
+class _PackedChunkIndex(bytes):
+    """A chunk index record kept as its serialized bytes (~100 B) instead of a ChunkIndex object (~1 kB)."""
+
+    def write(self, stream) -> None:
+        stream.write(self)
+
+
+class _PackedChunkIndexes(list):
+    """The mcap writer's list of chunk indexes, kept serialized until the summary is written: the index of a
+    long recording is held in memory until its file is finished (23 chunks/min at 490 Hz)."""
+
+    def append(self, chunk_index) -> None:
+        from mcap.data_stream import RecordBuilder
+        builder = RecordBuilder()
+        chunk_index.write(builder)
+        super().append(_PackedChunkIndex(builder.end()))
 
 
 @dataclass
@@ -123,7 +143,9 @@ class BagWriter:
     def __init__(self, folder: str | os.PathLike, *, max_file_bytes: int = 0, max_file_duration: float = 0.0,
                  chunk_size: int = 1024 * 1024, compression: str = 'zstd', ros_distro: str = 'jazzy'):
         self.folder = Path(folder)
-        if self.folder.exists() and (not self.folder.is_dir() or any(self.folder.iterdir())):
+        if self.folder.exists() and not self.folder.is_dir():
+            raise AeropendError(f'bag folder {self.folder} already exists and is not a folder: choose a new name')
+        if self.folder.exists() and any(self.folder.iterdir()):
             raise AeropendError(f'bag folder {self.folder} already exists and is not empty: choose a new name')
         if max_file_bytes < 0 or max_file_duration < 0:
             raise AeropendError('split limits must be >= 0 (0 means no split)')
@@ -132,9 +154,13 @@ class BagWriter:
         self._compression = _compression_type(compression)
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
+            self._lock = bag_lock.acquire(self.folder)   # marks the bag as being written until finish()
         except OSError as error:
-            raise AeropendError(f'cannot create bag folder {self.folder}: {error.strerror or error}') from None
+            raise storage_error(error, f'cannot create bag folder {self.folder}: {error.strerror or error}') \
+                from None
         self.name = self.folder.name
+        #: written to metadata.yaml's ``custom_data`` (string -> string), e.g. the recorder's loss accounting
+        self.custom_data: dict[str, str] = {}
         self.max_file_bytes = int(max_file_bytes)
         self.max_file_duration_ns = round(max_file_duration * NS_PER_S)
         self.chunk_size = int(chunk_size)
@@ -273,6 +299,7 @@ class BagWriter:
             _write_metadata_yaml(self.folder, self._metadata_dict())
         except OSError as error:
             self._fail(error)
+        bag_lock.release(self.folder)
 
     close = finish
 
@@ -308,6 +335,7 @@ class BagWriter:
             self._stream.close()
         self._writer = None
         self._stream = None
+        bag_lock.release(self.folder)   # nothing more is written: bag-recover may finalise it
         raise StorageError(self._failure) from None
 
     def _open_file(self) -> None:
@@ -316,6 +344,8 @@ class BagWriter:
         self.files.append(info)
         self._stream = _DirectFile(self.folder / info.path)
         self._writer = Writer(self._stream, chunk_size=self.chunk_size, compression=self._compression)
+        if isinstance(getattr(self._writer, '_Writer__chunk_indices', None), list):
+            self._writer._Writer__chunk_indices = _PackedChunkIndexes()     # same summary bytes, less memory
         self._writer.start(profile=ROS2_PROFILE, library='aeropend')
         self._writer.add_metadata('rosbag2', {'ROS_DISTRO': self.ros_distro})
         self._schema_ids = {}
@@ -352,14 +382,15 @@ class BagWriter:
         self._open_file()
 
     def _metadata_dict(self) -> dict[str, Any]:
-        return _metadata_dict(self.topics.values(), self.files, self.ros_distro)
+        return _metadata_dict(self.topics.values(), self.files, self.ros_distro, self.custom_data)
 
 
 def _dump_qos(profiles: list[dict[str, Any]]) -> str:
     return yaml.safe_dump(profiles, sort_keys=False).strip() if profiles else ''
 
 
-def _metadata_dict(topics: Iterable[TopicInfo], files: list[_FileInfo], ros_distro: str) -> dict[str, Any]:
+def _metadata_dict(topics: Iterable[TopicInfo], files: list[_FileInfo], ros_distro: str,
+                   custom_data: dict[str, str] | None = None) -> dict[str, Any]:
     starts = [f.start_ns for f in files if f.start_ns is not None]
     ends = [f.end_ns for f in files if f.end_ns is not None]
     start = min(starts) if starts else 0
@@ -383,7 +414,7 @@ def _metadata_dict(topics: Iterable[TopicInfo], files: list[_FileInfo], ros_dist
                    'duration': {'nanoseconds': (f.end_ns - f.start_ns) if f.start_ns is not None else 0},
                    'message_count': f.message_count}
                   for f in files],
-        'custom_data': {},
+        'custom_data': dict(custom_data or {}),
         'ros_distro': ros_distro,
     }
 

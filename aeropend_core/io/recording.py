@@ -156,8 +156,9 @@ def load_csv(path: str | Path) -> Recording:
             reader = csv.reader(handle)
             header = [h.strip() for h in next(reader, [])]
             rows = [row for row in reader if row and any(cell.strip() for cell in row)]
-    except OSError as error:
-        raise AeropendError(f'cannot read {path}: {error.strerror or error}') from None
+    except OSError as error:    # permissions: exit 1 (the system refused), see aeropend_core.cli
+        from aeropend_core.io.paths import storage_error
+        raise storage_error(error, f'cannot read {path}: {error.strerror or error}') from None
     except (UnicodeDecodeError, csv.Error) as error:
         raise AeropendError(f'{path} is not a text CSV file ({error}); expected a header t,duty,armature_voltage,... '
                             'and comma-separated numbers') from None
@@ -223,7 +224,9 @@ def load_recording(path: str | Path, sample_time: float | None = SAMPLE_TIME) ->
     from aeropend_core.signals.quality import check_recording
     path = Path(path)
     if not path.exists():
-        raise AeropendError(f'no such file or folder: {path}')
+        from aeropend_core.io.paths import path_problem
+        problem = path_problem(path)        # a symbolic link loop or a dangling link is named as such
+        raise AeropendError(f'no such file or folder: {path}' if problem == 'does not exist' else f'{path} {problem}')
     if path.suffix.lower() == '.csv':
         recording = load_csv(path)
     elif path.suffix.lower() == '.mcap' or path.is_dir():

@@ -534,15 +534,11 @@ def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = No
     Path
         The file written.
     """
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise AeropendError(f'cannot write the report to {path}: the folder {path.parent} does not exist')
+    from aeropend_core.io.paths import output_target, write_atomically
+    output_target(path, '--report')                 # refused before the rendering: folder, device, FIFO, loop
     text = render_report(diagnosis, source)
-    try:
-        path.write_text(text, encoding='utf-8')
-    except OSError as error:
-        raise AeropendError(f'cannot write the report to {path}: {error.strerror}') from None
-    return path
+    write_atomically(path, lambda handle: handle.write(text), '--report', 'the report')
+    return Path(path)
 
 
 __all__ = ['render_report', 'write_report']
