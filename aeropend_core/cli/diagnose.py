@@ -60,7 +60,8 @@ def load_effects_module(path: str) -> None:
 def main(args: argparse.Namespace) -> int:
     from aeropend_core.io.recording import load_recording
 
-    from aeropend_core.cli._checks import check_effect_names, print_findings, sample_time_from
+    from aeropend_core.cli._checks import print_findings, sample_time_from
+    from aeropend_core.model.effects import check_effect_names
     for path in args.effects_module:
         load_effects_module(path)
     check_effect_names(args.add, '--add')

@@ -320,6 +320,45 @@ def resolve_effects(effects: Mapping[str, Mapping[str, float] | float] | None) -
     return resolved
 
 
+def check_effect_names(names: Sequence[str], option: str = 'effects') -> tuple[str, ...]:
+    """Effect names given to a model (``--add``, ``--effect``, ``--only``, a node's ``effects``): bare catalog names.
+
+    Parameters
+    ----------
+    names : sequence of str [-]
+        The names as given (blanks and repeats are dropped).
+    option : str [-]
+        Where they came from, for the messages (e.g. ``'--add'``).
+
+    Returns
+    -------
+    tuple of str
+        The names, stripped, without blanks or repeats, in the order given.
+
+    Raises
+    ------
+    AeropendError
+        ``NAME=VALUE`` for a catalog effect: its parameters are fitted, so only the name is taken.
+    UnknownEffectError
+        A name not in the catalog (the message lists the known ones).
+    """
+    result: list[str] = []
+    for raw in names:
+        name = raw.strip()
+        if not name:
+            continue
+        bare = name.split('=', 1)[0].split('.', 1)[0].strip()
+        if '=' in name and bare in CATALOG:
+            raise AeropendError(f'{option} {name}: give effect names only, e.g. {option} {bare} (the name only: its '
+                                'parameters are estimated from the data)')
+        if name not in CATALOG:
+            raise UnknownEffectError(f'unknown effect {name!r} in {option}; known effects: '
+                                     f'{", ".join(sorted(CATALOG))} (`aeropend effects` describes them)')
+        if name not in result:
+            result.append(name)
+    return tuple(result)
+
+
 def parse_effect_assignments(assignments: list[str]) -> dict[str, dict[str, float]]:
     """Parse CLI ``NAME=VALUE`` or ``NAME.PARAM=VALUE`` strings into a validated effects dict."""
     raw: dict[str, dict[str, float] | float] = {}
