@@ -25,7 +25,7 @@ import sys
 import numpy as np
 
 from aeropend_core.cli._checks import add_sample_rate_argument
-from aeropend_core.cli.diagnose import finite_json
+from aeropend_core.present.json_output import finite_json
 from aeropend_core.errors import AeropendError
 from aeropend_core.io.recording import load_recording
 from aeropend_core.model.effects import CATALOG

@@ -515,3 +515,35 @@ add_effect(Effect(
 
 for _effect in CATALOG.values():
     object.__setattr__(_effect, 'builtin', True)
+
+
+def load_effects_module(path: str) -> None:
+    """Run a user's Python file that registers effects with :func:`register_effect` (it is executed as code).
+
+    Parameters
+    ----------
+    path : str [-]
+        The file.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    AeropendError
+        No such file, or the file failed (its exception named in one line).
+    """
+    import importlib.util
+    from pathlib import Path
+    file = Path(path)
+    if not file.is_file():
+        raise AeropendError(f'effects module {path} does not exist')
+    spec = importlib.util.spec_from_file_location(f'aeropend_user_effects_{file.stem}', file)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except AeropendError:
+        raise
+    except Exception as error:  # a user's file: report what went wrong in it, briefly
+        raise AeropendError(f'loading {path} failed: {type(error).__name__}: {error}') from None

@@ -374,7 +374,7 @@ def _write_json(target: str, value: dict) -> None:
     """One JSON object (NaN/inf as null) to standard output (``-``) or a file."""
     import json
 
-    from aeropend_core.cli.diagnose import finite_json
+    from aeropend_core.present.json_output import finite_json
     text = json.dumps(finite_json(value), indent=2, allow_nan=False)
     if target == '-':
         sys.__stdout__.write(text + '\n')
