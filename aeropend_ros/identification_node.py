@@ -63,7 +63,8 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.parameters import SAMPLE_TIME
 from aeropend_core.signals.quality import DataQualityError, check_recording
 from aeropend_ros import topics
-from aeropend_core.diagnosis.online import WindowResult, analyze_window, check_effect_names, fill_gaps
+from aeropend_core.diagnosis.online import WindowResult, analyze_window, fill_gaps
+from aeropend_core.model.effects import check_effect_names
 from aeropend_core.io.recording import Recording
 
 COEFFICIENTS_TOPIC = '/aeropend/identification/coefficients'
@@ -191,7 +192,7 @@ class IdentificationNode(Node):
         effects = declare(self, 'effects', [''], 'catalog effects in the model (names; aeropend effects)')
         check_unknown_overrides(self)
         try:
-            self.effects = check_effect_names(effects)
+            self.effects = check_effect_names(effects, 'effects')
         except AeropendError as error:
             raise ParameterError(f'{self.get_name()}: parameter effects: {error}; fix -p "effects:=[\'NAME\']" or '
                                  'the params file') from None

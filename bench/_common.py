@@ -18,7 +18,7 @@ from typing import Callable
 
 import numpy as np
 
-from aeropend_core.cli.diagnose import finite_json
+from aeropend_core.present.json_output import finite_json
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.identify.pendulum import full_state_library, identify_full_state
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P

@@ -9,7 +9,8 @@ from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import simulate
-from aeropend_core.diagnosis.online import analyze_window, check_effect_names, fill_gaps
+from aeropend_core.diagnosis.online import analyze_window, fill_gaps
+from aeropend_core.model.effects import check_effect_names
 
 
 def test_effect_names_validated():

@@ -15,10 +15,8 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import sys
-from pathlib import Path
 
 from aeropend_core.errors import AeropendError
 
@@ -42,26 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_sample_rate_argument(parser)
 
 
-def load_effects_module(path: str) -> None:
-    """Execute a user's Python file that registers effects with aeropend_core.model.effects.register_effect."""
-    file = Path(path)
-    if not file.is_file():
-        from aeropend_core.io.paths import path_problem
-        raise AeropendError(f'effects module {path} {path_problem(path) or "is not a file"}')
-    spec = importlib.util.spec_from_file_location(f'aeropend_user_effects_{file.stem}', file)
-    module = importlib.util.module_from_spec(spec)
-    try:
-        spec.loader.exec_module(module)
-    except AeropendError:
-        raise
-    except Exception as error:  # a user's file: report what went wrong in it, briefly
-        raise AeropendError(f'loading {path} failed: {type(error).__name__}: {error}') from None
-
-
 def main(args: argparse.Namespace) -> int:
     from aeropend_core.io.recording import load_recording
 
-    from aeropend_core.cli._checks import check_effect_names, print_findings, sample_time_from
+    from aeropend_core.cli._checks import print_findings, sample_time_from
+    from aeropend_core.model.effects import check_effect_names
+    from aeropend_core.model.effects import load_effects_module
     for path in args.effects_module:
         load_effects_module(path)
     check_effect_names(args.add, '--add')
@@ -89,25 +73,8 @@ def main(args: argparse.Namespace) -> int:
         written = write_report(diagnosis, args.report, source=args.data)
         progress(f'report written to {written}')
     if args.json:
+        from aeropend_core.present.json_output import finite_json
         print(json.dumps(finite_json(diagnosis.to_dict()), indent=2, allow_nan=False))
     else:
         print(diagnosis.summary())
     return 0
-
-
-def finite_json(value):
-    """Plain JSON types with NaN/inf replaced by null (JSON has no NaN)."""
-    import math
-
-    import numpy as np
-    if isinstance(value, dict):
-        return {str(k): finite_json(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [finite_json(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return finite_json(value.tolist())
-    if isinstance(value, (np.generic,)):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value

@@ -25,7 +25,7 @@ import sys
 import numpy as np
 
 from aeropend_core.cli._checks import add_sample_rate_argument
-from aeropend_core.cli.diagnose import finite_json
+from aeropend_core.present.json_output import finite_json
 from aeropend_core.errors import AeropendError
 from aeropend_core.io.recording import load_recording
 from aeropend_core.model.effects import CATALOG
@@ -74,7 +74,8 @@ def _pieces_between_gaps(time: np.ndarray, shortest: float = 1.0) -> list[tuple[
 
 
 def main(args: argparse.Namespace) -> int:
-    from aeropend_core.cli._checks import check_effect_names, print_findings, sample_time_from
+    from aeropend_core.cli._checks import print_findings, sample_time_from
+    from aeropend_core.model.effects import check_effect_names
     check_effect_names(args.effect, '--effect')
     recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
     if args.start is not None or args.stop is not None:

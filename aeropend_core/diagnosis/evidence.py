@@ -76,8 +76,9 @@ def hac_covariance(jacobian: np.ndarray, residuals: np.ndarray, groups: np.ndarr
 
     Parameters
     ----------
-    jacobian : ndarray, shape (n, p)
-        d residual / d parameter at the solution.
+    jacobian : ndarray or scipy.sparse matrix, shape (n, p)
+        d residual / d parameter at the solution (sparse for long multiple-shooting fits: each segment's initial
+        state moves only that segment's residuals).
     residuals : ndarray, shape (n,)
     groups : ndarray of int, shape (n,), optional
         Independent groups (multiple-shooting segments); block sums never cross a group boundary.
@@ -89,12 +90,14 @@ def hac_covariance(jacobian: np.ndarray, residuals: np.ndarray, groups: np.ndarr
     ndarray, shape (p, p)
         ``B M B`` with ``B = pinv(J'J)`` and ``M`` the sum over blocks of (sum of scores)(sum of scores)'.
     """
-    jacobian = np.asarray(jacobian, dtype=float)
+    from scipy import sparse
     residuals = np.asarray(residuals, dtype=float)
+    is_sparse = sparse.issparse(jacobian)
+    jacobian = sparse.csr_array(jacobian, dtype=float) if is_sparse else np.asarray(jacobian, dtype=float)
     n, p = jacobian.shape
     width = bandwidth(residuals) if width is None else int(max(1, width))
     groups = np.zeros(n, dtype=int) if groups is None else np.asarray(groups)
-    scores = jacobian * residuals[:, None]
+    scores = jacobian.multiply(residuals[:, None]).tocsr() if is_sparse else jacobian * residuals[:, None]
     # Blocks of `width` consecutive residuals within each group (half-overlapping: two offsets averaged).
     meat = np.zeros((p, p))
     for shift in (0, width // 2) if width > 1 else (0,):
@@ -107,11 +110,17 @@ def hac_covariance(jacobian: np.ndarray, residuals: np.ndarray, groups: np.ndarr
             block[start:stop] = label + (index + shift) // width
             label = int(block[stop - 1]) + 1
             start = stop
-        sums = np.zeros((label, p))
-        np.add.at(sums, block, scores)
-        meat += sums.T @ sums
+        if is_sparse:      # block sums as one sparse product (rows = blocks): linear in n
+            indicator = sparse.csr_array((np.ones(n), (block, np.arange(n))), shape=(label, n))
+            sums = indicator @ scores
+            meat += (sums.T @ sums).toarray()
+        else:
+            sums = np.zeros((label, p))
+            np.add.at(sums, block, scores)
+            meat += sums.T @ sums
     meat /= 2 if width > 1 else 1
-    bread = np.linalg.pinv(jacobian.T @ jacobian)
+    gram = (jacobian.T @ jacobian).toarray() if is_sparse else jacobian.T @ jacobian
+    bread = np.linalg.pinv(gram)
     return bread @ meat @ bread
 
 

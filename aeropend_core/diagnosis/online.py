@@ -31,12 +31,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aeropend_core.model.effects import get_effect
+# the output-error segment length [s] and the fit % are the diagnosis's own (one definition of each)
+from aeropend_core.diagnosis.compare import SEGMENT_SECONDS
+from aeropend_core.diagnosis.compare import fit_percent as _fit_percent
+from aeropend_core.model.effects import check_effect_names, get_effect
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
 
-#: Output-error segment length [s] (``docs/method.md`` section 2.3: ~10 s segments are stable, ~3 s collapse).
-SEGMENT_SECONDS = 10.0
 
 
 @dataclass
@@ -89,30 +90,6 @@ class WindowResult:
     findings: tuple = ()
     estimators: dict[str, str] = field(default_factory=dict)
     weak_parameters: dict[str, tuple[float, float]] = field(default_factory=dict)
-
-
-def check_effect_names(names: Sequence[str]) -> tuple[str, ...]:
-    """Validate model-effect names against the catalog; returns them without blanks/duplicates.
-
-    Raises
-    ------
-    UnknownEffectError
-        For a name not in the catalog (the message lists the known ones).
-    AeropendError
-        For ``NAME=VALUE`` (the identification takes names only: it fits the values).
-    """
-    result = []
-    for raw in names:
-        name = raw.strip()
-        if not name:
-            continue
-        if '=' in name:
-            raise AeropendError(f'{name!r}: give effect names only (e.g. {name.partition("=")[0]!r}); '
-                                'the identification fits their values')
-        get_effect(name)
-        if name not in result:
-            result.append(name)
-    return tuple(result)
 
 
 def check_excitation(armature_voltage: np.ndarray, angle: np.ndarray, n_train: int, sample_time: float,
@@ -295,8 +272,7 @@ def _held_out_by_window(voltage, current, angle, effects, n_train, sample_time, 
     landed = np.isfinite(predicted)
     measured = angle[n_train:][landed]
     error = predicted[landed] - measured
-    spread = float(np.linalg.norm(measured - measured.mean()))
-    fit_percent = 100.0 * (1.0 - float(np.linalg.norm(error)) / spread) if spread > 0 else float('nan')
+    fit_percent = _fit_percent(measured, predicted[landed])
     return values, errors, fit_percent, float(np.sqrt(np.mean(error ** 2))), noise_rms(angle[n_train:])
 
 

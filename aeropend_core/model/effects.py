@@ -320,6 +320,45 @@ def resolve_effects(effects: Mapping[str, Mapping[str, float] | float] | None) -
     return resolved
 
 
+def check_effect_names(names: Sequence[str], option: str = 'effects') -> tuple[str, ...]:
+    """Effect names given to a model (``--add``, ``--effect``, ``--only``, a node's ``effects``): bare catalog names.
+
+    Parameters
+    ----------
+    names : sequence of str [-]
+        The names as given (blanks and repeats are dropped).
+    option : str [-]
+        Where they came from, for the messages (e.g. ``'--add'``).
+
+    Returns
+    -------
+    tuple of str
+        The names, stripped, without blanks or repeats, in the order given.
+
+    Raises
+    ------
+    AeropendError
+        ``NAME=VALUE`` for a catalog effect: its parameters are fitted, so only the name is taken.
+    UnknownEffectError
+        A name not in the catalog (the message lists the known ones).
+    """
+    result: list[str] = []
+    for raw in names:
+        name = raw.strip()
+        if not name:
+            continue
+        bare = name.split('=', 1)[0].split('.', 1)[0].strip()
+        if '=' in name and bare in CATALOG:
+            raise AeropendError(f'{option} {name}: give effect names only, e.g. {option} {bare} (the name only: its '
+                                'parameters are estimated from the data)')
+        if name not in CATALOG:
+            raise UnknownEffectError(f'unknown effect {name!r} in {option}; known effects: '
+                                     f'{", ".join(sorted(CATALOG))} (`aeropend effects` describes them)')
+        if name not in result:
+            result.append(name)
+    return tuple(result)
+
+
 def parse_effect_assignments(assignments: list[str]) -> dict[str, dict[str, float]]:
     """Parse CLI ``NAME=VALUE`` or ``NAME.PARAM=VALUE`` strings into a validated effects dict."""
     raw: dict[str, dict[str, float] | float] = {}
@@ -476,3 +515,36 @@ add_effect(Effect(
 
 for _effect in CATALOG.values():
     object.__setattr__(_effect, 'builtin', True)
+
+
+def load_effects_module(path: str) -> None:
+    """Run a user's Python file that registers effects with :func:`register_effect` (it is executed as code).
+
+    Parameters
+    ----------
+    path : str [-]
+        The file.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    AeropendError
+        No such file, or the file failed (its exception named in one line).
+    """
+    import importlib.util
+    from pathlib import Path
+    file = Path(path)
+    if not file.is_file():
+        from aeropend_core.io.paths import path_problem
+        raise AeropendError(f'effects module {path} {path_problem(path) or "is not a file"}')
+    spec = importlib.util.spec_from_file_location(f'aeropend_user_effects_{file.stem}', file)
+    module = importlib.util.module_from_spec(spec)
+    try:
+        spec.loader.exec_module(module)
+    except AeropendError:
+        raise
+    except Exception as error:  # a user's file: report what went wrong in it, briefly
+        raise AeropendError(f'loading {path} failed: {type(error).__name__}: {error}') from None

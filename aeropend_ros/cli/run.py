@@ -96,10 +96,10 @@ def _check_arguments(args) -> None:
         raise AeropendError(f'serial port {args.port} does not exist: is the Arduino plugged in? '
                             '(ls /dev/ttyACM* /dev/serial/by-id/), or run the simulator with --sim')
     from aeropend_core.model.effects import parse_effect_assignments
-    from aeropend_core.diagnosis.online import check_effect_names
+    from aeropend_core.model.effects import check_effect_names
     if args.effect and args.effect != ['none']:
         parse_effect_assignments(args.effect)
-    check_effect_names(args.model_effect)
+    check_effect_names(args.model_effect, '--add')
     if args.foxglove is not None:
         if not 0 <= args.foxglove <= 65535:
             raise AeropendError(f'--foxglove PORT must be in [0, 65535] (0 = any free port), got {args.foxglove}')
@@ -374,7 +374,7 @@ def _write_json(target: str, value: dict) -> None:
     """One JSON object (NaN/inf as null) to standard output (``-``) or a file."""
     import json
 
-    from aeropend_core.cli.diagnose import finite_json
+    from aeropend_core.present.json_output import finite_json
     text = json.dumps(finite_json(value), indent=2, allow_nan=False)
     if target == '-':
         sys.__stdout__.write(text + '\n')
