@@ -14,7 +14,7 @@ import numpy as np
 
 from aeropend_core.io.bag_writer import BagWriter
 from aeropend_core.io.mcap_format import msg_file_loader, msg_type_hash, offered_qos, ros2msg_definition
-from aeropend_core.cli.simulate import write_csv
+from aeropend_core.io.recording import write_csv
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 from aeropend_core.sim.noise import MeasurementNoise

@@ -115,12 +115,8 @@ def replay_case(messages, recorder_args: list[str], args, label: str) -> dict:
 
 
 def _domain() -> int:
-    sys.path.insert(0, str(ROOT / 'tests'))
-    try:
-        from ros_helpers import private_domain_id
-        return private_domain_id()
-    except ImportError:
-        return 100 - (os.getpid() % 40)
+    from aeropend_ros.testing import private_domain_id
+    return private_domain_id()
 
 
 def main(argv=None) -> int:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from aeropend_core.cli import main as cli_main
-from aeropend_core.cli.simulate import write_csv
+from aeropend_core.io.recording import write_csv
 from aeropend_core.diagnosis.diagnose import diagnose
 from aeropend_core.diagnosis.evidence import diebold_mariano, effective_samples, hac_covariance, long_run_variance
 from aeropend_core.io.recording import from_columns

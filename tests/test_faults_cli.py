@@ -431,7 +431,7 @@ CLI_PAIRS = [('angle_wrapped_0_2pi', 'angle_in_degrees'), ('outlier_100rad', 'ti
 @pytest.fixture(scope='module')
 def faulted(tmp_path_factory) -> Path:
     """One clean 60 s record (known truth) and every fault of aeropend_core.testing.faults applied to it."""
-    from aeropend_core.cli.simulate import write_csv as write_full
+    from aeropend_core.io.recording import write_csv as write_full
     d = tmp_path_factory.mktemp('faulted')
     schedule = lhc_schedule(60.0, duty_range=(0.0, 0.7), seed=1, duty_cap=0.7)
     trajectory = simulate(schedule.duty(SAMPLE_TIME, 60.0), noise=MeasurementNoise(40.0, True), seed=1)

@@ -268,7 +268,7 @@ def test_duplicated_column_is_refused(tmp_path, clean):
 
 def test_simulate_writes_time_to_the_microsecond_at_1e5_s(tmp_path):
     """Every CSV writer (cli.simulate.write_csv; the exercise uses it too) keeps 1 us at t = 1e5 s."""
-    from aeropend_core.cli.simulate import write_csv
+    from aeropend_core.io.recording import write_csv
     time = 1e5 + np.arange(2000) * SAMPLE_TIME
     path = tmp_path / 'long.csv'
     zero = np.zeros_like(time)

@@ -17,7 +17,7 @@ import pytest
 from PIL import Image
 
 from aeropend_core.cli import main as aeropend
-from aeropend_core.cli.simulate import write_csv
+from aeropend_core.io.recording import write_csv
 from aeropend_core.diagnosis.diagnose import Candidate, diagnose
 from aeropend_core.errors import AeropendError
 from aeropend_core.sim.excitation import lhc_schedule

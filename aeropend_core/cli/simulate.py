@@ -11,10 +11,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
 
 from aeropend_core.errors import AeropendError
-from aeropend_core.io.paths import output_target, write_atomically
+from aeropend_core.io.paths import output_target
+from aeropend_core.io.recording import write_csv
 from aeropend_core.model.effects import parse_effect_assignments
 from aeropend_core.model.parameters import PRESETS, SAMPLE_TIME
 
@@ -82,30 +82,3 @@ def _check_output(path: str) -> None:
     output_target(path, '--output', stdout_hint=True)
 
 
-def write_csv(path: str, columns: dict[str, np.ndarray]) -> None:
-    """Write equal-length columns as CSV with a header row (``-`` for standard output).
-
-    A file is written under a temporary name and renamed when complete, so a failure (disk full, no permission)
-    never leaves a shorter file that reads as a valid recording; the error says what the system refused. A
-    symbolic link is written through (its target replaced); devices and named pipes are refused.
-    """
-    table = np.column_stack(list(columns.values()))
-    header = ','.join(columns)
-    fmt = column_formats(columns)
-    if path == '-':
-        np.savetxt(sys.stdout, table, delimiter=',', header=header, comments='', fmt=fmt)
-        return
-    write_atomically(path, lambda handle: np.savetxt(handle, table, delimiter=',', header=header, comments='',
-                                                     fmt=fmt), '--output', 'the CSV')
-
-
-#: Significant digits of the measured and truth columns (float32-like: far below any sensor's resolution).
-VALUE_FORMAT = '%.9g'
-#: Time keeps 12 significant digits: 1 us up to 1e5 s, finer below ('%.9g' keeps only 0.1 ms at 1e5 s, 5 % of a
-#: 490 Hz step, and the data-quality gate would then have to rebuild the grid).
-TIME_FORMAT = '%.12g'
-
-
-def column_formats(columns: dict[str, np.ndarray]) -> list[str]:
-    """``np.savetxt`` formats: :data:`TIME_FORMAT` for the time column ``t``, :data:`VALUE_FORMAT` for the rest."""
-    return [TIME_FORMAT if name == 't' else VALUE_FORMAT for name in columns]
