@@ -71,7 +71,8 @@ def _plugin_help(module_name: str) -> str:
         doc = ast.get_docstring(ast.parse(open(spec.origin, encoding='utf-8').read())) or ''
     except (OSError, SyntaxError):
         return ''
-    return doc.strip().splitlines()[0].rstrip('.') if doc.strip() else ''
+    first = doc.strip().splitlines()[0].rstrip('.') if doc.strip() else ''
+    return first[:1].lower() + first[1:]          # as the core verbs' help: lower case, no full stop
 
 
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
