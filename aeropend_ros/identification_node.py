@@ -263,6 +263,7 @@ class IdentificationNode(Node):
         self.fit_publisher = self.create_publisher(JointState, FIT_TOPIC, results_qos())
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS_TOPIC,
                                                            topics.diagnostics_qos())
+        self._ensure_parameter_publishers(self.effects)
         self.create_timer(1.0, self._on_status_timer)
         self.get_logger().info(f'identifying on {self._window_s():g} s windows every {self._hop_s():g} s, '
                                f'effects {list(self.effects) or "none"}')
@@ -283,6 +284,7 @@ class IdentificationNode(Node):
                 except AeropendError as error:
                     return SetParametersResult(successful=False, reason=f'effects: {error}; the model is unchanged')
                 self.effects = effects
+                self._ensure_parameter_publishers(effects)
                 self.get_logger().info(f'model effects now {list(effects) or "none"} (from the next window)')
         return SetParametersResult(successful=True)
 
@@ -537,6 +539,19 @@ class IdentificationNode(Node):
             self._trend_key = trend_key
         rows = self.trends.add(result.stop, values)
         return rows, trend_message(rows, {name: parameter_unit(name) for name in rows})
+
+    def _ensure_parameter_publishers(self, effects: tuple[str, ...]) -> None:
+        """Create the per-parameter publishers of the model with `effects` (in the executor's thread: the results
+        arrive in the worker's callback thread, which only publishes)."""
+        from aeropend_core.model.effects import get_effect
+        from aeropend_core.model.names import NOMINAL_PARAMETERS
+        names = [*NOMINAL_PARAMETERS, 'thrust_coefficient',
+                 *(parameter.name for effect in effects for parameter in get_effect(effect).parameters)]
+        for name in names:
+            for estimator in ('output_error', 'weak_sindy'):
+                topic = topics.parameter_topic(name, estimator)
+                if topic not in self.parameter_publishers:
+                    self.parameter_publishers[topic] = self.create_publisher(JointState, topic, results_qos())
 
     def _publish_parameters(self, stop_ns: int, result: WindowResult, data: str, trends: dict[str, dict]) -> None:
         """One message per parameter on /aeropend/parameters/<name> (and weak SINDy's on .../weak_sindy/<name>)."""

@@ -188,41 +188,30 @@ def test_layouts_name_only_published_fields():
     document = json.loads((ROOT / 'config' / layouts.FOXGLOVE_FILE).read_text())
     paths = re.findall(r'"value":"([^"]+)"', json.dumps(document['content'], separators=(',', ':')))
     assert paths, 'no plot series in the Foxglove layout'
-    script_topic = layouts.SCRIPT_TOPIC
     for path in paths:
         topic, _, field = path.partition('.')
-        if topic == script_topic:
-            name, _, part = field.partition('.')
-            assert name in known['/aeropend/identification/parameters'] and part in ('value', 'plus_sigma',
-                                                                                     'minus_sigma'), path
-        else:
-            assert topic in known, path
-            assert re.fullmatch(r'position\[(\d+)\]', field), path
-            index = int(field[9:-1])
-            assert index < len(known[topic]), path
-    # the script reads the parameters topic and emits every parameter by name with its band
-    script = next(iter(document['userScripts'].values()))['sourceCode']
-    assert '/aeropend/identification/parameters' in script and script_topic in script
-    # the ±1σ band of every identified parameter is plotted
+        assert topic in known, path
+        assert re.fullmatch(r'position\[(\d+)\]', field), path
+        index = int(field[9:-1])
+        assert index < len(known[topic]), path
+    # the ±1σ band of every identified parameter is plotted from its own topic: value, upper and lower
+    from aeropend_ros.topics import PARAMETER_FIELDS, parameter_topic
     for name in layouts.BAND_PARAMETERS:
-        for part in ('value', 'plus_sigma', 'minus_sigma'):
-            assert f'{script_topic}.{name}.{part}' in paths
+        for part in ('value', 'upper', 'lower'):
+            assert f'{parameter_topic(name)}.position[{PARAMETER_FIELDS.index(part)}]' in paths, (name, part)
+    assert 'userScripts' not in document or not document['userScripts']
 
     tree = ElementTree.parse(ROOT / 'config' / layouts.PLOTJUGGLER_FILE)
     curves = [curve.get('name') for curve in tree.iter('curve')]
-    snippets = {snippet.get('name'): snippet for snippet in tree.iter('snippet')}
-    assert curves
+    assert curves and not list(tree.iter('snippet'))
     for curve in curves:
-        if curve in snippets:
-            sources = [snippets[curve].findtext('linked_source')] + \
-                [element.text for element in snippets[curve].find('additional_sources')]
-        else:
-            sources = [curve]
-        for source in sources:
-            topic, name, field = source.rsplit('/', 2)
-            assert topic in known and name in known[topic] and field in ('position', 'velocity'), source
+        topic, name, field = curve.rsplit('/', 2)
+        assert topic in known and name in known[topic] and field == 'position', curve
     for name in layouts.BAND_PARAMETERS:
-        assert f'{name} +1 sigma' in curves and f'{name} -1 sigma' in curves
+        for part in ('value', 'upper', 'lower'):
+            assert f'{parameter_topic(name)}/{part}/position' in curves, (name, part)
+    selected = {topic.get('name') for topic in tree.iter('topic')}
+    assert {parameter_topic(name) for name in layouts.BAND_PARAMETERS} <= selected
     assert Path(ROOT / 'config' / layouts.PLOTJUGGLER_FILE).read_text().startswith('<?xml')
 
 
