@@ -99,6 +99,8 @@ class LivePlot:
         figure.clf()
         names = self.names()
         rows = len(names) + 1
+        if not self.interactive:            # a saved frame grows with the panels; a window keeps the user's size
+            figure.set_size_inches(10, max(6.0, 1.6 * rows))
         times = np.array([p.time for p in self.points])
         for row, name in enumerate(names):
             axes = figure.add_subplot(rows, 1, row + 1)
@@ -113,6 +115,8 @@ class LivePlot:
             unit = self.units.get(name, '')
             estimator = self.estimators.get(name, '')
             title = f'{name} [{unit}]' + (f' — {estimator}' if estimator else '')
+            if not np.isfinite(sigma).any():
+                title += ' (σ unknown: no band)'
             drift = self.drift.get(name, '')
             axes.set_title(title + (f'   {drift}' if drift else ''), fontsize=8, loc='left',
                            color='#d7301f' if 'DRIFT' in drift else 'black')

@@ -38,8 +38,8 @@ def add_arguments(parser) -> None:
     parser.add_argument('--duration', type=float, default=0.0, metavar='S',
                         help='exit after this many seconds (default: run until Ctrl-C)')
     parser.add_argument('--window', type=float, default=25.0, metavar='S',
-                        help='the identification windows\' length [s] (the node\'s window_s; trends use windows that '
-                             'do not overlap)')
+                        help='the identification windows\' length [s] (the node\'s window_s): only for the trend of a '
+                             'node that does not run the drift test itself (windows that do not overlap)')
     parser.add_argument('--drift-sigma', type=float, default=3.0, metavar='K',
                         help='flag a parameter more than K standard errors from its running mean (default 3)')
     parser.add_argument('--no-clear', action='store_true',
