@@ -92,10 +92,12 @@ def test_run_foxglove_serves_the_live_graph():
             assert ws.subprotocol in SUBPROTOCOLS
             info = receive_json(ws, 20)
             assert info and info['op'] == 'serverInfo' and info['name'] == 'aeropend', info
-            # Channels are advertised as the node discovers the topics: wait for the samples.
+            # Channels are advertised as the node discovers the topics: wait for the samples and a parameter's own
+            # topic (what the shipped layout plots each band from; advertised from the identification node's start).
             channels: dict[str, dict] = {}
+            wanted = {'/aeropend/samples', '/aeropend/parameters/thrust_gain'}
             deadline = time.monotonic() + 60
-            while '/aeropend/samples' not in channels and time.monotonic() < deadline:
+            while not wanted <= set(channels) and time.monotonic() < deadline:
                 message = receive_json(ws, deadline - time.monotonic())
                 if message and message['op'] == 'advertise':
                     channels.update({c['topic']: c for c in message['channels']})
@@ -104,6 +106,8 @@ def test_run_foxglove_serves_the_live_graph():
             assert samples['encoding'] == 'cdr' and samples['schemaName'] == 'sensor_msgs/msg/JointState'
             assert samples['schemaEncoding'] == 'ros2msg' and 'float64[] position' in samples['schema']
             assert 'MSG: std_msgs/Header' in samples['schema']          # dependencies included, as in the bags
+            gain = channels.get('/aeropend/parameters/thrust_gain')
+            assert gain is not None and gain['schemaName'] == 'sensor_msgs/msg/JointState', sorted(channels)
             ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [{'id': 11, 'channelId': samples['id']}]}))
             received = []
             deadline = time.monotonic() + 60
