@@ -177,6 +177,7 @@ def test_node_reports_a_sagging_thrust_gain_as_drift_and_a_clean_record_as_none(
     message, values = warned[-1]
     assert 'parameter drift: thrust gain' in message and 'supply voltage sag' in message, message
     assert values['trend_thrust_gain'].endswith('DRIFT'), values
+    print(f'drifting record, last window: {message}')
     span = float(values['trend_thrust_gain'].split(' over ')[1].split(' s')[0])
     # the sag over the span of the tested windows, as a fraction of the mean gain (about the record's middle)
     truth_change = -DRIFT * span / DRIFT_SECONDS / (1 - 0.5 * DRIFT)
@@ -195,6 +196,8 @@ def test_node_reports_a_sagging_thrust_gain_as_drift_and_a_clean_record_as_none(
     clean_statuses = [v for _, _, v in feeder.statuses[len(drift_statuses):] if 'drift' in v]
     assert clean_statuses and all(v['drift'] == 'none' for v in clean_statuses)
     assert 'windows' in clean_statuses[-1]['trend_thrust_gain']
+    print('clean record, last window: ' + ', '.join(f'{k} {v}' for k, v in clean_statuses[-1].items()
+                                                    if k.startswith('trend_')))
 
     # ---- every per-parameter message agrees with the keyed JointState and carries its band, estimator and unit
     units = {'thrust_gain': 'rad/s^2/V^2', 'damping': '1/s', 'gravity_stiffness': '1/s^2', 'armature_resistance': 'ohm'}
