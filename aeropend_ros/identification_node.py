@@ -248,6 +248,8 @@ class IdentificationNode(Node):
         self.trends = ParameterTrends(self._window_s())
         self._trend_key: tuple | None = None
         self._generation = 0
+        #: Ends [s] of the trended windows whose data were repaired, filled or warned about (said with a drift).
+        self._flagged_stops: set[float] = set()
         #: Publishers of /aeropend/parameters/<name> (and .../weak_sindy/<name>), created as names appear.
         self.parameter_publishers: dict[str, object] = {}
         self.last_status = ('waiting for samples', DiagnosticStatus.OK)
@@ -492,12 +494,12 @@ class IdentificationNode(Node):
             return
         self.windows_done += 1
         self.last_result = result
-        trends, drift = self._trend(result, trend_key)
-        self.coefficients_publisher.publish(named_values_msg(stop_ns, result.coefficients))
-        self.parameters_publisher.publish(named_values_msg(stop_ns, result.parameters))
         doubts = [f.code for f in findings]
         if health.get('lost_samples', '0') != '0' or 'rejected' in health:
             doubts.insert(0, 'lost_samples')
+        trends, drift = self._trend(result, trend_key, flagged=bool(doubts))
+        self.coefficients_publisher.publish(named_values_msg(stop_ns, result.coefficients))
+        self.parameters_publisher.publish(named_values_msg(stop_ns, result.parameters))
         self._publish_parameters(stop_ns, result, 'flagged:' + ','.join(doubts) if doubts else 'clean', trends)
         fit = {'fit_percent': result.fit_percent, 'rms_error': result.rms_error, 'noise_rms': result.noise_rms,
                'held_out_seconds': result.held_out_seconds, 'compute_time': result.compute_time,
@@ -529,16 +531,27 @@ class IdentificationNode(Node):
             level = DiagnosticStatus.WARN
         self._report(message, level, health, excitation='sufficient', effects=effects)
 
-    def _trend(self, result: WindowResult, trend_key: tuple | None) -> tuple[dict[str, dict], str]:
-        """Add the window to the drift test; returns ``({name: trend row}, drift sentence or '')``."""
+    def _trend(self, result: WindowResult, trend_key: tuple | None, flagged: bool = False
+               ) -> tuple[dict[str, dict], str]:
+        """Add the window to the drift test; returns ``({name: trend row}, drift sentence or '')``. A drift tested
+        on windows whose data were repaired or filled says how many."""
         values = {name: result.parameters[name] for name in TREND_PARAMETERS if name in result.parameters}
         if trend_key is None or trend_key[0] != self._generation:
             return {}, ''             # a window from before the stream restarted: published, not trended
         if trend_key != self._trend_key:
             self.trends.reset(trend_key[2])
+            self._flagged_stops = set()
             self._trend_key = trend_key
+        if flagged:
+            self._flagged_stops.add(result.stop)
         rows = self.trends.add(result.stop, values)
-        return rows, trend_message(rows, {name: parameter_unit(name) for name in rows})
+        message = trend_message(rows, {name: parameter_unit(name) for name in rows})
+        tested = self.trends.tested_stops()
+        doubtful = sum(stop in self._flagged_stops for stop in tested)
+        if message and doubtful:
+            message += (f' {doubtful} of the {len(tested)} windows tested had repaired, filled or flagged data '
+                        '(data_quality on their statuses).')
+        return rows, message
 
     def _ensure_parameter_publishers(self, effects: tuple[str, ...]) -> None:
         """Create the per-parameter publishers of the model with `effects` (in the executor's thread: the results

@@ -331,13 +331,22 @@ class ParameterTrends:
         if self.history and set(self.history[-1][1]) != set(plain):
             self.history = []
         self.history.append((float(stop), plain))
+        kept = self._kept()
+        times = np.array([t - 0.5 * self.window_seconds for t, _ in kept])
+        return {name: trend_test(times, np.array([row[name] for _, row in kept]), name) for name in plain}
+
+    def _kept(self) -> list[tuple[float, dict[str, float]]]:
         kept = [self.history[-1]]
         for stop_time, row in reversed(self.history[:-1]):
             if stop_time <= kept[-1][0] - self.window_seconds:
                 kept.append((stop_time, row))
         kept.reverse()
-        times = np.array([t - 0.5 * self.window_seconds for t, _ in kept])
-        return {name: trend_test(times, np.array([row[name] for _, row in kept]), name) for name in plain}
+        return kept
+
+    def tested_stops(self) -> list[float]:
+        """Ends [s] of the windows the last trend was tested on (the latest and the earlier ones that do not
+        overlap), oldest first; empty before the first window."""
+        return [stop for stop, _ in self._kept()] if self.history else []
 
 
 #: Parameters whose trend the online identification tests (the nominal ones; the derived thrust_coefficient moves
