@@ -14,8 +14,20 @@ window in acquisition time; ``name`` = quantity names, ``position`` = values, ``
 - ``/aeropend/identification/parameters`` — physical parameters of the refined model, SI
 - ``/aeropend/identification/fit`` — ``fit_percent`` [%], ``rms_error`` [rad], ``noise_rms`` [rad],
   ``held_out_seconds`` [s], ``compute_time`` [s], ``window_start`` [s] (velocity empty)
+- ``/aeropend/parameters/<name>`` — one topic per parameter of the refined model, plottable by name as three
+  lines (value and its ±1σ band): ``name`` = :data:`aeropend_ros.topics.PARAMETER_FIELDS` (``value``, ``lower``,
+  ``upper``, ``sigma``, ``data_flagged``, ``trend_change``, ``drifting``), ``header.frame_id`` =
+  ``estimator=<output_error|motor_observer>;unit=<SI unit>;data=<clean|flagged:codes>``;
+  ``/aeropend/parameters/weak_sindy/<name>`` — the same for weak SINDy's value of the quantity
 - ``/diagnostics`` — window health (samples, lost samples), excitation sufficient or not and why, compute time,
-  skipped windows, the model's effects; also once a second while waiting for data.
+  skipped windows, the model's effects, which estimator gave each parameter (``estimators``), and the drift
+  test (``drift`` = ``none`` or the sentence, ``trend_<name>``); also once a second while waiting for data.
+
+**Drift.** The nominal parameters (``TREND_PARAMETERS``) of the windows that do not overlap are tested for a
+straight-line trend against their scatter (:class:`aeropend_core.diagnosis.online.ParameterTrends`, the diagnosis's
+own :func:`~aeropend_core.diagnosis.drift.trend_test`: p < 0.001 and a change over 5 %): a drift makes the window's
+status WARN with "parameter drift: thrust gain -15 % over 120 s (...). Likely causes: ..." and sets ``drifting``
+on that parameter's topic. The test restarts when the stream restarts, the effects or the window length change.
 
 Bad samples are never analysed. A sample with a NaN/inf angle, voltage or current, a duplicated sequence number, an
 older sequence number and stamp (out of order), a stamp that does not advance with the sequence number, or that
@@ -63,7 +75,9 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.parameters import SAMPLE_TIME
 from aeropend_core.signals.quality import DataQualityError, check_recording
 from aeropend_ros import topics
-from aeropend_core.diagnosis.online import WindowResult, analyze_window, fill_gaps
+from aeropend_core.diagnosis.online import (TREND_PARAMETERS, ParameterTrends, WindowResult, analyze_window, fill_gaps,
+                                            trend_message, trend_text)
+from aeropend_core.model.names import parameter_unit
 from aeropend_core.model.effects import check_effect_names
 from aeropend_core.io.recording import Recording
 
@@ -228,6 +242,16 @@ class IdentificationNode(Node):
         self._in_order_since_restart = 0
         self._restarts_at_condition = 0
         self.last_result: WindowResult | None = None
+        #: The drift test over the windows (the nominal parameters' trend, windows that do not overlap); restarted
+        #: when the stream restarts (``_generation`` counts the restarts: a window from before one is not added),
+        #: the model's effects or the window length change.
+        self.trends = ParameterTrends(self._window_s())
+        self._trend_key: tuple | None = None
+        self._generation = 0
+        #: Ends [s] of the trended windows whose data were repaired, filled or warned about (said with a drift).
+        self._flagged_stops: set[float] = set()
+        #: Publishers of /aeropend/parameters/<name> (and .../weak_sindy/<name>), created as names appear.
+        self.parameter_publishers: dict[str, object] = {}
         self.last_status = ('waiting for samples', DiagnosticStatus.OK)
 
         # Best effort like the publisher, with a deep queue so that a busy moment does not drop samples.
@@ -241,6 +265,7 @@ class IdentificationNode(Node):
         self.fit_publisher = self.create_publisher(JointState, FIT_TOPIC, results_qos())
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS_TOPIC,
                                                            topics.diagnostics_qos())
+        self._ensure_parameter_publishers(self.effects)
         self.create_timer(1.0, self._on_status_timer)
         self.get_logger().info(f'identifying on {self._window_s():g} s windows every {self._hop_s():g} s, '
                                f'effects {list(self.effects) or "none"}')
@@ -261,6 +286,7 @@ class IdentificationNode(Node):
                 except AeropendError as error:
                     return SetParametersResult(successful=False, reason=f'effects: {error}; the model is unchanged')
                 self.effects = effects
+                self._ensure_parameter_publishers(effects)
                 self.get_logger().info(f'model effects now {list(effects) or "none"} (from the next window)')
         return SetParametersResult(successful=True)
 
@@ -347,6 +373,7 @@ class IdentificationNode(Node):
         return sum(changes.values()), ', '.join(f'{count} {REJECTIONS[key]}' for key, count in changes.items())
 
     def _clear(self) -> None:
+        self._generation += 1                 # the drift test starts again with the new stream
         self.sequence.clear()
         self.stamps.clear()
         for values in self.signals.values():
@@ -430,8 +457,9 @@ class IdentificationNode(Node):
         time = (grid - grid[0]) * SAMPLE_TIME
         self.pending = self.worker.submit(_analyze_in_worker, time, filled['armature_voltage'],
                                           filled['armature_current'], filled['angle'], effects, holdout_fraction)
+        trend_key = (self._generation, tuple(effects), self._window_s())
         self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects, start_s,
-                                                                      findings))
+                                                                      findings, trend_key))
 
     @staticmethod
     def _non_finite(result: WindowResult) -> list[str]:
@@ -442,7 +470,7 @@ class IdentificationNode(Node):
         return [name for name, value in values.items() if not math.isfinite(value)]
 
     def _on_result(self, future, stop_ns: int, health: dict, effects: tuple[str, ...], start_s: float = 0.0,
-                   findings: tuple = ()) -> None:
+                   findings: tuple = (), trend_key: tuple | None = None) -> None:
         try:
             result = future.result()
             result.start += start_s          # back to acquisition time
@@ -466,8 +494,13 @@ class IdentificationNode(Node):
             return
         self.windows_done += 1
         self.last_result = result
+        doubts = [f.code for f in findings]
+        if health.get('lost_samples', '0') != '0' or 'rejected' in health:
+            doubts.insert(0, 'lost_samples')
+        trends, drift = self._trend(result, trend_key, flagged=bool(doubts))
         self.coefficients_publisher.publish(named_values_msg(stop_ns, result.coefficients))
         self.parameters_publisher.publish(named_values_msg(stop_ns, result.parameters))
+        self._publish_parameters(stop_ns, result, 'flagged:' + ','.join(doubts) if doubts else 'clean', trends)
         fit = {'fit_percent': result.fit_percent, 'rms_error': result.rms_error, 'noise_rms': result.noise_rms,
                'held_out_seconds': result.held_out_seconds, 'compute_time': result.compute_time,
                'window_start': result.start}
@@ -489,7 +522,66 @@ class IdentificationNode(Node):
         if findings:      # the numbers are published, flagged: every doubt about the data goes with them
             message += '; data quality: ' + '; '.join(f'{f.code} ({f.severity})' for f in findings)
             level = DiagnosticStatus.WARN
+        health['estimators'] = ','.join(f'{name}:{estimator}' for name, estimator in result.estimators.items())
+        health['drift'] = drift or 'none'
+        health.update({f'trend_{name}': trend_text(row) or 'fewer than 4 windows that do not overlap'
+                       for name, row in trends.items()})
+        if drift:
+            message += f'; {drift}'
+            level = DiagnosticStatus.WARN
         self._report(message, level, health, excitation='sufficient', effects=effects)
+
+    def _trend(self, result: WindowResult, trend_key: tuple | None, flagged: bool = False
+               ) -> tuple[dict[str, dict], str]:
+        """Add the window to the drift test; returns ``({name: trend row}, drift sentence or '')``. A drift tested
+        on windows whose data were repaired or filled says how many."""
+        values = {name: result.parameters[name] for name in TREND_PARAMETERS if name in result.parameters}
+        if trend_key is None or trend_key[0] != self._generation:
+            return {}, ''             # a window from before the stream restarted: published, not trended
+        if trend_key != self._trend_key:
+            self.trends.reset(trend_key[2])
+            self._flagged_stops = set()
+            self._trend_key = trend_key
+        if flagged:
+            self._flagged_stops.add(result.stop)
+        rows = self.trends.add(result.stop, values)
+        message = trend_message(rows, {name: parameter_unit(name) for name in rows})
+        tested = self.trends.tested_stops()
+        doubtful = sum(stop in self._flagged_stops for stop in tested)
+        if message and doubtful:
+            message += (f' {doubtful} of the {len(tested)} windows tested had repaired, filled or flagged data '
+                        '(data_quality on their statuses).')
+        return rows, message
+
+    def _ensure_parameter_publishers(self, effects: tuple[str, ...]) -> None:
+        """Create the per-parameter publishers of the model with `effects` (in the executor's thread: the results
+        arrive in the worker's callback thread, which only publishes)."""
+        from aeropend_core.model.effects import get_effect
+        from aeropend_core.model.names import NOMINAL_PARAMETERS
+        names = [*NOMINAL_PARAMETERS, 'thrust_coefficient',
+                 *(parameter.name for effect in effects for parameter in get_effect(effect).parameters)]
+        for name in names:
+            for estimator in ('output_error', 'weak_sindy'):
+                topic = topics.parameter_topic(name, estimator)
+                if topic not in self.parameter_publishers:
+                    self.parameter_publishers[topic] = self.create_publisher(JointState, topic, results_qos())
+
+    def _publish_parameters(self, stop_ns: int, result: WindowResult, data: str, trends: dict[str, dict]) -> None:
+        """One message per parameter on /aeropend/parameters/<name> (and weak SINDy's on .../weak_sindy/<name>)."""
+        estimates = [(name, value, sigma, result.estimators.get(name, 'output_error'))
+                     for name, (value, sigma) in result.parameters.items()]
+        estimates += [(name, value, sigma, 'weak_sindy') for name, (value, sigma) in result.weak_parameters.items()]
+        for name, value, sigma, estimator in estimates:
+            topic = topics.parameter_topic(name, estimator)
+            publisher = self.parameter_publishers.get(topic)
+            if publisher is None:
+                publisher = self.parameter_publishers[topic] = self.create_publisher(JointState, topic,
+                                                                                     results_qos())
+            row = trends.get(name, {}) if estimator != 'weak_sindy' else {}
+            change = row.get('change', float('nan')) if row.get('stretches', 0) >= 4 else float('nan')
+            publisher.publish(topics.parameter_to_msg(topics.ParameterEstimate(
+                name, stop_ns, value, sigma, estimator, parameter_unit(name), data, change,
+                bool(row.get('drifting', False)))))
 
     def _report(self, message: str, level: bytes, values: dict[str, str], excitation: str = '',
                 effects: tuple[str, ...] = ()) -> None:

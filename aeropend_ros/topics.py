@@ -20,6 +20,11 @@ DUTY_COMMAND_TOPIC = '/aeropend/duty_cmd'
 #: Standard diagnostics topic (diagnostic_msgs/msg/DiagnosticArray).
 DIAGNOSTICS_TOPIC = '/diagnostics'
 
+#: Prefix of the per-parameter topics: ``/aeropend/parameters/<name>`` (the refined model's value of each identified
+#: parameter, by name) and ``/aeropend/parameters/weak_sindy/<name>`` (weak SINDy's value of the same quantity);
+#: sensor_msgs/msg/JointState with ``name = PARAMETER_FIELDS`` (see :func:`parameter_to_msg`), one per window.
+PARAMETERS_TOPIC_PREFIX = '/aeropend/parameters'
+
 SAMPLES_TYPE = 'sensor_msgs/msg/JointState'
 DUTY_COMMAND_TYPE = 'std_msgs/msg/Float64'
 DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
@@ -28,6 +33,120 @@ DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
 SAMPLE_FRAME_ID = 'aeropend'
 #: ``JointState.name`` of every sample message; ``position[i]`` holds the value named ``SAMPLE_NAMES[i]``.
 SAMPLE_NAMES: tuple[str, ...] = ('angle', 'armature_voltage', 'armature_current', 'duty', 'sequence')
+
+
+#: ``JointState.name`` of every per-parameter message; ``position[i]`` holds ``PARAMETER_FIELDS[i]``: the value, the
+#: ±1σ band's lower and upper ends (value ∓ σ; NaN when σ is unknown), σ (the 1σ standard error; NaN: unknown),
+#: ``data_flagged`` (1 when the window's data were repaired, filled or warned about: see /diagnostics
+#: ``data_quality``; else 0), ``trend_change`` (the straight-line trend over the windows that do not overlap, as a
+#: fraction of the mean; NaN until 4 such windows) and ``drifting`` (1 when that trend is a drift: p < 0.001 and
+#: more than 5 %). All in the parameter's SI unit, except the fractions and flags.
+PARAMETER_FIELDS: tuple[str, ...] = ('value', 'lower', 'upper', 'sigma', 'data_flagged', 'trend_change', 'drifting')
+
+
+class ParameterEstimate(NamedTuple):
+    """One parameter of one window as carried by ``/aeropend/parameters/<name>``.
+
+    ``header.frame_id`` of the message is not a coordinate frame: it carries ``estimator=<e>;unit=<u>;data=<d>``
+    (``e`` one of ``weak_sindy``, ``output_error``, ``motor_observer``; ``u`` the SI unit; ``d`` ``clean`` or the
+    data-quality findings, e.g. ``flagged:lost_samples``).
+
+    Attributes
+    ----------
+    name : str
+        Parameter name (aeropend_core.model.names; effect parameters by their catalog name).
+    stamp_ns : int
+        End of the window, acquisition time [ns].
+    value : float
+        The estimate, SI unit `unit`.
+    sigma : float
+        Its 1σ standard error, same unit (NaN: unknown).
+    estimator : str
+        ``weak_sindy``, ``output_error`` or ``motor_observer``.
+    unit : str
+        SI unit of `value` and `sigma`.
+    data : str
+        ``clean``, or ``flagged:<codes>`` when the window's data were repaired or warned about [-].
+    trend_change : float
+        Trend over the windows that do not overlap, fraction of the mean [-] (NaN: not tested yet).
+    drifting : bool
+        The trend is a drift (p < 0.001 and larger than 5 %).
+    """
+
+    name: str
+    stamp_ns: int
+    value: float
+    sigma: float
+    estimator: str
+    unit: str
+    data: str = 'clean'
+    trend_change: float = float('nan')
+    drifting: bool = False
+
+    @property
+    def lower(self) -> float:
+        """value − σ (NaN when σ is unknown), SI unit."""
+        return self.value - self.sigma
+
+    @property
+    def upper(self) -> float:
+        """value + σ (NaN when σ is unknown), SI unit."""
+        return self.value + self.sigma
+
+
+def parameter_topic(name: str, estimator: str | None = None) -> str:
+    """Topic of one parameter: ``/aeropend/parameters/<name>``, or ``.../weak_sindy/<name>`` for weak SINDy's value.
+
+    Parameters
+    ----------
+    name : str
+        Parameter name [-].
+    estimator : str or None
+        ``'weak_sindy'`` for the weak-form value; None (or any other estimator) for the refined model's value.
+    """
+    if estimator == 'weak_sindy':
+        return f'{PARAMETERS_TOPIC_PREFIX}/weak_sindy/{name}'
+    return f'{PARAMETERS_TOPIC_PREFIX}/{name}'
+
+
+def parameter_to_msg(estimate: ParameterEstimate):
+    """A ``sensor_msgs.msg.JointState`` carrying one :class:`ParameterEstimate` (see :data:`PARAMETER_FIELDS`)."""
+    from sensor_msgs.msg import JointState
+    msg = JointState()
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(int(estimate.stamp_ns), 1_000_000_000)
+    msg.header.frame_id = f'estimator={estimate.estimator};unit={estimate.unit};data={estimate.data}'
+    msg.name = list(PARAMETER_FIELDS)
+    msg.position = [float(estimate.value), float(estimate.lower), float(estimate.upper), float(estimate.sigma),
+                    1.0 if estimate.data != 'clean' else 0.0, float(estimate.trend_change),
+                    1.0 if estimate.drifting else 0.0]
+    return msg
+
+
+def msg_to_parameter(msg, name: str = '') -> ParameterEstimate:
+    """Parse a per-parameter JointState (the inverse of :func:`parameter_to_msg`).
+
+    Parameters
+    ----------
+    msg : sensor_msgs.msg.JointState
+        The message.
+    name : str
+        The parameter's name (the last part of the topic) [-].
+
+    Raises
+    ------
+    ValueError
+        When ``name`` or ``position`` do not hold :data:`PARAMETER_FIELDS`.
+    """
+    names, position = list(msg.name), list(msg.position)
+    if names[:len(PARAMETER_FIELDS)] != list(PARAMETER_FIELDS) or len(position) < len(PARAMETER_FIELDS):
+        raise ValueError(f'JointState is not an aeropend parameter (names {names}, expected '
+                         f'{list(PARAMETER_FIELDS)})')
+    values = dict(zip(PARAMETER_FIELDS, position))
+    meta = dict(part.split('=', 1) for part in str(msg.header.frame_id).split(';') if '=' in part)
+    stamp_ns = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+    return ParameterEstimate(name, stamp_ns, values['value'], values['sigma'], meta.get('estimator', ''),
+                             meta.get('unit', ''), meta.get('data', ''), values['trend_change'],
+                             bool(values['drifting']))
 
 
 class Sample(NamedTuple):

@@ -92,10 +92,12 @@ def test_run_foxglove_serves_the_live_graph():
             assert ws.subprotocol in SUBPROTOCOLS
             info = receive_json(ws, 20)
             assert info and info['op'] == 'serverInfo' and info['name'] == 'aeropend', info
-            # Channels are advertised as the node discovers the topics: wait for the samples.
+            # Channels are advertised as the node discovers the topics: wait for the samples and a parameter's own
+            # topic (what the shipped layout plots each band from; advertised from the identification node's start).
             channels: dict[str, dict] = {}
+            wanted = {'/aeropend/samples', '/aeropend/parameters/thrust_gain'}
             deadline = time.monotonic() + 60
-            while '/aeropend/samples' not in channels and time.monotonic() < deadline:
+            while not wanted <= set(channels) and time.monotonic() < deadline:
                 message = receive_json(ws, deadline - time.monotonic())
                 if message and message['op'] == 'advertise':
                     channels.update({c['topic']: c for c in message['channels']})
@@ -104,6 +106,8 @@ def test_run_foxglove_serves_the_live_graph():
             assert samples['encoding'] == 'cdr' and samples['schemaName'] == 'sensor_msgs/msg/JointState'
             assert samples['schemaEncoding'] == 'ros2msg' and 'float64[] position' in samples['schema']
             assert 'MSG: std_msgs/Header' in samples['schema']          # dependencies included, as in the bags
+            gain = channels.get('/aeropend/parameters/thrust_gain')
+            assert gain is not None and gain['schemaName'] == 'sensor_msgs/msg/JointState', sorted(channels)
             ws.send(json.dumps({'op': 'subscribe', 'subscriptions': [{'id': 11, 'channelId': samples['id']}]}))
             received = []
             deadline = time.monotonic() + 60
@@ -188,41 +192,30 @@ def test_layouts_name_only_published_fields():
     document = json.loads((ROOT / 'config' / layouts.FOXGLOVE_FILE).read_text())
     paths = re.findall(r'"value":"([^"]+)"', json.dumps(document['content'], separators=(',', ':')))
     assert paths, 'no plot series in the Foxglove layout'
-    script_topic = layouts.SCRIPT_TOPIC
     for path in paths:
         topic, _, field = path.partition('.')
-        if topic == script_topic:
-            name, _, part = field.partition('.')
-            assert name in known['/aeropend/identification/parameters'] and part in ('value', 'plus_sigma',
-                                                                                     'minus_sigma'), path
-        else:
-            assert topic in known, path
-            assert re.fullmatch(r'position\[(\d+)\]', field), path
-            index = int(field[9:-1])
-            assert index < len(known[topic]), path
-    # the script reads the parameters topic and emits every parameter by name with its band
-    script = next(iter(document['userScripts'].values()))['sourceCode']
-    assert '/aeropend/identification/parameters' in script and script_topic in script
-    # the ±1σ band of every identified parameter is plotted
+        assert topic in known, path
+        assert re.fullmatch(r'position\[(\d+)\]', field), path
+        index = int(field[9:-1])
+        assert index < len(known[topic]), path
+    # the ±1σ band of every identified parameter is plotted from its own topic: value, upper and lower
+    from aeropend_ros.topics import PARAMETER_FIELDS, parameter_topic
     for name in layouts.BAND_PARAMETERS:
-        for part in ('value', 'plus_sigma', 'minus_sigma'):
-            assert f'{script_topic}.{name}.{part}' in paths
+        for part in ('value', 'upper', 'lower'):
+            assert f'{parameter_topic(name)}.position[{PARAMETER_FIELDS.index(part)}]' in paths, (name, part)
+    assert 'userScripts' not in document or not document['userScripts']
 
     tree = ElementTree.parse(ROOT / 'config' / layouts.PLOTJUGGLER_FILE)
     curves = [curve.get('name') for curve in tree.iter('curve')]
-    snippets = {snippet.get('name'): snippet for snippet in tree.iter('snippet')}
-    assert curves
+    assert curves and not list(tree.iter('snippet'))
     for curve in curves:
-        if curve in snippets:
-            sources = [snippets[curve].findtext('linked_source')] + \
-                [element.text for element in snippets[curve].find('additional_sources')]
-        else:
-            sources = [curve]
-        for source in sources:
-            topic, name, field = source.rsplit('/', 2)
-            assert topic in known and name in known[topic] and field in ('position', 'velocity'), source
+        topic, name, field = curve.rsplit('/', 2)
+        assert topic in known and name in known[topic] and field == 'position', curve
     for name in layouts.BAND_PARAMETERS:
-        assert f'{name} +1 sigma' in curves and f'{name} -1 sigma' in curves
+        for part in ('value', 'upper', 'lower'):
+            assert f'{parameter_topic(name)}/{part}/position' in curves, (name, part)
+    selected = {topic.get('name') for topic in tree.iter('topic')}
+    assert {parameter_topic(name) for name in layouts.BAND_PARAMETERS} <= selected
     assert Path(ROOT / 'config' / layouts.PLOTJUGGLER_FILE).read_text().startswith('<?xml')
 
 

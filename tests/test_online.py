@@ -126,3 +126,14 @@ def test_parameter_trends_use_non_overlapping_windows_and_flag_a_sagging_gain():
     assert report['thrust_gain']['change'] == pytest.approx(-0.14, abs=0.03)
     assert not report['damping']['drifting']
     assert trends.add(330.0, {'thrust_gain': (120.0, 0.3)})['thrust_gain']['stretches'] == 1   # model changed
+
+
+def test_parameter_trends_name_the_windows_they_tested():
+    from aeropend_core.diagnosis.online import ParameterTrends
+    trends = ParameterTrends(window_seconds=20.0)
+    assert trends.tested_stops() == []
+    for k in range(12):                          # a window every 5 s: 20, 25, ..., 75 s
+        trends.add(20.0 + 5.0 * k, {'thrust_gain': (140.0, 0.3)})
+    assert trends.tested_stops() == [35.0, 55.0, 75.0]      # the latest and every earlier one that does not overlap
+    trends.reset(10.0)
+    assert trends.tested_stops() == [] and trends.window_seconds == 10.0

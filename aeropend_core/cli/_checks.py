@@ -37,3 +37,18 @@ def sample_time_from(args) -> float:
     if not (math.isfinite(rate) and 0 < rate <= 1e6):
         raise AeropendError(f'--sample-rate must be a rate in Hz in (0, 1e6], got {rate}')
     return 1.0 / rate
+
+
+def add_json_argument(parser, what: str) -> None:
+    """``--json [FILE]``, the same on every verb: `what` as JSON to FILE, or to standard output with ``-`` or no FILE
+    (standard output then carries the JSON only). Checked with :func:`check_json_target` before any work."""
+    parser.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE',
+                        help=f'write {what} as JSON to FILE (- or no FILE: to standard output, which then carries '
+                             'the JSON only)')
+
+
+def check_json_target(target: str | None) -> None:
+    """Refuse a ``--json`` FILE that cannot be written (a folder, a missing folder, a device, ...) before any work;
+    ``-`` and None (no --json) pass."""
+    if target and target != '-':
+        check_report_path(target, '--json')

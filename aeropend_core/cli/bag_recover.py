@@ -23,9 +23,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('bag', help='bag folder (with *.mcap and metadata.yaml) or one of its .mcap files')
     parser.add_argument('--keep-original', action='store_true',
                         help='keep each cut file as <file>.orig next to the repaired one')
+    from aeropend_core.cli._checks import add_json_argument
+    add_json_argument(parser, 'what was repaired (files repaired and intact, messages, notes)')
 
 
 def main(args: argparse.Namespace) -> int:
+    from aeropend_core.cli._checks import check_json_target
+    check_json_target(args.json)
+    if args.json == '-':       # standard output carries the JSON only; the text goes to standard error
+        import contextlib
+        import sys
+        with contextlib.redirect_stdout(sys.stderr):
+            report = _recover(args)
+    else:
+        report = _recover(args)
+    if args.json:
+        from aeropend_core.present.json_output import write_json
+        write_json(args.json, {'bag': args.bag, 'repaired': [str(p) for p in report.repaired],
+                               'intact': [str(p) for p in report.intact], 'notes': list(report.notes),
+                               'message_count': report.message_count, 'removed_lock': report.removed_lock or None,
+                               'metadata_yaml': str(report.metadata_yaml) if report.metadata_yaml else None})
+    return 0
+
+
+def _recover(args: argparse.Namespace):
     report = recover_bag(args.bag, keep_original=args.keep_original)
     for note in report.notes:
         print(f'repaired {note}')
@@ -36,4 +57,4 @@ def main(args: argparse.Namespace) -> int:
         print(f'{args.bag}: all {files} file(s) intact' + ('; metadata.yaml regenerated' if report.metadata_yaml
                                                            else ''))
     print(f'{args.bag}: {report.message_count} messages in {files} file(s)')
-    return 0
+    return report

@@ -69,6 +69,8 @@ def add_arguments(parser) -> None:
     parser.add_argument('--inductance', type=float, default=DEFAULT_PARAMETERS.armature_inductance,
                         help='armature inductance La [H] for the PWM-ripple correction of the current (default '
                         f'{DEFAULT_PARAMETERS.armature_inductance:g}, the paper\'s)')
+    from aeropend_core.cli._checks import add_json_argument
+    add_json_argument(parser, 'the calibrated values with units and the measurements behind them')
     parser.add_argument('--no-ripple-correction', action='store_true',
                         help='use the current as read at the pulse centre, without the ripple correction')
 
@@ -228,9 +230,32 @@ def check_arguments(args) -> None:
 
 def main(args) -> int:
     check_arguments(args)
+    from aeropend_core.cli._checks import check_json_target
+    check_json_target(args.json)
+    if args.json == '-':       # standard output carries the JSON only; the text goes to standard error
+        import contextlib
+        import sys
+        with contextlib.redirect_stdout(sys.stderr):
+            result = _calibrate(args)
+    else:
+        result = _calibrate(args)
+    if args.json:
+        from aeropend_core.present.json_output import write_json
+        write_json(args.json, result)
+    return 0
+
+
+#: SI unit of each key the calibration prints (ADC counts for the bridge's zeros).
+UNITS = {'angle_zero': 'count', 'current_offset': 'count', 'angle_scale': 'rad/count', 'armature_resistance': 'ohm',
+         'back_emf_constant': 'V s/rad'}
+
+
+def _calibrate(args) -> dict:
+    """Run the step; returns the JSON object of ``--json`` (the same numbers as the printed lines)."""
     calibration, _ = load_calibration(args.config)
     rig = RigLink(args.port, args.baud, args.max_duty)
     updates: dict[str, float] = {}
+    details: dict[str, object] = {}
     try:
         if args.step == 'zero':
             samples = rig.record(0.0, args.seconds)
@@ -238,6 +263,8 @@ def main(args) -> int:
             print(f'# {zero.samples} samples, rod still: angle scatter {zero.angle_std:.2f} counts, current '
                   f'scatter {zero.current_std:.2f} counts')
             updates = {'angle_zero': round(zero.angle_zero, 2), 'current_offset': round(zero.current_offset, 2)}
+            details = {'samples': zero.samples, 'angle_scatter_counts': zero.angle_std,
+                       'current_scatter_counts': zero.current_std}
         elif args.step == 'angle-scale':
             samples = rig.record(0.0, args.seconds)
             scale = C.angle_scale_from_reference([s.angle_counts for s in samples], calibration.angle_zero,
@@ -245,6 +272,7 @@ def main(args) -> int:
             print(f'# rod at {args.reference_deg:g} deg reads {np.mean([s.angle_counts for s in samples]):.1f} '
                   f'counts (zero {calibration.angle_zero:g}); nominal 2 pi/1024 = {P.DEFAULT_ANGLE_SCALE:.6g}')
             updates = {'angle_scale': float(f'{scale:.8g}')}
+            details = {'reference_angle': math.radians(args.reference_deg), 'samples': len(samples)}
         elif args.step == 'locked-rotor':
             voltages, currents, applied = [], [], []
             for duty in args.duties:
@@ -265,6 +293,9 @@ def main(args) -> int:
                       'raw readings)')
             print(f'# Ra = {fit.value:.4f} +- {fit.sigma:.4f} ohm (drop {fit.intercept:+.4f} V, {fit.points} steps)')
             updates = {'armature_resistance': round(fit.value, 5)}
+            details = {'armature_resistance_sigma': fit.sigma, 'voltage_drop': fit.intercept, 'steps': fit.points,
+                       'armature_voltage': voltages, 'armature_current': currents,
+                       'ripple_corrected': not args.no_ripple_correction}
         else:  # back-emf
             voltages, currents = [], []
             for duty in args.duty:
@@ -281,17 +312,26 @@ def main(args) -> int:
             sigma = '' if math.isnan(fit.sigma) else f' +- {fit.sigma:.3g}'
             print(f'# Kw = {fit.value:.5g}{sigma} V s/rad ({fit.points} point(s))')
             updates = {'back_emf_constant': float(f'{fit.value:.6g}')}
+            details = {'back_emf_constant_sigma': fit.sigma, 'points': fit.points, 'armature_voltage': voltages,
+                       'armature_current': currents, 'motor_speed': speeds.tolist(),
+                       'ripple_corrected': not args.no_ripple_correction}
     finally:
         rig.close()
     bridge_keys = {'angle_zero', 'current_offset', 'angle_scale'}
     for key, value in updates.items():
         where = 'config/serial_bridge_node.yaml' if key in bridge_keys else 'model parameter (RigParameters)'
         print(f'{key}: {value!r}    # {where}')
+    written: list[str] = []
     if args.write is not None:
         bridge_updates = {k: v for k, v in updates.items() if k in bridge_keys}
         if bridge_updates:
             write_values(args.write, bridge_updates)
+            written = list(bridge_updates)
             print(f'# wrote {", ".join(bridge_updates)} to {args.write}')
         else:
             print(f'# {", ".join(updates)} is a model parameter, not a bridge setting: {args.write} unchanged')
-    return 0
+    return {'step': args.step, 'port': args.port,
+            'values': {key: {'value': value, 'unit': UNITS.get(key, ''),
+                             'where': 'config/serial_bridge_node.yaml' if key in bridge_keys else 'model parameter'}
+                       for key, value in updates.items()},
+            'details': details, 'written_to': str(args.write) if written else None, 'written_keys': written}

@@ -15,7 +15,6 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 from aeropend_core.errors import AeropendError
@@ -34,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--effects-module', action='append', default=[], metavar='FILE.py',
                         help='a Python file that registers your own effects (register_effect)')
     parser.add_argument('--report', metavar='FILE.html', help='write a self-contained HTML report')
-    parser.add_argument('--json', action='store_true', help='print one JSON object instead of the text summary')
+    from aeropend_core.cli._checks import add_json_argument
+    add_json_argument(parser, 'the diagnosis as one object (to standard output: instead of the text summary)')
     parser.add_argument('--quiet', action='store_true', help='no progress messages on standard error')
     from aeropend_core.cli._checks import add_sample_rate_argument
     add_sample_rate_argument(parser)
@@ -58,6 +58,8 @@ def main(args: argparse.Namespace) -> int:
     if args.report:                          # refuse now, not after minutes of diagnosis
         from aeropend_core.cli._checks import check_report_path
         check_report_path(args.report)    # a folder, device, FIFO, link loop or missing folder: refused
+    from aeropend_core.cli._checks import check_json_target
+    check_json_target(args.json)
     recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
     print_findings('diagnose', recording.findings)          # first: before minutes of fitting, or a refusal
     from aeropend_core.diagnosis.diagnose import diagnose      # scipy and numba: imported once the input is known good
@@ -73,8 +75,8 @@ def main(args: argparse.Namespace) -> int:
         written = write_report(diagnosis, args.report, source=args.data)
         progress(f'report written to {written}')
     if args.json:
-        from aeropend_core.present.json_output import finite_json
-        print(json.dumps(finite_json(diagnosis.to_dict()), indent=2, allow_nan=False))
-    else:
+        from aeropend_core.present.json_output import write_json
+        write_json(args.json, diagnosis.to_dict())
+    if args.json != '-':
         print(diagnosis.summary())
     return 0

@@ -61,6 +61,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--duration', type=float, default=0.0,
                         help='stop after this many seconds (default 0: run until Ctrl-C)')
     parser.add_argument('--status-period', type=float, default=10.0, help='seconds between status lines')
+    from aeropend_core.cli._checks import add_json_argument
+    add_json_argument(parser, 'the port and the settings, once the port is open (one line; the status lines then '
+                              'go to standard error with -)')
 
 
 def check_arguments(args: argparse.Namespace) -> None:
@@ -92,6 +95,17 @@ def check_arguments(args: argparse.Namespace) -> None:
 
 def main(args: argparse.Namespace) -> int:
     check_arguments(args)
+    from aeropend_core.cli._checks import check_json_target
+    check_json_target(args.json)
+    if args.json == '-':       # standard output carries the JSON line only; the text goes to standard error
+        import contextlib
+        stdout = sys.stdout
+        with contextlib.redirect_stdout(sys.stderr):
+            return _emulate(args, stdout)
+    return _emulate(args, sys.stdout)
+
+
+def _emulate(args: argparse.Namespace, stdout) -> int:
     from aeropend_core.model.effects import parse_effect_assignments
     effects = parse_effect_assignments([e for e in args.effect if e != 'none'])
     from aeropend_core.rig import protocol as P
@@ -120,6 +134,21 @@ def main(args: argparse.Namespace) -> int:
         emulator.start()
         print(emulator.port, flush=True)
         describe(args, effects, chain)
+        if args.json:
+            import os
+            from aeropend_core.present.json_output import json_text, write_json
+            info = {'port': emulator.port, 'link': str(args.link) if args.link else None, 'pid': os.getpid(),
+                    'effects': {name: dict(values) for name, values in effects.items()}, 'seed': args.seed,
+                    'chain': None if chain is None else {'angle_filter': chain.angle_filter,
+                                                         'pwm_current': chain.pwm_current,
+                                                         'adc_noise_counts': chain.adc_noise_counts},
+                    'auto_reset': not args.no_auto_reset, 'boot_delay': args.boot_delay,
+                    'duration': args.duration or None}
+            if args.json == '-':
+                stdout.write(json_text(info, indent=None) + '\n')
+                stdout.flush()
+            else:
+                write_json(args.json, info)
         while not args.duration or time.monotonic() - start < args.duration:
             time.sleep(0.05)
             now = time.monotonic()

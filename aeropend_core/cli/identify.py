@@ -18,7 +18,6 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 
@@ -33,8 +32,9 @@ from aeropend_core.model.effects import CATALOG
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('data', metavar='DATA', help='recording: CSV file (or MCAP bag)')
-    parser.add_argument('--json', action='store_true',
-                        help='print {coefficients, standard_errors, parameters} as JSON instead of text')
+    from aeropend_core.cli._checks import add_json_argument
+    add_json_argument(parser, '{coefficients, standard_errors, parameters, ...} (to standard output: instead of '
+                              'the text)')
     parser.add_argument('--model', choices=('pendulum', 'full-state'), default='pendulum',
                         help='which equations to identify (default: pendulum, the live-rig case)')
     parser.add_argument('--effect', action='append', default=[], metavar='NAME',
@@ -77,6 +77,8 @@ def main(args: argparse.Namespace) -> int:
     from aeropend_core.cli._checks import print_findings, sample_time_from
     from aeropend_core.model.effects import check_effect_names
     check_effect_names(args.effect, '--effect')
+    from aeropend_core.cli._checks import check_json_target
+    check_json_target(args.json)
     recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
     if args.start is not None or args.stop is not None:
         recording = _window(recording, args.start, args.stop)
@@ -113,8 +115,9 @@ def main(args: argparse.Namespace) -> int:
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
             'warnings': findings_to_json(recording.findings),
         }
-        print(json.dumps(out, indent=2))
-    else:
+        from aeropend_core.present.json_output import write_json
+        write_json(args.json, out)
+    if args.json != '-':
         duration = len(recording) * float(np.median(np.diff(recording.time))) if len(recording) > 1 else 0.0
         print(f'{args.data}: {len(recording)} samples ({duration:.3g} s), model {args.model}')
         print(quality_lines(recording.findings))

@@ -32,6 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--preset', choices=sorted(PRESETS), default='default', help='nominal parameter set')
     parser.add_argument('--max-duty', type=float, default=0.7, help='upper end of the duty range (default 0.7)')
     parser.add_argument('--no-truth', action='store_true', help='write only the measured columns')
+    from aeropend_core.cli._checks import add_json_argument
+    add_json_argument(parser, 'what was simulated (file, samples, duration, rate, seed, noise, effects, columns)')
 
 
 #: Longest record `aeropend simulate` writes [s] (1 h: 1.8 million samples, ~200 MB of CSV with the truth).
@@ -55,6 +57,9 @@ def check_arguments(args: argparse.Namespace) -> None:
         raise AeropendError(f'--max-duty must be in (0, 1], got {args.max_duty}')
     if args.seed < 0:
         raise AeropendError(f'--seed must be a whole number >= 0, got {args.seed}')
+    if args.json == '-' and args.output == '-':
+        raise AeropendError('--json - and the CSV cannot both go to standard output; give the CSV a file (-o run.csv) '
+                            'or the JSON one (--json run.json)')
 
 
 def main(args: argparse.Namespace) -> int:
@@ -62,6 +67,8 @@ def main(args: argparse.Namespace) -> int:
     effects = parse_effect_assignments(args.effect)
     if args.output != '-':
         _check_output(args.output)
+    from aeropend_core.cli._checks import check_json_target
+    check_json_target(args.json)
     from aeropend_core.sim.excitation import lhc_schedule       # scipy: imported once the arguments are known good
     from aeropend_core.sim.noise import MeasurementNoise
     from aeropend_core.sim.simulate import simulate
@@ -73,6 +80,16 @@ def main(args: argparse.Namespace) -> int:
     if args.output != '-':
         print(f'wrote {len(trajectory)} samples ({args.duration:g} s at {1 / SAMPLE_TIME:g} Hz) to {args.output}',
               file=sys.stderr)
+    if args.json:
+        from aeropend_core.present.json_output import write_json
+        columns = trajectory.columns(with_truth=not args.no_truth)
+        write_json(args.json, {
+            'output': args.output, 'samples': len(trajectory), 'duration': args.duration,
+            'sample_rate': round(1.0 / SAMPLE_TIME, 9), 'seed': args.seed, 'psnr_db': args.psnr,
+            'quantise': args.quantise,
+            'effects': {name: dict(values) for name, values in effects.items()}, 'preset': args.preset,
+            'max_duty': args.max_duty, 'columns': list(columns),
+            'units': {'t': 's', 'duty': '1', 'armature_voltage': 'V', 'armature_current': 'A', 'angle': 'rad'}})
     return 0
 
 

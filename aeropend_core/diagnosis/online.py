@@ -318,6 +318,12 @@ class ParameterTrends:
         self.window_seconds = float(window_seconds)
         self.history: list[tuple[float, dict[str, float]]] = []
 
+    def reset(self, window_seconds: float | None = None) -> None:
+        """Forget the history (the source restarted, the model changed), optionally with a new window length [s]."""
+        self.history = []
+        if window_seconds is not None:
+            self.window_seconds = float(window_seconds)
+
     def add(self, stop: float, values: dict[str, tuple[float, float] | float]) -> dict[str, dict]:
         """Add the window ending at `stop` [s]; returns ``{name: trend row}`` (``drifting`` flags a drift)."""
         from aeropend_core.diagnosis.drift import trend_test
@@ -325,10 +331,59 @@ class ParameterTrends:
         if self.history and set(self.history[-1][1]) != set(plain):
             self.history = []
         self.history.append((float(stop), plain))
+        kept = self._kept()
+        times = np.array([t - 0.5 * self.window_seconds for t, _ in kept])
+        return {name: trend_test(times, np.array([row[name] for _, row in kept]), name) for name in plain}
+
+    def _kept(self) -> list[tuple[float, dict[str, float]]]:
         kept = [self.history[-1]]
         for stop_time, row in reversed(self.history[:-1]):
             if stop_time <= kept[-1][0] - self.window_seconds:
                 kept.append((stop_time, row))
         kept.reverse()
-        times = np.array([t - 0.5 * self.window_seconds for t, _ in kept])
-        return {name: trend_test(times, np.array([row[name] for _, row in kept]), name) for name in plain}
+        return kept
+
+    def tested_stops(self) -> list[float]:
+        """Ends [s] of the windows the last trend was tested on (the latest and the earlier ones that do not
+        overlap), oldest first; empty before the first window."""
+        return [stop for stop, _ in self._kept()] if self.history else []
+
+
+#: Parameters whose trend the online identification tests (the nominal ones; the derived thrust_coefficient moves
+#: with thrust_gain and would count the same drift twice).
+TREND_PARAMETERS = ('gravity_stiffness', 'damping', 'thrust_gain', 'armature_resistance')
+
+
+def trend_message(rows: dict[str, dict], units: dict[str, str] | None = None) -> str:
+    """The drift sentence of the online windows, e.g. "parameter drift: thrust gain -15 % over 120 s (...)" with the
+    likely causes; '' when no row drifts.
+
+    Parameters
+    ----------
+    rows : dict
+        ``{name: trend row}`` from :meth:`ParameterTrends.add` [-].
+    units : dict, optional
+        ``{name: SI unit}`` for the start and end values [-].
+    """
+    from aeropend_core.diagnosis.drift import CAUSES
+    drifting = [row for row in rows.values() if row.get('drifting')]
+    if not drifting:
+        return ''
+    units = units or {}
+    parts, causes = [], []
+    for row in drifting:
+        label = row['parameter'].replace('_', ' ')
+        unit = units.get(row['parameter'], '')
+        parts.append(f'{label} {row["change"] * 100:+.0f} % over {row["span"]:.0f} s ({row["start"]:.4g} -> '
+                     f'{row["end"]:.4g}{" " + unit if unit else ""}, trend t = {row["t_statistic"]:+.1f}, p = '
+                     f'{row["p_value"]:.1g}, over {row["stretches"]} windows that do not overlap)')
+        causes.append(f'{label}: {CAUSES.get(row["parameter"], "unknown")}')
+    return 'parameter drift: ' + '; '.join(parts) + '. Likely causes: ' + '; '.join(causes) + '.'
+
+
+def trend_text(row: dict) -> str:
+    """One trend row in a few words: '-15.2 % over 120 s, t = -9.1, p = 1e-05, 6 windows' ('' before 4 windows)."""
+    if row.get('stretches', 0) < 4 or not math.isfinite(row.get('change', float('nan'))):
+        return ''
+    return (f'{row["change"] * 100:+.1f} % over {row["span"]:.0f} s, t = {row["t_statistic"]:+.1f}, p = '
+            f'{row["p_value"]:.1g}, {row["stretches"]} windows' + (', DRIFT' if row['drifting'] else ''))

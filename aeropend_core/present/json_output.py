@@ -32,4 +32,81 @@ def finite_json(value):
     return value
 
 
-__all__ = ['finite_json']
+
+def json_text(value, indent: int | None = 2) -> str:
+    """`value` as JSON text (:func:`finite_json` first, so NaN/inf are null and the text is strict JSON).
+
+    Parameters
+    ----------
+    value : object [-]
+        What to write (see :func:`finite_json`).
+    indent : int or None [characters]
+        Indentation; None writes one line (JSON lines).
+    """
+    import json
+    return json.dumps(finite_json(value), indent=indent, allow_nan=False, ensure_ascii=False)
+
+
+def write_json(target: str, value, stream=None) -> None:
+    """Write one JSON object to standard output (``target == '-'``) or to the file `target`.
+
+    A file is written to a temporary name next to it and renamed into place, so an interrupted writer leaves
+    either the previous file or the complete new one, never half a JSON object.
+
+    Parameters
+    ----------
+    target : str [-]
+        ``'-'`` for standard output, else the file's path.
+    value : object [-]
+        The object (see :func:`finite_json`).
+    stream : file, optional
+        Where ``'-'`` writes (default: ``sys.stdout`` at the call).
+    """
+    import os
+    import sys
+    text = json_text(value) + '\n'
+    if target == '-':
+        stream = sys.stdout if stream is None else stream
+        stream.write(text)
+        stream.flush()
+        return
+    target = os.path.realpath(target)         # a symbolic link is written through, as the other outputs
+    temporary = f'{target}.tmp{os.getpid()}'
+    try:
+        with open(temporary, 'w', encoding='utf-8') as handle:
+            handle.write(text)
+        os.replace(temporary, target)
+    finally:
+        if os.path.exists(temporary):
+            os.unlink(temporary)
+
+
+class JsonLines:
+    """JSON lines (one object per line, flushed at once) to standard output (``'-'``) or appended to a file.
+
+    Every line is complete when it is written (one ``write`` of the whole line, then a flush), so a reader, or a
+    writer killed between lines, never sees half an object.
+
+    Parameters
+    ----------
+    target : str [-]
+        ``'-'`` for standard output, else the file's path (created, or appended to).
+    """
+
+    def __init__(self, target: str) -> None:
+        import sys
+        self.target = target
+        self._handle = sys.stdout if target == '-' else open(target, 'a', encoding='utf-8')
+
+    def write(self, value) -> None:
+        """Write `value` (see :func:`finite_json`) as one line [-]."""
+        self._handle.write(json_text(value, indent=None) + '\n')
+        self._handle.flush()
+
+    def close(self) -> None:
+        """Close the file (standard output stays open)."""
+        if self.target != '-':
+            self._handle.close()
+
+
+__all__ = ['finite_json', 'json_text', 'write_json', 'JsonLines']

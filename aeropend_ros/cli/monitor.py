@@ -1,14 +1,24 @@
-"""Show the live identification in the terminal: parameters with uncertainty, the held-out fit, drift flagged.
+"""Show the live identification: parameters with uncertainty and their estimator, the held-out fit, drift.
 
 Listens to the identification node's topics (/aeropend/identification/parameters, .../coefficients, .../fit)
-and its /diagnostics status, and redraws a table whenever a window completes. A parameter is flagged DRIFT when
-it moves more than --drift-sigma (default 3) of its standard errors away from the running mean of the previous
-windows (the running statistics restart when the model's effects change). Everything shown is also on the
-recorded topics, plottable in Foxglove or PlotJuggler.
+and its /diagnostics status, and redraws a table whenever a window completes. Each parameter names its estimator
+(output_error: the free-run simulation fitted to the angle; motor_observer: the observer fitted to the armature
+current; weak_sindy: the weak-form regression, whose coefficients are listed below the table). The drift test is the
+node's own (a straight-line trend over the windows that do not overlap: "parameter drift: thrust gain -15 % over
+120 s"); a parameter is also marked when it jumps more than --drift-sigma (default 3) of its standard errors away
+from the running mean of the previous windows. Windows whose data were repaired or flagged say so.
+
+With a display (X11/Wayland and an interactive matplotlib backend) it also draws a live plot: every parameter over
+the windows with its ±1σ band, drift and flagged windows marked (--no-plot: the table only); --plot-file FILE.png
+saves that figure after every window, display or not. --json [FILE] writes one JSON object per update (JSON lines:
+every status of the identification node, with the window's parameters, fit and drift when it carries a result; to
+standard output with - or no FILE, which then carries the JSON lines only). Everything shown is also on the
+recorded topics, plottable in Foxglove or PlotJuggler (config/).
 
 Examples:
   aeropend monitor                 # until Ctrl-C
   aeropend monitor --once          # print the latest result and exit (exit 1 if none within --timeout)
+  aeropend monitor --json - | jq .parameters.thrust_gain
 """
 from __future__ import annotations
 
@@ -28,14 +38,19 @@ def add_arguments(parser) -> None:
     parser.add_argument('--duration', type=float, default=0.0, metavar='S',
                         help='exit after this many seconds (default: run until Ctrl-C)')
     parser.add_argument('--window', type=float, default=25.0, metavar='S',
-                        help='the identification windows\' length [s] (the node\'s window_s; trends use windows that '
-                             'do not overlap)')
+                        help='the identification windows\' length [s] (the node\'s window_s): only for the trend of a '
+                             'node that does not run the drift test itself (windows that do not overlap)')
     parser.add_argument('--drift-sigma', type=float, default=3.0, metavar='K',
                         help='flag a parameter more than K standard errors from its running mean (default 3)')
     parser.add_argument('--no-clear', action='store_true',
                         help='append each refresh instead of redrawing the screen (automatic when not a terminal)')
     parser.add_argument('--local', action='store_true',
                         help='set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (unless already set)')
+    parser.add_argument('--no-plot', action='store_true', help='no live plot even with a display (the table only)')
+    parser.add_argument('--plot-file', metavar='FILE.png',
+                        help='save the live plot to this file after every window (PNG, SVG or PDF; no display needed)')
+    from aeropend_core.cli._checks import add_json_argument
+    add_json_argument(parser, 'one object per update (JSON lines)')
 
 
 @dataclass
@@ -81,8 +96,14 @@ class DriftTracker:
         return report
 
 
-def render(parameters, coefficients, fit, status, drift, windows: int, width: int = 100, trends=None) -> str:
-    """The text table of one refresh (all arguments may be empty before the first window)."""
+def render(parameters, coefficients, fit, status, drift, windows: int, width: int = 100, trends=None,
+           estimators=None, node_drift: str = '', data: str = '') -> str:
+    """The text table of one refresh (all arguments may be empty before the first window).
+
+    `trends` maps a parameter to the node's trend text (``trend_<name>`` on /diagnostics) or to a local trend row;
+    `estimators` maps a parameter to its estimator; `node_drift` is the node's drift sentence ('' or 'none': none);
+    `data` is the window's data-quality flags ('' when clean).
+    """
     lines = []
     if not parameters and not fit:
         lines.append('aeropend monitor: waiting for the identification node\'s first window ...')
@@ -98,22 +119,31 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
                      f'{get.get("compute_time", float("nan")):.2f} s')
     if status:
         lines.append(f'identification: {status}'[:width])
+    if data:
+        lines.append(f'DATA REPAIRED OR FLAGGED in this window: {data} (the numbers below carry that doubt)'[:width])
+    if node_drift and node_drift != 'none':
+        lines.append(f'DRIFT: {node_drift}')
     lines.append('')
-    lines.append('parameters of the refined model (estimator: output error; armature_resistance from the motor '
-                 'observer when its ±1σ is nan):')
-    lines.append(f'{"parameter (SI)":26s} {"value":>13s} {"±1σ":>11s} {"running mean":>13s}  drift')
+    estimators = estimators or {}
+    lines.append('parameters of the refined model (estimator: output_error = free-run simulation fitted to the angle; '
+                 'motor_observer = observer fitted to Ia):'[:max(width, 60)])
+    lines.append(f'{"parameter (SI)":26s} {"value":>13s} {"±1σ":>11s} {"running mean":>13s}  {"estimator":15s} '
+                 'jump / trend')
     trends = trends or {}
     for name, (value, error) in parameters.items():
         mean, deviation, drifting = drift.get(name, (float('nan'), None, False))
-        flag = f'DRIFT ({deviation:+.1f}σ)' if drifting else (f'{deviation:+.1f}σ' if deviation is not None else '')
+        flag = f'JUMP ({deviation:+.1f}σ)' if drifting else (f'{deviation:+.1f}σ' if deviation is not None else '')
         trend = trends.get(name)
-        if trend is not None and trend['stretches'] >= 4 and math.isfinite(trend['change']):
+        if isinstance(trend, str) and trend:
+            flag += f'  trend {trend}'
+        elif isinstance(trend, dict) and trend['stretches'] >= 4 and math.isfinite(trend['change']):
             flag += (f'  trend {trend["change"] * 100:+.0f} % over {trend["span"]:.0f} s'
                      + (' PARAMETER DRIFT' if trend['drifting'] else ''))
-        lines.append(f'{name:26s} {value:13.6g} {error:11.3g} {mean:13.6g}  {flag}')
+        estimator = estimators.get(name, '?')
+        lines.append(f'{name:26s} {value:13.6g} {error:11.3g} {mean:13.6g}  {estimator:15s} {flag}')
     if coefficients:
         lines.append('')
-        lines.append('estimator weak SINDy: coefficients of d²angle/dt² [rad/s² per unit term] (-sin(angle) '
+        lines.append('estimator weak_sindy: coefficients of d²angle/dt² [rad/s² per unit term] (-sin(angle) '
                      'coefficient = its gravity_stiffness, the start of the refinement above):')
         for name, (value, error) in coefficients.items():
             lines.append(f'  {name:38s} {value:13.6g} ± {error:.3g}')
@@ -135,6 +165,9 @@ def check_arguments(args) -> None:
 
 def main(args) -> int:
     check_arguments(args)
+    from aeropend_core.cli._checks import check_json_target, check_report_path
+    check_json_target(args.json)
+    check_report_path(args.plot_file, '--plot-file')
     from aeropend_ros._ros_env import ensure_ros_environment
     ensure_ros_environment(local_only=args.local)
     import rclpy
@@ -142,21 +175,27 @@ def main(args) -> int:
     from rclpy.executors import ExternalShutdownException
     from sensor_msgs.msg import JointState
 
+    from aeropend_core.model.names import parameter_unit
+    from aeropend_core.present.json_output import JsonLines
     from aeropend_ros import topics
     from aeropend_ros.identification_node import (COEFFICIENTS_TOPIC, DIAGNOSTIC_NAME, FIT_TOPIC, PARAMETERS_TOPIC,
                                                   msg_to_named_values, results_qos)
 
     state = {'parameters': {}, 'coefficients': {}, 'fit': {}, 'status': '', 'drift': {}, 'windows': 0,
-             'dirty': False}
+             'dirty': False, 'values': {}, 'stamp_ns': 0, 'first_ns': None}
     tracker = DriftTracker(sigma=args.drift_sigma)
     from aeropend_core.diagnosis.online import ParameterTrends
-    trends = ParameterTrends(args.window)
+    local_trends = ParameterTrends(args.window)      # only for a node that does not run the trend test itself
+    plot = _open_plot(args)
+    json_out = JsonLines(args.json) if args.json else None
+    text_out = sys.stderr if args.json == '-' else sys.stdout
 
     def on_parameters(msg):
         values = msg_to_named_values(msg)
         state['parameters'] = values
         state['drift'] = tracker.update(values)
-        state['trends'] = trends.add(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, values)
+        state['local_trends'] = local_trends.add(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, values)
+        state['stamp_ns'] = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         state['windows'] += 1
         state['dirty'] = True
 
@@ -169,12 +208,18 @@ def main(args) -> int:
 
     def on_diagnostics(msg):
         for status in msg.status:
-            if status.name == DIAGNOSTIC_NAME:
-                values = {kv.key: kv.value for kv in status.values}
-                extra = ' | '.join(f'{k} {values[k]}' for k in ('excitation', 'lost_samples', 'effects')
-                                   if k in values)
-                state['status'] = status.message + (f' | {extra}' if extra else '')
-                state['dirty'] = True
+            if status.name != DIAGNOSTIC_NAME:
+                continue
+            values = {kv.key: kv.value for kv in status.values}
+            extra = ' | '.join(f'{k} {values[k]}' for k in ('excitation', 'lost_samples', 'effects') if k in values)
+            state['status'] = status.message + (f' | {extra}' if extra else '')
+            state['dirty'] = True
+            result = 'fit_percent' in values and values.get('window_stop_ns') == str(state['stamp_ns'])
+            if result:
+                state['values'] = values
+                _on_window(state, values, plot, args, parameter_unit)
+            if json_out is not None:
+                json_out.write(_json_line(status, values, state if result else None, parameter_unit))
 
     rclpy.init()
     node = rclpy.create_node('aeropend_monitor')
@@ -182,22 +227,30 @@ def main(args) -> int:
     node.create_subscription(JointState, COEFFICIENTS_TOPIC, on_coefficients, results_qos())
     node.create_subscription(JointState, FIT_TOPIC, on_fit, results_qos())
     node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS_TOPIC, on_diagnostics, topics.diagnostics_qos())
-    clear = sys.stdout.isatty() and not args.no_clear and not args.once
+    clear = text_out.isatty() and not args.no_clear and not args.once
     started = time.monotonic()
     last_draw = 0.0
     status = 0
+
+    def table(width: int = 100) -> str:
+        values = state['values']
+        trends = ({name[len('trend_'):]: text for name, text in values.items() if name.startswith('trend_')}
+                  or state.get('local_trends'))
+        estimators = dict(part.split(':', 1) for part in values.get('estimators', '').split(',') if ':' in part)
+        return render(state['parameters'], state['coefficients'], state['fit'], state['status'], state['drift'],
+                      state['windows'], width, trends=trends, estimators=estimators,
+                      node_drift=values.get('drift', ''), data=values.get('data_quality', '') or (
+                          f'{values["lost_samples"]} lost samples filled' if values.get('lost_samples', '0') != '0'
+                          else ''))
     try:
         while rclpy.ok():
             rclpy.spin_once(node, timeout_sec=0.1)
             now = time.monotonic()
+            if plot is not None and not plot.alive():
+                break                                   # the user closed the plot window
             if args.once:
-                if state['parameters'] and state['fit']:
-                    # let the coefficients and the status of the same window arrive too
-                    end = time.monotonic() + 0.5
-                    while time.monotonic() < end:
-                        rclpy.spin_once(node, timeout_sec=0.05)
-                    print(render(state['parameters'], state['coefficients'], state['fit'], state['status'],
-                                 state['drift'], state['windows'], trends=state.get('trends')))
+                if state['parameters'] and state['fit'] and state['values']:
+                    print(table(), file=text_out)
                     break
                 if now - started > args.timeout:
                     print(f'aeropend monitor: no identification result within {args.timeout:g} s (is '
@@ -210,10 +263,8 @@ def main(args) -> int:
                 break
             # One redraw per window: its parameters, coefficients, fit and status arrive within milliseconds.
             if (state['dirty'] and now - last_draw > 0.5) or (not state['parameters'] and now - last_draw > 2.0):
-                text = render(state['parameters'], state['coefficients'], state['fit'], state['status'],
-                              state['drift'], state['windows'], shutil.get_terminal_size().columns,
-                              trends=state.get('trends'))
-                print(('\x1b[H\x1b[2J' if clear else '\n') + text, flush=True)
+                text = table(shutil.get_terminal_size().columns)
+                print(('\x1b[H\x1b[2J' if clear else '\n') + text, flush=True, file=text_out)
                 state['dirty'] = False
                 last_draw = now
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -221,4 +272,56 @@ def main(args) -> int:
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
+        if json_out is not None:
+            json_out.close()
     return status
+
+
+def _open_plot(args):
+    """The live plot: a window when there is a display (unless --no-plot), off-screen for --plot-file; else None."""
+    from aeropend_core.present.live_plot import LivePlot, has_display
+    interactive = not args.no_plot and not args.once and has_display()
+    if not interactive and not args.plot_file:
+        return None
+    return LivePlot(interactive=interactive)
+
+
+def _on_window(state: dict, values: dict, plot, args, parameter_unit) -> None:
+    """A window's result is complete (parameters, fit, its status): add it to the plot, redraw, save."""
+    if plot is None:
+        return
+    from aeropend_core.present.live_plot import WindowPoint
+    if state['first_ns'] is None:
+        state['first_ns'] = state['stamp_ns']
+    flagged = bool(values.get('data_quality')) or values.get('lost_samples', '0') != '0'
+    fit = state['fit'].get('fit_percent', (float('nan'), 0.0))[0]
+    plot.add(WindowPoint((state['stamp_ns'] - state['first_ns']) * 1e-9, dict(state['parameters']), fit, flagged))
+    plot.units.update({name: parameter_unit(name) for name in state['parameters']})
+    plot.estimators.update(dict(part.split(':', 1) for part in values.get('estimators', '').split(',') if ':' in part))
+    plot.drift = {name[len('trend_'):]: text for name, text in values.items() if name.startswith('trend_')}
+    plot.draw()
+    if args.plot_file:
+        plot.save(args.plot_file)
+
+
+def _json_line(status, values: dict, state: dict | None, parameter_unit) -> dict:
+    """One JSON line: the status and, when it reports a window's result, that window's numbers."""
+    line = {'time': time.time(), 'level': {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}.get(
+        int.from_bytes(status.level, 'little') if isinstance(status.level, bytes) else int(status.level), 'UNKNOWN'),
+        'message': status.message, 'values': values}
+    if state is None:
+        return line
+    estimators = dict(part.split(':', 1) for part in values.get('estimators', '').split(',') if ':' in part)
+    trends = {name[len('trend_'):]: text for name, text in values.items() if name.startswith('trend_')}
+    line['window'] = {
+        'stop_ns': state['stamp_ns'],
+        'parameters': {name: {'value': value, 'sigma': sigma, 'lower': value - sigma, 'upper': value + sigma,
+                              'unit': parameter_unit(name), 'estimator': estimators.get(name, ''),
+                              'trend': trends.get(name, '')}
+                       for name, (value, sigma) in state['parameters'].items()},
+        'coefficients': {name: {'value': value, 'sigma': sigma} for name, (value, sigma) in
+                         state['coefficients'].items()},
+        'fit': {name: value for name, (value, _) in state['fit'].items()},
+        'drift': values.get('drift', ''),
+        'data_quality': values.get('data_quality', ''), 'lost_samples': int(values.get('lost_samples', 0) or 0)}
+    return line

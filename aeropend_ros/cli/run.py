@@ -56,8 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--duty-cap', type=float, default=0.7, metavar='FRACTION', help='safety cap on the duty')
     parser.add_argument('--no-diagnose', action='store_true', help='skip the diagnosis at the end')
     parser.add_argument('--report', metavar='FILE.html', help='write the diagnosis as a self-contained HTML report')
-    parser.add_argument('--json', metavar='FILE', help='write the run and its diagnosis as one JSON object to FILE '
-                                                      '(- for standard output; the text then goes to standard error)')
+    parser.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE',
+                        help='write the run and its diagnosis as one JSON object to FILE (- or no FILE: to standard '
+                             'output, which then carries the JSON only; the text goes to standard error)')
     parser.add_argument('--foxglove', nargs='?', type=int, const=8765, default=None, metavar='PORT',
                         help='serve the live graph to Foxglove on ws://127.0.0.1:PORT (default 8765; 0 = any free '
                              'port); layout: config/aeropend.foxglove.json')
@@ -254,6 +255,12 @@ def _spin(executor) -> None:
         executor.spin()
     except ExternalShutdownException:
         pass
+    except AttributeError:
+        # rclpy (Jazzy) can fail inside its own task handler when the executor is shut down from another thread
+        # while a callback is being dispatched (its guard condition is already None): the end of the run, not an
+        # error. Anything else, or this while the executor still runs, is raised.
+        if not getattr(executor, '_is_shutdown', False):
+            raise
 
 
 def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float,

@@ -1,0 +1,151 @@
+"""A live plot of the online identification: each parameter over the windows with its ±1σ band (matplotlib).
+
+Used by ``aeropend monitor`` when it has a display (or ``--plot-file``): one panel per parameter (value line, ±1σ
+band, the estimator and the SI unit in the title, a drift named in red in the title, windows whose data were
+repaired or flagged marked with a red ×), and the held-out fit % below. ROS-free: it draws what it is given.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+from dataclasses import dataclass, field
+
+#: Parameters drawn first, in this order (others follow as they appear: the effects' parameters).
+FIRST = ('gravity_stiffness', 'damping', 'thrust_gain', 'armature_resistance')
+
+
+def has_display() -> bool:
+    """True when matplotlib can open a window here: a display (X11 or Wayland; always on macOS and Windows) and an
+    interactive backend (``MPLBACKEND=Agg`` says no)."""
+    if sys.platform.startswith('linux') and not (os.environ.get('DISPLAY') or os.environ.get('WAYLAND_DISPLAY')):
+        return False
+    try:
+        import matplotlib
+    except ImportError:
+        return False
+    backend = (os.environ.get('MPLBACKEND') or matplotlib.get_backend() or '').lower()
+    return backend not in ('agg', 'pdf', 'ps', 'svg', 'cairo', 'template') and 'inline' not in backend
+
+
+@dataclass
+class WindowPoint:
+    """One window's parameters as drawn.
+
+    Attributes
+    ----------
+    time : float
+        End of the window, seconds since the first window's end [s].
+    values : dict
+        ``{name: (value, sigma)}`` in SI units (sigma NaN: unknown, no band).
+    fit_percent : float
+        Held-out fit [%].
+    flagged : bool
+        The window's data were repaired, filled or warned about.
+    """
+
+    time: float
+    values: dict[str, tuple[float, float]]
+    fit_percent: float = float('nan')
+    flagged: bool = False
+
+
+@dataclass
+class LivePlot:
+    """The figure, redrawn from the history of windows (the last `keep` of them).
+
+    Parameters
+    ----------
+    interactive : bool
+        Open a window (pyplot, interactive mode) or draw off-screen (Agg; :meth:`save`).
+    keep : int
+        Windows kept for drawing [-].
+    """
+
+    interactive: bool = False
+    keep: int = 500
+    points: list[WindowPoint] = field(default_factory=list)
+    units: dict[str, str] = field(default_factory=dict)
+    estimators: dict[str, str] = field(default_factory=dict)
+    drift: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        import matplotlib
+        if self.interactive:
+            import matplotlib.pyplot as plt
+            plt.ion()
+            self.figure = plt.figure('aeropend monitor', figsize=(10, 8))
+        else:
+            from matplotlib.figure import Figure
+            self.figure = Figure(figsize=(10, 8))
+        self._matplotlib = matplotlib
+
+    def add(self, point: WindowPoint) -> None:
+        """Add one window [-] (the oldest is dropped beyond `keep`)."""
+        self.points.append(point)
+        del self.points[:-self.keep]
+
+    def names(self) -> list[str]:
+        """Parameters to draw: :data:`FIRST` that appear, then the others in order of appearance."""
+        seen: list[str] = []
+        for point in self.points:
+            seen += [name for name in point.values if name not in seen]
+        return [name for name in FIRST if name in seen] + [name for name in seen if name not in FIRST]
+
+    def draw(self) -> None:
+        """Redraw the whole figure from the history."""
+        import numpy as np
+        figure = self.figure
+        figure.clf()
+        names = self.names()
+        rows = len(names) + 1
+        if not self.interactive:            # a saved frame grows with the panels; a window keeps the user's size
+            figure.set_size_inches(10, max(6.0, 1.6 * rows))
+        times = np.array([p.time for p in self.points])
+        for row, name in enumerate(names):
+            axes = figure.add_subplot(rows, 1, row + 1)
+            value = np.array([p.values.get(name, (math.nan, math.nan))[0] for p in self.points], dtype=float)
+            sigma = np.array([p.values.get(name, (math.nan, math.nan))[1] for p in self.points], dtype=float)
+            axes.plot(times, value, '-o', color='#1f63b4', markersize=2, linewidth=1.2, label='value')
+            axes.fill_between(times, value - sigma, value + sigma, color='#7fa8d9', alpha=0.4, linewidth=0,
+                              label='±1σ')
+            flagged = np.array([p.flagged for p in self.points], dtype=bool)
+            if flagged.any():
+                axes.plot(times[flagged], value[flagged], 'x', color='#d7301f', label='data repaired/flagged')
+            unit = self.units.get(name, '')
+            estimator = self.estimators.get(name, '')
+            title = f'{name} [{unit}]' + (f' — {estimator}' if estimator else '')
+            if not np.isfinite(sigma).any():
+                title += ' (σ unknown: no band)'
+            drift = self.drift.get(name, '')
+            axes.set_title(title + (f'   {drift}' if drift else ''), fontsize=8, loc='left',
+                           color='#d7301f' if 'DRIFT' in drift else 'black')
+            axes.tick_params(labelsize=7)
+            if row == 0:
+                axes.legend(fontsize=7, loc='upper right')
+        axes = figure.add_subplot(rows, 1, rows)
+        axes.plot(times, [p.fit_percent for p in self.points], '-o', color='#1a9641', markersize=2)
+        axes.set_title('held-out fit [%] (MATLAB compare NRMSE)', fontsize=8, loc='left')
+        axes.set_xlabel('window end [s] since the first window', fontsize=8)
+        axes.tick_params(labelsize=7)
+        figure.tight_layout()
+        if self.interactive:
+            import matplotlib.pyplot as plt
+            figure.canvas.draw_idle()
+            plt.pause(0.001)
+
+    def save(self, path: str) -> None:
+        """Write the current figure to `path` (PNG, SVG or PDF by its suffix) [-], replacing it whole."""
+        temporary = f'{path}.tmp{os.getpid()}{os.path.splitext(path)[1]}'
+        self.figure.savefig(temporary, dpi=80)
+        os.replace(temporary, path)
+
+    def alive(self) -> bool:
+        """False once the user closed the window (interactive only)."""
+        if not self.interactive:
+            return True
+        import matplotlib.pyplot as plt
+        return plt.fignum_exists(self.figure.number)
+
+
+__all__ = ['LivePlot', 'WindowPoint', 'has_display']
