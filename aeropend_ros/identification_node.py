@@ -7,8 +7,9 @@ one is still being computed is skipped and counted. The analysis is
 :func:`aeropend_core.diagnosis.online.analyze_window`: weak SINDy on the first part of the window, output-error
 refinement with the model's ``effects``, and a free-run fit on the held-out end.
 
-Published (all ``sensor_msgs/JointState`` so that every value is plottable by name; ``header.stamp`` = end of the
-window in acquisition time; ``name`` = quantity names, ``position`` = values, ``velocity`` = 1σ standard errors):
+Published (names relative to the rig's namespace, shown as in the default graph; all ``sensor_msgs/JointState`` so
+that every value is plottable by name; ``header.stamp`` = end of the window in acquisition time; ``name`` = quantity
+names, ``position`` = values, ``velocity`` = 1σ standard errors):
 
 - ``/aeropend/identification/coefficients`` — weak-SINDy coefficients of d²angle/dt² [rad/s² per unit term]
 - ``/aeropend/identification/parameters`` — physical parameters of the refined model, SI
@@ -67,9 +68,10 @@ from aeropend_core.diagnosis.online import WindowResult, analyze_window, fill_ga
 from aeropend_core.model.effects import check_effect_names
 from aeropend_core.io.recording import Recording
 
-COEFFICIENTS_TOPIC = '/aeropend/identification/coefficients'
-PARAMETERS_TOPIC = '/aeropend/identification/parameters'
-FIT_TOPIC = '/aeropend/identification/fit'
+#: Result topics, relative to the rig's namespace (``/aeropend/identification/...`` in the default graph).
+COEFFICIENTS_TOPIC = 'aeropend/identification/coefficients'
+PARAMETERS_TOPIC = 'aeropend/identification/parameters'
+FIT_TOPIC = 'aeropend/identification/fit'
 #: Name of the node's status in /diagnostics.
 DIAGNOSTIC_NAME = 'aeropend: identification'
 #: Fraction of lost samples above which a window is not analysed.
@@ -235,7 +237,7 @@ class IdentificationNode(Node):
         # Raw subscription: the bytes are read directly (RawSampleParser), which costs a fraction of building a
         # JointState per sample.
         self.parser = RawSampleParser()
-        self.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, deep, raw=True)
+        self.create_subscription(JointState, topics.SAMPLES, self._on_sample, deep, raw=True)
         self.coefficients_publisher = self.create_publisher(JointState, COEFFICIENTS_TOPIC, results_qos())
         self.parameters_publisher = self.create_publisher(JointState, PARAMETERS_TOPIC, results_qos())
         self.fit_publisher = self.create_publisher(JointState, FIT_TOPIC, results_qos())
@@ -507,7 +509,9 @@ class IdentificationNode(Node):
         self._publish_status(message, level, values)
 
     def _publish_status(self, message: str, level: bytes, values: dict[str, str]) -> None:
-        status = DiagnosticStatus(level=level, name=DIAGNOSTIC_NAME, message=message, hardware_id='aeropend')
+        namespace = self.get_namespace()
+        status = DiagnosticStatus(level=level, name=topics.status_prefix(namespace) + DIAGNOSTIC_NAME,
+                                  message=message, hardware_id=topics.rig_name(namespace))
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()
