@@ -55,6 +55,11 @@ _RIG_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*')
 def rig_namespace(rig: str | None) -> str:
     """The ROS namespace of a rig: ``'/'`` for the default graph (None or ''), ``'/NAME'`` for rig NAME.
 
+    Parameters
+    ----------
+    rig : str or None [-]
+        The rig's name (``aeropend run --rig NAME``), or None / '' for the default graph.
+
     Raises
     ------
     AeropendError
@@ -73,13 +78,25 @@ def rig_namespace(rig: str | None) -> str:
 
 
 def rig_name(namespace: str) -> str:
-    """The rig of a node namespace: ``aeropend`` for the root namespace, ``NAME`` for ``/NAME`` (``/a/b``: ``a/b``)."""
+    """The rig of a node namespace: ``aeropend`` for the root namespace, ``NAME`` for ``/NAME`` (``/a/b``: ``a/b``).
+
+    Parameters
+    ----------
+    namespace : str [-]
+        A node's namespace (``Node.get_namespace()``).
+    """
     return namespace.strip('/') or DEFAULT_RIG
 
 
 def status_prefix(namespace: str) -> str:
     """What each of a rig's DiagnosticStatus names starts with: ``''`` in the root namespace, ``'NAME/'`` in
-    ``/NAME`` (ROS 1 diagnostic_updater's ``ns/node: task``; /diagnostics is shared by every rig)."""
+    ``/NAME`` (ROS 1 diagnostic_updater's ``ns/node: task``; /diagnostics is shared by every rig).
+
+    Parameters
+    ----------
+    namespace : str [-]
+        A node's namespace (``Node.get_namespace()``).
+    """
     inner = namespace.strip('/')
     return f'{inner}/' if inner else ''
 
@@ -87,14 +104,28 @@ def status_prefix(namespace: str) -> str:
 def status_namespace(name: str) -> str:
     """The namespace a DiagnosticStatus name belongs to (inverse of :func:`status_prefix`): the part before the
     first ``': '`` is the node path, its leading segments the namespace (``'rig1/recorder_node: bag'`` ->
-    ``'/rig1'``; ``'recorder_node: bag'`` -> ``'/'``)."""
+    ``'/rig1'``; ``'recorder_node: bag'`` -> ``'/'``).
+
+    Parameters
+    ----------
+    name : str [-]
+        ``DiagnosticStatus.name``.
+    """
     path = name.split(': ', 1)[0]
     return '/' + path.rsplit('/', 1)[0] if '/' in path else '/'
 
 
 def relative_topic(topic: str, namespace: str) -> str:
     """`topic` (a full name) relative to `namespace` (``'/rig1/aeropend/samples'`` in ``'/rig1'`` ->
-    ``'aeropend/samples'``); a topic outside the namespace is returned as it is (with its leading ``/``)."""
+    ``'aeropend/samples'``); a topic outside the namespace is returned as it is (with its leading ``/``).
+
+    Parameters
+    ----------
+    topic : str [-]
+        A fully qualified topic name.
+    namespace : str [-]
+        A node's namespace.
+    """
     prefix = namespace.rstrip('/') + '/'
     return topic[len(prefix):] if topic.startswith(prefix) else topic
 
