@@ -127,6 +127,38 @@ def test_rig_names_namespaces_and_status_names():
     assert topics.relative_topic('/aeropend/samples', '/') == topics.SAMPLES
 
 
+def test_reading_a_bag_of_one_rig_and_refusing_a_bag_of_two(tmp_path):
+    """aeropend's reader takes a rig's samples topic when the bag has no /aeropend/samples, never two rigs'."""
+    from aeropend_ros._ros_env import ensure_ros_environment
+    ensure_ros_environment(local_only=True)
+    from aeropend_core.errors import AeropendError
+    from aeropend_core.io.bag import read_samples
+    from aeropend_core.io.bag_writer import BagWriter
+    from aeropend_core.io.mcap_format import msg_file_loader, ros2msg_definition
+    from aeropend_ros import topics
+    from aeropend_ros._ros_env import ament_prefixes
+    from tests.test_bag import cdr_joint_state
+    schema = ros2msg_definition(topics.SAMPLES_TYPE, msg_file_loader(ament_prefixes()))
+
+    def bag(name: str, rigs: dict[str, float]) -> Path:
+        writer = BagWriter(tmp_path / name)
+        for rig in rigs:
+            writer.add_topic(f'/{rig}/aeropend/samples', topics.SAMPLES_TYPE, schema)
+        for k in range(50):
+            for rig, angle in rigs.items():
+                stamp = 1_000_000_000 + k * 2_040_816
+                data = cdr_joint_state(stamp, [angle, 1.0, 0.5, 0.3, float(k)])     # exact CDR, as from DDS
+                writer.write(f'/{rig}/aeropend/samples', data, stamp, stamp)
+        writer.finish()
+        return tmp_path / name
+
+    one = read_samples(bag('one', {'rig1': 0.25}))
+    assert np.array_equal(one['sequence'], np.arange(50)) and np.all(one['angle'] == 0.25)
+    with pytest.raises(AeropendError, match='several rigs') as error:
+        read_samples(bag('two', {'rig1': 0.25, 'rig2': -0.25}))
+    assert '/rig1/aeropend/samples' in str(error.value) and '/rig2/aeropend/samples' in str(error.value)
+
+
 def test_shipped_parameter_files_pin_no_rig():
     """The YAML files apply in every namespace (``/**/node``): a full /aeropend/ name in them would make every rig's
     recorder or Foxglove server take the default graph's topics."""
