@@ -262,6 +262,15 @@ class _InNamespace:
         return self.process.returncode
 
 
+def _udp_errors(namespace: str) -> dict[str, int]:
+    """The namespace's UDP error counters (``/proc/net/snmp``: RcvbufErrors, SndbufErrors, InErrors)."""
+    text = subprocess.run(['ip', 'netns', 'exec', namespace, 'cat', '/proc/net/snmp'], capture_output=True,
+                          text=True, timeout=30).stdout
+    names, values = [line.split()[1:] for line in text.splitlines() if line.startswith('Udp:')][:2]
+    counters = dict(zip(names, map(int, values)))
+    return {k: counters.get(k, 0) for k in ('RcvbufErrors', 'SndbufErrors', 'InErrors')}
+
+
 def _received_bytes(namespace: str, device: str) -> int:
     result = _ip('-n', namespace, '-s', '-j', 'link', 'show', device)
     return int(json.loads(result.stdout)[0]['stats64']['rx']['bytes'])
@@ -271,7 +280,10 @@ def _received_bytes(namespace: str, device: str) -> int:
 def test_graph_split_across_network_namespaces_loses_nothing(veth_namespaces, tmp_path):
     env = {k: v for k, v in local_ros_environment(domain_id=private_domain_id()).items()
            if k != 'ROS_AUTOMATIC_DISCOVERY_RANGE'}                # ROS 2's default discovery (subnet)
-    env['FASTDDS_BUILTIN_TRANSPORTS'] = 'UDPv4'   # no shared memory: both sides share this host's /dev/shm
+    # UDP only (both sides share this host's /dev/shm: shared memory would bypass the veth link), with the receive
+    # buffers the README recommends for the analysis side (the default 212992 bytes overflowed when a subscriber
+    # was starved on this loaded 2-core machine: UDP RcvbufErrors, samples lost)
+    env['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(ROOT / 'config' / 'fastdds_udp_large_buffers.xml')
     before = _received_bytes(veth_namespaces['analysis'], veth_namespaces['analysis_device'])
     duration = 24.0
     bag = tmp_path / 'split_bag'
@@ -305,8 +317,10 @@ def test_graph_split_across_network_namespaces_loses_nothing(veth_namespaces, tm
     expected = round(duration * SAMPLE_RATE)
     messages, custom = read_bag(bag)
     sequence = np.array([m.position[4] for m in messages['/aeropend/samples']])
+    udp = {side: _udp_errors(veth_namespaces[side]) for side in ('rig', 'analysis')}
     assert sequence.size == expected and np.array_equal(sequence, np.arange(expected)), \
-        f'{sequence.size} of {expected} samples; first {sequence[:5]}, gaps at {np.flatnonzero(np.diff(sequence) != 1)}'
+        (f'{sequence.size} of {expected} samples; first {sequence[:5]}, gaps at '
+         f'{np.flatnonzero(np.diff(sequence) != 1)}; UDP errors {udp}')
     assert custom['aeropend.lost /aeropend/samples'] == '0', custom
     # the duty commands crossed the other way and drove the sim
     assert np.ptp([m.position[3] for m in messages['/aeropend/samples']]) > 0.2
@@ -323,5 +337,5 @@ def test_graph_split_across_network_namespaces_loses_nothing(veth_namespaces, tm
     # and the samples did travel over the veth link (JointState samples are ~150 bytes on the wire)
     crossed = _received_bytes(veth_namespaces['analysis'], veth_namespaces['analysis_device']) - before
     print(f'{sequence.size} samples recorded across the veth link, none lost; {crossed} bytes received over it; '
-          f'{len(windows)} windows identified')
+          f'{len(windows)} windows identified; UDP errors {udp}')
     assert crossed > expected * 100, f'only {crossed} bytes arrived over the veth link for {expected} samples'
