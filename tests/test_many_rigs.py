@@ -159,6 +159,21 @@ def test_reading_a_bag_of_one_rig_and_refusing_a_bag_of_two(tmp_path):
     assert '/rig1/aeropend/samples' in str(error.value) and '/rig2/aeropend/samples' in str(error.value)
 
 
+def test_launch_namespace_agrees_with_run_rig():
+    """The launch files' ``namespace`` is the rig as in ``aeropend run --rig``: '' (default) = the root namespace,
+    the default graph; every node of a launch file in it (launch_ros makes ``rig1`` absolute: ``/rig1``)."""
+    import ast
+    for name in ('sim.launch.py', 'rig.launch.py'):
+        tree = ast.parse((ROOT / 'launch' / name).read_text())
+        calls = [node for node in ast.walk(tree) if isinstance(node, ast.Call)]
+        declared = {ast.literal_eval(c.args[0]): {k.arg: k.value for k in c.keywords} for c in calls
+                    if getattr(c.func, 'id', '') == 'DeclareLaunchArgument'}
+        assert ast.literal_eval(declared['namespace']['default_value']) == '', name
+        nodes = [c for c in calls if getattr(c.func, 'id', '') == 'Node']
+        spaces = [next(k.value for k in c.keywords if k.arg == 'namespace') for c in nodes]
+        assert nodes and all(ast.literal_eval(v.args[0]) == 'namespace' for v in spaces), name
+
+
 def test_shipped_parameter_files_pin_no_rig():
     """The YAML files apply in every namespace (``/**/node``): a full /aeropend/ name in them would make every rig's
     recorder or Foxglove server take the default graph's topics."""
