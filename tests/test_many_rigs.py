@@ -17,6 +17,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +49,11 @@ def named(msg) -> dict[str, tuple[float, float]]:
 
 @pytest.mark.timeout(300)
 def test_two_rigs_on_one_domain_record_and_identify_separately(tmp_path):
-    env = local_ros_environment(domain_id=private_domain_id())
+    import rclpy
+
+    from aeropend_ros.testing import own_context
+    domain_id = private_domain_id()
+    env = local_ros_environment(domain_id=domain_id)
     offsets = {'rigA': 0.1, 'rigB': -0.1}
     runs = {}
     for seed, (rig, offset) in enumerate(offsets.items(), start=1):
@@ -58,13 +63,25 @@ def test_two_rigs_on_one_domain_record_and_identify_separately(tmp_path):
         runs[rig] = subprocess.Popen(AEROPEND + arguments, env=env, cwd=ROOT, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True)
     outputs = {}
+    seen: set[str] = set()          # every topic of the domain while the rigs run (a third party's view)
     try:
+        with own_context(domain_id) as context:
+            watcher = rclpy.create_node('topic_watcher', context=context)
+            deadline = time.monotonic() + 240
+            while any(run.poll() is None for run in runs.values()) and time.monotonic() < deadline:
+                seen.update(name for name, _ in watcher.get_topic_names_and_types())
+                time.sleep(0.2)
+            watcher.destroy_node()
         for rig, run in runs.items():
-            outputs[rig], _ = run.communicate(timeout=240)
+            outputs[rig], _ = run.communicate(timeout=60)
     finally:
         for run in runs.values():
             if run.poll() is None:
                 run.kill()
+    # No aeropend topic outside the two rigs' namespaces: a recorder of the default graph (^/aeropend/) would
+    # otherwise take a rig's messages.
+    stray = sorted(t for t in seen if 'aeropend' in t and not t.startswith(('/rigA/aeropend/', '/rigB/aeropend/')))
+    assert not stray and {'/rigA/aeropend/samples', '/rigB/aeropend/samples'} <= seen, (stray, sorted(seen))
     for rig, run in runs.items():
         assert run.returncode == 0 and 'Traceback' not in outputs[rig], outputs[rig]
         assert f'as rig {rig} (namespace /{rig}' in outputs[rig], outputs[rig]
