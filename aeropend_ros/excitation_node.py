@@ -1,4 +1,7 @@
-"""excitation_node: plays a duty-step schedule on ``/aeropend/duty_cmd``, then returns the duty to 0.
+"""excitation_node: plays a duty-step schedule on ``aeropend/duty_cmd``, then returns the duty to 0.
+
+Topic names are relative to the rig's namespace (``/aeropend/duty_cmd`` in the default graph, see
+:mod:`aeropend_ros.topics`).
 
 The schedule is a Latin hypercube over (duty, dwell) from :func:`aeropend_core.sim.excitation.lhc_schedule`
 (``schedule: lhc``), or a list of ``[duty, dwell_s]`` steps (``schedule: steps``) given either as the flat
@@ -43,8 +46,9 @@ from aeropend_ros import topics
 
 _STAMP = struct.Struct('<iI')
 
-#: Topic on which the node reports that the schedule has finished (std_msgs/Bool, transient local).
-DONE_TOPIC = '/aeropend/excitation/done'
+#: Topic on which the node reports that the schedule has finished (std_msgs/Bool, transient local), relative to
+#: the rig's namespace (``/aeropend/excitation/done`` in the default graph).
+DONE_TOPIC = 'aeropend/excitation/done'
 
 
 def done_qos() -> QoSProfile:
@@ -164,7 +168,7 @@ class ExcitationNode(Node):
         self.start_delay = start_delay
         self.total_time = float(self.step_ends[-1])
 
-        self.duty_publisher = self.create_publisher(Float64, topics.DUTY_COMMAND_TOPIC, topics.command_qos())
+        self.duty_publisher = self.create_publisher(Float64, topics.DUTY_COMMAND, topics.command_qos())
         self.done_publisher = self.create_publisher(Bool, DONE_TOPIC, done_qos())
         self.done_publisher.publish(Bool(data=False))
         self.started = False
@@ -177,7 +181,7 @@ class ExcitationNode(Node):
         if self.time_source == 'samples':
             # Raw subscription: only the stamp is needed, read straight from the CDR bytes (cheap at 490 Hz and
             # faster). Bytes 0-3 are the encapsulation header, then header.stamp (int32 sec, uint32 nanosec).
-            self.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, topics.samples_qos(),
+            self.create_subscription(JointState, topics.SAMPLES, self._on_sample, topics.samples_qos(),
                                      raw=True)
         self.create_timer(0.005, self._on_timer)
         self.get_logger().info(f'excitation: {len(self.duties)} steps, {self.total_time:.1f} s '

@@ -1,6 +1,7 @@
 """foxglove_node: serve the live aeropend graph to Foxglove over its WebSocket protocol (``foxglove-sdk``).
 
-Every topic whose name matches ``include_regex`` (default: the aeropend topics and ``/diagnostics``) is subscribed
+Every topic whose name matches ``include_regex`` (default: this rig's topics, ``^<namespace>/aeropend/``, and
+``/diagnostics``; :func:`default_include`) is subscribed
 as soon as a publisher of it is discovered, with the publishers' QoS (best effort for the SensorData samples,
 transient local when every publisher is), and each message is forwarded **as received**: the raw CDR bytes, with
 the type's ``ros2msg`` definition as the channel schema (the same schema text the recorder writes into the bags).
@@ -37,8 +38,14 @@ from aeropend_core.errors import AeropendError
 from aeropend_core.io.mcap_format import MESSAGE_ENCODING, SCHEMA_ENCODING, msg_file_loader, ros2msg_definition
 from aeropend_ros._node_util import ParameterError, check_unknown_overrides, declare, run_node
 
-#: Topics forwarded by default: everything under /aeropend/ (also inside a namespace) and the diagnostics.
-DEFAULT_INCLUDE = r'(^|/)aeropend/|(^|/)diagnostics$'
+#: Topics forwarded by default in the default graph (root namespace): its aeropend topics and the diagnostics.
+DEFAULT_INCLUDE = r'^/aeropend/|^/diagnostics$'
+
+
+def default_include(namespace: str) -> str:
+    """The default ``include_regex`` of a node in `namespace`: that rig's topics (``^/rig1/aeropend/`` in ``/rig1``)
+    and ``/diagnostics``; never another rig's topics."""
+    return '^' + re.escape(namespace.rstrip('/') + '/aeropend/') + '|^/diagnostics$'
 
 #: What to tell a user who has no foxglove-sdk.
 INSTALL_HINT = ('install it with `pip install foxglove-sdk` (it is in requirements.txt), or on a ROS 2 install use '
@@ -64,8 +71,9 @@ class FoxgloveNode(Node):
                        'interface, e.g. Foxglove on another machine)', read_only=True)
         port = declare(self, 'port', 8765, 'TCP port of the WebSocket server (8765 is Foxglove\'s default; 0: any '
                        'free port)', read_only=True, low=0, high=65535, integer=True)
-        include = declare(self, 'include_regex', DEFAULT_INCLUDE, 'forward every topic whose name matches this '
-                          'regular expression', read_only=True)
+        include = declare(self, 'include_regex', default_include(self.get_namespace()), 'forward every topic whose '
+                          'full name matches this regular expression (default: this rig\'s topics, '
+                          '^<namespace>/aeropend/, and /diagnostics)', read_only=True)
         discovery_period = declare(self, 'discovery_period', 0.5, 'seconds between checks for new topics',
                                    read_only=True, low=0.05, high=60.0)
         declare(self, 'queue_depth', 100, 'subscription history depth per topic', read_only=True, low=1,
@@ -162,4 +170,4 @@ if __name__ == '__main__':
     sys.exit(main())
 
 
-__all__ = ['DEFAULT_INCLUDE', 'FoxgloveNode', 'foxglove_sdk', 'main']
+__all__ = ['DEFAULT_INCLUDE', 'FoxgloveNode', 'default_include', 'foxglove_sdk', 'main']

@@ -7,8 +7,9 @@ one is still being computed is skipped and counted. The analysis is
 :func:`aeropend_core.diagnosis.online.analyze_window`: weak SINDy on the first part of the window, output-error
 refinement with the model's ``effects``, and a free-run fit on the held-out end.
 
-Published (all ``sensor_msgs/JointState`` so that every value is plottable by name; ``header.stamp`` = end of the
-window in acquisition time; ``name`` = quantity names, ``position`` = values, ``velocity`` = 1σ standard errors):
+Published (names relative to the rig's namespace, shown as in the default graph; all ``sensor_msgs/JointState`` so
+that every value is plottable by name; ``header.stamp`` = end of the window in acquisition time; ``name`` = quantity
+names, ``position`` = values, ``velocity`` = 1σ standard errors):
 
 - ``/aeropend/identification/coefficients`` — weak-SINDy coefficients of d²angle/dt² [rad/s² per unit term]
 - ``/aeropend/identification/parameters`` — physical parameters of the refined model, SI
@@ -81,9 +82,10 @@ from aeropend_core.model.names import parameter_unit
 from aeropend_core.model.effects import check_effect_names
 from aeropend_core.io.recording import Recording
 
-COEFFICIENTS_TOPIC = '/aeropend/identification/coefficients'
-PARAMETERS_TOPIC = '/aeropend/identification/parameters'
-FIT_TOPIC = '/aeropend/identification/fit'
+#: Result topics, relative to the rig's namespace (``/aeropend/identification/...`` in the default graph).
+COEFFICIENTS_TOPIC = 'aeropend/identification/coefficients'
+PARAMETERS_TOPIC = 'aeropend/identification/parameters'
+FIT_TOPIC = 'aeropend/identification/fit'
 #: Name of the node's status in /diagnostics.
 DIAGNOSTIC_NAME = 'aeropend: identification'
 #: Fraction of lost samples above which a window is not analysed.
@@ -259,7 +261,7 @@ class IdentificationNode(Node):
         # Raw subscription: the bytes are read directly (RawSampleParser), which costs a fraction of building a
         # JointState per sample.
         self.parser = RawSampleParser()
-        self.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, deep, raw=True)
+        self.create_subscription(JointState, topics.SAMPLES, self._on_sample, deep, raw=True)
         self.coefficients_publisher = self.create_publisher(JointState, COEFFICIENTS_TOPIC, results_qos())
         self.parameters_publisher = self.create_publisher(JointState, PARAMETERS_TOPIC, results_qos())
         self.fit_publisher = self.create_publisher(JointState, FIT_TOPIC, results_qos())
@@ -562,17 +564,17 @@ class IdentificationNode(Node):
                  *(parameter.name for effect in effects for parameter in get_effect(effect).parameters)]
         for name in names:
             for estimator in ('output_error', 'weak_sindy'):
-                topic = topics.parameter_topic(name, estimator)
+                topic = topics.parameter_topic(name, estimator).removeprefix('/')  # relative: in the rig's namespace
                 if topic not in self.parameter_publishers:
                     self.parameter_publishers[topic] = self.create_publisher(JointState, topic, results_qos())
 
     def _publish_parameters(self, stop_ns: int, result: WindowResult, data: str, trends: dict[str, dict]) -> None:
-        """One message per parameter on /aeropend/parameters/<name> (and weak SINDy's on .../weak_sindy/<name>)."""
+        """One message per parameter on aeropend/parameters/<name> (and weak SINDy's on .../weak_sindy/<name>)."""
         estimates = [(name, value, sigma, result.estimators.get(name, 'output_error'))
                      for name, (value, sigma) in result.parameters.items()]
         estimates += [(name, value, sigma, 'weak_sindy') for name, (value, sigma) in result.weak_parameters.items()]
         for name, value, sigma, estimator in estimates:
-            topic = topics.parameter_topic(name, estimator)
+            topic = topics.parameter_topic(name, estimator).removeprefix('/')  # relative: in the rig's namespace
             publisher = self.parameter_publishers.get(topic)
             if publisher is None:
                 publisher = self.parameter_publishers[topic] = self.create_publisher(JointState, topic,
@@ -599,7 +601,9 @@ class IdentificationNode(Node):
         self._publish_status(message, level, values)
 
     def _publish_status(self, message: str, level: bytes, values: dict[str, str]) -> None:
-        status = DiagnosticStatus(level=level, name=DIAGNOSTIC_NAME, message=message, hardware_id='aeropend')
+        namespace = self.get_namespace()
+        status = DiagnosticStatus(level=level, name=topics.status_prefix(namespace) + DIAGNOSTIC_NAME,
+                                  message=message, hardware_id=topics.rig_name(namespace))
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()

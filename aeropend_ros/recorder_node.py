@@ -1,7 +1,14 @@
 """recorder_node: record chosen topics to a rosbag2-compatible MCAP bag folder (raw CDR bytes, no re-serialisation).
 
-Topics are the ``topics`` parameter plus every topic matching ``include_regex`` (default ``^/aeropend/``, so the
-identification topics are recorded too). A topic is subscribed as soon as a publisher of it is discovered, with the
+Topics are the ``topics`` parameter (relative names resolve in the node's namespace: ``aeropend/samples`` is
+``/aeropend/samples`` in the default graph, ``/rig1/aeropend/samples`` in the namespace ``/rig1``) plus every topic
+whose full name matches ``include_regex`` (default ``^<namespace>/aeropend/``, i.e. ``^/aeropend/`` in the default
+graph: this rig's topics, the identification outputs too, and never another rig's, whose topics lie under
+``/<name>/aeropend/``). ``/diagnostics`` is shared by every rig on the domain: a DiagnosticArray is recorded only
+when one of its statuses belongs to this namespace (its name starts with ``<name>/`` in ``/<name>``, has no
+namespace in the root one; :func:`aeropend_ros.topics.status_namespace`); the others are counted
+(``diagnostics_of_other_rigs``). The bag's ``metadata.yaml`` names the rig and namespace (``custom_data``:
+``aeropend.rig``, ``aeropend.namespace``). A topic is subscribed as soon as a publisher of it is discovered, with the
 publishers' QoS (best effort if any publisher is best effort, as ``/aeropend/samples`` with SensorData QoS;
 reliable otherwise) and a deep queue. Subscriptions are raw: the exact CDR bytes as received go to the bag, stamped
 with receive time (log time) and send time (publish time).
@@ -16,7 +23,7 @@ the bag (summary, footer, metadata.yaml). After a SIGKILL, run ``aeropend bag-re
 The node publishes its own ``/diagnostics`` (messages written per topic, messages safe on disk, queue length,
 drops, lost messages, current file) once per ``diagnostics_period``.
 
-Loss accounting by sequence number: every gap in the acquisition counter of ``/aeropend/samples`` (``position[4]``
+Loss accounting by sequence number: every gap in the acquisition counter of the samples (``position[4]``
 of each JointState) is counted as lost, whoever lost it (the link, the transport, or a recorder stalled so long
 that the DDS history of ``queue_depth`` messages overflowed); so is every gap in the DDS publication sequence
 number of a topic while it has a single publisher. Losses go to ``/diagnostics`` (``samples_lost``,
@@ -70,7 +77,8 @@ from aeropend_core.io.sequence_gaps import SequenceGaps, joint_state_position
 from aeropend_ros import topics as contract
 from aeropend_ros._node_util import check_unknown_overrides, declare
 
-DEFAULT_TOPICS = [contract.SAMPLES_TOPIC, contract.DUTY_COMMAND_TOPIC, contract.DIAGNOSTICS_TOPIC]
+#: Topics recorded by default (relative names resolve in the node's namespace).
+DEFAULT_TOPICS = [contract.SAMPLES, contract.DUTY_COMMAND, contract.DIAGNOSTICS_TOPIC]
 #: Message types recorded by default: those of the aeropend topics (samples and identification outputs are
 #: JointState, the duty command Float64, the excitation's done flag Bool) and /diagnostics.
 DEFAULT_ALLOWED_TYPES = [contract.SAMPLES_TYPE, contract.DUTY_COMMAND_TYPE, 'std_msgs/msg/Bool',
@@ -139,7 +147,15 @@ class RecorderNode(Node):
         self._declare_parameters()
         get = self.get_parameter
         output = get('output').value or f'bags/aeropend_{time.strftime("%Y%m%d_%H%M%S")}'
-        self._topics_wanted = {t for t in get('topics').value or [] if t}
+        try:
+            self._topics_wanted = {self.resolve_topic_name(t) for t in get('topics').value or [] if t}
+        except Exception as error:  # noqa: BLE001 - rclpy raises its own name-validation errors
+            raise AeropendError(f'topics {get("topics").value!r}: a name is not a valid ROS topic name ({error}); '
+                                "write names like 'aeropend/samples' or '/diagnostics'") from None
+        self._namespace = self.get_namespace()
+        #: the samples topic of this rig (its counter is the loss accounting)
+        self._samples_topic = self.resolve_topic_name(contract.SAMPLES)
+        self._other_diagnostics = 0
         try:
             self._include = re.compile(get('include_regex').value) if get('include_regex').value else None
         except re.error as error:
@@ -155,6 +171,8 @@ class RecorderNode(Node):
         self.writer = BagWriter(output, max_file_bytes=get('max_file_bytes').value,
                                 max_file_duration=get('max_file_duration').value,
                                 chunk_size=get('chunk_size').value, compression=get('compression').value)
+        self.writer.custom_data.update({'aeropend.rig': contract.rig_name(self._namespace),
+                                        'aeropend.namespace': self._namespace})
         self._load_msg = msg_file_loader(ament_prefixes() or [sys.prefix])
         self._subscriptions_by_topic: dict[str, object] = {}
         self._polled: list[tuple[str, object, type]] = []
@@ -190,10 +208,11 @@ class RecorderNode(Node):
         """Declare every parameter with its range; a bad start-up value is a one-line ParameterError (exit 2)."""
         declare(self, 'output', '', 'bag folder to create (must not exist); empty: bags/aeropend_<date>_<time>',
                 read_only=True)
-        declare(self, 'topics', DEFAULT_TOPICS, 'topics to record (recorded when a publisher appears)',
-                read_only=True)
-        declare(self, 'include_regex', '^/aeropend/',
-                'also record every topic whose name matches this regular expression (empty: none)', read_only=True)
+        declare(self, 'topics', DEFAULT_TOPICS, 'topics to record (recorded when a publisher appears); relative '
+                'names resolve in the node namespace (the rig)', read_only=True)
+        own = '^' + re.escape(self.get_namespace().rstrip('/') + '/aeropend/')
+        declare(self, 'include_regex', own, 'also record every topic whose full name matches this regular '
+                'expression (empty: none); default ^<namespace>/aeropend/: this rig\'s topics', read_only=True)
         declare(self, 'allowed_types', DEFAULT_ALLOWED_TYPES, 'message types that may be recorded (pkg/msg/Type); '
                 'a topic of another type is not recorded: its type would name a module to import', read_only=True)
         declare(self, 'max_file_bytes', 0, 'start a new .mcap file at this size in bytes (0: never)', read_only=True,
@@ -233,8 +252,9 @@ class RecorderNode(Node):
         for topic, types in self.get_topic_names_and_types():
             if topic in self._subscriptions_by_topic or not self._wants(topic):
                 continue
+            me = (self.get_name(), self.get_namespace())
             publishers = [info for info in self.get_publishers_info_by_topic(topic)
-                          if info.node_name != self.get_name() or topic != contract.DIAGNOSTICS_TOPIC]
+                          if (info.node_name, info.node_namespace) != me or topic != contract.DIAGNOSTICS_TOPIC]
             if not publishers and topic != contract.DIAGNOSTICS_TOPIC:
                 continue
             if len(types) != 1:
@@ -282,10 +302,22 @@ class RecorderNode(Node):
                     taken = handle.take_message(msg_type, True)
                     if taken is None:
                         break
+                    if topic == contract.DIAGNOSTICS_TOPIC and not self._own_diagnostics(taken[0], msg_type):
+                        self._other_diagnostics += 1
+                        continue
                     self._enqueue(topic, taken[0], taken[1])
                     taken_any = True
         if taken_any:
             self._wake.set()
+
+    def _own_diagnostics(self, data: bytes, msg_type) -> bool:
+        """Whether a /diagnostics message (CDR bytes) has a status of this rig (namespace); the topic is global."""
+        from rclpy.serialization import deserialize_message
+        try:
+            array = deserialize_message(data, msg_type)
+        except Exception:  # noqa: BLE001 - unreadable bytes: record them (nothing is dropped unseen)
+            return True
+        return any(contract.status_namespace(status.name) == self._namespace for status in array.status)
 
     def _enqueue(self, topic: str, data: bytes, info: dict) -> None:
         if len(self._queue) >= self._max_queue or self._failed.is_set():
@@ -293,7 +325,7 @@ class RecorderNode(Node):
             return
         received = info.get('received_timestamp') or time.time_ns()
         publication = info.get('publication_sequence_number') or 0
-        if publication and self._single_publisher.get(topic) and topic != contract.SAMPLES_TOPIC:
+        if publication and self._single_publisher.get(topic) and topic != self._samples_topic:
             self._publication_gaps[topic].observe(publication)
         self._queue.append((topic, data, received, info.get('source_timestamp') or received, publication))
         self._received[topic] += 1
@@ -313,7 +345,7 @@ class RecorderNode(Node):
                         writer.add_topic(topic, type_name, schema_text, qos, type_hash)
                         continue
                     topic, data, received, sent, sequence = item
-                    if topic == contract.SAMPLES_TOPIC:
+                    if topic == self._samples_topic:
                         counter = joint_state_position(data, _SEQUENCE_INDEX)
                         if counter is not None:
                             self._sample_gaps.observe(int(counter))
@@ -336,7 +368,7 @@ class RecorderNode(Node):
 
     def lost_counts(self) -> dict[str, int]:
         """Messages lost per topic by sequence number (gaps), see the module docstring."""
-        counts = {contract.SAMPLES_TOPIC: self._sample_gaps.lost} if self._sample_gaps.last is not None else {}
+        counts = {self._samples_topic: self._sample_gaps.lost} if self._sample_gaps.last is not None else {}
         counts.update({topic: gaps.lost for topic, gaps in self._publication_gaps.items() if gaps.lost})
         return counts
 
@@ -348,7 +380,7 @@ class RecorderNode(Node):
     def _loss_details(self) -> str:
         parts = []
         if self._sample_gaps.last is not None:
-            parts.append(f'{contract.SAMPLES_TOPIC} (sample counter): {self._sample_gaps.describe()}')
+            parts.append(f'{self._samples_topic} (sample counter): {self._sample_gaps.describe()}')
         parts += [f'{topic} (publication numbers): {gaps.describe()}'
                   for topic, gaps in sorted(self._publication_gaps.items()) if gaps.lost]
         return '; '.join(parts) or 'nothing tracked yet'
@@ -357,8 +389,9 @@ class RecorderNode(Node):
         """The loss accounting as metadata.yaml custom_data (string -> string)."""
         data = {f'aeropend.lost {topic}': str(count) for topic, count in self.lost_counts().items()}
         data['aeropend.dropped'] = str(self._dropped)
+        data['aeropend.diagnostics_of_other_rigs'] = str(self._other_diagnostics)
         data['aeropend.loss_accounting'] = (
-            f'lost = gaps in the sample counter (position[{_SEQUENCE_INDEX}]) of {contract.SAMPLES_TOPIC} and in '
+            f'lost = gaps in the sample counter (position[{_SEQUENCE_INDEX}]) of {self._samples_topic} and in '
             'the DDS publication sequence numbers of topics while they had a single publisher, whoever lost them; '
             'dropped = taken but not written (queue full or writing failed), which shows among the gaps too. '
             f'{self._loss_details()}')
@@ -418,7 +451,8 @@ class RecorderNode(Node):
     # -- diagnostics ---------------------------------------------------------------------------------------------------
     def _publish_diagnostics(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-        status = DiagnosticStatus(name='recorder_node: bag', hardware_id=str(self.writer.folder))
+        status = DiagnosticStatus(name=f'{contract.status_prefix(self._namespace)}{self.get_name()}: bag',
+                                  hardware_id=str(self.writer.folder))
         lost = self.lost_counts()
         total_lost = sum(lost.values())
         new_lost, self._lost_reported = total_lost - self._lost_reported, total_lost
@@ -439,7 +473,8 @@ class RecorderNode(Node):
                 f' ({total_lost} messages lost earlier, sequence gaps)' if total_lost else '')
         values = [('messages_written', self._written), ('messages_on_disk', self.writer.messages_on_disk),
                   ('messages_dropped', self._dropped), ('messages_lost', total_lost),
-                  ('samples_lost', lost.get(contract.SAMPLES_TOPIC, 0)),
+                  ('samples_lost', lost.get(self._samples_topic, 0)),
+                  ('diagnostics_of_other_rigs', self._other_diagnostics),
                   ('queue_length', len(self._queue)), ('file', self.writer.paths[-1].name if self.writer.paths else ''),
                   ('files', len(self.writer.paths))]
         values += [(f'received {topic}', count) for topic, count in sorted(self._received.items())]

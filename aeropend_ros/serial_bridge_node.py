@@ -2,7 +2,8 @@
 
 Reads the firmware's COBS/CRC-16 frames (:mod:`aeropend_core.rig.protocol`) from a serial port with pyserial,
 converts raw ADC counts to SI units with calibration parameters, and publishes one ``sensor_msgs/JointState`` per
-acquisition sample on ``/aeropend/samples`` (SensorData QoS). Each sample is stamped with its *acquisition* time:
+acquisition sample on ``aeropend/samples`` (SensorData QoS; topic names are relative to the
+rig's namespace, see :mod:`aeropend_ros.topics`). Each sample is stamped with its *acquisition* time:
 the device's sample counter x Ts anchored to the node clock with drift correction
 (:class:`aeropend_core.rig.sample_clock.SampleClock`), never its arrival time.
 
@@ -13,7 +14,7 @@ duty, watchdog, duty) goes out with the first valid frame that arrives at least 
 frames can only be left-overs from before the reset, buffered in the USB chip). Until then no heartbeat and no
 duty command is sent either.
 
-Duty commands from ``/aeropend/duty_cmd`` (``std_msgs/Float64``, fraction 0..1) are forwarded to the device
+Duty commands from ``aeropend/duty_cmd`` (``std_msgs/Float64``, fraction 0..1) are forwarded to the device
 (clamped to ``max_duty`` here and again by the firmware) and repeated every ``heartbeat_period`` so the firmware's
 watchdog (``watchdog_timeout``) only cuts the motor when this node, or its link, dies.
 
@@ -162,15 +163,15 @@ class SerialBridgeNode(Node):
 
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
-        self.publisher = self.create_publisher(JointState, topics.SAMPLES_TOPIC, topics.samples_qos())
+        self.publisher = self.create_publisher(JointState, topics.SAMPLES, topics.samples_qos())
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS_TOPIC,
                                                            topics.diagnostics_qos())
-        self.create_subscription(Float64, topics.DUTY_COMMAND_TOPIC, self._on_duty, topics.command_qos())
+        self.create_subscription(Float64, topics.DUTY_COMMAND, self._on_duty, topics.command_qos())
         self.create_timer(self.heartbeat_period, self._on_heartbeat)
         self.create_timer(diagnostics_period, self._publish_diagnostics)
         self._reader = threading.Thread(target=self._read_loop, name='serial_bridge_reader', daemon=True)
         self._reader.start()
-        self.get_logger().info(f'bridging {self.port} at {self.baud} baud to {topics.SAMPLES_TOPIC}')
+        self.get_logger().info(f'bridging {self.port} at {self.baud} baud to {self.publisher.topic_name}')
 
     # ------------------------------------------------------------------------------------------------- parameters
     def _calibration_from_parameters(self, changed: dict) -> P.Calibration:
@@ -478,7 +479,8 @@ class SerialBridgeNode(Node):
 
     def _publish_diagnostics(self) -> None:
         values, (new_samples, new_lost, new_corrupt) = self.diagnostics_values()
-        status = DiagnosticStatus(name=f'{self.get_name()}: rig serial link', hardware_id=self.port)
+        prefix = topics.status_prefix(self.get_namespace())       # the rig: /diagnostics is shared
+        status = DiagnosticStatus(name=f'{prefix}{self.get_name()}: rig serial link', hardware_id=self.port)
         if not self.connected:
             status.level, status.message = DiagnosticStatus.ERROR, f'{self.port} not connected (retrying)'
         elif not self._device_spoke and time.monotonic() - self._opened_at < self.boot_delay + 5.0:

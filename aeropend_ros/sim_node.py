@@ -1,9 +1,10 @@
 """sim_node: the rig simulator standing in for the real rig on the same topics.
 
-Publishes one ``sensor_msgs/JointState`` per acquisition sample on ``/aeropend/samples`` at 490 Hz (SensorData
-QoS) from :class:`aeropend_core.sim.simulate.RigSimulator`, with hidden effects and measurement noise chosen by
-parameters, and obeys ``/aeropend/duty_cmd`` (``std_msgs/Float64``, fraction 0..1; applied from the next sample,
-clamped to ``duty_limit``).
+Publishes one ``sensor_msgs/JointState`` per acquisition sample on ``aeropend/samples`` (relative:
+``/aeropend/samples`` in the default graph, ``/NAME/aeropend/samples`` in a rig's namespace ``/NAME``) at 490 Hz
+(SensorData QoS) from :class:`aeropend_core.sim.simulate.RigSimulator`, with hidden effects and measurement noise
+chosen by parameters, and obeys ``aeropend/duty_cmd`` (``std_msgs/Float64``, fraction 0..1; applied from the next
+sample, clamped to ``duty_limit``).
 
 Timing: sample k is stamped ``t0 + k·Ts`` with ``t0`` the node clock when publishing starts (never the time of
 sending). A timer every ``publish_period`` seconds simulates and publishes every sample that is due since the
@@ -87,15 +88,15 @@ class SimNode(Node):
         self.finished = False
         self._message = JointState()
 
-        self.publisher = self.create_publisher(JointState, topics.SAMPLES_TOPIC, topics.samples_qos())
-        self.create_subscription(Float64, topics.DUTY_COMMAND_TOPIC, self._on_duty, topics.command_qos())
+        self.publisher = self.create_publisher(JointState, topics.SAMPLES, topics.samples_qos())
+        self.create_subscription(Float64, topics.DUTY_COMMAND, self._on_duty, topics.command_qos())
         self.start_ns = self.get_clock().now().nanoseconds
         self.started = self.wait_for_subscribers == 0
         self.timer = self.create_timer(publish_period, self._on_timer)
         hidden = ', '.join(f'{name} {values}' for name, values in effects.items()) or 'none'
         self.get_logger().debug(f'hidden effects: {hidden}')
         self.get_logger().info(
-            f'simulating the rig at {1 / SAMPLE_TIME:.0f} Hz on {topics.SAMPLES_TOPIC} '
+            f'simulating the rig at {1 / SAMPLE_TIME:.0f} Hz on {self.publisher.topic_name} '
             f'(realtime factor {self.realtime_factor:g}, noise {psnr_db:g} dB, {len(effects)} hidden effect(s))')
 
     # ------------------------------------------------------------------------------------------------------------

@@ -1,5 +1,14 @@
 """The aeropend topic contract in one place: topic names, the sample message layout, QoS choices.
 
+Names are relative: every node subscribes and publishes ``aeropend/samples``, ``aeropend/duty_cmd``, ... which ROS
+resolves in the node's namespace. The default graph runs in the root namespace, so its topics are
+``/aeropend/samples``, ``/aeropend/duty_cmd`` (the names of every bag, layout and document so far); a rig NAME runs
+its nodes in the namespace ``/NAME`` (``aeropend run --rig NAME``, ``ros2 launch ... namespace:=NAME``, or
+``--ros-args -r __ns:=/NAME``), so its topics are ``/NAME/aeropend/samples``, ... Two rigs' topics never share a
+prefix: whatever records "everything under ``<namespace>/aeropend/``" records one rig. ``/diagnostics`` stays
+global (what diagnostic_aggregator reads); each status name starts with the rig's namespace (``NAME/``, nothing in
+the root namespace), as ROS 1's diagnostic_updater named them (``ns/node: task``).
+
 ``/aeropend/samples`` carries ONE ``sensor_msgs/msg/JointState`` per acquisition sample (490 Hz):
 ``header.stamp`` = acquisition time (sample counter x Ts anchored to the clock, never arrival time),
 ``header.frame_id = 'aeropend'``, ``name = SAMPLE_NAMES`` and ``position`` = the values in that order
@@ -11,12 +20,20 @@ Importing this module does not import rclpy; the QoS and message helpers import 
 from __future__ import annotations
 
 import math
+import re
 from typing import NamedTuple
 
-#: Topic of the acquisition samples (sensor_msgs/msg/JointState, SensorData QoS, 490 Hz).
-SAMPLES_TOPIC = '/aeropend/samples'
-#: Topic of the duty-cycle command (std_msgs/msg/Float64, fraction 0..1, reliable depth 10).
-DUTY_COMMAND_TOPIC = '/aeropend/duty_cmd'
+from aeropend_core.errors import AeropendError
+
+#: Topic of the acquisition samples relative to the rig's namespace (sensor_msgs/msg/JointState, SensorData QoS,
+#: 490 Hz).
+SAMPLES = 'aeropend/samples'
+#: Topic of the duty-cycle command relative to the rig's namespace (std_msgs/msg/Float64, fraction 0..1, reliable
+#: depth 10).
+DUTY_COMMAND = 'aeropend/duty_cmd'
+#: Full names of those topics in the default graph (root namespace): the names in bags and layouts.
+SAMPLES_TOPIC = '/' + SAMPLES
+DUTY_COMMAND_TOPIC = '/' + DUTY_COMMAND
 #: Standard diagnostics topic (diagnostic_msgs/msg/DiagnosticArray).
 DIAGNOSTICS_TOPIC = '/diagnostics'
 
@@ -147,6 +164,89 @@ def msg_to_parameter(msg, name: str = '') -> ParameterEstimate:
     return ParameterEstimate(name, stamp_ns, values['value'], values['sigma'], meta.get('estimator', ''),
                              meta.get('unit', ''), meta.get('data', ''), values['trend_change'],
                              bool(values['drifting']))
+
+
+#: The rig name of the default graph (nodes in the root namespace); not available to ``--rig``.
+DEFAULT_RIG = 'aeropend'
+_RIG_NAME = re.compile(r'[A-Za-z][A-Za-z0-9_]*')
+
+
+def rig_namespace(rig: str | None) -> str:
+    """The ROS namespace of a rig: ``'/'`` for the default graph (None or ''), ``'/NAME'`` for rig NAME.
+
+    Parameters
+    ----------
+    rig : str or None [-]
+        The rig's name (``aeropend run --rig NAME``), or None / '' for the default graph.
+
+    Raises
+    ------
+    AeropendError
+        When `rig` is not a ROS name token (a letter, then letters, digits, underscores) or is ``aeropend`` (its
+        topics ``/aeropend/aeropend/...`` would lie under the default graph's ``/aeropend/``).
+    """
+    if not rig:
+        return '/'
+    if not _RIG_NAME.fullmatch(rig):
+        raise AeropendError(f'rig name {rig!r} is not a ROS name: use a letter, then letters, digits or underscores '
+                            '(e.g. rig1, bench_a)')
+    if rig == DEFAULT_RIG:
+        raise AeropendError(f'rig name {DEFAULT_RIG!r} is the default graph (no --rig); choose another name '
+                            '(e.g. rig1)')
+    return '/' + rig
+
+
+def rig_name(namespace: str) -> str:
+    """The rig of a node namespace: ``aeropend`` for the root namespace, ``NAME`` for ``/NAME`` (``/a/b``: ``a/b``).
+
+    Parameters
+    ----------
+    namespace : str [-]
+        A node's namespace (``Node.get_namespace()``).
+    """
+    return namespace.strip('/') or DEFAULT_RIG
+
+
+def status_prefix(namespace: str) -> str:
+    """What each of a rig's DiagnosticStatus names starts with: ``''`` in the root namespace, ``'NAME/'`` in
+    ``/NAME`` (ROS 1 diagnostic_updater's ``ns/node: task``; /diagnostics is shared by every rig).
+
+    Parameters
+    ----------
+    namespace : str [-]
+        A node's namespace (``Node.get_namespace()``).
+    """
+    inner = namespace.strip('/')
+    return f'{inner}/' if inner else ''
+
+
+def status_namespace(name: str) -> str:
+    """The namespace a DiagnosticStatus name belongs to (inverse of :func:`status_prefix`): the part before the
+    first ``': '`` is the node path, its leading segments the namespace (``'rig1/recorder_node: bag'`` ->
+    ``'/rig1'``; ``'recorder_node: bag'`` -> ``'/'``).
+
+    Parameters
+    ----------
+    name : str [-]
+        ``DiagnosticStatus.name``.
+    """
+    path = name.split(': ', 1)[0]
+    return '/' + path.rsplit('/', 1)[0] if '/' in path else '/'
+
+
+def relative_topic(topic: str, namespace: str) -> str:
+    """`topic` (a full name) relative to `namespace` (``'/rig1/aeropend/samples'`` in ``'/rig1'`` ->
+    ``'aeropend/samples'``); a topic outside the namespace is returned as it is (with its leading ``/``).
+
+    Parameters
+    ----------
+    topic : str [-]
+        A fully qualified topic name.
+    namespace : str [-]
+        A node's namespace.
+    """
+    prefix = namespace.rstrip('/') + '/'
+    return topic[len(prefix):] if topic.startswith(prefix) else topic
 
 
 class Sample(NamedTuple):

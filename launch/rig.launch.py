@@ -5,7 +5,9 @@ Every node reads its shipped parameter file ``share/aeropend_ros/config/<node>.y
 also applies inside a namespace; put your calibration there, see ``aeropend calibrate``); the launch arguments
 override single parameters. To split the graph across machines (the bridge on a small computer next to the rig, the
 analysis elsewhere, same ROS_DOMAIN_ID), start the parts with ``bridge:=false`` or ``excitation:=false
-identification:=false recorder:=false``.
+identification:=false recorder:=false``, with the same ``namespace`` on both machines. Topic names are relative:
+``namespace:=rig1`` puts the rig on ``/rig1/aeropend/...`` (as ``aeropend run --rig rig1``), and its recorder records
+only that rig.
 
     ros2 launch aeropend_ros rig.launch.py port:=/dev/serial/by-id/usb-Arduino_Mega-if00
     ros2 launch aeropend_ros rig.launch.py port:=/dev/ttyACM0 namespace:=rig1 duration:=120.0 foxglove:=true
@@ -31,7 +33,9 @@ def generate_launch_description():
                               description='serial port of the Arduino (a /dev/serial/by-id/... name survives '
                                           'replugging)'),
         DeclareLaunchArgument('namespace', default_value='',
-                              description='ROS namespace of every node (one per rig on a shared network)'),
+                              description="ROS namespace of every node, one per rig on a shared network: '' = the "
+                                          'default graph (topics /aeropend/...), NAME = rig NAME (topics '
+                                          '/NAME/aeropend/..., as aeropend run --rig NAME)'),
         DeclareLaunchArgument('model_effects', default_value="['']",
                               description="effects in the identified model, e.g. \"['angle_offset']\"; "
                                           "\"['']\" = none"),

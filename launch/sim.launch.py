@@ -2,7 +2,9 @@
 ``foxglove:=true`` foxglove_node (the live graph in Foxglove on ws://127.0.0.1:8765).
 
 Every node reads its shipped parameter file ``share/aeropend_ros/config/<node>.yaml`` (keyed ``/**/<node>``, so it
-also applies inside a namespace); the launch arguments below override single parameters.
+also applies inside a namespace); the launch arguments below override single parameters. The topic names are
+relative: ``namespace:=rig1`` puts the whole graph on ``/rig1/aeropend/...`` (``aeropend run --rig rig1`` does the
+same), and its recorder records only that rig.
 
     ros2 launch aeropend_ros sim.launch.py
     ros2 launch aeropend_ros sim.launch.py effects:="['coulomb_friction=4']" model_effects:="['coulomb_friction']"
@@ -26,7 +28,9 @@ def generate_launch_description():
     bag_name = 'aeropend_' + time.strftime('%Y%m%d_%H%M%S')
     return LaunchDescription([
         DeclareLaunchArgument('namespace', default_value='',
-                              description='ROS namespace of every node (one per rig on a shared network)'),
+                              description="ROS namespace of every node, one per rig on a shared network: '' = the "
+                                          'default graph (topics /aeropend/...), NAME = rig NAME (topics '
+                                          '/NAME/aeropend/..., as aeropend run --rig NAME)'),
         DeclareLaunchArgument('effects', default_value="['angle_offset=0.05']",
                               description="hidden effects of the simulator, e.g. \"['coulomb_friction=4']\"; "
                                           "\"['']\" = none (aeropend effects lists them)"),

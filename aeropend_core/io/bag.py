@@ -455,7 +455,8 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     path
         Bag folder or ``.mcap`` file.
     topic
-        Topic of the samples.
+        Topic of the samples. With the default (``/aeropend/samples``, the default graph's), a bag that holds one
+        rig's ``/<name>/aeropend/samples`` instead is read from that topic (``aeropend run --rig NAME``).
     on_incomplete
         See :func:`read_messages`.
 
@@ -486,9 +487,16 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     if not datas and live:
         raise AeropendError(f'no {topic} message in {path} yet: {live[0].message}')
     if not datas:
+        topics = bag_topics(path)
+        rigs = sorted(t for t in topics if t.endswith(_SAMPLES_TOPIC) and t != _SAMPLES_TOPIC)
+        if topic == _SAMPLES_TOPIC and len(rigs) == 1:        # the bag of one rig in its namespace
+            return read_samples(path, rigs[0], on_incomplete)
+        if topic == _SAMPLES_TOPIC and len(rigs) > 1:
+            raise AeropendError(f'{path} holds the samples of several rigs ({", ".join(rigs)}), not one: record '
+                                'each rig with its own recorder (aeropend run --rig NAME, or a recorder_node in '
+                                'the rig\'s namespace)')
         if incomplete:
             raise AeropendError(f'no {topic} message in {path} before it is cut short: {incomplete[0].message}')
-        topics = bag_topics(path)
         raise AeropendError(f'no {topic} messages in {path} (it holds: '
                             f'{", ".join(f"{t} [{k}]" for t, k in topics.items()) or "no topic"}): '
                             'was the sample topic recorded? (recorder_node records it by default)')

@@ -12,8 +12,10 @@ Examples:
   aeropend run --effect coulomb_friction=4 --realtime-factor 4
   aeropend run --port /dev/ttyACM0 --duration 90 # the real rig through the serial bridge
   aeropend run --foxglove                        # also serve the live graph to Foxglove on ws://127.0.0.1:8765
+  aeropend run --rig rig1                        # one of several rigs on a network: namespace /rig1
 
-ROS_AUTOMATIC_DISCOVERY_RANGE is set to LOCALHOST for this demo unless you set it yourself.
+ROS_AUTOMATIC_DISCOVERY_RANGE is set to LOCALHOST for this demo unless you set it yourself (SUBNET to reach the
+other machines of a lab; README "Many rigs on one network").
 """
 from __future__ import annotations
 
@@ -35,6 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source = parser.add_mutually_exclusive_group()
     source.add_argument('--sim', action='store_true', help='use the simulator (default)')
     source.add_argument('--port', metavar='DEVICE', help='use the rig on this serial port (e.g. /dev/ttyACM0)')
+    parser.add_argument('--rig', metavar='NAME', default=None,
+                        help='run the whole graph in the ROS namespace /NAME (topics /NAME/aeropend/samples, ...; '
+                             'one name per rig on a shared network; default: the root namespace, /aeropend/...)')
     parser.add_argument('--record', metavar='DIR', default='bags',
                         help='folder in which the bag folder is created (default: bags)')
     parser.add_argument('--no-record', action='store_true', help='do not record (diagnose the samples in memory)')
@@ -66,6 +71,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _check_arguments(args) -> None:
     import math
+
+    from aeropend_ros.topics import rig_namespace
+    args.namespace = rig_namespace(getattr(args, 'rig', None))      # AeropendError (exit 2) for a bad name
     if not 0 < args.duration < math.inf:
         raise AeropendError(f'--duration must be a positive number of seconds, got {args.duration}')
     from aeropend_core.diagnosis.compare import MIN_DURATION
@@ -146,6 +154,8 @@ def _run(args) -> int:
     def overrides(**values):
         return [Parameter(name, value=value) for name, value in values.items()]
 
+    namespace = args.namespace              # every node of the graph lives in the rig's namespace
+
     use_sim = args.port is None
     hidden = DEFAULT_HIDDEN_EFFECTS if args.effect is None else ([] if args.effect == ['none'] else args.effect)
     from rclpy.signals import SignalHandlerOptions
@@ -165,33 +175,36 @@ def _run(args) -> int:
             source = SimNode(parameter_overrides=overrides(
                 effects=list(hidden) or [''], psnr_db=float(args.psnr), seed=int(args.seed),
                 duty_limit=float(args.duty_cap), realtime_factor=float(args.realtime_factor),
-                stop_after=float(args.duration)))
+                stop_after=float(args.duration)), namespace=namespace)
         else:
             from aeropend_ros.serial_bridge_node import SerialBridgeNode
-            source = SerialBridgeNode(parameter_overrides=overrides(port=args.port))
+            source = SerialBridgeNode(parameter_overrides=overrides(port=args.port), namespace=namespace)
         nodes.append(source)
         start_delay = 1.0
         excitation = ExcitationNode(parameter_overrides=overrides(
             duration=max(float(args.duration) - start_delay - 2.0, 1.0), seed=int(args.seed),
             duty_cap=float(args.duty_cap), duty_max=min(0.7, float(args.duty_cap)), start_delay=start_delay,
-            time_source='wall', time_scale=float(args.realtime_factor) if use_sim else 1.0, exit_when_done=False))
+            time_source='wall', time_scale=float(args.realtime_factor) if use_sim else 1.0, exit_when_done=False),
+            namespace=namespace)
         nodes.append(excitation)
         identification = IdentificationNode(parameter_overrides=overrides(
-            window_s=float(args.window), hop_s=float(args.hop), effects=list(args.model_effect) or ['']))
+            window_s=float(args.window), hop_s=float(args.hop), effects=list(args.model_effect) or ['']),
+            namespace=namespace)
         nodes.append(identification)
         if not args.no_record:
             from aeropend_ros.recorder_node import RecorderNode
-            folder = Path(args.record) / f'aeropend_{time.strftime("%Y%m%d_%H%M%S")}'
+            rig = f'{args.rig}_' if args.rig else ''
+            folder = Path(args.record) / f'aeropend_{rig}{time.strftime("%Y%m%d_%H%M%S")}'
             folder.parent.mkdir(parents=True, exist_ok=True)
-            recorder = RecorderNode(parameter_overrides=overrides(output=str(folder)))
+            recorder = RecorderNode(parameter_overrides=overrides(output=str(folder)), namespace=namespace)
             nodes.append(recorder)
             bag_folder = folder
         else:
-            memory = _MemoryRecorder()
+            memory = _MemoryRecorder(namespace)
             nodes.append(memory.node)
         if args.foxglove is not None:
             from aeropend_ros.foxglove_node import FoxgloveNode
-            foxglove = FoxgloveNode(parameter_overrides=overrides(port=int(args.foxglove)))
+            foxglove = FoxgloveNode(parameter_overrides=overrides(port=int(args.foxglove)), namespace=namespace)
             nodes.append(foxglove)
             print(f'aeropend run: Foxglove: open a Foxglove WebSocket connection to {foxglove.url}', flush=True)
         # One single-threaded executor per node, each spinning in its own thread: cheaper per callback than a
@@ -202,6 +215,8 @@ def _run(args) -> int:
             executors.append(executor)
 
         what = 'simulator' if use_sim else f'rig on {args.port}'
+        if args.rig:
+            what += f' as rig {args.rig} (namespace {namespace}: topics {namespace}/aeropend/...)'
         print(f'aeropend run: {what}, {args.duration:g} s of excitation'
               + (f' at {args.realtime_factor:g}x real time' if use_sim and args.realtime_factor != 1 else '')
               + (f', recording to {bag_folder}' if bag_folder else ', not recording')
@@ -321,15 +336,15 @@ def _drain(recorder, timeout: float = 5.0) -> None:
 class _MemoryRecorder:
     """Keeps every sample in memory (used with --no-record, so the diagnosis still has data)."""
 
-    def __init__(self) -> None:
+    def __init__(self, namespace: str = '/') -> None:
         import rclpy
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import JointState
 
         from aeropend_ros import topics
         self.samples = []
-        self.node = rclpy.create_node('memory_recorder')
-        self.node.create_subscription(JointState, topics.SAMPLES_TOPIC,
+        self.node = rclpy.create_node('memory_recorder', namespace=namespace)
+        self.node.create_subscription(JointState, topics.SAMPLES,
                                       lambda msg: self.samples.append(topics.msg_to_sample(msg)),
                                       QoSProfile(depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT))
 
