@@ -62,6 +62,11 @@ def test_two_rigs_on_one_domain_record_and_identify_separately(tmp_path):
                      '--window', '12', '--hop', '4', '--seed', str(seed)]
         runs[rig] = subprocess.Popen(AEROPEND + arguments, env=env, cwd=ROOT, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True)
+    # `aeropend monitor --rig NAME` watches one rig's identification among the two.
+    monitors = {rig: subprocess.Popen(AEROPEND + ['monitor', '--rig', rig, '--once', '--timeout', '200', '--no-plot',
+                                                  '--json', '-'],
+                                      env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                for rig in offsets}
     outputs = {}
     seen: set[str] = set()          # every topic of the domain while the rigs run (a third party's view)
     try:
@@ -74,8 +79,9 @@ def test_two_rigs_on_one_domain_record_and_identify_separately(tmp_path):
             watcher.destroy_node()
         for rig, run in runs.items():
             outputs[rig], _ = run.communicate(timeout=60)
+        monitored = {rig: monitor.communicate(timeout=240) for rig, monitor in monitors.items()}
     finally:
-        for run in runs.values():
+        for run in [*runs.values(), *monitors.values()]:
             if run.poll() is None:
                 run.kill()
     # No aeropend topic outside the two rigs' namespaces: a recorder of the default graph (^/aeropend/) would
@@ -85,6 +91,11 @@ def test_two_rigs_on_one_domain_record_and_identify_separately(tmp_path):
     for rig, run in runs.items():
         assert run.returncode == 0 and 'Traceback' not in outputs[rig], outputs[rig]
         assert f'as rig {rig} (namespace /{rig}' in outputs[rig], outputs[rig]
+    for rig, offset in offsets.items():
+        out, err = monitored[rig]
+        assert monitors[rig].returncode == 0, err + out
+        window = [o for o in map(json.loads, out.splitlines()) if 'window' in o][-1]['window']
+        assert window['parameters']['angle_offset']['value'] == pytest.approx(offset, abs=0.01), (rig, window)
     for rig, offset in offsets.items():
         folders = list(tmp_path.glob(f'aeropend_{rig}_*'))
         assert len(folders) == 1, (sorted(p.name for p in tmp_path.iterdir()), outputs[rig])

@@ -46,6 +46,9 @@ def add_arguments(parser) -> None:
                         help='append each refresh instead of redrawing the screen (automatic when not a terminal)')
     parser.add_argument('--local', action='store_true',
                         help='set ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST (unless already set)')
+    parser.add_argument('--rig', metavar='NAME', default=None,
+                        help='watch rig NAME (the graph of `aeropend run --rig NAME`, namespace /NAME); '
+                             'default: the root namespace\'s graph')
     parser.add_argument('--no-plot', action='store_true', help='no live plot even with a display (the table only)')
     parser.add_argument('--plot-file', metavar='FILE.png',
                         help='save the live plot to this file after every window (PNG, SVG or PDF; no display needed)')
@@ -165,6 +168,8 @@ def check_arguments(args) -> None:
 
 def main(args) -> int:
     check_arguments(args)
+    from aeropend_ros.topics import rig_namespace, status_prefix
+    namespace = rig_namespace(args.rig)            # AeropendError (exit 2) for a bad name
     from aeropend_core.cli._checks import check_json_target, check_report_path
     check_json_target(args.json)
     check_report_path(args.plot_file, '--plot-file')
@@ -208,7 +213,7 @@ def main(args) -> int:
 
     def on_diagnostics(msg):
         for status in msg.status:
-            if status.name != DIAGNOSTIC_NAME:
+            if status.name != status_prefix(namespace) + DIAGNOSTIC_NAME:     # this rig's identification only
                 continue
             values = {kv.key: kv.value for kv in status.values}
             extra = ' | '.join(f'{k} {values[k]}' for k in ('excitation', 'lost_samples', 'effects') if k in values)
@@ -222,7 +227,7 @@ def main(args) -> int:
                 json_out.write(_json_line(status, values, state if result else None, parameter_unit))
 
     rclpy.init()
-    node = rclpy.create_node('aeropend_monitor')
+    node = rclpy.create_node('aeropend_monitor', namespace=namespace)  # relative topics resolve in the rig's
     node.create_subscription(JointState, PARAMETERS_TOPIC, on_parameters, results_qos())
     node.create_subscription(JointState, COEFFICIENTS_TOPIC, on_coefficients, results_qos())
     node.create_subscription(JointState, FIT_TOPIC, on_fit, results_qos())
