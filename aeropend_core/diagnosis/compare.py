@@ -429,23 +429,15 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     # the given start values and from nominal values fitted by equation error with that threshold's gate: a large
     # dead zone leaves the nominal fit (the given start) far off, and ranking only from it picks a wrong level.
     initial = initial_states_from_data(data, values.get(structure.offset_parameter, 0.0))
-    trials = [(t, values) for t in thresholds]
-    trials += [(t, {**values, **initial_guess(prep, t), **fixed_base}) for t in thresholds]
-    rows = np.array([structure.row({**start_values, **fixed_base, gate: t})
-                     for t, start_values in trials])
-    simulated = data.simulate(structure, rows, np.repeat(initial[None], len(rows), axis=0))
-    index = data.residual_index
-    scores = np.sqrt(np.mean((simulated[:, index] - data.angle[index]) ** 2, axis=1))
-    scores[~np.isfinite(scores)] = np.inf
-    chosen: list[int] = []
-    for k in np.argsort(scores):
+    ranked = _rank_thresholds(prep, data, structure, thresholds, values, fixed_base, gate, initial)
+    chosen: list[tuple[float, dict]] = []
+    for _score, threshold, start_values in ranked:
         if len(chosen) == PROFILE_REFITS:
             break
-        if not any(trials[k][0] == trials[j][0] for j in chosen):
-            chosen.append(int(k))
+        if not any(threshold == t for t, _ in chosen):
+            chosen.append((threshold, start_values))
     best = None
-    for k in chosen:
-        threshold, start_values = trials[k]
+    for threshold, start_values in chosen:
         fit = fit_output_error(data, structure, start_values, fixed={**fixed_base, gate: threshold})
         if best is None or fit.residual_rms < best.residual_rms:
             best = fit
@@ -457,6 +449,56 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     # Anywhere between the two levels fits equally: a uniform uncertainty over that interval.
     best.standard_errors[gate] = (high - low) / math.sqrt(12.0)
     return best
+
+
+#: Dead-zone thresholds ranked per pass: a record with more input levels than this (a long record) is ranked coarse
+#: to fine, so the ranking's cost grows with the logarithm of the number of levels instead of with it.
+PROFILE_GRID = 24
+#: Parameter rows simulated at once while ranking thresholds (bounds the memory: rows x record length floats).
+PROFILE_CHUNK = 8
+
+
+def _rank_thresholds(prep: PreparedRecord, data: SegmentedData, structure: Structure, thresholds: np.ndarray,
+                     values: dict[str, float], fixed_base: dict[str, float], gate: str,
+                     initial: np.ndarray) -> list[tuple[float, float, dict]]:
+    """(rms [rad], threshold [V], start values) of the thresholds ranked by one simulation each, best first.
+
+    Each threshold is simulated from the given start values and from nominal values fitted by equation error with
+    that threshold's gate. Up to ``PROFILE_GRID`` thresholds every one is ranked; with more, every k-th first, then
+    the thresholds between the best ones' ranked neighbours, until no unranked threshold lies next to one of the
+    ``PROFILE_REFITS`` best.
+    """
+    index = data.residual_index
+    measured = data.angle[index]
+    scored: dict[int, list[tuple[float, float, dict]]] = {}
+
+    def score(indices) -> None:
+        todo = [int(i) for i in sorted(set(indices)) if int(i) not in scored]
+        trials = [(i, values) for i in todo]
+        trials += [(i, {**values, **initial_guess(prep, float(thresholds[i])), **fixed_base}) for i in todo]
+        for first in range(0, len(trials), PROFILE_CHUNK):
+            chunk = trials[first:first + PROFILE_CHUNK]
+            rows = np.array([structure.row({**start_values, **fixed_base, gate: float(thresholds[i])})
+                             for i, start_values in chunk])
+            simulated = data.simulate(structure, rows, np.repeat(initial[None], len(rows), axis=0))[:, index]
+            rms = np.sqrt(np.mean((simulated - measured) ** 2, axis=1))
+            for (i, start_values), value in zip(chunk, rms):
+                scored.setdefault(i, []).append((float(value) if np.isfinite(value) else np.inf,
+                                                 float(thresholds[i]), start_values))
+
+    ranges = [(0, len(thresholds) - 1)]
+    while ranges:
+        score(np.concatenate([np.round(np.linspace(a, b, min(PROFILE_GRID, b - a + 1))) for a, b in ranges]))
+        done = sorted(scored)
+        best = sorted(done, key=lambda i: min(s for s, _, _ in scored[i]))[:PROFILE_REFITS]
+        ranges = []
+        for i in best:
+            position = done.index(i)
+            left = done[position - 1] if position > 0 else i
+            right = done[position + 1] if position + 1 < len(done) else i
+            if any(k not in scored for k in range(left, right + 1)):
+                ranges.append((left, right))
+    return sorted((trial for trials in scored.values() for trial in trials), key=lambda trial: trial[0])
 
 
 @dataclass
