@@ -490,7 +490,9 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
         return jac
 
     # Long records: many segments make the dense Jacobian's SVD (trust-region step) grow like the cube of the
-    # record length; with the block structure kept sparse, LSMR steps keep the fit linear in the record.
+    # record length; with the block structure kept sparse, LSMR steps keep the fit linear in the record. Without
+    # LSMR's extra regularisation the steps are the trust-region ones: on a 600 s record with Coulomb friction the
+    # fit converged (ftol) in 41 evaluations to a lower cost, where the regularised steps used all 60 and stopped.
     sparse_jacobian = n_seg > SPARSE_SEGMENTS
     lower_z = np.concatenate([lower / scale, np.full(2 * n_seg, -np.inf)])
     upper_z = np.concatenate([upper / scale, np.full(2 * n_seg, np.inf)])
@@ -498,7 +500,8 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     with np.errstate(all='ignore'), threadpool_limits(1):
         result = least_squares(residuals, z0, jac=jacobian, bounds=(lower_z, upper_z), method='trf',
                                x_scale='jac', max_nfev=max_iterations, xtol=1e-8, ftol=1e-8,
-                               tr_solver='lsmr' if sparse_jacobian else 'exact')
+                               tr_solver='lsmr' if sparse_jacobian else 'exact',
+                               tr_options={'regularize': False} if sparse_jacobian else {})
     values, initial = unpack(result.x)
     r = result.fun
     n = len(r)
