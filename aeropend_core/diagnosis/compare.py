@@ -403,11 +403,13 @@ def gate_thresholds(prep: PreparedRecord) -> np.ndarray:
 
 
 def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str, float] | None = None,
-              data: SegmentedData | None = None, fixed: dict[str, float] | None = None) -> OutputErrorFit:
+              data: SegmentedData | None = None, fixed: dict[str, float] | None = None,
+              initial_states: np.ndarray | None = None) -> OutputErrorFit:
     """Output-error fit of nominal + `effects` on the training segments (or `data`).
 
     A thrust gate's threshold is profiled over the input levels present (the residual is flat between them).
-    `fixed` holds parameters at known values (SI; e.g. a hardware filter's delay).
+    `fixed` holds parameters at known values (SI; e.g. a hardware filter's delay). `initial_states` [rad, rad/s]
+    start the segments' states on long records (see :func:`fit_output_error`).
     """
     structure = Structure(tuple(effects))
     data = data if data is not None else prep.train
@@ -420,7 +422,7 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     values.update(fixed_base)
     gate = structure.gate_parameter
     if gate is None:
-        return fit_output_error(data, structure, values, fixed=fixed_base)
+        return fit_output_error(data, structure, values, fixed=fixed_base, initial_states=initial_states)
     thresholds = gate_thresholds(prep)
     if thresholds.size == 0:
         raise InsufficientDataError('a thrust threshold (dead zone) needs steps at several small duty levels; '
@@ -438,7 +440,8 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
             chosen.append((threshold, start_values))
     best = None
     for threshold, start_values in chosen:
-        fit = fit_output_error(data, structure, start_values, fixed={**fixed_base, gate: threshold})
+        fit = fit_output_error(data, structure, start_values, fixed={**fixed_base, gate: threshold},
+                               initial_states=initial_states)
         if best is None or fit.residual_rms < best.residual_rms:
             best = fit
     levels = input_levels(prep, prep.split)
@@ -691,7 +694,8 @@ class Comparison:
 
 
 def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
-            start: dict[str, float] | None = None, fixed: dict[str, float] | None = None) -> Comparison:
+            start: dict[str, float] | None = None, fixed: dict[str, float] | None = None,
+            initial_states: np.ndarray | None = None) -> Comparison:
     """Fit nominal + `effects` on the training part and evaluate on the held-out part (see module docstring).
 
     Parameters
@@ -705,6 +709,9 @@ def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         Starting values of parameters (e.g. the current model's), by name.
     fixed : dict of str -> float, optional [SI unit of each parameter]
         Parameters held at given values (known hardware values), by name.
+    initial_states : ndarray, shape (segments, 2), optional [rad, rad/s]
+        Starting (angle, rate) of the training segments, e.g. the current model's fit's; used on long records only
+        (:func:`aeropend_core.diagnosis.output_error.fit_output_error`).
 
     Returns
     -------
@@ -713,7 +720,7 @@ def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         ``rms_error`` and ``noise_rms`` [rad], residual tests, error by regime and the worst windows.
     """
     prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
-    fit = fit_model(prep, effects, start, fixed=fixed)
+    fit = fit_model(prep, effects, start, fixed=fixed, initial_states=initial_states)
     if 'threshold_interval' in fit.extra:
         fit = _place_threshold_among_heldout_levels(prep, fit)
     return Comparison(tuple(effects), fit, evaluate(prep, fit))
