@@ -118,13 +118,17 @@ def main() -> None:
                               baseline=base['wall_s'], baseline_name=f'{base["duration_s"]:g} s record, same run',
                               ratio=ratio, ratio_meaning=f'time / baseline time ({scale:g}x the data)',
                               target=target, met=met))
+        figures.append(figure(f'diagnose {duration:g} s record: CPU time (user + system)', row['cpu_s'], 's',
+                              baseline=base['cpu_s'], baseline_name=f'{base["duration_s"]:g} s record, same run',
+                              ratio_meaning=f'CPU / baseline CPU ({scale:g}x the data; less disturbed by other '
+                                            'load than the wall time)'))
         memory_target = MEMORY_TARGET_MB.get(duration)
         figures.append(figure(f'diagnose {duration:g} s record: peak memory', row['peak_mb'], 'MB',
                               baseline=base['peak_mb'], baseline_name=f'{base["duration_s"]:g} s record, same run',
                               ratio_meaning='peak / baseline peak',
                               target=f'<= {memory_target:g} MB' if memory_target else '',
                               met=row['peak_mb'] <= memory_target if memory_target else None))
-        print(f'{duration:6g} s: time x{ratio:.1f} for x{scale:g} the data'
+        print(f'{duration:6g} s: time x{ratio:.1f} (CPU x{row["cpu_s"] / base["cpu_s"]:.1f}) for x{scale:g} the data'
               + (f' (target {target}: {"met" if met else "NOT met"})' if target else '')
               + (f'; memory {row["peak_mb"]:.0f} MB (target <= {memory_target:g} MB: '
                  f'{"met" if row["peak_mb"] <= memory_target else "NOT met"})' if memory_target else ''))
