@@ -151,13 +151,11 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
     # from ~10 ms to ~10 s), the steady-state ratios fixed, then fit everything from the best.
     grid = np.logspace(-1.5, 2.5, 41)
     rows = np.column_stack([grid, grid * ratio2, grid * ratio3])
-    # a few rows at a time: 41 rows of a 1-hour record would take 0.6 GB (and its temporaries twice that)
+    # one rate at a time: 41 rows of a 1-hour record would take 0.6 GB, and their temporaries several times that
     scan = np.empty(grid.size)
-    for first in range(0, grid.size, 8):
-        chunk = rows[first:first + 8]
-        emf_grid = _simulate(chunk, voltage, np.full(len(chunk), initial_emf), sample_time)
-        scan[first:first + len(chunk)] = np.mean(((voltage[None, :] - emf_grid) / resistance0
-                                                   - current[None, :])[:, keep] ** 2, axis=1)
+    for i in range(grid.size):
+        emf = _simulate(rows[i:i + 1], voltage, np.full(1, initial_emf), sample_time)[0]
+        scan[i] = np.mean(((voltage - emf) / resistance0 - current)[keep] ** 2)
     p1_0 = float(grid[int(np.argmin(np.nan_to_num(scan, nan=np.inf)))])
     p2_0, p3_0 = p1_0 * ratio2, p1_0 * ratio3
     scale = np.array([max(p1_0, 1e-3), max(p2_0, 0.01 * p1_0), max(p3_0, 0.01 * p1_0), max(resistance0, 0.1), 1.0])
@@ -174,8 +172,12 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
         step = 1e-6 * np.maximum(np.abs(x), 1.0)
         rows = np.tile(x, (len(x) + 1, 1))
         rows[1:] += np.diag(step)
-        predictions = _bounded(model_current(rows * scale)[:, keep])
-        return ((predictions[1:] - predictions[0]) / step[:, None]).T
+        # one row at a time (the same numbers): a 1-hour record's rows and their temporaries would take ~0.7 GB
+        base = _bounded(model_current(rows[:1] * scale)[0, keep])
+        jac = np.empty((base.size, len(x)))
+        for i in range(len(x)):
+            jac[:, i] = (_bounded(model_current(rows[i + 1:i + 2] * scale)[0, keep]) - base) / step[i]
+        return jac
 
     lower = np.array([1e-3, 0.0, 0.0, 1e-3, -np.inf]) / scale
     upper = np.array([1e4, 1e4, 1e4, 100.0, np.inf]) / scale
