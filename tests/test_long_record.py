@@ -99,3 +99,18 @@ def test_diagnose_start_stop_selects_the_range_and_says_so(tmp_path, capsys):
     assert '--start 30 s must be before --stop 10 s' in capsys.readouterr().err
     assert main(['diagnose', str(path), '--start', '100']) == 2
     assert 'no samples with --start 100 s; the recording spans 0 s to' in capsys.readouterr().err
+
+
+def test_sample_time_from_rounded_stamps_keeps_every_sample_on_the_grid():
+    """Stamps written with 12 significant digits far from zero (t from 100,000 s: 0.1 us steps) carry a rounding
+    that the median step keeps; over the record it would put the last samples more than a quarter sample off the
+    grid (refused as unevenly spaced). The span over the step count is the clock's step."""
+    from aeropend_core.model.parameters import SAMPLE_TIME
+    columns = _record({}, seed=6).columns(with_truth=False)
+    columns['t'] = np.array([float(f'{1e5 + k * SAMPLE_TIME:.12g}') for k in range(len(columns['t']))])
+    steps = np.diff(columns['t'])
+    drift = abs(np.median(steps) - SAMPLE_TIME) * len(steps) / SAMPLE_TIME
+    assert drift > 0.25             # the median step alone would be off by more than a quarter sample at the end
+    prep = prepare(from_columns(columns))
+    assert prep.sample_time == pytest.approx(SAMPLE_TIME, rel=1e-8)      # the end stamps' rounding over 60 s
+    assert prep.gaps.count == 0 and len(prep.time) == len(columns['t'])
