@@ -24,7 +24,9 @@ Run:  .venv/bin/python bench/run_all.py [--quick] [--with-load-test] [--only NAM
 
 Run time on the project's 2-core machine, measured while others loaded it (load average 4-5): the default run
 without robustness 7.4 min (noise_sweep 5.1 of them, ~2.5 min idle), plus the robustness sweep; --quick 4.7 min
-(robustness --quick 2.6 of them); --with-load-test adds about 12 min. Benchmark figures need an otherwise idle
+(robustness --quick 2.6 of them); --with-load-test adds about 12 min. bench_long_record adds ~11 min to the default
+run (its 1-hour record's diagnosis ~9.5 min) and ~1 min to --quick; bench_first_window ~0.5-2 min (it compiles the
+kernels twice, into fresh caches). Benchmark figures need an otherwise idle
 machine: the load average before and after each benchmark is recorded next to its figures.
 """
 from __future__ import annotations
