@@ -3,7 +3,8 @@
 Every ``hop_s`` seconds of acquisition time, the last ``window_s`` seconds of samples are analysed in a worker
 process (spawned, so the DDS threads are not forked; a worker thread would hold the GIL for most of a fit and the
 executor would drop samples). The executor keeps receiving meanwhile; a window that comes due while the previous
-one is still being computed is skipped and counted. The analysis is
+one is still being computed is skipped, counted, logged and reported on ``/diagnostics`` (WARN, with its time
+span and the reason). The analysis is
 :func:`aeropend_core.diagnosis.online.analyze_window`: weak SINDy on the first part of the window, output-error
 refinement with the model's ``effects``, and a free-run fit on the held-out end.
 
@@ -228,6 +229,7 @@ class IdentificationNode(Node):
         self.pending = self.worker.submit(_warm_up)
         self.windows_done = 0
         self.windows_skipped = 0
+        self.windows_submitted = 0
         #: Samples received since the start, and samples missed (gaps in the sequence counter between them).
         self.samples_received = 0
         self.samples_missed = 0
@@ -403,9 +405,27 @@ class IdentificationNode(Node):
                 for values in self.signals.values():
                     del values[:drop]
         if self.pending is not None and not self.pending.done():
-            self.windows_skipped += 1
+            self._skip_window(now_ns, window_ns)
             return
         self._submit(snapshot, self.effects, float(self.get_parameter('holdout_fraction').value))
+
+    def _skip_window(self, now_ns: int, window_ns: int) -> None:
+        """A window came due while the previous one is still computed: counted, logged and said on /diagnostics."""
+        self.windows_skipped += 1
+        if self.windows_submitted == 0:
+            busy = 'the analysis worker is still starting (imports, loading the compiled kernels)'
+            advice = 'scripts/setup.sh compiles the kernels ahead (scripts/warm_numba_cache.py)'
+        else:
+            busy = 'the previous window is still being computed'
+            advice = 'a longer hop_s or a less loaded machine avoids it'
+        origin = self.first_stamp_ns if self.first_stamp_ns is not None else now_ns - window_ns
+        start_s, stop_s = (now_ns - window_ns - origin) * 1e-9, (now_ns - origin) * 1e-9
+        message = (f'window {start_s:.1f}-{stop_s:.1f} s skipped: {busy} ({self.windows_skipped} skipped so far); '
+                   f'{advice}')
+        self.get_logger().warning(message)
+        self._report(message, DiagnosticStatus.WARN, {'skipped_window_start_s': f'{start_s:.3f}',
+                                                      'skipped_window_stop_s': f'{stop_s:.3f}',
+                                                      'skip_reason': busy}, effects=self.effects)
 
     # ---------------------------------------------------------------------------------------------- worker
     def _submit(self, snapshot: dict, effects: tuple[str, ...], holdout_fraction: float) -> None:
@@ -457,6 +477,7 @@ class IdentificationNode(Node):
         # Times from the window start: epoch seconds (~1.8e9 s) in float64 would jitter the 2 ms steps by ~2e-4.
         start_s = int(snapshot['stamp_ns'][0]) * 1e-9
         time = (grid - grid[0]) * SAMPLE_TIME
+        self.windows_submitted += 1
         self.pending = self.worker.submit(_analyze_in_worker, time, filled['armature_voltage'],
                                           filled['armature_current'], filled['angle'], effects, holdout_fraction)
         trend_key = (self._generation, tuple(effects), self._window_s())

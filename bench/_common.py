@@ -114,8 +114,10 @@ PLAIN = {'irls_iterations': 0, 'bias_correction': False, 'exhaustive_terms': 0, 
 SAME_LIBRARY = {'voltage_in': STATES}
 
 
-def run_ours(data, repeats: int, **options) -> tuple[float, dict[str, dict[str, float]]]:
-    """(median seconds per window, coefficients) of identify_full_state; kernel caches cleared before each call."""
+def run_ours(data, repeats: int, statistic: Callable = statistics.median,
+             **options) -> tuple[float, dict[str, dict[str, float]]]:
+    """(`statistic` (median) of the seconds per window, coefficients) of identify_full_state; kernel caches cleared
+    before each call."""
     identify_full_state(data, **options)  # warm-up (numba kernels load from their cache)
     times = []
     for _ in range(repeats):
@@ -123,7 +125,7 @@ def run_ours(data, repeats: int, **options) -> tuple[float, dict[str, dict[str, 
         t0 = time.perf_counter()
         fit = identify_full_state(data, **options)
         times.append(time.perf_counter() - t0)
-    return statistics.median(times), {s: dict(fit.result[s].coefficients) for s in STATES}
+    return statistic(times), {s: dict(fit.result[s].coefficients) for s in STATES}
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -216,8 +218,10 @@ def pysindy_with_truth(data, form: str = 'weak', grid=None) -> dict:
             'single': {'threshold': single, 'coefficients': fits[single]}}
 
 
-def time_both_blas(function: Callable[[], object], repeats: int) -> dict[str, float]:
-    """Median seconds of `function()` with the default BLAS threads and with one BLAS thread (one warm-up each)."""
+def time_both_blas(function: Callable[[], object], repeats: int,
+                   statistic: Callable = statistics.median) -> dict[str, float]:
+    """`statistic` (median) of the seconds of `function()` with the default BLAS threads and with one BLAS thread
+    (one warm-up each)."""
     from threadpoolctl import threadpool_limits
     timings = {}
     for label, limit in (('default BLAS threads', None), ('1 BLAS thread', 1)):
@@ -228,7 +232,7 @@ def time_both_blas(function: Callable[[], object], repeats: int) -> dict[str, fl
                 t0 = time.perf_counter()
                 function()
                 times.append(time.perf_counter() - t0)
-        timings[label] = statistics.median(times)
+        timings[label] = statistic(times)
     return timings
 
 

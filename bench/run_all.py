@@ -12,7 +12,9 @@ measured in the same run, ratio, units, target) to ``<name>.json``. This script 
 * ``noise_sweep.png`` (and the other files the benchmarks write).
 
 Benchmarks, in order: noise_sweep (WSINDy vs pysindy weak vs strong-form SINDy over PSNR), bench_wsindy (one 40 dB
-window in detail), bench_simulate (simulator × real time), bench_diagnose (diagnosis time for 60 s), bench_decoder
+window in detail), bench_simulate (simulator × real time), bench_diagnose (diagnosis time for 60 s),
+bench_long_record (diagnose 60/600/3600 s records, each in its own process: wall time and peak memory; --quick
+stops at 600 s), bench_first_window (the first window after a fresh set-up, fresh numba caches), bench_decoder
 (bridge frame decoding), bench_recorder (recorder throughput and loss), bench_sim_node (sim node rate and jitter),
 robustness (noise robustness of the diagnosis, when bench/robustness.py exists) and, only with --with-load-test,
 load_test (the 10-minute full-graph load test, when bench/load_test.py exists).
@@ -22,7 +24,9 @@ Run:  .venv/bin/python bench/run_all.py [--quick] [--with-load-test] [--only NAM
 
 Run time on the project's 2-core machine, measured while others loaded it (load average 4-5): the default run
 without robustness 7.4 min (noise_sweep 5.1 of them, ~2.5 min idle), plus the robustness sweep; --quick 4.7 min
-(robustness --quick 2.6 of them); --with-load-test adds about 12 min. Benchmark figures need an otherwise idle
+(robustness --quick 2.6 of them); --with-load-test adds about 12 min. bench_long_record adds ~11 min to the default
+run (its 1-hour record's diagnosis ~9.5 min) and ~1 min to --quick; bench_first_window ~0.5-2 min (it compiles the
+kernels twice, into fresh caches). Benchmark figures need an otherwise idle
 machine: the load average before and after each benchmark is recorded next to its figures.
 """
 from __future__ import annotations
@@ -67,6 +71,9 @@ BENCHES = [
     Bench('bench_wsindy', 'WSINDy vs pysindy weak, one 40 dB window in detail', [], ['--repeats', '5']),
     Bench('bench_simulate', 'simulator speed (x real time)', [], ['--repeat', '2']),
     Bench('bench_diagnose', 'diagnosis time for a 60 s recording', [], []),
+    Bench('bench_long_record', 'diagnosis of long records: wall time and peak memory (60/600/3600 s)', [],
+          ['--durations', '60', '600'], timeout_s=3600.0),
+    Bench('bench_first_window', 'first identification window after a fresh set-up (numba cache)', [], []),
     Bench('bench_decoder', 'bridge serial frame decoder throughput', [], ['--frames', '100000', '--repeat', '2']),
     Bench('bench_recorder', 'recorder throughput and loss', [], ['--rates', '20000', '--seconds', '3']),
     Bench('bench_sim_node', 'sim node rate and jitter', ['--seconds', '30'], ['--seconds', '10']),

@@ -52,3 +52,36 @@ def check_json_target(target: str | None) -> None:
     ``-`` and None (no --json) pass."""
     if target and target != '-':
         check_report_path(target, '--json')
+
+
+def add_time_range_arguments(parser) -> None:
+    """``--start S`` and ``--stop S``: analyse only the samples with start <= t < stop [s] of the recording."""
+    parser.add_argument('--start', type=float, default=None, help='use samples from this time [s]')
+    parser.add_argument('--stop', type=float, default=None, help='use samples before this time [s]')
+
+
+def time_window(recording, start: float | None, stop: float | None):
+    """The samples of `recording` in [start, stop) [s], with clear errors for a non-finite, empty or inverted range.
+
+    Parameters
+    ----------
+    recording : Recording [-]
+    start, stop : float or None [s]
+        Bounds of the range in the recording's time; None: open on that side.
+    """
+    import math
+
+    import numpy as np
+    for option, value in (('--start', start), ('--stop', stop)):
+        if value is not None and not math.isfinite(value):
+            raise AeropendError(f'{option} must be a finite time in seconds, got {value}')
+    if start is not None and stop is not None and not start < stop:
+        raise AeropendError(f'--start {start:g} s must be before --stop {stop:g} s')
+    if start is None and stop is None:
+        return recording
+    window = recording.window(-np.inf if start is None else start, np.inf if stop is None else stop)
+    if len(window) == 0:
+        span = f'{recording.time[0]:g} s to {recording.time[-1]:g} s' if len(recording) else 'no samples'
+        asked = ' and '.join(f'{o} {v:g} s' for o, v in (('--start', start), ('--stop', stop)) if v is not None)
+        raise AeropendError(f'no samples with {asked}; the recording spans {span}')
+    return window

@@ -9,6 +9,7 @@ Examples:
   aeropend diagnose bags/exercise.csv
   aeropend diagnose bags/exercise.csv --add coulomb_friction --report report.html
   aeropend diagnose run.csv --json
+  aeropend diagnose afternoon.mcap --start 600 --stop 1200      # ten minutes of a long record [s]
   aeropend diagnose run.csv --fix angle_filter=0.0141          # a known hardware value (the rig's RC filter)
   aeropend diagnose run.csv --effects-module my_effects.py     # your own registered effects become candidates
 """
@@ -36,14 +37,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from aeropend_core.cli._checks import add_json_argument
     add_json_argument(parser, 'the diagnosis as one object (to standard output: instead of the text summary)')
     parser.add_argument('--quiet', action='store_true', help='no progress messages on standard error')
-    from aeropend_core.cli._checks import add_sample_rate_argument
+    from aeropend_core.cli._checks import add_sample_rate_argument, add_time_range_arguments
+    add_time_range_arguments(parser)
     add_sample_rate_argument(parser)
 
 
 def main(args: argparse.Namespace) -> int:
     from aeropend_core.io.recording import load_recording
 
-    from aeropend_core.cli._checks import print_findings, sample_time_from
+    from aeropend_core.cli._checks import print_findings, sample_time_from, time_window
     from aeropend_core.model.effects import check_effect_names
     from aeropend_core.model.effects import load_effects_module
     for path in args.effects_module:
@@ -61,6 +63,7 @@ def main(args: argparse.Namespace) -> int:
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
     recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
+    recording = time_window(recording, args.start, args.stop)     # --start/--stop: the same code path as identify
     print_findings('diagnose', recording.findings)          # first: before minutes of fitting, or a refusal
     from aeropend_core.diagnosis.diagnose import diagnose      # scipy and numba: imported once the input is known good
 
@@ -74,9 +77,19 @@ def main(args: argparse.Namespace) -> int:
         from aeropend_core.present.report import write_report
         written = write_report(diagnosis, args.report, source=args.data)
         progress(f'report written to {written}')
+    time_range = None
+    if args.start is not None or args.stop is not None:     # the numbers below are about this range only: say so
+        time_range = {'start_s': args.start, 'stop_s': args.stop,
+                      'samples_start_s': float(recording.time[0]), 'samples_stop_s': float(recording.time[-1])}
     if args.json:
         from aeropend_core.present.json_output import write_json
-        write_json(args.json, diagnosis.to_dict())
+        out = diagnosis.to_dict()
+        if time_range:
+            out['time_range'] = time_range
+        write_json(args.json, out)
     if args.json != '-':
+        if time_range:
+            print(f'time range: samples from {time_range["samples_start_s"]:g} s to {time_range["samples_stop_s"]:g} s '
+                  f'of {args.data} (--start/--stop)')
         print(diagnosis.summary())
     return 0

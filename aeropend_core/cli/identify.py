@@ -18,14 +18,13 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 
 import numpy as np
 
-from aeropend_core.cli._checks import add_sample_rate_argument
+from aeropend_core.cli._checks import add_sample_rate_argument, add_time_range_arguments
+from aeropend_core.cli._checks import time_window as _window     # the range code path shared with diagnose
 from aeropend_core.present.json_output import finite_json
-from aeropend_core.errors import AeropendError
 from aeropend_core.io.recording import load_recording
 from aeropend_core.model.effects import CATALOG
 
@@ -40,24 +39,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--effect', action='append', default=[], metavar='NAME',
                         help='pendulum model: add a catalog effect as a candidate term (those with a weak form: '
                              f'{", ".join(n for n, e in CATALOG.items() if e.weak_form)})')
-    parser.add_argument('--start', type=float, default=None, help='use samples from this time [s]')
-    parser.add_argument('--stop', type=float, default=None, help='use samples before this time [s]')
+    add_time_range_arguments(parser)
     add_sample_rate_argument(parser)
-
-
-def _window(recording, start: float | None, stop: float | None):
-    """The samples in [start, stop) with clear errors for an empty or inverted window."""
-    for option, value in (('--start', start), ('--stop', stop)):
-        if value is not None and not math.isfinite(value):
-            raise AeropendError(f'{option} must be a finite time in seconds, got {value}')
-    if start is not None and stop is not None and not start < stop:
-        raise AeropendError(f'--start {start:g} s must be before --stop {stop:g} s')
-    window = recording.window(-np.inf if start is None else start, np.inf if stop is None else stop)
-    if len(window) == 0:
-        span = f'{recording.time[0]:g} s to {recording.time[-1]:g} s' if len(recording) else 'no samples'
-        asked = ' and '.join(f'{o} {v:g} s' for o, v in (('--start', start), ('--stop', stop)) if v is not None)
-        raise AeropendError(f'no samples with {asked}; the recording spans {span}')
-    return window
 
 
 def _pieces_between_gaps(time: np.ndarray, shortest: float = 1.0) -> list[tuple[int, int]]:
@@ -80,8 +63,7 @@ def main(args: argparse.Namespace) -> int:
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
     recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
-    if args.start is not None or args.stop is not None:
-        recording = _window(recording, args.start, args.stop)
+    recording = _window(recording, args.start, args.stop)
     print_findings('identify', recording.findings)          # first, before any number
     # the fitting stack (scipy, numba) is imported once the input is known good: bad input is refused at once
     from aeropend_core.identify.pendulum import identify_full_state, identify_pendulum, parameter_unit_of

@@ -285,6 +285,12 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         raise InsufficientDataError(f'{source} has only {time.size} samples; record at least {MIN_DURATION:g} s')
     steps = np.diff(time)
     sample_time = float(np.median(steps))
+    if sample_time > 0 and np.all(steps > 0):
+        # The clock's step over the whole record: each step counted in samples (robust: an error far below half a
+        # sample), then the span divided by the count. The median step alone carries the stamps' rounding (a CSV's
+        # 12 significant digits leave 1e-8 s above 1000 s: 2e-6 relative), which over a 1-hour record (1.8 M
+        # samples) puts the last samples 3 samples off the grid.
+        sample_time = float((time[-1] - time[0]) / np.sum(np.maximum(np.rint(steps / sample_time), 1.0)))
     if sample_time > 0.05:
         raise AeropendError(f'{source}: samples are {sample_time:g} time units apart; the t column must be in '
                             f'seconds (the rig samples every 1/490 s = 0.00204 s)')
@@ -403,11 +409,13 @@ def gate_thresholds(prep: PreparedRecord) -> np.ndarray:
 
 
 def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str, float] | None = None,
-              data: SegmentedData | None = None, fixed: dict[str, float] | None = None) -> OutputErrorFit:
+              data: SegmentedData | None = None, fixed: dict[str, float] | None = None,
+              initial_states: np.ndarray | None = None) -> OutputErrorFit:
     """Output-error fit of nominal + `effects` on the training segments (or `data`).
 
     A thrust gate's threshold is profiled over the input levels present (the residual is flat between them).
-    `fixed` holds parameters at known values (SI; e.g. a hardware filter's delay).
+    `fixed` holds parameters at known values (SI; e.g. a hardware filter's delay). `initial_states` [rad, rad/s]
+    start the segments' states on long records (see :func:`fit_output_error`).
     """
     structure = Structure(tuple(effects))
     data = data if data is not None else prep.train
@@ -420,7 +428,7 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     values.update(fixed_base)
     gate = structure.gate_parameter
     if gate is None:
-        return fit_output_error(data, structure, values, fixed=fixed_base)
+        return fit_output_error(data, structure, values, fixed=fixed_base, initial_states=initial_states)
     thresholds = gate_thresholds(prep)
     if thresholds.size == 0:
         raise InsufficientDataError('a thrust threshold (dead zone) needs steps at several small duty levels; '
@@ -429,24 +437,17 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     # the given start values and from nominal values fitted by equation error with that threshold's gate: a large
     # dead zone leaves the nominal fit (the given start) far off, and ranking only from it picks a wrong level.
     initial = initial_states_from_data(data, values.get(structure.offset_parameter, 0.0))
-    trials = [(t, values) for t in thresholds]
-    trials += [(t, {**values, **initial_guess(prep, t), **fixed_base}) for t in thresholds]
-    rows = np.array([structure.row({**start_values, **fixed_base, gate: t})
-                     for t, start_values in trials])
-    simulated = data.simulate(structure, rows, np.repeat(initial[None], len(rows), axis=0))
-    index = data.residual_index
-    scores = np.sqrt(np.mean((simulated[:, index] - data.angle[index]) ** 2, axis=1))
-    scores[~np.isfinite(scores)] = np.inf
-    chosen: list[int] = []
-    for k in np.argsort(scores):
+    ranked = _rank_thresholds(prep, data, structure, thresholds, values, fixed_base, gate, initial)
+    chosen: list[tuple[float, dict]] = []
+    for _score, threshold, start_values in ranked:
         if len(chosen) == PROFILE_REFITS:
             break
-        if not any(trials[k][0] == trials[j][0] for j in chosen):
-            chosen.append(int(k))
+        if not any(threshold == t for t, _ in chosen):
+            chosen.append((threshold, start_values))
     best = None
-    for k in chosen:
-        threshold, start_values = trials[k]
-        fit = fit_output_error(data, structure, start_values, fixed={**fixed_base, gate: threshold})
+    for threshold, start_values in chosen:
+        fit = fit_output_error(data, structure, start_values, fixed={**fixed_base, gate: threshold},
+                               initial_states=initial_states)
         if best is None or fit.residual_rms < best.residual_rms:
             best = fit
     levels = input_levels(prep, prep.split)
@@ -457,6 +458,56 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     # Anywhere between the two levels fits equally: a uniform uncertainty over that interval.
     best.standard_errors[gate] = (high - low) / math.sqrt(12.0)
     return best
+
+
+#: Dead-zone thresholds ranked per pass: a record with more input levels than this (a long record) is ranked coarse
+#: to fine, so the ranking's cost grows with the logarithm of the number of levels instead of with it.
+PROFILE_GRID = 24
+#: Parameter rows simulated at once while ranking thresholds (bounds the memory: rows x record length floats).
+PROFILE_CHUNK = 8
+
+
+def _rank_thresholds(prep: PreparedRecord, data: SegmentedData, structure: Structure, thresholds: np.ndarray,
+                     values: dict[str, float], fixed_base: dict[str, float], gate: str,
+                     initial: np.ndarray) -> list[tuple[float, float, dict]]:
+    """(rms [rad], threshold [V], start values) of the thresholds ranked by one simulation each, best first.
+
+    Each threshold is simulated from the given start values and from nominal values fitted by equation error with
+    that threshold's gate. Up to ``PROFILE_GRID`` thresholds every one is ranked; with more, every k-th first, then
+    the thresholds between the best ones' ranked neighbours, until no unranked threshold lies next to one of the
+    ``PROFILE_REFITS`` best.
+    """
+    index = data.residual_index
+    measured = data.angle[index]
+    scored: dict[int, list[tuple[float, float, dict]]] = {}
+
+    def score(indices) -> None:
+        todo = [int(i) for i in sorted(set(indices)) if int(i) not in scored]
+        trials = [(i, values) for i in todo]
+        trials += [(i, {**values, **initial_guess(prep, float(thresholds[i])), **fixed_base}) for i in todo]
+        for first in range(0, len(trials), PROFILE_CHUNK):
+            chunk = trials[first:first + PROFILE_CHUNK]
+            rows = np.array([structure.row({**start_values, **fixed_base, gate: float(thresholds[i])})
+                             for i, start_values in chunk])
+            simulated = data.simulate(structure, rows, np.repeat(initial[None], len(rows), axis=0))[:, index]
+            rms = np.sqrt(np.mean((simulated - measured) ** 2, axis=1))
+            for (i, start_values), value in zip(chunk, rms):
+                scored.setdefault(i, []).append((float(value) if np.isfinite(value) else np.inf,
+                                                 float(thresholds[i]), start_values))
+
+    ranges = [(0, len(thresholds) - 1)]
+    while ranges:
+        score(np.concatenate([np.round(np.linspace(a, b, min(PROFILE_GRID, b - a + 1))) for a, b in ranges]))
+        done = sorted(scored)
+        best = sorted(done, key=lambda i: min(s for s, _, _ in scored[i]))[:PROFILE_REFITS]
+        ranges = []
+        for i in best:
+            position = done.index(i)
+            left = done[position - 1] if position > 0 else i
+            right = done[position + 1] if position + 1 < len(done) else i
+            if any(k not in scored for k in range(left, right + 1)):
+                ranges.append((left, right))
+    return sorted((trial for trials in scored.values() for trial in trials), key=lambda trial: trial[0])
 
 
 @dataclass
@@ -649,7 +700,8 @@ class Comparison:
 
 
 def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
-            start: dict[str, float] | None = None, fixed: dict[str, float] | None = None) -> Comparison:
+            start: dict[str, float] | None = None, fixed: dict[str, float] | None = None,
+            initial_states: np.ndarray | None = None) -> Comparison:
     """Fit nominal + `effects` on the training part and evaluate on the held-out part (see module docstring).
 
     Parameters
@@ -663,6 +715,9 @@ def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         Starting values of parameters (e.g. the current model's), by name.
     fixed : dict of str -> float, optional [SI unit of each parameter]
         Parameters held at given values (known hardware values), by name.
+    initial_states : ndarray, shape (segments, 2), optional [rad, rad/s]
+        Starting (angle, rate) of the training segments, e.g. the current model's fit's; used on long records only
+        (:func:`aeropend_core.diagnosis.output_error.fit_output_error`).
 
     Returns
     -------
@@ -671,7 +726,7 @@ def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         ``rms_error`` and ``noise_rms`` [rad], residual tests, error by regime and the worst windows.
     """
     prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
-    fit = fit_model(prep, effects, start, fixed=fixed)
+    fit = fit_model(prep, effects, start, fixed=fixed, initial_states=initial_states)
     if 'threshold_interval' in fit.extra:
         fit = _place_threshold_among_heldout_levels(prep, fit)
     return Comparison(tuple(effects), fit, evaluate(prep, fit))

@@ -440,7 +440,8 @@ def _try(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], name: s
          fixed: Mapping[str, float]) -> Candidate:
     excess_now = excess_error(base.rms_error, prep.noise_rms)
     try:
-        augmented = compare(prep, model + (name,), start=base.parameters, fixed=dict(fixed))
+        augmented = compare(prep, model + (name,), start=base.parameters, fixed=dict(fixed),
+                            initial_states=base.fit.initial_states)     # long records: start from base's states
     except InsufficientDataError as error:
         return Candidate(name, None, {}, {}, float('nan'), excess_now, float('nan'), False,
                          error=str(error), explanation=f'not testable on this data: {error}')

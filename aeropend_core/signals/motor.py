@@ -151,8 +151,11 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
     # from ~10 ms to ~10 s), the steady-state ratios fixed, then fit everything from the best.
     grid = np.logspace(-1.5, 2.5, 41)
     rows = np.column_stack([grid, grid * ratio2, grid * ratio3])
-    emf_grid = _simulate(rows, voltage, np.full(grid.size, initial_emf), sample_time)
-    scan = np.mean(((voltage[None, :] - emf_grid) / resistance0 - current[None, :])[:, keep] ** 2, axis=1)
+    # one rate at a time: 41 rows of a 1-hour record would take 0.6 GB, and their temporaries several times that
+    scan = np.empty(grid.size)
+    for i in range(grid.size):
+        emf = _simulate(rows[i:i + 1], voltage, np.full(1, initial_emf), sample_time)[0]
+        scan[i] = np.mean(((voltage - emf) / resistance0 - current)[keep] ** 2)
     p1_0 = float(grid[int(np.argmin(np.nan_to_num(scan, nan=np.inf)))])
     p2_0, p3_0 = p1_0 * ratio2, p1_0 * ratio3
     scale = np.array([max(p1_0, 1e-3), max(p2_0, 0.01 * p1_0), max(p3_0, 0.01 * p1_0), max(resistance0, 0.1), 1.0])
@@ -169,8 +172,12 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
         step = 1e-6 * np.maximum(np.abs(x), 1.0)
         rows = np.tile(x, (len(x) + 1, 1))
         rows[1:] += np.diag(step)
-        predictions = _bounded(model_current(rows * scale)[:, keep])
-        return ((predictions[1:] - predictions[0]) / step[:, None]).T
+        # one row at a time (the same numbers): a 1-hour record's rows and their temporaries would take ~0.7 GB
+        base = _bounded(model_current(rows[:1] * scale)[0, keep])
+        jac = np.empty((base.size, len(x)))
+        for i in range(len(x)):
+            jac[:, i] = (_bounded(model_current(rows[i + 1:i + 2] * scale)[0, keep]) - base) / step[i]
+        return jac
 
     lower = np.array([1e-3, 0.0, 0.0, 1e-3, -np.inf]) / scale
     upper = np.array([1e4, 1e4, 1e4, 100.0, np.inf]) / scale
@@ -217,8 +224,12 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
         step = 1e-6 * np.maximum(np.abs(z), 1.0)
         rows = np.tile(z, (len(z) + 1, 1))
         rows[1:] += np.diag(step)
-        predictions = _bounded(model(rows * scale)[0][:, use])
-        return ((predictions[1:] - predictions[0]) / step[:, None]).T
+        # one row at a time (the same numbers): memory of two records' length, not two per parameter
+        base = _bounded(model(rows[:1] * scale)[0][0, use])
+        jac = np.empty((base.size, len(z)))
+        for i in range(len(z)):
+            jac[:, i] = (_bounded(model(rows[i + 1:i + 2] * scale)[0][0, use]) - base) / step[i]
+        return jac
 
     lower = np.array([1e-3, 1e-5, 0.0, 0.0, 0.0, -np.inf, -np.inf]) / scale
     upper = np.array([100.0, 0.05, np.inf, 1e4, 1e4, np.inf, np.inf]) / scale
