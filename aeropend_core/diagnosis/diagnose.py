@@ -184,8 +184,10 @@ class Diagnosis:
     selected: Comparison | None = None
     #: Per-segment drift test of the nominal parameters (:func:`aeropend_core.diagnosis.drift.drift_test`).
     drift: list[dict] = field(default_factory=list)
-    #: Parameters held at given values (``--fix``), SI.
+    #: Parameters held at given values (``--fix``, a calibration file), SI.
     fixed: dict[str, float] = field(default_factory=dict)
+    #: Where each held parameter's value came from (``'--fix'``, ``'calibration file PATH'``).
+    fixed_from: dict[str, str] = field(default_factory=dict)
 
     @property
     def missing_effects(self) -> list[str]:
@@ -253,6 +255,7 @@ class Diagnosis:
             'gaps': self.prepared.gaps.to_dict() if self.prepared is not None and self.prepared.gaps is not None
             else None,
             'fixed': self.fixed,
+            'fixed_from': self.fixed_from,
             'candidates': [_candidate_dict(c) for c in self.candidates],
             'regimes': current.evaluation.regimes,
             'worst_windows': current.evaluation.worst_windows,
@@ -482,7 +485,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
              candidates: Sequence[str] | None = None,
              progress: Callable[[str], None] | None = None,
              fixed: Mapping[str, Mapping[str, float] | float] | None = None,
-             drift: bool = True) -> Diagnosis:
+             drift: bool = True, fixed_from: Mapping[str, str] | None = None) -> Diagnosis:
     """Diagnose which effects are missing from nominal + `effects`, using only Va, Ia and the angle.
 
     Parameters
@@ -500,6 +503,9 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         They join the model with those values held.
     drift : bool [-]
         Also fit the nominal parameters per segment and test them for a trend.
+    fixed_from : mapping of str -> str, optional [-]
+        Where each fixed effect's values came from (``{effect: 'calibration file PATH'}``), reported next to the
+        numbers; default ``'--fix'``.
 
     Returns
     -------
@@ -518,6 +524,8 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     if len(set(effects)) != len(effects):
         raise AeropendError(f'an effect is listed twice in {list(effects)}')
     held = {parameter: value for values in fixed_effects.values() for parameter, value in values.items()}
+    held_from = {parameter: (fixed_from or {}).get(name, '--fix') for name, values in fixed_effects.items()
+                 for parameter in values}
     say('preparing the data (input conditioning, motor observer)')
     prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
     say(f'fitting the current model: nominal{"".join(" + " + e for e in effects)}')
@@ -727,7 +735,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     return Diagnosis(effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
                      message=message, notes=notes, before=before, residual_structure=structure, prepared=prep,
                      seconds=time.perf_counter() - started, found=found, selected=selected, drift=drift_rows,
-                     fixed=held)
+                     fixed=held, fixed_from=held_from)
 
 
 def size_text(found: Found) -> str:
