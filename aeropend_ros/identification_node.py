@@ -34,9 +34,12 @@ on that parameter's topic. The test restarts when the stream restarts, the effec
 Bad samples are never analysed. A sample with a NaN/inf angle, voltage or current, a duplicated sequence number, an
 older sequence number and stamp (out of order), a stamp that does not advance with the sequence number, or that
 cannot be read is rejected: counted (``rejected_<reason>`` on /diagnostics), logged, and reported as WARN within a
-second. A rejected sample counts as lost: a window missing at most 5 % of its samples is analysed with the gaps
-filled by linear interpolation (its status then says how many, and why, at WARN); a window missing more is not
-analysed (WARN saying so). A sequence number that goes back with a later stamp (the source restarted) or stamps
+second. A rejected sample counts as lost. Lost samples are not filled: the window is split at each gap of the
+sequence numbers into pieces, as the offline diagnosis does (the weak form on the pieces together, the
+output-error segments and the held-out simulation restarting after each gap); its status then says how many
+samples were lost, in how many gaps, the longest, and why (WARN; ``lost_samples``, ``gaps``, ``longest_gap_s``).
+A window missing more than 30 % of its samples, or left with too little training or held-out data between its
+gaps, is not analysed (saying so). A sequence number that goes back with a later stamp (the source restarted) or stamps
 that jump against the sequence numbers (by more than 0.1 s + 5 %) clear the buffer: the windows start again (WARN).
 A window whose excitation is insufficient (e.g. constant duty) is refused with the reason (WARN), and a result with
 a non-finite value is not published (ERROR).
@@ -44,9 +47,8 @@ a non-finite value is not published (ERROR).
 Every window passes the data-quality gate (:func:`aeropend_core.signals.quality.check_recording`, the same as for
 files) before it is analysed: a refused window (a frozen sensor, stamps that disagree with the sequence numbers and
 the 490 Hz rate, an angle jump no repair explains, ...) is not analysed and said at ERROR, naming the finding; a
-repaired or warned window (a wrap unwrapped, an outlier interpolated, lost samples filled) is analysed and published
-with its status at WARN and the findings in ``data_quality`` / ``data_quality_detail``. A run of lost samples
-longer than 0.5 s (about one swing of the rod) is not filled: the window is withheld (ERROR).
+repaired or warned window (a wrap unwrapped, an outlier interpolated, lost samples segmented) is analysed and
+published with its status at WARN and the findings in ``data_quality`` / ``data_quality_detail``.
 
 Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
 are changeable at runtime (``ros2 param set /identification_node effects "['NAME']"``, names from
@@ -77,7 +79,8 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.parameters import SAMPLE_TIME
 from aeropend_core.signals.quality import DataQualityError, check_recording
 from aeropend_ros import topics
-from aeropend_core.diagnosis.online import (TREND_PARAMETERS, ParameterTrends, WindowResult, analyze_window, fill_gaps,
+from aeropend_core.diagnosis.compare import MAX_LOST_FRACTION as _OFFLINE_MAX_LOST_FRACTION
+from aeropend_core.diagnosis.online import (TREND_PARAMETERS, ParameterTrends, WindowResult, analyze_window,
                                             trend_message, trend_text)
 from aeropend_core.model.names import parameter_unit
 from aeropend_core.model.effects import check_effect_names
@@ -89,12 +92,10 @@ PARAMETERS_TOPIC = 'aeropend/identification/parameters'
 FIT_TOPIC = 'aeropend/identification/fit'
 #: Name of the node's status in /diagnostics.
 DIAGNOSTIC_NAME = 'aeropend: identification'
-#: Fraction of lost samples above which a window is not analysed.
-MAX_LOST_FRACTION = 0.05
-#: Longest run of lost samples [s] a window may have filled by interpolation (about one swing of the rod, whose
-#: period is ~0.55 s); a longer one withholds the window (an interpolated second of current shifted the parameters
-#: by 4 sigma while the window said OK). Any filled sample makes the window WARN.
-MAX_FILLED_GAP_S = 0.5
+#: Fraction of lost samples above which a window is not analysed (the offline diagnosis's limit). Below it the
+#: window is split at its gaps (nothing is interpolated: an interpolated second of current once shifted the
+#: parameters by 4 sigma); any lost sample makes the window WARN.
+MAX_LOST_FRACTION = _OFFLINE_MAX_LOST_FRACTION
 #: Largest believable mismatch between a stamp step and the sequence step times Ts: 0.1 s + 5 % of the step.
 STAMP_JUMP_TOLERANCE = (0.1, 0.05)
 #: Samples in order (counter +1.., stamps as expected) after a restart that end the restart condition: until then
@@ -176,11 +177,11 @@ class RawSampleParser:
         self._length, self._offset, self._constant = len(data), offset, bytes(data[12:offset])
 
 
-def _analyze_in_worker(*args) -> WindowResult:
+def _analyze_in_worker(*args, **keywords) -> WindowResult:
     """Run :func:`analyze_window` in the worker process with single-threaded BLAS (2 shared cores)."""
     from threadpoolctl import threadpool_limits
     with threadpool_limits(1):
-        return analyze_window(*args, sample_time=SAMPLE_TIME)
+        return analyze_window(*args, sample_time=SAMPLE_TIME, **keywords)
 
 
 def _ignore_interrupts() -> None:
@@ -453,18 +454,18 @@ class IdentificationNode(Node):
             findings = tuple(report.recording.findings)
             sequence = report.recording.signals['sequence'].astype(np.int64)
             snapshot = {**snapshot, **{k: report.recording.signals[k] for k in self.signals}}
-        grid, filled, missing = fill_gaps(sequence, {k: snapshot[k] for k in self.signals})
-        # Samples missing from the whole window (also before its first received sample), rejected ones included.
+        # Lost samples: gaps in the sequence numbers (the window is split there, nothing is filled in), and the
+        # samples missing from the whole window (also before its first received sample), rejected ones included.
+        steps = np.diff(sequence)
+        inside = int(np.sum(steps - 1)) if sequence.size > 1 else 0
         expected = int(round(self._window_s() / SAMPLE_TIME))
-        longest_gap = int(np.max(np.diff(sequence)) - 1) if sequence.size > 1 else 0
-        missing = max(missing, expected - int(sequence.size))
+        longest_gap = int(np.max(steps) - 1) if sequence.size > 1 else 0
+        missing = max(inside, expected - int(sequence.size))
         health['lost_samples'] = str(missing)
-        health['longest_filled_gap_s'] = f'{longest_gap * SAMPLE_TIME:.4f}'
-        if missing > MAX_LOST_FRACTION * expected or longest_gap * SAMPLE_TIME > MAX_FILLED_GAP_S:
-            why = (f'{missing} of {expected} samples lost (> {MAX_LOST_FRACTION:.0%})'
-                   if missing > MAX_LOST_FRACTION * expected else
-                   f'{longest_gap} samples ({longest_gap * SAMPLE_TIME:.3f} s) lost in a row, more than the '
-                   f'{MAX_FILLED_GAP_S:g} s that interpolation may fill')
+        health['gaps'] = str(int(np.count_nonzero(steps > 1)))
+        health['longest_gap_s'] = f'{longest_gap * SAMPLE_TIME:.4f}'
+        if missing > MAX_LOST_FRACTION * expected:
+            why = f'{missing} of {expected} samples lost (> {MAX_LOST_FRACTION:.0%}): too little remains'
             message = (f'window not analysed: {why}' + (f', of them rejected: {rejected_text}' if rejected else '')
                        + '; check the link, the load or the source')
             self._report(message, DiagnosticStatus.ERROR, health, effects=effects)
@@ -475,11 +476,13 @@ class IdentificationNode(Node):
         if rejected:
             health['rejected'] = rejected_text
         # Times from the window start: epoch seconds (~1.8e9 s) in float64 would jitter the 2 ms steps by ~2e-4.
+        # Gaps stay gaps: the times skip the lost samples' slots, and the sequence numbers go with them.
         start_s = int(snapshot['stamp_ns'][0]) * 1e-9
-        time = (grid - grid[0]) * SAMPLE_TIME
+        time = (sequence - sequence[0]) * SAMPLE_TIME
         self.windows_submitted += 1
-        self.pending = self.worker.submit(_analyze_in_worker, time, filled['armature_voltage'],
-                                          filled['armature_current'], filled['angle'], effects, holdout_fraction)
+        self.pending = self.worker.submit(_analyze_in_worker, time, snapshot['armature_voltage'],
+                                          snapshot['armature_current'], snapshot['angle'], effects, holdout_fraction,
+                                          sequence=sequence)
         trend_key = (self._generation, tuple(effects), self._window_s())
         self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects, start_s,
                                                                       findings, trend_key))
@@ -535,12 +538,13 @@ class IdentificationNode(Node):
         health['noise_rms_rad'] = f'{result.noise_rms:.5f}'
         message = f'fit {result.fit_percent:.1f} % on {result.held_out_seconds:.1f} s held out'
         level = DiagnosticStatus.OK
+        lost = (f'{health.get("lost_samples", "0")} samples lost in {result.gap_count} gap(s) (the longest '
+                f'{result.longest_gap_seconds:.3f} s): the fits were split at the gaps, nothing filled in')
         if 'rejected' in health:
-            message += (f'; {health["lost_samples"]} samples filled by interpolation, rejected: '
-                        f'{health["rejected"]}')
+            message += f'; {lost}, rejected: {health["rejected"]}'
             level = DiagnosticStatus.WARN
         elif health.get('lost_samples', '0') != '0':
-            message += f'; {health["lost_samples"]} lost samples filled by interpolation'
+            message += f'; {lost}'
             level = DiagnosticStatus.WARN
         if findings:      # the numbers are published, flagged: every doubt about the data goes with them
             message += '; data quality: ' + '; '.join(f'{f.code} ({f.severity})' for f in findings)

@@ -115,6 +115,10 @@ class SerialBridgeNode(Node):
                                   'resonator; 2e-4 for a crystal)', read_only=True, low=0.0, high=0.05)
         diagnostics_period = declare(self, 'diagnostics_period', 1.0, 'period [s] of /diagnostics', read_only=True,
                                      low=0.05, high=60.0)
+        # The measurement chain's angle filter: not used by the bridge (the board filters before the ADC); kept in
+        # its calibration file for `aeropend diagnose/identify --calibration` (aeropend calibrate angle-filter).
+        declare(self, 'angle_filter_delay', 0.0141, "DC group delay [s] of the angle's RC low-pass on the board "
+                '(3 R C; 0 = none); read by the diagnosis, not by the bridge', read_only=True, low=0.0, high=0.05)
         check_unknown_overrides(self)
         if self.heartbeat_period >= self.get_parameter('watchdog_timeout').value:
             raise ParameterError(f'{self.get_name()}: heartbeat_period ({self.heartbeat_period:g} s) must be shorter '

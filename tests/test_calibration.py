@@ -12,7 +12,7 @@ from aeropend_core.rig import calibration as C
 from aeropend_core.rig import protocol as P
 from aeropend_core.cli import main as aeropend
 from aeropend_core.testing.device_emulator import DeviceEmulator
-from aeropend_core.errors import InsufficientDataError
+from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 from tests.bridge_helpers import ROOT, poll
 
@@ -110,3 +110,99 @@ def test_calibrate_cli_user_errors(capsys, tmp_path):
     assert status == 2 and 'cannot open' in err
     status, _, err = run_cli(capsys, 'back-emf', '--port', str(tmp_path / 'nothing'), '--duty', '0.5')
     assert status == 2 and '--motor-speed-rpm' in err
+
+
+# ------------------------------------------------------------------ the measurement chain in the calibration file
+def test_angle_filter_delay_from_components_written_and_read(capsys, tmp_path):
+    """`calibrate angle-filter` needs no port: 3 R C of the board's RC ladder into the calibration file, read back
+    by read_measurement_chain; the shipped file states the rig's 4.7 kOhm / 1 uF (14.1 ms); bad values refused."""
+    assert C.rc_ladder_delay(4.7e3, 1e-6) == pytest.approx(0.0141)
+    assert C.read_measurement_chain(ROOT / 'config' / 'serial_bridge_node.yaml').angle_filter_delay == \
+        pytest.approx(0.0141)
+    config = tmp_path / 'rig.yaml'
+    config.write_text((ROOT / 'config' / 'serial_bridge_node.yaml').read_text())
+    status, out, err = run_cli(capsys, 'angle-filter', '--filter-resistance', '3300', '--filter-capacitance',
+                               '1e-6', '--write', str(config))
+    assert status == 0, err
+    assert value_of(out, 'angle_filter_delay') == pytest.approx(0.0099)
+    chain = C.read_measurement_chain(config)
+    assert chain.angle_filter_delay == pytest.approx(0.0099) and chain.fixed_effects() == {
+        'angle_filter': pytest.approx(0.0099)}
+    assert yaml.safe_load(config.read_text())['/**/serial_bridge_node']['ros__parameters']['angle_zero'] == 512.0
+    # a file without the key says nothing (the filter stays a candidate); 0 says "no filter"
+    bare = tmp_path / 'bare.yaml'
+    bare.write_text('/**/serial_bridge_node:\n  ros__parameters:\n    angle_zero: 530.0\n')
+    assert C.read_measurement_chain(bare).angle_filter_delay is None
+    bare.write_text('/**/serial_bridge_node:\n  ros__parameters:\n    angle_filter_delay: 0.0\n')
+    assert C.read_measurement_chain(bare).fixed_effects() == {} and \
+        C.read_measurement_chain(bare).excluded_effects() == ('angle_filter',)
+    # user mistakes: ms instead of s, units of the components, an unreadable file
+    bare.write_text('/**/serial_bridge_node:\n  ros__parameters:\n    angle_filter_delay: 14.1\n')
+    with pytest.raises(AeropendError, match='delay in seconds'):
+        C.read_measurement_chain(bare)
+    status, _, err = run_cli(capsys, 'angle-filter', '--filter-resistance', '4.7', '--filter-capacitance', '1')
+    assert status == 2 and 'check the units' in err
+    with pytest.raises(AeropendError, match='cannot read the calibration file'):
+        C.read_measurement_chain(tmp_path / 'missing.yaml')
+    status, _, err = run_cli(capsys, 'zero')
+    assert status == 2 and '--port' in err
+
+
+def _record(tmp_path, name: str, effects: dict, psnr: float, seed: int):
+    from aeropend_core.io.recording import write_csv
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.sim.simulate import simulate
+    duty = lhc_schedule(60.0, seed=seed).duty(duration=60.0)
+    run = simulate(duty, effects=effects, noise=MeasurementNoise(psnr, True), seed=seed + 1)
+    path = tmp_path / name
+    write_csv(str(path), run.columns(with_truth=False))
+    return path
+
+
+def test_diagnose_holds_the_angle_filter_from_the_calibration_file(capsys, tmp_path):
+    """The rig's 14.1 ms filter and a small 30 ms thrust lag, 40 dB: on their own the two are interchangeable on
+    this data (the verdict says so); with the filter fixed from the calibration file the lag is named with
+    confidence, within 15 %, and the report says where the filter value came from."""
+    import json
+    data = _record(tmp_path, 'lag.csv', {'angle_filter': 0.0141, 'thrust_lag': 0.03}, 40.0, 61)
+    config = ROOT / 'config' / 'serial_bridge_node.yaml'
+    assert aeropend(['diagnose', str(data), '--json', '--quiet', '--no-drift', '--calibration', str(config)]) == 0
+    captured = capsys.readouterr()
+    result = json.loads(captured.out)
+    assert f'angle filter delay 14.10 ms fixed from calibration file {config}' in captured.err
+    assert result['fixed'] == {'filter_delay': pytest.approx(0.0141)}
+    assert result['fixed_from'] == {'filter_delay': f'calibration file {config}'}
+    assert result['verdict'] == 'effect_found' and result['add'] == ['thrust_lag'], result['message']
+    lag = result['missing_effects'][0]['parameters']['time_constant']
+    assert lag == pytest.approx(0.03, rel=0.15)
+    assert aeropend(['diagnose', str(data), '--quiet', '--no-drift', '--calibration', str(config)]) == 0
+    assert f'(fixed from calibration file {config}, not fitted)' in capsys.readouterr().out
+    # without the file: never a confident thrust lag
+    assert aeropend(['diagnose', str(data), '--json', '--quiet', '--no-drift']) == 0
+    alone = json.loads(capsys.readouterr().out)
+    assert alone['verdict'] != 'effect_found' or 'thrust_lag' not in alone['add'], alone['message']
+    # --add of an effect the file fixes is refused (exit 2, one line)
+    assert aeropend(['diagnose', str(data), '--calibration', str(config), '--add', 'angle_filter']) == 2
+    assert 'fixed by --calibration' in capsys.readouterr().err
+
+
+def test_identify_undoes_the_angle_filter_from_the_calibration_file(capsys, tmp_path):
+    """Weak SINDy on an angle read through the 14.1 ms RC filter (50 dB): mgd/J, c/J and the thrust gain come out
+    8-11 % low; advanced by the calibration file's delay they are within 3 % of the truth, and the output says so."""
+    import json
+    data = _record(tmp_path, 'filtered.csv', {'angle_filter': 0.0141}, 50.0, 5)
+    config = ROOT / 'config' / 'serial_bridge_node.yaml'
+    truth = {'gravity_stiffness': DEFAULT_PARAMETERS.gravity_stiffness, 'damping': DEFAULT_PARAMETERS.damping,
+             'thrust_gain': DEFAULT_PARAMETERS.thrust_gain}
+    assert aeropend(['identify', str(data), '--json']) == 0
+    raw = json.loads(capsys.readouterr().out)
+    assert aeropend(['identify', str(data), '--json', '--calibration', str(config)]) == 0
+    captured = capsys.readouterr()
+    corrected = json.loads(captured.out)
+    assert corrected['angle_filter']['delay'] == pytest.approx(0.0141)
+    assert corrected['angle_filter']['from'] == f'calibration file {config}'
+    assert 'advanced by the angle filter delay 14.10 ms' in captured.err
+    for name, value in truth.items():
+        assert corrected['parameters'][name] == pytest.approx(value, rel=0.03), name
+    assert raw['parameters']['gravity_stiffness'] < 0.95 * truth['gravity_stiffness']     # the bias it removes

@@ -7,6 +7,7 @@ stated PSNR on Va, Ia and the angle plus 10-bit quantisation; only the measured 
 Named effects must be estimated within SIZE_TOLERANCE (15 %).
 """
 import json
+import math
 
 import numpy as np
 import pytest
@@ -185,3 +186,19 @@ def test_clean_records_raise_no_alarm_across_excitations_and_noise():
         trajectory = simulate(duty, effects=None, noise=MeasurementNoise(psnr, True), seed=seed)
         found = diagnose(measured(trajectory))
         assert found.verdict == 'nothing_missing', found.summary()
+
+
+def test_noise_estimate_spread_used_for_the_measurable_error():
+    """The relative variance of the third-difference noise estimate (squared) is NOISE_ESTIMATE_VARIANCE / n for
+    white noise (derived: 2 x the sum of the squared autocorrelations of a third difference): checked over 400
+    independent series (the estimate of the variance itself scatters by ~7 %), and the held-out noise power's
+    spread is sqrt(2 / n): together they are what beyond_spread subtracts before a share is taken."""
+    from aeropend_core.diagnosis.diagnose import NOISE_ESTIMATE_VARIANCE
+    from aeropend_core.signals.preprocess import noise_rms
+    rng = np.random.default_rng(20261124)
+    n, trials = 20000, 400
+    estimates = np.array([noise_rms(rng.normal(0.0, 0.01, n)) ** 2 for _ in range(trials)]) / 0.01 ** 2
+    assert np.var(estimates) * n == pytest.approx(NOISE_ESTIMATE_VARIANCE, rel=0.2)
+    assert np.mean(estimates) == pytest.approx(1.0, abs=3 * math.sqrt(NOISE_ESTIMATE_VARIANCE / n / trials))
+    held = np.array([np.mean(rng.normal(0.0, 1.0, n // 4) ** 2) for _ in range(trials)])
+    assert np.std(held) == pytest.approx(math.sqrt(2.0 / (n // 4)), rel=0.2)

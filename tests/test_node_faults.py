@@ -622,17 +622,35 @@ def test_non_monotonic_and_out_of_order_samples_rejected(tester, clean_window):
     assert status.level == DiagnosticStatus.WARN, status.message
     assert 'non-monotonic stamp' in status.message and 'out of order' in status.message, status.message
     assert int(values['rejected_samples']) == len(backwards) + 2, values
-    assert stream.window_stop_ns() in tester.parameters     # 10 of 2940 missing: filled, analysed
+    assert stream.window_stop_ns() in tester.parameters     # 10 of 2940 missing: split at the gaps, analysed
 
 
-def test_gap_of_lost_samples_skips_the_window(tester, identification):
-    """1 s lost (17 % of the window): not analysed, ERROR naming the loss (withheld), nothing published for it."""
+def test_gap_of_lost_samples_splits_the_window(tester, clean_window):
+    """1 s lost in a row (17 % of the window; interpolating it once shifted the parameters by 4 sigma): the window
+    is split at the gap, not filled; published with the clean window's numbers (within 3 %), WARN naming the loss
+    (490 samples, 1 gap, the longest 1.0 s)."""
+    _, _, clean_parameters = clean_window
+    stream = Stream(excited_duty(31), seed=7)
+    publish(tester, [sample for k, sample in enumerate(window_samples(stream)) if not 1000 <= k < 1490])
+    status = window_report(tester, stream)
+    values = status_values(status)
+    assert status.level == DiagnosticStatus.WARN, status.message
+    assert '490 samples lost in 1 gap(s)' in status.message and 'split at the gaps' in status.message, status.message
+    longest = f'{490 * SAMPLE_TIME:.4f}'
+    assert (values['lost_samples'], values['gaps'], values['longest_gap_s']) == ('490', '1', longest), values
+    parameters = tester.parameters[stream.window_stop_ns()]
+    for name in ('gravity_stiffness', 'damping', 'thrust_gain'):
+        assert parameters[name][0] == pytest.approx(clean_parameters[name][0], rel=0.03), name
+
+
+def test_too_many_lost_samples_skip_the_window(tester, identification):
+    """Every other quarter second lost (half the window): too little remains; not analysed, ERROR naming the loss
+    (withheld), nothing published for it."""
     stream = Stream(excited_duty(32), seed=8)
-    publish(tester, [stream.sample(k) for k in range(round(WINDOW_S / SAMPLE_TIME) + 1)
-                     if not 1000 <= k < 1490])
+    publish(tester, [stream.sample(k) for k in range(round(WINDOW_S / SAMPLE_TIME) + 1) if (k // 120) % 2 == 0])
     status = window_report(tester, stream)
     assert status.level == DiagnosticStatus.ERROR, status.message
-    assert 'not analysed' in status.message and '490 of 2940' in status.message, status.message
+    assert 'not analysed' in status.message and 'too little remains' in status.message, status.message
     tester.spin_for(1.0)
     assert stream.window_stop_ns() not in tester.fits and stream.window_stop_ns() not in tester.parameters
 
@@ -650,13 +668,13 @@ def window_samples(stream: Stream, **spans) -> list[topics.Sample]:
     return samples
 
 
-def test_short_gap_is_filled_and_flagged(tester, clean_window):
-    """25 samples (0.05 s) lost: filled by interpolation, published, but WARN saying so (not OK)."""
+def test_short_gap_is_segmented_and_flagged(tester, clean_window):
+    """25 samples (0.05 s) lost: the window is split there (not filled), published, but WARN saying so (not OK)."""
     stream = Stream(excited_duty(31), seed=7)
     publish(tester, [sample for k, sample in enumerate(window_samples(stream)) if not 1500 <= k < 1525])
     status = window_report(tester, stream)
     values = status_values(status)
-    assert status.level == DiagnosticStatus.WARN and 'filled by interpolation' in status.message, status.message
+    assert status.level == DiagnosticStatus.WARN and 'split at the gaps' in status.message, status.message
     assert values['lost_samples'] == '25' and 'lost_samples:warning' in values['data_quality'], values
     assert stream.window_stop_ns() in tester.parameters
 

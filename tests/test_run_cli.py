@@ -82,6 +82,8 @@ def test_run_with_unknown_effect_fails_clearly():
     (['--add', 'coulomb_friction=4'], 'names only'),
     (['--no-diagnose', '--json', '-'], 'cannot be used with --no-diagnose'),
     (['--report', '/no/such/folder/report.html'], 'does not exist'),
+    (['--calibration', '/no/such/calibration.yaml'], 'cannot read the calibration file'),
+    (['--calibration', 'config/serial_bridge_node.yaml', '--add', 'angle_filter'], 'fixed by --calibration'),
 ])
 def test_run_refuses_arguments_that_cannot_work_before_starting(arguments, message):
     """Exit 2 with one line, before any node starts (no 'aeropend run: simulator' banner)."""

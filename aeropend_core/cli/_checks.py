@@ -85,3 +85,47 @@ def time_window(recording, start: float | None, stop: float | None):
         asked = ' and '.join(f'{o} {v:g} s' for o, v in (('--start', start), ('--stop', stop)) if v is not None)
         raise AeropendError(f'no samples with {asked}; the recording spans {span}')
     return window
+
+
+def add_calibration_argument(parser) -> None:
+    """``--calibration FILE``: the rig's calibration YAML; its measurement-chain values are held in the model."""
+    parser.add_argument('--calibration', metavar='FILE.yaml',
+                        help="the rig's calibration file (config/serial_bridge_node.yaml, written by `aeropend "
+                             "calibrate ... --write`): its angle_filter_delay [s] holds the angle filter at that "
+                             'value (reported as fixed from calibration); --fix angle_filter=... overrides it')
+
+
+def calibration_fixed(path: str | None, fixed: dict[str, dict[str, float]]) -> tuple[dict, dict[str, str], str]:
+    """Merge a calibration file's measurement chain into the ``--fix`` effects.
+
+    Parameters
+    ----------
+    path : str or None [-]
+        The ``--calibration`` file (None: nothing to merge).
+    fixed : dict [SI unit of each parameter]
+        ``--fix`` effects, ``{effect: {parameter: value}}`` (they win over the file).
+
+    Returns
+    -------
+    fixed : dict
+        The merged effects to hold.
+    fixed_from : dict of str -> str
+        ``{effect: 'calibration file PATH'}`` for the effects the file gave.
+    message : str
+        One line saying what the file fixed (empty when nothing).
+    """
+    if not path:
+        return fixed, {}, ''
+    from aeropend_core.model.effects import resolve_effects
+    from aeropend_core.rig.calibration import ANGLE_FILTER_KEY, read_measurement_chain
+    chain = read_measurement_chain(path)
+    where = f'calibration file {path}'
+    if chain.angle_filter_delay is None:
+        return fixed, {}, f'{path} states no {ANGLE_FILTER_KEY}: the angle filter stays a candidate'
+    if 'angle_filter' in fixed:
+        return fixed, {}, (f'--fix angle_filter overrides the {ANGLE_FILTER_KEY} of {path} '
+                           f'({chain.angle_filter_delay:g} s)')
+    merged = {**fixed, **resolve_effects({'angle_filter': chain.angle_filter_delay})}
+    what = ('no filter on the angle (delay 0 s)' if chain.angle_filter_delay == 0.0 else
+            f'angle filter delay {chain.angle_filter_delay * 1e3:.2f} ms')
+    return merged, {'angle_filter': where}, f'{what} fixed from {where}'

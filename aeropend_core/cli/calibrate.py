@@ -10,6 +10,9 @@ Steps, in this order (each prints the YAML lines for config/serial_bridge_node.y
       propeller held so the rotor cannot turn: Ra [ohm] from Va = Ra Ia over the duty steps
   aeropend calibrate back-emf --port /dev/ttyACM0 --duty 0.4,0.6 --motor-speed-rpm 8100,11900 --resistance 1.08
       motor running freely, shaft speed read with a tachometer at each duty: Kw [V s/rad]
+  aeropend calibrate angle-filter --filter-resistance 4700 --filter-capacitance 1e-6 --write config/...yaml
+      the angle's 2nd-order RC ladder on the board (R1 = R2, C1 = C2; read off the components, no port needed):
+      angle_filter_delay = 3 R C [s], which `aeropend diagnose/identify --calibration FILE` holds fixed
 
 Raw counts are converted with the calibration in --config (default: the bridge's defaults); Va comes from the
 duty by eq (8) unless the config says voltage_source: adc. The motor is driven with the firmware's watchdog armed
@@ -38,8 +41,8 @@ from aeropend_core.rig import protocol as P
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 
-STEPS = ('zero', 'angle-scale', 'locked-rotor', 'back-emf')
-NODE_KEY = '/**/serial_bridge_node'     # the shipped file's key: the node in any namespace
+STEPS = ('zero', 'angle-scale', 'locked-rotor', 'back-emf', 'angle-filter')
+NODE_KEY = C.NODE_KEY     # the shipped file's key: the node in any namespace
 
 
 def _fractions(text: str) -> list[float]:
@@ -52,7 +55,8 @@ def _fractions(text: str) -> list[float]:
 
 def add_arguments(parser) -> None:
     parser.add_argument('step', choices=STEPS, help='what to calibrate (see above)')
-    parser.add_argument('--port', required=True, help='serial port of the Arduino (e.g. /dev/ttyACM0)')
+    parser.add_argument('--port', help='serial port of the Arduino (e.g. /dev/ttyACM0); every step but '
+                        'angle-filter needs it')
     parser.add_argument('--baud', type=int, default=250000, help='baud rate (firmware default 250000)')
     parser.add_argument('--config', type=Path, help='serial_bridge_node YAML with the current calibration')
     parser.add_argument('--write', type=Path, metavar='FILE', help='update the printed keys in this YAML file')
@@ -71,6 +75,10 @@ def add_arguments(parser) -> None:
                         f'{DEFAULT_PARAMETERS.armature_inductance:g}, the paper\'s)')
     from aeropend_core.cli._checks import add_json_argument
     add_json_argument(parser, 'the calibrated values with units and the measurements behind them')
+    parser.add_argument('--filter-resistance', type=float, default=4.7e3,
+                        help='angle-filter: R1 = R2 of the RC ladder [ohm] (default 4700, the rig\'s board)')
+    parser.add_argument('--filter-capacitance', type=float, default=1e-6,
+                        help='angle-filter: C1 = C2 of the RC ladder [F] (default 1e-6, the rig\'s board)')
     parser.add_argument('--no-ripple-correction', action='store_true',
                         help='use the current as read at the pulse centre, without the ripple correction')
 
@@ -143,13 +151,7 @@ def load_calibration(path: Path | None) -> tuple[P.Calibration, dict]:
     """The bridge's calibration from a serial_bridge_node YAML file (defaults for missing keys)."""
     if path is None:
         return P.Calibration(), {}
-    import yaml
-    try:
-        document = yaml.safe_load(path.read_text()) or {}
-    except (OSError, yaml.YAMLError) as error:
-        raise AeropendError(f'cannot read {path}: {error}') from error
-    section = document.get(NODE_KEY) or document.get(NODE_KEY.removeprefix('/**/')) or {}   # old files: no '/**/'
-    values = section.get('ros__parameters') or {}
+    values = C.read_calibration_file(path)
     default = P.Calibration()
     try:
         calibration = P.Calibration(
@@ -199,6 +201,11 @@ def check_arguments(args) -> None:
         if not 0 < value < math.inf:
             raise AeropendError(f'{option} must be a positive number{unit}, got {value}')
 
+    if args.step == 'angle-filter':
+        C.rc_ladder_delay(args.filter_resistance, args.filter_capacitance)     # refuses bad values
+        return
+    if not args.port:
+        raise AeropendError(f'calibrate {args.step} talks to the rig: give --port (e.g. /dev/ttyACM0)')
     if not 0 < args.max_duty <= 1:
         raise AeropendError(f'--max-duty must be a fraction in (0, 1], got {args.max_duty}')
     positive('--baud', args.baud, '')
@@ -247,11 +254,13 @@ def main(args) -> int:
 
 #: SI unit of each key the calibration prints (ADC counts for the bridge's zeros).
 UNITS = {'angle_zero': 'count', 'current_offset': 'count', 'angle_scale': 'rad/count', 'armature_resistance': 'ohm',
-         'back_emf_constant': 'V s/rad'}
+         'back_emf_constant': 'V s/rad', C.ANGLE_FILTER_KEY: 's'}
 
 
 def _calibrate(args) -> dict:
     """Run the step; returns the JSON object of ``--json`` (the same numbers as the printed lines)."""
+    if args.step == 'angle-filter':
+        return _angle_filter(args)
     calibration, _ = load_calibration(args.config)
     rig = RigLink(args.port, args.baud, args.max_duty)
     updates: dict[str, float] = {}
@@ -335,3 +344,22 @@ def _calibrate(args) -> dict:
                              'where': 'config/serial_bridge_node.yaml' if key in bridge_keys else 'model parameter'}
                        for key, value in updates.items()},
             'details': details, 'written_to': str(args.write) if written else None, 'written_keys': written}
+
+
+def _angle_filter(args) -> dict:
+    """The angle filter's delay from the board's component values (no port): print it, --write it; returns the
+    JSON object of ``--json``."""
+    delay = C.rc_ladder_delay(args.filter_resistance, args.filter_capacitance)
+    print(f'# 2nd-order RC ladder R1 = R2 = {args.filter_resistance:g} ohm, C1 = C2 = {args.filter_capacitance:g} F: '
+          f'DC group delay 3RC = {delay * 1e3:.2f} ms, cut-off {0.1787 / delay:.1f} Hz')
+    print(f'{C.ANGLE_FILTER_KEY}: {delay!r}    # measurement chain (aeropend diagnose/identify --calibration)')
+    written: list[str] = []
+    if args.write is not None:
+        write_values(args.write, {C.ANGLE_FILTER_KEY: float(f'{delay:.6g}')})
+        written = [C.ANGLE_FILTER_KEY]
+        print(f'# wrote {C.ANGLE_FILTER_KEY} to {args.write}')
+    return {'step': args.step, 'port': None,
+            'values': {C.ANGLE_FILTER_KEY: {'value': delay, 'unit': 's', 'where': 'config/serial_bridge_node.yaml'}},
+            'details': {'filter_resistance': args.filter_resistance, 'filter_capacitance': args.filter_capacitance,
+                        'cut_off_frequency': 0.1787 / delay},
+            'written_to': str(args.write) if written else None, 'written_keys': written}

@@ -11,6 +11,7 @@ Examples:
   aeropend diagnose run.csv --json
   aeropend diagnose afternoon.mcap --start 600 --stop 1200      # ten minutes of a long record [s]
   aeropend diagnose run.csv --fix angle_filter=0.0141          # a known hardware value (the rig's RC filter)
+  aeropend diagnose run.csv --calibration config/serial_bridge_node.yaml   # the same, from the calibration file
   aeropend diagnose run.csv --effects-module my_effects.py     # your own registered effects become candidates
 """
 from __future__ import annotations
@@ -28,6 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--fix', action='append', default=[], metavar='EFFECT=VALUE',
                         help='effect with a known hardware value, held in the model (repeatable), e.g. '
                              'angle_filter=0.0141 (the rig\'s RC filter delay [s]) or NAME.PARAMETER=VALUE')
+    from aeropend_core.cli._checks import add_calibration_argument
+    add_calibration_argument(parser)
     parser.add_argument('--no-drift', action='store_true', help='skip the per-segment drift test')
     parser.add_argument('--only', action='append', default=None, metavar='EFFECT',
                         help='try only these candidate effects (repeatable; default: the whole catalog)')
@@ -57,6 +60,12 @@ def main(args: argparse.Namespace) -> int:
     both = sorted(set(fixed) & set(args.add))
     if both:
         raise AeropendError(f'{", ".join(both)} given with both --add and --fix; --fix already puts it in the model')
+    from aeropend_core.cli._checks import calibration_fixed
+    fixed, fixed_from, calibration_message = calibration_fixed(args.calibration, fixed)
+    both = sorted(set(fixed) & set(args.add))
+    if both:
+        raise AeropendError(f'{", ".join(both)} given with --add and fixed by --calibration {args.calibration}; '
+                            f'drop the --add (the calibration file already puts it in the model)')
     if args.report:                          # refuse now, not after minutes of diagnosis
         from aeropend_core.cli._checks import check_report_path
         check_report_path(args.report)    # a folder, device, FIFO, link loop or missing folder: refused
@@ -71,8 +80,10 @@ def main(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f'diagnose: {message}', file=sys.stderr, flush=True)
 
+    if calibration_message:
+        print(f'aeropend diagnose: {calibration_message}', file=sys.stderr, flush=True)
     diagnosis = diagnose(recording, effects=args.add, candidates=args.only, progress=progress, fixed=fixed,
-                         drift=not args.no_drift)
+                         drift=not args.no_drift, fixed_from=fixed_from)
     if args.report:
         from aeropend_core.present.report import write_report
         written = write_report(diagnosis, args.report, source=args.data)

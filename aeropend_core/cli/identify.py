@@ -14,6 +14,7 @@ Examples:
   aeropend simulate -o run.csv --duration 60 --psnr 50 --quantise
   aeropend identify run.csv
   aeropend identify run.csv --json
+  aeropend identify run.csv --calibration config/serial_bridge_node.yaml   # undo the angle filter's delay
 """
 from __future__ import annotations
 
@@ -25,6 +26,7 @@ import numpy as np
 from aeropend_core.cli._checks import add_sample_rate_argument, add_time_range_arguments
 from aeropend_core.cli._checks import time_window as _window     # the range code path shared with diagnose
 from aeropend_core.present.json_output import finite_json
+from aeropend_core.errors import AeropendError
 from aeropend_core.io.recording import load_recording
 from aeropend_core.model.effects import CATALOG
 
@@ -40,6 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='pendulum model: add a catalog effect as a candidate term (those with a weak form: '
                              f'{", ".join(n for n, e in CATALOG.items() if e.weak_form)})')
     add_time_range_arguments(parser)
+    parser.add_argument('--calibration', metavar='FILE.yaml',
+                        help="the rig's calibration file (config/serial_bridge_node.yaml): the angle is advanced by "
+                             'its angle_filter_delay [s] before the fit (pendulum model; the first-order inverse '
+                             'of the RC low-pass), and the output says so')
     add_sample_rate_argument(parser)
 
 
@@ -69,16 +75,45 @@ def main(args: argparse.Namespace) -> int:
     from aeropend_core.identify.pendulum import identify_full_state, identify_pendulum, parameter_unit_of
     from aeropend_core.signals.quality import findings_to_json, quality_lines
     pieces = _pieces_between_gaps(np.asarray(recording.time, dtype=float))
+    chain = None
+    if args.calibration:
+        from aeropend_core.rig.calibration import read_measurement_chain
+        chain = read_measurement_chain(args.calibration)
+        if args.model != 'pendulum':
+            raise AeropendError('--calibration applies to the pendulum model (the full-state model uses simulator '
+                                'truth columns, which have no sensor filter)')
+    filter_note = None
     if args.model == 'pendulum':
         names = ('armature_voltage', 'armature_current', 'angle')
         columns = [np.asarray(recording.signal(name), dtype=float) for name in names]
         duty = recording.signals.get('duty')
-        if len(pieces) > 1:    # lost samples: the weak form is fitted on the pieces between the gaps, together
+        if chain is not None and chain.angle_filter_delay:
+            from aeropend_core.signals.measurement_chain import advance_angle
+            time_all = np.asarray(recording.time, dtype=float)
+            advanced = np.full(time_all.size, np.nan)
+            for a, b in pieces:       # within each piece between gaps (never across a gap)
+                keep, values = advance_angle(time_all[a:b], columns[2][a:b], chain.angle_filter_delay)
+                advanced[a:b][keep] = values
+            columns[2] = advanced
+            trimmed = [(a, b - int(np.count_nonzero(np.isnan(advanced[a:b])))) for a, b in pieces]
+            pieces = trimmed
+            filter_note = {'delay': chain.angle_filter_delay, 'from': f'calibration file {args.calibration}',
+                           'correction': 'angle advanced by the delay (first-order inverse of the RC low-pass)'}
+            print(f'aeropend identify: angle advanced by the angle filter delay {chain.angle_filter_delay * 1e3:.2f} '
+                  f'ms fixed from calibration file {args.calibration}', file=sys.stderr)
+        elif chain is not None:
+            filter_note = {'delay': chain.angle_filter_delay, 'from': f'calibration file {args.calibration}',
+                           'correction': 'none (no filter stated)' if chain.angle_filter_delay is None else
+                           'none (no filter on the angle)'}
+        if len(pieces) > 1 or filter_note and filter_note['delay']:
+            # lost samples: the weak form is fitted on the pieces between the gaps, together (also the single
+            # piece trimmed by the filter's delay)
             cut = [[c[a:b] for a, b in pieces] for c in [np.asarray(recording.time, dtype=float), *columns]]
             fit = identify_pendulum(*cut, duty=None if duty is None else [duty[a:b] for a, b in pieces],
                                     effects=args.effect)
-            print(f'aeropend identify: {len(pieces) - 1} gap(s) of lost samples in the time stamps: fitted on the '
-                  f'{len(pieces)} pieces between them together', file=sys.stderr)
+            if len(pieces) > 1:
+                print(f'aeropend identify: {len(pieces) - 1} gap(s) of lost samples in the time stamps: fitted on '
+                      f'the {len(pieces)} pieces between them together', file=sys.stderr)
         else:
             fit = identify_pendulum(recording.time, *columns, duty=duty, effects=args.effect)
     else:
@@ -93,6 +128,7 @@ def main(args: argparse.Namespace) -> int:
             'units': {k: parameter_unit_of(k) for k in fit.parameters},
             'estimator': 'weak_sindy',
             'gaps': {'count': len(pieces) - 1, 'pieces': len(pieces)},
+            'angle_filter': filter_note,
             'samples': len(recording),
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
             'warnings': findings_to_json(recording.findings),
@@ -103,5 +139,8 @@ def main(args: argparse.Namespace) -> int:
         duration = len(recording) * float(np.median(np.diff(recording.time))) if len(recording) > 1 else 0.0
         print(f'{args.data}: {len(recording)} samples ({duration:.3g} s), model {args.model}')
         print(quality_lines(recording.findings))
+        if filter_note is not None:
+            print(f'Angle filter: delay {filter_note["delay"]} s, fixed from {filter_note["from"]}; '
+                  f'{filter_note["correction"]}')
         print(fit.format())
     return 0

@@ -16,6 +16,13 @@ Per window (time-first arrays of shape ``(n,)``, SI units):
    Va and Ia from the measured initial angle: fit % = 100·(1 − ‖y − ŷ‖/‖y − mean(y)‖) (MATLAB ``compare``
    convention, simulation, not one-step prediction), RMS error [rad] and the angle's noise RMS [rad] (the floor).
 
+**Lost samples** (gaps in the sequence counter or in the stamps) are not filled: as in the offline diagnosis
+(:func:`aeropend_core.diagnosis.compare.split_at_gaps`) the window is split at each gap into pieces; the weak form
+is fitted on the training pieces together, the output-error segments and the held-out simulation restart after
+each gap (from the measured state), and no residual is taken where a sample is missing. The result states the gaps
+(count, lost samples, longest); a window is refused only when too little remains (more than
+``MAX_LOST_FRACTION`` lost, or too little training or held-out data between the gaps).
+
 Steps 3 and 4 are :func:`aeropend_core.diagnosis.compare.compare` — the diagnosis's own definitions, with its motor
 observer — when the window is at least its minimum length (20 s); shorter windows use a plain output-error fit
 (:mod:`aeropend_core.diagnosis.output_error`, multiple shooting over ~10 s segments) and the same fit % definition.
@@ -74,6 +81,12 @@ class WindowResult:
         or ``'window'`` (this module's own output-error fit, for shorter windows).
     findings : tuple of aeropend_core.signals.quality.Finding
         What the data-quality gate repaired or warned about in this window (empty: clean).
+    gap_count : int
+        Gaps of lost samples in the window (each splits the fits; nothing is filled in).
+    lost_samples : int
+        Samples missing inside the window.
+    longest_gap_seconds : float
+        The longest gap [s].
     """
 
     start: float
@@ -90,6 +103,9 @@ class WindowResult:
     findings: tuple = ()
     estimators: dict[str, str] = field(default_factory=dict)
     weak_parameters: dict[str, tuple[float, float]] = field(default_factory=dict)
+    gap_count: int = 0
+    lost_samples: int = 0
+    longest_gap_seconds: float = 0.0
 
 
 def check_excitation(armature_voltage: np.ndarray, angle: np.ndarray, n_train: int, sample_time: float,
@@ -114,8 +130,9 @@ def check_excitation(armature_voltage: np.ndarray, angle: np.ndarray, n_train: i
 
 def check_window_data(time: np.ndarray, columns: dict[str, np.ndarray], sample_time: float) -> None:
     """Refuse data the analysis would turn into wrong numbers: unequal lengths, NaN/inf or absurd values (the
-    data-quality gate's rule, :func:`aeropend_core.signals.quality.require_finite`), a time axis that is not
-    increasing by `sample_time` [s] (within 1 %). The node passes each window through the whole gate first.
+    data-quality gate's rule, :func:`aeropend_core.signals.quality.require_finite`), a time axis that does not
+    advance by whole numbers of `sample_time` [s] (within 1 %; a step of several samples is a gap of lost ones).
+    The node passes each window through the whole gate first.
 
     Raises
     ------
@@ -128,27 +145,38 @@ def check_window_data(time: np.ndarray, columns: dict[str, np.ndarray], sample_t
             raise AeropendError(f'{name} has {values.size} values for {time.size} times')
     require_finite(['time', *columns], [time, *columns.values()])
     steps = np.diff(time)
-    if steps.size and np.max(np.abs(steps - sample_time)) > 0.01 * sample_time:
+    whole = np.maximum(np.rint(steps / sample_time), 1.0) * sample_time
+    if steps.size and (np.any(steps <= 0) or np.max(np.abs(steps - whole)) > 0.01 * sample_time):
         raise AeropendError(f'time is not uniform: steps from {steps.min():.6g} to {steps.max():.6g} s, expected '
-                            f'{sample_time:.6g} s; put the samples on the sequence grid first (fill_gaps)')
+                            f'whole multiples of {sample_time:.6g} s (a multiple is a gap of lost samples); stamp '
+                            f'the samples with their sequence number x the sample time')
 
 
 def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_current: np.ndarray,
                    angle: np.ndarray, effects: Sequence[str] = (), holdout_fraction: float = 0.25,
                    sample_time: float = SAMPLE_TIME, parameters: RigParameters = DEFAULT_PARAMETERS,
-                   max_iterations: int = 30) -> WindowResult:
+                   max_iterations: int = 30, sequence: np.ndarray | None = None) -> WindowResult:
     """Identify the pendulum on one window and score it on its held-out end (module docstring).
 
     Parameters
     ----------
     time : ndarray, shape (n,)
-        Acquisition times [s], uniformly spaced by `sample_time` (fill lost samples before calling).
+        Acquisition times [s], spaced by `sample_time` or whole multiples of it where samples were lost (gaps:
+        the window is split there, nothing is filled).
     armature_voltage, armature_current, angle : ndarray, shape (n,)
         Va [V], Ia [A], angle [rad].
     effects : sequence of str
         Catalog effects in the model.
     holdout_fraction : float
         Fraction of the window (its end) kept out of the fit and used for the held-out score.
+    sample_time : float
+        The acquisition period [s].
+    parameters : RigParameters
+        Rig constants (SI) for the derived parameters.
+    max_iterations : int
+        Output-error iterations of the short-window fit [-].
+    sequence : ndarray of int, shape (n,), optional
+        The samples' sequence numbers [-]: gaps are taken from them when given (else from `time`).
 
     Raises
     ------
@@ -163,26 +191,50 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     voltage = np.asarray(armature_voltage, dtype=float)
     current = np.asarray(armature_current, dtype=float)
     angle = np.asarray(angle, dtype=float)
-    n = time.size
     check_window_data(time, {'armature_voltage': voltage, 'armature_current': current, 'angle': angle}, sample_time)
-    # The data-quality gate (the same as for files): refusals raise, repairs are used and kept with the result.
-    from aeropend_core.io.recording import Recording
-    from aeropend_core.signals.quality import check_recording
-    checked = check_recording(Recording(time, {'armature_voltage': voltage, 'armature_current': current,
-                                               'angle': angle}, source='window'),
-                              sample_time=sample_time, context='window').recording
-    voltage, current, angle = (checked.signals[k] for k in ('armature_voltage', 'armature_current', 'angle'))
     if not 0.0 < holdout_fraction < 1.0:
         raise AeropendError(f'holdout_fraction must be in (0, 1), got {holdout_fraction}')
+    # The data-quality gate (the same as for files): refusals raise, repairs are used and kept with the result.
+    from aeropend_core.diagnosis.compare import split_at_gaps
+    from aeropend_core.io.recording import Recording
+    from aeropend_core.signals.quality import check_recording
+    signals = {'armature_voltage': voltage, 'armature_current': current, 'angle': angle}
+    if sequence is not None:
+        sequence = np.asarray(sequence, dtype=float)
+        if sequence.shape != time.shape:
+            raise AeropendError(f'sequence has {sequence.size} values for {time.size} times')
+        signals['sequence'] = sequence
+    checked = check_recording(Recording(time, signals, source='window'), sample_time=sample_time,
+                              context='window').recording
+    measured_time = np.asarray(checked.time, dtype=float)
+    voltage, current, angle = (checked.signals[k] for k in ('armature_voltage', 'armature_current', 'angle'))
+    # Lost samples: on the sample grid, marked (never used as data); refused beyond MAX_LOST_FRACTION.
+    grid_time, filled, gaps = split_at_gaps(measured_time, {'armature_voltage': voltage, 'armature_current': current,
+                                                            'angle': angle}, sample_time, 'the window',
+                                            checked.signals.get('sequence'))
+    time = grid_time
+    voltage, current, angle = filled['armature_voltage'], filled['armature_current'], filled['angle']
+    n = time.size
     n_train = int(round(n * (1.0 - holdout_fraction)))
-    if n_train < int(2.0 / sample_time) or n - n_train < int(0.5 / sample_time):
-        raise InsufficientDataError(f'window of {n * sample_time:.1f} s too short: need >= 2 s of training and '
+    train_pieces = gaps.pieces(0, n_train)
+    held_pieces = gaps.pieces(n_train, n)
+    train_seconds = sum(b - a for a, b in train_pieces) * sample_time
+    held_seconds = sum(b - a for a, b in held_pieces) * sample_time
+    if train_seconds < 2.0 or held_seconds < 0.5:
+        lost = (f' between {gaps.count} gap(s) of lost samples ({gaps.lost} samples, the longest '
+                f'{gaps.longest_seconds:.3f} s)' if gaps.count else '')
+        raise InsufficientDataError(f'window of {n * sample_time:.1f} s too short: {train_seconds:.1f} s of training '
+                                    f'and {held_seconds:.1f} s held out remain{lost}; need >= 2 s of training and '
                                     '0.5 s held out')
     check_excitation(voltage, angle, n_train, sample_time)
 
     weak_effects = [name for name in effects if name in weak_form_effects()]
-    weak = identify_pendulum(time[:n_train], voltage[:n_train], current[:n_train], angle[:n_train],
-                             effects=weak_effects, parameters=parameters)
+    if gaps.count:      # the weak form on the training pieces between the gaps, together
+        weak = identify_pendulum(*([c[a:b] for a, b in train_pieces] for c in (time, voltage, current, angle)),
+                                 effects=weak_effects, parameters=parameters)
+    else:
+        weak = identify_pendulum(time[:n_train], voltage[:n_train], current[:n_train], angle[:n_train],
+                                 effects=weak_effects, parameters=parameters)
     equation = weak.equation
     coefficients = {name: (float(value), float(equation.standard_errors.get(name, float('nan'))))
                     for name, value in equation.coefficients.items()}
@@ -198,14 +250,15 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
             if math.isfinite(value):   # the fit moves starts off the bounds itself
                 start[parameter.name] = float(np.clip(value, parameter.lower, parameter.upper))
     scale = (parameters.gear_ratio * parameters.back_emf_constant) ** 2 / parameters.lever_per_inertia
-    if (n - 1) * sample_time >= _compare_min_duration():
+    if gaps.measured_seconds >= _compare_min_duration():
         values, errors, fit_percent, rms_error, noise = _held_out_by_compare(
-            time, voltage, current, angle, effects, holdout_fraction, start)
+            measured_time, voltage[gaps.valid], current[gaps.valid], angle[gaps.valid], effects, holdout_fraction,
+            start, checked.signals.get('sequence'))
         method = 'compare'
     else:
         typical = {parameter.name: parameter.typical for name in effects for parameter in get_effect(name).parameters}
         values, errors, fit_percent, rms_error, noise = _held_out_by_window(
-            voltage, current, angle, effects, n_train, sample_time, typical | start, max_iterations)
+            voltage, current, angle, effects, n_train, sample_time, typical | start, max_iterations, gaps)
         method = 'window'
     values['thrust_coefficient'] = values['thrust_gain'] * scale
     errors['thrust_coefficient'] = errors.get('thrust_gain', float('nan')) * scale
@@ -218,8 +271,9 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
         start=float(time[0]), stop=float(time[-1] + sample_time), effects=effects, coefficients=coefficients,
         parameters={name: (float(values[name]), float(errors.get(name, float('nan')))) for name in values},
         fit_percent=float(fit_percent), rms_error=float(rms_error), noise_rms=float(noise),
-        held_out_seconds=(n - n_train) * sample_time, compute_time=_time.perf_counter() - started, method=method,
-        estimators=estimators, weak_parameters=weak_parameters, findings=tuple(checked.findings))
+        held_out_seconds=held_seconds, compute_time=_time.perf_counter() - started, method=method,
+        estimators=estimators, weak_parameters=weak_parameters, findings=tuple(checked.findings),
+        gap_count=gaps.count, lost_samples=gaps.lost, longest_gap_seconds=gaps.longest_seconds)
 
 
 def _compare_min_duration() -> float:
@@ -230,12 +284,15 @@ def _compare_min_duration() -> float:
     return float(MIN_DURATION)
 
 
-def _held_out_by_compare(time, voltage, current, angle, effects, holdout_fraction, start):
-    """Refinement and held-out score by :func:`aeropend_core.diagnosis.compare.compare` (diagnosis definitions)."""
+def _held_out_by_compare(time, voltage, current, angle, effects, holdout_fraction, start, sequence=None):
+    """Refinement and held-out score by :func:`aeropend_core.diagnosis.compare.compare` (diagnosis definitions);
+    the measured samples only: gaps are split by :func:`aeropend_core.diagnosis.compare.prepare` itself."""
     from aeropend_core.diagnosis.compare import compare, prepare
     from aeropend_core.io.recording import Recording
-    record = Recording(time - time[0], {'armature_voltage': voltage, 'armature_current': current, 'angle': angle},
-                       source='the identification window')
+    signals = {'armature_voltage': voltage, 'armature_current': current, 'angle': angle}
+    if sequence is not None:
+        signals['sequence'] = np.asarray(sequence, dtype=float)
+    record = Recording(time - time[0], signals, source='the identification window')
     prepared = prepare(record, train_fraction=1.0 - holdout_fraction)
     comparison = compare(prepared, effects, start=start)
     values = dict(comparison.parameters)
@@ -248,9 +305,10 @@ def _held_out_by_compare(time, voltage, current, angle, effects, holdout_fractio
     return values, errors, comparison.fit_percent, comparison.rms_error, comparison.noise_rms
 
 
-def _held_out_by_window(voltage, current, angle, effects, n_train, sample_time, start, max_iterations):
+def _held_out_by_window(voltage, current, angle, effects, n_train, sample_time, start, max_iterations, gaps):
     """Output-error refinement on the training part and free-run score on the rest (windows shorter than
-    what :mod:`aeropend_core.diagnosis.compare` accepts)."""
+    what :mod:`aeropend_core.diagnosis.compare` accepts); segments restart after every gap (`gaps`, a
+    :class:`aeropend_core.diagnosis.compare.Gaps`), whose filled samples give no residual."""
     from aeropend_core.diagnosis import output_error as oe
     from aeropend_core.signals.preprocess import condition_inputs, noise_rms
     n = angle.size
@@ -258,47 +316,31 @@ def _held_out_by_window(voltage, current, angle, effects, n_train, sample_time, 
     cv, ci = conditioned.armature_voltage, conditioned.armature_current
     structure = oe.Structure(effects)
     step = int(round(SEGMENT_SECONDS / sample_time))
-    segments = [(s, min(s + step, n_train)) for s in range(0, n_train, step)]
-    if len(segments) > 1 and segments[-1][1] - segments[-1][0] < step // 2:   # fold a short tail into its neighbour
-        segments[-2:] = [(segments[-2][0], segments[-1][1])]
-    train = oe.SegmentedData(cv[:n_train], ci[:n_train], angle[:n_train], segments, sample_time)
+    segments = []
+    for first, last in gaps.pieces(0, n_train):       # ~SEGMENT_SECONDS segments within each piece between gaps
+        piece = [(s, min(s + step, last)) for s in range(first, last, step)]
+        if len(piece) > 1 and piece[-1][1] - piece[-1][0] < step // 2:   # fold a short tail into its neighbour
+            piece[-2:] = [(piece[-2][0], piece[-1][1])]
+        segments += piece
+    valid = gaps.valid if gaps.count else None
+    train = oe.SegmentedData(cv[:n_train], ci[:n_train], angle[:n_train], segments, sample_time,
+                             valid=None if valid is None else valid[:n_train])
     refined = oe.fit_output_error(train, structure, start, max_iterations=max_iterations)
     values = dict(refined.parameters)
     errors = dict(refined.standard_errors)
-    held = oe.SegmentedData(cv[n_train:], ci[n_train:], angle[n_train:], [(0, n - n_train)], sample_time)
+    held_segments = [(a - n_train, b - n_train) for a, b in gaps.pieces(n_train, n)]
+    held = oe.SegmentedData(cv[n_train:], ci[n_train:], angle[n_train:], held_segments, sample_time)
     offset = structure.offset_parameter
     initial = oe.initial_states_from_data(held, values.get(offset, 0.0) if offset else 0.0)
     predicted = oe.simulate_angle(held, refined.parameters, structure, initial)
     landed = np.isfinite(predicted)
+    if valid is not None:
+        landed &= valid[n_train:]
     measured = angle[n_train:][landed]
     error = predicted[landed] - measured
     fit_percent = _fit_percent(measured, predicted[landed])
-    return values, errors, fit_percent, float(np.sqrt(np.mean(error ** 2))), noise_rms(angle[n_train:])
-
-
-def fill_gaps(sequence: np.ndarray, columns: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray], int]:
-    """Put samples on the full sequence grid, filling lost ones by linear interpolation.
-
-    Parameters
-    ----------
-    sequence : ndarray of int, shape (n,)
-        Increasing sample counters.
-    columns : dict of ndarray, shape (n,)
-
-    Returns
-    -------
-    grid : ndarray of int, shape (m,)
-        ``sequence[0] .. sequence[-1]``.
-    filled : dict of ndarray, shape (m,)
-    missing : int
-        Number of samples filled in.
-    """
-    sequence = np.asarray(sequence, dtype=np.int64)
-    grid = np.arange(sequence[0], sequence[-1] + 1)
-    missing = int(grid.size - sequence.size)
-    if missing == 0:
-        return grid, {k: np.asarray(v, dtype=float) for k, v in columns.items()}, 0
-    return grid, {k: np.interp(grid, sequence, np.asarray(v, dtype=float)) for k, v in columns.items()}, missing
+    held_measured = angle[n_train:] if valid is None else angle[n_train:][valid[n_train:]]
+    return values, errors, fit_percent, float(np.sqrt(np.mean(error ** 2))), noise_rms(held_measured)
 
 
 class ParameterTrends:

@@ -33,6 +33,10 @@ def format_summary(diagnosis: Diagnosis) -> str:
         if name == 'armature_resistance' and observer:
             lines.append(f'  {name:24s} {value:12.5g} {unit} (from the motor observer fitted to Ia)')
             continue
+        if name in diagnosis.fixed:
+            where = diagnosis.fixed_from.get(name, '--fix')
+            lines.append(f'  {name:24s} {diagnosis.fixed[name]:12.5g} {unit} (fixed from {where}, not fitted)')
+            continue
         lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit}')
     if diagnosis.before is not None:
         before = diagnosis.before

@@ -9,7 +9,14 @@ from the device and calls these. Every function checks that its data can support
 * locked rotor: propeller held, a few low duties -> with the rotor still there is no back-EMF, so in steady state
   Va = Ra Ia: the slope of Va against Ia over the steps is Ra [ohm] (an intercept absorbs a brush/bridge drop);
 * back-EMF: motor spinning freely at a steady duty, speed measured externally (optical tachometer) ->
-  Kw = (Va - Ra Ia) / w1 [V s/rad].
+  Kw = (Va - Ra Ia) / w1 [V s/rad];
+* angle filter: the measurement chain's low-pass on the angle (the AS5040's PWM output through a 2nd-order RC
+  ladder, R1 = R2 = R, C1 = C2 = C on the board) -> its DC group delay ``angle_filter_delay`` = 3 R C [s], from the
+  component values (:func:`rc_ladder_delay`). The calibration file carries it so that the diagnosis can hold the
+  filter at its hardware value (:func:`read_measurement_chain`) instead of confusing it with a thrust lag.
+
+The calibration file is the serial bridge's parameter YAML (``config/serial_bridge_node.yaml``):
+:func:`read_calibration_file` returns its ``ros__parameters``.
 
 The firmware reads the current once per PWM period, at the pulse centre (phase-correct PWM). With La/Ra about one
 period the armature current ripples, and that reading exceeds the period average (:func:`held_current_offset`,
@@ -19,23 +26,36 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from aeropend_core.errors import InsufficientDataError
+from aeropend_core.errors import AeropendError, InsufficientDataError
 
 #: The firmware's current sample-and-hold after the Timer1 overflow [s]: an auto-triggered conversion holds 2 ADC
 #: clocks (prescaler 128) + 3 CPU cycles after its trigger (ATmega2560 datasheet), at 16 MHz.
 HOLD_DELAY = (2 * 128 + 3) / 16e6
 
+#: The key of the serial bridge's section in its parameter YAML (the node in any namespace).
+NODE_KEY = '/**/serial_bridge_node'
+#: Calibration-file key of the angle filter's DC group delay [s] (0: no filter on the angle).
+ANGLE_FILTER_KEY = 'angle_filter_delay'
+#: Largest believable angle-filter delay [s] (the catalog's bound: a slower filter would blur the pendulum itself).
+MAX_ANGLE_FILTER_DELAY = 0.05
+
 __all__ = [
+    'ANGLE_FILTER_KEY',
     'LineFit',
+    'MeasurementChain',
     'ZeroResult',
     'angle_scale_from_reference',
     'back_emf_constant',
     'held_current_offset',
     'hold_after_pulse_start',
     'locked_rotor_resistance',
+    'rc_ladder_delay',
+    'read_calibration_file',
+    'read_measurement_chain',
     'steady_mean',
     'zero_offsets',
 ]
@@ -194,3 +214,97 @@ def hold_after_pulse_start(duty, period: float, phase_correct: bool = True):
     """
     duty = np.asarray(duty, dtype=float)
     return (duty * period / 2 if phase_correct else 0.0 * duty) + HOLD_DELAY
+
+
+def rc_ladder_delay(resistance: float, capacitance: float) -> float:
+    """DC group delay [s] of an unbuffered 2nd-order RC ladder with R1 = R2 and C1 = C2: 3 R C.
+
+    Parameters
+    ----------
+    resistance : float
+        R1 = R2 [ohm] (4.7e3 on the rig's board).
+    capacitance : float
+        C1 = C2 [F] (1e-6 on the rig's board).
+
+    Returns
+    -------
+    float
+        The delay [s] (0.0141 for 4.7 kOhm and 1 uF); its cut-off is 0.1787 / delay [Hz].
+    """
+    for name, value, unit in (('resistance', resistance, 'ohm'), ('capacitance', capacitance, 'F')):
+        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            raise AeropendError(f'the angle filter\'s {name} must be a positive number of {unit}, got {value!r}')
+    delay = 3.0 * float(resistance) * float(capacitance)
+    if delay > MAX_ANGLE_FILTER_DELAY:
+        raise AeropendError(f'R = {resistance:g} ohm and C = {capacitance:g} F give a filter delay of {delay:g} s, '
+                            f'more than {MAX_ANGLE_FILTER_DELAY:g} s: check the units (ohm and farad, e.g. 4700 '
+                            f'and 1e-6)')
+    return delay
+
+
+def read_calibration_file(path: str | Path) -> dict:
+    """The ``ros__parameters`` of the serial bridge's section of a calibration YAML file (``{}`` when absent).
+
+    Raises
+    ------
+    AeropendError
+        The file cannot be read or is not YAML, naming the file.
+    """
+    import yaml
+    path = Path(path)
+    try:
+        document = yaml.safe_load(path.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
+        raise AeropendError(f'cannot read the calibration file {path}: {error}') from error
+    if document is None:
+        return {}
+    if not isinstance(document, dict):
+        raise AeropendError(f'{path} is not a calibration file (a YAML mapping with {NODE_KEY}: ros__parameters: '
+                            f'...; see config/serial_bridge_node.yaml)')
+    section = document.get(NODE_KEY) or document.get(NODE_KEY.removeprefix('/**/')) or {}   # old files: no '/**/'
+    values = section.get('ros__parameters') if isinstance(section, dict) else None
+    return dict(values) if isinstance(values, dict) else {}
+
+
+@dataclass(frozen=True)
+class MeasurementChain:
+    """The measurement-chain values a calibration file states (None: the file does not say).
+
+    Attributes
+    ----------
+    angle_filter_delay : float or None
+        DC group delay of the angle's low-pass [s]; 0.0 when the file states that the angle is not filtered.
+    source : str
+        Where the values came from (the file's path), for the reports.
+    """
+
+    angle_filter_delay: float | None
+    source: str
+
+    def fixed_effects(self) -> dict[str, float]:
+        """``{effect: value}`` to hold in the diagnosis (``{'angle_filter': delay}``; empty when unknown or 0)."""
+        return {'angle_filter': self.angle_filter_delay} if self.angle_filter_delay else {}
+
+    def excluded_effects(self) -> tuple[str, ...]:
+        """Effects the file rules out (``angle_filter`` when it states that the angle is not filtered)."""
+        return ('angle_filter',) if self.angle_filter_delay == 0.0 else ()
+
+
+def read_measurement_chain(path: str | Path) -> MeasurementChain:
+    """The measurement-chain values of a calibration file (``angle_filter_delay`` [s]; see the module docstring).
+
+    Raises
+    ------
+    AeropendError
+        Unreadable file, or a value that is not a delay in seconds between 0 and ``MAX_ANGLE_FILTER_DELAY``.
+    """
+    values = read_calibration_file(path)
+    delay = values.get(ANGLE_FILTER_KEY)
+    if delay is not None:
+        if isinstance(delay, bool) or not isinstance(delay, (int, float)) or not \
+                0.0 <= float(delay) <= MAX_ANGLE_FILTER_DELAY:
+            raise AeropendError(f'{path}: {ANGLE_FILTER_KEY} must be the angle filter\'s delay in seconds, between 0 '
+                                f'(no filter) and {MAX_ANGLE_FILTER_DELAY:g} (e.g. 0.0141 for the 4.7 kOhm / 1 uF '
+                                f'RC ladder: `aeropend calibrate angle-filter`), got {delay!r}')
+        delay = float(delay)
+    return MeasurementChain(delay, str(path))

@@ -169,9 +169,7 @@ def _check_gaps(gate: _Gate, typical: float) -> None:
     k = int(gaps[longest])
     gate.add('lost_samples', 'warning', f'{int(lost.sum())} sample(s) lost in {gaps.size} gap(s), the longest '
              f'{lost[longest] * typical:.3g} s ({lost[longest]} samples) after sample {k} (t = {gate.t(k):.4f}-'
-             f'{gate.t(k + 1):.4f} s); ' + ('filled by linear interpolation for the analysis'
-                                            if gate.context == 'window'
-                                            else 'they are not filled: the record is not continuous there'),
+             f'{gate.t(k + 1):.4f} s); they are not filled: the fits are split at the gaps',
              (gate.t(int(gaps[0])), gate.t(int(gaps[-1]) + 1)), int(lost.sum()))
 
 

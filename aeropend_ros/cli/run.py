@@ -64,6 +64,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE',
                         help='write the run and its diagnosis as one JSON object to FILE (- or no FILE: to standard '
                              'output, which then carries the JSON only; the text goes to standard error)')
+    from aeropend_core.cli._checks import add_calibration_argument
+    add_calibration_argument(parser)
     parser.add_argument('--foxglove', nargs='?', type=int, const=8765, default=None, metavar='PORT',
                         help='serve the live graph to Foxglove on ws://127.0.0.1:PORT (default 8765; 0 = any free '
                              'port); layout: config/aeropend.foxglove.json')
@@ -109,6 +111,13 @@ def _check_arguments(args) -> None:
     if args.effect and args.effect != ['none']:
         parse_effect_assignments(args.effect)
     check_effect_names(args.model_effect, '--add')
+    if args.calibration:         # a bad file is refused before any node starts
+        from aeropend_core.cli._checks import calibration_fixed
+        fixed, _, _ = calibration_fixed(args.calibration, {})
+        both = sorted(set(fixed) & set(args.model_effect))
+        if both:
+            raise AeropendError(f'{", ".join(both)} given with --add and fixed by --calibration {args.calibration}; '
+                                'drop the --add (the calibration file already puts it in the model)')
     if args.foxglove is not None:
         if not 0 <= args.foxglove <= 65535:
             raise AeropendError(f'--foxglove PORT must be in [0, 65535] (0 = any free port), got {args.foxglove}')
@@ -178,7 +187,12 @@ def _run(args) -> int:
                 stop_after=float(args.duration)), namespace=namespace)
         else:
             from aeropend_ros.serial_bridge_node import SerialBridgeNode
-            source = SerialBridgeNode(parameter_overrides=overrides(port=args.port), namespace=namespace)
+            calibrated = {}
+            if args.calibration:        # the rig's calibration (zeros, scales, ...); --port wins over its port
+                from aeropend_core.rig.calibration import read_calibration_file
+                calibrated = read_calibration_file(args.calibration)
+            source = SerialBridgeNode(parameter_overrides=overrides(**{**calibrated, 'port': args.port}),
+                                      namespace=namespace)
         nodes.append(source)
         start_delay = 1.0
         excitation = ExcitationNode(parameter_overrides=overrides(
@@ -375,7 +389,11 @@ def _diagnose(bag_folder, memory, args, interrupted: bool) -> int:
     print(f'\nDiagnosis of {len(recording)} samples ({recording.time[-1] - recording.time[0]:.1f} s) '
           f'from {recording.source or "the run"}:', flush=True)
     try:
-        diagnosis = diagnose(recording, effects=tuple(args.model_effect),
+        from aeropend_core.cli._checks import calibration_fixed
+        fixed, fixed_from, calibration_message = calibration_fixed(args.calibration, {})
+        if calibration_message:
+            print(f'  ... {calibration_message}', flush=True)
+        diagnosis = diagnose(recording, effects=tuple(args.model_effect), fixed=fixed, fixed_from=fixed_from,
                              progress=lambda message: print(f'  ... {message}', flush=True))
     except InsufficientDataError as error:
         print(f'aeropend run: cannot diagnose: {error}', file=sys.stderr)
@@ -409,6 +427,8 @@ def _write_json(target: str, value: dict) -> None:
 def _next_step(diagnosis, bag_folder, args) -> str:
     """What to do next, as a command the user can paste."""
     data = str(bag_folder) if bag_folder is not None else '<your recording>'
+    if getattr(args, 'calibration', None):
+        data += f' --calibration {args.calibration}'
     named = list(getattr(diagnosis, 'missing_effects', None) or
                  ([diagnosis.missing_effect] if getattr(diagnosis, 'missing_effect', None) else []))
     if named:
