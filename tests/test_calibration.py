@@ -126,16 +126,18 @@ def test_angle_filter_delay_from_components_written_and_read(capsys, tmp_path):
     assert status == 0, err
     assert value_of(out, 'angle_filter_delay') == pytest.approx(0.0099)
     chain = C.read_measurement_chain(config)
-    assert chain.angle_filter_delay == pytest.approx(0.0099) and chain.fixed_effects() == {
-        'angle_filter': pytest.approx(0.0099)}
+    assert chain.angle_filter_delay == pytest.approx(0.0099)
+    from aeropend_core.cli._checks import calibration_fixed
+    fixed, fixed_from, message = calibration_fixed(str(config), {})
+    assert fixed == {'angle_filter': {'filter_delay': pytest.approx(0.0099)}}, fixed
+    assert fixed_from == {'angle_filter': f'calibration file {config}'} and 'fixed from' in message
     assert yaml.safe_load(config.read_text())['/**/serial_bridge_node']['ros__parameters']['angle_zero'] == 512.0
     # a file without the key says nothing (the filter stays a candidate); 0 says "no filter"
     bare = tmp_path / 'bare.yaml'
     bare.write_text('/**/serial_bridge_node:\n  ros__parameters:\n    angle_zero: 530.0\n')
     assert C.read_measurement_chain(bare).angle_filter_delay is None
     bare.write_text('/**/serial_bridge_node:\n  ros__parameters:\n    angle_filter_delay: 0.0\n')
-    assert C.read_measurement_chain(bare).fixed_effects() == {} and \
-        C.read_measurement_chain(bare).excluded_effects() == ('angle_filter',)
+    assert C.read_measurement_chain(bare).angle_filter_delay == 0.0
     # user mistakes: ms instead of s, units of the components, an unreadable file
     bare.write_text('/**/serial_bridge_node:\n  ros__parameters:\n    angle_filter_delay: 14.1\n')
     with pytest.raises(AeropendError, match='delay in seconds'):

@@ -281,14 +281,6 @@ class MeasurementChain:
     angle_filter_delay: float | None
     source: str
 
-    def fixed_effects(self) -> dict[str, float]:
-        """``{effect: value}`` to hold in the diagnosis (``{'angle_filter': delay}``; empty when unknown or 0)."""
-        return {'angle_filter': self.angle_filter_delay} if self.angle_filter_delay else {}
-
-    def excluded_effects(self) -> tuple[str, ...]:
-        """Effects the file rules out (``angle_filter`` when it states that the angle is not filtered)."""
-        return ('angle_filter',) if self.angle_filter_delay == 0.0 else ()
-
 
 def read_measurement_chain(path: str | Path) -> MeasurementChain:
     """The measurement-chain values of a calibration file (``angle_filter_delay`` [s]; see the module docstring).

@@ -6,7 +6,7 @@ with a time advance ``exp(d s) = 1 + d s + (d s)^2 / 2 + ...`` to first order in
 frequencies (below ~3 Hz, ``d s`` < 0.27 for 14 ms) advancing the angle by ``d`` removes the filter's phase lag
 and leaves an amplitude error below ``(d w)^2 / 2`` (3.5 % at 3 Hz for 14 ms; 0.8 % at the rod's ~1.9 Hz).
 Differentiating the angle to invert ``H`` exactly would amplify its noise; the output-error diagnosis models the
-filter exactly instead (the ``angle_filter`` effect held at ``d``).
+filter exactly instead (the angle-filter effect of the catalog, held at ``d``).
 """
 from __future__ import annotations
 
