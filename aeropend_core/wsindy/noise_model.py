@@ -73,6 +73,7 @@ class _NoiseModel:
     n: int                         # samples in the segment
     pairs: np.ndarray              # H[a, b, u, τ] (:func:`_pair_kernels`), u = 0..grid band
     plain_pair: np.ndarray         # H[u, τ] of the plain φ (process noise)
+    layout: tuple = ()             # per noisy signal: (sorted kernel types present, {type: (lo, hi) column slice})
 
     @property
     def contiguous(self) -> bool:
@@ -98,6 +99,7 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
                  plain_kernel) -> _NoiseModel:
     names = {eq.target, *(v for t in eq.terms for v in t.variables)}
     out = []
+    layout = []
     for v in sorted(names):
         x = signals[v]
         if noise_std is not None and v in noise_std:
@@ -110,18 +112,25 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
         members = sorted((type_of[j], j) for j, term in enumerate(eq.terms) if v in term.variables)
         idx = np.array([j for _, j in members], np.int64)
         types = np.array([a for a, _ in members], np.int64)
+        bounds = {}
+        for position, (a, _) in enumerate(members):   # members are sorted by type: each type is one slice
+            lo, _ = bounds.get(a, (position, position))
+            bounds[a] = (lo, position + 1)
 
         def stacked(v=v, x=x, idx=idx):
             cols = [_term_partial(cache, segment, eq.terms[j], signals, v) for j in idx]
             return np.column_stack(cols) if cols else np.zeros((len(x), 0))
         key = ('jacs', segment, v, tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx))
         out.append((sigma, v == eq.target, idx, types, _cached(cache, key, stacked)))
+        layout.append((sorted(bounds), bounds))
     first, step, rows = _grid(starts, width)
     grid_band = max(-(-width // step) - 1, 0)
     kernels = np.array(kernel_list)
     pairs = _cached_pair_kernels(kernels, step, grid_band)
-    plain = _cached_pair_kernels(plain_kernel[None, :], step, grid_band)[0, 0]
-    return _NoiseModel(kernels, tuple(out), first, step, rows, len(signals[eq.target]), pairs, plain)
+    # the plain φ is usually one of the kernel types already (terms without derivative): same products, reuse
+    same = [a for a in range(len(kernels)) if np.array_equal(kernels[a], plain_kernel)]
+    plain = pairs[same[0], same[0]] if same else _cached_pair_kernels(plain_kernel[None, :], step, grid_band)[0, 0]
+    return _NoiseModel(kernels, tuple(out), first, step, rows, len(signals[eq.target]), pairs, plain, tuple(layout))
 
 
 def clear_caches() -> None:
@@ -226,12 +235,12 @@ def _coefficient_functions(model: _NoiseModel, w) -> list[tuple[float, dict]]:
     """Per noisy signal: (σ², {type a: c_a(t)}) with the non-zero kernel-type coefficient functions (section
     comment); the lhs type 0 is the constant 1.0 for the target."""
     out = []
-    for sigma, is_target, idx, types, jac in model.signals:
+    for (sigma, is_target, idx, types, jac), (_, bounds) in zip(model.signals, model.layout):
         c = {0: 1.0} if is_target else {}
         if w is not None and idx.size:
             wv = w[idx]
             for a in set(types[wv != 0.0].tolist()):
-                lo, hi = np.searchsorted(types, a), np.searchsorted(types, a, side='right')   # columns by type
+                lo, hi = bounds[a]   # columns by type
                 c[a] = -(jac[:, lo:hi] @ wv[lo:hi])
         if c:
             out.append((sigma * sigma, c))
@@ -306,8 +315,7 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
             zgrid[rows[i[ok]], offset[ok]] = zb[u, i[ok]]
     # kernel types needed: (a, b) for two columns of one signal, (a, 0) for the target's own noise
     needed = set()
-    for _, is_target, idx, types, _ in model.signals:
-        present = sorted(set(types.tolist()))
+    for (_, is_target, idx, types, _), (present, _) in zip(model.signals, model.layout):
         needed.update((a, b) for i, a in enumerate(present) for b in present[i:])
         if is_target:
             needed.update((0, a) for a in present)
@@ -319,12 +327,10 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
     q = {ab: q_all[i] for i, ab in enumerate(needed)}
     gram = np.zeros((n_terms, n_terms))
     rhs = np.zeros(n_terms)
-    for sigma, is_target, idx, types, jac in model.signals:
+    for (sigma, is_target, idx, types, jac), (present, bounds) in zip(model.signals, model.layout):
         if not idx.size:
             continue
         var = sigma * sigma
-        present = sorted(set(types.tolist()))
-        bounds = {a: (int(np.searchsorted(types, a)), int(np.searchsorted(types, a, side='right'))) for a in present}
         if len(present) == 1:
             (a,) = present
             block = (jac * q[(a, a)][:, None]).T @ jac
