@@ -299,7 +299,7 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
     """
     if not any(idx.size for _, _, idx, _, _ in model.signals):
         return np.zeros((n_terms, n_terms)), np.zeros(n_terms)
-    zb = _band_of_inverse(np.ascontiguousarray(chol))          # zb[u, i] = Σ⁻¹[i, i+u] on the used rows
+    zb = _band_of_inverse(chol)          # zb[u, i] = Σ⁻¹[i, i+u] on the used rows
     pairs = model.pairs
     rows = model.rows
     full = int(rows[-1]) + 1
@@ -348,7 +348,7 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
             for a in present:
                 lo, hi = bounds[a]
                 rhs[idx[lo:hi]] += var * (jac[:, lo:hi].T @ q[(0, a)])
-        gram[np.ix_(idx, idx)] += var * block
+        gram[idx[:, None], idx] += var * block
     return gram, rhs
 
 

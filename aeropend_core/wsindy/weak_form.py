@@ -414,8 +414,10 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
                                                              lambda term=term, s=s: term.evaluate(s))
                                                      for term in members]))
                     kern = hold_weights if held else weights[d]
-                    g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
-        gb[:, -1] = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
+                    rows = _weak_rows(theta, kern, starts)
+                    g[:, idx] = -rows if d % 2 else rows      # (−1)^d, exactly
+        lhs = _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
+        gb[:, -1] = -lhs if eq.order % 2 else lhs
         b = gb[:, -1]
         model = _noise_model(eq, s, starts, kernel_list, type_of, noise_std, cache, si, width, weights[0])
         systems.append((g, b, model, gb))
