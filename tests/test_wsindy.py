@@ -214,6 +214,56 @@ def test_exhaustive_search_matches_brute_force():
         assert np.array_equal(found, best_support), trial
 
 
+def _straightforward_mstls(gram, rhs, keep, usable, ridge, alpha, grid):
+    """The MSTLS λ sweep of selection._select written plainly: every thresholding step and every candidate
+    support solved afresh (no memo, no skipping of supports scored before), scored with the same loss."""
+    w_ls = selection._solve_subset(gram, rhs, usable, 1e-12)
+    gwls = gram @ w_ls
+    c0 = float(w_ls @ gwls)
+    denom = np.sqrt(max(c0, 0.0)) or 1.0
+    n_terms = max(int(np.count_nonzero(usable)), 1)
+    w_full = selection._solve_subset(gram, rhs, usable, ridge)
+    best_loss, best_w, best_lam = np.inf, w_ls, 0.0
+    for lam in grid:
+        support, w = usable.copy(), w_full
+        for _ in range(usable.size + 1):
+            new = support & (((np.abs(w) >= lam) & (np.abs(w) <= 1 / lam)) | keep)
+            if np.array_equal(new, support):
+                break
+            support = new
+            w = selection._solve_subset(gram, rhs, support, ridge)
+        w = selection._solve_subset(gram, rhs, w != 0.0, 1e-12)
+        value = selection._loss(gram, w, gwls, c0, denom, alpha, n_terms)
+        if value < best_loss - 1e-12:
+            best_loss, best_w, best_lam = value, w, lam
+    return best_w, best_lam
+
+
+@pytest.mark.parametrize('n', [18, 70])
+def test_memoised_threshold_sweep_equals_straightforward_sweep(n):
+    """The λ sweep remembers recent solves keyed by the support's bit mask (libraries of up to 62 terms; more
+    solve every time): it must give exactly (bit for bit) the coefficients and λ of solving every support
+    afresh, on seeded problems with sparse truth, nearly collinear columns and kept terms."""
+    rng = np.random.default_rng(n)
+    grid = selection.THRESHOLD_GRID
+    for trial in range(6):
+        a = rng.normal(size=(4 * n, n))
+        a[:, 1] = a[:, 0] + 1e-3 * rng.normal(size=4 * n)
+        truth = np.zeros(n)
+        truth[rng.choice(n, 4, replace=False)] = rng.normal(size=4) * 10.0 ** rng.uniform(-2, 1, 4)
+        b = a @ truth + 0.05 * rng.normal(size=4 * n)
+        an = a / np.linalg.norm(a, axis=0)
+        gram, rhs = an.T @ an, an.T @ b / np.linalg.norm(b)
+        keep = np.zeros(n, bool)
+        keep[2] = trial % 2 == 1
+        usable = np.ones(n, bool)
+        fast_w, fast_lam = selection._select(gram, rhs, keep, usable, 1e-6, 0.8, grid, False, 0)
+        plain_w, plain_lam = _straightforward_mstls(gram, rhs, keep, usable, 1e-6, 0.8, grid)
+        assert np.array_equal(fast_w, plain_w), trial
+        assert fast_lam == plain_lam, trial
+        assert 0 < np.count_nonzero(fast_w) < n, trial     # the sweep really thresholded something
+
+
 def test_term_partial_derivatives_match_central_differences():
     rng = np.random.default_rng(2)
     signals = {'a': rng.normal(size=40) + 2, 'b': rng.normal(size=40), 'c': rng.normal(size=40)}
@@ -226,3 +276,48 @@ def test_term_partial_derivatives_match_central_differences():
             assert np.allclose(exact, numeric.derivative_wrt(signals, name), rtol=1e-6, atol=1e-8), (term.name, name)
             if name not in term.variables:
                 assert not np.any(exact)
+
+
+def test_banded_forward_substitution_matches_lapack():
+    """The whitening's banded forward substitution (row by row over all right-hand sides) gives LAPACK dtbtrs'
+    L⁻¹B (within rounding; the fit on the benchmark window was bit for bit the same), and refuses a zero pivot."""
+    from scipy.linalg import lapack
+
+    from aeropend_core.wsindy.noise_model import _banded_lower_solve, _cholesky_band
+    rng = np.random.default_rng(3)
+    for k, band, ncol in ((1216, 9, 19), (150, 8, 5), (40, 0, 3), (7, 6, 2)):
+        ab = np.zeros((band + 1, k))
+        ab[0] = 4.0 + rng.random(k)
+        for u in range(1, band + 1):
+            ab[u, :k - u] = 0.3 * rng.standard_normal(k - u) / u
+        chol = _cholesky_band(ab)
+        rhs = np.asfortranarray(rng.standard_normal((k, ncol)))
+        expected, info = lapack.dtbtrs(chol, rhs, uplo='L')
+        assert info == 0
+        got = _banded_lower_solve(chol, rhs)
+        assert got.shape == expected.shape and got.flags.f_contiguous
+        np.testing.assert_allclose(got, expected, rtol=1e-13, atol=1e-13 * np.max(np.abs(expected)))
+    chol[0, 3] = 0.0
+    assert _banded_lower_solve(chol, rhs).shape[0] == 0
+
+
+def test_banded_cholesky_matches_lapack():
+    """The whitening's banded Cholesky factor (LAPACK's unblocked dpbtf2 step for step) equals dpbtrf's within
+    rounding (bit for bit with OpenBLAS on this machine), and a matrix that is not positive definite is refused
+    with the 1-based column, as LAPACK's info."""
+    from scipy.linalg import lapack
+
+    from aeropend_core.wsindy.noise_model import _band_cholesky_unblocked
+    rng = np.random.default_rng(4)
+    for k, band in ((1216, 9), (150, 8), (30, 0), (9, 5)):
+        ab = np.zeros((band + 1, k), order='F')
+        ab[0] = 4.0 + rng.random(k)
+        for u in range(1, band + 1):
+            ab[u, :k - u] = 0.3 * rng.standard_normal(k - u) / u
+        expected, info = lapack.dpbtrf(ab.copy(order='F'), lower=1)
+        got = ab.copy(order='F')
+        assert info == 0 and _band_cholesky_unblocked(got) == 0
+        np.testing.assert_allclose(got, expected, rtol=1e-13, atol=1e-13)
+    ab = np.zeros((2, 5), order='F')
+    ab[0] = [1.0, 1.0, -1.0, 1.0, 1.0]
+    assert _band_cholesky_unblocked(ab) == 3

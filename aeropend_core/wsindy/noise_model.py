@@ -73,6 +73,7 @@ class _NoiseModel:
     n: int                         # samples in the segment
     pairs: np.ndarray              # H[a, b, u, τ] (:func:`_pair_kernels`), u = 0..grid band
     plain_pair: np.ndarray         # H[u, τ] of the plain φ (process noise)
+    layout: tuple = ()             # per noisy signal: (sorted kernel types present, {type: (lo, hi) column slice})
 
     @property
     def contiguous(self) -> bool:
@@ -98,6 +99,7 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
                  plain_kernel) -> _NoiseModel:
     names = {eq.target, *(v for t in eq.terms for v in t.variables)}
     out = []
+    layout = []
     for v in sorted(names):
         x = signals[v]
         if noise_std is not None and v in noise_std:
@@ -110,18 +112,25 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
         members = sorted((type_of[j], j) for j, term in enumerate(eq.terms) if v in term.variables)
         idx = np.array([j for _, j in members], np.int64)
         types = np.array([a for a, _ in members], np.int64)
+        bounds = {}
+        for position, (a, _) in enumerate(members):   # members are sorted by type: each type is one slice
+            lo, _ = bounds.get(a, (position, position))
+            bounds[a] = (lo, position + 1)
 
         def stacked(v=v, x=x, idx=idx):
             cols = [_term_partial(cache, segment, eq.terms[j], signals, v) for j in idx]
             return np.column_stack(cols) if cols else np.zeros((len(x), 0))
         key = ('jacs', segment, v, tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx))
         out.append((sigma, v == eq.target, idx, types, _cached(cache, key, stacked)))
+        layout.append((sorted(bounds), bounds))
     first, step, rows = _grid(starts, width)
     grid_band = max(-(-width // step) - 1, 0)
     kernels = np.array(kernel_list)
     pairs = _cached_pair_kernels(kernels, step, grid_band)
-    plain = _cached_pair_kernels(plain_kernel[None, :], step, grid_band)[0, 0]
-    return _NoiseModel(kernels, tuple(out), first, step, rows, len(signals[eq.target]), pairs, plain)
+    # the plain φ is usually one of the kernel types already (terms without derivative): same products, reuse
+    same = [a for a in range(len(kernels)) if np.array_equal(kernels[a], plain_kernel)]
+    plain = pairs[same[0], same[0]] if same else _cached_pair_kernels(plain_kernel[None, :], step, grid_band)[0, 0]
+    return _NoiseModel(kernels, tuple(out), first, step, rows, len(signals[eq.target]), pairs, plain, tuple(layout))
 
 
 def clear_caches() -> None:
@@ -226,12 +235,12 @@ def _coefficient_functions(model: _NoiseModel, w) -> list[tuple[float, dict]]:
     """Per noisy signal: (σ², {type a: c_a(t)}) with the non-zero kernel-type coefficient functions (section
     comment); the lhs type 0 is the constant 1.0 for the target."""
     out = []
-    for sigma, is_target, idx, types, jac in model.signals:
+    for (sigma, is_target, idx, types, jac), (_, bounds) in zip(model.signals, model.layout):
         c = {0: 1.0} if is_target else {}
         if w is not None and idx.size:
             wv = w[idx]
             for a in set(types[wv != 0.0].tolist()):
-                lo, hi = np.searchsorted(types, a), np.searchsorted(types, a, side='right')   # columns by type
+                lo, hi = bounds[a]   # columns by type
                 c[a] = -(jac[:, lo:hi] @ wv[lo:hi])
         if c:
             out.append((sigma * sigma, c))
@@ -290,7 +299,7 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
     """
     if not any(idx.size for _, _, idx, _, _ in model.signals):
         return np.zeros((n_terms, n_terms)), np.zeros(n_terms)
-    zb = _band_of_inverse(np.ascontiguousarray(chol))          # zb[u, i] = Σ⁻¹[i, i+u] on the used rows
+    zb = _band_of_inverse(chol)          # zb[u, i] = Σ⁻¹[i, i+u] on the used rows
     pairs = model.pairs
     rows = model.rows
     full = int(rows[-1]) + 1
@@ -306,8 +315,7 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
             zgrid[rows[i[ok]], offset[ok]] = zb[u, i[ok]]
     # kernel types needed: (a, b) for two columns of one signal, (a, 0) for the target's own noise
     needed = set()
-    for _, is_target, idx, types, _ in model.signals:
-        present = sorted(set(types.tolist()))
+    for (_, is_target, idx, types, _), (present, _) in zip(model.signals, model.layout):
         needed.update((a, b) for i, a in enumerate(present) for b in present[i:])
         if is_target:
             needed.update((0, a) for a in present)
@@ -319,12 +327,10 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
     q = {ab: q_all[i] for i, ab in enumerate(needed)}
     gram = np.zeros((n_terms, n_terms))
     rhs = np.zeros(n_terms)
-    for sigma, is_target, idx, types, jac in model.signals:
+    for (sigma, is_target, idx, types, jac), (present, bounds) in zip(model.signals, model.layout):
         if not idx.size:
             continue
         var = sigma * sigma
-        present = sorted(set(types.tolist()))
-        bounds = {a: (int(np.searchsorted(types, a)), int(np.searchsorted(types, a, side='right'))) for a in present}
         if len(present) == 1:
             (a,) = present
             block = (jac * q[(a, a)][:, None]).T @ jac
@@ -342,7 +348,7 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
             for a in present:
                 lo, hi = bounds[a]
                 rhs[idx[lo:hi]] += var * (jac[:, lo:hi].T @ q[(0, a)])
-        gram[np.ix_(idx, idx)] += var * block
+        gram[idx[:, None], idx] += var * block
     return gram, rhs
 
 
@@ -367,13 +373,83 @@ def _band_of_inverse(ab):
     return z
 
 
+@numba.njit(cache=True, nogil=True, fastmath={'contract'})
+def _banded_lower_solve(chol, rhs):
+    """L⁻¹·rhs for the lower banded Cholesky factor L (LAPACK storage chol[l, j] = L[j+l, j]) and a block of
+    right-hand sides rhs, shape (K, ncol); returns a new (K, ncol) array in Fortran order, or an empty (0, ncol)
+    array when a diagonal entry of L is 0 (singular: LAPACK dtbtrs' info > 0).
+
+    Forward substitution a row at a time over all columns together. Per element it performs the operations of
+    LAPACK's dtbtrs (OpenBLAS tbsv: the contributions of rows i−band .. i−1 in increasing order, each one fused
+    multiply-add x_i ← x_i − L[i, j]·x_j, then the division by L[i, i]; 'contract' lets LLVM fuse them the
+    same way): with OpenBLAS on an FMA machine the result is dtbtrs' bit for bit, elsewhere equal within rounding
+    (tests/test_wsindy.py). dtbtrs works one column at a time, which for a few tens of columns and a narrow
+    band costs twice as much.
+    """
+    band = chol.shape[0] - 1
+    k, ncol = rhs.shape
+    for i in range(k):
+        if chol[0, i] == 0.0:
+            return np.empty((0, ncol))
+    out = np.empty((k, ncol))
+    for i in range(k):
+        for c in range(ncol):
+            out[i, c] = rhs[i, c]
+        for j in range(max(0, i - band), i):
+            f = -chol[i - j, j]
+            for c in range(ncol):
+                out[i, c] = out[i, c] + f * out[j, c]
+        d = chol[0, i]
+        for c in range(ncol):
+            out[i, c] /= d
+    # Fortran order, as dtbtrs returns it: the products that follow (AᵀA) then round exactly as before
+    return np.asfortranarray(out)
+
+
 def _cholesky_band(ab):
     """Lower banded Cholesky factor (LAPACK storage) of the covariance band, with a 1e-10 relative jitter."""
     ab = np.array(ab, order='F')
     ab[0] *= 1.0 + 1e-10
     ab[0] += 1e-300
-    chol, info = lapack.dpbtrf(ab, lower=1, overwrite_ab=1)
+    if ab.shape[0] <= 32:          # LAPACK's dpbtrf itself runs the unblocked dpbtf2 for bands narrower than 32
+        info = _band_cholesky_unblocked(ab)
+        chol = ab
+    else:
+        chol, info = lapack.dpbtrf(ab, lower=1, overwrite_ab=1)
     if info != 0:
-        raise InsufficientDataError(f'the weak-form covariance is not positive definite (LAPACK info {info}); '
+        raise InsufficientDataError(f'the weak-form covariance is not positive definite (pivot {info}); '
                                     'the data cannot support this fit')
     return chol
+
+
+@numba.njit(cache=True, nogil=True, fastmath={'contract'})
+def _band_cholesky_unblocked(ab):
+    """In-place lower banded Cholesky factorisation (LAPACK storage ab[l, j] = A[j+l, j]); returns 0, or the
+    1-based column whose pivot is not positive (LAPACK's info).
+
+    LAPACK's dpbtf2 step for step: per column the square root of the pivot, the column scaled by its reciprocal
+    (DSCAL) and the rank-one update of the trailing band (DSYR, each element one fused multiply-add
+    a ← a + (−x_c)·x_r, as OpenBLAS's axpy kernel does it; 'contract' lets LLVM fuse the same way). dpbtrf calls
+    dpbtf2 for bands narrower than its block size (32), so on an FMA machine with OpenBLAS the factor is the
+    same bit for bit, without the per-call overhead of LAPACK's small BLAS calls.
+    """
+    kd = ab.shape[0] - 1
+    n = ab.shape[1]
+    for j in range(n):
+        ajj = ab[0, j]
+        if not ajj > 0.0:
+            return j + 1
+        ajj = np.sqrt(ajj)
+        ab[0, j] = ajj
+        kn = min(kd, n - j - 1)
+        if kn > 0:
+            scale = 1.0 / ajj
+            for r in range(1, kn + 1):
+                ab[r, j] = ab[r, j] * scale
+            for c in range(kn):
+                xc = ab[1 + c, j]
+                if xc != 0.0:
+                    factor = -xc
+                    for r in range(c, kn):
+                        ab[r - c, j + 1 + c] = ab[r - c, j + 1 + c] + factor * ab[1 + r, j]
+    return 0

@@ -308,14 +308,26 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
 
 
 @numba.njit(cache=True, nogil=True)
+def _support_key(support):
+    """The support as an integer bit mask (bit i = term i; n <= 62 terms), for cheap memo look-ups."""
+    key = 0
+    for i in range(support.size):
+        if support[i]:
+            key |= 1 << i
+    return key
+
+
+@numba.njit(cache=True, nogil=True)
 def _memo_solve(keys, vals, counts, slot, gram, rhs, support, ridge):
-    """:func:`_solve_subset` through a small ring buffer of recent (support, solution) pairs."""
+    """:func:`_solve_subset` through a small ring buffer of recent (support, solution) pairs, keyed by the
+    support's bit mask (:func:`_support_key`; an integer compare per entry instead of an array compare)."""
+    key = _support_key(support)
     for i in range(counts[slot]):
-        if np.array_equal(keys[i], support):
+        if keys[i] == key:
             return vals[i].copy()
     w = _solve_subset(gram, rhs, support, ridge)
     i = counts[slot + 1]
-    keys[i] = support
+    keys[i] = key
     vals[i] = w
     counts[slot + 1] = (i + 1) % keys.shape[0]
     counts[slot] = min(counts[slot] + 1, keys.shape[0])
@@ -343,12 +355,13 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     best_w = w_ls
     best_lam = 0.0
     w_full = _solve_subset(gram, rhs, usable, ridge)
-    # Neighbouring λ mostly visit the same supports: remember recent solves (ridge ones and final ones).
-    cap = 64
+    # Neighbouring λ mostly visit the same supports: remember recent solves (ridge ones and final ones), keyed
+    # by the support's bit mask; libraries of more than 62 terms do not fit a mask and solve every time.
     n = usable.size
-    ridge_keys = np.zeros((cap, n), np.bool_)
+    cap = 64 if n <= 62 else 1
+    ridge_keys = np.zeros(cap, np.int64)
     ridge_vals = np.zeros((cap, n))
-    final_keys = np.zeros((cap, n), np.bool_)
+    final_keys = np.zeros(cap, np.int64)
     final_vals = np.zeros((cap, n))
     counts = np.zeros(4, np.int64)          # ridge count, ridge next slot, final count, final next slot
     support = np.empty(n, np.bool_)
@@ -370,18 +383,25 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
             if not changed:
                 break
             support[:] = new
-            w = _memo_solve(ridge_keys, ridge_vals, counts, 0, gram, rhs, support, ridge)
+            if n <= 62:
+                w = _memo_solve(ridge_keys, ridge_vals, counts, 0, gram, rhs, support, ridge)
+            else:
+                w = _solve_subset(gram, rhs, support, ridge)
         for i in range(n):
             nonzero[i] = w[i] != 0.0
         # a support scored before cannot beat the best loss (which only decreases): skip it
-        seen = False
-        for i in range(counts[2]):
-            if np.array_equal(final_keys[i], nonzero):
-                seen = True
-                break
-        if seen:
-            continue
-        w = _memo_solve(final_keys, final_vals, counts, 2, gram, rhs, nonzero, final_ridge)
+        if n <= 62:
+            seen = False
+            key = _support_key(nonzero)
+            for i in range(counts[2]):
+                if final_keys[i] == key:
+                    seen = True
+                    break
+            if seen:
+                continue
+            w = _memo_solve(final_keys, final_vals, counts, 2, gram, rhs, nonzero, final_ridge)
+        else:
+            w = _solve_subset(gram, rhs, nonzero, final_ridge)
         value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
         if value < best_loss - 1e-12:
             best_loss, best_w, best_lam = value, w, lam

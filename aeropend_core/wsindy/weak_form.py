@@ -60,13 +60,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg, special
-from scipy.linalg import lapack
 from threadpoolctl import ThreadpoolController
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.wsindy.library import Term
 from aeropend_core.wsindy.noise_model import (
     _cached,
+    _banded_lower_solve,
     _cholesky_band,
     _coefficient_covariance,
     _measurement_band,
@@ -414,8 +414,10 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
                                                              lambda term=term, s=s: term.evaluate(s))
                                                      for term in members]))
                     kern = hold_weights if held else weights[d]
-                    g[:, idx] = (-1) ** d * _weak_rows(theta, kern, starts)
-        gb[:, -1] = (-1) ** eq.order * _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
+                    rows = _weak_rows(theta, kern, starts)
+                    g[:, idx] = -rows if d % 2 else rows      # (−1)^d, exactly
+        lhs = _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
+        gb[:, -1] = -lhs if eq.order % 2 else lhs
         b = gb[:, -1]
         model = _noise_model(eq, s, starts, kernel_list, type_of, noise_std, cache, si, width, weights[0])
         systems.append((g, b, model, gb))
@@ -447,10 +449,10 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
             if process > 0.0:
                 ab = ab + _process_band(model, band, process)
             chol = _cholesky_band(ab)
-            both, info = lapack.dtbtrs(chol, gb, uplo='L')   # L⁻¹[G b], L banded (gb is not overwritten)
-            if info != 0:
-                raise InsufficientDataError(f'{eq.name}: the weak-form covariance is singular (LAPACK info '
-                                            f'{info}); the data cannot support this fit')
+            both = _banded_lower_solve(chol, gb)   # L⁻¹[G b], L banded (gb is not overwritten)
+            if both.shape[0] != gb.shape[0]:
+                raise InsufficientDataError(f'{eq.name}: the weak-form covariance is singular (a zero pivot of '
+                                            'its Cholesky factor); the data cannot support this fit')
             rows_a.append(both[:, :-1])
             rows_b.append(both[:, -1])
             if correct:
