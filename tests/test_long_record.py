@@ -114,3 +114,34 @@ def test_sample_time_from_rounded_stamps_keeps_every_sample_on_the_grid():
     prep = prepare(from_columns(columns))
     assert prep.sample_time == pytest.approx(SAMPLE_TIME, rel=1e-8)      # the end stamps' rounding over 60 s
     assert prep.gaps.count == 0 and len(prep.time) == len(columns['t'])
+
+
+def test_long_record_search_on_a_subset_gives_the_full_paths_verdict(monkeypatch):
+    """Coulomb friction (4 rad/s^2) hidden in 60 s: with the long-record limit lowered to 20 s of training data the
+    candidates are compared on an evenly spread half of the training segments, the chosen model fitted on all of
+    them. Same verdict and effect as the full path; the size within 1 % and 3 of its standard errors of the full
+    path's (it is fitted on the same data); the subset stated in the notes; the drift test on every stretch."""
+    from aeropend_core.diagnosis import long_record
+
+    recording = from_columns(_record({'coulomb_friction': 4.0}, seed=4).columns(with_truth=False))
+    full = diagnose(recording)
+    assert not any(note.startswith('long record') for note in full.notes)
+    monkeypatch.setattr(long_record, 'SEARCH_SECONDS', 20.0)
+    prep = prepare(recording)
+    search, subset = long_record.search_record(prep)
+    assert subset is not None and 1 < len(subset.chosen) < subset.total == len(prep.train.segments)
+    assert len(search.train.segments) == len(subset.chosen) and search.heldout is prep.heldout
+    assert subset.seconds_used < subset.seconds_total
+    long = diagnose(recording)
+    assert (long.verdict, long.missing_effects) == (full.verdict, full.missing_effects) == \
+        ('effect_found', ['coulomb_friction']), long.summary()
+    sd = full.found[0].standard_errors['friction_acceleration']
+    a, b = full.found[0].parameters['friction_acceleration'], long.found[0].parameters['friction_acceleration']
+    assert b == pytest.approx(a, rel=0.01) and abs(b - a) < 3 * sd, (a, b, sd)
+    # the reported model is the one fitted on every training segment
+    assert long.final.fit.n_residuals == full.final.fit.n_residuals
+    assert long.found[0].standard_errors['friction_acceleration'] == pytest.approx(sd, rel=0.2)
+    notes = [note for note in long.notes if note.startswith('long record')]
+    assert len(notes) == 1 and f'on {len(subset.chosen)} of {subset.total} training segments' in notes[0], long.notes
+    assert [len(r['values']) for r in long.drift] == [len(r['values']) for r in full.drift]
+    assert [r['drifting'] for r in long.drift] == [r['drifting'] for r in full.drift]
