@@ -145,3 +145,25 @@ def test_long_record_search_on_a_subset_gives_the_full_paths_verdict(monkeypatch
     assert len(notes) == 1 and f'on {len(subset.chosen)} of {subset.total} training segments' in notes[0], long.notes
     assert [len(r['values']) for r in long.drift] == [len(r['values']) for r in full.drift]
     assert [r['drifting'] for r in long.drift] == [r['drifting'] for r in full.drift]
+
+
+def test_regime_masks_time_since_step_is_the_direct_definition():
+    """The since-step regimes (one sorted search, linear in the record) equal the direct definition: the time since
+    the latest input step at or before each sample, no regime before the first step."""
+    from types import SimpleNamespace
+
+    from aeropend_core.diagnosis.compare import regime_masks
+    rng = np.random.default_rng(5)
+    n, sample_time = 5000, 1 / 490.0
+    steps = np.array([3000, 17, 1200, 1201, 4999])          # unsorted, adjacent, the last sample
+    prep = SimpleNamespace(smoothed_angle=rng.normal(size=n), smoothed_rate=rng.normal(size=n),
+                           step_indices=steps, sample_time=sample_time, armature_voltage=rng.uniform(0, 6, n))
+    since = np.full(n, np.inf)
+    for k in steps:
+        since[k:] = np.minimum(since[k:], (np.arange(k, n) - k) * sample_time)
+    masks = regime_masks(prep)
+    np.testing.assert_array_equal(masks['within 0.5 s after an input step'], since < 0.5)
+    np.testing.assert_array_equal(masks['steady input (> 0.5 s after a step)'], since >= 0.5)
+    assert not masks['within 0.5 s after an input step'][:17].any()
+    prep.step_indices = np.array([], dtype=int)
+    assert not regime_masks(prep)['within 0.5 s after an input step'].any()
