@@ -114,3 +114,56 @@ def test_sample_time_from_rounded_stamps_keeps_every_sample_on_the_grid():
     prep = prepare(from_columns(columns))
     assert prep.sample_time == pytest.approx(SAMPLE_TIME, rel=1e-8)      # the end stamps' rounding over 60 s
     assert prep.gaps.count == 0 and len(prep.time) == len(columns['t'])
+
+
+def test_long_record_search_on_a_subset_gives_the_full_paths_verdict(monkeypatch):
+    """Coulomb friction (4 rad/s^2) hidden in 60 s: with the long-record limit lowered to 20 s of training data the
+    candidates are compared on an evenly spread half of the training segments, the chosen model fitted on all of
+    them. Same verdict and effect as the full path; the size within 1 % and 3 of its standard errors of the full
+    path's (it is fitted on the same data); the subset stated in the notes; the drift test on every stretch."""
+    from aeropend_core.diagnosis import long_record
+
+    recording = from_columns(_record({'coulomb_friction': 4.0}, seed=4).columns(with_truth=False))
+    full = diagnose(recording)
+    assert not any(note.startswith('long record') for note in full.notes)
+    monkeypatch.setattr(long_record, 'SEARCH_SECONDS', 20.0)
+    prep = prepare(recording)
+    search, subset = long_record.search_record(prep)
+    assert subset is not None and 1 < len(subset.chosen) < subset.total == len(prep.train.segments)
+    assert len(search.train.segments) == len(subset.chosen) and search.heldout is prep.heldout
+    assert subset.seconds_used < subset.seconds_total
+    long = diagnose(recording)
+    assert (long.verdict, long.missing_effects) == (full.verdict, full.missing_effects) == \
+        ('effect_found', ['coulomb_friction']), long.summary()
+    sd = full.found[0].standard_errors['friction_acceleration']
+    a, b = full.found[0].parameters['friction_acceleration'], long.found[0].parameters['friction_acceleration']
+    assert b == pytest.approx(a, rel=0.01) and abs(b - a) < 3 * sd, (a, b, sd)
+    # the reported model is the one fitted on every training segment
+    assert long.final.fit.n_residuals == full.final.fit.n_residuals
+    assert long.found[0].standard_errors['friction_acceleration'] == pytest.approx(sd, rel=0.2)
+    notes = [note for note in long.notes if note.startswith('long record')]
+    assert len(notes) == 1 and f'on {len(subset.chosen)} of {subset.total} training segments' in notes[0], long.notes
+    assert [len(r['values']) for r in long.drift] == [len(r['values']) for r in full.drift]
+    assert [r['drifting'] for r in long.drift] == [r['drifting'] for r in full.drift]
+
+
+def test_regime_masks_time_since_step_is_the_direct_definition():
+    """The since-step regimes (one sorted search, linear in the record) equal the direct definition: the time since
+    the latest input step at or before each sample, no regime before the first step."""
+    from types import SimpleNamespace
+
+    from aeropend_core.diagnosis.compare import regime_masks
+    rng = np.random.default_rng(5)
+    n, sample_time = 5000, 1 / 490.0
+    steps = np.array([3000, 17, 1200, 1201, 4999])          # unsorted, adjacent, the last sample
+    prep = SimpleNamespace(smoothed_angle=rng.normal(size=n), smoothed_rate=rng.normal(size=n),
+                           step_indices=steps, sample_time=sample_time, armature_voltage=rng.uniform(0, 6, n))
+    since = np.full(n, np.inf)
+    for k in steps:
+        since[k:] = np.minimum(since[k:], (np.arange(k, n) - k) * sample_time)
+    masks = regime_masks(prep)
+    np.testing.assert_array_equal(masks['within 0.5 s after an input step'], since < 0.5)
+    np.testing.assert_array_equal(masks['steady input (> 0.5 s after a step)'], since >= 0.5)
+    assert not masks['within 0.5 s after an input step'][:17].any()
+    prep.step_indices = np.array([], dtype=int)
+    assert not regime_masks(prep)['within 0.5 s after an input step'].any()

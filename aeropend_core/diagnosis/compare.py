@@ -588,9 +588,11 @@ def regime_masks(prep: PreparedRecord) -> dict[str, np.ndarray]:
     """Boolean masks (n,) of the operating regimes in which errors are localised."""
     angle, rate = prep.smoothed_angle, prep.smoothed_rate
     n = len(angle)
-    since_step = np.full(n, np.inf)
-    for k in prep.step_indices:
-        since_step[k:] = np.minimum(since_step[k:], (np.arange(k, n) - k) * prep.sample_time)
+    # time since the latest step at or before each sample (inf before the first): one search, linear in the record
+    steps = np.sort(np.asarray(prep.step_indices, dtype=np.int64))
+    latest = np.searchsorted(steps, np.arange(n), side='right') - 1
+    since_step = np.where(latest >= 0, (np.arange(n) - steps[np.maximum(latest, 0)]) * prep.sample_time, np.inf) \
+        if steps.size else np.full(n, np.inf)
     speed_scale = np.percentile(np.abs(rate), 95)
     angle_span = np.percentile(angle, 95) - np.percentile(angle, 5)
     low_angle, high_angle = np.percentile(angle, [5, 95])

@@ -557,6 +557,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         set to add), ``verdict``, ``message`` and ``notes``; angles in rad, parameters SI.
     """
     from aeropend_core.diagnosis.drift import drift_message, drift_test
+    from aeropend_core.diagnosis.long_record import fit_on_all, search_record
     from aeropend_core.model.effects import resolve_effects
     started = time.perf_counter()
     say = progress or (lambda message: None)
@@ -571,12 +572,13 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                  for parameter in values}
     say('preparing the data (input conditioning, motor observer)')
     prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
+    search, subset = search_record(prep)       # a long record: the search on a subset of segments (module doc)
     say(f'fitting the current model: nominal{"".join(" + " + e for e in effects)}')
-    current = compare(prep, effects, fixed=held)
+    current = compare(search, effects, fixed=held)
     before = None
     if effects:
         say('fitting the model without the added effects (for before -> after)')
-        before = compare(prep, ())
+        before = compare(search, ())
     noise = prep.noise_rms
     pool = [name for name in (candidates if candidates is not None else CATALOG) if name not in effects]
     for name in pool:
@@ -606,7 +608,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         tried: list[Candidate] = []
         for index, name in enumerate(remaining, 1):
             say(f'[round {round_index + 1}, {index}/{len(remaining)}] trying {name}')
-            tried.append(_try(prep, base, model, name, held))
+            tried.append(_try(search, base, model, name, held))
         if round_index == 0:
             first_round = tried
         # a candidate without training evidence (BIC not lower by the margin) is not tried again in later rounds
@@ -623,7 +625,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         confounded = []
         for rival in significant[1:]:
             close = rival.excess_after <= CONFOUNDING_FACTOR * max(best.excess_after, 0.2 * noise)
-            if close and _interchangeable(prep, model, best, rival, held):
+            if close and _interchangeable(search, model, best, rival, held):
                 confounded.append(rival.effect)
         say(f'adding {best.effect}')
         model, base = model + (best.effect,), best.comparison
@@ -637,10 +639,10 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
             reduced_model = tuple(n for n in model if n != earlier.effect)
             say(f'checking {earlier.effect} is still needed')
             try:
-                reduced = compare(prep, reduced_model, start=base.parameters, fixed=dict(held))
+                reduced = compare(search, reduced_model, start=base.parameters, fixed=dict(held))
             except InsufficientDataError:
                 continue
-            if not assess(prep, reduced, base, earlier.effect).significant:
+            if not assess(search, reduced, base, earlier.effect).significant:
                 notes.append(f'{earlier.effect} was dropped again: with {best.effect} in the model it adds nothing '
                              f'significant.')
                 model, base = reduced_model, reduced
@@ -652,16 +654,21 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
             if rival_name in model:
                 continue
             say(f'checking whether {chosen.effect} and {rival_name} are interchangeable')
-            verdict = _judge_pair(prep, model, base, chosen.effect, rival_name, held)
+            verdict = _judge_pair(search, model, base, chosen.effect, rival_name, held)
             if verdict == 'interchangeable':
                 still.append(rival_name)
             elif verdict == 'both':
-                rival = _try(prep, base, model, rival_name, held)
+                rival = _try(search, base, model, rival_name, held)
                 model, base = model + (rival_name,), rival.comparison
                 steps.append((rival, []))
         steps[position] = (chosen, still)
     results = first_round
     results.sort(key=lambda c: (not np.isfinite(c.rms_error), c.rms_error if np.isfinite(c.rms_error) else 0.0))
+    if subset is not None:
+        say('fitting the chosen model on every training segment')
+        base = fit_on_all(prep, subset, model, base, held)
+        current = current if steps else base
+        notes.append(subset.note(' + '.join(('nominal',) + model)))
     selected = base if steps else None
     final = base
     found: list[Found] = []
