@@ -47,6 +47,14 @@ def add_json_argument(parser, what: str) -> None:
                              'the JSON only)')
 
 
+def text_aside_from_json(target: str | None):
+    """A context in which printed text goes to standard error when ``--json -`` makes standard output carry the JSON
+    only (a no-op context otherwise)."""
+    import contextlib
+    import sys
+    return contextlib.redirect_stdout(sys.stderr) if target == '-' else contextlib.nullcontext()
+
+
 def check_json_target(target: str | None) -> None:
     """Refuse a ``--json`` FILE that cannot be written (a folder, a missing folder, a device, ...) before any work;
     ``-`` and None (no --json) pass."""

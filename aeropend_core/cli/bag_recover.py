@@ -28,14 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from aeropend_core.cli._checks import check_json_target
+    from aeropend_core.cli._checks import check_json_target, text_aside_from_json
     check_json_target(args.json)
-    if args.json == '-':       # standard output carries the JSON only; the text goes to standard error
-        import contextlib
-        import sys
-        with contextlib.redirect_stdout(sys.stderr):
-            report = _recover(args)
-    else:
+    with text_aside_from_json(args.json):       # --json -: standard output carries the JSON only
         report = _recover(args)
     if args.json:
         from aeropend_core.present.json_output import write_json
