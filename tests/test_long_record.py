@@ -24,6 +24,15 @@ def _record(effects: dict, seed: int, duration: float = 60.0):
     return simulate(duty, effects=effects, noise=MeasurementNoise(40.0, True), seed=seed)
 
 
+
+def _assert_same_friction_verdict(reference, long) -> None:
+    """Both name coulomb_friction alone, and `long`'s size is within 1 % and 3 of `reference`'s standard errors."""
+    assert (long.verdict, long.missing_effects) == (reference.verdict, reference.missing_effects) == \
+        ('effect_found', ['coulomb_friction']), long.summary()
+    sd = reference.found[0].standard_errors['friction_acceleration']
+    a, b = reference.found[0].parameters['friction_acceleration'], long.found[0].parameters['friction_acceleration']
+    assert b == pytest.approx(a, rel=0.01) and abs(b - a) < 3 * sd, (a, b, sd)
+
 def test_diagnosis_on_the_long_record_path_gives_the_short_paths_answer(monkeypatch):
     """Coulomb friction (4 rad/s^2) hidden in 60 s: every fit forced onto the sparse LSMR path and the dead-zone
     ranking onto the coarse-to-fine one gives the same verdict, the same effect, and its size within 1 % (and within
@@ -33,11 +42,7 @@ def test_diagnosis_on_the_long_record_path_gives_the_short_paths_answer(monkeypa
     monkeypatch.setattr(output_error, 'SPARSE_SEGMENTS', 0)
     monkeypatch.setattr(compare_module, 'PROFILE_GRID', 4)
     long = diagnose(recording)
-    assert (long.verdict, long.missing_effects) == (short.verdict, short.missing_effects) == \
-        ('effect_found', ['coulomb_friction']), long.summary()
-    sd = short.found[0].standard_errors['friction_acceleration']
-    a, b = short.found[0].parameters['friction_acceleration'], long.found[0].parameters['friction_acceleration']
-    assert b == pytest.approx(a, rel=0.01) and abs(b - a) < 3 * sd, (a, b, sd)
+    _assert_same_friction_verdict(short, long)
     assert [r['drifting'] for r in long.drift] == [r['drifting'] for r in short.drift]
 
 
@@ -133,14 +138,11 @@ def test_long_record_search_on_a_subset_gives_the_full_paths_verdict(monkeypatch
     assert len(search.train.segments) == len(subset.chosen) and search.heldout is prep.heldout
     assert subset.seconds_used < subset.seconds_total
     long = diagnose(recording)
-    assert (long.verdict, long.missing_effects) == (full.verdict, full.missing_effects) == \
-        ('effect_found', ['coulomb_friction']), long.summary()
-    sd = full.found[0].standard_errors['friction_acceleration']
-    a, b = full.found[0].parameters['friction_acceleration'], long.found[0].parameters['friction_acceleration']
-    assert b == pytest.approx(a, rel=0.01) and abs(b - a) < 3 * sd, (a, b, sd)
+    _assert_same_friction_verdict(full, long)
     # the reported model is the one fitted on every training segment
     assert long.final.fit.n_residuals == full.final.fit.n_residuals
-    assert long.found[0].standard_errors['friction_acceleration'] == pytest.approx(sd, rel=0.2)
+    assert long.found[0].standard_errors['friction_acceleration'] == pytest.approx(
+        full.found[0].standard_errors['friction_acceleration'], rel=0.2)
     notes = [note for note in long.notes if note.startswith('long record')]
     assert len(notes) == 1 and f'on {len(subset.chosen)} of {subset.total} training segments' in notes[0], long.notes
     assert [len(r['values']) for r in long.drift] == [len(r['values']) for r in full.drift]
