@@ -10,6 +10,7 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -168,3 +169,40 @@ class Listener:
         self._thread.join(timeout=5.0)
         self.executor.shutdown()
         self.node.destroy_node()
+
+
+#: `aeropend` as a child process (no console script needed), for the CLI-level tests.
+AEROPEND = [sys.executable, '-c', 'import sys; from aeropend_core.cli import main; sys.exit(main())']
+
+
+class EmulateProcess:
+    """`aeropend emulate ARGUMENTS` as a child: standard output lines collected by a thread, Ctrl-C on exit.
+
+    Entering waits (up to 60 s, a loaded machine) for the first line of standard output; after the block,
+    ``returncode``, ``lines`` (all of standard output) and ``stderr`` hold what the process said.
+    """
+
+    def __init__(self, arguments: list[str]) -> None:
+        self.arguments = arguments
+        self.lines: list[str] = []
+        self.stderr = ''
+        self.returncode: int | None = None
+
+    def __enter__(self) -> EmulateProcess:
+        self.process = subprocess.Popen(AEROPEND + ['emulate', *self.arguments], cwd=ROOT, stdout=subprocess.PIPE,
+                                        stderr=subprocess.PIPE, text=True)
+        self._reader = threading.Thread(target=lambda: self.lines.extend(self.process.stdout), daemon=True)
+        self._reader.start()
+        if not poll(lambda: bool(self.lines) or self.process.poll() is not None, 60.0, period=0.05) \
+                or not self.lines:
+            self.__exit__(None, None, None)
+            raise AssertionError(f'aeropend emulate printed nothing (exit {self.returncode}): {self.stderr[-500:]}')
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGINT)
+        self.process.wait(timeout=30)
+        self._reader.join(timeout=5)               # the reader thread owns stdout until its end
+        self.stderr = self.process.stderr.read()
+        self.returncode = self.process.returncode

@@ -4,20 +4,14 @@ before any work, and no JSON is written (the file is not created, standard outpu
 from __future__ import annotations
 
 import json
-import signal
-import subprocess
-import sys
-import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from aeropend_core.cli import main as cli_main
+from tests.bridge_helpers import EmulateProcess
 
-ROOT = Path(__file__).resolve().parents[1]
-AEROPEND = [sys.executable, '-c', 'import sys; from aeropend_core.cli import main; sys.exit(main())']
 
 
 def run(capsys, *arguments):
@@ -116,25 +110,11 @@ def test_calibrate_json_against_the_emulator(capsys):
 @pytest.mark.timeout(120)
 def test_emulate_json_line_names_the_port_then_ctrl_c(tmp_path):
     link = tmp_path / 'ttyRIG'
-    emulate = subprocess.Popen(AEROPEND + ['emulate', '--link', str(link), '--json', '-', '--status-period', '0.5'],
-                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(emulate.stdout), daemon=True)
-    reader.start()
-    try:
-        deadline = time.monotonic() + 60
-        while not lines and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert lines, emulate.poll()
-        info = json.loads(lines[0])
+    with EmulateProcess(['--link', str(link), '--json', '-', '--status-period', '0.5']) as emulate:
+        info = json.loads(emulate.lines[0])
         assert info['link'] == str(link) and info['port'] == str(link) and link.resolve().exists()   # the pty
         assert info['auto_reset'] is True and info['chain']['angle_filter'] is True
         time.sleep(1.2)                                            # status lines come meanwhile: on stderr
-    finally:
-        emulate.send_signal(signal.SIGINT)
-        emulate.wait(timeout=30)
-    reader.join(timeout=5)
-    err = emulate.stderr.read()
-    assert emulate.returncode == 130 and 'Traceback' not in err
-    assert len([line for line in lines if line.strip()]) == 1, lines      # standard output: the JSON line only
-    assert '# stopped after' in err
+    assert emulate.returncode == 130 and 'Traceback' not in emulate.stderr
+    assert len([line for line in emulate.lines if line.strip()]) == 1, emulate.lines   # standard output: JSON only
+    assert '# stopped after' in emulate.stderr

@@ -1,17 +1,11 @@
 """`aeropend emulate`: the fake rig from the shell, driven by README's calibration step 1, stopped by Ctrl-C."""
 from __future__ import annotations
 
-import signal
 import subprocess
-import sys
-import threading
-import time
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-AEROPEND = [sys.executable, '-c', 'import sys; from aeropend_core.cli import main; sys.exit(main())']
+from tests.bridge_helpers import AEROPEND, ROOT, EmulateProcess, poll
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -23,17 +17,10 @@ def value_of(output: str, key: str) -> float:
 
 def test_emulate_serves_the_calibration_and_stops_on_ctrl_c(tmp_path):
     link = tmp_path / 'ttyRIG'
-    emulate = subprocess.Popen(AEROPEND + ['emulate', '--link', str(link), '--angle-zero', '530', '--current-offset',
-                                          '6', '--clock-error', '0.5', '--status-period', '0.5'],
-                               cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(emulate.stdout), daemon=True)
-    reader.start()
-    try:
-        deadline = time.monotonic() + 60
-        while not lines and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert lines and lines[0].strip() == str(link), (lines, emulate.poll())
+    with EmulateProcess(['--link', str(link), '--angle-zero', '530', '--current-offset', '6', '--clock-error', '0.5',
+                         '--status-period', '0.5']) as emulate:
+        lines = emulate.lines
+        assert lines[0].strip() == str(link), lines
         assert any('auto-reset on' in line for line in lines[:8])
         # README "Calibration", step 1, against the fake rig.
         config = tmp_path / 'serial_bridge_node.yaml'
@@ -44,15 +31,10 @@ def test_emulate_serves_the_calibration_and_stops_on_ctrl_c(tmp_path):
         assert value_of(result.stdout, 'angle_zero') == pytest.approx(530.0, abs=0.5)
         assert value_of(result.stdout, 'current_offset') == pytest.approx(6.0, abs=0.5)
         assert 'angle_zero: 529' in config.read_text() or 'angle_zero: 530' in config.read_text()
-        time.sleep(0.6)
-        assert any('1 port opens' in line and '0 bytes swallowed' in line for line in lines), lines[-3:]
-    finally:
-        emulate.send_signal(signal.SIGINT)
-        emulate.wait(timeout=30)
-    reader.join(timeout=5)                         # the reader thread owns stdout until its end
-    err = emulate.stderr.read()
-    assert emulate.returncode == 130, err
-    assert 'Traceback' not in err
+        assert poll(lambda: any('1 port opens' in line and '0 bytes swallowed' in line for line in lines), 30.0), \
+            lines[-3:]
+    assert emulate.returncode == 130, emulate.stderr
+    assert 'Traceback' not in emulate.stderr
     assert [line for line in lines if line.strip()][-1].startswith('# stopped after'), lines[-3:]
     assert not link.exists()                       # the port's name is removed
 
