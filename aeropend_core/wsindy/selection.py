@@ -161,6 +161,98 @@ def _best_single_change(gram, rhs, support, candidates, state, ridge, gwls, c0, 
 
 
 @numba.njit(cache=True, nogil=True)
+def _best_removal(gram, rhs, support, candidates, ridge, gwls, c0, denom, alpha, n_terms):
+    """:func:`_best_single_change` with ``state=False`` (drop each candidate term of ``support`` in turn), scored
+    from one factorisation instead of one solve per candidate; same return value.
+
+    With P = M⁻¹ (M the support's normal matrix plus ridge), the least squares without term p is
+    w − (w_p/P_pp)·P[:, p] (exact in exact arithmetic), scored with the loss in O(k²). Only the choice of the
+    term to drop uses these values: the winner is solved afresh (:func:`_solve_subset`) and scored with
+    :func:`_loss`, so the weights and loss returned are those of the one-solve-per-candidate path. When a
+    Cholesky pivot of M is below the threshold at which :func:`_solve_subset` leaves Cholesky (nearly collinear
+    terms), the candidates are solved one by one as in :func:`_best_single_change`. A principal submatrix
+    never has smaller pivots, so when M passes every candidate's solve takes the Cholesky branch too.
+    """
+    n = support.size
+    idx = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        if support[i]:
+            idx[k] = i
+            k += 1
+    scale = 0.0
+    for i in range(k):
+        scale = max(scale, abs(gram[idx[i], idx[i]] + ridge))
+    low = np.zeros((k, k))
+    for c in range(k):
+        acc = gram[idx[c], idx[c]] + ridge
+        for e in range(c):
+            acc -= low[c, e] * low[c, e]
+        if acc <= 1e-8 * scale:
+            return _best_single_change(gram, rhs, support, candidates, False, ridge, gwls, c0, denom, alpha,
+                                       n_terms)
+        d = np.sqrt(acc)
+        low[c, c] = d
+        for r in range(c + 1, k):
+            v = gram[idx[r], idx[c]]
+            for e in range(c):
+                v -= low[r, e] * low[c, e]
+            low[r, c] = v / d
+    # L⁻¹ (lower), then P = L⁻ᵀ L⁻¹ and w = P r
+    inv = np.zeros((k, k))
+    for c in range(k):
+        inv[c, c] = 1.0 / low[c, c]
+        for r in range(c + 1, k):
+            v = 0.0
+            for e in range(c, r):
+                v -= low[r, e] * inv[e, c]
+            inv[r, c] = v / low[r, r]
+    p = np.zeros((k, k))
+    for a in range(k):
+        for b in range(a + 1):
+            v = 0.0
+            for e in range(a, k):
+                v += inv[e, a] * inv[e, b]
+            p[a, b] = v
+            p[b, a] = v
+    w = np.zeros(k)
+    for a in range(k):
+        v = 0.0
+        for b in range(k):
+            v += p[a, b] * rhs[idx[b]]
+        w[a] = v
+    best_loss = np.inf
+    best_j = -1
+    trial = np.empty(k)
+    for q in range(k):
+        if not candidates[idx[q]]:
+            continue
+        f = w[q] / p[q, q]
+        for a in range(k):
+            trial[a] = w[a] - f * p[a, q]
+        trial[q] = 0.0
+        acc2 = c0
+        nz = 0
+        for a in range(k):
+            if trial[a] == 0.0:
+                continue
+            nz += 1
+            row = 0.0
+            for b in range(k):
+                row += gram[idx[a], idx[b]] * trial[b]
+            acc2 += trial[a] * (row - 2.0 * gwls[idx[a]])
+        value = 2.0 * alpha * np.sqrt(max(acc2, 0.0)) / denom + 2.0 * (1.0 - alpha) * nz / n_terms
+        if value < best_loss:
+            best_loss, best_j = value, idx[q]
+    if best_j < 0:
+        return np.inf, -1, np.zeros(n)
+    support[best_j] = False
+    best_w = _solve_subset(gram, rhs, support, ridge)
+    support[best_j] = True
+    return _loss(gram, best_w, gwls, c0, denom, alpha, n_terms), best_j, best_w
+
+
+@numba.njit(cache=True, nogil=True)
 def _loss(gram, w, gwls, c0, denom, alpha, n_terms):
     """L = 2α‖G(w − w_LS)‖/‖G w_LS‖ + 2(1 − α)·nnz(w)/J with the normalised Gram matrix, in O(nnz²):
     ‖G(w − w_LS)‖² = wᵀGw − 2 wᵀ(G w_LS) + w_LSᵀ G w_LS, with gwls = G w_LS and c0 = w_LSᵀ G w_LS."""
@@ -411,8 +503,8 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
         # one term at a time (the one whose removal changes the fit least) does visit it.
         support = usable.copy()
         while np.count_nonzero(support) > np.count_nonzero(keep):
-            trial_loss, trial_j, trial_w = _best_single_change(gram, rhs, support, support & ~keep, False, final_ridge,
-                                                               gwls, c0, denom, alpha, n_terms)
+            trial_loss, trial_j, trial_w = _best_removal(gram, rhs, support, support & ~keep, final_ridge, gwls, c0,
+                                                         denom, alpha, n_terms)
             if trial_j < 0:
                 break
             support[trial_j] = False
