@@ -66,7 +66,7 @@ class _NoiseModel:
 
     kernels: np.ndarray            # (T, width) signed kernels; type 0 is the lhs
     signals: tuple                 # per noisy signal: (σ, is_target, term indices (n_v,), type per column (n_v,),
-                                   #                    Jacobian columns ∂θ_j/∂v, shape (n, n_v))
+                                   #                    Jacobian rows ∂θ_j/∂v, shape (n_v, n))
     first: int                     # first start of the grid (sample index)
     step: int                      # grid spacing (samples)
     rows: np.ndarray               # grid index of each used test function, shape (K,)
@@ -118,8 +118,8 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
             bounds[a] = (lo, position + 1)
 
         def stacked(v=v, x=x, idx=idx):
-            cols = [_term_partial(cache, segment, eq.terms[j], signals, v) for j in idx]
-            return np.column_stack(cols) if cols else np.zeros((len(x), 0))
+            rows = [_term_partial(cache, segment, eq.terms[j], signals, v) for j in idx]
+            return np.array(rows, float) if rows else np.zeros((0, len(x)))
         key = ('jacs', segment, v, tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx))
         out.append((sigma, v == eq.target, idx, types, _cached(cache, key, stacked)))
         layout.append((sorted(bounds), bounds))
@@ -241,7 +241,7 @@ def _coefficient_functions(model: _NoiseModel, w) -> list[tuple[float, dict]]:
             wv = w[idx]
             for a in set(types[wv != 0.0].tolist()):
                 lo, hi = bounds[a]   # columns by type
-                c[a] = -(jac[:, lo:hi] @ wv[lo:hi])
+                c[a] = -(wv[lo:hi] @ jac[lo:hi])
         if c:
             out.append((sigma * sigma, c))
     return out
@@ -324,32 +324,49 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
     kern = np.array([pairs[a, b] + np.concatenate([np.zeros_like(pairs[b, a][:1]), pairs[b, a][1:]])
                      for a, b in needed])                                  # (pairs, band+1, width)
     q_all = _banded_overlap(zgrid, kern, model.first, model.step, model.n)
-    q = {ab: q_all[i] for i, ab in enumerate(needed)}
+    row_of = np.full((len(model.kernels), len(model.kernels)), -1, np.int64)   # kernel-type pair -> row of q_all
+    for i, (a, b) in enumerate(needed):
+        row_of[a, b] = row_of[b, a] = i
     gram = np.zeros((n_terms, n_terms))
     rhs = np.zeros(n_terms)
-    for (sigma, is_target, idx, types, jac), (present, bounds) in zip(model.signals, model.layout):
+    for sigma, is_target, idx, types, jac in model.signals:
         if not idx.size:
             continue
         var = sigma * sigma
-        if len(present) == 1:
-            (a,) = present
-            block = (jac * q[(a, a)][:, None]).T @ jac
-        else:
-            block = np.empty((idx.size, idx.size))
-            for a in present:
-                lo, hi = bounds[a]
-                # columns k of type b weighted by q_ab: one product per kernel type a
-                weighted = np.empty_like(jac)
-                for b in present:
-                    lo_b, hi_b = bounds[b]
-                    weighted[:, lo_b:hi_b] = jac[:, lo_b:hi_b] * q[(min(a, b), max(a, b))][:, None]
-                block[lo:hi] = jac[:, lo:hi].T @ weighted
-        if is_target:
-            for a in present:
-                lo, hi = bounds[a]
-                rhs[idx[lo:hi]] += var * (jac[:, lo:hi].T @ q[(0, a)])
+        block, target_part = _weighted_products(jac, types, q_all, row_of, is_target)
         gram[idx[:, None], idx] += var * block
+        if is_target:
+            rhs[idx] += var * target_part
     return gram, rhs
+
+
+@numba.njit(cache=True, nogil=True, fastmath={'reassoc', 'contract'})
+def _weighted_products(jac, types, q_all, row_of, is_target):
+    """(B, c) with B[j, k] = Σ_t jac[j, t]·jac[k, t]·q_(a_j, a_k)(t) and, for the target, c[j] = Σ_t jac[j, t]·
+    q_(0, a_j)(t) (a_j = types[j], q of a pair of kernel types = q_all[row_of[a, b]]).
+
+    One pass over the samples per pair of columns, vectorised (the sums reassociated; sums of a few thousand
+    terms, so the rounding differs from BLAS' by a few ulps of the result); the symmetric half is mirrored.
+    """
+    nv, n = jac.shape
+    block = np.empty((nv, nv))
+    for j in range(nv):
+        for k in range(j, nv):
+            weight = q_all[row_of[types[j], types[k]]]
+            acc = 0.0
+            for t in range(n):
+                acc += weight[t] * jac[j, t] * jac[k, t]
+            block[j, k] = acc
+            block[k, j] = acc
+    target_part = np.zeros(nv)
+    if is_target:
+        for j in range(nv):
+            weight = q_all[row_of[0, types[j]]]
+            acc = 0.0
+            for t in range(n):
+                acc += weight[t] * jac[j, t]
+            target_part[j] = acc
+    return block, target_part
 
 
 @numba.njit(cache=True, nogil=True)

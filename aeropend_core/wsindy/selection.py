@@ -459,8 +459,19 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     support = np.empty(n, np.bool_)
     new = np.empty(n, np.bool_)
     nonzero = np.empty(n, np.bool_)
+    # The thresholding path at λ (its supports and solves) stays the same for a larger λ' as long as no weight it
+    # kept crosses the bounds: λ' <= the smallest kept free |w| and 1/λ' >= the largest (weights dropped below λ
+    # or above 1/λ stay dropped). Then it ends on the same support, scored already: that λ' is skipped.
+    kept_min = -1.0
+    kept_max = np.inf
+    previous_lam = np.inf
     for lam in grid:
         upper = 1.0 / lam
+        if previous_lam <= lam <= kept_min and kept_max <= upper:
+            continue
+        previous_lam = lam
+        kept_min = np.inf
+        kept_max = 0.0
         support[:] = usable
         w = w_full
         for _ in range(n + 1):
@@ -468,10 +479,14 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
             changed = False
             for i in range(n):
                 size = abs(w[i])
-                inside = support[i] and ((size >= lam and size <= upper) or keep[i])
+                within = size >= lam and size <= upper
+                inside = support[i] and (within or keep[i])
                 new[i] = inside
                 if inside != support[i]:
                     changed = True
+                if inside and within and not keep[i]:
+                    kept_min = min(kept_min, size)
+                    kept_max = max(kept_max, size)
             if not changed:
                 break
             support[:] = new
