@@ -5,7 +5,7 @@ noise compensation of the normal equations, banded Cholesky factors, and the coe
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -74,6 +74,7 @@ class _NoiseModel:
     pairs: np.ndarray              # H[a, b, u, τ] (:func:`_pair_kernels`), u = 0..grid band
     plain_pair: np.ndarray         # H[u, τ] of the plain φ (process noise)
     layout: tuple = ()             # per noisy signal: (sorted kernel types present, {type: (lo, hi) column slice})
+    sums: dict = field(default_factory=dict)   # (a, b) -> :func:`_pair_sum`
 
     @property
     def contiguous(self) -> bool:
@@ -174,11 +175,14 @@ def _window_dots(columns: np.ndarray, kernels: np.ndarray, first: int, step: int
     c, nk, width = kernels.shape
     q = -(-width // step)
     n_blocks = count - 1 + q
-    stop = first + n_blocks * step
-    data = columns[:, first:min(stop, columns.shape[1])]
-    if stop > columns.shape[1]:
-        data = np.concatenate([data, np.zeros((c, stop - columns.shape[1]))], axis=1)
-    blocks = np.ascontiguousarray(data.reshape(c, n_blocks, step).transpose(1, 0, 2)).reshape(n_blocks, c * step)
+    # blocks[b, ch, σ] = columns[ch, first + b·step + σ] (zero past the end): one copy, padding included
+    blocks = np.zeros((n_blocks, c, step))
+    full = min(n_blocks, (columns.shape[1] - first) // step)
+    blocks[:full] = columns[:, first:first + full * step].reshape(c, full, step).transpose(1, 0, 2)
+    tail = columns[:, first + full * step:first + n_blocks * step]
+    if tail.shape[1]:
+        blocks[full, :, :tail.shape[1]] = tail
+    blocks = blocks.reshape(n_blocks, c * step)
     padded = np.zeros((c, nk, q * step))
     padded[:, :, :width] = kernels
     pieces = padded.reshape(c, nk, q, step).transpose(0, 3, 2, 1).reshape(c * step, q * nk)
@@ -266,8 +270,7 @@ def _measurement_band(model: _NoiseModel, w):
         for i, a in enumerate(keys):
             for b in keys[i:]:
                 products[(a, b)] = products.get((a, b), 0.0) + var * c[a] * c[b]
-    constant = sum(float(v) * (pairs[a, b] + (pairs[b, a] if a != b else 0.0)).sum(axis=1)
-                   for (a, b), v in products.items() if np.ndim(v) == 0)
+    constant = sum(float(v) * _pair_sum(model, a, b) for (a, b), v in products.items() if np.ndim(v) == 0)
     varying = [(ab, v) for ab, v in products.items() if np.ndim(v)]
     grid_ab = np.zeros((pairs.shape[2], full)) + (constant[:, None] if np.ndim(constant) else 0.0)
     if varying:
@@ -275,6 +278,16 @@ def _measurement_band(model: _NoiseModel, w):
         kerns = np.array([pairs[a, b] + (pairs[b, a] if a != b else 0.0) for (a, b), _ in varying])
         grid_ab += _window_dots(cols, kerns, model.first, model.step, full).T
     return _to_used_rows(model, grid_ab)
+
+
+def _pair_sum(model: _NoiseModel, a: int, b: int) -> np.ndarray:
+    """Σ_τ (H_ab + H_ba)[u, τ] (H_aa once for a = b), u = 0..grid band: the band of Σ for a constant coefficient
+    product, remembered on the model (both passes of a fit use it)."""
+    value = model.sums.get((a, b))
+    if value is None:
+        pairs = model.pairs
+        value = model.sums[(a, b)] = (pairs[a, b] + (pairs[b, a] if a != b else 0.0)).sum(axis=1)
+    return value
 
 
 def _process_band(model: _NoiseModel, band: int, variance: float) -> np.ndarray:
