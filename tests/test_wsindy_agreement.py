@@ -8,9 +8,13 @@ pysindy's 18-term library, 1.5e-7 with the default library and 1.3e-5 (5.8e-5 σ
 (5 seeds × 30/40/50 dB, `test_one_ulp_of_data_moves_the_fit_more_than_rounding_of_the_fast_path` checks it on
 two windows here); a change in the order of a sum moves the result by about as much as that.
 
-The straightforward noise compensation (:func:`_dense_noise_gram`) writes the formula out with dense matrices:
-Σ⁻¹ from the Cholesky factor, one dense row per test function (kernel of type a shifted to its start),
-q_ab(t) = Σ_{r,s} (Σ⁻¹)[r,s] k_a(t − start_r) k_b(t − start_s), and C_jk = Σ_v σ_v² Σ_t J_j(t) J_k(t) q_ab(t).
+The straightforward path writes the noise model out with dense (or plainly sparse) matrices, one row per test
+function (the kernel of type a shifted to its start, K_a):
+
+- residual covariance (:func:`_dense_measurement_band`): R_v = Σ_a K_a·diag(c_av), c_av(t) = −Σ_{j of type a}
+  w_j ∂θ_j/∂v(t) (c_0v = 1 for the target's lhs), Σ = Σ_v σ_v² R_v R_vᵀ, its band;
+- noise compensation (:func:`_dense_noise_gram`): Σ⁻¹ from the Cholesky factor,
+  q_ab(t) = Σ_{r,s} (Σ⁻¹)[r,s] k_a(t − start_r) k_b(t − start_s), C_jk = Σ_v σ_v² Σ_t J_j(t) J_k(t) q_ab(t).
 """
 import numpy as np
 import pytest
@@ -39,19 +43,48 @@ def window(seed: int, psnr_db: float = 40.0, duration: float = 10.0) -> dict[str
     return data
 
 
-def _dense_noise_gram(model, chol, n_terms):
-    """weak_form's noise compensation (C, c) written out with dense Σ⁻¹ and one sparse row per test function."""
-    k = chol.shape[1]
-    inverse = linalg.cho_solve_banded((chol, True), np.eye(k))
+def _shifted(model, a):
+    """(K, n) sparse: row r is the kernel of type a placed at the start of test function r."""
+    k = len(model.rows)
     starts = model.first + model.rows * model.step
     width = model.kernels.shape[1]
     rows = np.repeat(np.arange(k), width)
     cols = (starts[:, None] + np.arange(width)).ravel()
     inside = cols < model.n
+    values = np.tile(model.kernels[a], k)
+    return sparse.csr_matrix((values[inside], (rows[inside], cols[inside])), shape=(k, model.n))
 
-    def shifted(a):     # (K, n): row r is kernel type a placed at start_r
-        values = np.tile(model.kernels[a], k)
-        return sparse.csr_matrix((values[inside], (rows[inside], cols[inside])), shape=(k, model.n))
+
+def _dense_measurement_band(model, w):
+    """weak_form's residual covariance Σ = Σ_v σ_v² R_v R_vᵀ over the used rows, written out; its band in
+    LAPACK lower storage (rows as the fast path: grid band + 1) and the bandwidth."""
+    k = len(model.rows)
+    sigma_total = sparse.csr_matrix((k, k))
+    for sigma, is_target, idx, types, jac in model.signals:
+        response = _shifted(model, 0) if is_target else sparse.csr_matrix((k, model.n))
+        if w is not None:
+            for a in sorted(set(types.tolist())):
+                c = -(w[idx][types == a] @ jac[types == a])
+                response = response + _shifted(model, a) @ sparse.diags(c)
+        sigma_total = sigma_total + sigma ** 2 * (response @ response.T)
+    if sigma_total.nnz == 0:          # no noisy signal enters: unit white noise on the target (as the fast path)
+        response = _shifted(model, 0)
+        sigma_total = response @ response.T
+    dense = sigma_total.toarray()
+    band = model.pairs.shape[2] - 1
+    ab = np.zeros((band + 1, k))
+    for u in range(band + 1):
+        ab[u, :k - u] = np.diagonal(dense, -u)
+    return ab, band
+
+
+def _dense_noise_gram(model, chol, n_terms):
+    """weak_form's noise compensation (C, c) written out with dense Σ⁻¹ and one sparse row per test function."""
+    k = chol.shape[1]
+    inverse = linalg.cho_solve_banded((chol, True), np.eye(k))
+
+    def shifted(a):
+        return _shifted(model, a)
 
     def q(a, b):
         return np.asarray(shifted(a).multiply(inverse @ shifted(b).toarray()).sum(axis=0)).ravel()
@@ -86,15 +119,43 @@ def _assert_agree(fast, plain, label):
             assert got.standard_errors[term] == pytest.approx(eq.standard_errors[term], rel=1e-6), (label, term)
 
 
+def test_dense_measurement_band_is_the_fast_one_on_real_equations():
+    """The straightforward residual covariance is the fast one (relative 1e-12) on a real equation, both with the
+    target-only noise (no w yet) and with every signal's noise for a given w: the reference itself is checked."""
+    from aeropend_core.wsindy import noise_model
+    captured = []
+    original = weak_form._measurement_band
+
+    def spy(model, w):
+        captured.append((model, None if w is None else w.copy()))
+        return original(model, w)
+    weak_form._measurement_band = spy
+    try:
+        _fits(window(3), **LIBRARIES['default'])
+    finally:
+        weak_form._measurement_band = original
+    assert any(w is None for _, w in captured) and any(w is not None for _, w in captured)
+    for model, w in captured:
+        fast, band = noise_model._measurement_band(model, w)
+        dense, dense_band = _dense_measurement_band(model, w)
+        assert band == dense_band
+        k = fast.shape[1]
+        for u in range(band + 1):       # entries past the last row are not part of the matrix
+            np.testing.assert_allclose(fast[u, :k - u], dense[u, :k - u], rtol=1e-12,
+                                       atol=1e-12 * np.max(np.abs(dense[0])))
+
+
 @pytest.mark.parametrize('library', LIBRARIES)
-def test_fast_noise_compensation_agrees_with_the_dense_formula(library, monkeypatch):
-    """The full method with the banded noise compensation (band of Σ⁻¹, banded overlap, vectorised weighted
-    products) against the same fit with the dense formula: same support, coefficients within the bar, on seeded
-    windows at 30 and 40 dB."""
+def test_fast_noise_model_agrees_with_the_dense_formulas(library, monkeypatch):
+    """The full method with the fast residual covariance (fused coefficient products, blocked window products)
+    and the fast noise compensation (band of Σ⁻¹, banded overlap, vectorised weighted products) against the same
+    fit with both written out with dense matrices: same support, coefficients within the bar, on seeded windows
+    at 30 and 40 dB."""
     options = LIBRARIES[library]
     cases = [(0, 40.0), (1, 40.0), (2, 30.0)]
     fast = [_fits(window(seed, psnr), **options) for seed, psnr in cases]
     monkeypatch.setattr(weak_form, '_noise_gram', _dense_noise_gram)
+    monkeypatch.setattr(weak_form, '_measurement_band', _dense_measurement_band)
     for (seed, psnr), got in zip(cases, fast):
         plain = _fits(window(seed, psnr), **options)
         _assert_agree(got, plain, (library, seed, psnr))

@@ -235,49 +235,74 @@ def _to_used_rows(model: _NoiseModel, grid_ab: np.ndarray):
     return ab, band
 
 
-def _coefficient_functions(model: _NoiseModel, w) -> list[tuple[float, dict]]:
-    """Per noisy signal: (σ², {type a: c_a(t)}) with the non-zero kernel-type coefficient functions (section
-    comment); the lhs type 0 is the constant 1.0 for the target."""
-    out = []
-    for (sigma, is_target, idx, types, jac), (_, bounds) in zip(model.signals, model.layout):
-        c = {0: 1.0} if is_target else {}
-        if w is not None and idx.size:
-            wv = w[idx]
-            for a in set(types[wv != 0.0].tolist()):
-                lo, hi = bounds[a]   # columns by type
-                c[a] = -(wv[lo:hi] @ jac[lo:hi])
-        if c:
-            out.append((sigma * sigma, c))
-    return out
-
-
 def _measurement_band(model: _NoiseModel, w):
     """Band (LAPACK lower storage, shape (band+1, K)) of the residual covariance Σ = Σ_v σ_v² R_v R_vᵀ over the
     used rows, and its bandwidth.
 
     Before any coefficient is known (``w is None``) only the target's noise counts: Σ ∝ V^(k) V^(k)ᵀ (unit
     variance when the target is estimated noiseless).
+
+    Noise on signal v enters the residual through kernel type a with the coefficient function
+    c_av(t) = −Σ_{j of type a} w_j ∂θ_j/∂v(t) (and c_0v = 1 for the target's own lhs); with
+    C_ab(t) = Σ_v σ_v² c_av(t)·c_bv(t) the band is Σ_ab Σ_t C_ab(t)·(H_ab + H_ba)(t) per test-function pair.
     """
     pairs = model.pairs
     full = int(model.rows[-1]) + 1
-    funcs = _coefficient_functions(model, w)
-    if not funcs:
-        funcs = [(1.0, {0: 1.0})]
-    # C_ab(t) = Σ_v σ_v² c_av(t)·c_bv(t) (= C_ba), with kernel H_ab + H_ba for a < b
-    products: dict = {}
-    for var, c in funcs:
-        keys = sorted(c)
-        for i, a in enumerate(keys):
-            for b in keys[i:]:
-                products[(a, b)] = products.get((a, b), 0.0) + var * c[a] * c[b]
-    constant = sum(float(v) * _pair_sum(model, a, b) for (a, b), v in products.items() if np.ndim(v) == 0)
-    varying = [(ab, v) for ab, v in products.items() if np.ndim(v)]
-    grid_ab = np.zeros((pairs.shape[2], full)) + (constant[:, None] if np.ndim(constant) else 0.0)
+    # kernel types with a non-zero coefficient function, per signal
+    active = []
+    for (sigma, is_target, idx, types, jac), (_, bounds) in zip(model.signals, model.layout):
+        present = sorted(set(types[w[idx] != 0.0].tolist())) if w is not None and idx.size else []
+        if is_target or present:
+            active.append((sigma * sigma, is_target, present, idx, types, jac))
+    if not active:
+        active = [(1.0, True, [], None, None, None)]
+    constant = sum(var for var, is_target, _, _, _, _ in active if is_target)   # C_00: the targets' own noise
+    varying = sorted({(a, b) for _, is_target, present, _, _, _ in active
+                      for a, b in [*((0, a) for a in present if is_target),
+                                   *((a, b) for i, a in enumerate(present) for b in present[i:])]})
+    grid_ab = np.zeros((pairs.shape[2], full)) + (constant * _pair_sum(model, 0, 0))[:, None]
     if varying:
-        cols = np.array([v for _, v in varying])
-        kerns = np.array([pairs[a, b] + (pairs[b, a] if a != b else 0.0) for (a, b), _ in varying])
+        row_of = np.full((len(model.kernels), len(model.kernels)), -1, np.int64)
+        for i, (a, b) in enumerate(varying):
+            row_of[a, b] = row_of[b, a] = i
+        cols = np.zeros((len(varying), model.n))
+        for var, is_target, present, idx, types, jac in active:
+            if present:
+                _add_coefficient_products(cols, jac, w[idx], types, np.array(present, np.int64), row_of, var,
+                                          is_target)
+        kerns = np.array([pairs[a, b] + (pairs[b, a] if a != b else 0.0) for a, b in varying])
         grid_ab += _window_dots(cols, kerns, model.first, model.step, full).T
     return _to_used_rows(model, grid_ab)
+
+
+@numba.njit(cache=True, nogil=True, fastmath={'contract'})
+def _add_coefficient_products(out, jac, weights, types, present, row_of, variance, is_target):
+    """out[row_of[a, b], t] += σ²·c_a(t)·c_b(t) for the kernel types a ≤ b in ``present`` (and σ²·c_a for the
+    pair (0, a) when the signal is the target, whose lhs coefficient is 1), c_a(t) = −Σ_{j: types[j] = a}
+    weights[j]·jac[j, t]."""
+    nv, n = jac.shape
+    n_types = present.size
+    c = np.zeros((n_types, n))
+    for i in range(n_types):
+        row = c[i]
+        for j in range(nv):
+            if types[j] == present[i]:
+                f = weights[j]
+                col = jac[j]
+                for t in range(n):
+                    row[t] -= f * col[t]
+    for i in range(n_types):
+        ci = c[i]
+        if is_target:
+            target = out[row_of[0, present[i]]]
+            for t in range(n):
+                target[t] += variance * ci[t]
+        for k in range(i, n_types):
+            ck = c[k]
+            target = out[row_of[present[i], present[k]]]
+            for t in range(n):
+                target[t] += variance * ci[t] * ck[t]
+    return out
 
 
 def _pair_sum(model: _NoiseModel, a: int, b: int) -> np.ndarray:
