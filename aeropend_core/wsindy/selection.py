@@ -278,7 +278,8 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
     """Best support (by the loss) among ``base`` plus every set of 1..max_size terms of ``free``.
 
     Depth-first over the combinations in lexicographic order with a Cholesky factor of the support's normal
-    matrix extended by one row per added term, so each support costs O(k²) instead of a fresh O(k³) solve:
+    matrix extended by one row per added term (scaled by the stored reciprocals of its diagonal, one division per
+    row), so each support costs O(k²) instead of a fresh O(k³) solve:
     with z = L⁻¹rhs_S and y = L⁻¹(Gw_LS)_S the loss numerator is c0 + ‖z‖² − 2 zᵀy (same value as
     :func:`_loss` on the subset solution). Supports whose factor breaks down (numerically collinear terms) are
     scored with :func:`_solve_subset`, as before. A size is not entered once its sparsity penalty alone
@@ -292,6 +293,7 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
     kmax = nb + max_size
     idx = np.empty(kmax, np.int64)
     lmat = np.zeros((kmax, kmax))
+    dinv = np.zeros(kmax)            # reciprocals of L's diagonal: one division per added row, not one per entry
     z = np.zeros(kmax)
     y = np.zeros(kmax)
     scale = 0.0
@@ -316,11 +318,12 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
             broken = True
             break
         lmat[a, a] = np.sqrt(acc)
+        dinv[a] = 1.0 / lmat[a, a]
         for r in range(a + 1, nb):
             v = gram[idx[r], idx[a]]
             for c in range(a):
                 v -= lmat[r, c] * lmat[a, c]
-            lmat[r, a] = v / lmat[a, a]
+            lmat[r, a] = v * dinv[a]
     if not broken:
         for a in range(nb):
             zr = rhs[idx[a]]
@@ -328,8 +331,8 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
             for c in range(a):
                 zr -= lmat[a, c] * z[c]
                 yr -= lmat[a, c] * y[c]
-            z[a] = zr / lmat[a, a]
-            y[a] = yr / lmat[a, a]
+            z[a] = zr * dinv[a]
+            y[a] = yr * dinv[a]
     nf = free.size
     combo = np.zeros(max_size, np.int64)
     # ok[d]: the factor of base + combo[:d] is valid (rows 0..nb+d-1)
@@ -365,23 +368,30 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
                 v = gram[idx[c], j]
                 for e in range(c):
                     v -= lmat[row, e] * lmat[c, e]
-                lmat[row, c] = v / lmat[c, c]
+                lmat[row, c] = v * dinv[c]
             acc = gram[j, j] + ridge
             for c in range(row):
                 acc -= lmat[row, c] * lmat[row, c]
             if acc > tiny:
-                d = np.sqrt(acc)
-                lmat[row, row] = d
                 zr = rhs[j]
                 yr = gwls[j]
                 for c in range(row):
                     zr -= lmat[row, c] * z[c]
                     yr -= lmat[row, c] * y[c]
-                z[row] = zr / d
-                y[row] = yr / d
-                sz[depth + 1] = sz[depth] + z[row] * z[row] - 2.0 * z[row] * y[row]
+                # z_row = zr/√acc, y_row = yr/√acc: the new row adds (zr² − 2·zr·yr)/acc to ‖z‖² − 2 zᵀy
+                sz[depth + 1] = sz[depth] + (zr * zr - 2.0 * zr * yr) / acc
                 ok[depth + 1] = True
-                value = 2.0 * alpha * np.sqrt(max(c0 + sz[depth + 1], 0.0)) / denom + penalty * (row + 1)
+                if depth + 1 < max_size and nxt + 1 < nf:     # descending from here: the row is needed
+                    d = np.sqrt(acc)
+                    lmat[row, row] = d
+                    dinv[row] = 1.0 / d
+                    z[row] = zr * dinv[row]
+                    y[row] = yr * dinv[row]
+                # the loss (one square root) only when the accuracy term can bring it below the best
+                limit = (best - 1e-12 - penalty * (row + 1)) * denom / (2.0 * alpha)
+                numerator = max(c0 + sz[depth + 1], 0.0)
+                if limit > 0.0 and numerator <= limit * limit * (1.0 + 1e-9):
+                    value = 2.0 * alpha * np.sqrt(numerator) / denom + penalty * (row + 1)
         if not ok[depth + 1]:
             w = _solve_subset(gram, rhs, support, ridge)
             value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
