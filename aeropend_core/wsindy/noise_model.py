@@ -46,9 +46,9 @@ def _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata):
     sigma2 = float(resid_vec @ resid_vec) / dof
     if not sel.size:
         return np.zeros((0, 0)), resid_vec
-    gram_sel = ata[np.ix_(sel, sel)]
+    gram_sel = ata[sel][:, sel]                      # = ata[np.ix_(sel, sel)], without np.ix_'s overhead
     if noise_gram is not None:
-        gram_sel = gram_sel - noise_gram[np.ix_(sel, sel)]
+        gram_sel = gram_sel - noise_gram[sel][:, sel]
     scale_sel = np.outer(col[sel], col[sel])
     return sigma2 * _pinvh(gram_sel / scale_sel) / scale_sel, resid_vec
 
