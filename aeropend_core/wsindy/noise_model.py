@@ -371,40 +371,35 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
         if not idx.size:
             continue
         var = sigma * sigma
-        block, target_part = _weighted_products(jac, types, q_all, row_of, is_target)
-        gram[idx[:, None], idx] += var * block
-        if is_target:
-            rhs[idx] += var * target_part
+        _weighted_products(gram, rhs, idx, var, jac, types, q_all, row_of, is_target)
     return gram, rhs
 
 
 @numba.njit(cache=True, nogil=True, fastmath={'reassoc', 'contract'})
-def _weighted_products(jac, types, q_all, row_of, is_target):
-    """(B, c) with B[j, k] = Σ_t jac[j, t]·jac[k, t]·q_(a_j, a_k)(t) and, for the target, c[j] = Σ_t jac[j, t]·
-    q_(0, a_j)(t) (a_j = types[j], q of a pair of kernel types = q_all[row_of[a, b]]).
+def _weighted_products(gram, rhs, idx, variance, jac, types, q_all, row_of, is_target):
+    """gram[idx_j, idx_k] += σ²·Σ_t jac[j, t]·jac[k, t]·q_(a_j, a_k)(t) and, for the target, rhs[idx_j] +=
+    σ²·Σ_t jac[j, t]·q_(0, a_j)(t) (a_j = types[j], q of a pair of kernel types = q_all[row_of[a, b]]).
 
     One pass over the samples per pair of columns, vectorised (the sums reassociated; sums of a few thousand
     terms, so the rounding differs from BLAS' by a few ulps of the result); the symmetric half is mirrored.
     """
     nv, n = jac.shape
-    block = np.empty((nv, nv))
     for j in range(nv):
         for k in range(j, nv):
             weight = q_all[row_of[types[j], types[k]]]
             acc = 0.0
             for t in range(n):
                 acc += weight[t] * jac[j, t] * jac[k, t]
-            block[j, k] = acc
-            block[k, j] = acc
-    target_part = np.zeros(nv)
+            gram[idx[j], idx[k]] += variance * acc
+            if k != j:
+                gram[idx[k], idx[j]] += variance * acc
     if is_target:
         for j in range(nv):
             weight = q_all[row_of[0, types[j]]]
             acc = 0.0
             for t in range(n):
                 acc += weight[t] * jac[j, t]
-            target_part[j] = acc
-    return block, target_part
+            rhs[idx[j]] += variance * acc
 
 
 @numba.njit(cache=True, nogil=True)
