@@ -250,7 +250,7 @@ def _measurement_band(model: _NoiseModel, w):
     full = int(model.rows[-1]) + 1
     # kernel types with a non-zero coefficient function, per signal
     active = []
-    for (sigma, is_target, idx, types, jac), (_, bounds) in zip(model.signals, model.layout):
+    for sigma, is_target, idx, types, jac in model.signals:
         present = sorted(set(types[w[idx] != 0.0].tolist())) if w is not None and idx.size else []
         if is_target or present:
             active.append((sigma * sigma, is_target, present, idx, types, jac))
