@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
@@ -68,14 +67,22 @@ def noise_rms(signal: np.ndarray) -> float:
     return float(np.sqrt(np.mean(kept ** 2)) / 0.9617 / np.sqrt(20.0))
 
 
-@numba.njit(cache=True, nogil=True)
+def _exact_median(values: np.ndarray) -> float:
+    """np.median of a 1-D float array, the same value (the middle element, or the mean of the two middle ones),
+    through one partition (selection: no sort, no rounding)."""
+    k = values.size // 2
+    if values.size % 2:
+        return float(np.partition(values, k)[k])
+    part = np.partition(values, (k - 1, k))
+    return float((part[k - 1] + part[k]) / 2)
+
+
 def _third_difference_mad(x):
     """(median absolute deviation of the third difference, the third difference), as np.diff(x, 3) and
-    np.median give them."""
-    d1 = x[1:] - x[:-1]
-    d2 = d1[1:] - d1[:-1]
-    third = d2[1:] - d2[:-1]
-    return np.median(np.abs(third - np.median(third))), third
+    np.median give them (selection by partition: the same values, several times faster than a sort)."""
+    third = np.diff(x, 3)
+    deviation = np.abs(third - _exact_median(third))
+    return _exact_median(deviation), third
 
 
 def estimate_noise_std(signal: np.ndarray) -> float:

@@ -123,11 +123,14 @@ def product(*names: str, hold: bool = False) -> Term:
     powers = tuple(counts.items())
 
     def partial(s: Signals, name: str) -> np.ndarray:
-        # d/dx (x^k · rest) = k · x^(k−1) · rest
-        out = dict(powers)[name] * np.ones(len(s[name]))
-        for n, k in powers:
-            for _ in range(k - 1 if n == name else k):
-                out = out * s[n]
+        # d/dx (x^k · rest) = k · x^(k−1) · rest, multiplied in this order: (k·f1)·f2·... (k·1 = k exactly)
+        factors = [s[n] for n, k in powers for _ in range(k - 1 if n == name else k)]
+        k = dict(powers)[name]
+        if not factors:
+            return k * np.ones(len(s[name]))
+        out = k * factors[0] if k != 1 else np.array(factors[0], dtype=float)
+        for factor in factors[1:]:
+            out = out * factor
         return out
 
     return Term(label, tuple(counts), evaluate, hold=hold, partial=partial)

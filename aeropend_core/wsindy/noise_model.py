@@ -5,7 +5,7 @@ noise compensation of the normal equations, banded Cholesky factors, and the coe
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -46,9 +46,9 @@ def _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata):
     sigma2 = float(resid_vec @ resid_vec) / dof
     if not sel.size:
         return np.zeros((0, 0)), resid_vec
-    gram_sel = ata[np.ix_(sel, sel)]
+    gram_sel = ata[sel][:, sel]                      # = ata[np.ix_(sel, sel)], without np.ix_'s overhead
     if noise_gram is not None:
-        gram_sel = gram_sel - noise_gram[np.ix_(sel, sel)]
+        gram_sel = gram_sel - noise_gram[sel][:, sel]
     scale_sel = np.outer(col[sel], col[sel])
     return sigma2 * _pinvh(gram_sel / scale_sel) / scale_sel, resid_vec
 
@@ -66,7 +66,7 @@ class _NoiseModel:
 
     kernels: np.ndarray            # (T, width) signed kernels; type 0 is the lhs
     signals: tuple                 # per noisy signal: (σ, is_target, term indices (n_v,), type per column (n_v,),
-                                   #                    Jacobian columns ∂θ_j/∂v, shape (n, n_v))
+                                   #                    Jacobian rows ∂θ_j/∂v, shape (n_v, n))
     first: int                     # first start of the grid (sample index)
     step: int                      # grid spacing (samples)
     rows: np.ndarray               # grid index of each used test function, shape (K,)
@@ -74,6 +74,7 @@ class _NoiseModel:
     pairs: np.ndarray              # H[a, b, u, τ] (:func:`_pair_kernels`), u = 0..grid band
     plain_pair: np.ndarray         # H[u, τ] of the plain φ (process noise)
     layout: tuple = ()             # per noisy signal: (sorted kernel types present, {type: (lo, hi) column slice})
+    sums: dict = field(default_factory=dict)   # (a, b) -> :func:`_pair_sum`
 
     @property
     def contiguous(self) -> bool:
@@ -118,8 +119,8 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
             bounds[a] = (lo, position + 1)
 
         def stacked(v=v, x=x, idx=idx):
-            cols = [_term_partial(cache, segment, eq.terms[j], signals, v) for j in idx]
-            return np.column_stack(cols) if cols else np.zeros((len(x), 0))
+            rows = [_term_partial(cache, segment, eq.terms[j], signals, v) for j in idx]
+            return np.array(rows, float) if rows else np.zeros((0, len(x)))
         key = ('jacs', segment, v, tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx))
         out.append((sigma, v == eq.target, idx, types, _cached(cache, key, stacked)))
         layout.append((sorted(bounds), bounds))
@@ -174,11 +175,14 @@ def _window_dots(columns: np.ndarray, kernels: np.ndarray, first: int, step: int
     c, nk, width = kernels.shape
     q = -(-width // step)
     n_blocks = count - 1 + q
-    stop = first + n_blocks * step
-    data = columns[:, first:min(stop, columns.shape[1])]
-    if stop > columns.shape[1]:
-        data = np.concatenate([data, np.zeros((c, stop - columns.shape[1]))], axis=1)
-    blocks = np.ascontiguousarray(data.reshape(c, n_blocks, step).transpose(1, 0, 2)).reshape(n_blocks, c * step)
+    # blocks[b, ch, σ] = columns[ch, first + b·step + σ] (zero past the end): one copy, padding included
+    blocks = np.zeros((n_blocks, c, step))
+    full = min(n_blocks, (columns.shape[1] - first) // step)
+    blocks[:full] = columns[:, first:first + full * step].reshape(c, full, step).transpose(1, 0, 2)
+    tail = columns[:, first + full * step:first + n_blocks * step]
+    if tail.shape[1]:
+        blocks[full, :, :tail.shape[1]] = tail
+    blocks = blocks.reshape(n_blocks, c * step)
     padded = np.zeros((c, nk, q * step))
     padded[:, :, :width] = kernels
     pieces = padded.reshape(c, nk, q, step).transpose(0, 3, 2, 1).reshape(c * step, q * nk)
@@ -231,50 +235,84 @@ def _to_used_rows(model: _NoiseModel, grid_ab: np.ndarray):
     return ab, band
 
 
-def _coefficient_functions(model: _NoiseModel, w) -> list[tuple[float, dict]]:
-    """Per noisy signal: (σ², {type a: c_a(t)}) with the non-zero kernel-type coefficient functions (section
-    comment); the lhs type 0 is the constant 1.0 for the target."""
-    out = []
-    for (sigma, is_target, idx, types, jac), (_, bounds) in zip(model.signals, model.layout):
-        c = {0: 1.0} if is_target else {}
-        if w is not None and idx.size:
-            wv = w[idx]
-            for a in set(types[wv != 0.0].tolist()):
-                lo, hi = bounds[a]   # columns by type
-                c[a] = -(jac[:, lo:hi] @ wv[lo:hi])
-        if c:
-            out.append((sigma * sigma, c))
-    return out
-
-
 def _measurement_band(model: _NoiseModel, w):
     """Band (LAPACK lower storage, shape (band+1, K)) of the residual covariance Σ = Σ_v σ_v² R_v R_vᵀ over the
     used rows, and its bandwidth.
 
     Before any coefficient is known (``w is None``) only the target's noise counts: Σ ∝ V^(k) V^(k)ᵀ (unit
     variance when the target is estimated noiseless).
+
+    Noise on signal v enters the residual through kernel type a with the coefficient function
+    c_av(t) = −Σ_{j of type a} w_j ∂θ_j/∂v(t) (and c_0v = 1 for the target's own lhs); with
+    C_ab(t) = Σ_v σ_v² c_av(t)·c_bv(t) the band is Σ_ab Σ_t C_ab(t)·(H_ab + H_ba)(t) per test-function pair.
     """
     pairs = model.pairs
     full = int(model.rows[-1]) + 1
-    funcs = _coefficient_functions(model, w)
-    if not funcs:
-        funcs = [(1.0, {0: 1.0})]
-    # C_ab(t) = Σ_v σ_v² c_av(t)·c_bv(t) (= C_ba), with kernel H_ab + H_ba for a < b
-    products: dict = {}
-    for var, c in funcs:
-        keys = sorted(c)
-        for i, a in enumerate(keys):
-            for b in keys[i:]:
-                products[(a, b)] = products.get((a, b), 0.0) + var * c[a] * c[b]
-    constant = sum(float(v) * (pairs[a, b] + (pairs[b, a] if a != b else 0.0)).sum(axis=1)
-                   for (a, b), v in products.items() if np.ndim(v) == 0)
-    varying = [(ab, v) for ab, v in products.items() if np.ndim(v)]
-    grid_ab = np.zeros((pairs.shape[2], full)) + (constant[:, None] if np.ndim(constant) else 0.0)
+    # kernel types with a non-zero coefficient function, per signal
+    active = []
+    for sigma, is_target, idx, types, jac in model.signals:
+        present = sorted(set(types[w[idx] != 0.0].tolist())) if w is not None and idx.size else []
+        if is_target or present:
+            active.append((sigma * sigma, is_target, present, idx, types, jac))
+    if not active:
+        active = [(1.0, True, [], None, None, None)]
+    constant = sum(var for var, is_target, _, _, _, _ in active if is_target)   # C_00: the targets' own noise
+    varying = sorted({(a, b) for _, is_target, present, _, _, _ in active
+                      for a, b in [*((0, a) for a in present if is_target),
+                                   *((a, b) for i, a in enumerate(present) for b in present[i:])]})
+    grid_ab = np.zeros((pairs.shape[2], full)) + (constant * _pair_sum(model, 0, 0))[:, None]
     if varying:
-        cols = np.array([v for _, v in varying])
-        kerns = np.array([pairs[a, b] + (pairs[b, a] if a != b else 0.0) for (a, b), _ in varying])
+        row_of = np.full((len(model.kernels), len(model.kernels)), -1, np.int64)
+        for i, (a, b) in enumerate(varying):
+            row_of[a, b] = row_of[b, a] = i
+        cols = np.zeros((len(varying), model.n))
+        for var, is_target, present, idx, types, jac in active:
+            if present:
+                _add_coefficient_products(cols, jac, w[idx], types, np.array(present, np.int64), row_of, var,
+                                          is_target)
+        kerns = np.array([pairs[a, b] + (pairs[b, a] if a != b else 0.0) for a, b in varying])
         grid_ab += _window_dots(cols, kerns, model.first, model.step, full).T
     return _to_used_rows(model, grid_ab)
+
+
+@numba.njit(cache=True, nogil=True, fastmath={'contract'})
+def _add_coefficient_products(out, jac, weights, types, present, row_of, variance, is_target):
+    """out[row_of[a, b], t] += σ²·c_a(t)·c_b(t) for the kernel types a ≤ b in ``present`` (and σ²·c_a for the
+    pair (0, a) when the signal is the target, whose lhs coefficient is 1), c_a(t) = −Σ_{j: types[j] = a}
+    weights[j]·jac[j, t]."""
+    nv, n = jac.shape
+    n_types = present.size
+    c = np.zeros((n_types, n))
+    for i in range(n_types):
+        row = c[i]
+        for j in range(nv):
+            if types[j] == present[i]:
+                f = weights[j]
+                col = jac[j]
+                for t in range(n):
+                    row[t] -= f * col[t]
+    for i in range(n_types):
+        ci = c[i]
+        if is_target:
+            target = out[row_of[0, present[i]]]
+            for t in range(n):
+                target[t] += variance * ci[t]
+        for k in range(i, n_types):
+            ck = c[k]
+            target = out[row_of[present[i], present[k]]]
+            for t in range(n):
+                target[t] += variance * ci[t] * ck[t]
+    return out
+
+
+def _pair_sum(model: _NoiseModel, a: int, b: int) -> np.ndarray:
+    """Σ_τ (H_ab + H_ba)[u, τ] (H_aa once for a = b), u = 0..grid band: the band of Σ for a constant coefficient
+    product, remembered on the model (both passes of a fit use it)."""
+    value = model.sums.get((a, b))
+    if value is None:
+        pairs = model.pairs
+        value = model.sums[(a, b)] = (pairs[a, b] + (pairs[b, a] if a != b else 0.0)).sum(axis=1)
+    return value
 
 
 def _process_band(model: _NoiseModel, band: int, variance: float) -> np.ndarray:
@@ -324,32 +362,44 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
     kern = np.array([pairs[a, b] + np.concatenate([np.zeros_like(pairs[b, a][:1]), pairs[b, a][1:]])
                      for a, b in needed])                                  # (pairs, band+1, width)
     q_all = _banded_overlap(zgrid, kern, model.first, model.step, model.n)
-    q = {ab: q_all[i] for i, ab in enumerate(needed)}
+    row_of = np.full((len(model.kernels), len(model.kernels)), -1, np.int64)   # kernel-type pair -> row of q_all
+    for i, (a, b) in enumerate(needed):
+        row_of[a, b] = row_of[b, a] = i
     gram = np.zeros((n_terms, n_terms))
     rhs = np.zeros(n_terms)
-    for (sigma, is_target, idx, types, jac), (present, bounds) in zip(model.signals, model.layout):
+    for sigma, is_target, idx, types, jac in model.signals:
         if not idx.size:
             continue
         var = sigma * sigma
-        if len(present) == 1:
-            (a,) = present
-            block = (jac * q[(a, a)][:, None]).T @ jac
-        else:
-            block = np.empty((idx.size, idx.size))
-            for a in present:
-                lo, hi = bounds[a]
-                # columns k of type b weighted by q_ab: one product per kernel type a
-                weighted = np.empty_like(jac)
-                for b in present:
-                    lo_b, hi_b = bounds[b]
-                    weighted[:, lo_b:hi_b] = jac[:, lo_b:hi_b] * q[(min(a, b), max(a, b))][:, None]
-                block[lo:hi] = jac[:, lo:hi].T @ weighted
-        if is_target:
-            for a in present:
-                lo, hi = bounds[a]
-                rhs[idx[lo:hi]] += var * (jac[:, lo:hi].T @ q[(0, a)])
-        gram[idx[:, None], idx] += var * block
+        _weighted_products(gram, rhs, idx, var, jac, types, q_all, row_of, is_target)
     return gram, rhs
+
+
+@numba.njit(cache=True, nogil=True, fastmath={'reassoc', 'contract'})
+def _weighted_products(gram, rhs, idx, variance, jac, types, q_all, row_of, is_target):
+    """gram[idx_j, idx_k] += σ²·Σ_t jac[j, t]·jac[k, t]·q_(a_j, a_k)(t) and, for the target, rhs[idx_j] +=
+    σ²·Σ_t jac[j, t]·q_(0, a_j)(t) (a_j = types[j], q of a pair of kernel types = q_all[row_of[a, b]]).
+
+    One pass over the samples per pair of columns, vectorised (the sums reassociated; sums of a few thousand
+    terms, so the rounding differs from BLAS' by a few ulps of the result); the symmetric half is mirrored.
+    """
+    nv, n = jac.shape
+    for j in range(nv):
+        for k in range(j, nv):
+            weight = q_all[row_of[types[j], types[k]]]
+            acc = 0.0
+            for t in range(n):
+                acc += weight[t] * jac[j, t] * jac[k, t]
+            gram[idx[j], idx[k]] += variance * acc
+            if k != j:
+                gram[idx[k], idx[j]] += variance * acc
+    if is_target:
+        for j in range(nv):
+            weight = q_all[row_of[0, types[j]]]
+            acc = 0.0
+            for t in range(n):
+                acc += weight[t] * jac[j, t]
+            rhs[idx[j]] += variance * acc
 
 
 @numba.njit(cache=True, nogil=True)

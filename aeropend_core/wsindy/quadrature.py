@@ -58,12 +58,16 @@ def _centres(n: int, m: int, stride: int) -> np.ndarray:
     return first + stride * np.arange(count)
 
 
-def _weak_rows(columns: np.ndarray, weights: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """∫ φ_c · column for each start, shape (len(starts), n_columns)."""
+def _weak_rows(columns: np.ndarray, weights: np.ndarray, starts: np.ndarray, step: int | None = None) -> np.ndarray:
+    """∫ φ_c · column for each start, shape (len(starts), n_columns); ``step`` [samples], when given, promises
+    evenly spaced starts (``starts[i] = starts[0] + i·step``, as :func:`_centres` makes them)."""
     width = weights.shape[-1]
     k = len(starts)
-    step = int(starts[1] - starts[0]) if k > 1 else 1
-    if k < 2 or step < 1 or np.any(np.diff(starts) != step):
+    if step is None:
+        step = int(starts[1] - starts[0]) if k > 1 else 1
+        if k > 1 and np.any(np.diff(starts) != step):
+            step = 0
+    if k < 2 or step < 1:
         view = np.lib.stride_tricks.sliding_window_view(columns, width, axis=0)   # (n - width + 1, ncol, width)
         return view[starts] @ weights
     # Evenly spaced supports: cut the data into blocks of ``step`` samples and the kernel into q pieces of the
@@ -71,16 +75,18 @@ def _weak_rows(columns: np.ndarray, weights: np.ndarray, starts: np.ndarray) -> 
     q = -(-width // step)
     n_blocks = k - 1 + q
     first = int(starts[0])
-    stop = first + n_blocks * step
-    block = columns[first:min(stop, len(columns))]
-    if stop > len(columns):
-        block = np.concatenate([block, np.zeros((stop - len(columns), columns.shape[1]))])
+    n_col = columns.shape[1]
+    # by_phase[σ, b, c] = data[first + b·step + σ, c] (zero past the end): one copy, padding included
+    by_phase = np.zeros((step, n_blocks, n_col))
+    full = min(n_blocks, (len(columns) - first) // step)
+    by_phase[:, :full] = columns[first:first + full * step].reshape(full, step, n_col).transpose(1, 0, 2)
+    tail = columns[first + full * step:first + n_blocks * step]
+    if len(tail):
+        by_phase[:len(tail), full] = tail
     kernel = np.zeros(q * step)
     kernel[:width] = weights
-    n_col = columns.shape[1]
     # (q, step) @ (step, n_blocks·n_col): parts[j, b, c] = Σ_σ kernel[j·step + σ]·data[b·step + σ, c]
-    by_phase = np.ascontiguousarray(block.reshape(n_blocks, step, n_col).transpose(1, 0, 2)).reshape(step, -1)
-    parts = (kernel.reshape(q, step) @ by_phase).reshape(q, n_blocks, n_col)
+    parts = (kernel.reshape(q, step) @ by_phase.reshape(step, -1)).reshape(q, n_blocks, n_col)
     out = parts[0, :k].copy()
     for j in range(1, q):
         out += parts[j, j:j + k]

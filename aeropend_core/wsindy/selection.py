@@ -161,6 +161,98 @@ def _best_single_change(gram, rhs, support, candidates, state, ridge, gwls, c0, 
 
 
 @numba.njit(cache=True, nogil=True)
+def _best_removal(gram, rhs, support, candidates, ridge, gwls, c0, denom, alpha, n_terms):
+    """:func:`_best_single_change` with ``state=False`` (drop each candidate term of ``support`` in turn), scored
+    from one factorisation instead of one solve per candidate; same return value.
+
+    With P = M⁻¹ (M the support's normal matrix plus ridge), the least squares without term p is
+    w − (w_p/P_pp)·P[:, p] (exact in exact arithmetic), scored with the loss in O(k²). Only the choice of the
+    term to drop uses these values: the winner is solved afresh (:func:`_solve_subset`) and scored with
+    :func:`_loss`, so the weights and loss returned are those of the one-solve-per-candidate path. When a
+    Cholesky pivot of M is below the threshold at which :func:`_solve_subset` leaves Cholesky (nearly collinear
+    terms), the candidates are solved one by one as in :func:`_best_single_change`. A principal submatrix
+    never has smaller pivots, so when M passes every candidate's solve takes the Cholesky branch too.
+    """
+    n = support.size
+    idx = np.empty(n, np.int64)
+    k = 0
+    for i in range(n):
+        if support[i]:
+            idx[k] = i
+            k += 1
+    scale = 0.0
+    for i in range(k):
+        scale = max(scale, abs(gram[idx[i], idx[i]] + ridge))
+    low = np.zeros((k, k))
+    for c in range(k):
+        acc = gram[idx[c], idx[c]] + ridge
+        for e in range(c):
+            acc -= low[c, e] * low[c, e]
+        if acc <= 1e-8 * scale:
+            return _best_single_change(gram, rhs, support, candidates, False, ridge, gwls, c0, denom, alpha,
+                                       n_terms)
+        d = np.sqrt(acc)
+        low[c, c] = d
+        for r in range(c + 1, k):
+            v = gram[idx[r], idx[c]]
+            for e in range(c):
+                v -= low[r, e] * low[c, e]
+            low[r, c] = v / d
+    # L⁻¹ (lower), then P = L⁻ᵀ L⁻¹ and w = P r
+    inv = np.zeros((k, k))
+    for c in range(k):
+        inv[c, c] = 1.0 / low[c, c]
+        for r in range(c + 1, k):
+            v = 0.0
+            for e in range(c, r):
+                v -= low[r, e] * inv[e, c]
+            inv[r, c] = v / low[r, r]
+    p = np.zeros((k, k))
+    for a in range(k):
+        for b in range(a + 1):
+            v = 0.0
+            for e in range(a, k):
+                v += inv[e, a] * inv[e, b]
+            p[a, b] = v
+            p[b, a] = v
+    w = np.zeros(k)
+    for a in range(k):
+        v = 0.0
+        for b in range(k):
+            v += p[a, b] * rhs[idx[b]]
+        w[a] = v
+    best_loss = np.inf
+    best_j = -1
+    trial = np.empty(k)
+    for q in range(k):
+        if not candidates[idx[q]]:
+            continue
+        f = w[q] / p[q, q]
+        for a in range(k):
+            trial[a] = w[a] - f * p[a, q]
+        trial[q] = 0.0
+        acc2 = c0
+        nz = 0
+        for a in range(k):
+            if trial[a] == 0.0:
+                continue
+            nz += 1
+            row = 0.0
+            for b in range(k):
+                row += gram[idx[a], idx[b]] * trial[b]
+            acc2 += trial[a] * (row - 2.0 * gwls[idx[a]])
+        value = 2.0 * alpha * np.sqrt(max(acc2, 0.0)) / denom + 2.0 * (1.0 - alpha) * nz / n_terms
+        if value < best_loss:
+            best_loss, best_j = value, idx[q]
+    if best_j < 0:
+        return np.inf, -1, np.zeros(n)
+    support[best_j] = False
+    best_w = _solve_subset(gram, rhs, support, ridge)
+    support[best_j] = True
+    return _loss(gram, best_w, gwls, c0, denom, alpha, n_terms), best_j, best_w
+
+
+@numba.njit(cache=True, nogil=True)
 def _loss(gram, w, gwls, c0, denom, alpha, n_terms):
     """L = 2α‖G(w − w_LS)‖/‖G w_LS‖ + 2(1 − α)·nnz(w)/J with the normalised Gram matrix, in O(nnz²):
     ‖G(w − w_LS)‖² = wᵀGw − 2 wᵀ(G w_LS) + w_LSᵀ G w_LS, with gwls = G w_LS and c0 = w_LSᵀ G w_LS."""
@@ -186,7 +278,8 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
     """Best support (by the loss) among ``base`` plus every set of 1..max_size terms of ``free``.
 
     Depth-first over the combinations in lexicographic order with a Cholesky factor of the support's normal
-    matrix extended by one row per added term, so each support costs O(k²) instead of a fresh O(k³) solve:
+    matrix extended by one row per added term (scaled by the stored reciprocals of its diagonal, one division per
+    row), so each support costs O(k²) instead of a fresh O(k³) solve:
     with z = L⁻¹rhs_S and y = L⁻¹(Gw_LS)_S the loss numerator is c0 + ‖z‖² − 2 zᵀy (same value as
     :func:`_loss` on the subset solution). Supports whose factor breaks down (numerically collinear terms) are
     scored with :func:`_solve_subset`, as before. A size is not entered once its sparsity penalty alone
@@ -200,6 +293,7 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
     kmax = nb + max_size
     idx = np.empty(kmax, np.int64)
     lmat = np.zeros((kmax, kmax))
+    dinv = np.zeros(kmax)            # reciprocals of L's diagonal: one division per added row, not one per entry
     z = np.zeros(kmax)
     y = np.zeros(kmax)
     scale = 0.0
@@ -224,11 +318,12 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
             broken = True
             break
         lmat[a, a] = np.sqrt(acc)
+        dinv[a] = 1.0 / lmat[a, a]
         for r in range(a + 1, nb):
             v = gram[idx[r], idx[a]]
             for c in range(a):
                 v -= lmat[r, c] * lmat[a, c]
-            lmat[r, a] = v / lmat[a, a]
+            lmat[r, a] = v * dinv[a]
     if not broken:
         for a in range(nb):
             zr = rhs[idx[a]]
@@ -236,8 +331,8 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
             for c in range(a):
                 zr -= lmat[a, c] * z[c]
                 yr -= lmat[a, c] * y[c]
-            z[a] = zr / lmat[a, a]
-            y[a] = yr / lmat[a, a]
+            z[a] = zr * dinv[a]
+            y[a] = yr * dinv[a]
     nf = free.size
     combo = np.zeros(max_size, np.int64)
     # ok[d]: the factor of base + combo[:d] is valid (rows 0..nb+d-1)
@@ -273,23 +368,30 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
                 v = gram[idx[c], j]
                 for e in range(c):
                     v -= lmat[row, e] * lmat[c, e]
-                lmat[row, c] = v / lmat[c, c]
+                lmat[row, c] = v * dinv[c]
             acc = gram[j, j] + ridge
             for c in range(row):
                 acc -= lmat[row, c] * lmat[row, c]
             if acc > tiny:
-                d = np.sqrt(acc)
-                lmat[row, row] = d
                 zr = rhs[j]
                 yr = gwls[j]
                 for c in range(row):
                     zr -= lmat[row, c] * z[c]
                     yr -= lmat[row, c] * y[c]
-                z[row] = zr / d
-                y[row] = yr / d
-                sz[depth + 1] = sz[depth] + z[row] * z[row] - 2.0 * z[row] * y[row]
+                # z_row = zr/√acc, y_row = yr/√acc: the new row adds (zr² − 2·zr·yr)/acc to ‖z‖² − 2 zᵀy
+                sz[depth + 1] = sz[depth] + (zr * zr - 2.0 * zr * yr) / acc
                 ok[depth + 1] = True
-                value = 2.0 * alpha * np.sqrt(max(c0 + sz[depth + 1], 0.0)) / denom + penalty * (row + 1)
+                if depth + 1 < max_size and nxt + 1 < nf:     # descending from here: the row is needed
+                    d = np.sqrt(acc)
+                    lmat[row, row] = d
+                    dinv[row] = 1.0 / d
+                    z[row] = zr * dinv[row]
+                    y[row] = yr * dinv[row]
+                # the loss (one square root) only when the accuracy term can bring it below the best
+                limit = (best - 1e-12 - penalty * (row + 1)) * denom / (2.0 * alpha)
+                numerator = max(c0 + sz[depth + 1], 0.0)
+                if limit > 0.0 and numerator <= limit * limit * (1.0 + 1e-9):
+                    value = 2.0 * alpha * np.sqrt(numerator) / denom + penalty * (row + 1)
         if not ok[depth + 1]:
             w = _solve_subset(gram, rhs, support, ridge)
             value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
@@ -367,8 +469,19 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     support = np.empty(n, np.bool_)
     new = np.empty(n, np.bool_)
     nonzero = np.empty(n, np.bool_)
+    # The thresholding path at λ (its supports and solves) stays the same for a larger λ' as long as no weight it
+    # kept crosses the bounds: λ' <= the smallest kept free |w| and 1/λ' >= the largest (weights dropped below λ
+    # or above 1/λ stay dropped). Then it ends on the same support, scored already: that λ' is skipped.
+    kept_min = -1.0
+    kept_max = np.inf
+    previous_lam = np.inf
     for lam in grid:
         upper = 1.0 / lam
+        if previous_lam <= lam <= kept_min and kept_max <= upper:
+            continue
+        previous_lam = lam
+        kept_min = np.inf
+        kept_max = 0.0
         support[:] = usable
         w = w_full
         for _ in range(n + 1):
@@ -376,10 +489,14 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
             changed = False
             for i in range(n):
                 size = abs(w[i])
-                inside = support[i] and ((size >= lam and size <= upper) or keep[i])
+                within = size >= lam and size <= upper
+                inside = support[i] and (within or keep[i])
                 new[i] = inside
                 if inside != support[i]:
                     changed = True
+                if inside and within and not keep[i]:
+                    kept_min = min(kept_min, size)
+                    kept_max = max(kept_max, size)
             if not changed:
                 break
             support[:] = new
@@ -411,8 +528,8 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
         # one term at a time (the one whose removal changes the fit least) does visit it.
         support = usable.copy()
         while np.count_nonzero(support) > np.count_nonzero(keep):
-            trial_loss, trial_j, trial_w = _best_single_change(gram, rhs, support, support & ~keep, False, final_ridge,
-                                                               gwls, c0, denom, alpha, n_terms)
+            trial_loss, trial_j, trial_w = _best_removal(gram, rhs, support, support & ~keep, final_ridge, gwls, c0,
+                                                         denom, alpha, n_terms)
             if trial_j < 0:
                 break
             support[trial_j] = False

@@ -401,6 +401,7 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
             if centres.size == 0:
                 continue
         starts = centres - m
+        even = s_ if excl is None else None     # _centres spaces the starts evenly unless samples were excluded
         gb = np.empty((len(starts), len(eq.terms) + 1), order='F')   # [G b], Fortran order for LAPACK
         g = gb[:, :-1]
         for d in sorted({t_.derivative_order for t_ in eq.terms}):
@@ -414,9 +415,9 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
                                                              lambda term=term, s=s: term.evaluate(s))
                                                      for term in members]))
                     kern = hold_weights if held else weights[d]
-                    rows = _weak_rows(theta, kern, starts)
+                    rows = _weak_rows(theta, kern, starts, even)
                     g[:, idx] = -rows if d % 2 else rows      # (−1)^d, exactly
-        lhs = _weak_rows(s[eq.target][:, None], weights[eq.order], starts)[:, 0]
+        lhs = _weak_rows(s[eq.target][:, None], weights[eq.order], starts, even)[:, 0]
         gb[:, -1] = -lhs if eq.order % 2 else lhs
         b = gb[:, -1]
         model = _noise_model(eq, s, starts, kernel_list, type_of, noise_std, cache, si, width, weights[0])
