@@ -1,0 +1,106 @@
+"""Candidates the statistics support but the diagnosis does not name: say so, with what they do to the parameters.
+
+A candidate is named only when it also passes the materiality rule of :mod:`aeropend_core.diagnosis.diagnose`
+(it must remove most of the held-out error beyond the noise, or a non-small amount of it), which guards against a
+catalog effect soaking up the nominal model's own imperfection. A small effect can pass every statistical test
+(parameter t, training BIC, held-out Diebold--Mariano) and still fail that rule, for two reasons measured on a
+9.4 ms thrust lag at 40 dB (bench/results/2026-11-24-diagnosis-3/lag/README.md):
+
+* the nominal parameters absorb most of it: in the linear regime a thrust lag ``d`` acts like a rod ``1 + (c/J) d``
+  times heavier (mgd/J, c/J and the thrust gain all fit ~11 % low without it), so only a small remainder is left
+  for the lag to explain;
+* the error beyond the noise it is a share of is a difference of two noise powers, known only to a sampling spread
+  as large as that remainder (:func:`aeropend_core.diagnosis.diagnose.beyond_spread`).
+
+The verdict then stays "nothing significant is missing" -- but the parameters it reports are off by as much as
+the candidate moves them. This module writes that doubt next to the numbers: which candidate, its estimate and
+evidence, the share it removes, how far the nominal parameters move with it, and the experiment that separates it.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+from aeropend_core.model.effects import get_effect
+from aeropend_core.model.names import NOMINAL_PARAMETERS
+
+#: Nominal parameters that move by more than this fraction when the candidate is added are listed.
+MOVE_REPORTED = 0.01
+
+
+def parameter_moves(before: dict[str, float], after: dict[str, float]) -> list[tuple[str, float, float, float]]:
+    """Nominal parameters that move by more than MOVE_REPORTED, largest relative move first.
+
+    Parameters
+    ----------
+    before, after : dict of str -> float [SI unit of each parameter]
+        Fitted parameters without and with the candidate.
+
+    Returns
+    -------
+    list of (name, before, after, relative change)
+        Relative change [-] = after / before - 1.
+    """
+    moves = []
+    for name in NOMINAL_PARAMETERS:
+        old, new = before.get(name), after.get(name)
+        if old is None or new is None or not (math.isfinite(old) and math.isfinite(new)) or old == 0.0:
+            continue
+        change = new / old - 1.0
+        if abs(change) > MOVE_REPORTED:
+            moves.append((name, old, new, change))
+    moves.sort(key=lambda move: -abs(move[3]))
+    return moves
+
+
+def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
+    """One note per candidate that passes the statistical tests but not the materiality rule.
+
+    The tests and thresholds are those of :mod:`aeropend_core.diagnosis.diagnose` (``T_MIN``, ``BIC_MARGIN``,
+    ``DM_MIN``); the noise-power spread is its :func:`~aeropend_core.diagnosis.diagnose.beyond_spread`.
+
+    Parameters
+    ----------
+    candidates : iterable of Candidate [-]
+        Candidates tried against `current` (:class:`aeropend_core.diagnosis.diagnose.Candidate`).
+    current : Comparison [-]
+        The model they were added to.
+    prep : PreparedRecord [-]
+        The record (its angle noise RMS [rad] and held-out part).
+
+    Returns
+    -------
+    list of str
+        The notes (empty when no candidate is a near miss).
+    """
+    from aeropend_core.diagnosis import diagnose as rules      # the diagnosis's own thresholds (it imports us)
+    noise, spread = prep.noise_rms, rules.beyond_spread(prep)
+    notes = []
+    for candidate in candidates:
+        if candidate.significant or candidate.comparison is None or not candidate.parameters:
+            continue
+        supported = (candidate.t_statistic >= rules.T_MIN and math.isfinite(candidate.delta_bic)
+                     and candidate.delta_bic < -rules.BIC_MARGIN and candidate.dm_statistic >= rules.DM_MIN)
+        if not supported:
+            continue
+        units = {p.name: p.unit for p in get_effect(candidate.effect).parameters}
+        values = ', '.join(f'{name} = {value:.4g} +- {candidate.standard_errors.get(name, float("nan")):.2g} '
+                           f'{units.get(name, "")}' for name, value in candidate.parameters.items())
+        beyond = max(current.rms_error ** 2 - noise ** 2, 0.0)
+        moves = parameter_moves(current.parameters, candidate.comparison.parameters)
+        moved = '; '.join(f'{name} {old:.4g} -> {new:.4g} {NOMINAL_PARAMETERS[name][0]} ({change * 100:+.1f} %)'
+                          for name, old, new, change in moves[:3])
+        notes.append(
+            f'{candidate.effect} is supported by the statistics ({values}; parameter {candidate.t_statistic:.1f} '
+            f'HAC standard errors from zero, training BIC {candidate.delta_bic:+.0f}, held-out Diebold-Mariano '
+            f'{candidate.dm_statistic:+.1f}) but not named: it removes {candidate.share_removed * 100:.0f} % of the '
+            f'held-out error beyond the noise ({candidate.mse_gain * 1e6:.2f} of {beyond * 1e6:.2f} mrad^2, which '
+            f'is known only to +-{spread * 1e6:.2f} mrad^2), too little to tell it from the nominal model\'s own '
+            f'imperfection.'
+            + (f' With it the nominal parameters move: {moved}; the reported values are uncertain by that much'
+               f' (the nominal parameters can absorb most of a small {candidate.effect}).' if moves else '')
+            + f' To decide, {rules.excitation_advice(candidate.effect)}.')
+    return notes
+
+
+__all__ = ['near_miss_notes', 'parameter_moves']
