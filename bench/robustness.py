@@ -202,11 +202,14 @@ def classify(effect: str, verdict: str, named: list[str], unstated: tuple[str, .
     """One of OUTCOMES for a diagnosis of data with `effect` hidden (CLEAN: nothing hidden).
 
     `unstated`: effects also in the record that the diagnosis was not told about (an angle filter of the simulated
-    chain when the chain is unknown): the right answer names them too, and naming only the hidden effect is wrong.
+    chain when the chain is unknown). Naming the hidden effect with or without them is correct (its estimate then
+    absorbs theirs: see the error column); naming one of them instead, e.g. a confident thrust lag on a clean record
+    read through a filter, is wrong.
     """
     truth = ([] if effect == CLEAN else [effect]) + list(unstated)
     if verdict == 'effect_found':
-        return 'correct' if truth and sorted(named) == sorted(truth) else 'wrong'
+        hidden_named = effect != CLEAN and effect in named and set(named) <= set(truth)
+        return 'correct' if hidden_named or (truth and sorted(named) == sorted(truth)) else 'wrong'
     if verdict == 'confounded':
         return 'confounded_truth' if any(name in named for name in truth) else 'confounded_other'
     if verdict == 'nothing_missing':
