@@ -85,3 +85,22 @@ def test_no_near_miss_note_on_a_clean_record(capsys, tmp_path):
     result = _diagnose(capsys, data, '--fix', 'angle_filter=0')
     assert result['verdict'] == 'nothing_missing', result['message']
     assert not [note for note in result['notes'] if 'supported by the statistics' in note], result['notes']
+
+
+def test_a_lag_named_with_the_chain_unknown_says_it_may_hold_the_filter(capsys, tmp_path):
+    """75 ms lag read through the rig's 14.1 ms filter, 40 dB. Chain unknown: whatever is named, a thrust lag named
+    alone carries the note that it includes any angle filter (its estimate does: ~96 ms in the bench). Chain known
+    (``--fix angle_filter=0.0141``): the lag is named within 15 % and there is no such note."""
+    truth = 0.075
+    data = _record(tmp_path, 'filtered-lag.csv', {'thrust_lag': truth, 'angle_filter': 0.0141}, 40.0, 8331)
+    unknown = _diagnose(capsys, data)
+    chain = [note for note in unknown['notes'] if note.startswith('the measurement chain was not given')]
+    if unknown['verdict'] == 'effect_found' and 'angle_filter' not in unknown['add']:
+        assert unknown['add'] == ['thrust_lag'], unknown['message']
+        assert len(chain) == 1 and 'includes any angle_filter' in chain[0] and '--fix angle_filter' in chain[0]
+    else:
+        assert unknown['verdict'] in ('effect_found', 'confounded') and not chain, unknown['message']
+    known = _diagnose(capsys, data, '--fix', 'angle_filter=0.0141')
+    assert known['verdict'] == 'effect_found' and known['add'] == ['thrust_lag'], known['message']
+    assert known['missing_effects'][0]['parameters']['time_constant'] == pytest.approx(truth, rel=0.15)
+    assert not [note for note in known['notes'] if note.startswith('the measurement chain was not given')]

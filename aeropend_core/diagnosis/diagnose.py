@@ -45,7 +45,7 @@ import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
 from aeropend_core.diagnosis.evidence import diebold_mariano
-from aeropend_core.diagnosis.near_miss import near_miss_notes
+from aeropend_core.diagnosis.doubts import doubt_notes
 from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.io.recording import Recording
@@ -779,7 +779,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
             for nominal in candidate.confounded_with:
                 notes.append(f'{candidate.effect} cannot be told apart from {nominal} in this data; '
                              f'{separating_experiment(candidate.effect, nominal)}.')
-    notes += near_miss_notes(() if found else results, current, prep)     # supported by the tests, not named
+    notes += doubt_notes(results, found, current, prep, model)     # near misses, an unstated measurement chain
     if getattr(prep, 'gaps', None) is not None and prep.gaps.count:
         notes.append(prep.gaps.describe())
     return Diagnosis(effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,

@@ -1,10 +1,10 @@
-"""Candidates the statistics support but the diagnosis does not name: say so, with what they do to the parameters.
+"""Doubts the verdict must carry: a candidate supported but not named, a lag that may hold an unstated filter.
 
-A candidate is named only when it also passes the materiality rule of :mod:`aeropend_core.diagnosis.diagnose`
-(it must remove most of the held-out error beyond the noise, or a non-small amount of it), which guards against a
-catalog effect soaking up the nominal model's own imperfection. A small effect can pass every statistical test
-(parameter t, training BIC, held-out Diebold--Mariano) and still fail that rule, for two reasons measured on a
-9.4 ms thrust lag at 40 dB (bench/results/2026-11-24-diagnosis-3/lag/README.md):
+**Near misses.** A candidate is named only when it also passes the materiality rule of
+:mod:`aeropend_core.diagnosis.diagnose` (it must remove most of the held-out error beyond the noise, or a non-small
+amount of it), which guards against a catalog effect soaking up the nominal model's own imperfection. A small
+effect can pass every statistical test (parameter t, training BIC, held-out Diebold--Mariano) and still fail that
+rule, for two reasons measured on a 9.4 ms thrust lag at 40 dB (bench/results/2026-11-24-diagnosis-3/lag/README.md):
 
 * the nominal parameters absorb most of it: in the linear regime a thrust lag ``d`` acts like a rod ``1 + (c/J) d``
   times heavier (mgd/J, c/J and the thrust gain all fit ~11 % low without it), so only a small remainder is left
@@ -13,15 +13,21 @@ catalog effect soaking up the nominal model's own imperfection. A small effect c
   as large as that remainder (:func:`aeropend_core.diagnosis.diagnose.beyond_spread`).
 
 The verdict then stays "nothing significant is missing" -- but the parameters it reports are off by as much as
-the candidate moves them. This module writes that doubt next to the numbers: which candidate, its estimate and
-evidence, the share it removes, how far the nominal parameters move with it, and the experiment that separates it.
+the candidate moves them. :func:`near_miss_notes` writes that doubt next to the numbers: which candidate, its
+estimate and evidence, the share it removes, how far the nominal parameters move with it, and the experiment that
+separates it.
+
+**An unstated measurement chain.** A named effect that the catalog declares confusable with a measurement-chain
+effect (``thrust_lag`` with ``angle_filter``: lags commute) absorbs that effect's delay when the chain was not
+given: a 75 ms lag read through the rig's 14.1 ms filter is named as a lag of 95-96 ms (robustness bench).
+:func:`chain_notes` says so when the model does not hold the chain effect (``--fix``/``--calibration``).
 """
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable
 
-from aeropend_core.model.effects import get_effect
+from aeropend_core.model.effects import CATALOG, MEASUREMENT_FILTER, get_effect, separating_experiment
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 
 #: Nominal parameters that move by more than this fraction when the candidate is added are listed.
@@ -103,4 +109,63 @@ def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
     return notes
 
 
-__all__ = ['near_miss_notes', 'parameter_moves']
+def chain_notes(found: Iterable, model: Iterable[str]) -> list[str]:
+    """A note for each named effect that may hold the delay of a measurement-chain effect nobody stated.
+
+    Parameters
+    ----------
+    found : iterable of Found [-]
+        The selected effects (:class:`aeropend_core.diagnosis.diagnose.Found`).
+    model : iterable of str [-]
+        Effects in the model (``--add``, ``--fix``, the calibration file's chain, and the found ones).
+
+    Returns
+    -------
+    list of str
+        The notes (empty when the chain is in the model or nothing confusable with it was named).
+    """
+    held = set(model)
+    chain = [name for name, effect in CATALOG.items() if effect.kind == MEASUREMENT_FILTER and name not in held]
+    notes = []
+    for item in found:
+        if item.confounded_with:
+            continue            # already reported as "one of ..." with the experiment that separates them
+        for other in chain:
+            experiment = separating_experiment(item.effect, other)
+            if not experiment:
+                continue
+            entry = get_effect(other)
+            typical = ', '.join(f'{p.name} = {p.typical:g} {p.unit}' for p in entry.parameters)
+            values = ', '.join(f'{name} = {value:.4g}' for name, value in item.parameters.items())
+            notes.append(f'the measurement chain was not given: the {item.effect} found ({values}) includes any '
+                         f'{other} in the record, which this data cannot tell apart from it (the rig: {typical}); '
+                         f'to separate them, {experiment}.')
+    return notes
+
+
+def doubt_notes(candidates: Iterable, found: list, current, prep, model: Iterable[str]) -> list[str]:
+    """Every doubt note of a diagnosis: near misses (only when nothing was found: the candidates were then tried on
+    the current model) and an unstated measurement chain.
+
+    Parameters
+    ----------
+    candidates : iterable of Candidate [-]
+        The first round's candidates, tried against `current`.
+    found : list of Found [-]
+        The selected effects.
+    current : Comparison [-]
+        The current model.
+    prep : PreparedRecord [-]
+        The record.
+    model : iterable of str [-]
+        Effects in the final model.
+
+    Returns
+    -------
+    list of str
+        The notes.
+    """
+    return ([] if found else near_miss_notes(candidates, current, prep)) + chain_notes(found, model)
+
+
+__all__ = ['chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves']
