@@ -314,7 +314,7 @@ def markdown(report: dict) -> str:
         if point.get('chain', UNKNOWN_CHAIN) == UNKNOWN_CHAIN:
             lines.append(_row(point))
     if chain.get('known_rows'):
-        held = f'the simulated rig\'s {delay * 1e3:g} ms filter' if delay else 'no filter on the angle (0 s)'
+        held = f'the simulated rig\'s {delay * 1e3:g} ms' if delay else '0 s, no filter on the angle'
         lines += ['', f'## (c) vs magnitude at {MAGNITUDE_PSNR:g} dB, measurement chain KNOWN to the diagnosis '
                   f'(angle_filter held at {held}, as --fix angle_filter={delay:g} or a calibration file would give '
                   'it; NOT the unknown-chain case above)', '', header, rule]
