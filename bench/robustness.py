@@ -27,8 +27,19 @@ Every run is classified:
 
 For the clean case ``missed`` (nothing_missing) is the right answer; every other outcome is a false alarm.
 
+**The measurement chain.** By default the diagnosis is not told anything about the angle sensor's chain: the
+``angle_filter`` stays a candidate (the *unknown-chain* rows). ``--known-chain`` adds rows (b) and the clean points
+once more with the chain KNOWN: the diagnosis gets the simulated rig's angle-filter delay as a fixed hardware value,
+``fixed={'angle_filter': delay}``, exactly what ``aeropend diagnose --fix angle_filter=DELAY`` or ``--calibration``
+pass to :func:`diagnose` (delay 0 s: "no filter on the angle", as a calibration file stating
+``angle_filter_delay: 0.0``). ``--chain-filter DELAY`` gives every simulated record (clean ones too) an angle filter
+of that delay [s] on top of the hidden effect (the rig's RC filter: 0.0141); the unknown-chain rows are then the
+rig read through a filter nobody stated. With a chain filter, or with the chain known, ``angle_filter`` is not a
+hidden effect of its own (it is part of the chain). Rows with the chain known are labelled ``chain known`` in
+robustness.md and carry ``"chain": "known"`` in the JSON.
+
 Run:  .venv/bin/python bench/robustness.py [--quick] [--seeds N] [--out DIR] [--json PATH] [--effects A B ...]
-      [--varied]
+      [--varied] [--known-chain] [--chain-filter DELAY]
 Time on the 2-core machine: default (260 diagnoses) 5.3 min idle, 10-14 min when busy; --quick (66) 1 min idle,
 2 min busy. Writes OUT/robustness.json (or --json PATH), OUT/robustness.md, OUT/rate_vs_psnr.png and
 OUT/rate_vs_magnitude.png; exit status 1 if any diagnosis crashed (its traceback is in the JSON).
@@ -76,6 +87,8 @@ RELIABLE = 0.75
 #: An effect still reliably found at the smallest tested magnitude is tried at half of it, and so on, down to
 #: this multiple of its typical value (so that every curve shows where detection fails).
 SMALLEST_FACTOR = 1 / 256
+#: The measurement chain as the diagnosis sees it: 'unknown' (angle_filter a candidate) or 'known' (held fixed).
+UNKNOWN_CHAIN, KNOWN_CHAIN = 'unknown', 'known'
 OUTCOMES = ('correct', 'confounded_truth', 'confounded_other', 'missed', 'wrong', 'unexplained', 'drift', 'crash')
 CLEAN = 'none'
 #: --varied: every nominal parameter moved by 20 % (as tests/test_diagnose.py), so that nothing leans on defaults.
@@ -124,19 +137,29 @@ def run_case(case: dict) -> dict:
 
     effect, factor, psnr, seed = case['effect'], case['factor'], case['psnr'], case['seed']
     parameters = VARIED_PARAMETERS if case.get('varied') else DEFAULT_PARAMETERS
+    chain_delay = float(case.get('chain_filter', 0.0))     # the simulated rig's angle filter [s] (0: none)
     result = dict(case)
     truth = None
+    simulated_effects = {}
     if effect != CLEAN:
         truth = {p.name: p.typical * factor for p in get_effect(effect).parameters}
         result['truth'] = truth
+        simulated_effects[effect] = truth
+    if chain_delay > 0.0:
+        simulated_effects['angle_filter'] = {'filter_delay': chain_delay}
+    # chain known: the simulated rig's filter delay as a fixed hardware value, as --fix / --calibration pass it
+    known = case.get('chain', UNKNOWN_CHAIN) == KNOWN_CHAIN
+    fixed = {'angle_filter': chain_delay} if known else None
+    fixed_from = {'angle_filter': 'the simulated rig (bench --known-chain)'} if known else None
     started = time.perf_counter()
     try:
         top = result['max_duty'] = max_duty(effect, truth, parameters)
         schedule = lhc_schedule(DURATION, duty_range=(0.0, top), duty_cap=top, seed=SEED_BASE + seed)
         duty = schedule.duty(duration=DURATION)
-        trajectory = simulate(duty, parameters, None if truth is None else {effect: truth},
-                              noise=MeasurementNoise(psnr, True), seed=SEED_BASE + 500 + seed)
-        found = diagnose(from_columns(trajectory.columns(with_truth=False), source=f'robustness {case}'))
+        trajectory = simulate(duty, parameters, simulated_effects or None, noise=MeasurementNoise(psnr, True),
+                              seed=SEED_BASE + 500 + seed)
+        found = diagnose(from_columns(trajectory.columns(with_truth=False), source=f'robustness {case}'),
+                         fixed=fixed, fixed_from=fixed_from)
     except Exception as error:   # a crash is an outcome to report, not a reason to stop the sweep
         result.update(outcome='crash', verdict='crash', named=[], error=f'{type(error).__name__}: {error}',
                       traceback=traceback.format_exc(), seconds=time.perf_counter() - started)
@@ -146,11 +169,12 @@ def run_case(case: dict) -> dict:
         named = list(found.missing_effects)
     elif found.verdict == 'confounded':
         named = [n for f in found.found for n in [f.effect, *f.confounded_with] if n in CATALOG]
-    result.update(verdict=found.verdict, named=named, noise_rms=found.noise_rms,
+    result.update(verdict=found.verdict, named=named, noise_rms=found.noise_rms, fixed=dict(found.fixed),
                   excess_now=_excess(found.current.rms_error, found.noise_rms),
                   max_true_angle_deg=math.degrees(float(abs(trajectory.truth['angle']).max())),
                   seconds=time.perf_counter() - started)
-    result['outcome'] = classify(effect, found.verdict, named)
+    result['unstated'] = ['angle_filter'] if chain_delay > 0.0 and not known else []
+    result['outcome'] = classify(effect, found.verdict, named, tuple(result['unstated']))
     if truth is not None:
         hidden = next((c for c in found.candidates if c.effect == effect), None)
         if hidden is not None and hidden.parameters:
@@ -159,6 +183,10 @@ def run_case(case: dict) -> dict:
             result['estimate'] = estimate
             result['relative_error'] = (estimate - truth[name]) / truth[name] if truth[name] else float('nan')
             result['hidden_significant'] = hidden.significant
+            # the evidence behind the outcome (first round, against the current model): why a size is missed
+            result['hidden_evidence'] = {'t': hidden.t_statistic, 'delta_bic': hidden.delta_bic,
+                                         'dm': hidden.dm_statistic, 'share': hidden.share_removed,
+                                         'gain_per_noise_variance': hidden.mse_gain / found.noise_rms ** 2}
             interval = hidden.comparison.fit.extra.get('threshold_interval') if hidden.comparison else None
             if interval is not None:      # a dead zone's threshold is known only between two input levels
                 result['interval'] = list(interval)
@@ -170,12 +198,20 @@ def _excess(rms: float, noise: float) -> float:
     return math.sqrt(max(rms ** 2 - noise ** 2, 0.0))
 
 
-def classify(effect: str, verdict: str, named: list[str]) -> str:
-    """One of OUTCOMES for a diagnosis of data with `effect` hidden (CLEAN: nothing hidden)."""
+def classify(effect: str, verdict: str, named: list[str], unstated: tuple[str, ...] = ()) -> str:
+    """One of OUTCOMES for a diagnosis of data with `effect` hidden (CLEAN: nothing hidden).
+
+    `unstated`: effects also in the record that the diagnosis was not told about (an angle filter of the simulated
+    chain when the chain is unknown). Naming the hidden effect with or without them is correct (its estimate then
+    absorbs theirs: see the error column); naming one of them instead, e.g. a confident thrust lag on a clean record
+    read through a filter, is wrong.
+    """
+    truth = ([] if effect == CLEAN else [effect]) + list(unstated)
     if verdict == 'effect_found':
-        return 'correct' if named == [effect] else 'wrong'
+        hidden_named = effect != CLEAN and effect in named and set(named) <= set(truth)
+        return 'correct' if hidden_named or (truth and sorted(named) == sorted(truth)) else 'wrong'
     if verdict == 'confounded':
-        return 'confounded_truth' if effect in named else 'confounded_other'
+        return 'confounded_truth' if any(name in named for name in truth) else 'confounded_other'
     if verdict == 'nothing_missing':
         return 'missed'
     if verdict in ('unexplained', 'drift'):
@@ -183,26 +219,35 @@ def classify(effect: str, verdict: str, named: list[str]) -> str:
     return 'crash'
 
 
-def build_cases(effects: list[str], psnrs, magnitudes, seeds: int) -> list[dict]:
+def build_cases(effects: list[str], psnrs, magnitudes, seeds: int, known_chain: bool = False,
+                chain_filter: float = 0.0) -> list[dict]:
+    """Every (effect, magnitude, PSNR, chain, seed) case; with `known_chain` curve (b) and the clean points again
+    with the measurement chain known to the diagnosis (not for angle_filter itself, which is then part of it)."""
     points = []
     for effect in effects:
         for psnr in psnrs:
-            points.append((effect, 1.0, psnr))
+            points.append((effect, 1.0, psnr, UNKNOWN_CHAIN))
         for factor in magnitudes:
-            if (effect, factor, MAGNITUDE_PSNR) not in points:
-                points.append((effect, factor, MAGNITUDE_PSNR))
+            if (effect, factor, MAGNITUDE_PSNR, UNKNOWN_CHAIN) not in points:
+                points.append((effect, factor, MAGNITUDE_PSNR, UNKNOWN_CHAIN))
     for psnr in psnrs:
-        points.append((CLEAN, 0.0, psnr))
-    return [{'effect': e, 'factor': f, 'psnr': p, 'seed': s} for e, f, p in points for s in range(1, seeds + 1)]
+        points.append((CLEAN, 0.0, psnr, UNKNOWN_CHAIN))
+    if known_chain:
+        points += [(e, f, MAGNITUDE_PSNR, KNOWN_CHAIN) for e in effects if e != 'angle_filter' for f in magnitudes]
+        points += [(CLEAN, 0.0, p, KNOWN_CHAIN) for p in psnrs]
+    return [{'effect': e, 'factor': f, 'psnr': p, 'chain': c, 'chain_filter': chain_filter, 'seed': s}
+            for e, f, p, c in points for s in range(1, seeds + 1)]
 
 
-def summarise(runs: list[dict], effect: str, factor: float, psnr: float) -> dict:
-    selected = [r for r in runs if r['effect'] == effect and r['factor'] == factor and r['psnr'] == psnr]
+def summarise(runs: list[dict], effect: str, factor: float, psnr: float, chain: str = UNKNOWN_CHAIN) -> dict:
+    selected = [r for r in runs if r['effect'] == effect and r['factor'] == factor and r['psnr'] == psnr
+                and r.get('chain', UNKNOWN_CHAIN) == chain]
     counts = {o: sum(r['outcome'] == o for r in selected) for o in OUTCOMES}
     errors = [abs(r['relative_error']) for r in selected
               if r['outcome'] == 'correct' and math.isfinite(r.get('relative_error', float('nan')))]
     errors.sort()
-    summary = {'effect': effect, 'factor': factor, 'psnr': psnr, 'runs': len(selected), 'counts': counts,
+    summary = {'effect': effect, 'factor': factor, 'psnr': psnr, 'chain': chain, 'runs': len(selected),
+               'counts': counts,
                'correct_rate': counts['correct'] / len(selected) if selected else float('nan'),
                'median_abs_relative_error': errors[len(errors) // 2] if errors else None,
                'max_abs_relative_error': errors[-1] if errors else None,
@@ -213,7 +258,9 @@ def summarise(runs: list[dict], effect: str, factor: float, psnr: float) -> dict
     if effect != CLEAN:
         summary['value'] = {p.name: p.typical * factor for p in get_effect(effect).parameters}
     else:
-        summary['false_alarm_rate'] = 1.0 - counts['missed'] / len(selected) if selected else float('nan')
+        # a record read through a filter nobody stated is not clean: no false-alarm rate for it
+        unstated = any(r.get('unstated') for r in selected)
+        summary['false_alarm_rate'] = None if unstated or not selected else 1.0 - counts['missed'] / len(selected)
     return summary
 
 
@@ -258,27 +305,51 @@ def markdown(report: dict) -> str:
     lines += ['## (a) vs PSNR at the typical magnitude', '', header, rule]
     for point in report['vs_psnr']:
         lines.append(_row(point))
-    lines += ['', f'## (b) vs magnitude at {MAGNITUDE_PSNR:g} dB', '', header, rule]
+    chain = report.get('measurement_chain', {})
+    delay = chain.get('simulated_filter_delay_s', 0.0)
+    through = f'; the simulated rig reads the angle through a {delay * 1e3:g} ms filter' if delay else ''
+    lines += ['', f'## (b) vs magnitude at {MAGNITUDE_PSNR:g} dB, measurement chain unknown (angle_filter a '
+              f'candidate{through})', '', header, rule]
     for point in report['vs_magnitude']:
-        lines.append(_row(point))
+        if point.get('chain', UNKNOWN_CHAIN) == UNKNOWN_CHAIN:
+            lines.append(_row(point))
+    if chain.get('known_rows'):
+        held = f'the simulated rig\'s {delay * 1e3:g} ms' if delay else '0 s, no filter on the angle'
+        lines += ['', f'## (c) vs magnitude at {MAGNITUDE_PSNR:g} dB, measurement chain KNOWN to the diagnosis '
+                  f'(angle_filter held at {held}, as --fix angle_filter={delay:g} or a calibration file would give '
+                  'it; NOT the unknown-chain case above)', '', header, rule]
+        for point in report['vs_magnitude']:
+            if point.get('chain') == KNOWN_CHAIN:
+                lines.append(_row(point))
     lines += ['', '## Clean data (nothing hidden): false alarms vs PSNR', '',
-              '| PSNR dB | nothing_missing | effect_found | confounded | unexplained | crash | false-alarm rate |',
-              '|---|---|---|---|---|---|---|']
+              '| PSNR dB | chain | nothing_missing | effect_found | confounded | unexplained | crash | '
+              'false-alarm rate |',
+              '|---|---|---|---|---|---|---|---|']
     for point in report['clean']:
         c = point['counts']
-        lines.append(f'| {point["psnr"]:g} | {c["missed"]} | {c["wrong"] + c["correct"]} | '
+        lines.append(f'| {point["psnr"]:g} | {point.get("chain", UNKNOWN_CHAIN)} | {c["missed"]} | '
+                     f'{c["wrong"] + c["correct"]} | '
                      f'{c["confounded_truth"] + c["confounded_other"]} | {c["unexplained"]} | {c["crash"]} | '
-                     f'{_percent(point["false_alarm_rate"])} % |')
+                     + ('- (an unstated angle filter is in the record: missed, M, is the wrong answer here) |'
+                        if point['false_alarm_rate'] is None else f'{_percent(point["false_alarm_rate"])} % |'))
+    known = report.get('thresholds_known_chain', {})
     lines += ['', f'## Smallest reliably detected magnitude (correct in >= {RELIABLE:.0%} of seeds at it and at '
               f'every larger tested magnitude, {MAGNITUDE_PSNR:g} dB)', '',
-              '| effect | parameter | typical | smallest reliable | as x typical |', '|---|---|---|---|---|']
-    for effect, entry in report['thresholds'].items():
+              '| effect | parameter | typical | smallest reliable, chain unknown | as x typical |'
+              + (' smallest reliable, chain KNOWN |' if known else ''),
+              '|---|---|---|---|---|' + ('---|' if known else '')]
+
+    def reached(entry: dict | None) -> str:
+        if entry is None:
+            return '-'
         if entry['factor'] is None:
-            lines.append(f'| {effect} | {entry["parameter"]} | {entry["typical"]:g} {entry["unit"]} | '
-                         f'not reached in the tested range | - |')
-        else:
-            lines.append(f'| {effect} | {entry["parameter"]} | {entry["typical"]:g} {entry["unit"]} | '
-                         f'{entry["value"]:.4g} {entry["unit"]} | {entry["factor"]:g} |')
+            return 'not reached in the tested range'
+        return f'{entry["value"]:.4g} {entry["unit"]}'
+
+    for effect, entry in report['thresholds'].items():
+        factor = '-' if entry['factor'] is None else f'{entry["factor"]:g}'
+        lines.append(f'| {effect} | {entry["parameter"]} | {entry["typical"]:g} {entry["unit"]} | {reached(entry)} | '
+                     f'{factor} |' + (f' {reached(known.get(effect))} |' if known else ''))
     return '\n'.join(lines) + '\n'
 
 
@@ -291,7 +362,8 @@ def _row(point: dict) -> str:
         error_text += f' (truth in the reported interval {point["correct_with_truth_in_interval"]}/{c["correct"]})'
     if point['over_horizontal']:
         error_text += f'; rod above horizontal in {point["over_horizontal"]}/{point["runs"]} runs'
-    return (f'| {point["effect"]} | {value} (x{point["factor"]:g}) | {point["psnr"]:g} | {c["correct"]} | '
+    label = point['effect'] + (' (chain known)' if point.get('chain') == KNOWN_CHAIN else '')
+    return (f'| {label} | {value} (x{point["factor"]:g}) | {point["psnr"]:g} | {c["correct"]} | '
             f'{c["confounded_truth"]} | {c["confounded_other"]} | {c["missed"]} | {c["wrong"]} | '
             f'{c["unexplained"]} | {c["crash"]} | {error_text} |')
 
@@ -350,7 +422,8 @@ def plot(report: dict, out: Path) -> list[str]:
         ax.axvline(50, color='0.8', lw=0.8, ls='--')
         ax.grid(alpha=0.3)
     ax = axes.flat[len(effects)]
-    points = sorted(report['clean'], key=lambda p: p['psnr'])
+    points = sorted((p for p in report['clean'] if p.get('chain', UNKNOWN_CHAIN) == UNKNOWN_CHAIN
+                     and p['false_alarm_rate'] is not None), key=lambda p: p['psnr'])
     ax.plot([p['psnr'] for p in points], [p['false_alarm_rate'] for p in points], color='C3', marker='x',
             label='false alarm')
     ax.set_title('clean data: false-alarm rate', fontsize=9)
@@ -363,13 +436,19 @@ def plot(report: dict, out: Path) -> list[str]:
     rows = math.ceil(len(effects) / columns)
     fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows), squeeze=False)
     for ax, effect in zip(axes.flat, effects):
-        points = sorted((p for p in report['vs_magnitude'] if p['effect'] == effect), key=lambda p: p['factor'])
+        points = sorted((p for p in report['vs_magnitude'] if p['effect'] == effect
+                         and p.get('chain', UNKNOWN_CHAIN) == UNKNOWN_CHAIN), key=lambda p: p['factor'])
         entry = report['thresholds'][effect]
         x = [p['factor'] * entry['typical'] for p in points]
         _, r = rates(points, 'factor')
         for outcome, (color, marker, label) in styles.items():
             if any(v > 0 for v in r[outcome]) or outcome in ('correct', 'wrong', 'missed'):
                 ax.plot(x, r[outcome], color=color, marker=marker, label=label)
+        known = sorted((p for p in report['vs_magnitude'] if p['effect'] == effect and p.get('chain') == KNOWN_CHAIN),
+                       key=lambda p: p['factor'])
+        if known:
+            ax.plot([p['factor'] * entry['typical'] for p in known], rates(known, 'factor')[1]['correct'], color='C2',
+                    ls='--', marker='o', mfc='none', label='correct, chain known')
         ax.set_xscale('log')
         ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f'{v:g}'))
         ax.xaxis.set_minor_formatter(NullFormatter())
@@ -401,18 +480,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--json', type=Path, help='where to write the JSON (default OUT/robustness.json)')
     parser.add_argument('--varied', action='store_true',
                         help='simulate with every nominal parameter moved by 20 %% instead of the defaults')
+    parser.add_argument('--known-chain', action='store_true',
+                        help='also run curve (b) and the clean points with the measurement chain known to the '
+                             'diagnosis: the simulated angle-filter delay held fixed (as --fix angle_filter=DELAY)')
+    parser.add_argument('--chain-filter', type=float, default=0.0, metavar='DELAY',
+                        help='simulate every record with an angle filter of this delay [s] (the rig: 0.0141); '
+                             'angle_filter is then not a hidden effect of its own')
     parser.add_argument('--no-plots', action='store_true')
     args = parser.parse_args(argv)
     effects = args.effects or list(CATALOG)
     unknown = [e for e in effects if e not in CATALOG]
     if unknown:
         parser.error(f'unknown effect(s) {unknown}; known: {", ".join(CATALOG)}')
+    if not 0.0 <= args.chain_filter <= 0.05:
+        parser.error(f'--chain-filter {args.chain_filter:g} s: give the filter delay in seconds, 0 to 0.05')
+    if args.chain_filter > 0.0:
+        effects = [e for e in effects if e != 'angle_filter']     # the filter is part of the chain
+        if not effects:
+            parser.error('--chain-filter with only angle_filter: the filter is the chain, not a hidden effect')
     seeds = args.seeds or (QUICK_SEEDS if args.quick else SEEDS)
     if seeds < 1 or args.workers < 1:
         parser.error('--seeds and --workers must be at least 1')
     psnrs = QUICK_PSNRS if args.quick else PSNRS
     magnitudes = QUICK_MAGNITUDES if args.quick else MAGNITUDES
-    cases = build_cases(effects, psnrs, magnitudes, seeds)
+    cases = build_cases(effects, psnrs, magnitudes, seeds, args.known_chain, args.chain_filter)
     for case in cases:
         case['varied'] = args.varied
     args.out.mkdir(parents=True, exist_ok=True)
@@ -424,7 +515,9 @@ def main(argv: list[str] | None = None) -> int:
     runs = []
     os.environ.setdefault('OMP_NUM_THREADS', '1')
     context = get_context('fork') if sys.platform.startswith('linux') else get_context()
-    factors = {effect: sorted(magnitudes) for effect in effects}
+    chains = (UNKNOWN_CHAIN, KNOWN_CHAIN) if args.known_chain else (UNKNOWN_CHAIN,)
+    curves = [(e, c) for c in chains for e in effects if c == UNKNOWN_CHAIN or e != 'angle_filter']
+    factors = {curve: sorted(magnitudes) for curve in curves}
     with context.Pool(args.workers, initializer=_worker_init) as pool:
         while cases:
             for run in pool.imap_unordered(run_case, cases):
@@ -433,29 +526,31 @@ def main(argv: list[str] | None = None) -> int:
                 print(f'[{len(runs):3d}] {run["effect"]:17s} x{run["factor"]:<9.4g} {run["psnr"]:4.0f} dB '
                       f'seed {run["seed"]}: {run["outcome"]:16s} {named:30s} {run["seconds"]:5.1f} s', flush=True)
             cases = []
-            for effect in effects:     # still found at the smallest magnitude: halve it until it is not
-                smallest = factors[effect][0]
+            for effect, chain in curves:     # still found at the smallest magnitude: halve it until it is not
+                smallest = factors[effect, chain][0]
                 if smallest / 2 >= SMALLEST_FACTOR and \
-                        summarise(runs, effect, smallest, MAGNITUDE_PSNR)['correct_rate'] >= RELIABLE:
-                    factors[effect].insert(0, smallest / 2)
+                        summarise(runs, effect, smallest, MAGNITUDE_PSNR, chain)['correct_rate'] >= RELIABLE:
+                    factors[effect, chain].insert(0, smallest / 2)
                     cases += [{'effect': effect, 'factor': smallest / 2, 'psnr': MAGNITUDE_PSNR, 'seed': s,
-                               'varied': args.varied}
+                               'varied': args.varied, 'chain': chain, 'chain_filter': args.chain_filter}
                               for s in range(1, seeds + 1)]
             if cases:
-                print(f'extending downwards: {", ".join(sorted({c["effect"] for c in cases}))}', flush=True)
+                extended = sorted({f'{c["effect"]} (chain {c["chain"]})' for c in cases})
+                print(f'extending downwards: {", ".join(extended)}', flush=True)
     wall = time.perf_counter() - started
-    runs.sort(key=lambda r: (r['effect'], r['factor'], -r['psnr'], r['seed']))
+    runs.sort(key=lambda r: (r['effect'], r.get('chain', UNKNOWN_CHAIN), r['factor'], -r['psnr'], r['seed']))
     vs_psnr = [summarise(runs, e, 1.0, p) for e in effects for p in psnrs]
-    vs_magnitude = [summarise(runs, e, f, MAGNITUDE_PSNR) for e in effects for f in factors[e]]
-    clean = [summarise(runs, CLEAN, 0.0, p) for p in psnrs]
-    thresholds = {}
-    for effect in effects:
+    vs_magnitude = [summarise(runs, e, f, MAGNITUDE_PSNR, c) for e, c in curves for f in factors[e, c]]
+    clean = [summarise(runs, CLEAN, 0.0, p, c) for c in chains for p in psnrs]
+    thresholds: dict[str, dict] = {}
+    thresholds_known: dict[str, dict] = {}
+    for effect, chain in curves:
         parameter = get_effect(effect).parameters[0]
-        best = smallest_reliable([p for p in vs_magnitude if p['effect'] == effect])
-        thresholds[effect] = {'parameter': parameter.name, 'unit': parameter.unit, 'typical': parameter.typical,
-                              'factor': best['factor'] if best else None,
-                              'value': best['factor'] * parameter.typical if best else None,
-                              'tested_factors': factors[effect]}
+        best = smallest_reliable([p for p in vs_magnitude if p['effect'] == effect and p['chain'] == chain])
+        (thresholds if chain == UNKNOWN_CHAIN else thresholds_known)[effect] = {
+            'parameter': parameter.name, 'unit': parameter.unit, 'typical': parameter.typical,
+            'factor': best['factor'] if best else None, 'value': best['factor'] * parameter.typical if best else None,
+            'tested_factors': factors[effect, chain]}
     report = {'date': datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC'),
               'machine': f'{platform.node()} {platform.machine()} {os.cpu_count()} cpu',
               'quick': args.quick, 'varied_parameters': args.varied, 'seeds': seeds,
@@ -466,7 +561,11 @@ def main(argv: list[str] | None = None) -> int:
               'workers': args.workers, 'runs': len(runs), 'wall_seconds': wall,
               'mean_diagnosis_seconds': sum(r['seconds'] for r in runs) / len(runs),
               'outcome_totals': {o: sum(r['outcome'] == o for r in runs) for o in OUTCOMES},
+              'measurement_chain': {'simulated_filter_delay_s': args.chain_filter, 'known_rows': args.known_chain,
+                                    'known_means': 'angle_filter held at the simulated delay (fixed= of diagnose, '
+                                                   'as --fix angle_filter=DELAY / --calibration)'},
               'vs_psnr': vs_psnr, 'vs_magnitude': vs_magnitude, 'clean': clean, 'thresholds': thresholds,
+              'thresholds_known_chain': thresholds_known,
               'cases': runs}
     json_path.write_text(json.dumps(_plain(report), indent=1))
     text = markdown(report)

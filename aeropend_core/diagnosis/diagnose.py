@@ -45,6 +45,7 @@ import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
 from aeropend_core.diagnosis.evidence import diebold_mariano
+from aeropend_core.diagnosis.doubts import doubt_notes
 from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.io.recording import Recording
@@ -772,16 +773,15 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                      f'{"; past the upright it went over the top" if highest > math.pi else ""}): near the upright '
                      f'position tiny model errors decide which way the rod falls, so the free-run comparison is '
                      f'unreliable there; keep the duty steps below the level that holds the rod at ~85 deg.')
-    # Identifiability warnings for effects that could not be seen at all in this data (when none was found: with
-    # effects missing, the first round's correlations say little about the final model).
+    # Effects not seen at all in this data (only when none was found: the first round was tried on this model).
     for candidate in results if not found else ():
         if candidate.confounded_with and not candidate.significant and candidate.effect not in model:
             for nominal in candidate.confounded_with:
                 notes.append(f'{candidate.effect} cannot be told apart from {nominal} in this data; '
                              f'{separating_experiment(candidate.effect, nominal)}.')
-    gaps = getattr(prep, 'gaps', None)
-    if gaps is not None and gaps.count:
-        notes.append(gaps.describe())
+    notes += doubt_notes(results, found, current, prep, model)     # near misses, an unstated measurement chain
+    if getattr(prep, 'gaps', None) is not None and prep.gaps.count:
+        notes.append(prep.gaps.describe())
     return Diagnosis(effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
                      message=message, notes=notes, before=before, residual_structure=structure, prepared=prep,
                      seconds=time.perf_counter() - started, found=found, selected=selected, drift=drift_rows,

@@ -1,0 +1,171 @@
+"""Doubts the verdict must carry: a candidate supported but not named, a lag that may hold an unstated filter.
+
+**Near misses.** A candidate is named only when it also passes the materiality rule of
+:mod:`aeropend_core.diagnosis.diagnose` (it must remove most of the held-out error beyond the noise, or a non-small
+amount of it), which guards against a catalog effect soaking up the nominal model's own imperfection. A small
+effect can pass every statistical test (parameter t, training BIC, held-out Diebold--Mariano) and still fail that
+rule, for two reasons measured on a 9.4 ms thrust lag at 40 dB (bench/results/2026-11-24-diagnosis-3/lag/README.md):
+
+* the nominal parameters absorb most of it: in the linear regime a thrust lag ``d`` acts like a rod ``1 + (c/J) d``
+  times heavier (mgd/J, c/J and the thrust gain all fit ~11 % low without it), so only a small remainder is left
+  for the lag to explain;
+* the error beyond the noise it is a share of is a difference of two noise powers, known only to a sampling spread
+  as large as that remainder (:func:`aeropend_core.diagnosis.diagnose.beyond_spread`).
+
+The verdict then stays "nothing significant is missing" -- but the parameters it reports are off by as much as
+the candidate moves them. :func:`near_miss_notes` writes that doubt next to the numbers: which candidate, its
+estimate and evidence, the share it removes, how far the nominal parameters move with it, and the experiment that
+separates it.
+
+**An unstated measurement chain.** A named effect that the catalog declares confusable with a measurement-chain
+effect (``thrust_lag`` with ``angle_filter``: lags commute) absorbs that effect's delay when the chain was not
+given: a 75 ms lag read through the rig's 14.1 ms filter is named as a lag of 95-96 ms (robustness bench).
+:func:`chain_notes` says so when the model does not hold the chain effect (``--fix``/``--calibration``).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+from aeropend_core.model.effects import CATALOG, MEASUREMENT_FILTER, get_effect, separating_experiment
+from aeropend_core.model.names import NOMINAL_PARAMETERS
+
+#: Nominal parameters that move by more than this fraction when the candidate is added are listed.
+MOVE_REPORTED = 0.01
+
+
+def parameter_moves(before: dict[str, float], after: dict[str, float]) -> list[tuple[str, float, float, float]]:
+    """Nominal parameters that move by more than MOVE_REPORTED, largest relative move first.
+
+    Parameters
+    ----------
+    before, after : dict of str -> float [SI unit of each parameter]
+        Fitted parameters without and with the candidate.
+
+    Returns
+    -------
+    list of (name, before, after, relative change)
+        Relative change [-] = after / before - 1.
+    """
+    moves = []
+    for name in NOMINAL_PARAMETERS:
+        old, new = before.get(name), after.get(name)
+        if old is None or new is None or not (math.isfinite(old) and math.isfinite(new)) or old == 0.0:
+            continue
+        change = new / old - 1.0
+        if abs(change) > MOVE_REPORTED:
+            moves.append((name, old, new, change))
+    moves.sort(key=lambda move: -abs(move[3]))
+    return moves
+
+
+def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
+    """One note per candidate that passes the statistical tests but not the materiality rule.
+
+    The tests and thresholds are those of :mod:`aeropend_core.diagnosis.diagnose` (``T_MIN``, ``BIC_MARGIN``,
+    ``DM_MIN``); the noise-power spread is its :func:`~aeropend_core.diagnosis.diagnose.beyond_spread`.
+
+    Parameters
+    ----------
+    candidates : iterable of Candidate [-]
+        Candidates tried against `current` (:class:`aeropend_core.diagnosis.diagnose.Candidate`).
+    current : Comparison [-]
+        The model they were added to.
+    prep : PreparedRecord [-]
+        The record (its angle noise RMS [rad] and held-out part).
+
+    Returns
+    -------
+    list of str
+        The notes (empty when no candidate is a near miss).
+    """
+    from aeropend_core.diagnosis import diagnose as rules      # the diagnosis's own thresholds (it imports us)
+    noise, spread = prep.noise_rms, rules.beyond_spread(prep)
+    notes = []
+    for candidate in candidates:
+        if candidate.significant or candidate.comparison is None or not candidate.parameters:
+            continue
+        supported = (candidate.t_statistic >= rules.T_MIN and math.isfinite(candidate.delta_bic)
+                     and candidate.delta_bic < -rules.BIC_MARGIN and candidate.dm_statistic >= rules.DM_MIN)
+        if not supported:
+            continue
+        units = {p.name: p.unit for p in get_effect(candidate.effect).parameters}
+        values = ', '.join(f'{name} = {value:.4g} +- {candidate.standard_errors.get(name, float("nan")):.2g} '
+                           f'{units.get(name, "")}' for name, value in candidate.parameters.items())
+        beyond = max(current.rms_error ** 2 - noise ** 2, 0.0)
+        moves = parameter_moves(current.parameters, candidate.comparison.parameters)
+        moved = '; '.join(f'{name} {old:.4g} -> {new:.4g} {NOMINAL_PARAMETERS[name][0]} ({change * 100:+.1f} %)'
+                          for name, old, new, change in moves[:3])
+        notes.append(
+            f'{candidate.effect} is supported by the statistics ({values}; parameter {candidate.t_statistic:.1f} '
+            f'HAC standard errors from zero, training BIC {candidate.delta_bic:+.0f}, held-out Diebold-Mariano '
+            f'{candidate.dm_statistic:+.1f}) but not named: it removes {candidate.share_removed * 100:.0f} % of the '
+            f'held-out error beyond the noise ({candidate.mse_gain * 1e6:.2f} of {beyond * 1e6:.2f} mrad^2, which '
+            f'is known only to +-{spread * 1e6:.2f} mrad^2), too little to tell it from the nominal model\'s own '
+            f'imperfection.'
+            + (f' With it the nominal parameters move: {moved}; the reported values are uncertain by that much'
+               f' (the nominal parameters can absorb most of a small {candidate.effect}).' if moves else '')
+            + f' To decide, {rules.excitation_advice(candidate.effect)}.')
+    return notes
+
+
+def chain_notes(found: Iterable, model: Iterable[str]) -> list[str]:
+    """A note for each named effect that may hold the delay of a measurement-chain effect nobody stated.
+
+    Parameters
+    ----------
+    found : iterable of Found [-]
+        The selected effects (:class:`aeropend_core.diagnosis.diagnose.Found`).
+    model : iterable of str [-]
+        Effects in the model (``--add``, ``--fix``, the calibration file's chain, and the found ones).
+
+    Returns
+    -------
+    list of str
+        The notes (empty when the chain is in the model or nothing confusable with it was named).
+    """
+    held = set(model)
+    chain = [name for name, effect in CATALOG.items() if effect.kind == MEASUREMENT_FILTER and name not in held]
+    notes = []
+    for item in found:
+        if item.confounded_with:
+            continue            # already reported as "one of ..." with the experiment that separates them
+        for other in chain:
+            experiment = separating_experiment(item.effect, other)
+            if not experiment:
+                continue
+            entry = get_effect(other)
+            typical = ', '.join(f'{p.name} = {p.typical:g} {p.unit}' for p in entry.parameters)
+            values = ', '.join(f'{name} = {value:.4g}' for name, value in item.parameters.items())
+            notes.append(f'the measurement chain was not given: the {item.effect} found ({values}) includes any '
+                         f'{other} in the record, which this data cannot tell apart from it (the rig: {typical}); '
+                         f'to separate them, {experiment}.')
+    return notes
+
+
+def doubt_notes(candidates: Iterable, found: list, current, prep, model: Iterable[str]) -> list[str]:
+    """Every doubt note of a diagnosis: near misses (only when nothing was found: the candidates were then tried on
+    the current model) and an unstated measurement chain.
+
+    Parameters
+    ----------
+    candidates : iterable of Candidate [-]
+        The first round's candidates, tried against `current`.
+    found : list of Found [-]
+        The selected effects.
+    current : Comparison [-]
+        The current model.
+    prep : PreparedRecord [-]
+        The record.
+    model : iterable of str [-]
+        Effects in the final model.
+
+    Returns
+    -------
+    list of str
+        The notes.
+    """
+    return ([] if found else near_miss_notes(candidates, current, prep)) + chain_notes(found, model)
+
+
+__all__ = ['chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves']
