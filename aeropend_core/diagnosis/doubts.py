@@ -18,8 +18,8 @@ estimate and evidence, the share it removes, how far the nominal parameters move
 separates it.
 
 **An unstated measurement chain.** A named effect that the catalog declares confusable with a measurement-chain
-effect (``thrust_lag`` with ``angle_filter``: lags commute) absorbs that effect's delay when the chain was not
-given: a 75 ms lag read through the rig's 14.1 ms filter is named as a lag of 95-96 ms (robustness bench).
+effect (the thrust lag with the angle read through a low-pass: lags commute) absorbs that effect's delay when the
+chain was not given: a 75 ms lag read through the rig's 14.1 ms filter is named as a lag of 95-96 ms (robustness bench).
 :func:`chain_notes` says so when the model does not hold the chain effect (``--fix``/``--calibration``).
 """
 from __future__ import annotations
