@@ -14,8 +14,10 @@ with p1 = Kw Kt / (Jm Rm) [1/s], p2 = F / Jm [1/s], p3 = Kd (N2/N1)^3 / (Jm Kw) 
 fitted first (output error on Ia, the electrical transient after each step excluded). The fit is then refined with
 the armature inductance, tau_e dIa/dt = (Va - e)/Rm - Ia (tau_e = La/Rm fitted too), because neglecting La dIa/dt
 while the motor speeds up biases Rm by ~1 % and the thrust by ~2 %; the refinement is kept only if it explains Ia
-better. The model's e(t) is then a noise-free thrust input. If the model cannot explain Ia to within its noise,
-the caller falls back to the measured Va - R Ia.
+better (it nests the quasi-static model: it is dropped only when that one explains Ia significantly better on the
+samples it was fitted to, a Diebold-Mariano test; comparing raw RMS there favoured the quasi-static model by its
+in-sample optimism). The model's e(t) is then a noise-free thrust input. If the model cannot explain Ia to within
+its noise, the caller falls back to the measured Va - R Ia.
 """
 from __future__ import annotations
 
@@ -239,8 +241,21 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
                                max_nfev=60)
     x = result.x * scale
     fitted_current, emf = model(x[None, :])
-    error_on_keep = float(np.sqrt(np.mean((fitted_current[0] - current)[keep] ** 2)))
-    if not np.all(np.isfinite(emf)) or error_on_keep > start.current_rms_error:
+    if not np.all(np.isfinite(emf)) or not np.all(np.isfinite(fitted_current)):
+        return None
+    refined_error = (fitted_current[0] - current)[keep]
+    quasi_static_error = ((voltage - start.back_emf) / p['motor_resistance'] - current)[keep]
+    error_on_keep = float(np.sqrt(np.mean(refined_error ** 2)))
+    # The quasi-static model was fitted to exactly these samples, the refinement to all of them: on these samples
+    # the quasi-static one is ahead by its in-sample optimism (~ its 5 parameters x the noise variance / n) even
+    # when it is the worse model. Deciding on the raw RMS threw away the refinement in about half the records with
+    # noisy Va and Ia (e.g. 9.8146 vs 9.8133 mA), and the quasi-static observer's bias (Rm -1 %, rates 1.5-4 %)
+    # bent the thrust input enough for the pendulum fit to absorb it as a 1.4 mrad "angle offset" (t = 9) on a
+    # clean record. The refinement nests the quasi-static model (La -> 0): it is kept unless the quasi-static one
+    # explains the current significantly better (one-sided Diebold-Mariano test on the squared errors).
+    from aeropend_core.diagnosis.evidence import diebold_mariano
+    statistic, _ = diebold_mariano(refined_error, quasi_static_error)
+    if np.isfinite(statistic) and statistic > REFINEMENT_REJECT:
         return None
     parameters = {'motor_drive_rate': float(x[2] / x[0]), 'motor_friction_rate': float(x[3]),
                   'motor_drag_rate': float(x[4]), 'motor_resistance': float(x[0]),
@@ -249,6 +264,9 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
                     current_noise_rms=start.current_noise_rms)
 
 
+#: The inductance refinement is dropped when the quasi-static observer explains the current better with this
+#: Diebold-Mariano statistic (one-sided, ~1 %), in spite of the refinement nesting it.
+REFINEMENT_REJECT = 2.33
 #: A diverging trial (an unstable rate for the sample time) is scored as this many amperes off.
 DIVERGED_CURRENT = 100.0
 
