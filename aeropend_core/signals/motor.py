@@ -121,6 +121,10 @@ class MotorFit:
     back_emf: np.ndarray
     current_rms_error: float
     current_noise_rms: float
+    #: The fitted model's state vector (``'inductance'``: R, tau_e, q1, p2, p3, Ia0, e0; ``'quasi_static'``: p1, p2,
+    #: p3, R, e0) and which model it is, for :func:`back_emf_ensemble`.
+    solution: tuple[float, ...] = ()
+    kind: str = 'quasi_static'
 
     @property
     def adequate(self) -> bool:
@@ -192,7 +196,8 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
     error = float(np.sqrt(np.mean(result.fun ** 2)))
     parameters = dict(zip(PARAMETER_NAMES, (float(v) for v in x[:4])))
     quasi_static = MotorFit(parameters=parameters, back_emf=emf, current_rms_error=error,
-                            current_noise_rms=noise_rms(current[keep]))
+                            current_noise_rms=noise_rms(current[keep]), solution=tuple(float(v) for v in x),
+                            kind='quasi_static')
     with_inductance = _fit_with_inductance(voltage, current, keep, sample_time, quasi_static, x[4])
     return with_inductance if with_inductance is not None else quasi_static
 
@@ -261,7 +266,111 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
                   'motor_drag_rate': float(x[4]), 'motor_resistance': float(x[0]),
                   'electrical_time_constant': float(x[1])}
     return MotorFit(parameters=parameters, back_emf=emf[0], current_rms_error=error_on_keep,
-                    current_noise_rms=start.current_noise_rms)
+                    current_noise_rms=start.current_noise_rms, solution=tuple(float(v) for v in x), kind='inductance')
+
+
+def _predict(kind: str, x: np.ndarray, voltage: np.ndarray, sample_time: float) -> tuple[np.ndarray, np.ndarray]:
+    """Modelled Ia [A] and back-EMF [V] of a fitted observer (`kind`, state vector `x`) for the input `voltage`."""
+    if kind == 'inductance':
+        out_current = np.empty((1, voltage.size))
+        out_emf = np.empty_like(out_current)
+        _motor_kernel(x[None, :5], voltage, x[None, 5:7], sample_time, out_current, out_emf)
+        return out_current[0], out_emf[0]
+    emf = _simulate(x[None, :3], voltage, x[None, 4:5], sample_time)[0]
+    return (voltage - emf) / x[3], emf
+
+
+#: Members of the back-EMF ensemble (:func:`back_emf_ensemble`): the standard errors it adds are known to about
+#: 1/sqrt(2 x 16) = 18 %.
+ENSEMBLE_SIZE = 16
+
+
+def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.ndarray, current: np.ndarray,
+                      step_indices: np.ndarray, sample_time: float, count: int = ENSEMBLE_SIZE,
+                      seed: int = 0) -> np.ndarray | None:
+    """Back-EMF changes [V] that the observer's own estimation error allows: shape (count, n), float32.
+
+    The observer is fitted to noisy data (Ia's noise, per-level errors of the measured Va, an ADC that does not
+    dither), and the pendulum fit then treats its back-EMF as an exact input: an error in it bends the thrust and
+    can be absorbed by a pendulum parameter (an angle offset) with a standard error that knows nothing about it.
+    Each member redraws the data the observer saw, refits it by one Gauss-Newton step from the solution, and
+    returns its back-EMF minus the fitted one:
+
+    * Ia: wild bootstrap by input interval, the fitted current plus the residual of each interval between two Va
+      steps times a random sign (keeps the noise's size and the slow part of it, e.g. a quantisation bias held
+      at one level);
+    * Va: each interval's level moved by a normal draw of its median's standard error (1.2533 sigma / sqrt(n)),
+      sigma the measured Va's noise (zero for a noise-free Va).
+
+    Parameters
+    ----------
+    fit : MotorFit
+        The fitted observer (with its ``solution``).
+    voltage : ndarray, shape (n,)
+        The piecewise-constant Va [V] the observer was fitted to.
+    measured_voltage : ndarray, shape (n,)
+        The measured Va [V] (for its noise).
+    current : ndarray, shape (n,)
+        The measured Ia [A].
+    step_indices : ndarray of int
+        Samples where a Va step lands.
+    sample_time : float
+        Ts [s].
+    count : int [-]
+        Number of members.
+    seed : int [-]
+        Seed of the draws (the ensemble is reproducible).
+
+    Returns
+    -------
+    ndarray, shape (count, n), or None
+        None when the fit has no state vector or a member diverges.
+    """
+    if not fit.solution:
+        return None
+    voltage = np.asarray(voltage, dtype=float)
+    current = np.asarray(current, dtype=float)
+    n = voltage.size
+    x = np.asarray(fit.solution, dtype=float)
+    kind = fit.kind
+    used = np.ones(n, dtype=bool)
+    if kind == 'inductance':
+        used[:2] = False
+    else:
+        for k in step_indices:
+            used[k:k + STEP_SETTLING_SAMPLES] = False
+        used[:STEP_SETTLING_SAMPLES] = False
+    modelled, emf = _predict(kind, x, voltage, sample_time)
+    residual = current - modelled
+    # Jacobian of the modelled current on the fitted samples (forward differences)
+    steps = 1e-6 * np.maximum(np.abs(x), 1e-4)
+    jacobian = np.empty((int(used.sum()), x.size))
+    emf_jacobian = np.empty((n, x.size))        # d back-EMF / d state: a member's back-EMF after its step, linearised
+    for i in range(x.size):
+        shifted = x.copy()
+        shifted[i] += steps[i]
+        shifted_current, shifted_emf = _predict(kind, shifted, voltage, sample_time)
+        jacobian[:, i] = (shifted_current - modelled)[used] / steps[i]
+        emf_jacobian[:, i] = (shifted_emf - emf) / steps[i]
+    if not (np.all(np.isfinite(jacobian)) and np.all(np.isfinite(emf_jacobian))):
+        return None
+    bounds = np.concatenate(([0], np.asarray(step_indices, dtype=int), [n]))
+    block = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
+    lengths = np.maximum(np.diff(bounds), 1)
+    level_sigma = 1.2533 * noise_rms(np.asarray(measured_voltage, dtype=float)) / np.sqrt(lengths)
+    rng = np.random.default_rng(seed)
+    members = np.empty((count, n), dtype=np.float32)
+    for k in range(count):
+        signs = rng.choice((-1.0, 1.0), size=len(lengths))
+        shifted_voltage = voltage + (rng.standard_normal(len(lengths)) * level_sigma)[block]
+        redrawn = modelled + signs[block] * residual
+        moved, moved_emf = _predict(kind, x, shifted_voltage, sample_time)
+        change, *_ = np.linalg.lstsq(jacobian, (redrawn - moved)[used], rcond=None)
+        member = moved_emf + emf_jacobian @ change
+        if not np.all(np.isfinite(member)):
+            return None
+        members[k] = member - emf
+    return members
 
 
 #: The inductance refinement is dropped when the quasi-static observer explains the current better with this
@@ -316,4 +425,4 @@ def _rate_ratios_from_steady_states(voltage, emf, step_indices, sample_time) -> 
     return tuple(max(float(r), 0.0) for r in ratios)
 
 
-__all__ = ['MotorFit', 'fit_motor', 'PARAMETER_NAMES', 'PARAMETER_UNITS']
+__all__ = ['MotorFit', 'fit_motor', 'back_emf_ensemble', 'PARAMETER_NAMES', 'PARAMETER_UNITS']
