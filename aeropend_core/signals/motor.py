@@ -342,10 +342,12 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
         used[:STEP_SETTLING_SAMPLES] = False
     modelled, emf = _predict(kind, x, voltage, sample_time)
     residual = current - modelled
-    # Jacobian of the modelled current on the fitted samples (forward differences)
+    # Jacobian of the modelled current on the fitted samples (forward differences), and d back-EMF / d state (a
+    # member's back-EMF after its step, linearised); float32 columns and products column by column keep a 1-hour
+    # record's temporaries to one column of float64
     steps = 1e-6 * np.maximum(np.abs(x), 1e-4)
-    jacobian = np.empty((int(used.sum()), x.size))
-    emf_jacobian = np.empty((n, x.size))        # d back-EMF / d state: a member's back-EMF after its step, linearised
+    jacobian = np.empty((int(used.sum()), x.size), dtype=np.float32)
+    emf_jacobian = np.empty((n, x.size), dtype=np.float32)
     for i in range(x.size):
         shifted = x.copy()
         shifted[i] += steps[i]
@@ -354,6 +356,9 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
         emf_jacobian[:, i] = (shifted_emf - emf) / steps[i]
     if not (np.all(np.isfinite(jacobian)) and np.all(np.isfinite(emf_jacobian))):
         return None
+    gram = np.array([[np.dot(jacobian[:, i].astype(float), jacobian[:, j]) for j in range(x.size)]
+                     for i in range(x.size)])
+    inverse = np.linalg.pinv(gram)
     bounds = np.concatenate(([0], np.asarray(step_indices, dtype=int), [n]))
     block = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
     lengths = np.maximum(np.diff(bounds), 1)
@@ -364,9 +369,11 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
         signs = rng.choice((-1.0, 1.0), size=len(lengths))
         shifted_voltage = voltage + (rng.standard_normal(len(lengths)) * level_sigma)[block]
         redrawn = modelled + signs[block] * residual
-        moved, moved_emf = _predict(kind, x, shifted_voltage, sample_time)
-        change, *_ = np.linalg.lstsq(jacobian, (redrawn - moved)[used], rcond=None)
-        member = moved_emf + emf_jacobian @ change
+        moved, member = _predict(kind, x, shifted_voltage, sample_time)
+        target = (redrawn - moved)[used]
+        change = inverse @ np.array([np.dot(jacobian[:, i].astype(float), target) for i in range(x.size)])
+        for i in range(x.size):
+            member += emf_jacobian[:, i] * change[i]
         if not np.all(np.isfinite(member)):
             return None
         members[k] = member - emf
