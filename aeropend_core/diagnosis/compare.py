@@ -29,8 +29,9 @@ from scipy.signal import savgol_filter
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
                                         initial_states_from_data)
-from aeropend_core.signals.motor import MotorFit, fit_motor
-from aeropend_core.signals.preprocess import condition_inputs, noise_rms, piecewise_constant, quantisation_step
+from aeropend_core.signals.motor import MotorFit, back_emf_ensemble, fit_motor
+from aeropend_core.signals.preprocess import (condition_inputs, noise_rms, piecewise_constant,
+                                             quantisation_bias_rms, quantisation_step)
 from aeropend_core.io.recording import Recording
 
 #: Fraction of the record used for training; the rest is held out.
@@ -90,6 +91,10 @@ class PreparedRecord:
     #: The angle's ADC step [rad] (0 when the angle is not quantised); a slow signal quantised without dither
     #: carries an error up to step/sqrt(12) that the noise estimate (third differences) does not see.
     angle_step: float = 0.0
+    #: Back-EMF changes [V] the motor observer's estimation error allows, shape (members, n)
+    #: (:func:`aeropend_core.signals.motor.back_emf_ensemble`); the training fits add their effect to the standard
+    #: errors. None without the observer.
+    voltage_ensemble: np.ndarray | None = None
     train: SegmentedData = field(init=False)
     heldout: SegmentedData = field(init=False)
 
@@ -101,7 +106,8 @@ class PreparedRecord:
         train_segments = [piece for a, b in self.gaps.pieces(first, self.split)
                           for piece in segment_at_steps(a, b, self.step_indices, self.sample_time)]
         self.train = SegmentedData(self.voltage, self.current, self.angle, train_segments, self.sample_time,
-                                   self.gate_voltage, self.valid)
+                                   self.gate_voltage, self.valid, self.voltage_ensemble, self.step_indices,
+                                   quantisation_bias_rms(self.angle_step, self.noise_rms))
         self.heldout = SegmentedData(self.voltage, self.current, self.angle, self.gaps.pieces(self.split, n),
                                      self.sample_time, self.gate_voltage, self.valid)
 
@@ -315,7 +321,8 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
     near = conditioned.step_indices[np.abs(conditioned.step_indices - split) < int(3.0 / sample_time)]
     if near.size:
         split = int(near[np.argmin(np.abs(near - split))]) - 3
-    thrust_voltage, thrust_current, motor = conditioned.armature_voltage, conditioned.armature_current, None
+    thrust_voltage, thrust_current, motor, ensemble = (conditioned.armature_voltage, conditioned.armature_current,
+                                                       None, None)
     stepped = piecewise_constant(voltage, conditioned.step_indices)
     if use_motor_observer and stepped is not None:
         try:
@@ -325,6 +332,7 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         if motor is not None and motor.adequate and np.all(np.isfinite(motor.back_emf)):
             # the observer's back-EMF is the thrust voltage; R is then 0 in the pendulum model
             thrust_voltage, thrust_current = motor.back_emf, np.zeros_like(current)
+            ensemble = back_emf_ensemble(motor, stepped, voltage, current, conditioned.step_indices, sample_time)
         else:
             motor = None
     valid = gaps.valid
@@ -332,7 +340,7 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
                           sample_time=sample_time, voltage=thrust_voltage, current=thrust_current,
                           step_indices=conditioned.step_indices, noise_rms=noise_rms(angle[valid]), split=split,
                           motor=motor, gate_voltage=stepped if stepped is not None else conditioned.armature_voltage,
-                          gaps=gaps, angle_step=quantisation_step(angle[valid]),
+                          gaps=gaps, angle_step=quantisation_step(angle[valid]), voltage_ensemble=ensemble,
                           findings=tuple(checked.findings))
 
 

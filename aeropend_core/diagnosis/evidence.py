@@ -10,6 +10,10 @@ misfit into "overwhelming" significance. Three tools here account for it:
 * :func:`hac_covariance` -- the sandwich covariance of least-squares parameters, ``B M B`` with ``B = (J'J)^-1``
   and ``M`` the long-run covariance of the scores ``J_t r_t`` (block sums within segments), so that a parameter's
   t-statistic is honest under correlated residuals;
+* :func:`input_covariance` -- the parameters' covariance caused by an estimated input (the motor observer's
+  back-EMF), from an ensemble of input changes as large as its estimation error, added to the sandwich;
+* :func:`held_bias_covariance` -- the same for a measurement bias held over input intervals (an angle ADC that
+  does not dither at high PSNR);
 * :func:`diebold_mariano` -- the held-out predictive test on the squared-error difference of two models,
   ``d_t = e0_t^2 - e1_t^2``, with the HAC variance of its mean (Diebold & Mariano 1995).
 
@@ -124,6 +128,69 @@ def hac_covariance(jacobian: np.ndarray, residuals: np.ndarray, groups: np.ndarr
     return bread @ meat @ bread
 
 
+def input_covariance(jacobian: np.ndarray, changes: np.ndarray) -> np.ndarray:
+    """Covariance of least-squares parameters caused by an uncertain input (a generated regressor).
+
+    A fit that takes an estimated signal as its input (the motor observer's back-EMF) treats it as exact; its
+    estimation error moves the parameters without showing in the residuals when they absorb it. Given an ensemble
+    of input changes as large as that error, each member moves the parameters by one Gauss-Newton step,
+    ``dz = -(J'J)^-1 J' dr`` with ``dr`` the change of the residuals at the solution; the covariance is the mean
+    of ``dz dz'`` over the members (their spread, the ensemble being centred on the fitted input by construction).
+
+    Parameters
+    ----------
+    jacobian : ndarray or scipy.sparse matrix, shape (n, p)
+        d residual / d parameter at the solution.
+    changes : ndarray, shape (members, n)
+        Change of the residuals [residual unit] when each member replaces the input, parameters held.
+
+    Returns
+    -------
+    ndarray, shape (p, p)
+    """
+    from scipy import sparse
+    is_sparse = sparse.issparse(jacobian)
+    jacobian = sparse.csr_array(jacobian, dtype=float) if is_sparse else np.asarray(jacobian, dtype=float)
+    gram = (jacobian.T @ jacobian).toarray() if is_sparse else jacobian.T @ jacobian
+    projected = np.asarray(jacobian.T @ np.asarray(changes, dtype=float).T)     # (p, members)
+    steps = -np.linalg.pinv(gram) @ projected
+    return steps @ steps.T / steps.shape[1]
+
+
+def held_bias_covariance(jacobian: np.ndarray, blocks: np.ndarray, bias_rms: float) -> np.ndarray:
+    """Covariance of least-squares parameters caused by a measurement bias held constant over blocks of residuals.
+
+    An ADC that does not dither (little noise before it) reads a held value off by a bias that stays while the
+    value stays: constant within each block (an input interval), independent between blocks, RMS `bias_rms`.
+    The parameters move by ``dz = -(J'J)^-1 J' b``; its covariance is ``B (sum_k s_k s_k') B bias_rms^2`` with
+    ``s_k`` the sum of the Jacobian's rows in block k and ``B = (J'J)^-1``.
+
+    Parameters
+    ----------
+    jacobian : ndarray or scipy.sparse matrix, shape (n, p)
+        d residual / d parameter at the solution.
+    blocks : ndarray of int, shape (n,)
+        Block label of each residual.
+    bias_rms : float
+        RMS of the held bias [residual unit].
+
+    Returns
+    -------
+    ndarray, shape (p, p)
+    """
+    from scipy import sparse
+    is_sparse = sparse.issparse(jacobian)
+    jacobian = sparse.csr_array(jacobian, dtype=float) if is_sparse else np.asarray(jacobian, dtype=float)
+    n, p = jacobian.shape
+    _, label = np.unique(np.asarray(blocks), return_inverse=True)
+    indicator = sparse.csr_array((np.ones(n), (label, np.arange(n))), shape=(int(label.max()) + 1, n))
+    sums = indicator @ jacobian
+    sums = sums.toarray() if sparse.issparse(sums) else np.asarray(sums)
+    gram = (jacobian.T @ jacobian).toarray() if is_sparse else jacobian.T @ jacobian
+    bread = np.linalg.pinv(gram)
+    return bread @ (sums.T @ sums) @ bread * bias_rms ** 2
+
+
 def diebold_mariano(error_reference: np.ndarray, error_candidate: np.ndarray) -> tuple[float, float]:
     """Diebold--Mariano statistic for "the candidate predicts better" and the mean squared-error gain.
 
@@ -152,4 +219,5 @@ def diebold_mariano(error_reference: np.ndarray, error_candidate: np.ndarray) ->
     return float(mean / math.sqrt(lrv / d.size)), mean
 
 
-__all__ = ['bandwidth', 'long_run_variance', 'effective_samples', 'hac_covariance', 'diebold_mariano']
+__all__ = ['bandwidth', 'long_run_variance', 'effective_samples', 'hac_covariance', 'input_covariance',
+           'held_bias_covariance',            'diebold_mariano']

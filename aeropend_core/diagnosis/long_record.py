@@ -81,7 +81,8 @@ def search_record(prep: PreparedRecord, limit_seconds: float | None = None
     chosen = np.unique(np.round(np.linspace(0, len(lengths) - 1, count)).astype(int))
     search = copy.copy(prep)
     search.train = SegmentedData(prep.voltage, prep.current, prep.angle, [train.segments[i] for i in chosen],
-                                 prep.sample_time, prep.gate_voltage, prep.valid)
+                                 prep.sample_time, prep.gate_voltage, prep.valid, prep.voltage_ensemble,
+                                 train.hold_starts, train.held_bias_rms)
     return search, SearchSubset(chosen, len(lengths), float(np.sum(lengths[chosen])), total)
 
 

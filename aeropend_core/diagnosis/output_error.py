@@ -29,7 +29,8 @@ from scipy import sparse
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from aeropend_core.diagnosis.evidence import effective_samples, hac_covariance
+from aeropend_core.diagnosis.evidence import (effective_samples, hac_covariance, held_bias_covariance,
+                                              input_covariance)
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import KERNEL_KINDS, PENDULUM, find_parameter, get_effect, kernel_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
@@ -290,6 +291,14 @@ class SegmentedData:
         The armature voltage [V] a thrust gate compares with its threshold (default: `voltage`).
     valid : ndarray of bool, shape (n,), optional
         Samples that were measured (False: filled in a gap of lost samples); only valid samples give residuals.
+    voltage_ensemble : ndarray, shape (members, n), optional
+        Changes of `voltage` [V] that its own estimation allows (the motor observer's back-EMF ensemble): a fit
+        adds the spread they cause in its parameters to their covariance (:func:`fit_output_error`).
+    hold_starts : ndarray of int, optional
+        Samples where the input steps: the angle is held between them.
+    held_bias_rms : float [rad]
+        RMS of a bias of the measured angle held over each input interval (an ADC that does not dither,
+        :func:`aeropend_core.signals.preprocess.quantisation_bias_rms`); added to the covariance of a fit.
     """
 
     voltage: np.ndarray
@@ -299,6 +308,9 @@ class SegmentedData:
     sample_time: float
     gate_signal: np.ndarray | None = None
     valid: np.ndarray | None = None
+    voltage_ensemble: np.ndarray | None = None
+    hold_starts: np.ndarray | None = None
+    held_bias_rms: float = 0.0
 
     def __post_init__(self) -> None:
         if self.gate_signal is None:
@@ -317,17 +329,22 @@ class SegmentedData:
             self.residual_index = self.residual_index[keep]
             self.segment_of_residual = self.segment_of_residual[keep]
 
-    def simulate(self, structure: Structure, rows: np.ndarray, initial: np.ndarray) -> np.ndarray:
-        """Predicted measured angle for each row: array (n_rows, n); NaN outside the residual samples."""
+    def simulate(self, structure: Structure, rows: np.ndarray, initial: np.ndarray,
+                 voltage: np.ndarray | None = None) -> np.ndarray:
+        """Predicted measured angle for each row: array (n_rows, n); NaN outside the residual samples.
+
+        `voltage` [V] replaces the thrust voltage (e.g. a member of the input ensemble).
+        """
+        voltage = self.voltage if voltage is None else np.asarray(voltage, dtype=float)
         rows = np.atleast_2d(np.asarray(rows, dtype=float))
         initial = np.asarray(initial, dtype=float).reshape(len(rows), len(self.segments), 2)
         out = np.full((len(rows), len(self.angle)), np.nan)
         terms = structure.user_terms()
         if terms:
-            _simulate_numpy(rows, self.voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
+            _simulate_numpy(rows, voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
                             self.sample_time, structure.lag_on, structure.gate_on, out, terms)
         else:
-            _simulate_kernel(rows, self.voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
+            _simulate_kernel(rows, voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
                              self.sample_time, structure.lag_on, structure.gate_on, out)
         if structure.filter_on:
             # the sensor's low-pass acts on the simulated measured angle (linear: after the offset is the same)
@@ -530,6 +547,20 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
         covariance_z = hac_covariance(jac, r, data.segment_of_residual) * n / max(n - p, 1)
     except np.linalg.LinAlgError:  # pragma: no cover - pinv rarely fails
         covariance_z = np.full((p, p), np.nan)
+    input_share = {}
+    if data.voltage_ensemble is not None and len(data.voltage_ensemble) > 1:
+        # the thrust input is itself an estimate: add the spread its estimation error causes in the parameters
+        rows, initials = rows_for([result.x])
+        changes = [_bounded(data.simulate(structure, rows, initials, data.voltage + member)[0, residual_index]
+                            - measured) - r for member in data.voltage_ensemble]
+        from_input = input_covariance(jac, np.array(changes))
+        with np.errstate(invalid='ignore', divide='ignore'):
+            input_share = {name: float(value) for name, value in zip(
+                free, np.diag(from_input)[:n_free] / (np.diag(covariance_z)[:n_free] + np.diag(from_input)[:n_free]))}
+        covariance_z = covariance_z + from_input
+    if data.held_bias_rms > 0 and data.hold_starts is not None:
+        blocks = np.searchsorted(np.asarray(data.hold_starts), residual_index, side='right')
+        covariance_z = covariance_z + held_bias_covariance(jac, blocks, data.held_bias_rms)
     cov = covariance_z[:n_free, :n_free] * np.outer(scale, scale)
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(invalid='ignore', divide='ignore'):
@@ -540,7 +571,8 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     return OutputErrorFit(structure=structure, parameters=parameters, standard_errors=errors,
                           initial_states=initial, residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg,
                           free_names=free, correlation=correlation, effective_samples=effective,
-                          success=bool(result.success), message=str(result.message), residuals=r)
+                          success=bool(result.success), message=str(result.message), residuals=r,
+                          extra={'input_variance_share': input_share} if input_share else {})
 
 
 #: A simulation that diverges (unstable parameter trial) is scored as this many radians off, so the optimiser
