@@ -9,6 +9,8 @@ from __future__ import annotations
 import json
 import re
 
+import numpy as np
+
 import pytest
 
 from aeropend_core.cli import main as aeropend
@@ -53,20 +55,19 @@ def test_a_19_ms_lag_is_named_when_the_chain_is_known_and_never_confidently_when
 
 @pytest.mark.parametrize('seed', [8311, 8312])
 def test_a_10_ms_lag_is_named_or_reported_as_a_near_miss_with_the_parameter_doubt(capsys, tmp_path, seed):
-    """10 ms with the chain known: at 40 dB the lag passes every statistical test but, most of it absorbed by the
-    nominal parameters (a thrust lag d looks like a rod 1 + (c/J) d heavier), it removes about as much held-out
-    error as the noise-power spread, so it is named in some records and not in others (seeds 8311-8317: named in
-    5 of 7; bench seeds at 9.4 ms: 1 of 4). Either way it must not be silent: named within 15 %, or the verdict
-    "nothing missing" carries a note with the lag's estimate (within 15 %) and how far the nominal parameters move
-    with it -- and they do move: without the lag mgd/J fits >= 5 % low, with it within 3 % of the truth. Seed 8311
-    is a record where it is named, 8312 one where it is a near miss: both branches are checked. With the chain
-    unknown the same record is never a confident thrust lag."""
+    """10 ms with the chain known, 40 dB: the lag passes the parameter t and the held-out test; most of it is
+    absorbed by the nominal parameters (a thrust lag d looks like a rod 1 + (c/J) d heavier), so what it removes is
+    small. Either way it must not be silent: named within 15 %, or the verdict "nothing missing" carries a note with
+    the lag's estimate (within 15 %) and how far the nominal parameters move with it -- and they do move: without
+    the lag mgd/J fits >= 5 % low, with it within 3 % of the truth. (With the share-of-the-error rule, dropped in the
+    third pass, 8311 was named and 8312 a near miss; both are named now.) With the chain unknown the same record is
+    never a confident thrust lag."""
     truth = 0.010
     data = _record(tmp_path, 'small-lag.csv', {'thrust_lag': truth}, 40.0, seed)
     unknown = _diagnose(capsys, data)        # the same record, chain unknown: never a confident thrust lag
     assert not (unknown['verdict'] == 'effect_found' and 'thrust_lag' in unknown['add']), unknown['message']
     result = _diagnose(capsys, data, '--fix', 'angle_filter=0')
-    assert result['verdict'] == {8311: 'effect_found', 8312: 'nothing_missing'}[seed], result['message']
+    assert result['verdict'] in ('effect_found', 'nothing_missing'), result['message']
     if result['verdict'] == 'effect_found':
         assert result['add'] == ['thrust_lag'], result['message']
         assert result['missing_effects'][0]['parameters']['time_constant'] == pytest.approx(truth, rel=0.15)
@@ -107,3 +108,32 @@ def test_a_lag_named_with_the_chain_unknown_says_it_may_hold_the_filter(capsys, 
     assert known['verdict'] == 'effect_found' and known['add'] == ['thrust_lag'], known['message']
     assert known['missing_effects'][0]['parameters']['time_constant'] == pytest.approx(truth, rel=0.15)
     assert not [note for note in known['notes'] if note.startswith('the measurement chain was not given')]
+
+
+def test_near_miss_note_names_the_rule_that_kept_a_supported_candidate_out():
+    """A candidate with t and Diebold-Mariano above the thresholds but a held-out gain below the materiality floor
+    gets one note naming that floor (in mrad^2, from the record's noise) and its estimate; a candidate that fails the
+    t test, or one that is significant, gets none."""
+    from types import SimpleNamespace
+
+    from aeropend_core.diagnosis import diagnose as rules
+    from aeropend_core.diagnosis.diagnose import Candidate
+    from aeropend_core.diagnosis.doubts import near_miss_notes
+
+    noise = 0.01                                                   # rad
+    prep = SimpleNamespace(noise_rms=noise, heldout=SimpleNamespace(residual_index=np.arange(3700)), gaps=None,
+                           angle=np.zeros(29400))
+    current = SimpleNamespace(rms_error=0.0102, parameters={'gravity_stiffness': 110.0})
+    floor = (rules.MATERIAL * noise) ** 2
+
+    def candidate(t, gain, significant=False):
+        comparison = SimpleNamespace(parameters={'gravity_stiffness': 117.0})
+        return Candidate('thrust_lag', comparison, {'time_constant': 0.0101}, {'time_constant': 0.0007}, -50.0,
+                         0.0, 0.0, significant, t_statistic=t, dm_statistic=3.0, mse_gain=gain, share_removed=0.3)
+
+    notes = near_miss_notes([candidate(14.0, 0.5 * floor), candidate(1.0, 0.5 * floor),
+                             candidate(14.0, 2 * floor, significant=True)], current, prep)
+    assert len(notes) == 1, notes
+    assert notes[0].startswith('thrust_lag is supported by the statistics (time_constant = 0.0101 +- 0.0007 s')
+    assert f'less than ({rules.MATERIAL:g} x the noise RMS)^2 = {floor * 1e6:.3f} mrad^2' in notes[0]
+    assert 'gravity_stiffness 110 -> 117' in notes[0] and '+6.4 %' in notes[0]

@@ -1,16 +1,16 @@
 """Doubts the verdict must carry: a candidate supported but not named, a lag that may hold an unstated filter.
 
-**Near misses.** A candidate is named only when it also passes the materiality rule of
-:mod:`aeropend_core.diagnosis.diagnose` (it must remove most of the held-out error beyond the noise, or a non-small
-amount of it), which guards against a catalog effect soaking up the nominal model's own imperfection. A small
-effect can pass every statistical test (parameter t, training BIC, held-out Diebold--Mariano) and still fail that
-rule, for two reasons measured on a 9.4 ms thrust lag at 40 dB (bench/results/2026-11-24-diagnosis-3/lag/README.md):
+**Near misses.** A candidate is named only when it is also *material* by the rule of
+:mod:`aeropend_core.diagnosis.diagnose`: its held-out mean-square error gain must exceed (``MATERIAL`` x noise
+RMS)^2, and the training BIC must fall by more than ``BIC_MARGIN``. A small effect can pass the parameter t and the
+held-out Diebold--Mariano test and still fail those, for two reasons measured on a 9.4 ms thrust lag at 40 dB
+(bench/results/2026-11-24-diagnosis-3/lag/README.md):
 
 * the nominal parameters absorb most of it: in the linear regime a thrust lag ``d`` acts like a rod ``1 + (c/J) d``
   times heavier (mgd/J, c/J and the thrust gain all fit ~11 % low without it), so only a small remainder is left
   for the lag to explain;
-* the error beyond the noise it is a share of is a difference of two noise powers, known only to a sampling spread
-  as large as that remainder (:func:`aeropend_core.diagnosis.diagnose.beyond_spread`).
+* that remainder is of the size of the sampling spread of the noise powers the error beyond the noise is the
+  difference of (:func:`aeropend_core.diagnosis.diagnose.beyond_spread`).
 
 The verdict then stays "nothing significant is missing" -- but the parameters it reports are off by as much as
 the candidate moves them. :func:`near_miss_notes` writes that doubt next to the numbers: which candidate, its
@@ -60,10 +60,11 @@ def parameter_moves(before: dict[str, float], after: dict[str, float]) -> list[t
 
 
 def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
-    """One note per candidate that passes the statistical tests but not the materiality rule.
+    """One note per candidate that passes the parameter t and the held-out test but is not named.
 
-    The tests and thresholds are those of :mod:`aeropend_core.diagnosis.diagnose` (``T_MIN``, ``BIC_MARGIN``,
-    ``DM_MIN``); the noise-power spread is its :func:`~aeropend_core.diagnosis.diagnose.beyond_spread`.
+    The tests and thresholds are those of :mod:`aeropend_core.diagnosis.diagnose` (``T_MIN``, ``DM_MIN``,
+    ``BIC_MARGIN``, ``MATERIAL``); the noise-power spread is its
+    :func:`~aeropend_core.diagnosis.diagnose.beyond_spread`.
 
     Parameters
     ----------
@@ -85,10 +86,15 @@ def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
     for candidate in candidates:
         if candidate.significant or candidate.comparison is None or not candidate.parameters:
             continue
-        supported = (candidate.t_statistic >= rules.T_MIN and math.isfinite(candidate.delta_bic)
-                     and candidate.delta_bic < -rules.BIC_MARGIN and candidate.dm_statistic >= rules.DM_MIN)
-        if not supported:
+        if not (candidate.t_statistic >= rules.T_MIN and candidate.dm_statistic >= rules.DM_MIN
+                and math.isfinite(candidate.delta_bic)):
             continue
+        floor = (rules.MATERIAL * noise) ** 2
+        failed = ([f'training BIC {candidate.delta_bic:+.0f} is not below -{rules.BIC_MARGIN:g}']
+                  if candidate.delta_bic >= -rules.BIC_MARGIN else []) + (
+            [f'it lowers the held-out mean-square error by {candidate.mse_gain * 1e6:.3f} mrad^2, less than '
+             f'({rules.MATERIAL:g} x the noise RMS)^2 = {floor * 1e6:.3f} mrad^2'] if candidate.mse_gain < floor
+            else [])
         units = {p.name: p.unit for p in get_effect(candidate.effect).parameters}
         values = ', '.join(f'{name} = {value:.4g} +- {candidate.standard_errors.get(name, float("nan")):.2g} '
                            f'{units.get(name, "")}' for name, value in candidate.parameters.items())
@@ -99,10 +105,10 @@ def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
         notes.append(
             f'{candidate.effect} is supported by the statistics ({values}; parameter {candidate.t_statistic:.1f} '
             f'HAC standard errors from zero, training BIC {candidate.delta_bic:+.0f}, held-out Diebold-Mariano '
-            f'{candidate.dm_statistic:+.1f}) but not named: it removes {candidate.share_removed * 100:.0f} % of the '
-            f'held-out error beyond the noise ({candidate.mse_gain * 1e6:.2f} of {beyond * 1e6:.2f} mrad^2, which '
-            f'is known only to +-{spread * 1e6:.2f} mrad^2), too little to tell it from the nominal model\'s own '
-            f'imperfection.'
+            f'{candidate.dm_statistic:+.1f}) but not named: {"; ".join(failed) or "it is not significant"}. It '
+            f'removes {candidate.share_removed * 100:.0f} % of the held-out error beyond the noise '
+            f'({candidate.mse_gain * 1e6:.2f} of {beyond * 1e6:.2f} mrad^2, which is known only to '
+            f'+-{spread * 1e6:.2f} mrad^2).'
             + (f' With it the nominal parameters move: {moved}; the reported values are uncertain by that much'
                f' (the nominal parameters can absorb most of a small {candidate.effect}).' if moves else '')
             + f' To decide, {rules.excitation_advice(candidate.effect)}.')
