@@ -10,7 +10,6 @@ import json
 import re
 
 import numpy as np
-
 import pytest
 
 from aeropend_core.cli import main as aeropend
