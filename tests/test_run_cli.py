@@ -135,13 +135,18 @@ def test_run_on_the_rig_through_the_serial_bridge(tmp_path):
 
 
 @pytest.mark.timeout(120)
-def test_run_interrupted_finalises_the_bag(tmp_path):
-    """Ctrl-C (SIGINT) during `aeropend run`: duty back to 0, bag finalised and complete, exit status 130."""
+@pytest.mark.parametrize('started_with', ['SIG_DFL', 'SIG_IGN'])
+def test_run_interrupted_finalises_the_bag(tmp_path, started_with):
+    """Ctrl-C (SIGINT) during `aeropend run`: duty back to 0, bag finalised and complete, exit status 130 -- also
+    when the run was started with SIGINT ignored (a background job of a non-interactive shell inherits SIG_IGN;
+    such a run used to ignore the signal and run to its end)."""
     import signal
     env = local_ros_environment(domain_id=private_domain_id())
+    disposition = getattr(signal, started_with)
     run = subprocess.Popen(AEROPEND + ['run', '--duration', '120', '--realtime-factor', '3', '--record',
                                        str(tmp_path), '--no-diagnose', '--window', '10', '--hop', '5'],
-                           env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                           env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, disposition))
     lines = []
     try:
         for line in run.stdout:              # wait for the first identified window, then interrupt

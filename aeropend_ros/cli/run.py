@@ -172,6 +172,10 @@ def _run(args) -> int:
     # shutdown is orderly: duty back to 0, bag finalised, then the diagnosis of what was recorded.
     rclpy.init(args=['--ros-args', '--log-level', 'warn'], signal_handler_options=SignalHandlerOptions.NO)
     previous_sigterm = signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)
+    # Ctrl-C (SIGINT) is how a run is stopped early, so it is handled even when this process was started with it
+    # ignored (a background job of a non-interactive shell inherits SIG_IGN, and Python then keeps it), as the
+    # nodes and `aeropend emulate` do; the diagnosis after the run stays interruptible too.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     nodes = []
     executors = []
     spinners = []
