@@ -33,6 +33,17 @@ MOVED = ('armature_resistance', 'armature_inductance', 'back_emf_constant', 'tor
 HIGHEST_ANGLE = math.radians(80.0)
 
 
+def duty_cap(parameters) -> float:
+    """Largest duty (0.7 down to 0.3 in steps of 0.05) whose steady angle stays below HIGHEST_ANGLE."""
+    cap = 0.7
+    while cap > 0.3:
+        angle = parameters.steady_state(parameters.voltage_from_duty(cap))['angle']
+        if math.isfinite(angle) and angle < HIGHEST_ANGLE:
+            break
+        cap -= 0.05
+    return cap
+
+
 def record(seed: int):
     """(recording, description) of clean record `seed`."""
     import numpy as np
@@ -44,12 +55,7 @@ def record(seed: int):
     from aeropend_core.sim.simulate import simulate
     rng = np.random.default_rng(seed)
     parameters = DEFAULT_PARAMETERS.scaled(**{name: float(rng.uniform(0.75, 1.25)) for name in MOVED})
-    cap = 0.7
-    while cap > 0.3:
-        angle = parameters.steady_state(parameters.voltage_from_duty(cap))['angle']
-        if math.isfinite(angle) and angle < HIGHEST_ANGLE:
-            break
-        cap -= 0.05
+    cap = duty_cap(parameters)
     psnr = float(rng.uniform(30.0, 60.0))
     if seed % 2:
         schedule, kind = staircase_schedule(step=cap / 14, top=cap), 'staircase'

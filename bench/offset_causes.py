@@ -18,7 +18,6 @@ Run:  .venv/bin/python bench/offset_causes.py [structure|decompose|both] [--seed
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
@@ -30,7 +29,7 @@ if str(ROOT) not in sys.path:
 import numpy as np  # noqa: E402
 
 from _common import add_json_argument, figure, write_json  # noqa: E402
-from false_alarms import HIGHEST_ANGLE, MOVED  # noqa: E402
+from false_alarms import MOVED, duty_cap  # noqa: E402
 
 
 def probe(trajectory, voltage_override=None) -> dict:
@@ -54,16 +53,6 @@ def probe(trajectory, voltage_override=None) -> dict:
             't': candidate.t_statistic, 'delta_bic': candidate.delta_bic, 'dm': candidate.dm_statistic,
             'share': candidate.share_removed, 'significant': candidate.significant,
             'observer': None if prep.motor is None else prep.motor.kind}
-
-
-def duty_cap(parameters) -> float:
-    cap = 0.7
-    while cap > 0.3:
-        angle = parameters.steady_state(parameters.voltage_from_duty(cap))['angle']
-        if math.isfinite(angle) and angle < HIGHEST_ANGLE:
-            break
-        cap -= 0.05
-    return cap
 
 
 def structure() -> list[dict]:
