@@ -138,16 +138,27 @@ def _simulate(parameters: np.ndarray, voltage: np.ndarray, initial: np.ndarray, 
     return out
 
 
+def _fitted_samples(kind: str, n: int, step_indices) -> np.ndarray:
+    """Mask (n,) of the samples an observer of `kind` is fitted to: the inductance model all but the first two;
+    the quasi-static one none within STEP_SETTLING_SAMPLES of the start or of a Va step (its electrical transient
+    is not in that model)."""
+    mask = np.ones(n, dtype=bool)
+    if kind == 'inductance':
+        mask[:2] = False
+        return mask
+    for k in step_indices:
+        mask[k:k + STEP_SETTLING_SAMPLES] = False
+    mask[:STEP_SETTLING_SAMPLES] = False
+    return mask
+
+
 def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray,
               sample_time: float) -> MotorFit:
     """Fit the motor observer to a step-input Va [V] (piecewise constant) and the measured Ia [A]."""
     voltage = np.asarray(voltage, dtype=float)
     current = np.asarray(current, dtype=float)
     n = voltage.size
-    keep = np.ones(n, dtype=bool)
-    for k in step_indices:
-        keep[k:k + STEP_SETTLING_SAMPLES] = False
-    keep[:STEP_SETTLING_SAMPLES] = False
+    keep = _fitted_samples('quasi_static', n, step_indices)
     resistance0 = _resistance_from_steps(voltage, current, step_indices)
     e_measured = voltage - resistance0 * current
     ratio2, ratio3 = _rate_ratios_from_steady_states(voltage, e_measured, step_indices, sample_time)
@@ -214,8 +225,7 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
     x0 = np.array([r0, 2e-3, p['motor_drive_rate'] * r0, p['motor_friction_rate'], p['motor_drag_rate'],
                    float(current[0]), initial_emf])
     scale = np.maximum(np.abs(x0), np.array([0.1, 1e-4, 1e-3, 1e-3, 1e-3, 0.01, 0.01]))
-    use = np.ones(voltage.size, dtype=bool)
-    use[:2] = False
+    use = _fitted_samples('inductance', voltage.size, ())
     measured = current[use]
 
     def model(rows):
@@ -333,13 +343,7 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
     n = voltage.size
     x = np.asarray(fit.solution, dtype=float)
     kind = fit.kind
-    used = np.ones(n, dtype=bool)
-    if kind == 'inductance':
-        used[:2] = False
-    else:
-        for k in step_indices:
-            used[k:k + STEP_SETTLING_SAMPLES] = False
-        used[:STEP_SETTLING_SAMPLES] = False
+    used = _fitted_samples(kind, n, step_indices)
     modelled, emf = _predict(kind, x, voltage, sample_time)
     residual = current - modelled
     # Jacobian of the modelled current on the fitted samples (forward differences), and d back-EMF / d state (a
