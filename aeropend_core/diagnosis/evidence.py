@@ -74,6 +74,22 @@ def effective_samples(x: np.ndarray) -> float:
     return float(min(n, n * variance / lrv))
 
 
+def _jacobian_and_bread(jacobian) -> tuple:
+    """(the Jacobian as a float csr_array or ndarray, whether it is sparse, ``B = pinv(J'J)``)."""
+    from scipy import sparse
+    is_sparse = sparse.issparse(jacobian)
+    jacobian = sparse.csr_array(jacobian, dtype=float) if is_sparse else np.asarray(jacobian, dtype=float)
+    gram = (jacobian.T @ jacobian).toarray() if is_sparse else jacobian.T @ jacobian
+    return jacobian, is_sparse, np.linalg.pinv(gram)
+
+
+def _block_indicator(labels: np.ndarray, count: int):
+    """Sparse (count, n) matrix with a 1 at (labels[t], t): its product with per-residual rows sums them by block."""
+    from scipy import sparse
+    n = len(labels)
+    return sparse.csr_array((np.ones(n), (labels, np.arange(n))), shape=(count, n))
+
+
 def hac_covariance(jacobian: np.ndarray, residuals: np.ndarray, groups: np.ndarray | None = None,
                    width: int | None = None) -> np.ndarray:
     """Sandwich covariance of least-squares parameters under autocorrelated residuals.
@@ -94,10 +110,8 @@ def hac_covariance(jacobian: np.ndarray, residuals: np.ndarray, groups: np.ndarr
     ndarray, shape (p, p)
         ``B M B`` with ``B = pinv(J'J)`` and ``M`` the sum over blocks of (sum of scores)(sum of scores)'.
     """
-    from scipy import sparse
     residuals = np.asarray(residuals, dtype=float)
-    is_sparse = sparse.issparse(jacobian)
-    jacobian = sparse.csr_array(jacobian, dtype=float) if is_sparse else np.asarray(jacobian, dtype=float)
+    jacobian, is_sparse, bread = _jacobian_and_bread(jacobian)
     n, p = jacobian.shape
     width = bandwidth(residuals) if width is None else int(max(1, width))
     groups = np.zeros(n, dtype=int) if groups is None else np.asarray(groups)
@@ -115,16 +129,13 @@ def hac_covariance(jacobian: np.ndarray, residuals: np.ndarray, groups: np.ndarr
             label = int(block[stop - 1]) + 1
             start = stop
         if is_sparse:      # block sums as one sparse product (rows = blocks): linear in n
-            indicator = sparse.csr_array((np.ones(n), (block, np.arange(n))), shape=(label, n))
-            sums = indicator @ scores
+            sums = _block_indicator(block, label) @ scores
             meat += (sums.T @ sums).toarray()
         else:
             sums = np.zeros((label, p))
             np.add.at(sums, block, scores)
             meat += sums.T @ sums
     meat /= 2 if width > 1 else 1
-    gram = (jacobian.T @ jacobian).toarray() if is_sparse else jacobian.T @ jacobian
-    bread = np.linalg.pinv(gram)
     return bread @ meat @ bread
 
 
@@ -148,12 +159,9 @@ def input_covariance(jacobian: np.ndarray, changes: np.ndarray) -> np.ndarray:
     -------
     ndarray, shape (p, p)
     """
-    from scipy import sparse
-    is_sparse = sparse.issparse(jacobian)
-    jacobian = sparse.csr_array(jacobian, dtype=float) if is_sparse else np.asarray(jacobian, dtype=float)
-    gram = (jacobian.T @ jacobian).toarray() if is_sparse else jacobian.T @ jacobian
+    jacobian, _, bread = _jacobian_and_bread(jacobian)
     projected = np.asarray(jacobian.T @ np.asarray(changes, dtype=float).T)     # (p, members)
-    steps = -np.linalg.pinv(gram) @ projected
+    steps = -bread @ projected
     return steps @ steps.T / steps.shape[1]
 
 
@@ -179,15 +187,10 @@ def held_bias_covariance(jacobian: np.ndarray, blocks: np.ndarray, bias_rms: flo
     ndarray, shape (p, p)
     """
     from scipy import sparse
-    is_sparse = sparse.issparse(jacobian)
-    jacobian = sparse.csr_array(jacobian, dtype=float) if is_sparse else np.asarray(jacobian, dtype=float)
-    n, p = jacobian.shape
+    jacobian, _, bread = _jacobian_and_bread(jacobian)
     _, label = np.unique(np.asarray(blocks), return_inverse=True)
-    indicator = sparse.csr_array((np.ones(n), (label, np.arange(n))), shape=(int(label.max()) + 1, n))
-    sums = indicator @ jacobian
+    sums = _block_indicator(label, int(label.max()) + 1) @ jacobian
     sums = sums.toarray() if sparse.issparse(sums) else np.asarray(sums)
-    gram = (jacobian.T @ jacobian).toarray() if is_sparse else jacobian.T @ jacobian
-    bread = np.linalg.pinv(gram)
     return bread @ (sums.T @ sums) @ bread * bias_rms ** 2
 
 
@@ -220,4 +223,5 @@ def diebold_mariano(error_reference: np.ndarray, error_candidate: np.ndarray) ->
 
 
 __all__ = ['bandwidth', 'long_run_variance', 'effective_samples', 'hac_covariance', 'input_covariance',
-           'held_bias_covariance',            'diebold_mariano']
+           'held_bias_covariance',
+           'diebold_mariano']

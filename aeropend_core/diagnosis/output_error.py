@@ -547,17 +547,12 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
         covariance_z = hac_covariance(jac, r, data.segment_of_residual) * n / max(n - p, 1)
     except np.linalg.LinAlgError:  # pragma: no cover - pinv rarely fails
         covariance_z = np.full((p, p), np.nan)
-    input_share = {}
     if data.voltage_ensemble is not None and len(data.voltage_ensemble) > 1:
         # the thrust input is itself an estimate: add the spread its estimation error causes in the parameters
         rows, initials = rows_for([result.x])
         changes = [_bounded(data.simulate(structure, rows, initials, data.voltage + member)[0, residual_index]
                             - measured) - r for member in data.voltage_ensemble]
-        from_input = input_covariance(jac, np.array(changes))
-        with np.errstate(invalid='ignore', divide='ignore'):
-            input_share = {name: float(value) for name, value in zip(
-                free, np.diag(from_input)[:n_free] / (np.diag(covariance_z)[:n_free] + np.diag(from_input)[:n_free]))}
-        covariance_z = covariance_z + from_input
+        covariance_z = covariance_z + input_covariance(jac, np.array(changes))
     if data.held_bias_rms > 0 and data.hold_starts is not None:
         blocks = np.searchsorted(np.asarray(data.hold_starts), residual_index, side='right')
         covariance_z = covariance_z + held_bias_covariance(jac, blocks, data.held_bias_rms)
@@ -571,8 +566,7 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     return OutputErrorFit(structure=structure, parameters=parameters, standard_errors=errors,
                           initial_states=initial, residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg,
                           free_names=free, correlation=correlation, effective_samples=effective,
-                          success=bool(result.success), message=str(result.message), residuals=r,
-                          extra={'input_variance_share': input_share} if input_share else {})
+                          success=bool(result.success), message=str(result.message), residuals=r)
 
 
 #: A simulation that diverges (unstable parameter trial) is scored as this many radians off, so the optimiser
