@@ -61,12 +61,8 @@ def _solve_subset(gram, rhs, support, ridge):
     pivoting, where a numerically zero pivot drops that direction (minimum-norm-like).
     """
     n = support.size
-    idx = np.empty(n, np.int64)
-    k = 0
-    for i in range(n):
-        if support[i]:
-            idx[k] = i
-            k += 1
+    idx = np.flatnonzero(support)
+    k = idx.size
     w = np.zeros(n)
     if k == 0:
         return w
@@ -174,12 +170,8 @@ def _best_removal(gram, rhs, support, candidates, ridge, gwls, c0, denom, alpha,
     never has smaller pivots, so when M passes every candidate's solve takes the Cholesky branch too.
     """
     n = support.size
-    idx = np.empty(n, np.int64)
-    k = 0
-    for i in range(n):
-        if support[i]:
-            idx[k] = i
-            k += 1
+    idx = np.flatnonzero(support)
+    k = idx.size
     scale = 0.0
     for i in range(k):
         scale = max(scale, abs(gram[idx[i], idx[i]] + ridge))
@@ -409,9 +401,13 @@ def _exhaustive(gram, rhs, gwls, c0, denom, alpha, n_terms, base, free, max_size
     return out
 
 
+#: Libraries of up to this many terms key their memo of solves by a bit mask of the support (an int64).
+MASK_TERMS = 62
+
+
 @numba.njit(cache=True, nogil=True)
 def _support_key(support):
-    """The support as an integer bit mask (bit i = term i; n <= 62 terms), for cheap memo look-ups."""
+    """The support as an integer bit mask (bit i = term i; n <= MASK_TERMS terms), for cheap memo look-ups."""
     key = 0
     for i in range(support.size):
         if support[i]:
@@ -423,6 +419,8 @@ def _support_key(support):
 def _memo_solve(keys, vals, counts, slot, gram, rhs, support, ridge):
     """:func:`_solve_subset` through a small ring buffer of recent (support, solution) pairs, keyed by the
     support's bit mask (:func:`_support_key`; an integer compare per entry instead of an array compare)."""
+    if support.size > MASK_TERMS:         # no bit mask for so many terms: solve every time
+        return _solve_subset(gram, rhs, support, ridge)
     key = _support_key(support)
     for i in range(counts[slot]):
         if keys[i] == key:
@@ -460,7 +458,7 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
     # Neighbouring λ mostly visit the same supports: remember recent solves (ridge ones and final ones), keyed
     # by the support's bit mask; libraries of more than 62 terms do not fit a mask and solve every time.
     n = usable.size
-    cap = 64 if n <= 62 else 1
+    cap = 64 if n <= MASK_TERMS else 1
     ridge_keys = np.zeros(cap, np.int64)
     ridge_vals = np.zeros((cap, n))
     final_keys = np.zeros(cap, np.int64)
@@ -500,14 +498,11 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
             if not changed:
                 break
             support[:] = new
-            if n <= 62:
-                w = _memo_solve(ridge_keys, ridge_vals, counts, 0, gram, rhs, support, ridge)
-            else:
-                w = _solve_subset(gram, rhs, support, ridge)
+            w = _memo_solve(ridge_keys, ridge_vals, counts, 0, gram, rhs, support, ridge)
         for i in range(n):
             nonzero[i] = w[i] != 0.0
         # a support scored before cannot beat the best loss (which only decreases): skip it
-        if n <= 62:
+        if n <= MASK_TERMS:
             seen = False
             key = _support_key(nonzero)
             for i in range(counts[2]):
@@ -516,9 +511,7 @@ def _select(gram, rhs, keep, usable, ridge, alpha, grid, backward, exhaustive):
                     break
             if seen:
                 continue
-            w = _memo_solve(final_keys, final_vals, counts, 2, gram, rhs, nonzero, final_ridge)
-        else:
-            w = _solve_subset(gram, rhs, nonzero, final_ridge)
+        w = _memo_solve(final_keys, final_vals, counts, 2, gram, rhs, nonzero, final_ridge)
         value = _loss(gram, w, gwls, c0, denom, alpha, n_terms)
         if value < best_loss - 1e-12:
             best_loss, best_w, best_lam = value, w, lam
