@@ -73,7 +73,7 @@ class _NoiseModel:
     n: int                         # samples in the segment
     pairs: np.ndarray              # H[a, b, u, τ] (:func:`_pair_kernels`), u = 0..grid band
     plain_pair: np.ndarray         # H[u, τ] of the plain φ (process noise)
-    layout: tuple = ()             # per noisy signal: (sorted kernel types present, {type: (lo, hi) column slice})
+    present: tuple = ()            # per noisy signal: the sorted kernel types of its columns
     sums: dict = field(default_factory=dict)   # (a, b) -> :func:`_pair_sum`
 
     @property
@@ -100,7 +100,7 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
                  plain_kernel) -> _NoiseModel:
     names = {eq.target, *(v for t in eq.terms for v in t.variables)}
     out = []
-    layout = []
+    present = []
     for v in sorted(names):
         x = signals[v]
         if noise_std is not None and v in noise_std:
@@ -113,17 +113,13 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
         members = sorted((type_of[j], j) for j, term in enumerate(eq.terms) if v in term.variables)
         idx = np.array([j for _, j in members], np.int64)
         types = np.array([a for a, _ in members], np.int64)
-        bounds = {}
-        for position, (a, _) in enumerate(members):   # members are sorted by type: each type is one slice
-            lo, _ = bounds.get(a, (position, position))
-            bounds[a] = (lo, position + 1)
 
         def stacked(v=v, x=x, idx=idx):
             rows = [_term_partial(cache, segment, eq.terms[j], signals, v) for j in idx]
             return np.array(rows, float) if rows else np.zeros((0, len(x)))
         key = ('jacs', segment, v, tuple((eq.terms[j].name, eq.terms[j].variables) for j in idx))
         out.append((sigma, v == eq.target, idx, types, _cached(cache, key, stacked)))
-        layout.append((sorted(bounds), bounds))
+        present.append(sorted(set(types.tolist())))
     first, step, rows = _grid(starts, width)
     grid_band = max(-(-width // step) - 1, 0)
     kernels = np.array(kernel_list)
@@ -131,7 +127,7 @@ def _noise_model(eq, signals, starts, kernel_list, type_of, noise_std, cache, se
     # the plain φ is usually one of the kernel types already (terms without derivative): same products, reuse
     same = [a for a in range(len(kernels)) if np.array_equal(kernels[a], plain_kernel)]
     plain = pairs[same[0], same[0]] if same else _cached_pair_kernels(plain_kernel[None, :], step, grid_band)[0, 0]
-    return _NoiseModel(kernels, tuple(out), first, step, rows, len(signals[eq.target]), pairs, plain, tuple(layout))
+    return _NoiseModel(kernels, tuple(out), first, step, rows, len(signals[eq.target]), pairs, plain, tuple(present))
 
 
 def clear_caches() -> None:
@@ -262,15 +258,13 @@ def _measurement_band(model: _NoiseModel, w):
                                    *((a, b) for i, a in enumerate(present) for b in present[i:])]})
     grid_ab = np.zeros((pairs.shape[2], full)) + (constant * _pair_sum(model, 0, 0))[:, None]
     if varying:
-        row_of = np.full((len(model.kernels), len(model.kernels)), -1, np.int64)
-        for i, (a, b) in enumerate(varying):
-            row_of[a, b] = row_of[b, a] = i
+        row_of = _pair_rows(varying, len(model.kernels))
         cols = np.zeros((len(varying), model.n))
         for var, is_target, present, idx, types, jac in active:
             if present:
                 _add_coefficient_products(cols, jac, w[idx], types, np.array(present, np.int64), row_of, var,
                                           is_target)
-        kerns = np.array([pairs[a, b] + (pairs[b, a] if a != b else 0.0) for a, b in varying])
+        kerns = np.array([_symmetric_pair(pairs, a, b) for a, b in varying])
         grid_ab += _window_dots(cols, kerns, model.first, model.step, full).T
     return _to_used_rows(model, grid_ab)
 
@@ -305,13 +299,25 @@ def _add_coefficient_products(out, jac, weights, types, present, row_of, varianc
     return out
 
 
+def _pair_rows(type_pairs, types: int) -> np.ndarray:
+    """(types, types) table: the row of each kernel-type pair (a, b) in `type_pairs`, either order; -1 elsewhere."""
+    row_of = np.full((types, types), -1, np.int64)
+    for i, (a, b) in enumerate(type_pairs):
+        row_of[a, b] = row_of[b, a] = i
+    return row_of
+
+
+def _symmetric_pair(pairs: np.ndarray, a: int, b: int) -> np.ndarray:
+    """H_ab + H_ba (H_aa once for a = b): the kernel of a coefficient product c_a c_b (= c_b c_a)."""
+    return pairs[a, b] + (pairs[b, a] if a != b else 0.0)
+
+
 def _pair_sum(model: _NoiseModel, a: int, b: int) -> np.ndarray:
     """Σ_τ (H_ab + H_ba)[u, τ] (H_aa once for a = b), u = 0..grid band: the band of Σ for a constant coefficient
     product, remembered on the model (both passes of a fit use it)."""
     value = model.sums.get((a, b))
     if value is None:
-        pairs = model.pairs
-        value = model.sums[(a, b)] = (pairs[a, b] + (pairs[b, a] if a != b else 0.0)).sum(axis=1)
+        value = model.sums[(a, b)] = _symmetric_pair(model.pairs, a, b).sum(axis=1)
     return value
 
 
@@ -353,7 +359,7 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
             zgrid[rows[i[ok]], offset[ok]] = zb[u, i[ok]]
     # kernel types needed: (a, b) for two columns of one signal, (a, 0) for the target's own noise
     needed = set()
-    for (_, is_target, idx, types, _), (present, _) in zip(model.signals, model.layout):
+    for (_, is_target, idx, types, _), present in zip(model.signals, model.present):
         needed.update((a, b) for i, a in enumerate(present) for b in present[i:])
         if is_target:
             needed.update((0, a) for a in present)
@@ -362,9 +368,7 @@ def _noise_gram(model: _NoiseModel, chol, n_terms):
     kern = np.array([pairs[a, b] + np.concatenate([np.zeros_like(pairs[b, a][:1]), pairs[b, a][1:]])
                      for a, b in needed])                                  # (pairs, band+1, width)
     q_all = _banded_overlap(zgrid, kern, model.first, model.step, model.n)
-    row_of = np.full((len(model.kernels), len(model.kernels)), -1, np.int64)   # kernel-type pair -> row of q_all
-    for i, (a, b) in enumerate(needed):
-        row_of[a, b] = row_of[b, a] = i
+    row_of = _pair_rows(needed, len(model.kernels))
     gram = np.zeros((n_terms, n_terms))
     rhs = np.zeros(n_terms)
     for sigma, is_target, idx, types, jac in model.signals:
