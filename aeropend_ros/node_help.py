@@ -51,6 +51,8 @@ class NodeTopics:
 
     publishes: list[tuple[str, str]] = field(default_factory=list)
     subscribes: list[tuple[str, str]] = field(default_factory=list)
+    #: True when some subscriptions are made at run time for topics the parameters choose
+    chosen_at_run_time: bool = False
 
 
 class _RootNamespaceNode:
@@ -171,6 +173,7 @@ def read_node(module_name: str) -> tuple[str, list[NodeParameter], NodeTopics]:
             try:
                 topic = value(call.args[1], local)
             except Exception:  # noqa: BLE001 - a topic chosen at run time (recorder, foxglove bridge)
+                topics.chosen_at_run_time = topics.chosen_at_run_time or callee == 'create_subscription'
                 return
             entry = (str(topic), ast.unparse(call.args[0]))
             target = topics.publishes if callee == 'create_publisher' else topics.subscribes
@@ -214,6 +217,9 @@ def node_help(executable: str, module_name: str, width: int = 100) -> str:
         if pairs:
             lines += ['', f'{title} (relative names resolve in the node\'s namespace):']
             lines += [f'  {topic}  [{kind}]' for topic, kind in pairs]
+    if topics.chosen_at_run_time:
+        lines += ['', 'subscribes to: the topics its parameters choose (see above), each as soon as a publisher of it '
+                  'appears']
     lines += ['', f'Full description: python -m pydoc {module_name}. Ctrl-C stops the node.']
     return '\n'.join(lines)
 
