@@ -235,3 +235,44 @@ def test_every_help_example_is_a_valid_command_line_for_its_verb():
         except SystemExit as stop:
             raise AssertionError(f'`aeropend {verb} {shlex.join(argv)}` (an example in the help) is refused: '
                                  f'exit {stop.code}') from None
+
+
+def inline_commands() -> list[tuple[str, str, list[str]]]:
+    """(page, text, argv) of every inline `aeropend VERB ...` in the prose of the README and the guide, except those
+    written with placeholders (<...>, [...], ..., NAME, FILE)."""
+    from aeropend_core.cli import all_verbs
+    found = []
+    for page in PAGES:
+        text = page.read_text(encoding='utf-8')
+        for span in re.findall(r'`(aeropend [^`]+)`', text):
+            words = span.split('#', 1)[0].split('|', 1)[0].split('&&', 1)[0].strip()
+            if re.search(r'<|\[|\.\.\.|…|\b[A-Z]{2,}[A-Z_.]*\b', words):
+                continue
+            try:
+                argv = shlex.split(words)[1:]
+            except ValueError:
+                continue
+            if argv and argv[0] in all_verbs() and '--help' not in argv and '-h' not in argv:
+                found.append((rel(page), span, argv))
+    return found
+
+
+def test_every_inline_command_in_the_prose_is_a_valid_command_line():
+    """Inline examples (`aeropend diagnose run.csv --json`) use options that exist with values they accept."""
+    from aeropend_core.cli import verb_parser
+    refused = []
+    examples = inline_commands()
+    assert len(examples) >= 30
+    import contextlib
+    import io
+    for page, span, argv in examples:
+        errors = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(errors):
+                verb_parser(argv[0]).parse_args(argv[1:])
+        except SystemExit:
+            message = errors.getvalue().strip().splitlines()[-1]
+            # a mention of a verb or an option (`aeropend identify`, `aeropend run --rig`) is not a command line
+            if 'are required' not in message and 'expected one argument' not in message:
+                refused.append(f'{page}: `{span}`: {message}')
+    assert not refused, 'refused by the parser:\n' + '\n'.join(refused)

@@ -143,11 +143,11 @@ def unrecognized_message(parser: argparse.ArgumentParser, extras: list[str]) -> 
 
 def version() -> str:
     """'aeropend 0.1.0' from the installed package's metadata (the source tree's setup.py when not installed)."""
-    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import PackageNotFoundError, packages_distributions
     from importlib.metadata import version as installed_version
-    try:
-        return f'aeropend {installed_version("aeropend_ros")}'
-    except PackageNotFoundError:
+    try:            # the distribution that installs this package (named by the metadata, not here)
+        return f'aeropend {installed_version(packages_distributions()["aeropend_core"][0])}'
+    except (PackageNotFoundError, KeyError, IndexError):
         import re
         setup = os.path.join(os.path.dirname(__file__), '..', '..', 'setup.py')
         try:
