@@ -197,7 +197,7 @@ def _recover(path: Path, folder: Path, files: list[Path], bag_folder: bool, targ
         report.folder = folder
         report.message_count = sum(scan.messages_read for _, scan, _ in plans)
         return report
-    out_folder = target if bag_folder else target.parent
+    out_folder = folder if in_place else target if bag_folder else target.parent
     if not in_place and bag_folder:
         target.mkdir(parents=True)
     written: list[tuple[Path, Path]] = []          # (temporary or final file, the file it replaces)

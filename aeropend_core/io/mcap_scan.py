@@ -164,13 +164,58 @@ def _try_chunk(buf, body: int, size: int, need_crc: bool = False) -> _ChunkTry:
         return _ChunkTry(False, 'no CRC to confirm a chunk found by searching', end=end, **spans)
     chunk = Chunk.read(ReadDataStream(_Window(buf, body, end)))
     try:
-        records = breakup_chunk(chunk, validate_crc=True)
+        records = _split_chunk(chunk) if FAST_MESSAGES else None
+        if records is None:
+            records = breakup_chunk(chunk, validate_crc=True)
     except Exception as error:      # CRC mismatch, zstd/lz4 errors, records cut inside the chunk
         reason = str(error) or type(error).__name__
         if 'crc validation failed' in reason:
             reason = 'CRC mismatch (the data changed after they were written)'
         return _ChunkTry(False, f'chunk unreadable: {reason}', end=end, **spans)
     return _ChunkTry(True, chunk=chunk, records=records, end=end, start_ns=start_ns, end_ns=end_ns)
+
+
+#: Split chunks that hold only messages with :func:`_split_chunk` (else ``breakup_chunk`` for every chunk).
+FAST_MESSAGES = True
+
+# checks left of the fast splitter against ``breakup_chunk`` (the first chunk it splits in a process)
+_SELF_CHECKS = [1]
+
+
+def _split_chunk(chunk) -> list | None:
+    """The message records of a chunk, split with ``struct`` instead of ``breakup_chunk``'s per-field reads.
+
+    Decompression and the CRC check are the ``mcap`` library's (``get_chunk_data_stream(validate_crc=True)``);
+    only the framing of the records inside is done here: 3x faster on a 490 Hz recording (bench/bench_bag_read.py).
+    Returns None (use ``breakup_chunk``) for a chunk holding anything but messages (schemas, channels: the first
+    chunk of a file) or records that do not tile it. The first chunk it splits is also split by ``breakup_chunk``
+    and must give identical records, else the fast splitter is switched off for the process.
+    """
+    global FAST_MESSAGES
+    from mcap.records import Message
+    from mcap.stream_reader import breakup_chunk, get_chunk_data_stream
+    stream, size = get_chunk_data_stream(chunk, validate_crc=True)
+    data = stream.read(size) if size else b''
+    messages = []
+    unpack = struct.unpack_from
+    position = 0
+    while position < size:
+        if size - position < 9 or data[position] != 0x05:
+            return None
+        (length,) = unpack('<Q', data, position + 1)
+        body, end = position + 9, position + 9 + length
+        if length < 22 or end > size:
+            return None
+        channel_id, sequence, log_time, publish_time = unpack('<HIQQ', data, body)
+        messages.append(Message(channel_id=channel_id, log_time=log_time, data=data[body + 22:end],
+                                publish_time=publish_time, sequence=sequence))
+        position = end
+    if _SELF_CHECKS[0] > 0:
+        _SELF_CHECKS[0] -= 1
+        if breakup_chunk(chunk, validate_crc=True) != messages:       # pragma: no cover - a library change
+            FAST_MESSAGES = False
+            return None
+    return messages
 
 
 def _resync(buf, start: int, size: int) -> int:
@@ -303,11 +348,18 @@ def _walk(buf, size: int, scan: FileScan) -> Iterator[ChunkRead]:
         opcode = buf[position]
         (length,) = struct.unpack_from('<Q', buf, position + 1)
         body = position + 9
-        if opcode == _OP_CHUNK or opcode not in (0x01, 0x02, 0x03, 0x04, 0x05, 0x07, 0x08, 0x09, 0x0A, 0x0B,
-                                                 0x0C, 0x0D, 0x0E, 0x0F):
+        if opcode == _OP_FOOTER and body + length + len(MCAP_MAGIC) == size and length == 20 and \
+                buf[size - len(MCAP_MAGIC):size] == MCAP_MAGIC:
+            scan.complete = True
+            break
+        if opcode in (_OP_CHUNK, _OP_FOOTER) or opcode not in (0x01, 0x03, 0x04, 0x05, 0x07, 0x08, 0x09, 0x0A,
+                                                               0x0B, 0x0C, 0x0D, 0x0E, 0x0F):
             got = _try_chunk(buf, body, size, need_crc=opcode != _OP_CHUNK)
             if not got.ok:
-                if opcode != _OP_CHUNK:
+                if opcode == _OP_FOOTER:
+                    position = skip(position, 'record_skipped', 'a footer record before the end of the file (a '
+                                    'damaged type byte?) skipped')
+                elif opcode != _OP_CHUNK:
                     position = skip(position, 'record_skipped', f'record of unknown type 0x{opcode:02x} '
                                     f'({length} bytes by its length field) skipped')
                 elif got.end and got.end == body + length:        # a consistent chunk whose data are bad
@@ -356,13 +408,6 @@ def _walk(buf, size: int, scan: FileScan) -> Iterator[ChunkRead]:
             position = got.end
             continue
         end = body + length
-        if opcode == _OP_FOOTER:
-            if end + len(MCAP_MAGIC) == size and length == 20 and buf[end:size] == MCAP_MAGIC:
-                scan.complete = True
-                break
-            position = skip(position, 'record_skipped', 'a footer record before the end of the file (a damaged '
-                            'type byte?) skipped')
-            continue
         if end > size:
             resumed = _resync(buf, position + 1, size)
             if resumed >= size:
