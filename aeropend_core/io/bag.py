@@ -20,10 +20,13 @@ rosbag2's MCAP storage plugin are followed:
 - a metadata record ``rosbag2`` with ``ROS_DISTRO`` at the start and ``serialized_metadata`` (the bag's
   metadata YAML) before each file's summary.
 
-Crash behaviour: a chunk is written to the OS as soon as it is full, so a recording killed with SIGKILL leaves a
-file readable up to its last complete chunk (no summary, no footer). :func:`read_messages` and
-:func:`read_samples` read such a file up to that point (with a warning); :func:`recover_bag` (CLI ``aeropend
-bag-recover``) rewrites the killed files with a summary and footer and regenerates ``metadata.yaml``.
+Reading: each file is read by :mod:`aeropend_core.io.mcap_scan` on the ``mcap`` library's records, every chunk
+CRC-checked. A damaged chunk is skipped and reading goes on after it; a recording killed with SIGKILL leaves a
+file readable up to its last complete chunk (no summary, no footer). Everything skipped is reported: a warning, and
+with ``damage=`` a :class:`SampleDamage` per problem with the lost span [s] and sample count, which
+:func:`aeropend_core.io.recording.load_recording` turns into findings. Chunks are read in time order.
+:func:`~aeropend_core.io.bag_recover.recover_bag` (CLI ``aeropend bag-recover``) writes a complete copy of
+everything readable.
 
 Nothing here imports ROS: message definitions are given as text, and ``sensor_msgs/msg/JointState`` samples are
 decoded with the ``rosbags`` CDR deserialiser.
