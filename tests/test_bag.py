@@ -562,9 +562,10 @@ def start_live_writer(folder: Path) -> tuple[subprocess.Popen, dict]:
 
 
 def test_live_bag_is_marked_refused_by_recover_and_read_without_repair_advice(tmp_path):
-    """While a bag is written: a lock names the process; bag-recover refuses it (exit 2, naming the pid) and
-    changes nothing; readers and `aeropend identify` read it up to its last complete chunk with a note that never
-    advises a repair. Finished: the lock is gone. Killed: the lock is stale and bag-recover repairs the bag."""
+    """While a bag is written: its writer holds the lock (naming the process); bag-recover refuses it (exit 2,
+    naming the pid) and changes nothing; readers and `aeropend identify` read it up to its last complete chunk with a
+    note that never advises a repair. Finished: the lock is gone. Killed: the kernel released the lock, the file is
+    stale and bag-recover recovers the bag into <bag>_recovered and removes the lock file."""
     from aeropend_core.io import bag_lock
     folder = tmp_path / 'live'
     child, report = start_live_writer(folder)
@@ -625,7 +626,8 @@ def test_live_bag_is_marked_refused_by_recover_and_read_without_repair_advice(tm
     assert result.returncode == 0, result.stderr
     assert f'removed the recording lock of process {child.pid}' in result.stdout, result.stdout
     assert bag_lock.read_lock(killed) is None
-    assert len(read_samples(killed, on_incomplete='raise')['sequence']) == report['on_disk']
+    recovered = killed.with_name('killed_live_recovered')
+    assert len(read_samples(recovered, on_incomplete='raise')['sequence']) == report['on_disk']
 
 
 LOCK_HOLDER = textwrap.dedent('''

@@ -130,33 +130,46 @@ def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None,
     AeropendError
         Not an MCAP file, not a ROS 2 bag, or (with ``on_incomplete='raise'``) an incomplete or damaged file.
     """
+    for chunk, kept, names in _filtered_chunks(path, topics, on_incomplete, damage):
+        for record in kept:
+            topic, type_name = names[record.channel_id]
+            yield BagMessage(topic, type_name, record.log_time, record.publish_time, record.data, record.sequence,
+                             chunk.start_ns, chunk.offset)
+
+
+def _filtered_chunks(path, topics: Iterable[str] | None, on_incomplete: str, damage: list[BagDamage] | None):
+    """``(chunk, its messages on the wanted topics, channel id -> (topic, type))`` of every readable chunk of a bag,
+    file by file; the damage of each file is stamped with its place among the messages yielded, then reported."""
     wanted = None if topics is None else set(topics)
     yielded = 0
     for file in bag_files(path):
         scan = FileScan(file)
         unknown: dict[int, int] = {}
+        names: dict[int, tuple[str, str]] = {}
         stamped = 0
         for chunk in scan_file(file, scan):
             for late in scan.damage[stamped:]:      # where each problem sits among the messages yielded so far
                 late.after_messages = yielded
             stamped = len(scan.damage)
-            for record in chunk.messages:
-                channel = scan.channels.get(record.channel_id)
-                if channel is None:
-                    unknown[record.channel_id] = unknown.get(record.channel_id, 0) + 1
-                    continue
-                if wanted is not None and channel.topic not in wanted:
-                    continue
-                schema = scan.schemas.get(channel.schema_id)
-                yielded += 1
-                yield BagMessage(channel.topic, schema.name if schema else '', record.log_time, record.publish_time,
-                                 record.data, record.sequence, chunk.start_ns, chunk.offset)
+            ids = {m.channel_id for m in chunk.messages}
+            for channel_id in ids - names.keys():
+                channel = scan.channels.get(channel_id)
+                if channel is not None:
+                    schema = scan.schemas.get(channel.schema_id)
+                    names[channel_id] = (channel.topic, schema.name if schema else '')
+            keep = {i for i in ids if i in names and (wanted is None or names[i][0] in wanted)}
+            kept = chunk.messages if keep == ids else [m for m in chunk.messages if m.channel_id in keep]
+            for channel_id in ids - names.keys():
+                unknown[channel_id] = unknown.get(channel_id, 0) + sum(m.channel_id == channel_id
+                                                                       for m in chunk.messages)
+            yielded += len(kept)
+            yield chunk, kept, names
         for late in scan.damage[stamped:]:
             late.after_messages = yielded
         if unknown:
             scan.damage.append(BagDamage(file, 0, 'unknown_channel', f'{sum(unknown.values())} message(s) on '
                                          f'channel id(s) {sorted(unknown)} whose definition was lost: not read',
-                                         messages=sum(unknown.values())))
+                                         messages=sum(unknown.values()), after_messages=yielded))
         if damage is not None:
             damage.extend(scan.damage)
         _say_damage(path, file, scan, on_incomplete)
@@ -402,13 +415,16 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     found: list[BagDamage] = []
     with warnings.catch_warnings(record=True) as cut:
         warnings.simplefilter('always')
-        for message in read_messages(path, topics=[topic], on_incomplete=on_incomplete, damage=found):
-            if message.type != _JOINT_STATE:
-                raise AeropendError(f'{topic} in {path} carries {message.type}, not {_JOINT_STATE}')
-            datas.append(message.data)
-            received.append(message.log_time_ns)
-            chunk_start.append(message.chunk_start_ns)
-            chunk_offset.append(message.chunk_offset)
+        for chunk, kept, names in _filtered_chunks(path, [topic], on_incomplete, found):
+            if not kept:
+                continue
+            wrong = {names[m.channel_id][1] for m in kept} - {_JOINT_STATE}
+            if wrong:
+                raise AeropendError(f'{topic} in {path} carries {wrong.pop()}, not {_JOINT_STATE}')
+            datas.extend([m.data for m in kept])
+            received.extend([m.log_time for m in kept])
+            chunk_start.extend([chunk.start_ns] * len(kept))
+            chunk_offset.extend([chunk.offset] * len(kept))
     incomplete = [w for w in cut if 'is incomplete' in str(w.message) or 'is damaged' in str(w.message)]
     live = [w for w in cut if 'is still being recorded' in str(w.message)]
     if not datas and live:

@@ -207,8 +207,7 @@ def _split_chunk(chunk) -> list | None:
         if length < 22 or end > size:
             return None
         channel_id, sequence, log_time, publish_time = unpack('<HIQQ', data, body)
-        messages.append(Message(channel_id=channel_id, log_time=log_time, data=data[body + 22:end],
-                                publish_time=publish_time, sequence=sequence))
+        messages.append(Message(channel_id, log_time, data[body + 22:end], publish_time, sequence))
         position = end
     if _SELF_CHECKS[0] > 0:
         _SELF_CHECKS[0] -= 1
