@@ -211,6 +211,8 @@ def _recover(path: Path, folder: Path, files: list[Path], bag_folder: bool, targ
                 _count_intact(file, scan, info, topic_infos)
                 if not in_place:
                     shutil.copyfile(file, destination)
+                    with open(destination, 'rb') as copy:
+                        os.fsync(copy.fileno())
                     written.append((destination, destination))
                 continue
             temporary = destination.with_name(destination.name + '.recovering') if in_place else destination
