@@ -277,8 +277,8 @@ def test_full_disk_stops_the_recorder_with_a_clear_error_and_keeps_what_was_writ
         assert mcap_stream_count(next(bag.glob('*.mcap')), samples) == kept
         ballast.unlink(missing_ok=True)                  # free space, then repair in place
         result = subprocess.run([sys.executable, '-c', 'import sys; from aeropend_core.cli import main; '
-                                 'sys.exit(main())', 'bag-recover', str(bag)], capture_output=True, text=True,
-                                timeout=60, cwd=ROOT, check=False)
+                                 'sys.exit(main())', 'bag-recover', str(bag), '--in-place'], capture_output=True,
+                                text=True, timeout=60, cwd=ROOT, check=False)
         assert result.returncode == 0, result.stderr
         from rosbags.highlevel import AnyReader
         with AnyReader([bag]) as reader:
