@@ -294,6 +294,10 @@ def test_killed_recording_readable_to_last_chunk_and_recovered(tmp_path):
                             capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert result.returncode == 0, result.stderr
     assert 'repaired killed_0.mcap' in result.stdout
+    assert 'the original is unchanged' in result.stdout
+    with pytest.warns(UserWarning, match='bag-recover'):      # the original is left as it was
+        assert len(read_samples(folder)['sequence']) == kept
+    folder = folder.with_name('killed_recovered')
 
     with warnings.catch_warnings():
         warnings.simplefilter('error')
@@ -398,7 +402,7 @@ def test_full_disk_stops_with_a_clear_error_and_keeps_every_complete_chunk(tmp_p
     result = subprocess.run([*AEROPEND, 'bag-recover', str(copy)], check=False, capture_output=True, text=True,
                             cwd=ROOT, timeout=60)
     assert result.returncode == 0, result.stderr
-    stamps, _, counts = rosbags_samples(copy)
+    stamps, _, counts = rosbags_samples(copy.with_name('copied_recovered'))
     assert counts[SAMPLES] == on_disk and stamps == [T0_NS + k * TS_NS for k in range(on_disk)]
 
 
@@ -437,12 +441,20 @@ def test_bad_files_give_clear_errors(tmp_path):
     damaged[inside:inside + 16] = bytes(b ^ 0xFF for b in damaged[inside:inside + 16])
     bad = tmp_path / 'damaged.mcap'
     bad.write_bytes(bytes(damaged))
-    with pytest.warns(UserWarning, match='corrupt'):
-        prefix = read_samples(bad)
-    first_two = {m.log_time_ns for m in read_messages(tmp_path / 'full', topics=[SAMPLES])
-                 if m.log_time_ns <= chunks[1].message_end_time}
-    np.testing.assert_array_equal(prefix['sequence'], np.arange(len(first_two)))
-    with pytest.raises(AeropendError):
+    # corrupted bytes in one chunk: that chunk is skipped, the chunks after it are read, the loss is stated
+    from aeropend_core.io.bag import SampleDamage
+    found: list[SampleDamage] = []
+    with pytest.warns(UserWarning, match='is damaged.*chunk unreadable'):
+        rest = read_samples(bad, damage=found)
+    in_third = [m.sequence for m in read_messages(tmp_path / 'full', topics=[SAMPLES])
+                if third.message_start_time <= m.log_time_ns <= third.message_end_time]
+    expected = np.setdiff1d(np.arange(500), np.asarray(in_third) - 1)      # MCAP sequence = k + 1
+    assert len(in_third) > 0
+    np.testing.assert_array_equal(rest['sequence'], expected)
+    lost = [d for d in found if d.damage.lost]
+    assert len(lost) == 1 and lost[0].samples == len(in_third), [d.line() for d in found]
+    assert lost[0].t_start < lost[0].t_stop and f'{lost[0].samples} sample(s) lost between' in lost[0].line()
+    with pytest.raises(AeropendError, match='damaged'):
         read_samples(bad, on_incomplete='raise')
 
     # other topics: right error for the wrong type
@@ -550,9 +562,10 @@ def start_live_writer(folder: Path) -> tuple[subprocess.Popen, dict]:
 
 
 def test_live_bag_is_marked_refused_by_recover_and_read_without_repair_advice(tmp_path):
-    """While a bag is written: a lock names the process; bag-recover refuses it (exit 2, naming the pid) and
-    changes nothing; readers and `aeropend identify` read it up to its last complete chunk with a note that never
-    advises a repair. Finished: the lock is gone. Killed: the lock is stale and bag-recover repairs the bag."""
+    """While a bag is written: its writer holds the lock (naming the process); bag-recover refuses it (exit 2,
+    naming the pid) and changes nothing; readers and `aeropend identify` read it up to its last complete chunk with a
+    note that never advises a repair. Finished: the lock is gone. Killed: the kernel released the lock, the file is
+    stale and bag-recover recovers the bag into <bag>_recovered and removes the lock file."""
     from aeropend_core.io import bag_lock
     folder = tmp_path / 'live'
     child, report = start_live_writer(folder)
@@ -613,21 +626,79 @@ def test_live_bag_is_marked_refused_by_recover_and_read_without_repair_advice(tm
     assert result.returncode == 0, result.stderr
     assert f'removed the recording lock of process {child.pid}' in result.stdout, result.stdout
     assert bag_lock.read_lock(killed) is None
-    assert len(read_samples(killed, on_incomplete='raise')['sequence']) == report['on_disk']
+    recovered = killed.with_name('killed_live_recovered')
+    assert len(read_samples(recovered, on_incomplete='raise')['sequence']) == report['on_disk']
 
 
-def test_lock_of_a_reused_pid_or_another_host_or_garbage(tmp_path):
-    """A lock whose pid now belongs to another process is stale; one written on another host cannot be checked
-    and counts as live (bag-recover names the host); a half-written lock is stale."""
+LOCK_HOLDER = textwrap.dedent('''
+    import sys
+    from aeropend_core.io import bag_lock
+    bag_lock.acquire({folder!r})
+    with open({folder!r} + '/recording.lock', 'w') as garbage:
+        garbage.write('pid: [')        # what the file says does not matter: the flock does
+    print('locked', flush=True)
+    sys.stdin.readline()
+''')
+
+
+REPAIR_HOLDER = textwrap.dedent('''
+    import sys
+    from aeropend_core.io import bag_lock
+    with bag_lock.hold({folder!r}):
+        print('holding', flush=True)
+        sys.stdin.readline()
+''')
+
+
+def test_lock_is_the_flock_not_what_the_file_says(tmp_path):
+    """Live means: a process holds the flock. A lock file naming this very process, another host or garbage but
+    held by nobody is stale (bag-recover removes it); a held lock with garbage content is live (refused); the
+    kernel drops the lock of a SIGKILLed holder at once; a recorder starting while a repair holds its folder waits
+    for the repair instead of failing."""
     import socket
+    import threading
     from aeropend_core.io import bag_lock
     write_bag(tmp_path / 'b', 200).finish()
     lock_file = tmp_path / 'b' / bag_lock.LOCK_NAME
-    lock_file.write_text(yaml.safe_dump({'pid': os.getpid(), 'host': socket.gethostname(), 'process_start': 1}))
-    assert not bag_lock.read_lock(tmp_path / 'b').is_live()       # this pid, but started at another time
-    lock_file.write_text(yaml.safe_dump({'pid': 1, 'host': 'rig-pc-elsewhere'}))
-    with pytest.raises(AeropendError, match='rig-pc-elsewhere.*another machine'):
-        recover_bag(tmp_path / 'b')
-    lock_file.write_text('pid: [')
-    assert not bag_lock.read_lock(tmp_path / 'b').is_live()
-    assert recover_bag(tmp_path / 'b').removed_lock and not lock_file.exists()
+    for content in (yaml.safe_dump({'pid': os.getpid(), 'host': socket.gethostname()}),
+                    yaml.safe_dump({'pid': 1, 'host': 'rig-pc-elsewhere'}), 'pid: ['):
+        lock_file.write_text(content)
+        assert not bag_lock.read_lock(tmp_path / 'b').is_live(), content
+        assert recover_bag(tmp_path / 'b').removed_lock and not lock_file.exists(), content
+
+    child = subprocess.Popen([sys.executable, '-c', LOCK_HOLDER.format(folder=str(tmp_path / 'b'))],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        assert child.stdout.readline().strip() == 'locked'
+        assert bag_lock.read_lock(tmp_path / 'b').is_live()
+        with pytest.raises(AeropendError, match='being written by process 0'):
+            recover_bag(tmp_path / 'b')
+        child.kill()
+        child.wait(30)
+        assert not bag_lock.read_lock(tmp_path / 'b').is_live()       # released by the kernel, not by a guess
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+
+    # a repair (another process) holds a fresh folder: a recorder starting there waits for it, then records
+    (tmp_path / 'new').mkdir()
+    repair = subprocess.Popen([sys.executable, '-c', REPAIR_HOLDER.format(folder=str(tmp_path / 'new'))],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        assert repair.stdout.readline().strip() == 'holding'
+        result: dict = {}
+        thread = threading.Thread(target=lambda: result.update(writer=write_bag(tmp_path / 'new', 100)))
+        thread.start()
+        thread.join(1.0)
+        assert thread.is_alive() and not result, 'the recorder did not wait for the repair'
+        repair.stdin.write('done\n')
+        repair.stdin.flush()
+        thread.join(60)
+    finally:
+        if repair.poll() is None:
+            repair.kill()
+        repair.wait()
+    assert 'writer' in result, result
+    result['writer'].finish()
+    assert len(read_samples(tmp_path / 'new', on_incomplete='raise')['sequence']) == 100

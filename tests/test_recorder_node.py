@@ -218,10 +218,11 @@ def test_killed_recorder_leaves_readable_bag_and_recovers(tmp_path, watch):
                              'bag-recover', str(bag)], capture_output=True, text=True, timeout=60,
                             cwd=Path(__file__).parents[1], check=False)
     assert result.returncode == 0, result.stderr
-    repaired = read_samples(bag, on_incomplete='raise')
+    recovered = bag.with_name(bag.name + '_recovered')          # the original is left as it was
+    repaired = read_samples(recovered, on_incomplete='raise')
     np.testing.assert_array_equal(repaired['sequence'], partial['sequence'])
     from rosbags.highlevel import AnyReader
-    with AnyReader([bag]) as reader:
+    with AnyReader([recovered]) as reader:
         connections = [c for c in reader.connections if c.topic == samples]
         assert sum(c.msgcount for c in connections) == kept
         assert sum(1 for _ in reader.messages(connections=connections)) == kept
@@ -276,8 +277,8 @@ def test_full_disk_stops_the_recorder_with_a_clear_error_and_keeps_what_was_writ
         assert mcap_stream_count(next(bag.glob('*.mcap')), samples) == kept
         ballast.unlink(missing_ok=True)                  # free space, then repair in place
         result = subprocess.run([sys.executable, '-c', 'import sys; from aeropend_core.cli import main; '
-                                 'sys.exit(main())', 'bag-recover', str(bag)], capture_output=True, text=True,
-                                timeout=60, cwd=ROOT, check=False)
+                                 'sys.exit(main())', 'bag-recover', str(bag), '--in-place'], capture_output=True,
+                                text=True, timeout=60, cwd=ROOT, check=False)
         assert result.returncode == 0, result.stderr
         from rosbags.highlevel import AnyReader
         with AnyReader([bag]) as reader:

@@ -20,10 +20,13 @@ rosbag2's MCAP storage plugin are followed:
 - a metadata record ``rosbag2`` with ``ROS_DISTRO`` at the start and ``serialized_metadata`` (the bag's
   metadata YAML) before each file's summary.
 
-Crash behaviour: a chunk is written to the OS as soon as it is full, so a recording killed with SIGKILL leaves a
-file readable up to its last complete chunk (no summary, no footer). :func:`read_messages` and
-:func:`read_samples` read such a file up to that point (with a warning); :func:`recover_bag` (CLI ``aeropend
-bag-recover``) rewrites the killed files with a summary and footer and regenerates ``metadata.yaml``.
+Reading: each file is read by :mod:`aeropend_core.io.mcap_scan` on the ``mcap`` library's records, every chunk
+CRC-checked. A damaged chunk is skipped and reading goes on after it; a recording killed with SIGKILL leaves a
+file readable up to its last complete chunk (no summary, no footer). Everything skipped is reported: a warning, and
+with ``damage=`` a :class:`SampleDamage` per problem with the lost span [s] and sample count, which
+:func:`aeropend_core.io.recording.load_recording` turns into findings. Chunks are read in time order.
+:func:`~aeropend_core.io.bag_recover.recover_bag` (CLI ``aeropend bag-recover``) writes a complete copy of
+everything readable.
 
 Nothing here imports ROS: message definitions are given as text, and ``sensor_msgs/msg/JointState`` samples are
 decoded with the ``rosbags`` CDR deserialiser.
@@ -34,9 +37,8 @@ import os
 import re
 import struct
 import warnings
-import zlib
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -44,29 +46,16 @@ import yaml
 
 from aeropend_core.errors import AeropendError
 from aeropend_core.io import bag_lock
-from aeropend_core.io.paths import path_problem, storage_error
-from aeropend_core.io.mcap_format import (
-    _OP_CHANNEL,
-    _OP_CHUNK,
-    _OP_FOOTER,
-    _OP_HEADER,
-    _OP_MESSAGE,
-    _OP_METADATA,
-    _OP_SCHEMA,
-    MCAP_MAGIC,
-    NS_PER_S,
-    ROS2_PROFILE,
-    SAMPLE_CHANNELS,
-    _JOINT_STATE,
-    _SAMPLES_TOPIC,
-)
+from aeropend_core.io.mcap_format import NS_PER_S, SAMPLE_CHANNELS, _JOINT_STATE, _SAMPLES_TOPIC
+from aeropend_core.io.mcap_scan import BagDamage, FileScan, scan_file
+from aeropend_core.io.paths import path_problem
 
 
-__all__ = ['BagMessage', 'bag_files', 'bag_topics', 'read_messages', 'read_samples']
+__all__ = ['BagDamage', 'BagMessage', 'bag_files', 'bag_topics', 'damage_line', 'read_messages', 'read_samples']
 
 
 # --------------------------------------------------------------------------------------------------------------
-# Reading (tolerant of files cut short by a kill)
+# Reading (past damaged chunks, and files cut short by a kill)
 # --------------------------------------------------------------------------------------------------------------
 @dataclass
 class BagMessage:
@@ -78,182 +67,8 @@ class BagMessage:
     publish_time_ns: int
     data: bytes
     sequence: int = 0
-
-
-@dataclass
-class _Schema:
-    id: int
-    name: str
-    encoding: str
-    data: bytes
-
-
-@dataclass
-class _Channel:
-    id: int
-    schema_id: int
-    topic: str
-    message_encoding: str
-    metadata: dict[str, str]
-
-
-@dataclass
-class _ScanState:
-    path: Path
-    schemas: dict[int, _Schema] = field(default_factory=dict)
-    channels: dict[int, _Channel] = field(default_factory=dict)
-    metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
-    complete: bool = False          # footer reached
-    end_offset: int = 0             # first byte after the last record read completely
-    problem: str = ''               # why the scan stopped early
-
-
-def _read_str(buf: bytes, pos: int) -> tuple[str, int]:
-    (n,) = struct.unpack_from('<I', buf, pos)
-    pos += 4
-    if pos + n > len(buf):
-        raise ValueError('string runs past its record')
-    return buf[pos:pos + n].decode('utf-8'), pos + n
-
-
-def _read_bytes(buf: bytes, pos: int) -> tuple[bytes, int]:
-    (n,) = struct.unpack_from('<I', buf, pos)
-    pos += 4
-    if pos + n > len(buf):
-        raise ValueError('byte array runs past its record')
-    return buf[pos:pos + n], pos + n
-
-
-def _read_map(buf: bytes, pos: int) -> tuple[dict[str, str], int]:
-    (n,) = struct.unpack_from('<I', buf, pos)
-    pos += 4
-    end = pos + n
-    out: dict[str, str] = {}
-    while pos < end:
-        key, pos = _read_str(buf, pos)
-        value, pos = _read_str(buf, pos)
-        out[key] = value
-    return out, pos
-
-
-def _decompress(compression: str, data: bytes, size: int) -> bytes:
-    if compression == '':
-        return data
-    if compression == 'zstd':
-        import zstandard
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == 'lz4':
-        import lz4.frame
-        return lz4.frame.decompress(data)
-    raise ValueError(f'unsupported chunk compression {compression!r}')
-
-
-def _iter_records(buf: bytes, pos: int, end: int) -> Iterator[tuple[int, int, int]]:
-    """(opcode, body start, body end) of complete records in ``buf[pos:end]``; stops at a cut record."""
-    while pos + 9 <= end:
-        opcode = buf[pos]
-        (length,) = struct.unpack_from('<Q', buf, pos + 1)
-        body = pos + 9
-        if body + length > end:
-            return
-        yield opcode, body, body + length
-        pos = body + length
-
-
-def _scan_mcap(path: Path, state: _ScanState, want_messages: bool) -> Iterator[tuple[int, int, int, int, bytes]]:
-    """Yield ``(channel_id, sequence, log_time, publish_time, data)`` of every message of a (possibly cut) file.
-
-    Fills ``state`` with schemas, channels and metadata as they appear; stops at the first incomplete or corrupt
-    record (recording what happened in ``state.problem``). The file is memory-mapped, not read into memory.
-    """
-    import mmap
-    try:
-        handle = open(path, 'rb')  # noqa: SIM115 - closed in the finally below, after the generator is done
-    except OSError as error:
-        raise storage_error(error, f'cannot read {path}: {error.strerror or error}') from None
-    mapped = None
-    try:
-        size = os.fstat(handle.fileno()).st_size
-        if size < len(MCAP_MAGIC):
-            raise AeropendError(f'{path} is not an MCAP file (no MCAP magic at its start)')
-        mapped = mmap.mmap(handle.fileno(), 0, access=mmap.ACCESS_READ)
-        yield from _scan_buffer(mapped, path, state, want_messages)
-    finally:
-        if mapped is not None:
-            mapped.close()
-        handle.close()
-
-
-def _scan_buffer(buf, path: Path, state: _ScanState, want_messages: bool) \
-        -> Iterator[tuple[int, int, int, int, bytes]]:
-    if len(buf) < len(MCAP_MAGIC) or buf[:len(MCAP_MAGIC)] != MCAP_MAGIC:
-        raise AeropendError(f'{path} is not an MCAP file (no MCAP magic at its start)')
-    pos = len(MCAP_MAGIC)
-    state.end_offset = pos
-    total = len(buf)
-    for opcode, body, end in _iter_records(buf, pos, total):
-        try:
-            if opcode == _OP_CHUNK:
-                _start, _end, usize, crc = struct.unpack_from('<QQQI', buf, body)
-                compression, p = _read_str(buf, body + 28)
-                (csize,) = struct.unpack_from('<Q', buf, p)
-                p += 8
-                if p + csize > end:
-                    raise ValueError('chunk data runs past its record')
-                data = _decompress(compression, buf[p:p + csize], usize)
-                if len(data) != usize or (crc and zlib.crc32(data) != crc):
-                    raise ValueError('chunk CRC or size mismatch')
-                for inner_op, ib, ie in _iter_records(data, 0, len(data)):
-                    if inner_op == _OP_MESSAGE and want_messages:
-                        channel_id, seq, log_t, pub_t = struct.unpack_from('<HIQQ', data, ib)
-                        yield channel_id, seq, log_t, pub_t, data[ib + 22:ie]
-                    elif inner_op in (_OP_SCHEMA, _OP_CHANNEL):
-                        _parse_definition(inner_op, data, ib, state)
-            elif opcode == _OP_MESSAGE and want_messages:
-                channel_id, seq, log_t, pub_t = struct.unpack_from('<HIQQ', buf, body)
-                yield channel_id, seq, log_t, pub_t, buf[body + 22:end]
-            elif opcode in (_OP_SCHEMA, _OP_CHANNEL):
-                _parse_definition(opcode, buf, body, state)
-            elif opcode == _OP_METADATA:
-                name, p = _read_str(buf, body)
-                meta, _ = _read_map(buf, p)
-                state.metadata.append((name, meta))
-            elif opcode == _OP_HEADER:
-                profile, _ = _read_str(buf, body)
-                if profile != ROS2_PROFILE:
-                    raise AeropendError(f'{path} has MCAP profile {profile!r}, not ros2: not a ROS 2 bag')
-            elif opcode == _OP_FOOTER:
-                state.complete = True
-                state.end_offset = end
-                return
-        except (struct.error, ValueError, UnicodeDecodeError) as error:
-            state.problem = f'corrupt record at byte {body - 9}: {error}'
-            return
-        except Exception as error:  # decompression errors of the zstd/lz4 bindings
-            if isinstance(error, AeropendError):
-                raise
-            state.problem = f'corrupt chunk at byte {body - 9}: {error}'
-            return
-        state.end_offset = end
-    if state.end_offset < total:
-        state.problem = f'file ends inside a record at byte {state.end_offset} of {total}'
-    else:
-        state.problem = 'file ends without a footer'
-
-
-def _parse_definition(opcode: int, buf: bytes, pos: int, state: _ScanState) -> None:
-    if opcode == _OP_SCHEMA:
-        (schema_id,) = struct.unpack_from('<H', buf, pos)
-        name, p = _read_str(buf, pos + 2)
-        encoding, p = _read_str(buf, p)
-        data, _ = _read_bytes(buf, p)
-        state.schemas.setdefault(schema_id, _Schema(schema_id, name, encoding, data))
-    else:
-        channel_id, schema_id = struct.unpack_from('<HH', buf, pos)
-        topic, p = _read_str(buf, pos + 4)
-        encoding, p = _read_str(buf, p)
-        meta, _ = _read_map(buf, p)
-        state.channels.setdefault(channel_id, _Channel(channel_id, schema_id, topic, encoding, meta))
+    chunk_start_ns: int = 0         # log-time start of the chunk it was read from (readers sort chunks by it)
+    chunk_offset: int = 0           # byte offset of that chunk in its file
 
 
 def bag_files(path: str | os.PathLike) -> list[Path]:
@@ -291,8 +106,11 @@ def _split_index(path: Path) -> tuple[int, str]:
 
 
 def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None,
-                  on_incomplete: str = 'warn') -> Iterator[BagMessage]:
-    """Messages of a bag folder or ``.mcap`` file, in file order, as raw CDR bytes.
+                  on_incomplete: str = 'warn', damage: list[BagDamage] | None = None) -> Iterator[BagMessage]:
+    """Messages of a bag folder or ``.mcap`` file, in file order, as raw CDR bytes, read past damaged chunks.
+
+    Each file is read by :func:`aeropend_core.io.mcap_scan.scan_file` (the ``mcap`` library's records, every
+    chunk CRC-checked): a damaged chunk or record is skipped and reading goes on after it.
 
     Parameters
     ----------
@@ -301,53 +119,98 @@ def read_messages(path: str | os.PathLike, topics: Iterable[str] | None = None,
     topics
         Only these topics (default: all).
     on_incomplete
-        What to do with a file cut short (recording killed, disk full): ``'warn'`` (read it up to its last
-        complete chunk and warn), ``'ignore'``, or ``'raise'`` (:class:`AeropendError`).
+        What to do with a file that is cut short (recording killed, disk full) or damaged: ``'warn'`` (read what
+        can be read and warn), ``'ignore'``, or ``'raise'`` (:class:`AeropendError`).
+    damage
+        When given, every problem found (:class:`~aeropend_core.io.mcap_scan.BagDamage`, notes included) is
+        appended to it as well.
 
     Raises
     ------
     AeropendError
-        Not an MCAP file, not a ROS 2 bag, or (with ``on_incomplete='raise'``) an incomplete file.
+        Not an MCAP file, not a ROS 2 bag, or (with ``on_incomplete='raise'``) an incomplete or damaged file.
     """
+    for chunk, kept, names in _filtered_chunks(path, topics, on_incomplete, damage):
+        for record in kept:
+            topic, type_name = names[record.channel_id]
+            yield BagMessage(topic, type_name, record.log_time, record.publish_time, record.data, record.sequence,
+                             chunk.start_ns, chunk.offset)
+
+
+def _filtered_chunks(path, topics: Iterable[str] | None, on_incomplete: str, damage: list[BagDamage] | None):
+    """``(chunk, its messages on the wanted topics, channel id -> (topic, type))`` of every readable chunk of a bag,
+    file by file; the damage of each file is stamped with its place among the messages yielded, then reported."""
     wanted = None if topics is None else set(topics)
+    yielded = 0
     for file in bag_files(path):
-        state = _ScanState(file)
-        for channel_id, seq, log_t, pub_t, data in _scan_mcap(file, state, want_messages=True):
-            channel = state.channels.get(channel_id)
-            if channel is None:
-                continue
-            if wanted is not None and channel.topic not in wanted:
-                continue
-            schema = state.schemas.get(channel.schema_id)
-            yield BagMessage(channel.topic, schema.name if schema else '', log_t, pub_t, data, seq)
-        if not state.complete:
-            in_bag = Path(path).is_dir() or (file.parent / 'metadata.yaml').is_file()
-            writer = bag_lock.live_writer(file)
-            if writer is not None:      # being recorded: no repair to advise, only that the end is still coming
-                message = (f'{file} is still being recorded by {writer.describe()}; read up to its last complete '
-                           'chunk (the newest samples are not in it yet; read it again once the recording ends)')
-                if on_incomplete == 'raise':
-                    raise AeropendError(message)
-                if on_incomplete == 'warn':
-                    warnings.warn(message, stacklevel=2)
-                continue
-            message = (f'{file} is incomplete ({state.problem}); read up to its last complete chunk. '
-                       f'Repair it with: aeropend bag-recover {file.parent if in_bag else file}')
-            if on_incomplete == 'raise':
-                raise AeropendError(message)
-            if on_incomplete == 'warn':
-                warnings.warn(message, stacklevel=2)
+        scan = FileScan(file)
+        unknown: dict[int, int] = {}
+        names: dict[int, tuple[str, str]] = {}
+        stamped = 0
+        for chunk in scan_file(file, scan):
+            for late in scan.damage[stamped:]:      # where each problem sits among the messages yielded so far
+                late.after_messages = yielded
+            stamped = len(scan.damage)
+            ids = {m.channel_id for m in chunk.messages}
+            for channel_id in ids - names.keys():
+                channel = scan.channels.get(channel_id)
+                if channel is not None:
+                    schema = scan.schemas.get(channel.schema_id)
+                    names[channel_id] = (channel.topic, schema.name if schema else '')
+            keep = {i for i in ids if i in names and (wanted is None or names[i][0] in wanted)}
+            kept = chunk.messages if keep == ids else [m for m in chunk.messages if m.channel_id in keep]
+            for channel_id in ids - names.keys():
+                unknown[channel_id] = unknown.get(channel_id, 0) + sum(m.channel_id == channel_id
+                                                                       for m in chunk.messages)
+            yielded += len(kept)
+            yield chunk, kept, names
+        for late in scan.damage[stamped:]:
+            late.after_messages = yielded
+        if unknown:
+            scan.damage.append(BagDamage(file, 0, 'unknown_channel', f'{sum(unknown.values())} message(s) on '
+                                         f'channel id(s) {sorted(unknown)} whose definition was lost: not read',
+                                         messages=sum(unknown.values()), after_messages=yielded))
+        if damage is not None:
+            damage.extend(scan.damage)
+        _say_damage(path, file, scan, on_incomplete)
+
+
+def _say_damage(path, file: Path, scan: FileScan, on_incomplete: str) -> None:
+    """Warn about (or raise for) what reading ``file`` lost."""
+    lost = scan.lost
+    if not lost or on_incomplete == 'ignore':
+        return
+    in_bag = Path(path).is_dir() or (file.parent / 'metadata.yaml').is_file()
+    writer = bag_lock.live_writer(file) if [d.kind for d in lost] == ['cut'] else None
+    if writer is not None:      # being recorded: no repair to advise, only that the end is still coming
+        message = (f'{file} is still being recorded by {writer.describe()}; read up to its last complete '
+                   'chunk (the newest samples are not in it yet; read it again once the recording ends)')
+    elif [d.kind for d in lost] == ['cut']:
+        message = (f'{file} is incomplete ({scan.problem}); read up to its last complete chunk. '
+                   f'Repair it with: aeropend bag-recover {file.parent if in_bag else file}')
+    else:
+        message = (f'{file} is damaged: ' + '; '.join(damage_line(d) for d in lost) + '; the rest was read. '
+                   f'Write a repaired copy with: aeropend bag-recover {file.parent if in_bag else file}')
+    if on_incomplete == 'raise':
+        raise AeropendError(message)
+    warnings.warn(message, stacklevel=3)
+
+
+def damage_line(damage: BagDamage) -> str:
+    """One line for a :class:`~aeropend_core.io.mcap_scan.BagDamage`: what, where, what it cost if known."""
+    cost = f' ({damage.messages} messages lost)' if damage.lost and damage.messages is not None else ''
+    return f'byte {damage.offset}: {damage.detail}{cost}'
 
 
 def bag_topics(path: str | os.PathLike) -> dict[str, str]:
     """Topic name -> message type of every channel in a bag (all files)."""
     out: dict[str, str] = {}
     for file in bag_files(path):
-        state = _ScanState(file)
-        for _ in _scan_mcap(file, state, want_messages=False):
+        scan = FileScan(file)
+        for _ in scan_file(file, scan):
             pass
-        for channel in state.channels.values():
-            schema = state.schemas.get(channel.schema_id)
+        for channel in scan.channels.values():
+            schema = scan.schemas.get(channel.schema_id)
             out.setdefault(channel.topic, schema.name if schema else '')
     return out
 
@@ -446,9 +309,78 @@ def _decode_samples(datas: list[bytes], where: str) -> tuple[np.ndarray, np.ndar
     return stamps, table
 
 
-def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomplete: str = 'warn') \
-        -> dict[str, np.ndarray]:
+@dataclass
+class SampleDamage:
+    """What a damaged or cut file cost the samples read from it (:func:`read_samples`).
+
+    Attributes
+    ----------
+    damage : BagDamage
+        What the reader found (``damage.lost`` False: a note that cost nothing).
+    t_start, t_stop : float or None [s]
+        Record time (from the first sample read) of the last sample before the loss and the first one after it;
+        None where there is no sample on that side (a file cut at its end) or the loss cost nothing.
+    samples : int or None [-]
+        Samples lost, from the acquisition sequence counter around the loss (else the file's own message count);
+        None when unknown.
+    """
+
+    damage: BagDamage
+    t_start: float | None = None
+    t_stop: float | None = None
+    samples: int | None = None
+
+    def line(self) -> str:
+        """One line: the file, the problem, and the lost span and sample count when known."""
+        d = self.damage
+        text = f'{d.file.name}: {damage_line(d) if not d.lost else f"byte {d.offset}: {d.detail}"}'
+        if not d.lost:
+            return text
+        count = 'an unknown number of samples' if self.samples is None else f'{self.samples} sample(s)'
+        if self.t_start is not None and self.t_stop is not None:
+            return f'{text}; {count} lost between t = {self.t_start:.3f} s and t = {self.t_stop:.3f} s'
+        if self.t_start is not None:
+            return f'{text}; {count} lost after t = {self.t_start:.3f} s (the end of the record)'
+        if self.t_stop is not None:
+            return f'{text}; {count} lost before t = {self.t_stop:.3f} s (the start of the record)'
+        return f'{text}; {count} lost'
+
+
+def _sample_damage(found: list[BagDamage], order: np.ndarray, receive_ns: np.ndarray, time: np.ndarray,
+                   sequence: np.ndarray) -> list[SampleDamage]:
+    """Locate each loss among the samples (by its chunk's log-time span, else by its place in file order)."""
+    n = len(order)
+    rank = np.empty(n, dtype=np.int64)
+    rank[order] = np.arange(n)                      # file-order index -> index in the time-ordered arrays
+    latest = np.maximum.accumulate(receive_ns) if n else receive_ns
+    out = []
+    for d in found:
+        if not d.lost:
+            out.append(SampleDamage(d))
+            continue
+        before = after = None
+        if d.start_ns is not None and n and receive_ns[0] <= d.start_ns <= d.end_ns <= latest[-1]:
+            k = int(np.searchsorted(latest, d.start_ns, side='left'))
+            j = int(np.searchsorted(latest, d.end_ns, side='right'))
+            before, after = (k - 1 if k > 0 else None), (j if j < n else None)
+        else:
+            k = min(d.after_messages, n)
+            before = int(rank[k - 1]) if k > 0 else None
+            after = int(rank[k]) if k < n else None
+        samples = d.messages
+        if before is not None and after is not None and sequence[after] > sequence[before]:
+            samples = int(sequence[after] - sequence[before] - 1)
+        out.append(SampleDamage(d, None if before is None else float(time[before]),
+                                None if after is None else float(time[after]), samples))
+    return out
+
+
+def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomplete: str = 'warn',
+                 damage: list[SampleDamage] | None = None) -> dict[str, np.ndarray]:
     """Acquisition samples of a recording as arrays (the JointState messages of ``/aeropend/samples``).
+
+    Chunks are read in time order (their start log time; valid MCAP files may hold them in any order), past
+    damaged chunks (see :func:`read_messages`).
 
     Parameters
     ----------
@@ -459,10 +391,13 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
         rig's ``/<name>/aeropend/samples`` instead is read from that topic (``aeropend run --rig NAME``).
     on_incomplete
         See :func:`read_messages`.
+    damage
+        When given, receives a :class:`SampleDamage` for every problem found (notes included): the lost span
+        [s] and sample count of each damaged chunk or cut.
 
     Returns
     -------
-    dict of numpy arrays, each of shape ``(n_samples,)``, in recording order:
+    dict of numpy arrays, each of shape ``(n_samples,)``, in time order:
         ``time`` (s, acquisition stamp relative to the first sample), ``angle`` (rad), ``armature_voltage`` (V),
         ``armature_current`` (A), ``duty`` (fraction 0..1), ``sequence`` (int64, acquisition counter),
         ``stamp_ns`` (int64, acquisition stamp, ns since the publisher clock's epoch), ``receive_time_ns``
@@ -475,14 +410,22 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     """
     datas: list[bytes] = []
     received: list[int] = []
+    chunk_start: list[int] = []
+    chunk_offset: list[int] = []
+    found: list[BagDamage] = []
     with warnings.catch_warnings(record=True) as cut:
         warnings.simplefilter('always')
-        for message in read_messages(path, topics=[topic], on_incomplete=on_incomplete):
-            if message.type != _JOINT_STATE:
-                raise AeropendError(f'{topic} in {path} carries {message.type}, not {_JOINT_STATE}')
-            datas.append(message.data)
-            received.append(message.log_time_ns)
-    incomplete = [w for w in cut if 'is incomplete' in str(w.message)]
+        for chunk, kept, names in _filtered_chunks(path, [topic], on_incomplete, found):
+            if not kept:
+                continue
+            wrong = {names[m.channel_id][1] for m in kept} - {_JOINT_STATE}
+            if wrong:
+                raise AeropendError(f'{topic} in {path} carries {wrong.pop()}, not {_JOINT_STATE}')
+            datas.extend([m.data for m in kept])
+            received.extend([m.log_time for m in kept])
+            chunk_start.extend([chunk.start_ns] * len(kept))
+            chunk_offset.extend([chunk.offset] * len(kept))
+    incomplete = [w for w in cut if 'is incomplete' in str(w.message) or 'is damaged' in str(w.message)]
     live = [w for w in cut if 'is still being recorded' in str(w.message)]
     if not datas and live:
         raise AeropendError(f'no {topic} message in {path} yet: {live[0].message}')
@@ -490,18 +433,30 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
         topics = bag_topics(path)
         rigs = sorted(t for t in topics if t.endswith(_SAMPLES_TOPIC) and t != _SAMPLES_TOPIC)
         if topic == _SAMPLES_TOPIC and len(rigs) == 1:        # the bag of one rig in its namespace
-            return read_samples(path, rigs[0], on_incomplete)
+            return read_samples(path, rigs[0], on_incomplete, damage)
         if topic == _SAMPLES_TOPIC and len(rigs) > 1:
             raise AeropendError(f'{path} holds the samples of several rigs ({", ".join(rigs)}), not one: record '
                                 'each rig with its own recorder (aeropend run --rig NAME, or a recorder_node in '
                                 'the rig\'s namespace)')
         if incomplete:
-            raise AeropendError(f'no {topic} message in {path} before it is cut short: {incomplete[0].message}')
+            where = 'before it is cut short' if 'is incomplete' in str(incomplete[0].message) else \
+                'outside its damaged parts'
+            raise AeropendError(f'no {topic} message in {path} {where}: {incomplete[0].message}')
         raise AeropendError(f'no {topic} messages in {path} (it holds: '
                             f'{", ".join(f"{t} [{k}]" for t, k in topics.items()) or "no topic"}): '
                             'was the sample topic recorded? (recorder_node records it by default)')
     for record in cut:
         warnings.warn_explicit(record.message, record.category, record.filename, record.lineno)
+    # the files in bag order; inside a file its chunks by start time (a stable sort: file order among equals)
+    file_index = np.zeros(len(datas), dtype=np.int64)
+    offsets = np.asarray(chunk_offset, dtype=np.int64)
+    if len(offsets) > 1:
+        file_index[1:] = np.cumsum(np.diff(offsets) < 0)           # offsets restart at each new file
+    starts = np.asarray(chunk_start, dtype=np.int64)
+    order = np.lexsort((np.arange(len(datas)), starts, file_index))
+    if np.any(order != np.arange(len(order))):
+        datas = [datas[k] for k in order]
+        received = [received[k] for k in order]
     stamp_ns, table = _decode_samples(datas, f'{topic} in {path}')
     out = {'time': (stamp_ns - stamp_ns[0]) * 1e-9}
     for column, name in enumerate(SAMPLE_CHANNELS):
@@ -509,4 +464,6 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     out['sequence'] = np.rint(out['sequence']).astype(np.int64)
     out['stamp_ns'] = stamp_ns
     out['receive_time_ns'] = np.asarray(received, dtype=np.int64)
+    if damage is not None:
+        damage.extend(_sample_damage(found, order, out['receive_time_ns'], out['time'], out['sequence']))
     return out

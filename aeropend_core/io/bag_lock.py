@@ -1,25 +1,32 @@
-"""The mark of a bag that is being written: a lock file in the bag folder naming the writing process.
+"""The mark of a bag that is being written: an ``fcntl.flock`` on ``<bag>/recording.lock`` held for the writer's life.
 
-:class:`~aeropend_core.io.bag.BagWriter` creates ``<bag>/recording.lock`` when it opens a bag and removes it when
-the bag is finished (or when writing fails for good, e.g. a full disk). The file is a small YAML mapping:
-``pid``, ``host``, ``program``, ``started`` (UTC, ISO 8601), ``process_start`` (the process's start time in clock
-ticks since boot, from ``/proc/<pid>/stat``) and ``boot_id`` (``/proc/sys/kernel/random/boot_id``).
+:class:`~aeropend_core.io.bag_writer.BagWriter` takes an exclusive ``flock`` on ``<bag>/recording.lock`` when it
+opens a bag and keeps the file descriptor open until the bag is finished (or writing fails for good, e.g. a full
+disk). The kernel releases the lock when the process ends in any way, SIGKILL and crashes included, so **a bag is
+live exactly while somebody holds the lock**: no process ids, boot ids or start times are compared, and nothing
+is unlinked on a guess. The file also holds a small YAML mapping for messages only (``pid``, ``host``,
+``program``, ``purpose`` = ``recording`` or ``repair``, ``started`` in UTC ISO 8601).
 
-A lock is **live** while its process runs; it is **stale** once that process is gone (killed with SIGKILL, power
-cut): on the same host, when no process has that pid, or the pid now belongs to another process (a different
-start time), or the machine rebooted since (a different boot id). A lock written on another host cannot be
-checked from here and counts as live (the message says so and how to override: delete the lock file).
+``aeropend bag-recover`` takes the same lock (purpose ``repair``) for the whole repair, so it cannot replace a file
+that a recorder has just started to write, and a recorder that starts while a repair holds its folder waits for
+it (up to :data:`REPAIR_WAIT` s). Readers use :func:`live_writer` (a shared ``flock`` tried without waiting) to
+read a live bag up to its last complete chunk with a note, never advising a repair.
 
-Readers use :func:`live_writer` to read a live bag up to its last complete chunk with a note (never advising a
-repair); ``aeropend bag-recover`` refuses a live bag (:func:`refuse_if_live`, exit status 2, naming the process)
-and removes a stale lock after repairing the bag.
+The lock file of a finished bag is removed by its holder while it still holds the lock; one left by a killed
+writer is **stale** (nobody holds it) and is removed by the next repair. ``flock`` works between processes of one
+machine; on network file systems its reach depends on the server (Linux NFSv4 maps it to a network-wide lock).
 """
 from __future__ import annotations
 
+import contextlib
 import datetime
+import errno
+import fcntl
 import os
 import socket
 import sys
+import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,82 +34,50 @@ import yaml
 
 from aeropend_core.errors import AeropendError
 
-__all__ = ['LOCK_NAME', 'BagLock', 'acquire', 'live_writer', 'read_lock', 'refuse_if_live', 'release',
-           'remove_stale']
+__all__ = ['LOCK_NAME', 'REPAIR_WAIT', 'BagLock', 'acquire', 'hold', 'live_writer', 'read_lock', 'refuse_if_live',
+           'release', 'remove_stale', 'still_held']
 
 #: Name of the lock file inside a bag folder.
 LOCK_NAME = 'recording.lock'
 
+#: How long a starting recorder waits for a repair (``aeropend bag-recover``) holding its folder [s].
+REPAIR_WAIT = 60.0
+
+# folder (resolved) -> file descriptor holding this process's exclusive lock
+_HELD: dict[str, int] = {}
+
 
 @dataclass(frozen=True)
 class BagLock:
-    """What a lock file says about the process writing a bag, and whether that process still runs."""
+    """What a lock file says about the process writing a bag, and whether somebody holds its ``flock`` now."""
 
     path: Path
     pid: int
     host: str
     program: str = ''
     started: str = ''
-    process_start: int | None = None
-    boot_id: str = ''
+    purpose: str = 'recording'
+    held: bool = False
 
     @property
     def on_this_host(self) -> bool:
-        """True when the lock was written on this machine (its process can be checked)."""
+        """True when the lock file was written on this machine."""
         return self.host == socket.gethostname()
 
     def is_live(self) -> bool:
-        """True while the writing process runs (or cannot be checked: another host)."""
-        if not self.on_this_host:
-            return True
-        if self.boot_id and _boot_id() and self.boot_id != _boot_id():
-            return False                                   # written before the last reboot
-        if not _pid_exists(self.pid):
-            return False
-        if self.process_start is not None:
-            now = _process_start(self.pid)
-            if now is not None and now != self.process_start:
-                return False                               # the pid was reused by another process
-        return True
+        """True while a process holds the lock (checked when the lock was read)."""
+        return self.held
 
     def describe(self) -> str:
         """'process 1234 (recorder_node) on host rigpc, writing since 2026-11-24T03:00:00Z'."""
         program = f' ({self.program})' if self.program else ''
-        since = f', writing since {self.started}' if self.started else ''
+        doing = 'repairing' if self.purpose == 'repair' else 'writing'
+        since = f', {doing} since {self.started}' if self.started else ''
         return f'process {self.pid}{program} on host {self.host}{since}'
 
 
-def _boot_id() -> str:
-    try:
-        return Path('/proc/sys/kernel/random/boot_id').read_text(encoding='ascii').strip()
-    except OSError:
-        return ''
-
-
-def _pid_exists(pid: int) -> bool:
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:                 # exists, owned by someone else
-        return True
-    except OSError:
-        return False
-    return True
-
-
-def _process_start(pid: int) -> int | None:
-    """Start time of a process in clock ticks since boot (field 22 of /proc/<pid>/stat), None if unknown."""
-    try:
-        text = Path(f'/proc/{pid}/stat').read_text(encoding='ascii', errors='replace')
-    except OSError:
-        return None
-    try:                                    # the command name (field 2) may hold spaces and parentheses
-        return int(text[text.rindex(')') + 2:].split()[19])
-    except (ValueError, IndexError):
-        return None
+def _key(folder: str | os.PathLike) -> str:
+    return os.path.realpath(folder)
 
 
 def _program() -> str:
@@ -112,89 +87,239 @@ def _program() -> str:
     return name
 
 
-def acquire(folder: str | os.PathLike) -> Path:
-    """Mark ``folder`` as being written by this process; returns the lock file's path.
-
-    A stale lock (its process is gone) is replaced. Raises :class:`AeropendError` when a live process already
-    holds the folder, and ``OSError`` when the lock file cannot be written (the caller reports it).
-    """
-    path = Path(folder) / LOCK_NAME
-    existing = read_lock(folder)
-    if existing is not None:
-        if existing.is_live() and not (existing.pid == os.getpid() and existing.on_this_host):
-            raise AeropendError(f'{folder} is already being written by {existing.describe()}; choose another bag '
-                                'folder')
-        path.unlink(missing_ok=True)
-    content = {'pid': os.getpid(), 'host': socket.gethostname(), 'program': _program(),
-               'started': datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%dT%H:%M:%SZ'),
-               'process_start': _process_start(os.getpid()), 'boot_id': _boot_id()}
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+def _held_by_someone(path: Path) -> bool | None:
+    """True when some open file description holds ``path``'s flock, False when not, None when there is no file."""
     try:
-        os.write(fd, yaml.safe_dump(content, sort_keys=False).encode('utf-8'))
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return None
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except OSError as error:
+        if error.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            return True
+        return False
     finally:
+        os.close(fd)            # closing drops the shared lock taken for the test
+    return False
+
+
+def _try_exclusive(path: Path, create: bool) -> int | None:
+    """A descriptor holding ``path``'s exclusive flock, or None when another process holds it (or, without
+    ``create``, when there is no lock file). The descriptor is checked to still name the file at ``path`` (a
+    holder may unlink it between our open and our lock)."""
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CLOEXEC | (os.O_CREAT if create else 0), 0o644)
+        except FileNotFoundError:
+            if create:
+                raise
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as error:
+            os.close(fd)
+            if error.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                return None
+            raise
+        try:
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd
         os.close(fd)
+        if not create:
+            return None
+
+
+def _write_content(fd: int, purpose: str) -> None:
+    content = {'pid': os.getpid(), 'host': socket.gethostname(), 'program': _program(), 'purpose': purpose,
+               'started': datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%dT%H:%M:%SZ')}
+    data = yaml.safe_dump(content, sort_keys=False).encode('utf-8')
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, data, 0)
+    os.fsync(fd)
+
+
+def _busy_error(folder: Path, holder: BagLock | None, action: str) -> AeropendError:
+    who = holder.describe() if holder is not None else 'another process'
+    if holder is not None and holder.purpose == 'repair':
+        return AeropendError(f'cannot {action} {folder}: it is being repaired by {who} (aeropend bag-recover); '
+                             'wait until it finishes')
+    return AeropendError(f'{folder} is already being written by {who}; choose another bag folder')
+
+
+def acquire(folder: str | os.PathLike, purpose: str = 'recording', wait: float = REPAIR_WAIT) -> Path:
+    """Take the exclusive lock of ``folder`` for this process and keep it until :func:`release`.
+
+    Parameters
+    ----------
+    folder : str or PathLike [-]
+        The bag folder (it must exist).
+    purpose : str [-]
+        ``'recording'`` (a writer) or ``'repair'`` (``aeropend bag-recover``).
+    wait : float [s]
+        How long a recording waits for a repair that holds the folder (a recording holding it is refused at once).
+
+    Returns
+    -------
+    Path
+        The lock file.
+
+    Raises
+    ------
+    AeropendError
+        When another process holds the folder (naming it).
+    OSError
+        When the lock file cannot be created (the caller reports it).
+    """
+    folder = Path(folder)
+    path = folder / LOCK_NAME
+    key = _key(folder)
+    if key in _HELD:
+        raise AeropendError(f'{folder} is already locked by this process; finish the other writer first')
+    deadline = time.monotonic() + wait
+    while True:
+        fd = _try_exclusive(path, create=True)
+        if fd is not None:
+            break
+        holder = read_lock(folder)
+        waiting_is_useful = purpose == 'recording' and (holder is None or holder.purpose != 'recording'
+                                                        or holder.pid == 0)
+        if not waiting_is_useful or time.monotonic() > deadline:
+            raise _busy_error(folder, holder, 'record into' if purpose == 'recording' else 'repair')
+        time.sleep(0.05)
+    try:
+        _write_content(fd, purpose)
+    except OSError:
+        os.close(fd)
+        raise
+    _HELD[key] = fd
     return path
 
 
 def release(folder: str | os.PathLike) -> None:
-    """Remove this process's lock of ``folder`` (a lock of another process is left alone)."""
-    lock = read_lock(folder)
-    if lock is not None and lock.pid == os.getpid() and lock.on_this_host:
-        try:
-            lock.path.unlink(missing_ok=True)
-        except OSError:                      # pragma: no cover - a lock that stays is found stale later
-            pass
+    """Drop this process's lock of ``folder``: the lock file is removed while still held, then the lock released."""
+    fd = _HELD.pop(_key(folder), None)
+    if fd is None:
+        return
+    try:
+        (Path(folder) / LOCK_NAME).unlink(missing_ok=True)
+    except OSError:                      # pragma: no cover - a lock file that stays is unheld, hence stale
+        pass
+    os.close(fd)
+
+
+@contextlib.contextmanager
+def hold(folder: str | os.PathLike, action: str = 'repair') -> Iterator[BagLock | None]:
+    """Hold ``folder``'s lock for a repair; yields the stale lock found there (a killed writer's), or None.
+
+    Raises :class:`AeropendError` (naming the holder) when a recorder or another repair holds the folder.
+    """
+    folder = Path(folder)
+    path = folder / LOCK_NAME
+    if _key(folder) in _HELD:
+        raise AeropendError(f'cannot {action} {folder}: this process is writing it')
+    fd = _try_exclusive(path, create=True)
+    if fd is None:
+        holder = read_lock(folder)
+        raise _refusal(folder, holder, action) if holder is not None else _busy_error(folder, None, action)
+    stale = _parse(path, os.pread(fd, 65536, 0).decode('utf-8', errors='replace'), held=False)
+    try:
+        _write_content(fd, 'repair')
+    except OSError:
+        os.close(fd)
+        raise
+    _HELD[_key(folder)] = fd
+    try:
+        yield stale
+    finally:
+        release(folder)
+
+
+def still_held(folder: str | os.PathLike) -> bool:
+    """True when this process holds ``folder``'s lock and the lock file at its path is still the one it locked."""
+    fd = _HELD.get(_key(folder))
+    if fd is None:
+        return False
+    try:
+        return os.stat(Path(folder) / LOCK_NAME).st_ino == os.fstat(fd).st_ino
+    except OSError:
+        return False
+
+
+def _parse(path: Path, text: str, held: bool) -> BagLock | None:
+    if not text.strip():
+        return None
+    try:
+        data = yaml.safe_load(text)
+        return BagLock(path, int(data['pid']), str(data['host']), str(data.get('program') or ''),
+                       str(data.get('started') or ''), str(data.get('purpose') or 'recording'), held)
+    except (yaml.YAMLError, AttributeError, KeyError, TypeError, ValueError):
+        return BagLock(path, 0, socket.gethostname(), held=held)
 
 
 def read_lock(folder: str | os.PathLike) -> BagLock | None:
-    """The lock of a bag folder, or None when it has none. An unreadable lock file counts as held by pid 0 on
-    this host (stale)."""
+    """The lock of a bag folder, or None when it has no lock file.
+
+    A lock file whose content is empty or unreadable (its writer is starting, or was killed while writing it) is
+    reported with pid 0; whether it is live is decided by the ``flock`` alone.
+    """
     path = Path(folder) / LOCK_NAME
+    held = _held_by_someone(path)
+    if held is None:
+        return None
     try:
         text = path.read_text(encoding='utf-8')
     except FileNotFoundError:
         return None
     except OSError:
-        return BagLock(path, 0, socket.gethostname())
-    try:
-        data = yaml.safe_load(text)
-        start = data.get('process_start')
-        return BagLock(path, int(data['pid']), str(data['host']), str(data.get('program') or ''),
-                       str(data.get('started') or ''), int(start) if start is not None else None,
-                       str(data.get('boot_id') or ''))
-    except (yaml.YAMLError, AttributeError, KeyError, TypeError, ValueError):
-        # half-written by a process killed between open and write: nobody is writing under it
-        return BagLock(path, 0, socket.gethostname())
+        text = ''
+    return _parse(path, text, held) or BagLock(path, 0, socket.gethostname(), held=held)
 
 
 def live_writer(path: str | os.PathLike) -> BagLock | None:
-    """The live lock of the bag holding ``path`` (a bag folder, its ``metadata.yaml`` or one of its ``.mcap``
+    """The held lock of the bag holding ``path`` (a bag folder, its ``metadata.yaml`` or one of its ``.mcap``
     files), or None when nobody is writing it."""
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     lock = read_lock(folder)
-    return lock if lock is not None and lock.is_live() else None
+    return lock if lock is not None and lock.held else None
+
+
+def _refusal(path: Path, lock: BagLock, action: str) -> AeropendError:
+    if lock.purpose == 'repair':
+        return AeropendError(f'cannot {action} {path}: it is being repaired by {lock.describe()}; wait until that '
+                             'repair finishes')
+    if lock.on_this_host:
+        advice = ('stop that recorder first (Ctrl-C finalises the bag, so nothing needs repair), or wait until '
+                  'it finishes')
+    else:
+        advice = 'it runs on another machine: stop it there first'
+    return AeropendError(f'cannot {action} {path}: the bag is being written by {lock.describe()} (it holds the lock '
+                         f'on {lock.path}); {advice}')
 
 
 def refuse_if_live(path: str | os.PathLike, action: str) -> None:
     """Raise :class:`AeropendError` (exit status 2) naming the writing process when the bag is being written."""
     lock = live_writer(path)
-    if lock is None:
-        return
-    if lock.on_this_host:
-        advice = (f'stop that recorder first (Ctrl-C finalises the bag, so nothing needs repair), or wait until '
-                  f'it finishes. If process {lock.pid} is not writing this bag, delete {lock.path}')
-    else:
-        advice = (f'it runs on another machine, so whether it still writes cannot be checked from here: stop it '
-                  f'there first, or delete {lock.path} if it is certainly gone')
-    raise AeropendError(f'cannot {action} {path}: the bag is being written by {lock.describe()} (lock file '
-                        f'{lock.path}); {advice}')
+    if lock is not None:
+        raise _refusal(Path(path), lock, action)
 
 
 def remove_stale(folder: str | os.PathLike) -> BagLock | None:
-    """Delete the lock of ``folder`` when its process is gone; returns the removed lock (None: nothing removed)."""
-    lock = read_lock(folder)
-    if lock is None or lock.is_live():
+    """Delete the lock file of ``folder`` when nobody holds it; returns what it said (None: nothing removed)."""
+    path = Path(folder) / LOCK_NAME
+    fd = _try_exclusive(path, create=False)
+    if fd is None:
         return None
-    lock.path.unlink(missing_ok=True)
+    try:
+        lock = _parse(path, os.pread(fd, 65536, 0).decode('utf-8', errors='replace'), held=False) \
+            or BagLock(path, 0, socket.gethostname())
+        path.unlink(missing_ok=True)
+    finally:
+        os.close(fd)
     return lock

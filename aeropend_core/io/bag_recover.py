@@ -1,85 +1,153 @@
-"""Repair of a bag whose recorder was killed (CLI ``aeropend bag-recover``): the complete chunks are rewritten with
-a summary and footer, and ``metadata.yaml`` is regenerated.
+"""Repair of a damaged or cut bag (CLI ``aeropend bag-recover``): everything still readable is kept, streamed.
+
+Each file is read by :func:`aeropend_core.io.mcap_scan.scan_file` (the ``mcap`` library's records, every chunk
+CRC-checked): a damaged chunk is dropped and the chunks after it are kept, a cut file keeps every complete chunk.
+The kept messages are written, one chunk at a time (never the whole file in memory), to a new complete MCAP file
+with its index, summary, footer and the rosbag2 metadata record, and ``metadata.yaml`` is regenerated.
+
+By default nothing of the original is changed: a bag folder ``run1`` is recovered into ``run1_recovered`` beside
+it (intact files are copied), a lone ``x.mcap`` into ``x_recovered.mcap``. With ``in_place`` the damaged files are
+replaced (the originals kept as ``<file>.orig`` with ``keep_original``). The bag's lock
+(:mod:`aeropend_core.io.bag_lock`) is held for the whole repair: a live recording is refused, a recorder that
+starts meanwhile waits, and before each replacement the lock is checked to still be held by this repair.
 """
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+import shutil
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
 from aeropend_core.errors import AeropendError, StorageError
 from aeropend_core.io import bag_lock
-from aeropend_core.io.paths import path_problem
-from aeropend_core.io.bag import _ScanState, _scan_mcap, bag_files
+from aeropend_core.io.atomic import fsync_folder, replace_durably
+from aeropend_core.io.bag import bag_files
 from aeropend_core.io.bag_writer import (
     TopicInfo,
+    _compression_type,
     _DirectFile,
     _FileInfo,
-    _compression_type,
     _metadata_dict,
     _write_metadata_yaml,
 )
 from aeropend_core.io.mcap_format import ROS2_PROFILE
+from aeropend_core.io.mcap_scan import BagDamage, FileScan, scan_file
+from aeropend_core.io.paths import path_problem
+
+__all__ = ['ChunkOutcome', 'RecoveryReport', 'recover_bag']
+
+#: Damage kinds that make a file worth rewriting (the rest are notes about an otherwise intact file).
+_REWRITE = {'chunk_skipped', 'record_skipped', 'cut', 'unknown_channel', 'duplicate_chunk', 'summary_damaged',
+            'summary_mismatch', 'no_footer', 'repaired_in_place'}
 
 
-# --------------------------------------------------------------------------------------------------------------
-# Recovery of killed recordings
-# --------------------------------------------------------------------------------------------------------------
+@dataclass
+class ChunkOutcome:
+    """One chunk (or damaged record) of a recovered file: kept with its messages, or dropped and why.
+
+    Attributes
+    ----------
+    file : str
+        The file's name.
+    offset : int [bytes]
+        Where the chunk or record starts in the original file.
+    kept : bool
+        True when its messages are in the recovered file.
+    messages : int or None [-]
+        Messages kept (kept) or lost (dropped, when the file says; None when unknown).
+    start_ns, end_ns : int or None [ns]
+        Log-time span of the chunk, when its header is readable.
+    reason : str
+        Why it was dropped (empty when kept).
+    """
+
+    file: str
+    offset: int
+    kept: bool
+    messages: int | None
+    start_ns: int | None = None
+    end_ns: int | None = None
+    reason: str = ''
+
+    def to_dict(self) -> dict:
+        """Plain JSON types."""
+        return {'file': self.file, 'offset': self.offset, 'kept': self.kept, 'messages': self.messages,
+                'start_ns': self.start_ns, 'end_ns': self.end_ns, 'reason': self.reason}
+
+
 @dataclass
 class RecoveryReport:
     """What :func:`recover_bag` did."""
 
-    folder: Path
-    repaired: list[Path]
-    intact: list[Path]
-    message_count: int
-    notes: list[str]
-    metadata_yaml: Path | None = None      # the regenerated metadata.yaml (None for a lone .mcap file)
-    removed_lock: str = ''                 # the stale recording lock removed (its process is gone), if any
+    folder: Path                            # where the recovered bag is (the original folder with in_place)
+    repaired: list[Path]                    # files written (recovered copies, or replaced files with in_place)
+    intact: list[Path]                      # original files that needed nothing
+    message_count: int                      # messages in the recovered bag
+    notes: list[str]                        # one line per file that needed work, and per dropped chunk
+    metadata_yaml: Path | None = None       # the regenerated metadata.yaml (None for a lone .mcap file)
+    removed_lock: str = ''                  # the stale lock of a killed writer, removed
+    chunks: list[ChunkOutcome] = field(default_factory=list)
+    in_place: bool = False
+    source: Path | None = None              # the bag or file given
 
 
-def recover_bag(path: str | os.PathLike, keep_original: bool = False) -> RecoveryReport:
-    """Repair a bag whose recorder was killed: finalise every cut ``.mcap`` and regenerate ``metadata.yaml``.
-
-    Every complete chunk of a cut file is kept (messages after the last complete chunk were never written and
-    are lost). Intact files are left as they are. The repaired file replaces the cut one atomically; with
-    ``keep_original`` the cut file is kept as ``<file>.orig``.
+def recover_bag(path: str | os.PathLike, keep_original: bool = False, in_place: bool = False,
+                output: str | os.PathLike | None = None) -> RecoveryReport:
+    """Recover everything readable from a damaged or cut bag into a complete one.
 
     Parameters
     ----------
     path
         The bag folder, its ``metadata.yaml``, or one ``.mcap`` file. A file listed in its folder's
-        ``metadata.yaml`` repairs that whole bag; a lone ``.mcap`` file (no bag folder around it) is repaired alone
-        and no ``metadata.yaml`` is written next to it.
+        ``metadata.yaml`` recovers that whole bag; a lone ``.mcap`` file is recovered alone (no ``metadata.yaml``).
+    keep_original
+        With ``in_place``: keep each replaced file as ``<file>.orig``.
+    in_place
+        Replace the damaged files (and ``metadata.yaml``) of the bag itself instead of writing a new bag beside it.
+    output
+        Where the new bag folder (or file, for a lone ``.mcap``) goes; default ``<bag>_recovered`` beside it.
 
     Returns
     -------
     RecoveryReport
+        Files written and intact, and per chunk what was kept and dropped.
 
     Raises
     ------
     AeropendError
-        When the path is not an MCAP bag, a file is unreadable from its start (no MCAP magic), or the repaired
-        file cannot be written (disk full: the cut file is then left as it was).
+        Not an MCAP bag, a file unreadable from its start (no MCAP magic), a bag being recorded (naming the
+        recorder), or an output that exists already.
+    StorageError
+        The system refused a write (disk full): the original files are then unchanged.
     """
     path = Path(path)
     if not path.exists():
         raise AeropendError(f'{path} {path_problem(path)}')
-    bag_lock.refuse_if_live(path, 'repair')
     folder, files, bag_folder = _recovery_targets(path)
+    if in_place and output is not None:
+        raise AeropendError('give either --in-place or --output, not both')
+    if not in_place:
+        default = folder.with_name(folder.name + '_recovered') if bag_folder else \
+            path.with_name(path.stem + '_recovered.mcap')
+        target = Path(output) if output is not None else default
+        if target.exists():
+            raise AeropendError(f'{target} exists already: remove it, give another --output, or repair the bag '
+                                'itself with --in-place')
+    else:
+        target = folder
     try:
-        report = _recover_files(folder, files, bag_folder, keep_original)
-        stale = bag_lock.remove_stale(folder)
+        with bag_lock.hold(folder, 'repair') as stale:
+            report = _recover(path, folder, files, bag_folder, target, in_place, keep_original)
         if stale is not None:
             report.removed_lock = f'removed the recording lock of {stale.describe()}, which no longer runs'
         return report
     except OSError as error:
         raise StorageError(f'cannot repair {path}: {error.strerror or error}'
-                           f'{" (" + str(error.filename) + ")" if error.filename else ""}; nothing was changed in '
-                           'the bag files. Free space (or copy the bag to another disk) and run '
-                           f'aeropend bag-recover again') from None
+                           f'{" (" + str(error.filename) + ")" if error.filename else ""}; the original bag files '
+                           'were not changed. Free space (or copy the bag to another disk) and run '
+                           'aeropend bag-recover again') from None
 
 
 def _recovery_targets(path: Path) -> tuple[Path, list[Path], bool]:
@@ -102,82 +170,173 @@ def _recovery_targets(path: Path) -> tuple[Path, list[Path], bool]:
     return path.parent, [path], False
 
 
-def _recover_files(folder: Path, files: list[Path], bag_folder: bool, keep_original: bool) -> RecoveryReport:
-    from mcap.writer import Writer
-    repaired: list[Path] = []
-    intact: list[Path] = []
-    notes: list[str] = []
+def _survey(file: Path) -> FileScan:
+    """First pass: definitions, metadata, damage (no message kept)."""
+    scan = FileScan(file)
+    for _ in scan_file(file, scan):
+        pass
+    return scan
+
+
+def _recover(path: Path, folder: Path, files: list[Path], bag_folder: bool, target: Path, in_place: bool,
+             keep_original: bool) -> RecoveryReport:
+    report = RecoveryReport(target, [], [], 0, [], in_place=in_place, source=path)
     topic_infos: dict[str, TopicInfo] = {}
     file_infos: list[_FileInfo] = []
     ros_distro = 'jazzy'
+    plans: list[tuple[Path, FileScan, bool]] = []
     for file in files:
-        state = _ScanState(file)
-        info = _FileInfo(file.name)
-        messages = []
-        for channel_id, seq, log_t, pub_t, data in _scan_mcap(file, state, want_messages=True):
-            messages.append((channel_id, seq, log_t, pub_t, data))
-            info.message_count += 1
-            info.start_ns = log_t if info.start_ns is None else min(info.start_ns, log_t)
-            info.end_ns = log_t if info.end_ns is None else max(info.end_ns, log_t)
-        for name, meta in state.metadata:
-            if name == 'rosbag2' and 'ROS_DISTRO' in meta:
-                ros_distro = meta['ROS_DISTRO']
-        for channel in state.channels.values():
-            schema = state.schemas.get(channel.schema_id)
-            if channel.topic not in topic_infos:
-                qos = yaml.safe_load(channel.metadata.get('offered_qos_profiles') or '[]') or []
-                topic_infos[channel.topic] = TopicInfo(
-                    channel.topic, schema.name if schema else '', schema.data.decode() if schema else '',
-                    qos if isinstance(qos, list) else [], channel.metadata.get('topic_type_hash', ''))
-        for channel_id, *_ in messages:
-            channel = state.channels.get(channel_id)
+        scan = _survey(file)
+        for record in scan.metadata:
+            if record.name == 'rosbag2' and 'ROS_DISTRO' in record.metadata:
+                ros_distro = record.metadata['ROS_DISTRO']
+        needs_work = any(d.kind in _REWRITE for d in scan.damage) or not scan.complete
+        plans.append((file, scan, needs_work))
+    if not in_place and not any(work for *_, work in plans):
+        report.intact = list(files)
+        report.folder = folder
+        report.message_count = sum(scan.messages_read for _, scan, _ in plans)
+        return report
+    out_folder = folder if in_place else target if bag_folder else target.parent
+    if not in_place and bag_folder:
+        target.mkdir(parents=True)
+    written: list[tuple[Path, Path]] = []          # (temporary or final file, the file it replaces)
+    try:
+        for file, scan, needs_work in plans:
+            info = _FileInfo(file.name)
+            file_infos.append(info)
+            destination = (out_folder / file.name) if bag_folder or in_place else target
+            if not needs_work:
+                report.intact.append(file)
+                _count_intact(file, scan, info, topic_infos)
+                if not in_place:
+                    shutil.copyfile(file, destination)
+                    with open(destination, 'rb') as copy:
+                        os.fsync(copy.fileno())
+                    written.append((destination, destination))
+                continue
+            temporary = destination.with_name(destination.name + '.recovering') if in_place else destination
+            written.append((temporary, destination))
+            report.repaired.append(destination)
+            kept, outcomes = _rewrite(file, scan, temporary, topic_infos, info, ros_distro)
+            report.chunks.extend(outcomes)
+            dropped = [o for o in outcomes if not o.kept]
+            lost = sum(o.messages or 0 for o in dropped)
+            unknown = any(o.messages is None for o in dropped)
+            report.notes.append(
+                f'{file.name}: kept {sum(o.kept for o in outcomes)} chunk(s) with {kept} messages; dropped '
+                f'{len(dropped)} chunk(s)/record(s) with {lost}{"+" if unknown else ""} messages'
+                + ('' if scan.complete else f'; {scan.problem}'))
+            for item in scan.damage:
+                if item.kind != 'no_crc':
+                    report.notes.append(f'{file.name}: byte {item.offset}: {item.detail}'
+                                        + (f' ({item.messages} messages lost)' if item.lost and item.messages
+                                           is not None else ''))
+        for temporary, destination in written:
+            if temporary == destination:
+                continue
+            if not bag_lock.still_held(folder):
+                raise AeropendError(f'{folder}: the repair lost its lock before replacing {destination.name}; '
+                                    'nothing was replaced (the recovered copies are the *.recovering files)')
+            if keep_original:
+                os.link(destination, destination.with_name(destination.name + '.orig'))
+            replace_durably(temporary, destination)
+        fsync_folder(out_folder)
+    except BaseException:
+        for temporary, destination in written:
+            if temporary != destination or not in_place:
+                temporary.unlink(missing_ok=True)
+        if not in_place and bag_folder and target.is_dir() and not any(target.iterdir()):
+            target.rmdir()
+        raise
+    if bag_folder:
+        _write_metadata_yaml(out_folder, _metadata_dict(topic_infos.values(), file_infos, ros_distro))
+        report.metadata_yaml = out_folder / 'metadata.yaml'
+    report.message_count = sum(f.message_count for f in file_infos)
+    return report
+
+
+def _topic(topic_infos: dict[str, TopicInfo], scan: FileScan, channel) -> TopicInfo:
+    if channel.topic not in topic_infos:
+        schema = scan.schemas.get(channel.schema_id)
+        qos = yaml.safe_load(channel.metadata.get('offered_qos_profiles') or '[]') or []
+        topic_infos[channel.topic] = TopicInfo(
+            channel.topic, schema.name if schema else '', schema.data.decode('utf-8', 'replace') if schema else '',
+            qos if isinstance(qos, list) else [], channel.metadata.get('topic_type_hash', ''))
+    return topic_infos[channel.topic]
+
+
+def _account(info: _FileInfo, log_time: int) -> None:
+    info.message_count += 1
+    info.start_ns = log_time if info.start_ns is None else min(info.start_ns, log_time)
+    info.end_ns = log_time if info.end_ns is None else max(info.end_ns, log_time)
+
+
+def _count_intact(file: Path, scan: FileScan, info: _FileInfo, topic_infos: dict[str, TopicInfo]) -> None:
+    for channel in scan.channels.values():
+        _topic(topic_infos, scan, channel)
+    for chunk in scan_file(file, FileScan(file)):
+        for message in chunk.messages:
+            _account(info, message.log_time)
+            channel = scan.channels.get(message.channel_id)
             if channel is not None:
                 topic_infos[channel.topic].message_count += 1
-        file_infos.append(info)
-        if state.complete:
-            intact.append(file)
-            continue
-        notes.append(f'{file.name}: {state.problem}; kept {len(messages)} messages')
-        tmp = file.with_name(file.name + '.recovering')
-        try:
-            _write_recovered(Writer, tmp, state, messages, topic_infos, file_infos, ros_distro)
-        except BaseException:
-            tmp.unlink(missing_ok=True)
-            raise
-        if keep_original:
-            os.replace(file, file.with_name(file.name + '.orig'))
-        os.replace(tmp, file)
-        repaired.append(file)
-    meta = None
-    if bag_folder:
-        _write_metadata_yaml(folder, _metadata_dict(topic_infos.values(), file_infos, ros_distro))
-        meta = folder / 'metadata.yaml'
-    return RecoveryReport(folder, repaired, intact, sum(f.message_count for f in file_infos), notes, meta)
 
 
-def _write_recovered(Writer, tmp: Path, state: _ScanState, messages, topic_infos, file_infos, ros_distro) -> None:
-    """Write the kept messages of a cut file to `tmp` as a complete MCAP file (summary, footer, metadata)."""
-    stream = _DirectFile(tmp)
+def _rewrite(file: Path, scan: FileScan, destination: Path, topic_infos: dict[str, TopicInfo], info: _FileInfo,
+             ros_distro: str) -> tuple[int, list[ChunkOutcome]]:
+    """Second pass: stream the readable chunks of ``file`` into a complete MCAP file at ``destination``."""
+    from mcap.writer import Writer
+    outcomes: list[ChunkOutcome] = []
+    stream = _DirectFile(destination)
+    kept = 0
     try:
         writer = Writer(stream, compression=_compression_type('zstd'))
         writer.start(profile=ROS2_PROFILE, library='aeropend bag-recover')
         writer.add_metadata('rosbag2', {'ROS_DISTRO': ros_distro})
-        schema_map: dict[int, int] = {}
-        channel_map: dict[int, int] = {}
-        for channel in state.channels.values():
-            schema = state.schemas.get(channel.schema_id)
-            if schema is not None and schema.id not in schema_map:
-                schema_map[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
-            channel_map[channel.id] = writer.register_channel(
-                channel.topic, channel.message_encoding, schema_map.get(channel.schema_id, 0), channel.metadata)
-        for channel_id, seq, log_t, pub_t, data in messages:
-            if channel_id in channel_map:
-                writer.add_message(channel_map[channel_id], log_t, data, pub_t, seq)
+        schema_ids: dict[int, int] = {}
+        channel_ids: dict[int, int] = {}
+
+        def channel_id(old: int) -> int:
+            if old in channel_ids:
+                return channel_ids[old]
+            channel = scan.channels.get(old)
+            if channel is None:          # its definition was lost with a damaged chunk: kept under a placeholder
+                channel_ids[old] = writer.register_channel(f'/aeropend/recovered/unknown_channel_{old}', 'cdr', 0)
+                return channel_ids[old]
+            schema = scan.schemas.get(channel.schema_id)
+            if schema is not None and schema.id not in schema_ids:
+                schema_ids[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            channel_ids[old] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                       schema_ids.get(channel.schema_id, 0), dict(channel.metadata))
+            _topic(topic_infos, scan, channel)
+            return channel_ids[old]
+
+        for channel in scan.channels.values():
+            channel_id(channel.id)
+        second = FileScan(file)
+        for chunk in scan_file(file, second):
+            for message in chunk.messages:
+                writer.add_message(channel_id(message.channel_id), message.log_time, message.data,
+                                   message.publish_time, message.sequence)
+                _account(info, message.log_time)
+                channel = scan.channels.get(message.channel_id)
+                if channel is not None:
+                    topic_infos[channel.topic].message_count += 1
+            kept += len(chunk.messages)
+            outcomes.append(ChunkOutcome(file.name, chunk.offset, True, len(chunk.messages), chunk.start_ns,
+                                         chunk.end_ns))
+        outcomes.extend(_dropped(file, second.damage))
+        outcomes.sort(key=lambda o: o.offset)
         writer.add_metadata('rosbag2', {'serialized_metadata': yaml.safe_dump(
-            _metadata_dict(topic_infos.values(), file_infos, ros_distro), sort_keys=False)})
+            _metadata_dict(topic_infos.values(), [info], ros_distro), sort_keys=False)})
         writer.finish()
+        stream.sync()
     finally:
         stream.close()
+    return kept, outcomes
 
 
-__all__ = ['RecoveryReport', 'recover_bag']
+def _dropped(file: Path, damage: list[BagDamage]) -> list[ChunkOutcome]:
+    return [ChunkOutcome(file.name, d.offset, False, d.messages, d.start_ns, d.end_ns, d.detail)
+            for d in damage if d.lost and d.kind in ('chunk_skipped', 'record_skipped', 'cut')]

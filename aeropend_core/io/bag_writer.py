@@ -61,28 +61,14 @@ class _DirectFile:
     def flush(self) -> None:
         pass
 
+    def sync(self) -> None:
+        """``fsync`` what was written (a finished file that is about to replace another)."""
+        os.fsync(self._fd)
+
     def close(self) -> None:
         if self._fd >= 0:
             os.close(self._fd)
             self._fd = -1
-
-
-class _PackedChunkIndex(bytes):
-    """A chunk index record kept as its serialized bytes (~100 B) instead of a ChunkIndex object (~1 kB)."""
-
-    def write(self, stream) -> None:
-        stream.write(self)
-
-
-class _PackedChunkIndexes(list):
-    """The mcap writer's list of chunk indexes, kept serialized until the summary is written: the index of a
-    long recording is held in memory until its file is finished (23 chunks/min at 490 Hz)."""
-
-    def append(self, chunk_index) -> None:
-        from mcap.data_stream import RecordBuilder
-        builder = RecordBuilder()
-        chunk_index.write(builder)
-        super().append(_PackedChunkIndex(builder.end()))
 
 
 @dataclass
@@ -145,7 +131,7 @@ class BagWriter:
         self.folder = Path(folder)
         if self.folder.exists() and not self.folder.is_dir():
             raise AeropendError(f'bag folder {self.folder} already exists and is not a folder: choose a new name')
-        if self.folder.exists() and any(self.folder.iterdir()):
+        if self.folder.exists() and any(p.name != bag_lock.LOCK_NAME for p in self.folder.iterdir()):
             raise AeropendError(f'bag folder {self.folder} already exists and is not empty: choose a new name')
         if max_file_bytes < 0 or max_file_duration < 0:
             raise AeropendError('split limits must be >= 0 (0 means no split)')
@@ -154,10 +140,13 @@ class BagWriter:
         self._compression = _compression_type(compression)
         try:
             self.folder.mkdir(parents=True, exist_ok=True)
-            self._lock = bag_lock.acquire(self.folder)   # marks the bag as being written until finish()
+            self._lock = bag_lock.acquire(self.folder)   # held (flock) until finish(); the kernel drops it on a kill
         except OSError as error:
             raise storage_error(error, f'cannot create bag folder {self.folder}: {error.strerror or error}') \
                 from None
+        if any(p.name != bag_lock.LOCK_NAME for p in self.folder.iterdir()):   # filled while we waited for the lock
+            bag_lock.release(self.folder)
+            raise AeropendError(f'bag folder {self.folder} already exists and is not empty: choose a new name')
         self.name = self.folder.name
         #: written to metadata.yaml's ``custom_data`` (string -> string), e.g. the recorder's loss accounting
         self.custom_data: dict[str, str] = {}
@@ -343,9 +332,9 @@ class BagWriter:
         info = _FileInfo(f'{self.name}_{len(self.files)}.mcap')
         self.files.append(info)
         self._stream = _DirectFile(self.folder / info.path)
+        # the writer keeps one ChunkIndex object per chunk until the file is finished (23 chunks/min at 490 Hz,
+        # about 1 MB per recorded hour, bench/recorder_memory.py); split long recordings with max_file_duration
         self._writer = Writer(self._stream, chunk_size=self.chunk_size, compression=self._compression)
-        if isinstance(getattr(self._writer, '_Writer__chunk_indices', None), list):
-            self._writer._Writer__chunk_indices = _PackedChunkIndexes()     # same summary bytes, less memory
         self._writer.start(profile=ROS2_PROFILE, library='aeropend')
         self._writer.add_metadata('rosbag2', {'ROS_DISTRO': self.ros_distro})
         self._schema_ids = {}
@@ -420,9 +409,9 @@ def _metadata_dict(topics: Iterable[TopicInfo], files: list[_FileInfo], ros_dist
 
 
 def _write_metadata_yaml(folder: Path, metadata: dict[str, Any]) -> None:
-    tmp = folder / '.metadata.yaml.tmp'
-    tmp.write_text(yaml.safe_dump({'rosbag2_bagfile_information': metadata}, sort_keys=False), encoding='utf-8')
-    os.replace(tmp, folder / 'metadata.yaml')
+    from aeropend_core.io.atomic import atomic_write
+    text = yaml.safe_dump({'rosbag2_bagfile_information': metadata}, sort_keys=False)
+    atomic_write(folder / 'metadata.yaml', lambda handle: handle.write(text))
 
 
 __all__ = ['BagWriter', 'TopicInfo']

@@ -9,9 +9,9 @@ YAML) goes through :func:`output_target` and :func:`write_atomically`:
 - a **folder, device, named pipe (FIFO) or socket** is refused (:class:`AeropendError`, exit status 2): the
   content is written under a temporary name and renamed onto the target when complete, which would replace a
   device node or a FIFO by a regular file (run as root, ``-o /dev/full`` would replace the system's device);
-- a **regular file** (or a new name) is written to ``.<name>.partial`` in the same folder and renamed onto it
-  when complete, so a failure never leaves a shorter file that reads as a valid one; the mode of a replaced file
-  is kept.
+- a **regular file** (or a new name) is written to a temporary ``.<name>.*.partial`` in the same folder, synced
+  and renamed onto it when complete (:func:`aeropend_core.io.atomic.atomic_write`), so a failure never leaves a
+  shorter file that reads as a valid one; the mode of a replaced file is kept.
 
 The system refusing (permissions, disk full) raises :class:`StorageError` (exit status 1).
 """
@@ -113,17 +113,11 @@ def write_atomically(path: str | os.PathLike, write: Callable[[IO[str]], None], 
     StorageError
         The system refused the write (nothing was changed; the temporary file is removed).
     """
+    from aeropend_core.io.atomic import atomic_write
     target = output_target(path, option)
-    partial = target.with_name(f'.{target.name}.partial')
     try:
-        mode = stat.S_IMODE(os.stat(target).st_mode) if target.exists() else None
-        with open(partial, 'w', encoding='utf-8') as handle:
-            write(handle)
-        if mode is not None:
-            os.chmod(partial, mode)
-        os.replace(partial, target)
+        atomic_write(target, write)
     except OSError as error:
-        partial.unlink(missing_ok=True)
         raise StorageError(f'cannot write {what} {path}: {error.strerror or error}; nothing was written (free '
                            f'space, check permissions or choose another {option})') from None
     return target

@@ -279,11 +279,50 @@ def load_recording(path: str | Path, sample_time: float | None = SAMPLE_TIME) ->
 def _load_bag(path: Path) -> Recording:
     """The ``/aeropend/samples`` of an MCAP bag (folder or ``.mcap``), see :func:`aeropend_core.io.bag.read_samples`."""
     from aeropend_core.io.bag import read_samples
-    samples = read_samples(path)
+    damage: list = []
+    samples = read_samples(path, damage=damage)
     columns = {'t': samples['time']}
     # integer-nanosecond clocks (stamp_ns, receive_time_ns) do not survive float64; t already holds the stamps
     columns.update({k: v for k, v in samples.items() if k != 'time' and not k.endswith('_ns')})
-    return from_columns(columns, source=str(path))
+    return from_columns(columns, source=str(path), findings=bag_findings(path, damage))
+
+
+#: Finding code of each kind of bag damage (:class:`aeropend_core.io.mcap_scan.BagDamage`).
+_BAG_CODES = {'chunk_skipped': 'bag_damaged', 'record_skipped': 'bag_damaged', 'unknown_channel': 'bag_damaged',
+              'cut': 'bag_incomplete', 'no_crc': 'bag_no_crc', 'summary_mismatch': 'bag_summary_mismatch',
+              'summary_damaged': 'bag_summary_damaged', 'no_footer': 'bag_summary_damaged'}
+
+
+def bag_findings(path: str | Path, damage: list) -> tuple:
+    """Findings for what reading a bag skipped or noticed (:class:`aeropend_core.io.bag.SampleDamage` list).
+
+    A damaged chunk or a cut file is a ``warning`` naming the lost span [s] and sample count (``where``,
+    ``count``); chunks without CRC, a summary that disagrees with the records or is damaged are warnings too;
+    a duplicated chunk or a record read although its type byte or length was damaged is ``repaired``. So a bag
+    read partially is never "clean".
+    """
+    from aeropend_core.io import bag_lock
+    from aeropend_core.signals.quality import Finding
+    findings = []
+    live = bag_lock.live_writer(path) is not None
+    for item in damage:
+        kind = item.damage.kind
+        if kind == 'no_crc':
+            findings.append(Finding('bag_no_crc', 'warning', f'{path}: this bag has no CRCs: bit flips cannot be '
+                                    f'detected ({item.line()})'))
+            continue
+        code = _BAG_CODES.get(kind, 'bag_structure')
+        severity = 'warning' if code != 'bag_structure' else 'repaired'
+        advice = ''
+        if item.damage.lost:
+            advice = ('; the recording is still running: read again once it ends' if live and kind == 'cut'
+                      else f'; the rest was read. aeropend bag-recover {path} writes a repaired copy')
+        where = None
+        if item.t_start is not None or item.t_stop is not None:
+            where = (item.t_start if item.t_start is not None else item.t_stop,
+                     item.t_stop if item.t_stop is not None else item.t_start)
+        findings.append(Finding(code, severity, f'{path}: {item.line()}{advice}', where, item.samples or 0))
+    return tuple(findings)
 
 
 def write_csv(path: str, columns: dict[str, np.ndarray]) -> None:

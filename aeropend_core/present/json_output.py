@@ -70,15 +70,9 @@ def write_json(target: str, value, stream=None) -> None:
         stream.write(text)
         stream.flush()
         return
+    from aeropend_core.io.atomic import atomic_write
     target = os.path.realpath(target)         # a symbolic link is written through, as the other outputs
-    temporary = f'{target}.tmp{os.getpid()}'
-    try:
-        with open(temporary, 'w', encoding='utf-8') as handle:
-            handle.write(text)
-        os.replace(temporary, target)
-    finally:
-        if os.path.exists(temporary):
-            os.unlink(temporary)
+    atomic_write(target, lambda handle: handle.write(text))
 
 
 class JsonLines:

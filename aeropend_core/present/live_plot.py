@@ -136,9 +136,9 @@ class LivePlot:
 
     def save(self, path: str) -> None:
         """Write the current figure to `path` (PNG, SVG or PDF by its suffix) [-], replacing it whole."""
-        temporary = f'{path}.tmp{os.getpid()}{os.path.splitext(path)[1]}'
-        self.figure.savefig(temporary, dpi=80)
-        os.replace(temporary, path)
+        from aeropend_core.io.atomic import atomic_write
+        form = os.path.splitext(path)[1].lstrip('.') or None
+        atomic_write(path, lambda handle: self.figure.savefig(handle, dpi=80, format=form), binary=True)
 
     def alive(self) -> bool:
         """False once the user closed the window (interactive only)."""

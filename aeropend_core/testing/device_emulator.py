@@ -241,7 +241,8 @@ class DeviceEmulator:
         if tmp.is_symlink() or tmp.exists():
             tmp.unlink()
         os.symlink(name, tmp)
-        os.replace(tmp, self.link)
+        from aeropend_core.io.atomic import replace_durably
+        replace_durably(tmp, self.link)
 
     def _close_pty(self) -> None:
         if self.link.is_symlink():
