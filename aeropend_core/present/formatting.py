@@ -22,8 +22,8 @@ from aeropend_core.model.names import NOMINAL_PARAMETERS
 DPI = 90
 
 
-#: Most points drawn per line (lines are decimated by striding; the noise band stays visible).
-MAX_POINTS = 3000
+#: Pixel columns of a full-width plot (12.5 in at DPI): a line keeps its min and max per column (:func:`envelope`).
+PIXEL_COLUMNS = 1000
 
 
 #: Width of the running mean that shows the error's structure under the noise [s].
@@ -109,23 +109,60 @@ def _img(uri: str, alt: str) -> str:
     return f'<img src="{uri}" alt="{_esc(alt)}">'
 
 
-def _stride(n: int) -> int:
-    return max(1, math.ceil(n / MAX_POINTS))
+def envelope(time: np.ndarray, values: np.ndarray, breaks: Iterable[int] = (),
+             columns: int = PIXEL_COLUMNS) -> tuple[np.ndarray, np.ndarray]:
+    """The finite samples of `values` reduced to what a plot `columns` pixels wide can show.
 
+    Each piece between `breaks` (segment restarts, where a NaN separates the lines) is cut into about
+    ``columns * piece / all`` equal bins of samples, and each bin keeps its smallest and its largest sample in time
+    order (a min/max envelope: a spike or a noise band looks the same as with every sample drawn). A piece with no
+    more than two samples per bin is kept whole.
 
-def _finite_trace(time: np.ndarray, values: np.ndarray, breaks: Iterable[int] = ()) -> tuple[np.ndarray, np.ndarray]:
-    """The finite samples of `values` decimated for plotting, with NaN gaps at `breaks` (segment restarts)."""
+    Parameters
+    ----------
+    time : ndarray, shape (n,) [s]
+        Sample times.
+    values : ndarray, shape (n,) [any unit]
+        The trace; NaN samples are skipped (not drawn).
+    breaks : iterable of int [-]
+        Sample indices where a new line starts (a NaN is put before them).
+    columns : int [-]
+        Width of the plot in pixel columns (bins over the whole trace).
+
+    Returns
+    -------
+    tuple of ndarray
+        (time [s], values [unit of `values`]), float, at most about ``2 * columns`` points plus one NaN per break.
+    """
     index = np.flatnonzero(np.isfinite(values))
     if index.size == 0:
         return np.zeros(0), np.zeros(0)
-    index = index[::_stride(index.size)]
-    t, v = time[index].astype(float), values[index].astype(float)
     cuts = np.searchsorted(index, sorted(set(breaks)))
     cuts = cuts[(cuts > 0) & (cuts < index.size)]
-    if cuts.size:
-        t = np.insert(t, cuts, np.nan)
-        v = np.insert(v, cuts, np.nan)
+    pieces = np.split(index, cuts)
+    kept = []
+    for piece in pieces:
+        bins = max(1, int(round(columns * piece.size / index.size)))
+        width = math.ceil(piece.size / bins)
+        if width <= 2:
+            kept.append(piece)
+        else:
+            padded = np.concatenate([piece, np.full((-piece.size) % width, piece[-1])]).reshape(-1, width)
+            samples = values[padded]
+            low = padded[np.arange(len(padded)), np.argmin(samples, axis=1)]
+            high = padded[np.arange(len(padded)), np.argmax(samples, axis=1)]
+            kept.append(np.unique(np.concatenate([low, high])))
+        kept.append(np.array([-1]))                     # a NaN between pieces
+    chosen = np.concatenate(kept[:-1])
+    gap = chosen < 0
+    t = np.where(gap, np.nan, time[np.maximum(chosen, 0)].astype(float))
+    v = np.where(gap, np.nan, values[np.maximum(chosen, 0)].astype(float))
     return t, v
+
+
+def _finite_trace(time: np.ndarray, values: np.ndarray, breaks: Iterable[int] = ()) -> tuple[np.ndarray, np.ndarray]:
+    """The finite samples of `values` decimated for plotting (:func:`envelope`), NaN gaps at `breaks`."""
+    return envelope(time, values, breaks)
 
 
 def _running_mean(values: np.ndarray, width: int) -> np.ndarray:

@@ -84,27 +84,6 @@ def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
     return _png(figure)
 
 
-def _plot_heldout_zoom(diagnosis: Diagnosis, best: Candidate | None) -> str:
-    prep = diagnosis.prepared
-    part = slice(prep.split, len(prep.time))
-    time = prep.time[part]
-    figure = _figure(12.5, 3.6)
-    axes = figure.add_subplot()
-    t, y = _finite_trace(time, prep.angle[part])
-    axes.plot(t, np.degrees(y), color=MEASURED, lw=0.6, alpha=0.8, label='measured')
-    for label, simulated, colour, style, width in _overlay_traces(diagnosis, best):
-        t, y = _finite_trace(time, simulated[part])
-        axes.plot(t, np.degrees(y), color=colour, ls=style, lw=width, label=label)
-    axes.set_facecolor('#fffbea')
-    axes.set_xlim(time[0], time[-1])
-    axes.set_xlabel('time [s]')
-    axes.set_ylabel('angle [deg]')
-    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=4, fontsize=8.5,
-                  frameon=False)
-    axes.grid(alpha=0.3)
-    return _png(figure)
-
-
 def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
     prep = diagnosis.prepared
     time = prep.time
@@ -188,74 +167,82 @@ def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
     return _png(figure)
 
 
-def _stems(axes, lags: np.ndarray, values: np.ndarray, colour: str, label: str, offset: float = 0.0,
-           marker: str = 'o') -> None:
-    axes.vlines(lags + offset, 0, values, color=colour, lw=1.1)
-    axes.plot(lags + offset, values, marker, color=colour, ms=3.5, label=label, mfc=colour if marker == 'o'
-              else 'none')
+#: Colour of the selected set (the verdict's missing effects), as the MISSING badge of the table.
+SELECTED = '#e66101'
+
+#: Colour of a candidate significant on its own but not selected (made redundant by the selected set).
+REDUNDANT = '#a6d96a'
 
 
-def _plot_residual_tests(diagnosis: Diagnosis, best: Candidate | None) -> str:
-    evaluation = diagnosis.current.evaluation
-    lags = evaluation.lag_seconds
-    half = (len(lags) - 1) // 2
-    band = evaluation.correlation_band
-    shift = 0.25 * (lags[1] - lags[0]) if len(lags) > 1 else 0.0
-    figure = _figure(12.5, 3.6)
-    auto_axes, cross_axes = figure.subplots(1, 2)
-    for axes in (auto_axes, cross_axes):
-        axes.axhspan(-band, band, color='#c6dbef', alpha=0.7, label=f'99 % band \u00b12.58/\u221aN = '
-                                                                    f'\u00b1{band:.3f}')
-        axes.axhline(0, color='black', lw=0.6)
-        axes.grid(alpha=0.3)
-    _stems(auto_axes, lags[half:], evaluation.residual_autocorrelation, CURRENT, 'model as given')
-    _stems(cross_axes, lags, evaluation.residual_input_correlation, CURRENT, 'model as given')
-    if best is not None:
-        other = best.comparison.evaluation
-        _stems(auto_axes, lags[half:], other.residual_autocorrelation, CANDIDATE, f'+ {best.effect}', shift, 's')
-        _stems(cross_axes, lags, other.residual_input_correlation, CANDIDATE, f'+ {best.effect}', shift, 's')
-    auto_axes.set_title('residual autocorrelation (whiteness test)', fontsize=10)
-    auto_axes.set_xlabel('lag [s]')
-    auto_axes.set_ylabel('normalised correlation')
-    cross_axes.set_title('residual vs thrust input e|e| (cross-correlation)', fontsize=10)
-    cross_axes.set_xlabel('lag [s]  (positive: the input leads the residual)')
-    figure.legend(*auto_axes.get_legend_handles_labels(), loc='outside upper center', ncol=3, fontsize=8.5,
-                  frameon=False)
-    return _png(figure)
+def _candidate_status(diagnosis: Diagnosis, candidate: Candidate) -> tuple[str, str]:
+    """(colour, tag) of a candidate on the chart: selected, significant alone but not selected, or not."""
+    if candidate.effect in diagnosis.missing_effects:
+        return SELECTED, 'SELECTED'
+    if candidate.significant:
+        return REDUNDANT, 'significant alone, not selected (redundant with the selected set)'
+    return '#9e9e9e', 'not significant'
 
 
 def _plot_candidates(diagnosis: Diagnosis) -> str | None:
+    """Held-out error beyond the noise: the reference models as bars, each candidate as an arrow from the model it
+    was added to (the model as given) to where adding it takes the error; the selected set highlighted."""
     testable = [c for c in diagnosis.candidates if c.comparison is not None and np.isfinite(c.excess_after)]
-    if not testable:
-        return None
     noise = diagnosis.noise_rms * 1e3
     now = _excess(diagnosis.current) * 1e3
-    needed = math.sqrt(max(now ** 2 - (MATERIAL * noise) ** 2, 0.0))
-    figure = _figure(12.5, 0.9 + 0.38 * len(testable))
+    rows: list[tuple[str, float, str, str]] = []      # (label, value [mrad], colour, text)
+    if diagnosis.before is not None:
+        before = _excess(diagnosis.before) * 1e3
+        rows.append((f'before: {_model_name(diagnosis.before.effects)}', before, BEFORE, f'{before:.2f} mrad'))
+        rows.append((f'after: {_model_name(diagnosis.effects)}', now, CURRENT,
+                     f'{now:.2f} mrad ({(now - before) / before * 100:+.0f} % from before)' if before > 0
+                     else f'{now:.2f} mrad'))
+    else:
+        rows.append((f'model as given: {_model_name(diagnosis.effects)}', now, CURRENT, f'{now:.2f} mrad'))
+    if diagnosis.selected is not None and diagnosis.missing_effects:
+        value = _excess(diagnosis.selected) * 1e3
+        rows.append(('selected set: + ' + ' + '.join(diagnosis.missing_effects), value, SELECTED,
+                     f'{value:.2f} mrad  (the verdict\'s model)'))
+    if not testable and len(rows) < 2:
+        return None
+    figure = _figure(12.5, 1.2 + 0.36 * (len(rows) + len(testable)))
     axes = figure.add_subplot()
-    positions = np.arange(len(testable))[::-1]
-    values = np.array([c.excess_after * 1e3 for c in testable])
-    colours = [CANDIDATE if c.significant else '#9e9e9e' for c in testable]
-    bars = axes.barh(positions, values, color=colours, height=0.7)
-    for position, value, candidate in zip(positions, values, testable):
-        if candidate.significant:   # a marker keeps a bar of (almost) zero length visible
-            axes.plot([value], [position], 'D', color=CANDIDATE, ms=7, clip_on=False, zorder=3)
-    for bar, value, candidate in zip(bars, values, testable):
-        tag = '  SIGNIFICANT' if candidate.significant else ''
-        axes.annotate(f'{value:.2f} mrad{tag}', (bar.get_width(), bar.get_y() + bar.get_height() / 2),
-                      xytext=(7, 0), textcoords='offset points', va='center', fontsize=8,
-                      color=CANDIDATE if candidate.significant else '#555555',
-                      fontweight='bold' if candidate.significant else 'normal')
-    axes.axvline(now, color=CURRENT, lw=1.6, label=f'model as given ({now:.2f} mrad)')
-    axes.axvline(needed, color=CURRENT, lw=1, ls=':',
-                 label=f'improvement needed to count ({needed:.2f} mrad; also \u0394BIC < \u2212{BIC_MARGIN:g}, '
-                       f'parameter > 3\u03c3)')
-    axes.axvline(noise, color='black', ls='--', lw=1, label=f'measurement noise RMS ({noise:.2f} mrad)')
-    axes.set_yticks(positions, [f'+ {c.effect}' for c in testable], fontsize=9)
-    axes.set_xlim(0, max(np.nanmax(values), now, noise) * 1.3)
+    count = len(rows) + len(testable)
+    positions = list(range(count))[::-1]
+    labels = []
+    for position, (label, value, colour, text) in zip(positions, rows):
+        axes.barh(position, value, color=colour, height=0.62, alpha=0.85)
+        axes.annotate(text, (value, position), xytext=(6, 0), textcoords='offset points', va='center', fontsize=8,
+                      color=colour, fontweight='bold')
+        labels.append(label)
+    for position, candidate in zip(positions[len(rows):], testable):
+        colour, tag = _candidate_status(diagnosis, candidate)
+        after = candidate.excess_after * 1e3
+        start = candidate.excess_before * 1e3
+        axes.plot([start, after], [position, position], color=colour, lw=2.2, solid_capstyle='butt')
+        axes.plot([after], [position], marker='<' if after < start else '>', color=colour, ms=8, zorder=3,
+                  clip_on=False)
+        removed = start - after
+        change = ('no error beyond the noise to remove' if start <= 0 else
+                  f'{after:.2f} mrad, {removed:+.2f} removed' if removed >= 0 else f'{after:.2f} mrad, worse')
+        axes.annotate(f'{change}  \u2014 {tag}', (max(start, after), position), xytext=(8, 0),
+                      textcoords='offset points', va='center', fontsize=8, color='#333333' if colour != SELECTED
+                      else SELECTED, fontweight='bold' if colour == SELECTED else 'normal')
+        labels.append(f'+ {candidate.effect}')
+    if testable:
+        separator = positions[len(rows) - 1] - 0.5
+        axes.axhline(separator, color='#999999', lw=0.8)
+    axes.axvline(noise, color='black', ls='--', lw=1, label=f'measurement noise RMS ({noise:.2f} mrad), for scale')
+    needed = math.sqrt(max(now ** 2 - (MATERIAL * noise) ** 2, 0.0))
+    if now - needed > 0.01 * max(now, 1e-9):
+        axes.axvline(needed, color=CURRENT, lw=1, ls=':',
+                     label=f'a candidate must reach left of this ({needed:.2f} mrad; also \u0394BIC < '
+                           f'\u2212{BIC_MARGIN:g}, parameter > 3\u03c3)')
+    axes.set_yticks(positions, labels, fontsize=9)
+    largest = max([r[1] for r in rows] + [c.excess_after * 1e3 for c in testable] + [noise])
+    axes.set_xlim(0, largest * 1.75)
     axes.set_xlabel('held-out model error beyond the noise, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]  '
-                    '(shorter is better)')
-    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=3, fontsize=8.5,
+                    '(shorter is better; arrow: model as given \u2192 with the candidate)')
+    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=2, fontsize=8.5,
                   frameon=False)
     axes.grid(axis='x', alpha=0.3)
     return _png(figure)
