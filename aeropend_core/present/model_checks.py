@@ -150,10 +150,8 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
     models = [('model as given', diagnosis.current, CURRENT)]
     if best is not None and best.comparison is not None:
         models.append((f'+ {best.effect}', best.comparison, CANDIDATE))
-    figure = _figure(12.5, 7.0)
-    grid = figure.subplots(2, 2)
-    auto_axes, cross_axes, spectrum_axes, info_axes = grid.ravel()
-    info_axes.remove()
+    figure = _figure(12.5, 3.9)
+    auto_axes, cross_axes, spectrum_axes = figure.subplots(1, 3)
     texts = []
     rate = 1.0 / (STRIDE * prep.sample_time)
     for label, comparison, colour in models:
@@ -181,31 +179,31 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
     spectrum_axes.axhline(noise_floor, color='black', ls='--', lw=1,
                           label=f'white noise of {diagnosis.noise_rms * 1e3:.1f} mrad RMS')
     auto_axes.set_title('residual autocorrelation (whiteness)', fontsize=10)
-    cross_axes.set_title('residual vs thrust input e|e| (independence)', fontsize=10)
+    cross_axes.set_title('residual vs thrust e|e| (independence)', fontsize=10)
     spectrum_axes.set_title('residual spectrum (Welch)', fontsize=10)
     auto_axes.set_xlabel('lag [s]')
-    cross_axes.set_xlabel('lag [s]  (positive: the input leads the residual)')
+    cross_axes.set_xlabel('lag [s]  (> 0: the input leads)')
     spectrum_axes.set_xlabel('frequency [Hz]')
     spectrum_axes.set_ylabel('power spectral density [rad\u00b2/Hz]')
     spectrum_axes.set_xscale('log')
+    from matplotlib.ticker import NullFormatter
+    for axis in (spectrum_axes.xaxis, spectrum_axes.yaxis):     # unlabelled minor ticks: fewer texts to lay out
+        axis.set_minor_formatter(NullFormatter())
     for axes in (auto_axes, cross_axes, spectrum_axes):
         axes.grid(alpha=0.3)
         axes.legend(fontsize=8, loc='upper right', framealpha=0.9)
     for axes in (auto_axes, cross_axes):
         axes.axhline(0, color='black', lw=0.6)
-    figure.text(0.53, 0.38, 'How to read:\n'
-                '\u2022 autocorrelation: a white residual stays in the band\n  after lag 0; a slow decay is '
-                'unmodelled dynamics\n  (a free-run residual is rarely white)\n'
-                '\u2022 cross-correlation: a peak at lag k means the input\n  k seconds earlier still explains part '
-                'of the error\n  (a lag, a missing input path)\n'
-                '\u2022 spectrum: residual power above the dashed noise\n  floor at the rod\'s swing frequency is '
-                'model error', fontsize=9, va='top', family='DejaVu Sans')
     return ('<h3 id="long-residuals">Residual correlations to 5 s and spectrum</h3><p class="caption">The '
             'held-out simulation residual (every second sample, where the simulation lands) as MATLAB '
             '<code>resid</code> shows it, but to 5 s of lag (the rod swings at about 1 Hz, so 0.1 s is too short). '
             'The autocorrelation band assumes a white residual (N = residual samples); the cross-correlation band '
             'uses Bartlett\'s effective count N_eff = N / &Sigma;<sub>k</sub> r<sub>rr</sub>(k) r<sub>uu</sub>(k), '
-            'because a correlated residual and a correlated input give larger chance correlations. '
+            'because a correlated residual and a correlated input give larger chance correlations. How to read: a '
+            'white residual stays inside the band after lag 0, a slow decay is unmodelled dynamics (a free-run '
+            'residual is rarely white); a cross-correlation peak at lag k means the input k seconds earlier still '
+            'explains part of the error (a lag, a missing input path); residual power above the dashed white-noise '
+            'floor, at the rod\'s swing frequency, is model error. '
             + '</p><ul class="notes">' + ''.join(f'<li>{t}</li>' for t in texts) + '</ul>'
             + _img(_png(figure), 'residual autocorrelation, cross-correlation and spectrum to long lags'))
 

@@ -183,62 +183,80 @@ def _candidate_status(diagnosis: Diagnosis, candidate: Candidate) -> tuple[str, 
     return '#9e9e9e', 'not significant'
 
 
+def candidate_chart_rows(diagnosis: Diagnosis) -> list[dict]:
+    """The rows of the candidate chart, top to bottom.
+
+    Returns
+    -------
+    list of dict
+        ``label``; ``start`` and ``end`` [mrad]: held-out error beyond the noise (a reference model is a bar from 0
+        to its value; a candidate an arrow from the model it was added to, to the model with it); ``colour``;
+        ``tag`` (``'reference'``, ``'SELECTED'``, ``'significant alone, not selected ...'``, ``'not significant'``);
+        ``effect`` (None for a reference model).
+    """
+    now = _excess(diagnosis.current) * 1e3
+    rows = []
+    if diagnosis.before is not None:
+        before = _excess(diagnosis.before) * 1e3
+        rows.append(dict(label=f'before: {_model_name(diagnosis.before.effects)}', start=0.0, end=before,
+                         colour=BEFORE, tag='reference', effect=None))
+        rows.append(dict(label=f'after: {_model_name(diagnosis.effects)}', start=0.0, end=now, colour=CURRENT,
+                         tag='reference', effect=None))
+    else:
+        rows.append(dict(label=f'model as given: {_model_name(diagnosis.effects)}', start=0.0, end=now,
+                         colour=CURRENT, tag='reference', effect=None))
+    if diagnosis.selected is not None and diagnosis.missing_effects:
+        rows.append(dict(label='selected set: + ' + ' + '.join(diagnosis.missing_effects), start=0.0,
+                         end=_excess(diagnosis.selected) * 1e3, colour=SELECTED, tag='reference', effect=None))
+    for candidate in diagnosis.candidates:
+        if candidate.comparison is None or not np.isfinite(candidate.excess_after):
+            continue
+        colour, tag = _candidate_status(diagnosis, candidate)
+        rows.append(dict(label=f'+ {candidate.effect}', start=candidate.excess_before * 1e3,
+                         end=candidate.excess_after * 1e3, colour=colour, tag=tag, effect=candidate.effect))
+    return rows
+
+
 def _plot_candidates(diagnosis: Diagnosis) -> str | None:
     """Held-out error beyond the noise: the reference models as bars, each candidate as an arrow from the model it
     was added to (the model as given) to where adding it takes the error; the selected set highlighted."""
-    testable = [c for c in diagnosis.candidates if c.comparison is not None and np.isfinite(c.excess_after)]
+    rows = candidate_chart_rows(diagnosis)
+    if len(rows) < 2:
+        return None
     noise = diagnosis.noise_rms * 1e3
     now = _excess(diagnosis.current) * 1e3
-    rows: list[tuple[str, float, str, str]] = []      # (label, value [mrad], colour, text)
-    if diagnosis.before is not None:
-        before = _excess(diagnosis.before) * 1e3
-        rows.append((f'before: {_model_name(diagnosis.before.effects)}', before, BEFORE, f'{before:.2f} mrad'))
-        rows.append((f'after: {_model_name(diagnosis.effects)}', now, CURRENT,
-                     f'{now:.2f} mrad ({(now - before) / before * 100:+.0f} % from before)' if before > 0
-                     else f'{now:.2f} mrad'))
-    else:
-        rows.append((f'model as given: {_model_name(diagnosis.effects)}', now, CURRENT, f'{now:.2f} mrad'))
-    if diagnosis.selected is not None and diagnosis.missing_effects:
-        value = _excess(diagnosis.selected) * 1e3
-        rows.append(('selected set: + ' + ' + '.join(diagnosis.missing_effects), value, SELECTED,
-                     f'{value:.2f} mrad  (the verdict\'s model)'))
-    if not testable and len(rows) < 2:
-        return None
-    figure = _figure(12.5, 1.2 + 0.36 * (len(rows) + len(testable)))
+    figure = _figure(12.5, 1.2 + 0.36 * len(rows))
     axes = figure.add_subplot()
-    count = len(rows) + len(testable)
-    positions = list(range(count))[::-1]
-    labels = []
-    for position, (label, value, colour, text) in zip(positions, rows):
-        axes.barh(position, value, color=colour, height=0.62, alpha=0.85)
-        axes.annotate(text, (value, position), xytext=(6, 0), textcoords='offset points', va='center', fontsize=8,
-                      color=colour, fontweight='bold')
-        labels.append(label)
-    for position, candidate in zip(positions[len(rows):], testable):
-        colour, tag = _candidate_status(diagnosis, candidate)
-        after = candidate.excess_after * 1e3
-        start = candidate.excess_before * 1e3
-        axes.plot([start, after], [position, position], color=colour, lw=2.2, solid_capstyle='butt')
-        axes.plot([after], [position], marker='<' if after < start else '>', color=colour, ms=8, zorder=3,
+    positions = list(range(len(rows)))[::-1]
+    references = 0
+    for position, row in zip(positions, rows):
+        start, end, colour = row['start'], row['end'], row['colour']
+        if row['effect'] is None:
+            references += 1
+            axes.barh(position, end, color=colour, height=0.62, alpha=0.85)
+            axes.annotate(f'{end:.2f} mrad', (end, position), xytext=(6, 0), textcoords='offset points',
+                          va='center', fontsize=8, color=colour, fontweight='bold')
+            continue
+        axes.plot([start, end], [position, position], color=colour, lw=2.2, solid_capstyle='butt')
+        axes.plot([end], [position], marker='<' if end < start else '>', color=colour, ms=8, zorder=3,
                   clip_on=False)
-        removed = start - after
+        removed = start - end
         change = ('no error beyond the noise to remove' if start <= 0 else
-                  f'{after:.2f} mrad, {removed:+.2f} removed' if removed >= 0 else f'{after:.2f} mrad, worse')
-        axes.annotate(f'{change}  \u2014 {tag}', (max(start, after), position), xytext=(8, 0),
-                      textcoords='offset points', va='center', fontsize=8, color='#333333' if colour != SELECTED
-                      else SELECTED, fontweight='bold' if colour == SELECTED else 'normal')
-        labels.append(f'+ {candidate.effect}')
-    if testable:
-        separator = positions[len(rows) - 1] - 0.5
-        axes.axhline(separator, color='#999999', lw=0.8)
+                  f'{end:.2f} mrad, {removed:.2f} removed' if removed >= 0 else f'{end:.2f} mrad, worse')
+        selected = row['tag'] == 'SELECTED'
+        axes.annotate(f'{change}  \u2014 {row["tag"]}', (max(start, end), position), xytext=(8, 0),
+                      textcoords='offset points', va='center', fontsize=8, color=SELECTED if selected else '#333333',
+                      fontweight='bold' if selected else 'normal')
+    if references < len(rows):
+        axes.axhline(positions[references - 1] - 0.5, color='#999999', lw=0.8)
     axes.axvline(noise, color='black', ls='--', lw=1, label=f'measurement noise RMS ({noise:.2f} mrad), for scale')
     needed = math.sqrt(max(now ** 2 - (MATERIAL * noise) ** 2, 0.0))
     if now - needed > 0.01 * max(now, 1e-9):
         axes.axvline(needed, color=CURRENT, lw=1, ls=':',
                      label=f'a candidate must reach left of this ({needed:.2f} mrad; also \u0394BIC < '
                            f'\u2212{BIC_MARGIN:g}, parameter > 3\u03c3)')
-    axes.set_yticks(positions, labels, fontsize=9)
-    largest = max([r[1] for r in rows] + [c.excess_after * 1e3 for c in testable] + [noise])
+    axes.set_yticks(positions, [row['label'] for row in rows], fontsize=9)
+    largest = max([max(row['start'], row['end']) for row in rows] + [noise])
     axes.set_xlim(0, largest * 1.75)
     axes.set_xlabel('held-out model error beyond the noise, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]  '
                     '(shorter is better; arrow: model as given \u2192 with the candidate)')
