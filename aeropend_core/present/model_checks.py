@@ -18,13 +18,16 @@ from aeropend_core.diagnosis.output_error import STRIDE
 from aeropend_core.diagnosis.validation import (Validation, prediction_points, residual_correlations,
                                                 simulation_band)
 from aeropend_core.present.formatting import (CANDIDATE, CURRENT, HELDOUT_SHADE, MEASURED, NOISE_SHADE, _esc,
-                                              _figure, _finite_trace, _img, _model_name, _mrad, _num, _png)
+                                              _fixed_figure, _finite_trace, _img, _model_name, _mrad, _num, _png)
 
 #: Points of a residual scatter drawn at most (strided); the binned mean uses every sample.
 SCATTER_POINTS = 2500
 
 #: Bins of the binned mean residual in a scatter.
 SCATTER_BINS = 40
+
+#: Highest frequency of the residual spectrum plot [Hz] (the rod's dynamics are below ~5 Hz; above is noise).
+SPECTRUM_MAX_HZ = 25.0
 
 
 def _band_figure(diagnosis: Diagnosis) -> tuple[str, str]:
@@ -33,7 +36,7 @@ def _band_figure(diagnosis: Diagnosis) -> tuple[str, str]:
     predicted_index, predicted = prediction_points(prep, diagnosis.current)
     part = slice(prep.split, len(prep.time))
     time = prep.time[part]
-    figure = _figure(12.5, 5.4)
+    figure = _fixed_figure(12.5, 5.4, top=0.15, hspace=0.1)
     top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[2.3, 1])
     t, y = _finite_trace(time, np.degrees(prep.angle[part]))
     top.plot(t, y, color=MEASURED, lw=0.6, alpha=0.7, label='measured')
@@ -112,7 +115,7 @@ def scatter_section(diagnosis: Diagnosis) -> str:
     axes_data = [('rate of the rod &Omega; [rad/s]', 'rate \u03a9 [rad/s]', prep.smoothed_rate[index]),
                  ('angle y [deg]', 'angle y [deg]', np.degrees(prep.smoothed_angle[index])),
                  ('thrust input e|e| [V&sup2;]', 'thrust input e|e| [V\u00b2]', (e * np.abs(e))[index])]
-    figure = _figure(12.5, 3.7)
+    figure = _fixed_figure(12.5, 3.7, top=0.15, wspace=0.06)
     panels = figure.subplots(1, 3, sharey=True)
     shown = index[::max(1, index.size // SCATTER_POINTS)]
     pick = np.searchsorted(index, shown)
@@ -150,7 +153,7 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
     models = [('model as given', diagnosis.current, CURRENT)]
     if best is not None and best.comparison is not None:
         models.append((f'+ {best.effect}', best.comparison, CANDIDATE))
-    figure = _figure(12.5, 3.9)
+    figure = _fixed_figure(12.5, 3.9, top=0.35, left=0.75, bottom=0.6, wspace=0.3)
     auto_axes, cross_axes, spectrum_axes = figure.subplots(1, 3)
     texts = []
     rate = 1.0 / (STRIDE * prep.sample_time)
@@ -173,8 +176,9 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
                      f'{c.cross_correlation.size} cross-correlation lags outside its band')
         index = prep.heldout.residual_index
         residual = prep.angle[index] - comparison.evaluation.simulated[index]
-        frequency, density = welch(residual, fs=rate, nperseg=min(residual.size, 1024))
-        spectrum_axes.semilogy(frequency[1:], density[1:], color=colour, lw=1.1, label=label)
+        frequency, density = welch(residual, fs=rate, nperseg=min(residual.size, 2048))
+        shown = (frequency > 0) & (frequency <= SPECTRUM_MAX_HZ)
+        spectrum_axes.semilogy(frequency[shown], density[shown], color=colour, lw=1.1, label=label)
     noise_floor = 2 * diagnosis.noise_rms ** 2 / rate
     spectrum_axes.axhline(noise_floor, color='black', ls='--', lw=1,
                           label=f'white noise of {diagnosis.noise_rms * 1e3:.1f} mrad RMS')
@@ -185,10 +189,9 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
     cross_axes.set_xlabel('lag [s]  (> 0: the input leads)')
     spectrum_axes.set_xlabel('frequency [Hz]')
     spectrum_axes.set_ylabel('power spectral density [rad\u00b2/Hz]')
-    spectrum_axes.set_xscale('log')
+    spectrum_axes.set_xlim(0, min(SPECTRUM_MAX_HZ, rate / 2))
     from matplotlib.ticker import NullFormatter
-    for axis in (spectrum_axes.xaxis, spectrum_axes.yaxis):     # unlabelled minor ticks: fewer texts to lay out
-        axis.set_minor_formatter(NullFormatter())
+    spectrum_axes.yaxis.set_minor_formatter(NullFormatter())    # unlabelled minor ticks: fewer texts to lay out
     for axes in (auto_axes, cross_axes, spectrum_axes):
         axes.grid(alpha=0.3)
         axes.legend(fontsize=8, loc='upper right', framealpha=0.9)
@@ -212,7 +215,7 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
 
 def validation_section(diagnosis: Diagnosis, validation: Validation) -> str:
     """The fitted model on the validation record: numbers and the measured vs simulated angle."""
-    figure = _figure(12.5, 4.6)
+    figure = _fixed_figure(12.5, 4.6, top=0.15, hspace=0.1)
     top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[2.2, 1])
     t, y = _finite_trace(validation.time, np.degrees(validation.angle))
     top.plot(t, y, color=MEASURED, lw=0.6, alpha=0.75, label='measured (validation record)')

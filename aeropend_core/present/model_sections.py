@@ -96,9 +96,9 @@ def observer_section(diagnosis: Diagnosis) -> str:
 
 
 def _observer_png(diagnosis: Diagnosis, traces: dict) -> str:
-    from aeropend_core.present.formatting import HELDOUT_SHADE, MEASURED, _figure, _finite_trace, _img, _png
+    from aeropend_core.present.formatting import HELDOUT_SHADE, MEASURED, _finite_trace, _fixed_figure, _img, _png
     prep = diagnosis.prepared
-    figure = _figure(12.5, 5.0)
+    figure = _fixed_figure(12.5, 5.0, top=0.15, hspace=0.08)
     top, bottom = figure.subplots(2, 1, sharex=True)
     for axes in (top, bottom):
         axes.axvspan(prep.time[prep.split], prep.time[-1], color=HELDOUT_SHADE, zorder=0)
@@ -242,7 +242,7 @@ def traces_csv(diagnosis: Diagnosis, best: Candidate | None) -> str:
 
 def compressed_csv(text: str) -> str:
     """`text` gzip-compressed and base64-encoded (the page holds this; the browser decompresses it on download)."""
-    return base64.b64encode(gzip.compress(text.encode('utf-8'), compresslevel=6, mtime=0)).decode('ascii')
+    return base64.b64encode(gzip.compress(text.encode('utf-8'), compresslevel=3, mtime=0)).decode('ascii')
 
 
 DOWNLOAD_SCRIPT = """<script>

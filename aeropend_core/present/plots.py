@@ -20,6 +20,8 @@ from aeropend_core.present.formatting import (
     SMOOTHING_SECONDS,
     _excess,
     _figure,
+    _fixed_figure,
+    _top_legend,
     _finite_trace,
     _model_name,
     _png,
@@ -52,7 +54,7 @@ def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
     prep = diagnosis.prepared
     time = prep.time
     breaks = _segment_starts(diagnosis)
-    figure = _figure(12.5, 5.6)
+    figure = _fixed_figure(12.5, 5.8, top=0.75, hspace=0.08)
     grid = figure.add_gridspec(2, 1, height_ratios=[3.2, 1])
     angle_axes = figure.add_subplot(grid[0])
     input_axes = figure.add_subplot(grid[1], sharex=angle_axes)
@@ -72,9 +74,9 @@ def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
     angle_axes.text(time[0], 1.0, 'training part (fitted in ~10 s segments, each restarted from a fitted state)',
                     transform=angle_axes.get_xaxis_transform(), va='bottom', ha='left', fontsize=9,
                     color='#666666')
-    figure.legend(*angle_axes.get_legend_handles_labels(), loc='outside upper center', ncol=4, fontsize=8.5,
-                  frameon=False)
+    _top_legend(figure, angle_axes, 4)
     angle_axes.grid(alpha=0.3)
+    angle_axes.tick_params(labelbottom=False)
     t, v = _finite_trace(time, prep.armature_voltage)
     input_axes.plot(t, v, color='#7b3294', lw=0.8)
     input_axes.set_ylabel('Va [V]')
@@ -90,7 +92,7 @@ def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
     breaks = _segment_starts(diagnosis)
     noise = diagnosis.noise_rms
     width = max(1, round(SMOOTHING_SECONDS / prep.sample_time / 2))   # simulated every 2nd sample
-    figure = _figure(12.5, 4.4)
+    figure = _fixed_figure(12.5, 4.6, top=0.75)
     axes = figure.add_subplot()
     axes.axvspan(time[prep.split], time[-1], color=HELDOUT_SHADE, zorder=0)
     windows = diagnosis.current.evaluation.worst_windows
@@ -118,8 +120,7 @@ def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
     axes.set_xlim(time[0], time[-1])
     axes.set_xlabel('time [s]')
     axes.set_ylabel('measured \u2212 simulated angle [mrad]')
-    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=3, fontsize=8.5,
-                  frameon=False)
+    _top_legend(figure, axes, 3)
     axes.grid(alpha=0.3)
     return _png(figure)
 
@@ -242,7 +243,8 @@ def _plot_candidates(diagnosis: Diagnosis) -> str | None:
                   clip_on=False)
         removed = start - end
         change = ('no error beyond the noise to remove' if start <= 0 else
-                  f'{end:.2f} mrad, {removed:.2f} removed' if removed >= 0 else f'{end:.2f} mrad, worse')
+                  f'{end:.2f} mrad, unchanged' if abs(removed) < 0.005 * start else
+                  f'{end:.2f} mrad, {removed:.2f} removed' if removed > 0 else f'{end:.2f} mrad, worse')
         selected = row['tag'] == 'SELECTED'
         axes.annotate(f'{change}  \u2014 {row["tag"]}', (max(start, end), position), xytext=(8, 0),
                       textcoords='offset points', va='center', fontsize=8, color=SELECTED if selected else '#333333',
