@@ -236,3 +236,18 @@ def test_cli_report_shows_before_and_after(trajectory, second_trajectory, tmp_pa
     assert f'{validation["fit_percent"]:.2f}&nbsp;%' in shown
     assert f'{validation["rms_error_rad"] * 1e3:.2f}&nbsp;mrad' in shown
     assert validation['excess_error_rad'] < 0.5 * validation['noise_rms_rad']
+
+
+def test_cli_validate_refuses_a_missing_or_short_record_before_fitting(trajectory, tmp_path, capsys):
+    """One line naming --validate and what to do, exit 2, before minutes of diagnosis (no report is written)."""
+    data = tmp_path / 'friction.csv'
+    write_csv(str(data), trajectory.columns(with_truth=False))
+    short = tmp_path / 'short.csv'
+    write_csv(str(short), {name: values[:4000] for name, values in trajectory.columns(with_truth=False).items()})
+    report = tmp_path / 'report.html'
+    for record, expected in ((tmp_path / 'missing.csv', 'no such file'), (short, 'lasts 8.2 s')):
+        capsys.readouterr()
+        code = aeropend(['diagnose', str(data), '--validate', str(record), '--report', str(report), '--quiet'])
+        error = capsys.readouterr().err.strip()
+        assert code == 2 and '--validate' in error and expected in error and '\n' not in error, error
+        assert 'Traceback' not in error and not report.exists()

@@ -81,7 +81,16 @@ def main(args: argparse.Namespace) -> int:
     print_findings('diagnose', recording.findings)          # first: before minutes of fitting, or a refusal
     validation_recording = None
     if args.validate:                    # loaded (and refused if unusable) before minutes of fitting
-        validation_recording = load_recording(args.validate, sample_time=sample_time_from(args))
+        try:
+            validation_recording = load_recording(args.validate, sample_time=sample_time_from(args))
+        except AeropendError as error:
+            raise AeropendError(f'--validate: {error}') from None
+        from aeropend_core.diagnosis.compare import MIN_DURATION
+        times = validation_recording.time
+        span = float(times[-1] - times[0]) if times.size else 0.0
+        if span < MIN_DURATION:
+            raise AeropendError(f'--validate {args.validate} lasts {span:.1f} s; a validation record needs at least '
+                                f'{MIN_DURATION:g} s (give a longer recording of the same rig)')
         print_findings('diagnose --validate', validation_recording.findings)
     from aeropend_core.diagnosis.diagnose import diagnose      # scipy and numba: imported once the input is known good
 
@@ -97,7 +106,10 @@ def main(args: argparse.Namespace) -> int:
     if validation_recording is not None:
         from aeropend_core.diagnosis.validation import validate
         progress(f'validating the fitted model on {args.validate}')
-        validation = validate(diagnosis.current, diagnosis.prepared, validation_recording, source=args.validate)
+        try:
+            validation = validate(diagnosis.current, diagnosis.prepared, validation_recording, source=args.validate)
+        except AeropendError as error:
+            raise AeropendError(f'--validate {args.validate}: {error}') from None
     if args.report:
         from aeropend_core.present.report import write_report
         written = write_report(diagnosis, args.report, source=args.data, validation=validation)

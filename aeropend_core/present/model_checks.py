@@ -178,9 +178,10 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
         residual = prep.angle[index] - comparison.evaluation.simulated[index]
         frequency, density = welch(residual, fs=rate, nperseg=min(residual.size, 2048))
         shown = (frequency > 0) & (frequency <= SPECTRUM_MAX_HZ)
-        spectrum_axes.semilogy(frequency[shown], density[shown], color=colour, lw=1.1, label=label)
+        spectrum_axes.plot(frequency[shown], 10 * np.log10(np.maximum(density[shown], 1e-30)), color=colour,
+                           lw=1.1, label=label)
     noise_floor = 2 * diagnosis.noise_rms ** 2 / rate
-    spectrum_axes.axhline(noise_floor, color='black', ls='--', lw=1,
+    spectrum_axes.axhline(10 * np.log10(noise_floor), color='black', ls='--', lw=1,
                           label=f'white noise of {diagnosis.noise_rms * 1e3:.1f} mrad RMS')
     auto_axes.set_title('residual autocorrelation (whiteness)', fontsize=10)
     cross_axes.set_title('residual vs thrust e|e| (independence)', fontsize=10)
@@ -188,10 +189,8 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
     auto_axes.set_xlabel('lag [s]')
     cross_axes.set_xlabel('lag [s]  (> 0: the input leads)')
     spectrum_axes.set_xlabel('frequency [Hz]')
-    spectrum_axes.set_ylabel('power spectral density [rad\u00b2/Hz]')
+    spectrum_axes.set_ylabel('power spectral density [dB re 1 rad\u00b2/Hz]')
     spectrum_axes.set_xlim(0, min(SPECTRUM_MAX_HZ, rate / 2))
-    from matplotlib.ticker import NullFormatter
-    spectrum_axes.yaxis.set_minor_formatter(NullFormatter())    # unlabelled minor ticks: fewer texts to lay out
     for axes in (auto_axes, cross_axes, spectrum_axes):
         axes.grid(alpha=0.3)
         axes.legend(fontsize=8, loc='upper right', framealpha=0.9)

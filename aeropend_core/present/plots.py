@@ -19,7 +19,6 @@ from aeropend_core.present.formatting import (
     WORST_SHADE,
     SMOOTHING_SECONDS,
     _excess,
-    _figure,
     _fixed_figure,
     _top_legend,
     _finite_trace,
@@ -125,6 +124,12 @@ def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
     return _png(figure)
 
 
+def _label_inches(labels: list[str], fontsize: float) -> float:
+    """Left margin [in] for y tick labels of this length (DejaVu Sans: about 0.6 em per character)."""
+    longest = max((len(label) for label in labels), default=10)
+    return 0.35 + longest * 0.6 * fontsize / 72
+
+
 def _regime_excess(regimes: dict, name: str, noise: float) -> float:
     """Error beyond the noise in one regime [rad] (the noise is white, the same in every regime)."""
     rms = regimes.get(name, {}).get('rms_error', float('nan'))
@@ -143,7 +148,9 @@ def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
     if best is not None:
         series.append((f'+ {best.effect} (best candidate)', best.comparison.evaluation.regimes, CANDIDATE))
     height = 0.8 / len(series)
-    figure = _figure(12.5, 0.75 + 0.42 * len(names) * (0.6 + 0.4 * len(series)))
+    labels = [f'{name}  [{current[name]["fraction_of_samples"] * 100:.0f} % of samples]' for name in names]
+    figure_height = 1.3 + 0.42 * len(names) * (0.6 + 0.4 * len(series))
+    figure = _fixed_figure(12.5, figure_height, left=_label_inches(labels, 8.5), top=0.45, bottom=0.6)
     axes = figure.add_subplot()
     positions = np.arange(len(names), dtype=float)
     largest = 0.0
@@ -157,13 +164,11 @@ def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
             if np.isfinite(value):
                 axes.text(bar.get_width(), bar.get_y() + bar.get_height() / 2, f' {value:.1f}', va='center',
                           fontsize=7.5, color=colour)
-    labels = [f'{name}  [{current[name]["fraction_of_samples"] * 100:.0f} % of samples]' for name in names]
     axes.set_yticks(positions, labels, fontsize=8.5)
     axes.set_xlim(0, max(largest, 0.1 * noise * 1e3) * 1.12)
     axes.set_xlabel(f'model error beyond the noise in the regime, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]'
                     f'   (noise RMS {noise * 1e3:.1f} mrad)')
-    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=4, fontsize=8.5,
-                  frameon=False)
+    _top_legend(figure, axes, 4)
     axes.grid(axis='x', alpha=0.3)
     return _png(figure)
 
@@ -226,7 +231,8 @@ def _plot_candidates(diagnosis: Diagnosis) -> str | None:
         return None
     noise = diagnosis.noise_rms * 1e3
     now = _excess(diagnosis.current) * 1e3
-    figure = _figure(12.5, 1.2 + 0.36 * len(rows))
+    figure = _fixed_figure(12.5, 1.5 + 0.36 * len(rows), left=_label_inches([row['label'] for row in rows], 9),
+                           top=0.45, bottom=0.6)
     axes = figure.add_subplot()
     positions = list(range(len(rows)))[::-1]
     references = 0
@@ -262,7 +268,6 @@ def _plot_candidates(diagnosis: Diagnosis) -> str | None:
     axes.set_xlim(0, largest * 1.75)
     axes.set_xlabel('held-out model error beyond the noise, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]  '
                     '(shorter is better; arrow: model as given \u2192 with the candidate)')
-    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=2, fontsize=8.5,
-                  frameon=False)
+    _top_legend(figure, axes, 2)
     axes.grid(axis='x', alpha=0.3)
     return _png(figure)
