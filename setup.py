@@ -1,9 +1,22 @@
 """ament_python package `aeropend_ros`; it also installs the ROS-free library `aeropend_core`."""
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 package_name = 'aeropend_ros'
+here = Path(__file__).resolve().parent
+
+
+def requirements(name: str, ros: bool = False) -> list[str]:
+    """The package lines of a requirements file (comments, `-r` includes and, unless `ros`, the ros-jazzy-* wheels
+    dropped: on a ROS install those come from apt, as package.xml says)."""
+    path = here / name
+    if not path.exists():           # an sdist without the file: nothing to add
+        return []
+    lines = (line.split('#')[0].strip() for line in path.read_text().splitlines())
+    return [line for line in lines if line and not line.startswith('-') and (ros or not line.startswith('ros-'))]
+
 
 setup(
     name=package_name,
@@ -16,7 +29,10 @@ setup(
         ('share/' + package_name + '/launch', glob('launch/*.launch.py')),
     ],
     package_data={'aeropend_core': ['py.typed']},
-    install_requires=['setuptools'],
+    # what a user of the nodes and the command needs (ROS itself from the ROS install, or `pip install .[ros]`)
+    install_requires=['setuptools', *requirements('requirements.txt')],
+    extras_require={'ros': [r for r in requirements('requirements.txt', ros=True) if r.startswith('ros-')],
+                    'dev': requirements('requirements-dev.txt')},
     zip_safe=True,
     maintainer='aeropend developers',
     maintainer_email='aeropend@example.invalid',

@@ -235,12 +235,17 @@ def run_node(node_factory: Callable[[], object], args=None, prefer_events: bool 
     still publish (the excitation node sends duty 0 on the way out); rclpy's own signal handler would shut the
     context down first. While the node is being built they raise ``KeyboardInterrupt``; once it spins they only
     set a flag that the loop checks every 0.1 s (an exception raised inside a callback would be logged by the
-    executor as a FATAL error). A user mistake in the node's parameters (:class:`AeropendError` from the
-    constructor, e.g. :class:`ParameterError`, or a parameter the node does not have) prints one line and
-    returns 2 instead of a traceback.
+    executor as a FATAL error). ``-h``/``--help`` before ``--ros-args`` prints the node's parameters and topics
+    (:mod:`aeropend_ros.node_help`) and returns 0 without starting anything. A user mistake in the node's
+    parameters (:class:`AeropendError` from the constructor, e.g. :class:`ParameterError`, or a parameter the node
+    does not have) prints one line and returns 2 instead of a traceback.
     """
     import signal
 
+    from aeropend_ros.node_help import print_node_help, wants_help
+    if wants_help(args):            # the parameters and topics; nothing is started
+        module = getattr(node_factory, '__module__', '')
+        return print_node_help(module.rsplit('.', 1)[-1], module)
     from rclpy.signals import SignalHandlerOptions
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     previous_sigterm = signal.signal(signal.SIGTERM, _raise_keyboard_interrupt)

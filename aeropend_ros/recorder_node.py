@@ -502,7 +502,10 @@ def _ignore_further_interrupts(quietly: bool = False) -> None:
 
 
 def main(args=None) -> int:
-    """Entry point of ``recorder_node`` (``ros2 run aeropend_ros recorder_node``)."""
+    """Entry point of ``recorder_node`` (``ros2 run aeropend_ros recorder_node``); ``--help``: its parameters."""
+    from aeropend_ros.node_help import print_node_help, wants_help
+    if wants_help(args):            # nothing is started, no bag is created
+        return print_node_help('recorder_node', __name__)
     steady_allocator()                  # before rclpy starts the DDS threads
     rclpy.init(args=args)
     try:

@@ -113,6 +113,46 @@ def test_calibrate_cli_user_errors(capsys, tmp_path):
 
 
 # ------------------------------------------------------------------ the measurement chain in the calibration file
+MULTI_NODE_FILE = """\
+# parameters of the whole graph, one file
+/**/sim_node:
+  ros__parameters:
+    angle_zero: 1.0             # the sim's own, not the bridge's
+    stop_after: 0.0
+/**/serial_bridge_node:
+  ros__parameters:
+    port: /dev/ttyACM0          # the rig
+    angle_zero: 512.0           # [counts]
+/**/identification_node:
+  ros__parameters:
+    window: 25.0                # [s]
+"""
+
+
+def test_calibration_written_under_the_bridge_section_of_a_multi_node_file(tmp_path):
+    """--write edits the bridge's own ros__parameters: a same-named key in an earlier node's section is left alone,
+    a missing key is added to the bridge's section (not at the end of the file), comments and order are kept."""
+    from aeropend_core.cli.calibrate import write_values
+    path = tmp_path / 'graph.yaml'
+    path.write_text(MULTI_NODE_FILE)
+    write_values(path, {'angle_zero': 500.25, 'current_offset': 3.5})
+    text = path.read_text()
+    document = yaml.safe_load(text)
+    assert document['/**/sim_node']['ros__parameters'] == {'angle_zero': 1.0, 'stop_after': 0.0}
+    assert document['/**/serial_bridge_node']['ros__parameters'] == {
+        'port': '/dev/ttyACM0', 'angle_zero': 500.25, 'current_offset': 3.5}
+    assert document['/**/identification_node']['ros__parameters'] == {'window': 25.0}
+    for comment in ("# the sim's own, not the bridge's", '# the rig', '# [counts]', '# [s]',
+                    '# parameters of the whole graph, one file'):
+        assert comment in text, comment
+    assert list(document) == ['/**/sim_node', '/**/serial_bridge_node', '/**/identification_node']
+    assert C.read_calibration_file(path)['angle_zero'] == 500.25
+    path.write_text('- just\n- a list\n')
+    with pytest.raises(AeropendError, match='not a parameter file'):
+        write_values(path, {'angle_zero': 1.0})
+    assert path.read_text() == '- just\n- a list\n'
+
+
 def test_angle_filter_delay_from_components_written_and_read(capsys, tmp_path):
     """`calibrate angle-filter` needs no port: 3 R C of the board's RC ladder into the calibration file, read back
     by read_measurement_chain; the shipped file states the rig's 4.7 kOhm / 1 uF (14.1 ms); bad values refused."""

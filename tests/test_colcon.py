@@ -22,8 +22,8 @@ from aeropend_ros._ros_env import local_ros_environment
 from tests.ros_helpers import private_domain_id, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGE_FILES = ['package.xml', 'setup.py', 'setup.cfg', 'resource', 'aeropend_ros', 'aeropend_core', 'config',
-                 'launch']
+PACKAGE_FILES = ['package.xml', 'setup.py', 'setup.cfg', 'requirements.txt', 'requirements-dev.txt', 'resource',
+                 'aeropend_ros', 'aeropend_core', 'config', 'launch']
 COLCON = shutil.which('colcon', path=str(Path(sys.executable).parent)) or shutil.which('colcon')
 
 pytestmark = [pytest.mark.timeout(240),

@@ -282,9 +282,9 @@ BAD_ARGUMENTS = [
     pytest.param(['identify', '{d}/base.csv', '--start', '100'], ('no samples', 'spans'), 2,
                  id='identify-window-outside-record'),
     pytest.param(['identify', '{d}/base.csv', '--start', 'nan'], ('--start', 'finite'), 2, id='identify-start-nan'),
-    pytest.param(['identify', '{d}/base.csv', '--effect', 'warp'], ('unknown effect',), 2,
+    pytest.param(['identify', '{d}/base.csv', '--add', 'warp'], ('unknown effect',), 2,
                  id='identify-unknown-effect'),
-    pytest.param(['identify', '{d}/base.csv', '--effect', 'cable_torque=3'], ('name only',), 2,
+    pytest.param(['identify', '{d}/base.csv', '--add', 'cable_torque=3'], ('name only',), 2,
                  id='identify-effect-with-value'),
     pytest.param(['identify', '{d}/base.csv', '--model', 'full-state'], ('motor_speed',), 2,
                  id='identify-full-state-without-truth'),
@@ -298,7 +298,7 @@ BAD_ARGUMENTS = [
     pytest.param(['diagnose', '{d}/base.csv', '--effects-module', '{d}/none.py'], ('does not exist',), 2,
                  id='diagnose-effects-module-missing'),
     # effects
-    pytest.param(['effects', '--bogus'], ('unrecognized arguments',), 2, id='effects-unknown-option'),
+    pytest.param(['effects', '--bogus'], ('unrecognized option --bogus',), 2, id='effects-unknown-option'),
     # bag-recover
     pytest.param(['bag-recover', '{d}/no_bag'], ('does not exist',), 2, id='bag-recover-missing'),
     pytest.param(['bag-recover', '{d}/base.csv'], ('not an MCAP file',), 2, id='bag-recover-csv'),

@@ -372,9 +372,12 @@ def test_sim_faster_than_real_time_stops_after(tmp_path, own_domain):
     assert wall < 4.0 + 10.0 + DISCOVERY_TIMEOUT, 'should not be slower than real time plus start-up'   # functional
     sequence = np.array([s.sequence for s in listener.samples])
     stamps = np.array([s.stamp_ns for s in listener.samples], dtype=np.int64)
-    # Best effort at 4,900 msg/s may still drop a few in the transport on a busy machine: check what arrived, and
-    # the ends.
-    assert sequence.size > 100 and sequence.min() == 0 and sequence.max() == 1959, (sequence.size, sequence[:5])
+    # The sim published all 1960 (its own count, asserted above). Samples go out best effort (SensorData QoS, as a
+    # 490 Hz sensor stream should): at 4,900 msg/s a busy transport may drop some anywhere, the last ones included,
+    # so the delivery count is not the sim's promise. What is: every sample that arrives is one of the 1960, once,
+    # in order, stamped k·Ts on the simulated clock; the first arrives (the sim waited for its subscribers).
+    assert sequence.size > 100 and sequence.min() == 0 and sequence.max() <= 1959, (sequence.size, sequence[:5])
+    assert np.all(np.diff(sequence) > 0), 'duplicated or reordered samples'
     assert np.max(np.abs((stamps - stamps[0]) - (sequence - sequence[0]) * SAMPLE_TIME * 1e9)) <= 1.0
 
 

@@ -90,7 +90,7 @@ def test_run_refuses_arguments_that_cannot_work_before_starting(arguments, messa
     result = run_cli(['run', *arguments], local_ros_environment(domain_id=private_domain_id()), timeout=60)
     assert result.returncode == 2, result.stdout + result.stderr
     assert message in result.stderr and 'Traceback' not in result.stderr
-    assert 'aeropend run: simulator' not in result.stdout
+    assert 'aeropend run: simulator' not in result.stdout + result.stderr       # the banner is progress: stderr
 
 
 def test_monitor_without_identification_says_so():

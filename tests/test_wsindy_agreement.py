@@ -5,8 +5,9 @@ Agreement bar for a faster path that does not round exactly like the straightfor
 looser**. Why that bar and not bit for bit: the fit itself is that sensitive to rounding. Perturbing the data by
 one ulp per sample (×(1 ± 2.2e-16)) moves the coefficients by up to 1.3e-7 relative with the full method and
 pysindy's 18-term library, 1.5e-7 with the default library and 1.3e-5 (5.8e-5 σ) with the plain GLS method
-(5 seeds × 30/40/50 dB, `test_one_ulp_of_data_moves_the_fit_more_than_rounding_of_the_fast_path` checks it on
-two windows here); a change in the order of a sum moves the result by about as much as that.
+(5 seeds × 30/40/50 dB on one machine, `bench/wsindy_ulp_sensitivity.py`; how much depends on the CPU and BLAS,
+`test_one_ulp_of_data_stays_inside_the_agreement_bar` checks only that it stays inside the bar); a change in the
+order of a sum moves the result by about as much as that.
 
 The straightforward path writes the noise model out with dense (or plainly sparse) matrices, one row per test
 function (the kernel of type a shifted to its start, K_a):
@@ -162,10 +163,11 @@ def test_fast_noise_model_agrees_with_the_dense_formulas(library, monkeypatch):
         assert sum(len(eq.selected) for eq in plain.values()) >= 8    # real fits, not empty supports
 
 
-def test_one_ulp_of_data_moves_the_fit_more_than_rounding_of_the_fast_path():
-    """The bar's justification, measured: one ulp of data moves some coefficient by more than 1e-9 relative (so
-    bit-for-bit agreement is not a property of the method), and by less than the bar (so the bar is not loose
-    enough to hide a real change: a real change of the method moves coefficients by far more than 1e-6)."""
+def test_one_ulp_of_data_stays_inside_the_agreement_bar():
+    """One ulp of data moves the fit by less than the bar, on the same support (so the bar is not so tight that
+    rounding alone breaks it). How far it moves (1e-10 .. 1e-7 relative, depending on the CPU, the BLAS build and
+    its kernel) is a measurement of this machine, not a property of the method: `bench/wsindy_ulp_sensitivity.py`
+    reports it, this test does not assert it."""
     largest = 0.0
     for seed in (0, 1):
         data = window(seed)
@@ -179,4 +181,4 @@ def test_one_ulp_of_data_moves_the_fit_more_than_rounding_of_the_fast_path():
             _assert_agree(b, a, ('one ulp', seed))
             largest = max(largest, max(abs(b[n].coefficients[t] / v - 1) for n in a
                                        for t, v in a[n].coefficients.items()))
-    assert 1e-9 < largest < RELATIVE
+    assert largest < RELATIVE, largest

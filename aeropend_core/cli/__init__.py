@@ -75,22 +75,132 @@ def _plugin_help(module_name: str) -> str:
     return first[:1].lower() + first[1:]          # as the core verbs' help: lower case, no full stop
 
 
+class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """The verbs' help: the module docstring as written (its examples keep their lines) and every option's default
+    shown after its help (``(default: 60.0)``), unless the help already names it or there is none to show."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        help_text = action.help or ''
+        if 'default' in help_text.lower() or action.default in (None, False, [], argparse.SUPPRESS) or \
+                action.option_strings == [] and action.nargs is None:
+            return help_text
+        return help_text + ' (default: %(default)s)'
+
+
+class VerbParser(argparse.ArgumentParser):
+    """An argument parser that never guesses and answers a mistake with its own verb's usage and one error line.
+
+    ``allow_abbrev=False`` (``--ad`` is not ``--add``, ``--effect`` not ``--effects-module``); an unknown option is
+    answered ``aeropend VERB: error: unrecognized option --efect (did you mean --effect?)`` with exit status 2, and
+    the verb's usage above it, not the top-level one.
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs['allow_abbrev'] = False
+        kwargs.setdefault('formatter_class', HelpFormatter)
+        super().__init__(*args, **kwargs)
+
+    def parse_args(self, args=None, namespace=None):
+        parsed, extras = self.parse_known_args(args, namespace)
+        if extras:
+            self.error(unrecognized_message(self, extras))
+        return parsed
+
+    def error(self, message: str):
+        """Print this parser's usage and ``PROG: error: MESSAGE`` on standard error; exit with status 2."""
+        self.print_usage(sys.stderr)
+        self.exit(2, f'{self.prog}: error: {message}; see {self.prog} --help\n')
+
+
+#: options people reach for by another verb's name or an old one -> the option that means that here
+SYNONYMS = {'--effect': '--add', '--model-effect': '--add', '--effects': '--add', '--add-effect': '--add',
+            '--quite': '--quiet', '--html': '--report'}
+
+
+def unrecognized_message(parser: argparse.ArgumentParser, extras: list[str]) -> str:
+    """'unrecognized option --efect (did you mean --effect?)' for the first unknown option in `extras` (or the
+    unexpected arguments when no option is among them)."""
+    import difflib
+    known = sorted({option for action in parser._actions for option in action.option_strings
+                    if action.help != argparse.SUPPRESS})
+    for extra in extras:
+        if not extra.startswith('-') or extra == '-':
+            continue
+        name = extra.split('=', 1)[0]
+        if name in known:                 # a known option after an unknown one: keep looking
+            continue
+        typo = difflib.get_close_matches(name, known, n=1, cutoff=0.85)        # --efect, --quantize, --durration
+        synonym = difflib.get_close_matches(name, list(SYNONYMS), n=1, cutoff=0.85)   # another verb's word
+        suggestion = typo[0] if typo else SYNONYMS[synonym[0]] if synonym and SYNONYMS[synonym[0]] in known else None
+        if suggestion is None:
+            prefixed = [option for option in known if option.startswith(name) and len(name) > 2]
+            close = prefixed if len(prefixed) == 1 else difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+            suggestion = close[0] if close else None
+        hint = f' (did you mean {suggestion}?)' if suggestion else ''
+        return f'unrecognized option {name}{hint}'
+    return f'unrecognized arguments: {" ".join(extras)}'
+
+
+def version() -> str:
+    """'aeropend 0.1.0' from the installed package's metadata (the source tree's setup.py when not installed)."""
+    from importlib.metadata import PackageNotFoundError, packages_distributions
+    from importlib.metadata import version as installed_version
+    try:            # the distribution that installs this package (named by the metadata, not here)
+        return f'aeropend {installed_version(packages_distributions()["aeropend_core"][0])}'
+    except (PackageNotFoundError, KeyError, IndexError):
+        import re
+        setup = os.path.join(os.path.dirname(__file__), '..', '..', 'setup.py')
+        try:
+            found = re.search(r"version='([^']+)'", open(setup, encoding='utf-8').read())
+        except OSError:
+            found = None
+        return f'aeropend {found.group(1) if found else "(version unknown)"}'
+
+
 def build_parser(argv: list[str]) -> argparse.ArgumentParser:
     """The parser; only the verb named first in `argv` has its module imported."""
-    parser = argparse.ArgumentParser(
-        prog='aeropend',
-        description='Aeropendulum rig: record, identify (weak SINDy) and diagnose missing physics.')
-    sub = parser.add_subparsers(dest='verb', metavar='VERB')
+    parser = VerbParser(
+        prog='aeropend', formatter_class=argparse.RawDescriptionHelpFormatter,
+        description='Aeropendulum rig: record, identify (weak SINDy) and diagnose missing physics.',
+        epilog='`aeropend VERB --help` describes a verb. Exit status: 0 done, 2 a mistake in the command or the '
+               'input (one line says what to do), 1 the system refused or a bug.')
+    parser.add_argument('--version', action='version', version=version())
+    sub = parser.add_subparsers(dest='verb', metavar='VERB', parser_class=VerbParser)
     for verb, (module_name, help_text) in all_verbs().items():
         if verb in argv[:1]:
-            module = importlib.import_module(module_name)
-            verb_parser = sub.add_parser(verb, help=help_text, description=module.__doc__,
-                                         formatter_class=argparse.RawDescriptionHelpFormatter)
-            module.add_arguments(verb_parser)
-            verb_parser.set_defaults(_main=module.main)
+            verb_parser(verb, sub=sub, help_text=help_text, module_name=module_name)
         else:
             sub.add_parser(verb, help=help_text)
     return parser
+
+
+def verb_parser(verb: str, sub=None, help_text: str | None = None, module_name: str | None = None) -> VerbParser:
+    """The parser of one verb (``prog`` 'aeropend VERB'), its module imported; added to `sub` when given."""
+    if module_name is None:
+        module_name, help_text = all_verbs()[verb]
+    module = importlib.import_module(module_name)
+    kwargs = dict(help=help_text, description=module.__doc__)
+    parser = sub.add_parser(verb, **kwargs) if sub is not None else VerbParser(prog=f'aeropend {verb}',
+                                                                               description=module.__doc__)
+    module.add_arguments(parser)
+    parser.set_defaults(_main=module.main, verb=verb)
+    return parser
+
+
+def parse_arguments(argv: list[str]) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
+    """(parser, namespace) of a command line; a verb's mistakes are answered by that verb's parser (its usage, one
+    error line with a suggestion, exit 2), an unknown verb with the closest verb."""
+    verbs = all_verbs()
+    if argv and argv[0] in verbs:
+        parser = verb_parser(argv[0])
+        return parser, parser.parse_args(argv[1:])
+    parser = build_parser(argv)
+    if argv and not argv[0].startswith('-'):
+        import difflib
+        close = difflib.get_close_matches(argv[0], list(verbs), n=1, cutoff=0.5)
+        hint = f' (did you mean {close[0]}?)' if close else f' (choose from {", ".join(verbs)})'
+        parser.error(f'unknown verb {argv[0]!r}{hint}')
+    return parser, parser.parse_args(argv)
 
 
 def debug_enabled() -> bool:
@@ -100,9 +210,8 @@ def debug_enabled() -> bool:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = build_parser(argv)
-    args = parser.parse_args(argv)
-    if not args.verb:
+    parser, args = parse_arguments(argv)
+    if not getattr(args, 'verb', None):
         parser.print_help()
         return 2
     prefix = f'aeropend {args.verb}'

@@ -103,6 +103,24 @@ def add_calibration_argument(parser) -> None:
                              'value (reported as fixed from calibration); --fix angle_filter=... overrides it')
 
 
+def add_fix_argument(parser) -> None:
+    """``--fix EFFECT=VALUE`` (repeatable), the same on every verb that fits the model: an effect with a known
+    hardware value, held in the model instead of fitted."""
+    parser.add_argument('--fix', action='append', default=[], metavar='EFFECT=VALUE',
+                        help='effect with a known hardware value, held in the model (repeatable), e.g. '
+                             'angle_filter=0.0141 (the rig\'s RC filter delay [s]) or NAME.PARAMETER=VALUE')
+
+
+def fixed_effects(fix: list[str], add: list[str]) -> dict[str, dict[str, float]]:
+    """The ``--fix`` effects as ``{effect: {parameter: value}}`` [SI], refused when one is also in ``--add``."""
+    from aeropend_core.model.effects import parse_effect_assignments
+    fixed = parse_effect_assignments(fix)
+    both = sorted(set(fixed) & set(add))
+    if both:
+        raise AeropendError(f'{", ".join(both)} given with both --add and --fix; --fix already puts it in the model')
+    return fixed
+
+
 def calibration_fixed(path: str | None, fixed: dict[str, dict[str, float]]) -> tuple[dict, dict[str, str], str]:
     """Merge a calibration file's measurement chain into the ``--fix`` effects.
 

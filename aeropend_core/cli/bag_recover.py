@@ -20,7 +20,8 @@ from aeropend_core.io.bag_recover import recover_bag
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('bag', help='bag folder (with *.mcap and metadata.yaml) or one of its .mcap files')
+    parser.add_argument('bag', metavar='BAG',
+                        help='bag folder (with *.mcap and metadata.yaml) or one of its .mcap files')
     parser.add_argument('--keep-original', action='store_true',
                         help='keep each cut file as <file>.orig next to the repaired one')
     from aeropend_core.cli._checks import add_json_argument

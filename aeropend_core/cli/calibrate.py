@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import re
 import time
 from pathlib import Path
 
@@ -169,17 +168,47 @@ def load_calibration(path: Path | None) -> tuple[P.Calibration, dict]:
 
 
 def write_values(path: Path, updates: dict[str, float]) -> None:
-    """Replace ``key: value`` lines of `path` in place (comments kept); missing keys are appended."""
+    """Set `updates` under the bridge node's ``ros__parameters`` in the YAML file `path` (created when missing).
+
+    A round-trip YAML edit (ruamel.yaml): other node sections, comments and key order are kept; a key is written
+    under ``/**/serial_bridge_node`` (or an old file's ``serial_bridge_node``) only, whatever other sections hold
+    a key of the same name; a missing section or key is added there.
+
+    Raises
+    ------
+    AeropendError
+        The file is not YAML, or is not a mapping of node sections (nothing is written).
+    """
+    from ruamel.yaml import YAML, YAMLError
+    from ruamel.yaml.comments import CommentedMap
+
     from aeropend_core.io.paths import output_target, write_atomically
     output_target(path, '--write')              # a device or a FIFO is refused before reading it (it could block)
-    text = path.read_text() if path.exists() else f'{NODE_KEY}:\n  ros__parameters:\n'
-    for key, value in updates.items():
-        pattern = re.compile(rf'^(\s*{re.escape(key)}:\s*)([^#\n]*?)(\s*(#.*)?)$', re.MULTILINE)
-        if pattern.search(text):
-            text = pattern.sub(lambda m, v=value: f'{m.group(1)}{v!r}{m.group(3)}', text, count=1)
-        else:
-            text = text.rstrip('\n') + f'\n    {key}: {value!r}\n'
-    write_atomically(path, lambda handle: handle.write(text), '--write', 'the calibration')
+    yaml = YAML()                               # round trip: comments, order and quoting kept
+    yaml.width = 4096                           # never fold a long comment line
+    yaml.indent(mapping=2, sequence=4, offset=2)
+    yaml.preserve_quotes = True
+    try:
+        document = yaml.load(path.read_text()) if path.exists() else None
+    except (OSError, UnicodeDecodeError, YAMLError) as error:
+        raise AeropendError(f'cannot read {path} to update it: {error}; give another --write FILE') from None
+    if document is None:
+        document = CommentedMap()
+    if not isinstance(document, dict):
+        raise AeropendError(f'{path} is not a parameter file (a YAML mapping of node sections, e.g. {NODE_KEY}: '
+                            f'ros__parameters: ...); nothing was written')
+    key = next((k for k in (NODE_KEY, NODE_KEY.removeprefix('/**/')) if k in document), NODE_KEY)
+    section = document.setdefault(key, CommentedMap())
+    if not isinstance(section, dict):
+        raise AeropendError(f'{path}: {key} is not a mapping; nothing was written')
+    parameters = section.get('ros__parameters')
+    if parameters is None:
+        parameters = section['ros__parameters'] = CommentedMap()
+    if not isinstance(parameters, dict):
+        raise AeropendError(f'{path}: {key}.ros__parameters is not a mapping; nothing was written')
+    for name, value in updates.items():
+        parameters[name] = float(value)
+    write_atomically(path, lambda handle: yaml.dump(document, handle), '--write', 'the calibration')
 
 
 def _to_si(calibration: P.Calibration, samples: list[P.SampleFrame]) -> np.ndarray:

@@ -24,13 +24,11 @@ from aeropend_core.errors import AeropendError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('data', help='recording: .csv, .mcap or an MCAP bag folder')
+    parser.add_argument('data', metavar='RECORDING', help='recording: .csv, .mcap or an MCAP bag folder')
     parser.add_argument('--add', action='append', default=[], metavar='EFFECT',
                         help='effect to include in the model (repeatable); see `aeropend effects`')
-    parser.add_argument('--fix', action='append', default=[], metavar='EFFECT=VALUE',
-                        help='effect with a known hardware value, held in the model (repeatable), e.g. '
-                             'angle_filter=0.0141 (the rig\'s RC filter delay [s]) or NAME.PARAMETER=VALUE')
-    from aeropend_core.cli._checks import add_calibration_argument
+    from aeropend_core.cli._checks import add_calibration_argument, add_fix_argument
+    add_fix_argument(parser)
     add_calibration_argument(parser)
     parser.add_argument('--no-drift', action='store_true', help='skip the per-segment drift test')
     parser.add_argument('--only', action='append', default=None, metavar='EFFECT',
@@ -60,11 +58,8 @@ def main(args: argparse.Namespace) -> int:
         load_effects_module(path)
     check_effect_names(args.add, '--add')
     check_effect_names(args.only or [], '--only')
-    from aeropend_core.model.effects import parse_effect_assignments
-    fixed = parse_effect_assignments(args.fix)
-    both = sorted(set(fixed) & set(args.add))
-    if both:
-        raise AeropendError(f'{", ".join(both)} given with both --add and --fix; --fix already puts it in the model')
+    from aeropend_core.cli._checks import fixed_effects
+    fixed = fixed_effects(args.fix, args.add)
     from aeropend_core.cli._checks import calibration_fixed
     fixed, fixed_from, calibration_message = calibration_fixed(args.calibration, fixed)
     both = sorted(set(fixed) & set(args.add))

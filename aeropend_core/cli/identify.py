@@ -32,15 +32,20 @@ from aeropend_core.model.effects import CATALOG
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('data', metavar='DATA', help='recording: CSV file (or MCAP bag)')
+    parser.add_argument('data', metavar='RECORDING', help='recording: .csv, .mcap or an MCAP bag folder')
     from aeropend_core.cli._checks import add_json_argument
     add_json_argument(parser, '{coefficients, standard_errors, parameters, ...} (to standard output: instead of '
                               'the text)')
     parser.add_argument('--model', choices=('pendulum', 'full-state'), default='pendulum',
                         help='which equations to identify (default: pendulum, the live-rig case)')
-    parser.add_argument('--effect', action='append', default=[], metavar='NAME',
-                        help='pendulum model: add a catalog effect as a candidate term (those with a weak form: '
+    parser.add_argument('--add', action='append', default=[], metavar='EFFECT',
+                        help='pendulum model: add a catalog effect as a candidate term (repeatable; the same flag as '
+                             '`aeropend diagnose --add`; those with a weak form: '
                              f'{", ".join(n for n, e in CATALOG.items() if e.weak_form)})')
+    # the old spelling, kept working for scripts: hidden from the help, one deprecation line when used
+    parser.add_argument('--effect', dest='deprecated_effect', action='append', default=[], help=argparse.SUPPRESS)
+    parser.add_argument('--quiet', action='store_true', help='no notes on standard error (warnings about the data '
+                                                             'still print)')
     add_time_range_arguments(parser)
     parser.add_argument('--calibration', metavar='FILE.yaml',
                         help="the rig's calibration file (config/serial_bridge_node.yaml): the angle is advanced by "
@@ -65,7 +70,11 @@ def _pieces_between_gaps(time: np.ndarray, shortest: float = 1.0) -> list[tuple[
 def main(args: argparse.Namespace) -> int:
     from aeropend_core.cli._checks import print_findings, sample_time_from
     from aeropend_core.model.effects import check_effect_names
-    check_effect_names(args.effect, '--effect')
+    if args.deprecated_effect:
+        print('aeropend identify: warning: --effect is deprecated; write --add (the same flag as diagnose and run)',
+              file=sys.stderr)
+        args.add = [*args.add, *args.deprecated_effect]
+    check_effect_names(args.add, '--add')
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
     recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
@@ -99,8 +108,10 @@ def main(args: argparse.Namespace) -> int:
             pieces = trimmed
             filter_note = {'delay': chain.angle_filter_delay, 'from': f'calibration file {args.calibration}',
                            'correction': 'angle advanced by the delay (first-order inverse of the RC low-pass)'}
-            print(f'aeropend identify: angle advanced by the angle filter delay {chain.angle_filter_delay * 1e3:.2f} '
-                  f'ms fixed from calibration file {args.calibration}', file=sys.stderr)
+            if not args.quiet:
+                print(f'aeropend identify: angle advanced by the angle filter delay '
+                      f'{chain.angle_filter_delay * 1e3:.2f} ms fixed from calibration file {args.calibration}',
+                      file=sys.stderr)
         elif chain is not None:
             filter_note = {'delay': chain.angle_filter_delay, 'from': f'calibration file {args.calibration}',
                            'correction': 'none (no filter stated)' if chain.angle_filter_delay is None else
@@ -110,12 +121,12 @@ def main(args: argparse.Namespace) -> int:
             # piece trimmed by the filter's delay)
             cut = [[c[a:b] for a, b in pieces] for c in [np.asarray(recording.time, dtype=float), *columns]]
             fit = identify_pendulum(*cut, duty=None if duty is None else [duty[a:b] for a, b in pieces],
-                                    effects=args.effect)
-            if len(pieces) > 1:
+                                    effects=args.add)
+            if len(pieces) > 1 and not args.quiet:
                 print(f'aeropend identify: {len(pieces) - 1} gap(s) of lost samples in the time stamps: fitted on '
                       f'the {len(pieces)} pieces between them together', file=sys.stderr)
         else:
-            fit = identify_pendulum(recording.time, *columns, duty=duty, effects=args.effect)
+            fit = identify_pendulum(recording.time, *columns, duty=duty, effects=args.add)
     else:
         fit = identify_full_state(recording)
     if args.json:

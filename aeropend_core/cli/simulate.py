@@ -24,21 +24,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         'symbolic link is written through, a device or a named pipe refused')
     parser.add_argument('--duration', type=float, default=60.0, help='length of the record [s] (default 60)')
     parser.add_argument('--seed', type=int, default=0, help='seed of the excitation and the noise (default 0)')
-    parser.add_argument('--psnr', type=float, default=None,
-                        help='measurement noise PSNR [dB] on Va, Ia and angle, 20 log10(max|x|/sigma)')
+    parser.add_argument('--psnr', type=float, default=0.0, metavar='DB',
+                        help='measurement noise PSNR [dB] on Va, Ia and angle, 20 log10(max|x|/sigma); 0 = no noise '
+                             '(as in `aeropend run`; default 0)')
     parser.add_argument('--quantise', action='store_true', help='10-bit angle and current ADC quantisation')
     parser.add_argument('--effect', action='append', default=[], metavar='NAME=VALUE',
                         help='hidden effect (repeatable), e.g. coulomb_friction=4 or thrust_lag.time_constant=0.2')
     parser.add_argument('--preset', choices=sorted(PRESETS), default='default', help='nominal parameter set')
     parser.add_argument('--max-duty', type=float, default=0.7, help='upper end of the duty range (default 0.7)')
     parser.add_argument('--no-truth', action='store_true', help='write only the measured columns')
+    parser.add_argument('--quiet', action='store_true', help='no "wrote N samples" line on standard error')
     from aeropend_core.cli._checks import add_json_argument
     add_json_argument(parser, 'what was simulated (file, samples, duration, rate, seed, noise, effects, columns)')
 
 
 #: Longest record `aeropend simulate` writes [s] (1 h: 1.8 million samples, ~200 MB of CSV with the truth).
 MAX_DURATION = 3600.0
-#: PSNR range [dB]: 0 dB is noise as large as the signal's peak; above 200 dB the noise is below float precision.
+#: PSNR range [dB] of the noise: above 200 dB the noise is below float precision. ``--psnr 0`` means no noise at all
+#: (as in `aeropend run`), not noise as large as the signal's peak.
 PSNR_RANGE = (0.0, 200.0)
 
 
@@ -50,9 +53,9 @@ def check_arguments(args: argparse.Namespace) -> None:
     if args.duration < 2 * SAMPLE_TIME:
         raise AeropendError(f'--duration {args.duration:g} s is shorter than two samples '
                             f'({2 * SAMPLE_TIME:.4f} s at {1 / SAMPLE_TIME:g} Hz)')
-    if args.psnr is not None and not PSNR_RANGE[0] < args.psnr <= PSNR_RANGE[1]:
-        raise AeropendError(f'--psnr must be in ({PSNR_RANGE[0]:g}, {PSNR_RANGE[1]:g}] dB, got {args.psnr}; '
-                            'typical rig values are 30-60 dB; leave --psnr out for noise-free data')
+    if args.psnr != 0 and not PSNR_RANGE[0] < args.psnr <= PSNR_RANGE[1]:
+        raise AeropendError(f'--psnr must be 0 (no noise) or in ({PSNR_RANGE[0]:g}, {PSNR_RANGE[1]:g}] dB, got '
+                            f'{args.psnr}; typical rig values are 30-60 dB')
     if not 0 < args.max_duty <= 1:
         raise AeropendError(f'--max-duty must be in (0, 1], got {args.max_duty}')
     if args.seed < 0:
@@ -73,11 +76,12 @@ def main(args: argparse.Namespace) -> int:
     from aeropend_core.sim.noise import MeasurementNoise
     from aeropend_core.sim.simulate import simulate
     schedule = lhc_schedule(args.duration, duty_range=(0.0, args.max_duty), seed=args.seed, duty_cap=args.max_duty)
-    noise = MeasurementNoise(args.psnr, args.quantise) if (args.psnr is not None or args.quantise) else None
+    psnr = args.psnr if args.psnr else None             # 0: no noise
+    noise = MeasurementNoise(psnr, args.quantise) if (psnr is not None or args.quantise) else None
     trajectory = simulate(schedule.duty(SAMPLE_TIME, args.duration), parameters=PRESETS[args.preset],
                           effects=effects, noise=noise, seed=args.seed)
     write_csv(args.output, trajectory.columns(with_truth=not args.no_truth))
-    if args.output != '-':
+    if args.output != '-' and not args.quiet:
         print(f'wrote {len(trajectory)} samples ({args.duration:g} s at {1 / SAMPLE_TIME:g} Hz) to {args.output}',
               file=sys.stderr)
     if args.json:
@@ -85,7 +89,7 @@ def main(args: argparse.Namespace) -> int:
         columns = trajectory.columns(with_truth=not args.no_truth)
         write_json(args.json, {
             'output': args.output, 'samples': len(trajectory), 'duration': args.duration,
-            'sample_rate': round(1.0 / SAMPLE_TIME, 9), 'seed': args.seed, 'psnr_db': args.psnr,
+            'sample_rate': round(1.0 / SAMPLE_TIME, 9), 'seed': args.seed, 'psnr_db': args.psnr or None,
             'quantise': args.quantise,
             'effects': {name: dict(values) for name, values in effects.items()}, 'preset': args.preset,
             'max_duty': args.max_duty, 'columns': list(columns),

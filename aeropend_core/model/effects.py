@@ -264,7 +264,7 @@ def get_effect(name: str) -> Effect:
         return CATALOG[name]
     except KeyError:
         raise UnknownEffectError(
-            f'unknown effect {name!r}; known effects: {", ".join(sorted(CATALOG))} '
+            f'unknown effect {name!r}{did_you_mean(name)}; known effects: {", ".join(sorted(CATALOG))} '
             f'(`aeropend effects` describes them)') from None
 
 
@@ -320,6 +320,27 @@ def resolve_effects(effects: Mapping[str, Mapping[str, float] | float] | None) -
     return resolved
 
 
+def did_you_mean(name: str) -> str:
+    """' (did you mean coulomb_friction?)' for the catalog effect closest to a misspelt `name` ('' when none is
+    close).
+
+    Parameters
+    ----------
+    name : str [-]
+        The name as given.
+
+    Returns
+    -------
+    str
+        The hint, with its leading space, or ''.
+    """
+    import difflib
+    close = difflib.get_close_matches(name, list(CATALOG), n=1, cutoff=0.6)
+    if not close:           # a prefix or a word of the name ('friction', 'offset')
+        close = [known for known in CATALOG if name and (known.startswith(name) or name in known.split('_'))][:1]
+    return f' (did you mean {close[0]}?)' if close else ''
+
+
 def check_effect_names(names: Sequence[str], option: str = 'effects') -> tuple[str, ...]:
     """Effect names given to a model (``--add``, ``--effect``, ``--only``, a node's ``effects``): bare catalog names.
 
@@ -352,7 +373,7 @@ def check_effect_names(names: Sequence[str], option: str = 'effects') -> tuple[s
             raise AeropendError(f'{option} {name}: give effect names only, e.g. {option} {bare} (the name only: its '
                                 'parameters are estimated from the data)')
         if name not in CATALOG:
-            raise UnknownEffectError(f'unknown effect {name!r} in {option}; known effects: '
+            raise UnknownEffectError(f'unknown effect {name!r} in {option}{did_you_mean(name)}; known effects: '
                                      f'{", ".join(sorted(CATALOG))} (`aeropend effects` describes them)')
         if name not in result:
             result.append(name)

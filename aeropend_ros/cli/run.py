@@ -48,9 +48,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--effect', action='append', default=None, metavar='NAME=VALUE',
                         help='hidden effect of the simulator (repeatable; replaces the default hidden effect); '
                              '--effect none for a clean simulator')
-    parser.add_argument('--add', '--model-effect', dest='model_effect', action='append', default=[], metavar='NAME',
+    parser.add_argument('--add', dest='model_effect', action='append', default=[], metavar='EFFECT',
                         help='effect included in the identified model from the start (repeatable; the same flag '
-                             'as `aeropend diagnose --add`; --model-effect is its old name)')
+                             'as `aeropend diagnose --add`)')
+    # the old name, kept working for scripts: hidden from the help, one deprecation line when used
+    parser.add_argument('--model-effect', dest='deprecated_model_effect', action='append', default=[],
+                        help=argparse.SUPPRESS)
     parser.add_argument('--realtime-factor', type=float, default=1.0, metavar='F',
                         help='simulation speed: 1 = real time, 4 = four times faster (sim only)')
     parser.add_argument('--window', type=float, default=25.0, metavar='S', help='identification window [s]')
@@ -64,8 +67,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE',
                         help='write the run and its diagnosis as one JSON object to FILE (- or no FILE: to standard '
                              'output, which then carries the JSON only; the text goes to standard error)')
-    from aeropend_core.cli._checks import add_calibration_argument
+    from aeropend_core.cli._checks import add_calibration_argument, add_fix_argument
     add_calibration_argument(parser)
+    add_fix_argument(parser)
+    parser.add_argument('--quiet', action='store_true',
+                        help='no progress on standard error (the start line, the diagnosis\'s steps)')
     parser.add_argument('--foxglove', nargs='?', type=int, const=8765, default=None, metavar='PORT',
                         help='serve the live graph to Foxglove on ws://127.0.0.1:PORT (default 8765; 0 = any free '
                              'port); layout: config/aeropend.foxglove.json')
@@ -110,7 +116,13 @@ def _check_arguments(args) -> None:
     from aeropend_core.model.effects import check_effect_names
     if args.effect and args.effect != ['none']:
         parse_effect_assignments(args.effect)
+    if args.deprecated_model_effect:
+        print('aeropend run: warning: --model-effect is deprecated; write --add (the same flag as diagnose and '
+              'identify)', file=sys.stderr)
+        args.model_effect = [*args.model_effect, *args.deprecated_model_effect]
     check_effect_names(args.model_effect, '--add')
+    from aeropend_core.cli._checks import fixed_effects
+    fixed_effects(args.fix, args.model_effect)          # refused now, not after the run
     if args.calibration:         # a bad file is refused before any node starts
         from aeropend_core.cli._checks import calibration_fixed
         fixed, _, _ = calibration_fixed(args.calibration, {})
@@ -235,11 +247,13 @@ def _run(args) -> int:
         what = 'simulator' if use_sim else f'rig on {args.port}'
         if args.rig:
             what += f' as rig {args.rig} (namespace {namespace}: topics {namespace}/aeropend/...)'
-        print(f'aeropend run: {what}, {args.duration:g} s of excitation'
-              + (f' at {args.realtime_factor:g}x real time' if use_sim and args.realtime_factor != 1 else '')
-              + (f', recording to {bag_folder}' if bag_folder else ', not recording')
-              + f', identifying on {args.window:g} s windows every {args.hop:g} s'
-              + (f' (model effects: {", ".join(args.model_effect)})' if args.model_effect else ''), flush=True)
+        if not args.quiet:          # progress: standard error (standard output carries the results)
+            print(f'aeropend run: {what}, {args.duration:g} s of excitation'
+                  + (f' at {args.realtime_factor:g}x real time' if use_sim and args.realtime_factor != 1 else '')
+                  + (f', recording to {bag_folder}' if bag_folder else ', not recording')
+                  + f', identifying on {args.window:g} s windows every {args.hop:g} s'
+                  + (f' (model effects: {", ".join(args.model_effect)})' if args.model_effect else ''),
+                  file=sys.stderr, flush=True)
         for node, executor in zip(nodes, executors):
             spinner = threading.Thread(target=_spin, args=(executor,), name=node.get_name(), daemon=True)
             spinner.start()
@@ -393,12 +407,18 @@ def _diagnose(bag_folder, memory, args, interrupted: bool) -> int:
     print(f'\nDiagnosis of {len(recording)} samples ({recording.time[-1] - recording.time[0]:.1f} s) '
           f'from {recording.source or "the run"}:', flush=True)
     try:
-        from aeropend_core.cli._checks import calibration_fixed
-        fixed, fixed_from, calibration_message = calibration_fixed(args.calibration, {})
+        from aeropend_core.cli._checks import calibration_fixed, fixed_effects
+        fixed, fixed_from, calibration_message = calibration_fixed(args.calibration,
+                                                                   fixed_effects(args.fix, args.model_effect))
+
+        def progress(message: str) -> None:          # standard error, as `aeropend diagnose`
+            if not args.quiet:
+                print(f'  ... {message}', file=sys.stderr, flush=True)
+
         if calibration_message:
-            print(f'  ... {calibration_message}', flush=True)
+            progress(calibration_message)
         diagnosis = diagnose(recording, effects=tuple(args.model_effect), fixed=fixed, fixed_from=fixed_from,
-                             progress=lambda message: print(f'  ... {message}', flush=True))
+                             progress=progress)
     except InsufficientDataError as error:
         print(f'aeropend run: cannot diagnose: {error}', file=sys.stderr)
         return 130 if interrupted else 1
@@ -433,6 +453,7 @@ def _next_step(diagnosis, bag_folder, args) -> str:
     data = str(bag_folder) if bag_folder is not None else '<your recording>'
     if getattr(args, 'calibration', None):
         data += f' --calibration {args.calibration}'
+    data += ''.join(f' --fix {value}' for value in getattr(args, 'fix', []))
     named = list(getattr(diagnosis, 'missing_effects', None) or
                  ([diagnosis.missing_effect] if getattr(diagnosis, 'missing_effect', None) else []))
     if named:
