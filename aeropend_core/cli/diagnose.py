@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--validate', metavar='FILE', default=None,
                         help='a second recording (.csv, .mcap or bag folder) of the same rig: the fitted model is '
                              'simulated on it unchanged (MATLAB compare with validation data); its fit %% and residual '
-                             'statistics go to the summary, the JSON ("validation") and the report')
+                             'statistics go to the summary, the JSON ("validation") and the report (default: none)')
     from aeropend_core.cli._checks import add_json_argument
     add_json_argument(parser, 'the diagnosis as one object (to standard output: instead of the text summary)')
     parser.add_argument('--quiet', action='store_true', help='no progress messages on standard error')
