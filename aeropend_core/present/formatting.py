@@ -112,12 +112,6 @@ def _png(figure) -> str:
     return 'data:image/png;base64,' + base64.b64encode(buffer.getvalue()).decode('ascii')
 
 
-def _figure(width: float, height: float, **kwargs):
-    from matplotlib.figure import Figure
-
-    return Figure(figsize=(width, height), layout='constrained', **kwargs)
-
-
 def _fixed_figure(width: float, height: float, *, left: float = 0.85, right: float = 0.2, top: float = 0.3,
                   bottom: float = 0.55, hspace: float = 0.12, wspace: float = 0.22):
     """A Figure with fixed margins [in] instead of the constrained layout (which costs a second text-layout pass,
