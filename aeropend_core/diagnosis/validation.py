@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from aeropend_core.diagnosis.compare import (PREDICTION_HORIZON, Comparison, PreparedRecord, _correlation,
+from aeropend_core.diagnosis.compare import (PREDICTION_HORIZON, Comparison, PreparedRecord,
                                              _heldout_simulation, _k_step_prediction, excess_error, fit_percent,
                                              prepare)
 from aeropend_core.diagnosis.output_error import STRIDE, SegmentedData, fit_output_error
@@ -278,6 +278,19 @@ class Correlations:
     effective_samples: float
 
 
+def _correlation_fft(a: np.ndarray, b: np.ndarray, lags: int) -> np.ndarray:
+    """Normalised cross-correlation of a(t) with b(t - lag) for lag in [-lags, lags], by FFT (the same numbers as
+    :func:`aeropend_core.diagnosis.compare._correlation`, in O(n log n) instead of O(n lags))."""
+    from scipy.signal import correlate
+
+    a = a - a.mean()
+    b = b - b.mean()
+    scale = math.sqrt(float(np.dot(a, a) * np.dot(b, b))) or 1.0
+    full = correlate(a, b, mode='full', method='fft')
+    zero = len(b) - 1
+    return full[zero - lags:zero + lags + 1] / scale
+
+
 def residual_correlations(prep: PreparedRecord, comparison: Comparison,
                           max_lag_seconds: float = LONG_LAG_SECONDS) -> Correlations:
     """Correlations of the held-out simulation residual with itself and with the thrust input e|e| to long lags.
@@ -292,9 +305,9 @@ def residual_correlations(prep: PreparedRecord, comparison: Comparison,
     n = residual.size
     step = STRIDE * prep.sample_time
     lags = max(1, min(int(round(max_lag_seconds / step)), n // 3))
-    cross = _correlation(residual, thrust, lags)
-    auto = _correlation(residual, residual, lags)
-    input_auto = _correlation(thrust, thrust, lags)
+    cross = _correlation_fft(residual, thrust, lags)
+    auto = _correlation_fft(residual, residual, lags)
+    input_auto = _correlation_fft(thrust, thrust, lags)
     inflation = float(np.sum(auto * input_auto))
     effective = float(np.clip(n / inflation, 1.0, n)) if inflation > 0 else float(n)
     lag_axis = np.arange(-lags, lags + 1) * step
