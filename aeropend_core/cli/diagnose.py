@@ -9,6 +9,7 @@ Examples:
   aeropend diagnose bags/exercise.csv
   aeropend diagnose bags/exercise.csv --add coulomb_friction --report report.html
   aeropend diagnose run.csv --json
+  aeropend diagnose monday.csv --validate tuesday.csv --report report.html   # the fitted model on a second record
   aeropend diagnose afternoon.mcap --start 600 --stop 1200      # ten minutes of a long record [s]
   aeropend diagnose run.csv --fix angle_filter=0.0141          # a known hardware value (the rig's RC filter)
   aeropend diagnose run.csv --calibration config/serial_bridge_node.yaml   # the same, from the calibration file
@@ -35,6 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--effects-module', action='append', default=[], metavar='FILE.py',
                         help='a Python file that registers your own effects (register_effect)')
     parser.add_argument('--report', metavar='FILE.html', help='write a self-contained HTML report')
+    parser.add_argument('--validate', metavar='FILE', default=None,
+                        help='a second recording (.csv, .mcap or bag folder) of the same rig: the fitted model is '
+                             'simulated on it unchanged (MATLAB compare with validation data); its fit %% and residual '
+                             'statistics go to the summary, the JSON ("validation") and the report (default: none)')
     from aeropend_core.cli._checks import add_json_argument
     add_json_argument(parser, 'the diagnosis as one object (to standard output: instead of the text summary)')
     parser.add_argument('--quiet', action='store_true', help='no progress messages on standard error')
@@ -69,6 +74,19 @@ def main(args: argparse.Namespace) -> int:
     recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
     recording = time_window(recording, args.start, args.stop)     # --start/--stop: the same code path as identify
     print_findings('diagnose', recording.findings)          # first: before minutes of fitting, or a refusal
+    validation_recording = None
+    if args.validate:                    # loaded (and refused if unusable) before minutes of fitting
+        try:
+            validation_recording = load_recording(args.validate, sample_time=sample_time_from(args))
+        except AeropendError as error:
+            raise AeropendError(f'--validate: {error}') from None
+        from aeropend_core.diagnosis.compare import MIN_DURATION
+        times = validation_recording.time
+        span = float(times[-1] - times[0]) if times.size else 0.0
+        if span < MIN_DURATION:
+            raise AeropendError(f'--validate {args.validate} lasts {span:.1f} s; a validation record needs at least '
+                                f'{MIN_DURATION:g} s (give a longer recording of the same rig)')
+        print_findings('diagnose --validate', validation_recording.findings)
     from aeropend_core.diagnosis.diagnose import diagnose      # scipy and numba: imported once the input is known good
 
     def progress(message: str) -> None:
@@ -79,9 +97,17 @@ def main(args: argparse.Namespace) -> int:
         print(f'aeropend diagnose: {calibration_message}', file=sys.stderr, flush=True)
     diagnosis = diagnose(recording, effects=args.add, candidates=args.only, progress=progress, fixed=fixed,
                          drift=not args.no_drift, fixed_from=fixed_from)
+    validation = None
+    if validation_recording is not None:
+        from aeropend_core.diagnosis.validation import validate
+        progress(f'validating the fitted model on {args.validate}')
+        try:
+            validation = validate(diagnosis.current, diagnosis.prepared, validation_recording, source=args.validate)
+        except AeropendError as error:
+            raise AeropendError(f'--validate {args.validate}: {error}') from None
     if args.report:
         from aeropend_core.present.report import write_report
-        written = write_report(diagnosis, args.report, source=args.data)
+        written = write_report(diagnosis, args.report, source=args.data, validation=validation)
         progress(f'report written to {written}')
     time_range = None
     if args.start is not None or args.stop is not None:     # the numbers below are about this range only: say so
@@ -92,10 +118,19 @@ def main(args: argparse.Namespace) -> int:
         out = diagnosis.to_dict()
         if time_range:
             out['time_range'] = time_range
+        if validation is not None:
+            out['validation'] = validation.to_dict()
         write_json(args.json, out)
     if args.json != '-':
         if time_range:
             print(f'time range: samples from {time_range["samples_start_s"]:g} s to {time_range["samples_stop_s"]:g} s '
                   f'of {args.data} (--start/--stop)')
         print(diagnosis.summary())
+        if validation is not None:
+            model = ' + '.join(('nominal', *validation.effects))
+            print(f'validation on {args.validate} ({validation.duration:.1f} s, model {model}, unchanged): fit '
+                  f'{validation.fit_percent:.2f} % (free run, as MATLAB compare); RMS error '
+                  f'{validation.rms_error * 1e3:.2f} mrad against a noise of {validation.noise_rms * 1e3:.2f} mrad '
+                  f'(beyond the noise {validation.excess_error * 1e3:.2f} mrad); residual mean '
+                  f'{validation.residual_mean * 1e3:+.2f} mrad')
     return 0

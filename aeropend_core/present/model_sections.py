@@ -3,12 +3,15 @@ equation written out with numbers and units, the parameter correlation matrix of
 export of every trace.
 
 Each function returns an HTML fragment (a ``<section>`` with its own ``id``); :func:`model_sections` returns all of
-them for :func:`aeropend_core.present.report.render_report`. Figures are interactive with plotly, PNG otherwise.
+them for :func:`aeropend_core.present.report.render_report`. Figures are PNGs.
 """
 from __future__ import annotations
 
+import base64
+import gzip
 import io
 import math
+import re
 
 import numpy as np
 
@@ -61,7 +64,7 @@ def observer_traces(diagnosis: Diagnosis) -> dict[str, np.ndarray | None]:
     return {'model_current': current, 'thrust_voltage': thrust_voltage, 'measured_emf': measured}
 
 
-def observer_section(diagnosis: Diagnosis, interactive: bool) -> str:
+def observer_section(diagnosis: Diagnosis) -> str:
     """Measured Ia vs the observer's model current, and the back-EMF used for the thrust."""
     prep = diagnosis.prepared
     motor = prep.motor
@@ -87,20 +90,15 @@ def observer_section(diagnosis: Diagnosis, interactive: bool) -> str:
                 f'(grey). Fitted: {values}. Current RMS error {motor.current_rms_error * 1e3:.2f} mA against a noise '
                 f'of {motor.current_noise_rms * 1e3:.2f} mA ({ratio:.2f}&times;; the observer is used below '
                 '1.5&times;).</p>')
-    if interactive:
-        from aeropend_core.present.interactive import observer_figure
-        figure = observer_figure(prep.time, prep.armature_current, traces['model_current'], traces['thrust_voltage'],
-                                 traces['measured_emf'], float(prep.time[prep.split]))
-    else:
-        figure = _observer_png(diagnosis, traces)
+    figure = _observer_png(diagnosis, traces)
     return ('<section id="observer"><h2>Motor observer: armature current and back-EMF</h2>' + text + figure
             + '</section>')
 
 
 def _observer_png(diagnosis: Diagnosis, traces: dict) -> str:
-    from aeropend_core.present.formatting import HELDOUT_SHADE, MEASURED, _figure, _finite_trace, _img, _png
+    from aeropend_core.present.formatting import HELDOUT_SHADE, MEASURED, _finite_trace, _fixed_figure, _img, _png
     prep = diagnosis.prepared
-    figure = _figure(12.5, 5.0)
+    figure = _fixed_figure(12.5, 5.0, top=0.15, hspace=0.08)
     top, bottom = figure.subplots(2, 1, sharex=True)
     for axes in (top, bottom):
         axes.axvspan(prep.time[prep.split], prep.time[-1], color=HELDOUT_SHADE, zorder=0)
@@ -234,46 +232,64 @@ def traces_csv(diagnosis: Diagnosis, best: Candidate | None) -> str:
     if traces['model_current'] is not None:
         columns['observer_current_A'] = (traces['model_current'], '%.6g')
     columns['thrust_back_emf_V'] = (traces['thrust_voltage'], '%.6g')
-    buffer = io.StringIO()
-    buffer.write(','.join(columns) + '\n')
     data = np.column_stack([np.asarray(values, dtype=float) for values, _ in columns.values()])
-    formats = [fmt for _, fmt in columns.values()]
-    for row in data:
-        buffer.write(','.join('' if not np.isfinite(v) else fmt % v for v, fmt in zip(row, formats)) + '\n')
-    return buffer.getvalue()
+    buffer = io.StringIO()
+    np.savetxt(buffer, data, fmt=[fmt for _, fmt in columns.values()], delimiter=',',
+               header=','.join(columns), comments='')
+    # a sample that was not simulated is an empty field (savetxt writes nan)
+    return re.sub(r'(?<![A-Za-z_])nan(?![A-Za-z_])', '', buffer.getvalue())
+
+
+def compressed_csv(text: str) -> str:
+    """`text` gzip-compressed and base64-encoded (the page holds this; the browser decompresses it on download)."""
+    return base64.b64encode(gzip.compress(text.encode('utf-8'), compresslevel=3, mtime=0)).decode('ascii')
 
 
 DOWNLOAD_SCRIPT = """<script>
 function aeropendDownloadCsv(name) {
-  var text = document.getElementById('traces-csv').textContent.replace(/^\\s+/, '');
-  var link = document.createElement('a');
-  link.href = URL.createObjectURL(new Blob([text], {type: 'text/csv'}));
-  link.download = name;
-  document.body.appendChild(link);
-  link.click();
-  setTimeout(function () { URL.revokeObjectURL(link.href); link.remove(); }, 1000);
+  var packed = document.getElementById('traces-csv').textContent.replace(/\\s+/g, '');
+  if (typeof DecompressionStream === 'undefined') {
+    alert('This browser cannot decompress the embedded CSV (DecompressionStream is missing); open the report in a ' +
+          'current Chromium, Firefox or Safari.');
+    return;
+  }
+  var bytes = Uint8Array.from(atob(packed), function (c) { return c.charCodeAt(0); });
+  var stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream('gzip'));
+  new Response(stream).blob().then(function (blob) {
+    var link = document.createElement('a');
+    link.href = URL.createObjectURL(new Blob([blob], {type: 'text/csv'}));
+    link.download = name;
+    document.body.appendChild(link);
+    link.click();
+    setTimeout(function () { URL.revokeObjectURL(link.href); link.remove(); }, 1000);
+  });
 }
 </script>"""
 
 
 def csv_section(diagnosis: Diagnosis, best: Candidate | None, file_stem: str = 'aeropend') -> str:
-    """A download button for the traces as CSV (the CSV text is embedded in the page; no server, no network)."""
+    """A download button for the traces as CSV (embedded gzip-compressed in the page; no server, no network)."""
     text = traces_csv(diagnosis, best)
-    header = text.split('\n', 1)[0]
+    columns = text.split('\n', 1)[0].split(',')
     rows = text.count('\n') - 1
     name = ''.join(c if c.isalnum() or c in '-_.' else '_' for c in file_stem) + CSV_SUFFIX
+    packed = compressed_csv(text)
+    listed = ''.join(f'<li><code>{_esc(c)}</code></li>' for c in columns)
     return ('<section id="export"><h2>Export the traces</h2><p class="caption">Every sample (not decimated) of the '
-            f'measured and simulated traces, SI units, {rows} rows; columns: <code>{_esc(header)}</code>. '
-            '<code>held_out</code> is 1 on the held-out part; an empty field has no simulated value at that sample '
-            '(the simulation is kept at every second sample, from the first fitted state of each segment on).</p>'
+            f'measured and simulated traces, SI units, {rows} rows ({len(text) / 1e6:.1f} MB as CSV; '
+            f'{len(packed) / 1e6:.1f} MB compressed in this page). <code>held_out</code> is 1 on the held-out part; an '
+            'empty field has no simulated value at that sample (the simulation is kept at every second sample, from '
+            f'the first fitted state of each segment on). Columns:</p><ul class="columns">{listed}</ul>'
             f'<p><button type="button" onclick="aeropendDownloadCsv({_esc(repr(name))})">Download {_esc(name)}'
-            f'</button></p><script type="text/csv" id="traces-csv">\n{text}</script>' + DOWNLOAD_SCRIPT + '</section>')
+            f'</button></p><script type="application/gzip" id="traces-csv">{packed}</script>' + DOWNLOAD_SCRIPT
+            + '</section>')
 
 
-def model_sections(diagnosis: Diagnosis, best: Candidate | None, interactive: bool, file_stem: str) -> list[str]:
+def model_sections(diagnosis: Diagnosis, best: Candidate | None, file_stem: str) -> list[str]:
     """The sections of this module in page order."""
-    return [observer_section(diagnosis, interactive), equation_section(diagnosis, best),
+    return [observer_section(diagnosis), equation_section(diagnosis, best),
             correlation_section(diagnosis, best), csv_section(diagnosis, best, file_stem)]
 
 
-__all__ = ['correlation_table', 'csv_section', 'equation_html', 'model_sections', 'observer_traces', 'traces_csv']
+__all__ = ['compressed_csv', 'correlation_table', 'csv_section', 'equation_html', 'model_sections', 'observer_traces',
+           'traces_csv']

@@ -19,7 +19,8 @@ from aeropend_core.present.formatting import (
     WORST_SHADE,
     SMOOTHING_SECONDS,
     _excess,
-    _figure,
+    _fixed_figure,
+    _top_legend,
     _finite_trace,
     _model_name,
     _png,
@@ -52,7 +53,7 @@ def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
     prep = diagnosis.prepared
     time = prep.time
     breaks = _segment_starts(diagnosis)
-    figure = _figure(12.5, 5.6)
+    figure = _fixed_figure(12.5, 5.8, top=0.75, hspace=0.08)
     grid = figure.add_gridspec(2, 1, height_ratios=[3.2, 1])
     angle_axes = figure.add_subplot(grid[0])
     input_axes = figure.add_subplot(grid[1], sharex=angle_axes)
@@ -72,9 +73,9 @@ def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
     angle_axes.text(time[0], 1.0, 'training part (fitted in ~10 s segments, each restarted from a fitted state)',
                     transform=angle_axes.get_xaxis_transform(), va='bottom', ha='left', fontsize=9,
                     color='#666666')
-    figure.legend(*angle_axes.get_legend_handles_labels(), loc='outside upper center', ncol=4, fontsize=8.5,
-                  frameon=False)
+    _top_legend(figure, angle_axes, 4)
     angle_axes.grid(alpha=0.3)
+    angle_axes.tick_params(labelbottom=False)
     t, v = _finite_trace(time, prep.armature_voltage)
     input_axes.plot(t, v, color='#7b3294', lw=0.8)
     input_axes.set_ylabel('Va [V]')
@@ -84,34 +85,13 @@ def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
     return _png(figure)
 
 
-def _plot_heldout_zoom(diagnosis: Diagnosis, best: Candidate | None) -> str:
-    prep = diagnosis.prepared
-    part = slice(prep.split, len(prep.time))
-    time = prep.time[part]
-    figure = _figure(12.5, 3.6)
-    axes = figure.add_subplot()
-    t, y = _finite_trace(time, prep.angle[part])
-    axes.plot(t, np.degrees(y), color=MEASURED, lw=0.6, alpha=0.8, label='measured')
-    for label, simulated, colour, style, width in _overlay_traces(diagnosis, best):
-        t, y = _finite_trace(time, simulated[part])
-        axes.plot(t, np.degrees(y), color=colour, ls=style, lw=width, label=label)
-    axes.set_facecolor('#fffbea')
-    axes.set_xlim(time[0], time[-1])
-    axes.set_xlabel('time [s]')
-    axes.set_ylabel('angle [deg]')
-    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=4, fontsize=8.5,
-                  frameon=False)
-    axes.grid(alpha=0.3)
-    return _png(figure)
-
-
 def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
     prep = diagnosis.prepared
     time = prep.time
     breaks = _segment_starts(diagnosis)
     noise = diagnosis.noise_rms
     width = max(1, round(SMOOTHING_SECONDS / prep.sample_time / 2))   # simulated every 2nd sample
-    figure = _figure(12.5, 4.4)
+    figure = _fixed_figure(12.5, 4.6, top=0.75)
     axes = figure.add_subplot()
     axes.axvspan(time[prep.split], time[-1], color=HELDOUT_SHADE, zorder=0)
     windows = diagnosis.current.evaluation.worst_windows
@@ -139,10 +119,15 @@ def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
     axes.set_xlim(time[0], time[-1])
     axes.set_xlabel('time [s]')
     axes.set_ylabel('measured \u2212 simulated angle [mrad]')
-    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=3, fontsize=8.5,
-                  frameon=False)
+    _top_legend(figure, axes, 3)
     axes.grid(alpha=0.3)
     return _png(figure)
+
+
+def _label_inches(labels: list[str], fontsize: float) -> float:
+    """Left margin [in] for y tick labels of this length (DejaVu Sans: about 0.6 em per character)."""
+    longest = max((len(label) for label in labels), default=10)
+    return 0.35 + longest * 0.6 * fontsize / 72
 
 
 def _regime_excess(regimes: dict, name: str, noise: float) -> float:
@@ -163,7 +148,9 @@ def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
     if best is not None:
         series.append((f'+ {best.effect} (best candidate)', best.comparison.evaluation.regimes, CANDIDATE))
     height = 0.8 / len(series)
-    figure = _figure(12.5, 0.75 + 0.42 * len(names) * (0.6 + 0.4 * len(series)))
+    labels = [f'{name}  [{current[name]["fraction_of_samples"] * 100:.0f} % of samples]' for name in names]
+    figure_height = 1.3 + 0.42 * len(names) * (0.6 + 0.4 * len(series))
+    figure = _fixed_figure(12.5, figure_height, left=_label_inches(labels, 8.5), top=0.45, bottom=0.6)
     axes = figure.add_subplot()
     positions = np.arange(len(names), dtype=float)
     largest = 0.0
@@ -177,85 +164,110 @@ def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
             if np.isfinite(value):
                 axes.text(bar.get_width(), bar.get_y() + bar.get_height() / 2, f' {value:.1f}', va='center',
                           fontsize=7.5, color=colour)
-    labels = [f'{name}  [{current[name]["fraction_of_samples"] * 100:.0f} % of samples]' for name in names]
     axes.set_yticks(positions, labels, fontsize=8.5)
     axes.set_xlim(0, max(largest, 0.1 * noise * 1e3) * 1.12)
     axes.set_xlabel(f'model error beyond the noise in the regime, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]'
                     f'   (noise RMS {noise * 1e3:.1f} mrad)')
-    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=4, fontsize=8.5,
-                  frameon=False)
+    _top_legend(figure, axes, 4)
     axes.grid(axis='x', alpha=0.3)
     return _png(figure)
 
 
-def _stems(axes, lags: np.ndarray, values: np.ndarray, colour: str, label: str, offset: float = 0.0,
-           marker: str = 'o') -> None:
-    axes.vlines(lags + offset, 0, values, color=colour, lw=1.1)
-    axes.plot(lags + offset, values, marker, color=colour, ms=3.5, label=label, mfc=colour if marker == 'o'
-              else 'none')
+#: Colour of the selected set (the verdict's missing effects), as the MISSING badge of the table.
+SELECTED = '#e66101'
+
+#: Colour of a candidate significant on its own but not selected (made redundant by the selected set).
+REDUNDANT = '#a6d96a'
 
 
-def _plot_residual_tests(diagnosis: Diagnosis, best: Candidate | None) -> str:
-    evaluation = diagnosis.current.evaluation
-    lags = evaluation.lag_seconds
-    half = (len(lags) - 1) // 2
-    band = evaluation.correlation_band
-    shift = 0.25 * (lags[1] - lags[0]) if len(lags) > 1 else 0.0
-    figure = _figure(12.5, 3.6)
-    auto_axes, cross_axes = figure.subplots(1, 2)
-    for axes in (auto_axes, cross_axes):
-        axes.axhspan(-band, band, color='#c6dbef', alpha=0.7, label=f'99 % band \u00b12.58/\u221aN = '
-                                                                    f'\u00b1{band:.3f}')
-        axes.axhline(0, color='black', lw=0.6)
-        axes.grid(alpha=0.3)
-    _stems(auto_axes, lags[half:], evaluation.residual_autocorrelation, CURRENT, 'model as given')
-    _stems(cross_axes, lags, evaluation.residual_input_correlation, CURRENT, 'model as given')
-    if best is not None:
-        other = best.comparison.evaluation
-        _stems(auto_axes, lags[half:], other.residual_autocorrelation, CANDIDATE, f'+ {best.effect}', shift, 's')
-        _stems(cross_axes, lags, other.residual_input_correlation, CANDIDATE, f'+ {best.effect}', shift, 's')
-    auto_axes.set_title('residual autocorrelation (whiteness test)', fontsize=10)
-    auto_axes.set_xlabel('lag [s]')
-    auto_axes.set_ylabel('normalised correlation')
-    cross_axes.set_title('residual vs thrust input e|e| (cross-correlation)', fontsize=10)
-    cross_axes.set_xlabel('lag [s]  (positive: the input leads the residual)')
-    figure.legend(*auto_axes.get_legend_handles_labels(), loc='outside upper center', ncol=3, fontsize=8.5,
-                  frameon=False)
-    return _png(figure)
+def _candidate_status(diagnosis: Diagnosis, candidate: Candidate) -> tuple[str, str]:
+    """(colour, tag) of a candidate on the chart: selected, significant alone but not selected, or not."""
+    if candidate.effect in diagnosis.missing_effects:
+        return SELECTED, 'SELECTED'
+    if candidate.significant:
+        return REDUNDANT, 'significant alone, not selected (redundant with the selected set)'
+    return '#9e9e9e', 'not significant'
+
+
+def candidate_chart_rows(diagnosis: Diagnosis) -> list[dict]:
+    """The rows of the candidate chart, top to bottom.
+
+    Returns
+    -------
+    list of dict
+        ``label``; ``start`` and ``end`` [mrad]: held-out error beyond the noise (a reference model is a bar from 0
+        to its value; a candidate an arrow from the model it was added to, to the model with it); ``colour``;
+        ``tag`` (``'reference'``, ``'SELECTED'``, ``'significant alone, not selected ...'``, ``'not significant'``);
+        ``effect`` (None for a reference model).
+    """
+    now = _excess(diagnosis.current) * 1e3
+    rows = []
+    if diagnosis.before is not None:
+        before = _excess(diagnosis.before) * 1e3
+        rows.append(dict(label=f'before: {_model_name(diagnosis.before.effects)}', start=0.0, end=before,
+                         colour=BEFORE, tag='reference', effect=None))
+        rows.append(dict(label=f'after: {_model_name(diagnosis.effects)}', start=0.0, end=now, colour=CURRENT,
+                         tag='reference', effect=None))
+    else:
+        rows.append(dict(label=f'model as given: {_model_name(diagnosis.effects)}', start=0.0, end=now,
+                         colour=CURRENT, tag='reference', effect=None))
+    if diagnosis.selected is not None and diagnosis.missing_effects:
+        rows.append(dict(label='selected set: + ' + ' + '.join(diagnosis.missing_effects), start=0.0,
+                         end=_excess(diagnosis.selected) * 1e3, colour=SELECTED, tag='reference', effect=None))
+    for candidate in diagnosis.candidates:
+        if candidate.comparison is None or not np.isfinite(candidate.excess_after):
+            continue
+        colour, tag = _candidate_status(diagnosis, candidate)
+        rows.append(dict(label=f'+ {candidate.effect}', start=candidate.excess_before * 1e3,
+                         end=candidate.excess_after * 1e3, colour=colour, tag=tag, effect=candidate.effect))
+    return rows
 
 
 def _plot_candidates(diagnosis: Diagnosis) -> str | None:
-    testable = [c for c in diagnosis.candidates if c.comparison is not None and np.isfinite(c.excess_after)]
-    if not testable:
+    """Held-out error beyond the noise: the reference models as bars, each candidate as an arrow from the model it
+    was added to (the model as given) to where adding it takes the error; the selected set highlighted."""
+    rows = candidate_chart_rows(diagnosis)
+    if len(rows) < 2:
         return None
     noise = diagnosis.noise_rms * 1e3
     now = _excess(diagnosis.current) * 1e3
-    needed = math.sqrt(max(now ** 2 - (MATERIAL * noise) ** 2, 0.0))
-    figure = _figure(12.5, 0.9 + 0.38 * len(testable))
+    figure = _fixed_figure(12.5, 1.5 + 0.36 * len(rows), left=_label_inches([row['label'] for row in rows], 9),
+                           top=0.45, bottom=0.6)
     axes = figure.add_subplot()
-    positions = np.arange(len(testable))[::-1]
-    values = np.array([c.excess_after * 1e3 for c in testable])
-    colours = [CANDIDATE if c.significant else '#9e9e9e' for c in testable]
-    bars = axes.barh(positions, values, color=colours, height=0.7)
-    for position, value, candidate in zip(positions, values, testable):
-        if candidate.significant:   # a marker keeps a bar of (almost) zero length visible
-            axes.plot([value], [position], 'D', color=CANDIDATE, ms=7, clip_on=False, zorder=3)
-    for bar, value, candidate in zip(bars, values, testable):
-        tag = '  SIGNIFICANT' if candidate.significant else ''
-        axes.annotate(f'{value:.2f} mrad{tag}', (bar.get_width(), bar.get_y() + bar.get_height() / 2),
-                      xytext=(7, 0), textcoords='offset points', va='center', fontsize=8,
-                      color=CANDIDATE if candidate.significant else '#555555',
-                      fontweight='bold' if candidate.significant else 'normal')
-    axes.axvline(now, color=CURRENT, lw=1.6, label=f'model as given ({now:.2f} mrad)')
-    axes.axvline(needed, color=CURRENT, lw=1, ls=':',
-                 label=f'improvement needed to count ({needed:.2f} mrad; also \u0394BIC < \u2212{BIC_MARGIN:g}, '
-                       f'parameter > 3\u03c3)')
-    axes.axvline(noise, color='black', ls='--', lw=1, label=f'measurement noise RMS ({noise:.2f} mrad)')
-    axes.set_yticks(positions, [f'+ {c.effect}' for c in testable], fontsize=9)
-    axes.set_xlim(0, max(np.nanmax(values), now, noise) * 1.3)
+    positions = list(range(len(rows)))[::-1]
+    references = 0
+    for position, row in zip(positions, rows):
+        start, end, colour = row['start'], row['end'], row['colour']
+        if row['effect'] is None:
+            references += 1
+            axes.barh(position, end, color=colour, height=0.62, alpha=0.85)
+            axes.annotate(f'{end:.2f} mrad', (end, position), xytext=(6, 0), textcoords='offset points',
+                          va='center', fontsize=8, color=colour, fontweight='bold')
+            continue
+        axes.plot([start, end], [position, position], color=colour, lw=2.2, solid_capstyle='butt')
+        axes.plot([end], [position], marker='<' if end < start else '>', color=colour, ms=8, zorder=3,
+                  clip_on=False)
+        removed = start - end
+        change = ('no error beyond the noise to remove' if start <= 0 else
+                  f'{end:.2f} mrad, unchanged' if abs(removed) < 0.005 * start else
+                  f'{end:.2f} mrad, {removed:.2f} removed' if removed > 0 else f'{end:.2f} mrad, worse')
+        selected = row['tag'] == 'SELECTED'
+        axes.annotate(f'{change}  \u2014 {row["tag"]}', (max(start, end), position), xytext=(8, 0),
+                      textcoords='offset points', va='center', fontsize=8, color=SELECTED if selected else '#333333',
+                      fontweight='bold' if selected else 'normal')
+    if references < len(rows):
+        axes.axhline(positions[references - 1] - 0.5, color='#999999', lw=0.8)
+    axes.axvline(noise, color='black', ls='--', lw=1, label=f'measurement noise RMS ({noise:.2f} mrad), for scale')
+    needed = math.sqrt(max(now ** 2 - (MATERIAL * noise) ** 2, 0.0))
+    if now - needed > 0.01 * max(now, 1e-9):
+        axes.axvline(needed, color=CURRENT, lw=1, ls=':',
+                     label=f'a candidate must reach left of this ({needed:.2f} mrad; also \u0394BIC < '
+                           f'\u2212{BIC_MARGIN:g}, parameter > 3\u03c3)')
+    axes.set_yticks(positions, [row['label'] for row in rows], fontsize=9)
+    largest = max([max(row['start'], row['end']) for row in rows] + [noise])
+    axes.set_xlim(0, largest * 1.75)
     axes.set_xlabel('held-out model error beyond the noise, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]  '
-                    '(shorter is better)')
-    figure.legend(*axes.get_legend_handles_labels(), loc='outside upper center', ncol=3, fontsize=8.5,
-                  frameon=False)
+                    '(shorter is better; arrow: model as given \u2192 with the candidate)')
+    _top_legend(figure, axes, 2)
     axes.grid(axis='x', alpha=0.3)
     return _png(figure)

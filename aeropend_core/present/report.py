@@ -1,5 +1,7 @@
-"""A self-contained HTML report of a diagnosis: one file, no external resources; the time traces are interactive
-(plotly, its library inlined once: :mod:`aeropend_core.present.interactive`), the other plots embedded PNGs.
+"""A self-contained HTML report of a diagnosis: one file, no script library and no external resource; every plot
+is an embedded PNG whose lines are decimated to what its pixels can show (a min/max envelope per pixel column,
+:func:`aeropend_core.present.formatting.envelope`), so a 60 s record gives a page of about 1 MB written in about a
+second. Every sample is in the page's CSV export (gzip-compressed).
 
 The page answers, top to bottom: what is missing (the verdict and the key numbers with units), where the model
 fails (measured vs simulated angle, error vs time with the worst windows, error by regime, residual correlation
@@ -15,6 +17,7 @@ from __future__ import annotations
 
 import datetime
 import math
+import re
 import shlex
 from pathlib import Path
 
@@ -23,6 +26,7 @@ import numpy as np
 from aeropend_core.diagnosis.compare import Comparison
 from aeropend_core.diagnosis.diagnose import (BIC_MARGIN, DM_MIN, MATERIAL, T_MIN, UNEXPLAINED_NOISE, Candidate,
                                               Diagnosis)
+from aeropend_core.diagnosis.validation import Validation
 from aeropend_core.errors import AeropendError
 from aeropend_core.present.formatting import (
     BEFORE,
@@ -42,15 +46,14 @@ from aeropend_core.present.formatting import (
     _sig,
     _unit_and_meaning,
 )
-from aeropend_core.present import interactive
+from aeropend_core.present.model_checks import (band_section, correlation_section, scatter_section,
+                                                validation_section)
 from aeropend_core.present.model_sections import model_sections
 from aeropend_core.present.plots import (
     _plot_candidates,
     _plot_error,
-    _plot_heldout_zoom,
     _plot_overlay,
     _plot_regimes,
-    _plot_residual_tests,
 )
 
 
@@ -103,6 +106,8 @@ code { font-family: 'DejaVu Sans Mono', monospace; font-size: 92%; }
   border-left: 4px solid #1f63b4; padding: 8px 14px; margin: 8px 0; }
 .terms { font-size: 13.5px; margin: 4px 0 10px; } .terms .term { display: inline-block; margin-right: 14px; }
 table.correlation td, table.correlation th { text-align: center; padding: 4px 7px; }
+ul.columns { columns: 3 220px; font-size: 12.5px; margin: 4px 0 8px; padding-left: 18px; }
+ul.columns code { overflow-wrap: anywhere; }
 button { font-size: 14px; padding: 6px 14px; border-radius: 4px; border: 1px solid #1f63b4; background: #eaf1fb;
   cursor: pointer; }
 """
@@ -121,7 +126,7 @@ def _verdict_html(diagnosis: Diagnosis, source: str | None = None) -> str:
         missing=', '.join(diagnosis.missing_effects) or diagnosis.missing_effect)
     css = VERDICT_CLASSES.get(diagnosis.verdict, 'warn')
     parts = [f'<section class="verdict {css}" id="verdict"><div class="title">{_esc(title)}</div>',
-             f'<div>{_esc(diagnosis.message)}</div>']
+             f'<div>{_esc(_plain(_without_title(diagnosis.message)))}</div>']
     if diagnosis.verdict == 'effect_found':
         added = ''.join(f' --add {e}' for e in (*diagnosis.effects, diagnosis.missing_effect))
         data = shlex.quote(source) if source else 'DATA'
@@ -135,6 +140,35 @@ def _verdict_html(diagnosis: Diagnosis, source: str | None = None) -> str:
                      '<a href="#structure">see below</a>.</div>')
     parts.append('</section>')
     return ''.join(parts)
+
+
+#: Openings of a verdict message that only repeat the banner's title (the title says it already).
+_TITLE_REPEATS = re.compile(r'^(missing effects?|nothing significant is missing)\s*:\s*', re.IGNORECASE)
+
+
+def _without_title(message: str) -> str:
+    """The verdict message without an opening that repeats the banner's title."""
+    rest = _TITLE_REPEATS.sub('', message, count=1)
+    first_word = rest.split(' ', 1)[0]
+    # a sentence starts with a capital; an effect's name (coulomb_friction) keeps its spelling
+    return rest[:1].upper() + rest[1:] if rest != message and '_' not in first_word else rest
+
+
+def _plain(text: str, candidate: Candidate | None = None) -> str:
+    """Text for the page without an 'inf' and without a share of an error that is not there.
+
+    A profiled threshold (dead zone) has no standard error, so its t statistic is infinite: said in words. A
+    candidate added to a model already within the noise has no error beyond the noise to remove, whatever the
+    share computed from a zero denominator says.
+    """
+    text = re.sub(r'parameter [+-]?inf HAC standard errors from zero',
+                  'parameter a threshold placed between two input levels (no standard error; not tested against '
+                  'zero)', text)
+    if candidate is not None and not candidate.excess_before > 0:
+        text = re.sub(r'it removes \d+ % of the held-out mean-square error beyond the noise( \([^)]*\))?',
+                      'the model it was added to is already within the noise, so there is no error beyond the noise '
+                      'for it to remove', text)
+    return re.sub(r'(?<![\w.])[+-]?inf(?![\w])', 'unbounded', text)
 
 
 def _quality_html(diagnosis: Diagnosis) -> str:
@@ -263,19 +297,6 @@ def _regime_table(diagnosis: Diagnosis, best: Candidate | None) -> str:
     return '<table>' + head + '</tr>' + ''.join(rows) + '</table>'
 
 
-def _residual_summary(diagnosis: Diagnosis, best: Candidate | None) -> str:
-    def describe(evaluation) -> str:
-        band = evaluation.correlation_band
-        auto = int(np.sum(np.abs(evaluation.residual_autocorrelation[1:]) > band))
-        cross = int(np.sum(np.abs(evaluation.residual_input_correlation) > band))
-        return (f'{auto} of {len(evaluation.residual_autocorrelation) - 1} autocorrelation lags and {cross} of '
-                f'{len(evaluation.residual_input_correlation)} cross-correlation lags leave the band')
-    text = f'Model as given: {describe(diagnosis.current.evaluation)}.'
-    if best is not None:
-        text += f' With + {_esc(best.effect)}: {describe(best.comparison.evaluation)}.'
-    return text
-
-
 def _percent_change(value: float) -> str:
     if not np.isfinite(value):
         return '&mdash;'
@@ -297,15 +318,16 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
     for rank, candidate in enumerate(diagnosis.candidates, 1):
         if candidate.comparison is None:
             badge = '<span class="badge na">not testable</span>'
-        elif candidate.effect == diagnosis.missing_effect:
-            badge = '<span class="badge best">MISSING</span>'
+        elif candidate.effect in diagnosis.missing_effects:
+            badge = '<span class="badge best">SELECTED: missing</span>'
         elif candidate.significant:
-            badge = '<span class="badge yes">significant</span>'
+            badge = '<span class="badge yes">significant alone</span><br><small>not selected: redundant with the ' \
+                    'selected set</small>'
         else:
             badge = '<span class="badge no">no</span>'
-        css = 'main significant' if candidate.significant else 'main'
+        css = 'main significant' if candidate.effect in diagnosis.missing_effects else 'main'
         change = (_percent_change(-candidate.improvement * 100) if candidate.comparison is not None
-                  and candidate.excess_before > 0 else '&mdash;')
+                  and candidate.excess_before > 0 else 'nothing to remove')
         confounded = ', '.join(_esc(c) for c in candidate.confounded_with) or '&mdash;'
         rows.append(
             f'<tr class="{css}"><td>{rank}</td><td><b>{_esc(candidate.effect)}</b></td><td>{badge}</td>'
@@ -314,7 +336,7 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
             f'<small>RMS {_mrad(candidate.rms_error)}</small></td>'
             f'<td class="num">{_num(candidate.delta_bic, 1)}</td><td>{_parameters_with_sigma(candidate)}</td>'
             f'<td>{confounded}</td></tr>')
-        detail = _esc(candidate.explanation or candidate.error)
+        detail = _esc(_plain(candidate.explanation or candidate.error, candidate))
         if candidate.evidence and 'Improved most' not in (candidate.explanation or ''):
             detail += '<br><b>Evidence</b> (regimes that improved most): ' + '; '.join(
                 _esc(e) for e in candidate.evidence)
@@ -393,13 +415,12 @@ def _structure_html(diagnosis: Diagnosis) -> str:
             '<th>r</th><th>|r|</th></tr>' + ''.join(rows) + '</table>')
 
 
-def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
+def render_report(diagnosis: Diagnosis, source: str | None = None, validation: Validation | None = None) -> str:
     """The report as one HTML string (see :func:`write_report`)."""
     if diagnosis.prepared is None:
         raise AeropendError('this diagnosis carries no prepared recording; run diagnose() on a recording to '
                             'make a report')
     best = _best_candidate(diagnosis)
-    live = interactive.available()          # interactive plots (plotly), else the PNGs
     prep = diagnosis.prepared
     model = _model_name(diagnosis.effects)
     heldout_from = prep.time[prep.split]
@@ -410,6 +431,8 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
            '<a href="#candidates">5 candidates</a>']
     if diagnosis.before is not None:
         nav.append('<a href="#before-after">6 before &rarr; after</a>')
+    if validation is not None:
+        nav.append('<a href="#validation">validation record</a>')
     nav.append('<a href="#parameters">parameters</a>')
     nav += ['<a href="#observer">motor observer</a>', '<a href="#equation">equation</a>',
             '<a href="#correlation">correlation</a>', '<a href="#export">CSV</a>']
@@ -437,14 +460,10 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
         'the numbers in the text are mrad). Shaded yellow: the held-out part, simulated free-running from the '
         'measured Va and Ia after estimating its initial state on its first second; the fit % is computed there. '
         'On the training part each ~10 s segment (dotted lines) restarts from a fitted initial state. Bottom: the '
-        'armature voltage driving the rig' + (' and the armature current. Interactive plots: drag to zoom, '
-                                              'double-click to reset, click a legend entry to hide a trace.</p>'
-                                              if live else '.</p>')
-        + (interactive.time_figure('overlay', diagnosis, best)
-           or _img(_plot_overlay(diagnosis, best), 'measured and simulated angle over the whole record'))
-        + '<h3>Held-out part, enlarged</h3>'
-        + (interactive.time_figure('heldout', diagnosis, best)
-           or _img(_plot_heldout_zoom(diagnosis, best), 'measured and simulated angle on the held-out part')))
+        'armature voltage driving the rig. Each line keeps the smallest and largest sample of every pixel column '
+        '(all samples are in the CSV export below).</p>'
+        + _img(_plot_overlay(diagnosis, best), 'measured and simulated angle over the whole record')
+        + band_section(diagnosis))
 
     sections.append(
         '<h2 id="error">2. Error vs time: where the model fails</h2>'
@@ -452,8 +471,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
         f'{SMOOTHING_SECONDS:g} s running mean (bold) that shows the model error under the noise. Grey band: '
         '&plusmn; the measurement noise RMS; an error that stays inside it is noise. Salmon spans #1&ndash;#5: the '
         'one-second windows with the largest RMS error (table below). Yellow: held-out part.</p>'
-        + (interactive.time_figure('error', diagnosis, best)
-           or _img(_plot_error(diagnosis, best), 'simulation error against time with the worst windows marked'))
+        + _img(_plot_error(diagnosis, best), 'simulation error against time with the worst windows marked')
         + _worst_windows_html(diagnosis))
 
     sections.append(
@@ -466,13 +484,8 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
         + _img(_plot_regimes(diagnosis, best), 'RMS error by regime') + _regime_table(diagnosis, best))
 
     sections.append(
-        '<h2 id="residuals">4. Residual tests (as MATLAB <code>resid</code>)</h2>'
-        '<p class="caption">Left: autocorrelation of the held-out simulation residual; a good model leaves white '
-        'residuals (all lags after 0 inside the 99 % band). Right: correlation of the residual with the thrust '
-        'input e|e| at lags in seconds; bars outside the band mean the input still explains part of the error '
-        '(unmodelled input dynamics such as a lag). The residual of a free-run simulation is rarely perfectly '
-        'white, so read these next to the error beyond the noise. ' + _residual_summary(diagnosis, best) + '</p>'
-        + _img(_plot_residual_tests(diagnosis, best), 'residual autocorrelation and cross-correlation'))
+        '<h2 id="residuals">4. Residual tests (as MATLAB <code>resid</code>, to long lags)</h2>'
+        + scatter_section(diagnosis) + correlation_section(diagnosis, best))
 
     chart = _plot_candidates(diagnosis)
     sections.append(
@@ -481,9 +494,12 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
         f'part and judged on the held-out part. Best first. A candidate is <b>significant</b> when its parameter '
         f'is more than {T_MIN:g} HAC standard errors from zero, it lowers the training BIC (effective sample '
         f'count) by more than {BIC_MARGIN:g}, and it predicts the held-out part better (Diebold-Mariano above '
-        f'{DM_MIN:g}, mean-square error lower by more than ({MATERIAL:g}&times; the noise)&sup2;). Green: '
-        f'significant. The search then adds the strongest, tries the others on top of it and drops effects made '
-        f'redundant (the selected set is in the verdict).</p>'
+        f'{DM_MIN:g}, mean-square error lower by more than ({MATERIAL:g}&times; the noise)&sup2;). The search '
+        f'adds the strongest, tries the others on top of it and drops effects made redundant: the result is the '
+        f'<b>selected set</b> (orange, as in the verdict). A light-green arrow is significant when tried alone but '
+        f'not selected (the selected set already explains what it would); grey is not significant. The chart '
+        f'starts with the reference models (before &rarr; after when the model was given <code>--add</code>); each '
+        f'candidate is an arrow from the model as given to the error with that candidate added.</p>'
         + (_img(chart, 'held-out error beyond the noise per candidate') if chart else '')
         + _candidates_table(diagnosis))
 
@@ -492,12 +508,14 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
                         f'{_esc(", ".join(e for e in diagnosis.effects if e not in diagnosis.before.effects))}</h2>'
                         + _before_after_html(diagnosis))
 
+    if validation is not None:
+        sections.append(validation_section(diagnosis, validation))
     sections.append(f'<h2 id="parameters">Parameters of the model as given ({_esc(model)})</h2>'
                     '<p class="caption">Fitted on the training part by output error (free-run simulation); '
                     '&plusmn; 1&sigma; from the Gauss-Newton covariance, inflated for residual correlation. '
                     'Per unit inertia, as they enter the angular acceleration.</p>'
                     + _parameter_rows(diagnosis.current, diagnosis))
-    sections += model_sections(diagnosis, best, live, Path(source).stem if source else 'aeropend')
+    sections += model_sections(diagnosis, best, Path(source).stem if source else 'aeropend')
 
     if diagnosis.notes:
         sections.append('<h2 id="notes">Notes: confounding and suggested experiments</h2><ul class="notes">'
@@ -509,15 +527,16 @@ def render_report(diagnosis: Diagnosis, source: str | None = None) -> str:
     sections.append(f'<footer>Generated by <code>aeropend diagnose</code> on {stamp}; the diagnosis took '
                     f'{diagnosis.seconds:.1f} s. Angles in rad/mrad in the text, degrees on the plots; parameters in '
                     'SI. Self-contained: no external resources'
-                    + ('; interactive plots drawn by plotly.js, inlined in this page' if live else '') + '.</footer>')
+                    + ' (plots are PNG images; the CSV export is decompressed by the browser itself).</footer>')
     return ('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             '<meta name="viewport" content="width=device-width, initial-scale=1">'
-            f'<title>{_esc(title)}</title><style>{CSS}</style>' + (interactive.library_html() if live else '')
+            f'<title>{_esc(title)}</title><style>{CSS}</style>'
             + '</head><body><main>'
             + '\n'.join(sections) + '</main></body></html>\n')
 
 
-def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = None) -> Path:
+def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = None,
+                 validation: Validation | None = None) -> Path:
     """Write the diagnosis as one self-contained HTML file (plots and data embedded) and return its path.
 
     Parameters
@@ -528,6 +547,8 @@ def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = No
         Output file, e.g. ``report.html``; its folder must exist.
     source : str, optional [-]
         Name of the recording, shown in the title.
+    validation : Validation, optional [-]
+        The model on a second record (:func:`aeropend_core.diagnosis.validation.validate`): a section of its own.
 
     Returns
     -------
@@ -536,7 +557,7 @@ def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = No
     """
     from aeropend_core.io.paths import output_target, write_atomically
     output_target(path, '--report')                 # refused before the rendering: folder, device, FIFO, loop
-    text = render_report(diagnosis, source)
+    text = render_report(diagnosis, source, validation)
     write_atomically(path, lambda handle: handle.write(text), '--report', 'the report')
     return Path(path)
 
