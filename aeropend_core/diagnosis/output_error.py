@@ -561,7 +561,7 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     with np.errstate(invalid='ignore', divide='ignore'):
         correlation = cov / np.outer(sd, sd)
     errors = {name: float(s) for name, s in zip(free, sd)}
-    errors.update({name: 0.0 for name in fixed})
+    errors.update({name: float('nan') for name in fixed})      # held, not estimated: no sigma to claim
     parameters = {name: float(values[name]) for name in names}
     return OutputErrorFit(structure=structure, parameters=parameters, standard_errors=errors,
                           initial_states=initial, residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg,
