@@ -134,6 +134,7 @@ def search_lag_basins(prep, fit_from: Callable, values: dict[str, float], parame
             continue
         basins.append(fit)
     best.extra['lag_basins'] = [_basin_summary(f, best, parameter) for f in basins]
+    best.extra['local_start'] = {parameter: local_fit.parameters[parameter], 'cost_gap': _cost_gap(local_fit, best)}
     if len(basins) > 1 and _cost_gap(basins[1], best) < AMBIGUITY_BIC:
         second = basins[1]
         best.extra['ambiguity'] = {

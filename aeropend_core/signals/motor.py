@@ -289,7 +289,7 @@ def _predict(kind: str, x: np.ndarray, voltage: np.ndarray, sample_time: float) 
         out_emf = np.empty_like(out_current)
         _motor_kernel(x[None, :5], voltage, x[None, 5:7], sample_time, out_current, out_emf)
         return out_current[0], out_emf[0]
-    emf = _simulate(x[None, :3], voltage, x[None, 4:5], sample_time)[0]
+    emf = _simulate(x[None, :3], voltage, x[4:5], sample_time)[0]
     return (voltage - emf) / x[3], emf
 
 
