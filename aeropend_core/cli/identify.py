@@ -130,6 +130,9 @@ def main(args: argparse.Namespace) -> int:
             check = cross_check(recording, fit, tuple(args.effect) + tuple(fixed), args.data, fixed)
         except AeropendError as error:       # too short or too flat for the output-error fit: say so, keep the fit
             check_note = f'no held-out score or output-error cross-check: {error}'
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as error:      # the fit failed numerically
+            check_note = (f'no held-out score or output-error cross-check: the output-error fit failed '
+                          f'({type(error).__name__}: {error}); run aeropend diagnose {args.data} to see why')
     if args.json:
         out = {
             'model': args.model,
