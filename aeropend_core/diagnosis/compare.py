@@ -27,7 +27,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.diagnosis.basins import search_lag_basins
+from aeropend_core.diagnosis.basins import PROFILED, search_lag_basins
 from aeropend_core.model.effects import kernel_parameter
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
                                         initial_states_from_data)
@@ -441,11 +441,12 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     gate = structure.gate_parameter
     if gate is None:
         fit = fit_output_error(data, structure, values, fixed=fixed_base, initial_states=initial_states)
-        lag = kernel_parameter(structure.effects, 'thrust_lag_time')
-        if lag is not None and lag not in fixed_base:     # a nonlinear time constant: search its whole range
-            return search_lag_basins(prep, lambda s: fit_output_error(data, structure, s, fixed=fixed_base,
-                                                                      initial_states=initial_states),
-                                     values, lag, fit)
+        for kind in PROFILED:        # a nonlinear time constant or offset: search its whole range
+            name = kernel_parameter(structure.effects, kind)
+            if name is not None and name not in fixed_base:
+                return search_lag_basins(prep, lambda s: fit_output_error(data, structure, s, fixed=fixed_base,
+                                                                          initial_states=initial_states),
+                                         values, name, fit, kind)
         return fit
     thresholds = gate_thresholds(prep)
     if thresholds.size == 0:
