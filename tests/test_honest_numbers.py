@@ -91,3 +91,29 @@ def test_identify_states_held_out_fit_and_disagreement_with_the_command(tmp_path
     out = json.loads(capsys.readouterr().out)
     assert out['cross_check']['agree'] is False and out['cross_check']['disagreeing']
     assert math.isfinite(out['cross_check']['heldout_fit_percent'])
+
+
+def test_hidden_dry_friction_comes_back_within_its_sigma():
+    """The issue's case: coulomb_friction 3.0 came back 2.88 +- 0.027 (z -4.4 on this record) while the output-error
+    kernel smoothed the friction law more sharply than the catalog's tanh(W / 0.01 rad/s)."""
+    from aeropend_core.diagnosis.compare import compare
+    columns = _record(7001, 60.0, {'coulomb_friction': 3.0})
+    fit = compare(from_columns(columns, source='friction'), ('coulomb_friction',)).fit
+    value, sigma = fit.parameters['friction_acceleration'], fit.standard_errors['friction_acceleration']
+    assert 0 < sigma < 0.1
+    assert abs(value - 3.0) < 2.5 * sigma, (value, sigma)
+
+
+def test_an_ambiguous_fit_is_reported_with_both_basins():
+    """A second basin within the margin is printed with both basins (the diagnosis's notes), not hidden."""
+    from types import SimpleNamespace
+
+    from aeropend_core.diagnosis.doubts import ambiguity_notes
+    basins = [{'parameters': {'time_constant': 0.03, 'gravity_stiffness': 70.0}, 'residual_rms': 0.0091},
+              {'parameters': {'time_constant': 0.15, 'gravity_stiffness': 148.0}, 'residual_rms': 0.0092}]
+    fit = SimpleNamespace(extra={'ambiguity': {'parameter': 'time_constant', 'basins': basins,
+                                               'note': 'two basins fit nearly as well.'}})
+    notes = ambiguity_notes([], [], SimpleNamespace(fit=fit))
+    assert len(notes) == 1 and 'AMBIGUOUS' in notes[0]
+    assert 'time_constant 0.03' in notes[0] and 'time_constant 0.15' in notes[0] and 'gravity_stiffness 148' in notes[0]
+    assert ambiguity_notes([], [], SimpleNamespace(fit=SimpleNamespace(extra={}))) == []
