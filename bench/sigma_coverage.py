@@ -164,6 +164,7 @@ def summarise(rows: list[dict]) -> dict[str, dict]:
                           'within_1': float(np.mean(np.abs(finite) <= 1)) if finite.size else float('nan'),
                           'within_2': float(np.mean(np.abs(finite) <= 2)) if finite.size else float('nan'),
                           'mean_z': float(np.mean(finite)) if finite.size else float('nan'),
+                          'median_z': float(np.median(finite)) if finite.size else float('nan'),
                           'median_abs_z': float(np.median(np.abs(finite))) if finite.size else float('nan')}
     return summary
 
@@ -176,16 +177,18 @@ def _met(entry: dict) -> bool:
 def markdown(rows: list[dict], summary: dict, args, wall: float) -> str:
     lines = ['# Coverage of the error bars (bench/sigma_coverage.py)', '',
              f'{len(rows)} records, seeds {args.seed_base}..{args.seed_base + len(rows) - 1}'
-             f'{" (--quick)" if args.quick else ""}; wall {wall:.0f} s on {args.workers} workers. Target: 60-80 % '
+             f'{" (--quick)" if args.quick else ""}; '
+             + (f'wall {wall:.0f} s on {args.workers} workers' if wall == wall
+                else 'read back from the log of a stopped run') + '. Target: 60-80 % '
              'within 1 sigma, >= 92 % within 2 sigma, |mean z| <= 0.5, no sigma of 0.', '',
-             '| parameter | n | within 1 sigma | within 2 sigma | mean z (bias) | median abs z | target |',
-             '|---|---|---|---|---|---|---|']
+             '| parameter | n | within 1 sigma | within 2 sigma | mean z (bias) | median z | median abs z | target |',
+             '|---|---|---|---|---|---|---|---|']
     order = sorted(summary, key=lambda k: (('[' in k), ('(' in k), k))
     for label in order:
         e = summary[label]
         target = ('met' if _met(e) else 'NOT met') if '[' not in label and '(' not in label else ''
         lines.append(f'| {label} | {e["n"]} | {e["within_1"] * 100:.0f} % | {e["within_2"] * 100:.0f} % | '
-                     f'{e["mean_z"]:+.2f} | {e["median_abs_z"]:.2f} | {target} |')
+                     f'{e["mean_z"]:+.2f} | {e["median_z"]:+.2f} | {e["median_abs_z"]:.2f} | {target} |')
     lines += ['', '## Records', '',
               '| seed | effect | s | excitation | dB | z of each parameter | weak form vs output error | fit s |',
               '|---|---|---|---|---|---|---|---|']
@@ -200,6 +203,27 @@ def markdown(rows: list[dict], summary: dict, args, wall: float) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def rows_from_log(path: str) -> list[dict]:
+    """Rows (seed, effect, duration, z per parameter, agreement) read back from the lines a run printed, for a run
+    stopped before its end (the tables are then made from the records it finished)."""
+    import re
+    rows = []
+    pattern = re.compile(r'^(\d+) (\S+)\s+(\d+) s\s+([\d.]+) s (.*?)(?:  \[(.*)\])?$')
+    for line in Path(path).read_text(encoding='utf-8').splitlines():
+        match = pattern.match(line)
+        if not match:
+            continue
+        seed, effect, duration, seconds, rest, agreement = match.groups()
+        row = {'seed': int(seed), 'effect': effect, 'duration': float(duration), 'seconds': float(seconds),
+               'excitation': '', 'psnr_db': '', 'agreement': agreement or ''}
+        if rest.startswith('CRASH'):
+            row['crash'] = rest[6:]
+        else:
+            row['parameters'] = {name: {'z': float(z)} for name, z in re.findall(r'(\w+):([+-]?[\d.]+|nan)', rest)}
+        rows.append(row)
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--records', type=int, default=None, help='number of records (default 104; --quick 24)')
@@ -207,8 +231,16 @@ def main() -> None:
     parser.add_argument('--seed-base', type=int, default=SEED_BASE)
     parser.add_argument('--quick', action='store_true', help='24 records of 60 s only (a few minutes)')
     parser.add_argument('--out', default=None, help='folder for coverage.md and records.json')
+    parser.add_argument('--from-log', metavar='LOG', help='make the tables from the lines of a stopped run instead')
     add_json_argument(parser)
     args = parser.parse_args()
+    if args.from_log:
+        rows = rows_from_log(args.from_log)
+        if not rows:
+            parser.error(f'no record lines in {args.from_log}')
+        args.seed_base, args.workers = rows[0]['seed'], args.workers
+        _report(rows, summarise(rows), args, float('nan'))
+        return
     count = args.records if args.records is not None else (24 if args.quick else 104)
     if count < 1 or args.workers < 1 or args.seed_base < 0:
         parser.error('--records and --workers must be at least 1 and --seed-base at least 0')
@@ -223,7 +255,10 @@ def main() -> None:
                      ' '.join(f'{n}:{e["z"]:+.2f}' for n, e in row['parameters'].items()))
                   + f'  [{row.get("agreement", "")}]', flush=True)
     wall = time.perf_counter() - started
-    summary = summarise(rows)
+    _report(rows, summarise(rows), args, wall)
+
+
+def _report(rows: list[dict], summary: dict, args, wall: float) -> None:
     text = markdown(rows, summary, args, wall)
     print(text)
     if args.out:
