@@ -44,6 +44,8 @@ EXTRA_STARTS = 2
 AMBIGUITY_BIC = 10.0
 
 
+#: The profile's best point also starts a fit when the local fit's gravity stiffness is this factor away from it.
+SCALE_RATIO = 1.5
 #: Angle offsets [rad] of the equation-error profile (the catalog's bounds, 10 mrad apart).
 OFFSET_GRID = np.linspace(-0.5, 0.5, 101)
 #: Two offsets further apart than this [rad] belong to different basins.
@@ -142,14 +144,18 @@ def search_lag_basins(prep, fit_from: Callable, values: dict[str, float], parame
     rss, coefficients = lag_profile(prep, values, grid, kind)
     fits = [local_fit]
     tried = [local_fit.parameters[parameter]]
-    for index in _local_minima(rss):
+    for rank, index in enumerate(_local_minima(rss)):
         if len(fits) > EXTRA_STARTS:
             break
         value = float(grid[index])
-        if not all(apart(value, t) for t in tried):
-            continue
         gravity, damping, gain = coefficients[index]
         if not (gravity > 0 and gain > 0):
+            continue
+        # the profile's best point also starts a fit when the local fit agrees on this parameter but not on the
+        # scale of the linear ones (a collapse to a tiny gravity stiffness and thrust gain with the right offset)
+        scale_apart = rank == 0 and abs(math.log(max(local_fit.parameters['gravity_stiffness'], 1e-9) / gravity)) \
+            > math.log(SCALE_RATIO)
+        if not (scale_apart or all(apart(value, t) for t in tried)):
             continue
         start = {**values, parameter: value, 'gravity_stiffness': float(gravity),
                  'damping': float(max(damping, 0.1)), 'thrust_gain': float(gain)}
