@@ -52,6 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'its angle_filter_delay [s] before the fit (pendulum model; the first-order inverse '
                              'of the RC low-pass), and the output says so')
     add_sample_rate_argument(parser)
+    parser.add_argument('--weak-only', action='store_true',
+                        help='pendulum model: skip the held-out free-run score and the cross-check against the '
+                             'output-error fit (by default both are run: a few seconds more per minute of record)')
 
 
 def _pieces_between_gaps(time: np.ndarray, shortest: float = 1.0) -> list[tuple[int, int]]:
@@ -129,6 +132,18 @@ def main(args: argparse.Namespace) -> int:
             fit = identify_pendulum(recording.time, *columns, duty=duty, effects=args.add)
     else:
         fit = identify_full_state(recording)
+    check, check_note = None, None
+    if args.model == 'pendulum' and not args.weak_only:
+        # one answer per record: the weak form scored as diagnose scores, and compared with the output-error fit
+        from aeropend_core.diagnosis.agreement import cross_check
+        fixed = {'angle_filter': chain.angle_filter_delay} if chain is not None and chain.angle_filter_delay else {}
+        try:
+            check = cross_check(recording, fit, tuple(args.effect) + tuple(fixed), args.data, fixed)
+        except AeropendError as error:       # too short or too flat for the output-error fit: say so, keep the fit
+            check_note = f'no held-out score or output-error cross-check: {error}'
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError) as error:      # the fit failed numerically
+            check_note = (f'no held-out score or output-error cross-check: the output-error fit failed '
+                          f'({type(error).__name__}: {error}); run aeropend diagnose {args.data} to see why')
     if args.json:
         out = {
             'model': args.model,
@@ -143,6 +158,7 @@ def main(args: argparse.Namespace) -> int:
             'samples': len(recording),
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
             'warnings': findings_to_json(recording.findings),
+            'cross_check': finite_json(check.to_dict()) if check is not None else check_note,
         }
         from aeropend_core.present.json_output import write_json
         write_json(args.json, out)
@@ -154,4 +170,6 @@ def main(args: argparse.Namespace) -> int:
             print(f'Angle filter: delay {filter_note["delay"]} s, fixed from {filter_note["from"]}; '
                   f'{filter_note["correction"]}')
         print(fit.format())
+        for line in check.lines() if check is not None else [check_note] if check_note else []:
+            print(line)
     return 0

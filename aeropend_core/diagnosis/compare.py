@@ -27,6 +27,8 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.diagnosis.basins import PROFILED, search_lag_basins
+from aeropend_core.model.effects import kernel_parameter
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
                                         initial_states_from_data)
 from aeropend_core.signals.motor import MotorFit, back_emf_ensemble, fit_motor
@@ -332,7 +334,9 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         if motor is not None and motor.adequate and np.all(np.isfinite(motor.back_emf)):
             # the observer's back-EMF is the thrust voltage; R is then 0 in the pendulum model
             thrust_voltage, thrust_current = motor.back_emf, np.zeros_like(current)
-            ensemble = back_emf_ensemble(motor, stepped, voltage, current, conditioned.step_indices, sample_time)
+            ensemble, motor_errors = back_emf_ensemble(motor, stepped, voltage, current, conditioned.step_indices,
+                                                       sample_time, with_errors=True)
+            motor = replace(motor, standard_errors=motor_errors)
         else:
             motor = None
     valid = gaps.valid
@@ -436,7 +440,14 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     values.update(fixed_base)
     gate = structure.gate_parameter
     if gate is None:
-        return fit_output_error(data, structure, values, fixed=fixed_base, initial_states=initial_states)
+        fit = fit_output_error(data, structure, values, fixed=fixed_base, initial_states=initial_states)
+        for kind in PROFILED:        # a nonlinear time constant or offset: search its whole range
+            name = kernel_parameter(structure.effects, kind)
+            if name is not None and name not in fixed_base:
+                return search_lag_basins(prep, lambda s: fit_output_error(data, structure, s, fixed=fixed_base,
+                                                                          initial_states=initial_states),
+                                         values, name, fit, kind)
+        return fit
     thresholds = gate_thresholds(prep)
     if thresholds.size == 0:
         raise InsufficientDataError('a thrust threshold (dead zone) needs steps at several small duty levels; '

@@ -234,14 +234,19 @@ class Diagnosis:
             parameters['armature_resistance'] = self.prepared.motor.parameters['motor_resistance']
         return parameters
 
+    def reported_standard_errors(self, comparison: Comparison) -> dict[str, float]:
+        """1-sigma of :meth:`reported_parameters` (SI): a value from the motor observer carries the observer's."""
+        motor = self.prepared.motor if self.prepared is not None else None
+        return {**comparison.fit.standard_errors, **({'armature_resistance': motor.standard_errors.get(
+            'motor_resistance', math.nan)} if motor is not None else {})}
+
     @property
     def final(self) -> Comparison:
         """The model with the selected set (the current model when nothing was selected)."""
         return self.selected if self.selected is not None else self.current
 
     def estimators(self, comparison: Comparison) -> dict[str, str]:
-        """Which estimator gave each reported parameter (``output_error``, or ``motor_observer`` for the
-        armature resistance when the observer's back-EMF drives the thrust)."""
+        """Which estimator gave each reported parameter (``output_error``, or ``motor_observer`` for R)."""
         estimators = dict.fromkeys(comparison.parameters, 'output_error')
         if self.prepared is not None and self.prepared.motor is not None:
             estimators['armature_resistance'] = 'motor_observer'
@@ -260,7 +265,7 @@ class Diagnosis:
             'prediction_rms_error': _finite(current.evaluation.prediction_rms),
             'prediction_horizon': current.evaluation.prediction_horizon,
             'parameters': self.reported_parameters(current),
-            'standard_errors': current.fit.standard_errors,
+            'standard_errors': self.reported_standard_errors(current),
             'estimator': 'output_error',
             'estimators': self.estimators(current),
             'missing_effect': self.missing_effect,

@@ -171,7 +171,41 @@ def doubt_notes(candidates: Iterable, found: list, current, prep, model: Iterabl
     list of str
         The notes.
     """
-    return ([] if found else near_miss_notes(candidates, current, prep)) + chain_notes(found, model)
+    return ([] if found else near_miss_notes(candidates, current, prep)) + chain_notes(found, model) + \
+        ambiguity_notes(candidates, found, current)
 
 
-__all__ = ['chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves']
+def ambiguity_notes(candidates: Iterable, found: list, current) -> list[str]:
+    """A second basin of a nonlinear parameter that fits nearly as well (:mod:`aeropend_core.diagnosis.basins`),
+    in the current model or in a found effect's fit: both basins, never one hidden behind a tight sigma.
+
+    Parameters
+    ----------
+    candidates : iterable of Candidate [-]
+        The first round's candidates (their fits).
+    found : list of Found [-]
+        The selected effects.
+    current : Comparison [-]
+        The current model.
+
+    Returns
+    -------
+    list of str
+        One note per ambiguous fit.
+    """
+    named = {f.effect for f in found}
+    fits = [('the current model', current.fit)] + [(f'with {c.effect}', c.comparison.fit) for c in candidates
+                                                  if c.effect in named and c.comparison is not None]
+    notes = []
+    for label, fit in fits:
+        ambiguity = fit.extra.get('ambiguity')
+        if not ambiguity:
+            continue
+        sides = '; '.join(', '.join(f'{name} {value:.4g}' for name, value in basin['parameters'].items()
+                                    if name != 'armature_resistance')
+                          + f' (rms error {basin["residual_rms"] * 1e3:.2f} mrad)' for basin in ambiguity['basins'])
+        notes.append(f'AMBIGUOUS ({label}): {ambiguity["note"]} Basins: {sides}.')
+    return notes
+
+
+__all__ = ['ambiguity_notes', 'chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves']

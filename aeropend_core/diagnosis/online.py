@@ -263,7 +263,7 @@ def analyze_window(time: np.ndarray, armature_voltage: np.ndarray, armature_curr
     values['thrust_coefficient'] = values['thrust_gain'] * scale
     errors['thrust_coefficient'] = errors.get('thrust_gain', float('nan')) * scale
     estimators = {name: 'output_error' for name in values}
-    if method == 'compare' and not math.isfinite(errors.get('armature_resistance', 0.0)):
+    if errors.pop('armature_resistance_from_observer', False):
         estimators['armature_resistance'] = 'motor_observer'
     weak_parameters = {name: (float(p[name]), float(weak.standard_errors.get(name, float('nan'))))
                        for name in values if name in p}
@@ -301,7 +301,8 @@ def _held_out_by_compare(time, voltage, current, angle, effects, holdout_fractio
         # With the motor observer the thrust voltage is its back-EMF (R = 0 in the pendulum model); the armature
         # resistance then comes from the observer fitted to Ia.
         values['armature_resistance'] = float(prepared.motor.parameters['motor_resistance'])
-        errors['armature_resistance'] = float('nan')
+        errors['armature_resistance'] = float(prepared.motor.standard_errors.get('motor_resistance', math.nan))
+        errors['armature_resistance_from_observer'] = True     # a marker for the caller's estimator table
     return values, errors, comparison.fit_percent, comparison.rms_error, comparison.noise_rms
 
 

@@ -251,7 +251,8 @@ def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
         relative = abs(sigma / value) * 100 if value and np.isfinite(sigma) else float('nan')
         shown = f'{_sig(value)} &plusmn; {_sig(sigma, 2)}'
         if name == 'armature_resistance' and motor is not None:
-            shown = f'{_sig(motor.parameters["motor_resistance"])} (motor observer)'
+            shown = (f'{_sig(motor.parameters["motor_resistance"])} &plusmn; '
+                     f'{_sig(motor.standard_errors.get("motor_resistance", float("nan")), 2)} (motor observer)')
             meaning = ('the motor observer\'s back-EMF is the thrust input, so R is 0 in the pendulum model; '
                        'shown: the armature resistance the observer estimated')
             relative = float('nan')

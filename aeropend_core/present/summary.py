@@ -26,12 +26,13 @@ def format_summary(diagnosis: Diagnosis) -> str:
                      f'current noise {motor.current_noise_rms * 1e3:.2f} mA')
     lines.append('Parameters (SI, +- 1 sigma):')
     observer = diagnosis.prepared is not None and diagnosis.prepared.motor is not None
+    reported_errors = diagnosis.reported_standard_errors(current)
     for name, value in diagnosis.reported_parameters(current).items():
-        error = current.fit.standard_errors.get(name, float('nan'))
+        error = reported_errors.get(name, float('nan'))
         found = find_parameter(name)
         unit = NOMINAL_PARAMETERS[name][0] if name in NOMINAL_PARAMETERS else (found[1].unit if found else '')
         if name == 'armature_resistance' and observer:
-            lines.append(f'  {name:24s} {value:12.5g} {unit} (from the motor observer fitted to Ia)')
+            lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit} (from the motor observer fitted to Ia)')
             continue
         if name in diagnosis.fixed:
             where = diagnosis.fixed_from.get(name, '--fix')

@@ -21,7 +21,7 @@ its noise, the caller falls back to the measured Va - R Ia.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -125,6 +125,9 @@ class MotorFit:
     #: p3, R, e0) and which model it is, for :func:`back_emf_ensemble`.
     solution: tuple[float, ...] = ()
     kind: str = 'quasi_static'
+    #: 1-sigma of the parameters the observer reports (``motor_resistance`` [ohm], ...), filled in by the caller
+    #: from :func:`back_emf_ensemble` (empty: not computed).
+    standard_errors: dict[str, float] = field(default_factory=dict)
 
     @property
     def adequate(self) -> bool:
@@ -286,7 +289,7 @@ def _predict(kind: str, x: np.ndarray, voltage: np.ndarray, sample_time: float) 
         out_emf = np.empty_like(out_current)
         _motor_kernel(x[None, :5], voltage, x[None, 5:7], sample_time, out_current, out_emf)
         return out_current[0], out_emf[0]
-    emf = _simulate(x[None, :3], voltage, x[None, 4:5], sample_time)[0]
+    emf = _simulate(x[None, :3], voltage, x[4:5], sample_time)[0]
     return (voltage - emf) / x[3], emf
 
 
@@ -297,7 +300,7 @@ ENSEMBLE_SIZE = 16
 
 def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.ndarray, current: np.ndarray,
                       step_indices: np.ndarray, sample_time: float, count: int = ENSEMBLE_SIZE,
-                      seed: int = 0) -> np.ndarray | None:
+                      seed: int = 0, with_errors: bool = False):
     """Back-EMF changes [V] that the observer's own estimation error allows: shape (count, n), float32.
 
     The observer is fitted to noisy data (Ia's noise, per-level errors of the measured Va, an ADC that does not
@@ -330,14 +333,21 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
         Number of members.
     seed : int [-]
         Seed of the draws (the ensemble is reproducible).
+    with_errors : bool [-]
+        Also return the observer's standard errors (see Returns).
 
     Returns
     -------
     ndarray, shape (count, n), or None
         None when the fit has no state vector or a member diverges.
+    dict of str -> float
+        Only with `with_errors`: 1-sigma of ``motor_resistance`` [ohm] (and ``electrical_time_constant`` [s] for
+        the inductance model), from the same two sources as the members: the exact covariance of the wild
+        bootstrap by input interval (a sandwich with the scores summed over each interval between two Va steps:
+        honest for noise that is slow or held at one level) plus the spread the Va level draws cause.
     """
     if not fit.solution:
-        return None
+        return (None, {}) if with_errors else None
     voltage = np.asarray(voltage, dtype=float)
     current = np.asarray(current, dtype=float)
     n = voltage.size
@@ -359,7 +369,7 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
         jacobian[:, i] = (shifted_current - modelled)[used] / steps[i]
         emf_jacobian[:, i] = (shifted_emf - emf) / steps[i]
     if not (np.all(np.isfinite(jacobian)) and np.all(np.isfinite(emf_jacobian))):
-        return None
+        return (None, {}) if with_errors else None
     gram = np.array([[np.dot(jacobian[:, i].astype(float), jacobian[:, j]) for j in range(x.size)]
                      for i in range(x.size)])
     inverse = np.linalg.pinv(gram)
@@ -369,6 +379,7 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
     level_sigma = 1.2533 * noise_rms(np.asarray(measured_voltage, dtype=float)) / np.sqrt(lengths)
     rng = np.random.default_rng(seed)
     members = np.empty((count, n), dtype=np.float32)
+    level_changes = np.zeros((count, x.size))
     for k in range(count):
         signs = rng.choice((-1.0, 1.0), size=len(lengths))
         shifted_voltage = voltage + (rng.standard_normal(len(lengths)) * level_sigma)[block]
@@ -376,12 +387,26 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
         moved, member = _predict(kind, x, shifted_voltage, sample_time)
         target = (redrawn - moved)[used]
         change = inverse @ np.array([np.dot(jacobian[:, i].astype(float), target) for i in range(x.size)])
+        level_target = (modelled - moved)[used]
+        level_changes[k] = inverse @ np.array([np.dot(jacobian[:, i].astype(float), level_target)
+                                               for i in range(x.size)])
         for i in range(x.size):
             member += emf_jacobian[:, i] * change[i]
         if not np.all(np.isfinite(member)):
-            return None
+            return (None, {}) if with_errors else None
         members[k] = member - emf
-    return members
+    if not with_errors:
+        return members
+    # the wild bootstrap's exact covariance: scores J_t r_t summed over each input interval
+    scores = np.zeros((len(lengths), x.size))
+    for i in range(x.size):
+        np.add.at(scores[:, i], block[used], jacobian[:, i].astype(float) * residual[used])
+    covariance = inverse @ (scores.T @ scores) @ inverse + level_changes.T @ level_changes / count
+    sigma = np.sqrt(np.maximum(np.diag(covariance), 0.0))
+    errors = {'motor_resistance': float(sigma[0 if kind == 'inductance' else 3])}
+    if kind == 'inductance':
+        errors['electrical_time_constant'] = float(sigma[1])
+    return members, errors
 
 
 #: The inductance refinement is dropped when the quasi-static observer explains the current better with this
