@@ -1,10 +1,12 @@
 """identification_node: weak SINDy on sliding windows of ``/aeropend/samples``, live.
 
-Every ``hop_s`` seconds of acquisition time, the last ``window_s`` seconds of samples are analysed in a worker
-process (spawned, so the DDS threads are not forked; a worker thread would hold the GIL for most of a fit and the
-executor would drop samples). The executor keeps receiving meanwhile; a window that comes due while the previous
-one is still being computed is skipped, counted, logged and reported on ``/diagnostics`` (WARN, with its time
-span and the reason). The analysis is
+Samples wait in the subscription's DDS history (``QUEUE_DEPTH``, ~20 s at 490 Hz) and a timer takes all of them every
+``POLL_PERIOD_S`` (one executor turn per batch, as the recorder does), so a busy machine delays the node rather than
+making it lose samples. Every ``hop_s`` seconds of acquisition time, the last ``window_s`` seconds of samples are
+analysed in a worker process (spawned, so the DDS threads are not forked; a worker thread would hold the GIL for
+most of a fit and the executor would drop samples). The executor keeps receiving meanwhile; a window that comes
+due while the previous one is still being computed is skipped, counted, logged and reported on ``/diagnostics``
+(WARN, with its time span and the reason). The analysis is
 :func:`aeropend_core.diagnosis.online.analyze_window`: weak SINDy on the first part of the window, output-error
 refinement with the model's ``effects``, and a free-run fit on the held-out end.
 
@@ -49,6 +51,9 @@ files) before it is analysed: a refused window (a frozen sensor, stamps that dis
 the 490 Hz rate, an angle jump no repair explains, ...) is not analysed and said at ERROR, naming the finding; a
 repaired or warned window (a wrap unwrapped, an outlier interpolated, lost samples segmented) is analysed and
 published with its status at WARN and the findings in ``data_quality`` / ``data_quality_detail``.
+
+Each window that comes due leaves one :class:`WindowEvent` in ``window_events`` (clean, flagged, withheld, refused,
+skipped or failed, with its lost samples and gaps): ``aeropend run`` prints one console line per event.
 
 Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
 are changeable at runtime (``ros2 param set /identification_node effects "['NAME']"``, names from

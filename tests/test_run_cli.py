@@ -39,8 +39,17 @@ def test_run_records_identifies_and_diagnoses(tmp_path):
     assert monitor.returncode == 0, monitor.stderr + monitor.stdout
     assert 'held-out fit' in monitor.stdout and 'gravity_stiffness' in monitor.stdout
     assert 'sin(angle)' in monitor.stdout
-    # Live windows were reported while running.
-    assert 'window ending t =' in output, output
+    # Live windows were reported while running: a buffering line first, then one line per window (each span once,
+    # a skipped window too), each published window with its data state; and the samples the node received.
+    import re
+    assert 'buffering 0/12 s of samples for the first window' in output, output
+    windows = re.findall(r'^  window +([\d.]+)- *([\d.]+) s: (.*)$', output, flags=re.MULTILINE)
+    assert windows, output
+    spans = [(start, stop) for start, stop, _ in windows]
+    assert len(spans) == len(set(spans)), output
+    published = [text for _, _, text in windows if 'held-out fit' in text]
+    assert published and all(text.endswith('data clean') or 'data FLAGGED: ' in text for text in published), output
+    assert re.search(r'identification node: received \d+ of 14700 samples published', output), output
     # The bag holds every sample: continuous sequence, Ts spacing, 30 s.
     folders = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert len(folders) == 1 and (folders[0] / 'metadata.yaml').exists(), output

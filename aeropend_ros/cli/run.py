@@ -251,7 +251,7 @@ def _run(args) -> int:
         if excitation.started and not excitation.done:
             excitation.finish()          # duty back to 0 before the graph goes away
         if recorder is not None:
-            _drain(recorder)
+            _drain(recorder, getattr(source, 'sequence', None) if use_sim else None)
     except KeyboardInterrupt:
         interrupted = True
         print('aeropend run: interrupted; finalising', file=sys.stderr)
@@ -442,16 +442,30 @@ def _wait_until_done(args, source, excitation, identification, use_sim: bool, sa
         return True
 
 
-def _drain(recorder, timeout: float = 5.0) -> None:
-    """Let the recorder receive what is still in flight (its per-topic counts stop growing)."""
+#: Longest wait [s] for the recorder to take the samples still in flight at the end (a condition: it has every
+#: sample the source published, counted or lost; or its counts stop growing for DRAIN_QUIET_S).
+DRAIN_DEADLINE_S = 30.0
+#: Time [s] the recorder's counts must stay unchanged before the drain ends when the published count is unknown.
+DRAIN_QUIET_S = 1.0
+
+
+def _drain(recorder, published: int | None = None, timeout: float = DRAIN_DEADLINE_S) -> None:
+    """Let the recorder receive what is still in flight: until it has received (or counted as lost) the `published`
+    samples, or, when that count is unknown, until its per-topic counts stop growing for DRAIN_QUIET_S."""
     deadline = time.monotonic() + timeout
-    previous = None
+    samples_topic = getattr(recorder, '_samples_topic', None)
+    previous, quiet_since = None, time.monotonic()
     while time.monotonic() < deadline:
         counts = dict(getattr(recorder, '_received', {}))
-        if counts == previous:
+        if published is not None and samples_topic is not None:
+            lost = recorder.lost_counts().get(samples_topic, 0) if hasattr(recorder, 'lost_counts') else 0
+            if counts.get(samples_topic, 0) + lost >= published:
+                return
+        elif counts != previous:
+            previous, quiet_since = counts, time.monotonic()
+        elif time.monotonic() - quiet_since >= DRAIN_QUIET_S:
             return
-        previous = counts
-        time.sleep(0.3)
+        time.sleep(0.05)
 
 
 class _MemoryRecorder:
