@@ -259,9 +259,9 @@ def _run(args) -> int:
         # A second Ctrl-C must not cut the finalisation of the bag short (it takes a second or two).
         previous_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN)
         for executor in executors:
-            executor.shutdown(timeout_sec=2.0)
+            executor.shutdown(timeout_sec=10.0)     # returns as soon as its callback ends; a busy host is slow
         for spinner in spinners:
-            spinner.join(timeout=2.0)
+            spinner.join(timeout=10.0)
         if recorder is not None:
             recorder.finish()
         for node in reversed(nodes):
