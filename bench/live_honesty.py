@@ -46,6 +46,30 @@ CLI = 'import sys; from aeropend_core.cli import main; sys.exit(main())'
 FIT_LINE = re.compile(r'window\s+(?:ending t =\s*|[-\d.]+-\s*)([-\d.]+) s: held-out fit')
 
 
+def console_states(console: str) -> dict[str, int]:
+    """Windows by what `run`'s console said of them: the new lines ("window a-b s: ...; data clean", "data FLAGGED",
+    "WITHHELD", "not analysed", "SKIPPED") or the old ones ("window ending t = ...: held-out fit" with no state,
+    "window: window not analysed ...", "window: window ... skipped")."""
+    counts = dict.fromkeys(('clean', 'flagged', 'published_without_state', 'withheld', 'refused', 'skipped'), 0)
+    for line in console.splitlines():
+        text = line.strip()
+        if not text.startswith('window'):
+            continue
+        if 'held-out fit' in text:
+            key = ('clean' if text.endswith('data clean') else 'flagged' if 'data FLAGGED' in text
+                   else 'published_without_state')
+        elif 'WITHHELD' in text or 'window not analysed' in text or 'not published' in text:
+            key = 'withheld'
+        elif 'SKIPPED' in text or ' skipped: ' in text:
+            key = 'skipped'
+        elif 'not analysed' in text or 'insufficient' in text:
+            key = 'refused'
+        else:
+            continue
+        counts[key] += 1
+    return counts
+
+
 def _environment(tree: Path) -> dict[str, str]:
     env = dict(os.environ)
     env['PYTHONPATH'] = str(tree)
@@ -127,7 +151,8 @@ def run_case(tree: Path, duration: float, hog: int, label: str) -> dict:
     result['console_lines_matched'] = min(len(lines), len(published))
     result['received_line'] = next((line.strip() for line in console.splitlines()
                                     if 'identification node: received' in line), '')
-    result['console_tail'] = console.splitlines()[-12:]
+    result['console_states'] = console_states(console)
+    result['console'] = [line for line in console.splitlines() if 'window' in line or 'identification' in line]
     shutil.rmtree(work, ignore_errors=True)
     return result
 
@@ -145,7 +170,7 @@ def main() -> int:
     results = []
     for k in range(args.repeat):
         result = run_case(args.tree.resolve(), args.duration, args.hog, args.label)
-        print(json.dumps({key: value for key, value in result.items() if key != 'console_tail'}), flush=True)
+        print(json.dumps({key: value for key, value in result.items() if key != 'console'}), flush=True)
         results.append(result)
     (args.out / f'{args.label}.json').write_text(json.dumps(results, indent=2) + '\n')
     with (args.out / 'summary.md').open('a') as summary:

@@ -133,7 +133,7 @@ def test_run_on_the_rig_through_the_serial_bridge(tmp_path):
         emitted = [state for _, state in emulator.emitted]
     output = result.stdout + result.stderr
     assert result.returncode == 0, output
-    assert 'rig on' in output and 'window ending t =' in output and 'Diagnosis of' in output, output
+    assert 'rig on' in output and ' s: held-out fit ' in output and 'Diagnosis of' in output, output
     assert len(emitted) > 20 * 490
     from aeropend_core.io.bag import read_samples
     folder = next(p for p in tmp_path.iterdir() if p.is_dir())
@@ -160,7 +160,7 @@ def test_run_interrupted_finalises_the_bag(tmp_path, started_with):
     try:
         for line in run.stdout:              # wait for the first identified window, then interrupt
             lines.append(line)
-            if 'window ending t =' in line:
+            if ' s: held-out fit ' in line:
                 run.send_signal(signal.SIGINT)
                 break
         rest, _ = run.communicate(timeout=60)
