@@ -49,7 +49,7 @@ def test_run_records_identifies_and_diagnoses(tmp_path):
     assert len(spans) == len(set(spans)), output
     published = [text for _, _, text in windows if 'held-out fit' in text]
     assert published and all(text.endswith('data clean') or 'data FLAGGED: ' in text for text in published), output
-    assert re.search(r'identification node: received \d+ of 14700 samples published', output), output
+    assert re.search(r'identification node: received \d+ of 14700 samples published \(\d+ lost in gaps', output), output
     # The bag holds every sample: continuous sequence, Ts spacing, 30 s.
     folders = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert len(folders) == 1 and (folders[0] / 'metadata.yaml').exists(), output

@@ -401,6 +401,24 @@ class _WindowPrinter:
         return len(self.node.window_events) >= self.node.windows_due and self.events >= self.node.windows_due
 
 
+#: Longest wait [s] for the identification node to take the samples still queued at the end, before counting.
+RECEIVED_DEADLINE_S = 10.0
+
+
+def _say_samples_received(identification, published: int) -> None:
+    """One line: the samples the identification node received of those the source published, and how the others
+    went (lost in gaps between received samples, counted by sequence number; or never seen at the end). Waits
+    (by condition, RECEIVED_DEADLINE_S at most) until the node has taken what is still queued for it."""
+    deadline = time.monotonic() + RECEIVED_DEADLINE_S
+    while (identification.samples_received + identification.samples_missed < published
+           and time.monotonic() < deadline):
+        time.sleep(0.05)
+    received, missed = identification.samples_received, identification.samples_missed
+    unseen = max(published - received - missed, 0)
+    print(f'  identification node: received {received} of {published} samples published ({missed} lost in gaps'
+          + (f', {unseen} not seen at the end' if unseen else '') + ')', flush=True)
+
+
 def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float,
                      recorder=None) -> bool:
     """Print the live windows (one line each) until the experiment is over; True when interrupted (Ctrl-C).
@@ -431,10 +449,8 @@ def _wait_until_done(args, source, excitation, identification, use_sim: bool, sa
                   file=sys.stderr, flush=True)
         published = getattr(source, 'sequence', None) if use_sim else getattr(source, 'stats', {}).get(
             'samples_published')
-        received = identification.samples_received
         if published:
-            print(f'  identification node: received {received} of {published} samples published '
-                  f'({published - received} not received)', flush=True)
+            _say_samples_received(identification, int(published))
         return False
     except KeyboardInterrupt:
         printer._end_progress()
