@@ -318,8 +318,8 @@ class IdentificationNode(Node):
         # Best effort like the publisher, with a deep queue (QUEUE_DEPTH samples, ~20 s at 490 Hz) taken in
         # batches: the subscription sits on an internal node that no executor spins, and a timer takes every waiting
         # sample each POLL_PERIOD_S (one executor turn per batch instead of one per sample, as the recorder does).
-        # One callback per sample from a 2000-deep queue lost 3,101 samples in 195 gaps beside a CPU hog while the
-        # recorder lost none (bench/live_honesty.py measures both).
+        # One callback per sample from a 2000-deep queue lost 13,866 and 23,148 of 29,400 samples beside stress-ng at
+        # load 23-34 while the recorder lost none; batched takes lost none (bench/results/2026-11-27-live).
         deep = QoSProfile(depth=QUEUE_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
         # Raw subscription: the bytes are read directly (RawSampleParser), which costs a fraction of building a
         # JointState per sample.
