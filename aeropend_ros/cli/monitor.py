@@ -100,13 +100,15 @@ class DriftTracker:
 
 
 def render(parameters, coefficients, fit, status, drift, windows: int, width: int | None = 100, trends=None,
-           estimators=None, node_drift: str = '', data: str = '', span: tuple[float, float] | None = None) -> str:
+           estimators=None, node_drift: str = '', data: str | None = None,
+           span: tuple[float, float] | None = None) -> str:
     """The text table of one refresh (all arguments may be empty before the first window).
 
     `width` cuts the status lines to a terminal's columns (None: never cut, e.g. when piped);
     `trends` maps a parameter to the node's trend text (``trend_<name>`` on /diagnostics) or to a local trend row;
     `estimators` maps a parameter to its estimator; `node_drift` is the node's drift sentence ('' or 'none': none);
-    `data` is the window's data-quality flags ('' when clean); `span` the window's start and end in acquisition
+    `data` is the window's data-quality flags ('' when clean, None when the node did not say); `span` the window's
+    start and end in acquisition
     time since the run began [s] (as ``aeropend run`` prints them).
     """
     lines = []
@@ -127,7 +129,7 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
         lines.append(f'identification: {status}'[:width])
     if data:
         lines.append(f'DATA REPAIRED OR FLAGGED in this window: {data} (the numbers below carry that doubt)'[:width])
-    else:
+    elif data is not None:
         lines.append('data clean in this window (no sample lost, nothing repaired)')
     if node_drift and node_drift != 'none':
         lines.append(f'DRIFT: {node_drift}')
@@ -285,7 +287,8 @@ def main(args) -> int:
         estimators = dict(part.split(':', 1) for part in values.get('estimators', '').split(',') if ':' in part)
         return render(state['parameters'], state['coefficients'], state['fit'], state['status'], state['drift'],
                       state['windows'], width, trends=trends, estimators=estimators,
-                      node_drift=values.get('drift', ''), data=window_data(values), span=window_span(values))
+                      node_drift=values.get('drift', ''), span=window_span(values),
+                      data=window_data(values) if 'lost_samples' in values or values.get('data_quality') else None)
     try:
         while rclpy.ok():
             rclpy.spin_once(node, timeout_sec=0.1)
