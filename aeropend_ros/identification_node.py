@@ -737,9 +737,13 @@ class IdentificationNode(Node):
             self._report(message, DiagnosticStatus.WARN, {'rejected_samples': str(rejected)}, effects=self.effects)
             self.notices.append(message)
             return
-        if self.windows_done == 0 and (self.pending is None or self.pending.done()) \
-                and self.last_status[0] == 'waiting for samples':
-            self._publish_status(f'waiting for data: {buffered:.1f} of {self._window_s():g} s buffered',
+        if self.windows_done == 0 and self.last_status[0] == 'waiting for samples':
+            # said from the start, also while the analysis worker starts (tens of seconds on a loaded machine)
+            starting = self.windows_submitted == 0 and self.pending is not None and not self.pending.done()
+            computing = self.windows_submitted > 0 and self.pending is not None and not self.pending.done()
+            self._publish_status(f'waiting for data: {buffered:.1f} of {self._window_s():g} s buffered'
+                                 + ('; the analysis worker is still starting' if starting else '')
+                                 + ('; computing the first window' if computing else ''),
                                  DiagnosticStatus.OK, {'effects': ','.join(self.effects) or 'none'})
 
     def buffered_seconds(self) -> float:

@@ -176,7 +176,8 @@ def test_monitor_output_is_never_cut_when_piped_and_names_what_a_window_lost():
 @pytest.mark.timeout(180)
 def test_monitor_is_quiet_while_waiting(tmp_path):
     """With an identification node that has no samples (it says "waiting for data" once a second), a piped
-    monitor prints its waiting line when the status changes its kind (at most twice here), not every second."""
+    monitor prints its waiting line only when the status changes its kind (at start, while the node's worker
+    starts, once it has started: at most 3 times here), not every second."""
     from aeropend_ros._ros_env import local_ros_environment
     domain_id = private_domain_id()
     env = local_ros_environment(domain_id=domain_id)
@@ -186,4 +187,4 @@ def test_monitor_is_quiet_while_waiting(tmp_path):
                                  env=env, cwd=ROOT, capture_output=True, text=True, timeout=120)
         logs = node.output()
     assert monitor.returncode == 0, monitor.stderr + logs
-    assert monitor.stdout.count('waiting for the identification node') <= 2, monitor.stdout
+    assert monitor.stdout.count('waiting for the identification node') <= 3, monitor.stdout
