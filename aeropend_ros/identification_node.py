@@ -502,7 +502,8 @@ class IdentificationNode(Node):
                    f'{advice}')
         self.get_logger().warning(message)
         self.window_events.append(WindowEvent(start_s, stop_s, 'skipped', message, lost_samples=-1))
-        self._report(message, DiagnosticStatus.WARN, {'skipped_window_start_s': f'{start_s:.3f}',
+        self._report(message, DiagnosticStatus.WARN, {'window_stop_ns': str(now_ns + round(SAMPLE_TIME * 1e9)),
+                                                      'skipped_window_start_s': f'{start_s:.3f}',
                                                       'skipped_window_stop_s': f'{stop_s:.3f}',
                                                       'skip_reason': busy}, effects=self.effects)
 
