@@ -18,7 +18,7 @@ recorded topics, plottable in Foxglove or PlotJuggler (config/).
 Examples:
   aeropend monitor                 # until Ctrl-C
   aeropend monitor --once          # print the latest result and exit (exit 1 if none within --timeout)
-  aeropend monitor --json - | jq .window.parameters.thrust_gain
+  aeropend monitor --json - | jq -c 'select(.window) | .window.parameters.thrust_gain'
 """
 from __future__ import annotations
 
