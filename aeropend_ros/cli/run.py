@@ -351,8 +351,9 @@ class _WindowPrinter:
     """The live part of the run's console: a buffering line until the first window (standard error, rewritten in
     place on a terminal), then one line per window (standard output) and the node's other warnings, each once."""
 
-    def __init__(self, identification, window_s: float) -> None:
+    def __init__(self, identification, window_s: float, quiet: bool = False) -> None:
         self.node = identification
+        self.quiet = quiet             # --quiet: no progress (the buffering line); the window lines stay
         self.window_s = float(window_s)
         self.events = 0
         self.notices = 0
@@ -362,6 +363,8 @@ class _WindowPrinter:
         self.open_line = False         # a buffering line without its newline on the terminal
 
     def _progress(self, text: str) -> None:
+        if self.quiet:
+            return
         if self.tty:
             sys.stderr.write('\r' + text + '\x1b[K')
             self.open_line = True
@@ -425,7 +428,7 @@ def _wait_until_done(args, source, excitation, identification, use_sim: bool, sa
 
     Stops early when the recorder cannot write the bag (disk full): the run then ends with that error."""
     started = time.monotonic()
-    printer = _WindowPrinter(identification, args.window)
+    printer = _WindowPrinter(identification, args.window, quiet=getattr(args, 'quiet', False))
     try:
         while True:
             printer.update()
