@@ -252,7 +252,7 @@ class ExcitationNode(Node):
             if self.started and not self.done:
                 self._send(0.0)
             for publisher in (self.duty_publisher, self.done_publisher):
-                publisher.wait_for_all_acked(Duration(seconds=1.0))
+                publisher.wait_for_all_acked(Duration(seconds=5.0))     # returns once acked; a busy host is slow
         except Exception:  # noqa: BLE001 - the context may already be shut down; nothing else to do
             pass
         super().destroy_node()

@@ -1,10 +1,12 @@
 """identification_node: weak SINDy on sliding windows of ``/aeropend/samples``, live.
 
-Every ``hop_s`` seconds of acquisition time, the last ``window_s`` seconds of samples are analysed in a worker
-process (spawned, so the DDS threads are not forked; a worker thread would hold the GIL for most of a fit and the
-executor would drop samples). The executor keeps receiving meanwhile; a window that comes due while the previous
-one is still being computed is skipped, counted, logged and reported on ``/diagnostics`` (WARN, with its time
-span and the reason). The analysis is
+Samples wait in the subscription's DDS history (``QUEUE_DEPTH``, ~20 s at 490 Hz) and a timer takes all of them every
+``POLL_PERIOD_S`` (one executor turn per batch, as the recorder does), so a busy machine delays the node rather than
+making it lose samples. Every ``hop_s`` seconds of acquisition time, the last ``window_s`` seconds of samples are
+analysed in a worker process (spawned, so the DDS threads are not forked; a worker thread would hold the GIL for
+most of a fit and the executor would drop samples). The executor keeps receiving meanwhile; a window that comes
+due while the previous one is still being computed is skipped, counted, logged and reported on ``/diagnostics``
+(WARN, with its time span and the reason). The analysis is
 :func:`aeropend_core.diagnosis.online.analyze_window`: weak SINDy on the first part of the window, output-error
 refinement with the model's ``effects``, and a free-run fit on the held-out end.
 
@@ -50,6 +52,9 @@ the 490 Hz rate, an angle jump no repair explains, ...) is not analysed and said
 repaired or warned window (a wrap unwrapped, an outlier interpolated, lost samples segmented) is analysed and
 published with its status at WARN and the findings in ``data_quality`` / ``data_quality_detail``.
 
+Each window that comes due leaves one :class:`WindowEvent` in ``window_events`` (clean, flagged, withheld, refused,
+skipped or failed, with its lost samples and gaps): ``aeropend run`` prints one console line per event.
+
 Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
 are changeable at runtime (``ros2 param set /identification_node effects "['NAME']"``, names from
 ``aeropend effects``); unknown effect names are rejected with the reason. The new values apply from the next window.
@@ -60,6 +65,7 @@ import math
 import multiprocessing
 import threading
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -96,6 +102,10 @@ DIAGNOSTIC_NAME = 'aeropend: identification'
 #: window is split at its gaps (nothing is interpolated: an interpolated second of current once shifted the
 #: parameters by 4 sigma); any lost sample makes the window WARN.
 MAX_LOST_FRACTION = _OFFLINE_MAX_LOST_FRACTION
+#: Depth of the samples subscription's DDS history [messages]: ~20 s at 490 Hz wait there while the node is busy.
+QUEUE_DEPTH = 10000
+#: Period [s] of the timer that takes the waiting samples in one batch.
+POLL_PERIOD_S = 0.02
 #: Largest believable mismatch between a stamp step and the sequence step times Ts: 0.1 s + 5 % of the step.
 STAMP_JUMP_TOLERANCE = (0.1, 0.05)
 #: Samples in order (counter +1.., stamps as expected) after a restart that end the restart condition: until then
@@ -110,6 +120,42 @@ REJECTIONS = {
     'stamp_not_increasing': 'non-monotonic stamp (sequence number advanced, stamp did not)',
     'unreadable': 'unreadable (not an aeropend sample, or its sequence number is not a whole number)',
 }
+
+
+@dataclass(frozen=True)
+class WindowEvent:
+    """What became of one window, in the order the windows ended (``aeropend run`` prints one line per event).
+
+    Attributes
+    ----------
+    start_s, stop_s : float
+        The window's span, acquisition time since the first sample the node received [s].
+    state : str
+        ``'clean'`` (published, nothing lost or repaired), ``'flagged'`` (published with its doubts: lost samples,
+        repairs), ``'withheld'`` (not published: data too damaged, or the fit diverged), ``'refused'`` (not
+        analysed: excitation insufficient, too little data between gaps), ``'skipped'`` (not computed: the
+        previous window was still being computed) or ``'failed'`` (the analysis raised).
+    message : str
+        The window's /diagnostics status message.
+    result : WindowResult or None
+        The published result (``'clean'`` and ``'flagged'`` only).
+    lost_samples : int
+        Samples missing from the window by sequence number, rejected ones included (-1: not counted, a skipped
+        window) [-].
+    gaps : int
+        Gaps in the window's sequence numbers [-].
+    data : str
+        The doubts about the data (``'lost_samples'``, data-quality codes), comma-separated; '' when clean.
+    """
+
+    start_s: float
+    stop_s: float
+    state: str
+    message: str
+    result: WindowResult | None = None
+    lost_samples: int = 0
+    gaps: int = 0
+    data: str = ''
 
 
 def results_qos() -> QoSProfile:
@@ -177,6 +223,10 @@ class RawSampleParser:
         self._length, self._offset, self._constant = len(data), offset, bytes(data[12:offset])
 
 
+def _never_called(_message) -> None:
+    """Callback of the polled subscription: its node is never spun (:meth:`IdentificationNode._take_samples`)."""
+
+
 def _analyze_in_worker(*args, **keywords) -> WindowResult:
     """Run :func:`analyze_window` in the worker process with single-threaded BLAS (2 shared cores)."""
     from threadpoolctl import threadpool_limits
@@ -231,6 +281,8 @@ class IdentificationNode(Node):
         self.windows_done = 0
         self.windows_skipped = 0
         self.windows_submitted = 0
+        #: Windows that came due (each gets one WindowEvent: published, withheld, refused, skipped or failed).
+        self.windows_due = 0
         #: Samples received since the start, and samples missed (gaps in the sequence counter between them).
         self.samples_received = 0
         self.samples_missed = 0
@@ -258,13 +310,26 @@ class IdentificationNode(Node):
         #: Publishers of /aeropend/parameters/<name> (and .../weak_sindy/<name>), created as names appear.
         self.parameter_publishers: dict[str, object] = {}
         self.last_status = ('waiting for samples', DiagnosticStatus.OK)
+        #: One :class:`WindowEvent` per window that came due, in order (appended only; a console reads it by
+        #: index), and the messages of the non-window WARN/ERROR statuses (rejected samples, restarts).
+        self.window_events: list[WindowEvent] = []
+        self.notices: list[str] = []
 
-        # Best effort like the publisher, with a deep queue so that a busy moment does not drop samples.
-        deep = QoSProfile(depth=2000, reliability=ReliabilityPolicy.BEST_EFFORT)
+        # Best effort like the publisher, with a deep queue (QUEUE_DEPTH samples, ~20 s at 490 Hz) taken in
+        # batches: the subscription sits on an internal node that no executor spins, and a timer takes every waiting
+        # sample each POLL_PERIOD_S (one executor turn per batch instead of one per sample, as the recorder does).
+        # One callback per sample from a 2000-deep queue lost 13,866 and 23,148 of 29,400 samples beside stress-ng at
+        # load 23-34 while the recorder lost none; batched takes lost none (bench/results/2026-11-27-live).
+        deep = QoSProfile(depth=QUEUE_DEPTH, reliability=ReliabilityPolicy.BEST_EFFORT)
         # Raw subscription: the bytes are read directly (RawSampleParser), which costs a fraction of building a
         # JointState per sample.
         self.parser = RawSampleParser()
-        self.create_subscription(JointState, topics.SAMPLES, self._on_sample, deep, raw=True)
+        self._io_node = Node(f'{self.get_name()}_io', namespace=self.get_namespace(), context=self.context,
+                             use_global_arguments=False, enable_rosout=False, start_parameter_services=False)
+        # the name as this node resolves it (its remappings apply; the internal node takes no global arguments)
+        self._samples_subscription = self._io_node.create_subscription(
+            JointState, self.resolve_topic_name(topics.SAMPLES), _never_called, deep, raw=True)
+        self.create_timer(POLL_PERIOD_S, self._take_samples)
         self.coefficients_publisher = self.create_publisher(JointState, COEFFICIENTS_TOPIC, results_qos())
         self.parameters_publisher = self.create_publisher(JointState, PARAMETERS_TOPIC, results_qos())
         self.fit_publisher = self.create_publisher(JointState, FIT_TOPIC, results_qos())
@@ -296,6 +361,16 @@ class IdentificationNode(Node):
         return SetParametersResult(successful=True)
 
     # --------------------------------------------------------------------------------------------- samples
+    def _take_samples(self) -> None:
+        """Take every sample waiting in the subscription's DDS history (one executor turn per batch)."""
+        handle = self._samples_subscription.handle
+        with handle:
+            while True:
+                taken = handle.take_message(JointState, True)
+                if taken is None:
+                    return
+                self._on_sample(taken[0])
+
     def _on_sample(self, data: bytes) -> None:
         try:
             sample = self.parser.parse(data)
@@ -370,6 +445,7 @@ class IdentificationNode(Node):
             self._restart_condition = kind
             self._restarts_at_condition = self.restarts - 1
             self._report(message, DiagnosticStatus.WARN, {}, effects=self.effects)
+            self.notices.append(message)
 
     @staticmethod
     def _rejected_text(now: dict[str, int], before: dict[str, int]) -> tuple[int, str]:
@@ -395,6 +471,7 @@ class IdentificationNode(Node):
             if self.last_window_end_ns is not None and now_ns - self.last_window_end_ns < hop_ns:
                 return
             self.last_window_end_ns = now_ns
+            self.windows_due += 1
             keep_from = int(np.searchsorted(np.asarray(self.stamps), now_ns - window_ns, side='right'))
             snapshot = {'sequence': np.array(self.sequence[keep_from:], dtype=np.int64),
                         'stamp_ns': np.array(self.stamps[keep_from:], dtype=np.int64)}
@@ -424,7 +501,9 @@ class IdentificationNode(Node):
         message = (f'window {start_s:.1f}-{stop_s:.1f} s skipped: {busy} ({self.windows_skipped} skipped so far); '
                    f'{advice}')
         self.get_logger().warning(message)
-        self._report(message, DiagnosticStatus.WARN, {'skipped_window_start_s': f'{start_s:.3f}',
+        self.window_events.append(WindowEvent(start_s, stop_s, 'skipped', message, lost_samples=-1))
+        self._report(message, DiagnosticStatus.WARN, {'window_stop_ns': str(now_ns + round(SAMPLE_TIME * 1e9)),
+                                                      'skipped_window_start_s': f'{start_s:.3f}',
                                                       'skipped_window_stop_s': f'{stop_s:.3f}',
                                                       'skip_reason': busy}, effects=self.effects)
 
@@ -433,6 +512,10 @@ class IdentificationNode(Node):
         sequence = snapshot['sequence']
         stop_ns = int(snapshot['stamp_ns'][-1] + round(SAMPLE_TIME * 1e9))
         health = {'samples': str(sequence.size), 'window_stop_ns': str(stop_ns)}
+        origin = self.first_stamp_ns if self.first_stamp_ns is not None else int(snapshot['stamp_ns'][0])
+        health['stream_start_ns'] = str(origin)        # acquisition time 0 of the run (its console's t = 0)
+        health['window_s'] = f'{self._window_s():g}'
+        span = ((stop_ns - origin) * 1e-9 - self._window_s(), (stop_ns - origin) * 1e-9)
         rejected, rejected_text = self._rejected_text(self.rejected, self._rejected_at_window)
         self._rejected_at_window = dict(self.rejected)
         health['rejected_samples'] = str(rejected)
@@ -448,8 +531,9 @@ class IdentificationNode(Node):
                 report = check_recording(window, sample_time=SAMPLE_TIME, context='window')
             except DataQualityError as error:
                 health['data_quality'] = f'{error.finding.code}:refused'
-                self._report(f'window not analysed, data quality: {error}', DiagnosticStatus.ERROR, health,
-                             effects=effects)
+                message = f'window not analysed, data quality: {error}'
+                self._report(message, DiagnosticStatus.ERROR, health, effects=effects)
+                self.window_events.append(WindowEvent(*span, 'withheld', message, data=error.finding.code))
                 return
             findings = tuple(report.recording.findings)
             sequence = report.recording.signals['sequence'].astype(np.int64)
@@ -469,6 +553,8 @@ class IdentificationNode(Node):
             message = (f'window not analysed: {why}' + (f', of them rejected: {rejected_text}' if rejected else '')
                        + '; check the link, the load or the source')
             self._report(message, DiagnosticStatus.ERROR, health, effects=effects)
+            self.window_events.append(WindowEvent(*span, 'withheld', message, lost_samples=missing,
+                                                  gaps=int(health['gaps']), data='lost_samples'))
             return
         if findings:
             health['data_quality'] = ','.join(f'{f.code}:{f.severity}' for f in findings)
@@ -485,7 +571,7 @@ class IdentificationNode(Node):
                                           sequence=sequence)
         trend_key = (self._generation, tuple(effects), self._window_s())
         self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects, start_s,
-                                                                      findings, trend_key))
+                                                                      findings, trend_key, span))
 
     @staticmethod
     def _non_finite(result: WindowResult) -> list[str]:
@@ -496,17 +582,21 @@ class IdentificationNode(Node):
         return [name for name, value in values.items() if not math.isfinite(value)]
 
     def _on_result(self, future, stop_ns: int, health: dict, effects: tuple[str, ...], start_s: float = 0.0,
-                   findings: tuple = (), trend_key: tuple | None = None) -> None:
+                   findings: tuple = (), trend_key: tuple | None = None,
+                   span: tuple[float, float] = (math.nan, math.nan)) -> None:
+        counts = {'lost_samples': int(health.get('lost_samples', '0')), 'gaps': int(health.get('gaps', '0'))}
         try:
             result = future.result()
             result.start += start_s          # back to acquisition time
             result.stop += start_s
         except InsufficientDataError as error:
             self._report(str(error), DiagnosticStatus.WARN, health, excitation=str(error), effects=effects)
+            self.window_events.append(WindowEvent(*span, 'refused', str(error), **counts))
             return
         except Exception as error:  # noqa: BLE001 - a failed window must not kill the node; report it
             self._report(f'window failed: {error}', DiagnosticStatus.ERROR, health, effects=effects)
             self.get_logger().error(f'window analysis failed: {error!r}')
+            self.window_events.append(WindowEvent(*span, 'failed', f'window failed: {error}', **counts))
             return
         seen = {f.code for f in findings}
         findings = tuple(findings) + tuple(f for f in result.findings if f.code not in seen)
@@ -515,8 +605,9 @@ class IdentificationNode(Node):
             health['data_quality_detail'] = ' | '.join(f.message for f in findings)
         bad = self._non_finite(result)
         if bad:
-            self._report(f'window not published: {", ".join(bad)} not finite (the fit diverged)',
-                         DiagnosticStatus.ERROR, health, effects=effects)
+            message = f'window not published: {", ".join(bad)} not finite (the fit diverged)'
+            self._report(message, DiagnosticStatus.ERROR, health, effects=effects)
+            self.window_events.append(WindowEvent(*span, 'withheld', message, **counts))
             return
         self.windows_done += 1
         self.last_result = result
@@ -557,6 +648,8 @@ class IdentificationNode(Node):
             message += f'; {drift}'
             level = DiagnosticStatus.WARN
         self._report(message, level, health, excitation='sufficient', effects=effects)
+        self.window_events.append(WindowEvent(*span, 'flagged' if doubts else 'clean', message, result,
+                                              data=','.join(doubts), **counts))
 
     def _trend(self, result: WindowResult, trend_key: tuple | None, flagged: bool = False
                ) -> tuple[dict[str, dict], str]:
@@ -641,16 +734,27 @@ class IdentificationNode(Node):
         rejected, rejected_text = self._rejected_text(self.rejected, self._rejected_at_status)
         self._rejected_at_status = dict(self.rejected)
         if rejected:       # said at once, not only with the next window (which may never come)
-            self._report(f'{rejected} samples rejected in the last second: {rejected_text}',
-                         DiagnosticStatus.WARN, {'rejected_samples': str(rejected)}, effects=self.effects)
+            message = f'{rejected} samples rejected in the last second: {rejected_text}'
+            self._report(message, DiagnosticStatus.WARN, {'rejected_samples': str(rejected)}, effects=self.effects)
+            self.notices.append(message)
             return
-        if self.windows_done == 0 and (self.pending is None or self.pending.done()) \
-                and self.last_status[0] == 'waiting for samples':
-            self._publish_status(f'waiting for data: {buffered:.1f} of {self._window_s():g} s buffered',
+        if self.windows_done == 0 and self.last_status[0] == 'waiting for samples':
+            # said from the start, also while the analysis worker starts (tens of seconds on a loaded machine)
+            starting = self.windows_submitted == 0 and self.pending is not None and not self.pending.done()
+            computing = self.windows_submitted > 0 and self.pending is not None and not self.pending.done()
+            self._publish_status(f'waiting for data: {buffered:.1f} of {self._window_s():g} s buffered'
+                                 + ('; the analysis worker is still starting' if starting else '')
+                                 + ('; computing the first window' if computing else ''),
                                  DiagnosticStatus.OK, {'effects': ','.join(self.effects) or 'none'})
+
+    def buffered_seconds(self) -> float:
+        """Acquisition time [s] spanned by the samples buffered now (before the first window: how far it is)."""
+        with self.lock:
+            return (self.stamps[-1] - self.stamps[0]) * 1e-9 + SAMPLE_TIME if self.stamps else 0.0
 
     def destroy_node(self) -> None:
         self.worker.shutdown(wait=True, cancel_futures=True)
+        self._io_node.destroy_node()
         super().destroy_node()
 
 

@@ -105,6 +105,22 @@ def test_calibrate_cli_against_the_emulator(capsys, tmp_path):
         assert poll(lambda: emulator.commands[-1][1] == P.CommandFrame(P.SET_DUTY, 0), 20.0)
 
 
+def test_record_waits_for_the_samples_it_asked_for_when_the_host_reads_late():
+    """A busy host (or link) that delivers nothing for 0.8 s must not end a 0.2 s recording with "no samples": the
+    recording waits, with a generous deadline, until the samples cover the asked device time (#22 item 5)."""
+    from aeropend_core.cli.calibrate import RigLink
+    with DeviceEmulator(seed=4) as emulator:
+        rig = RigLink(emulator.port, 250000, 0.7)
+        try:
+            emulator.pause(0.8)             # frames held and sent in one burst afterwards
+            samples = rig.record(0.0, 0.2)
+            span = samples[-1].sequence - samples[0].sequence + 1
+            assert span >= round(0.2 / P.SAMPLE_PERIOD)
+            assert len(samples) >= 0.9 * span
+        finally:
+            rig.close()
+
+
 def test_calibrate_cli_user_errors(capsys, tmp_path):
     status, _, err = run_cli(capsys, 'zero', '--port', str(tmp_path / 'nothing'))
     assert status == 2 and 'cannot open' in err

@@ -39,8 +39,17 @@ def test_run_records_identifies_and_diagnoses(tmp_path):
     assert monitor.returncode == 0, monitor.stderr + monitor.stdout
     assert 'held-out fit' in monitor.stdout and 'gravity_stiffness' in monitor.stdout
     assert 'sin(angle)' in monitor.stdout
-    # Live windows were reported while running.
-    assert 'window ending t =' in output, output
+    # Live windows were reported while running: a buffering line first, then one line per window (each span once,
+    # a skipped window too), each published window with its data state; and the samples the node received.
+    import re
+    assert re.search(r'buffering \d+/12 s of samples for the first window', output), output
+    windows = re.findall(r'^  window +([\d.]+)- *([\d.]+) s: (.*)$', output, flags=re.MULTILINE)
+    assert windows, output
+    spans = [(start, stop) for start, stop, _ in windows]
+    assert len(spans) == len(set(spans)), output
+    published = [text for _, _, text in windows if 'held-out fit' in text]
+    assert published and all(text.endswith('data clean') or 'data FLAGGED: ' in text for text in published), output
+    assert re.search(r'identification node: received \d+ of 14700 samples published \(\d+ lost in gaps', output), output
     # The bag holds every sample: continuous sequence, Ts spacing, 30 s.
     folders = [p for p in tmp_path.iterdir() if p.is_dir()]
     assert len(folders) == 1 and (folders[0] / 'metadata.yaml').exists(), output
@@ -124,7 +133,7 @@ def test_run_on_the_rig_through_the_serial_bridge(tmp_path):
         emitted = [state for _, state in emulator.emitted]
     output = result.stdout + result.stderr
     assert result.returncode == 0, output
-    assert 'rig on' in output and 'window ending t =' in output and 'Diagnosis of' in output, output
+    assert 'rig on' in output and ' s: held-out fit ' in output and 'Diagnosis of' in output, output
     assert len(emitted) > 20 * 490
     from aeropend_core.io.bag import read_samples
     folder = next(p for p in tmp_path.iterdir() if p.is_dir())
@@ -151,7 +160,7 @@ def test_run_interrupted_finalises_the_bag(tmp_path, started_with):
     try:
         for line in run.stdout:              # wait for the first identified window, then interrupt
             lines.append(line)
-            if 'window ending t =' in line:
+            if ' s: held-out fit ' in line:
                 run.send_signal(signal.SIGINT)
                 break
         rest, _ = run.communicate(timeout=60)

@@ -42,6 +42,9 @@ from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 
 STEPS = ('zero', 'angle-scale', 'locked-rotor', 'back-emf', 'angle-filter')
 NODE_KEY = C.NODE_KEY     # the shipped file's key: the node in any namespace
+#: Least extra wall time [s] :meth:`RigLink.record` waits for the samples it asked for (a busy host reads late;
+#: the device keeps counting), beyond the recording time itself.
+RECORD_MARGIN_S = 10.0
 
 
 def _fractions(text: str) -> list[float]:
@@ -111,30 +114,56 @@ class RigLink:
         self.link.write(P.encode_command(P.SET_MAX_DUTY, max_duty) + P.encode_command(P.SET_WATCHDOG, 0.5))
 
     def record(self, duty: float, seconds: float) -> list[P.SampleFrame]:
-        """Hold `duty` for `seconds` (repeating the command for the watchdog) and return the samples."""
+        """Hold `duty` until the samples cover `seconds` of the device's own time and return them.
+
+        The device's time is its sequence counter x the sample period: a host too busy to read for a while still
+        gets the `seconds` it asked for (the firmware keeps counting; the bytes wait in the serial buffer). The
+        command is repeated every 0.1 s for the firmware's watchdog. The wait gives up only after `seconds` +
+        ``max(RECORD_MARGIN_S, seconds)`` of wall time [s], saying what arrived.
+
+        Parameters
+        ----------
+        duty : float
+            Duty cycle to hold, fraction in [0, max_duty] [-].
+        seconds : float
+            Device time to record [s].
+
+        Raises
+        ------
+        AeropendError
+            No samples, samples lost on the link, or too few samples for the time waited (naming which).
+        """
         if not 0.0 <= duty <= self.max_duty:
             raise AeropendError(f'duty {duty} outside [0, {self.max_duty}] (--max-duty)')
         samples: list[P.SampleFrame] = []
         command = P.encode_command(P.SET_DUTY, duty)
-        end = time.monotonic() + seconds
+        needed = max(1, int(round(seconds / P.SAMPLE_PERIOD)))      # samples of device time asked for
+        started = time.monotonic()
+        give_up = started + seconds + max(RECORD_MARGIN_S, seconds)
         next_command = 0.0
         self.link.reset_input_buffer()
         self.decoder.reset()
-        while time.monotonic() < end:
-            if time.monotonic() >= next_command:
+        while not samples or samples[-1].sequence - samples[0].sequence + 1 < needed:
+            now = time.monotonic()
+            if now > give_up:
+                break
+            if now >= next_command:
                 self.link.write(command)
-                next_command = time.monotonic() + 0.1
+                next_command = now + 0.1
             samples += [m for m in self.decoder.feed(self.link.read(max(1, self.link.in_waiting)))
                         if isinstance(m, P.SampleFrame)]
+        waited = time.monotonic() - started
         if not samples:
-            raise AeropendError(f'no samples in {seconds:g} s: is the device still streaming?')
+            raise AeropendError(f'no samples in {waited:.1f} s (waiting for {seconds:g} s of samples): is the '
+                                'device still streaming?')
         # Lost on the way (sequence gaps) is a bad link; few but contiguous is a slow device (or a starved host).
         span = samples[-1].sequence - samples[0].sequence + 1
         if len(samples) < 0.9 * span:
-            raise AeropendError(f'only {len(samples)} of {span} samples arrived in {seconds:g} s: the serial link '
+            raise AeropendError(f'only {len(samples)} of {span} samples arrived in {waited:.1f} s: the serial link '
                                 'is losing data')
-        if len(samples) < 0.25 * seconds / P.SAMPLE_PERIOD:
-            raise AeropendError(f'only {len(samples)} samples in {seconds:g} s (the firmware sends '
+        if span < needed:
+            raise AeropendError(f'only {len(samples)} samples ({span * P.SAMPLE_PERIOD:.2f} s of device time) in '
+                                f'{waited:.1f} s of waiting for {seconds:g} s (the firmware sends '
                                 f'{1 / P.SAMPLE_PERIOD:.0f} per second): is the right firmware running?')
         return samples
 

@@ -2,7 +2,10 @@
 
 Used by ``aeropend monitor`` when it has a display (or ``--plot-file``): one panel per parameter (value line, ±1σ
 band, the estimator and the SI unit in the title, a drift named in red in the title, windows whose data were
-repaired or flagged marked with a red ×), and the held-out fit % below. ROS-free: it draws what it is given.
+repaired or flagged marked with a red ×), and the held-out fit % below, against acquisition time (as ``aeropend
+run`` prints it). Each axis is scaled to the recent windows robustly (:func:`robust_limits`: median ± k·MAD), so one
+bad window does not squash the others into a line: a value beyond the axis is drawn at its edge as a red triangle
+pointing the way it went. ROS-free: it draws what it is given.
 """
 from __future__ import annotations
 
@@ -13,6 +16,43 @@ from dataclasses import dataclass, field
 
 #: Parameters drawn first, in this order (others follow as they appear: the effects' parameters).
 FIRST = ('gravity_stiffness', 'damping', 'thrust_gain', 'armature_resistance')
+#: Half-width of the axis in robust standard deviations (1.4826 MAD) around the median of the recent windows [-].
+LIMIT_MADS = 6.0
+#: Windows the axis limits are taken from (the most recent) [-].
+LIMIT_WINDOWS = 30
+
+
+def robust_limits(values, k: float = LIMIT_MADS, recent: int = LIMIT_WINDOWS) -> tuple[float, float] | None:
+    """Axis limits from the recent values: median ± `k` robust standard deviations (1.4826·MAD), never wider than
+    the values themselves, plus a 10 % margin. One wild window (a damaged one) does not stretch the axis.
+
+    Parameters
+    ----------
+    values : array_like, shape (n,)
+        The quantity over the windows, oldest first (in its unit; NaN ignored).
+    k : float
+        Half-width in robust standard deviations [-].
+    recent : int
+        How many of the last values set the limits [-].
+
+    Returns
+    -------
+    tuple of float or None
+        ``(low, high)`` in the values' unit; None when no value is finite.
+    """
+    import numpy as np
+    v = np.asarray(values, dtype=float)[-recent:]
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return None
+    median = float(np.median(v))
+    spread = 1.4826 * float(np.median(np.abs(v - median)))
+    low, high = max(float(v.min()), median - k * spread), min(float(v.max()), median + k * spread)
+    if high - low <= 0.0:
+        pad = max(abs(median) * 0.05, 1e-12)
+        return median - pad, median + pad
+    margin = 0.1 * (high - low)
+    return low - margin, high + margin
 
 
 def has_display() -> bool:
@@ -35,7 +75,8 @@ class WindowPoint:
     Attributes
     ----------
     time : float
-        End of the window, seconds since the first window's end [s].
+        End of the window, acquisition time since the stream's first sample [s] (the time ``aeropend run``
+        prints).
     values : dict
         ``{name: (value, sigma)}`` in SI units (sigma NaN: unknown, no band).
     fit_percent : float
@@ -112,6 +153,7 @@ class LivePlot:
             flagged = np.array([p.flagged for p in self.points], dtype=bool)
             if flagged.any():
                 axes.plot(times[flagged], value[flagged], 'x', color='#d7301f', label='data repaired/flagged')
+            self._robust_axis(axes, times, value)
             unit = self.units.get(name, '')
             estimator = self.estimators.get(name, '')
             title = f'{name} [{unit}]' + (f' — {estimator}' if estimator else '')
@@ -124,15 +166,35 @@ class LivePlot:
             if row == 0:
                 axes.legend(fontsize=7, loc='upper right')
         axes = figure.add_subplot(rows, 1, rows)
-        axes.plot(times, [p.fit_percent for p in self.points], '-o', color='#1a9641', markersize=2)
+        fit = np.array([p.fit_percent for p in self.points], dtype=float)
+        axes.plot(times, fit, '-o', color='#1a9641', markersize=2)
+        self._robust_axis(axes, times, fit)
         axes.set_title('held-out fit [%] (MATLAB compare NRMSE)', fontsize=8, loc='left')
-        axes.set_xlabel('window end [s] since the first window', fontsize=8)
+        axes.set_xlabel('window end [s], acquisition time since the run began (as aeropend run prints it)',
+                        fontsize=8)
         axes.tick_params(labelsize=7)
         figure.tight_layout()
         if self.interactive:
             import matplotlib.pyplot as plt
             figure.canvas.draw_idle()
             plt.pause(0.001)
+
+    @staticmethod
+    def _robust_axis(axes, times, value) -> None:
+        """Limit the y axis to :func:`robust_limits` of `value`; values beyond it drawn at its edge (red ▲/▼)."""
+        import numpy as np
+        limits = robust_limits(value)
+        if limits is None:
+            return
+        low, high = limits
+        axes.set_ylim(low, high)
+        above, below = value > high, value < low
+        if above.any():
+            axes.plot(times[above], np.full(int(above.sum()), high), '^', color='#d7301f', markersize=5,
+                      clip_on=False, label='off scale (beyond the axis)')
+        if below.any():
+            axes.plot(times[below], np.full(int(below.sum()), low), 'v', color='#d7301f', markersize=5,
+                      clip_on=False, label='off scale (beyond the axis)')
 
     def save(self, path: str) -> None:
         """Write the current figure to `path` (PNG, SVG or PDF by its suffix) [-], replacing it whole."""
@@ -148,4 +210,4 @@ class LivePlot:
         return plt.fignum_exists(self.figure.number)
 
 
-__all__ = ['LivePlot', 'WindowPoint', 'has_display']
+__all__ = ['LivePlot', 'WindowPoint', 'has_display', 'robust_limits']

@@ -99,13 +99,17 @@ class DriftTracker:
         return report
 
 
-def render(parameters, coefficients, fit, status, drift, windows: int, width: int = 100, trends=None,
-           estimators=None, node_drift: str = '', data: str = '') -> str:
+def render(parameters, coefficients, fit, status, drift, windows: int, width: int | None = 100, trends=None,
+           estimators=None, node_drift: str = '', data: str | None = None,
+           span: tuple[float, float] | None = None) -> str:
     """The text table of one refresh (all arguments may be empty before the first window).
 
+    `width` cuts the status lines to a terminal's columns (None: never cut, e.g. when piped);
     `trends` maps a parameter to the node's trend text (``trend_<name>`` on /diagnostics) or to a local trend row;
     `estimators` maps a parameter to its estimator; `node_drift` is the node's drift sentence ('' or 'none': none);
-    `data` is the window's data-quality flags ('' when clean).
+    `data` is the window's data-quality flags ('' when clean, None when the node did not say); `span` the window's
+    start and end in acquisition
+    time since the run began [s] (as ``aeropend run`` prints them).
     """
     lines = []
     if not parameters and not fit:
@@ -113,7 +117,8 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
         if status:
             lines.append(f'identification: {status}')
         return '\n'.join(lines)
-    lines.append(f'aeropend monitor: {windows} window(s) received' + ' ' * 4 + time.strftime('%H:%M:%S'))
+    where = f', the latest {span[0]:.1f}-{span[1]:.1f} s (acquisition time)' if span else ''
+    lines.append(f'aeropend monitor: {windows} window(s) received{where}' + ' ' * 4 + time.strftime('%H:%M:%S'))
     if fit:
         get = {name: value for name, (value, _) in fit.items()}
         lines.append(f'held-out fit {get.get("fit_percent", float("nan")):7.2f} %   rms error '
@@ -124,12 +129,14 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
         lines.append(f'identification: {status}'[:width])
     if data:
         lines.append(f'DATA REPAIRED OR FLAGGED in this window: {data} (the numbers below carry that doubt)'[:width])
+    elif data is not None:
+        lines.append('data clean in this window (no sample lost, nothing repaired)')
     if node_drift and node_drift != 'none':
         lines.append(f'DRIFT: {node_drift}')
     lines.append('')
     estimators = estimators or {}
     lines.append('parameters of the refined model (estimator: output_error = free-run simulation fitted to the angle; '
-                 'motor_observer = observer fitted to Ia):'[:max(width, 60)])
+                 'motor_observer = observer fitted to Ia):'[:max(width, 60) if width else None])
     lines.append(f'{"parameter (SI)":26s} {"value":>13s} {"±1σ":>11s} {"running mean":>13s}  {"estimator":15s} '
                  'jump / trend')
     trends = trends or {}
@@ -151,6 +158,41 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
         for name, (value, error) in coefficients.items():
             lines.append(f'  {name:38s} {value:13.6g} ± {error:.3g}')
     return '\n'.join(lines)
+
+
+def output_width(stream) -> int | None:
+    """Columns to cut status lines at: the terminal's width, or None (never cut) when `stream` is not a terminal
+    (piped to a file, less or grep, a line is kept whole)."""
+    return shutil.get_terminal_size().columns if stream.isatty() else None
+
+
+def window_data(values: dict[str, str]) -> str:
+    """A window's data doubts from its /diagnostics key/values: the data-quality findings and the samples it lost
+    ('' when clean)."""
+    parts = [values['data_quality']] if values.get('data_quality') else []
+    if values.get('lost_samples', '0') not in ('', '0'):
+        parts.append(f'{values["lost_samples"]} samples lost in {values.get("gaps", "?")} gap(s), the fits split '
+                     'there')
+    if values.get('rejected'):
+        parts.append(f'rejected: {values["rejected"]}')
+    return '; '.join(parts)
+
+
+def window_span(values: dict[str, str]) -> tuple[float, float] | None:
+    """A window's start and end in acquisition time since the run's first sample [s] (what ``aeropend run``
+    prints), from its /diagnostics key/values; None when the node does not say (``stream_start_ns``)."""
+    try:
+        stop = (int(values['window_stop_ns']) - int(values['stream_start_ns'])) * 1e-9
+        return stop - float(values.get('window_s', 'nan')), stop
+    except (KeyError, ValueError):
+        return None
+
+
+def waiting_kind(status: str) -> str:
+    """The waiting status without its numbers ('waiting for data: # of # s buffered'): a pipe gets a line only
+    when this changes."""
+    import re
+    return re.sub(r'\d+(\.\d+)?', '#', status or '')
 
 
 def check_arguments(args) -> None:
@@ -235,18 +277,18 @@ def main(args) -> int:
     clear = text_out.isatty() and not args.no_clear and not args.once
     started = time.monotonic()
     last_draw = 0.0
+    shown_kind = None
     status = 0
 
-    def table(width: int = 100) -> str:
+    def table(width: int | None = None) -> str:
         values = state['values']
         trends = ({name[len('trend_'):]: text for name, text in values.items() if name.startswith('trend_')}
                   or state.get('local_trends'))
         estimators = dict(part.split(':', 1) for part in values.get('estimators', '').split(',') if ':' in part)
         return render(state['parameters'], state['coefficients'], state['fit'], state['status'], state['drift'],
                       state['windows'], width, trends=trends, estimators=estimators,
-                      node_drift=values.get('drift', ''), data=values.get('data_quality', '') or (
-                          f'{values["lost_samples"]} lost samples filled' if values.get('lost_samples', '0') != '0'
-                          else ''))
+                      node_drift=values.get('drift', ''), span=window_span(values),
+                      data=window_data(values) if 'lost_samples' in values or values.get('data_quality') else None)
     try:
         while rclpy.ok():
             rclpy.spin_once(node, timeout_sec=0.1)
@@ -255,7 +297,7 @@ def main(args) -> int:
                 break                                   # the user closed the plot window
             if args.once:
                 if state['parameters'] and state['fit'] and state['values']:
-                    print(table(), file=text_out)
+                    print(table(output_width(text_out)), file=text_out)
                     break
                 if now - started > args.timeout:
                     print(f'aeropend monitor: no identification result within {args.timeout:g} s (is '
@@ -266,11 +308,20 @@ def main(args) -> int:
                 continue
             if args.duration and now - started > args.duration:
                 break
-            # One redraw per window: its parameters, coefficients, fit and status arrive within milliseconds.
-            if (state['dirty'] and now - last_draw > 0.5) or (not state['parameters'] and now - last_draw > 2.0):
-                text = table(shutil.get_terminal_size().columns)
+            # One redraw per window: its parameters, coefficients, fit and status arrive within milliseconds. While
+            # waiting: a terminal's screen is redrawn at most once a second; a pipe gets a line only when the
+            # waiting status changes its kind (not each second's "12.0 of 25 s buffered").
+            if state['parameters']:
+                due = state['dirty'] and now - last_draw > 0.5
+            elif clear:
+                due = (state['dirty'] and now - last_draw > 1.0) or last_draw == 0.0
+            else:
+                due = waiting_kind(state['status']) != shown_kind or last_draw == 0.0
+            if due:
+                text = table(output_width(text_out))
                 print(('\x1b[H\x1b[2J' if clear else '\n') + text, flush=True, file=text_out)
                 state['dirty'] = False
+                shown_kind = waiting_kind(state['status'])
                 last_draw = now
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -296,9 +347,9 @@ def _on_window(state: dict, values: dict, plot, args, parameter_unit) -> None:
     if plot is None:
         return
     from aeropend_core.present.live_plot import WindowPoint
-    if state['first_ns'] is None:
-        state['first_ns'] = state['stamp_ns']
-    flagged = bool(values.get('data_quality')) or values.get('lost_samples', '0') != '0'
+    if state['first_ns'] is None:      # acquisition time 0: the node's first sample (an older node: the first window)
+        state['first_ns'] = int(values.get('stream_start_ns') or state['stamp_ns'])
+    flagged = bool(window_data(values))
     fit = state['fit'].get('fit_percent', (float('nan'), 0.0))[0]
     plot.add(WindowPoint((state['stamp_ns'] - state['first_ns']) * 1e-9, dict(state['parameters']), fit, flagged))
     plot.units.update({name: parameter_unit(name) for name in state['parameters']})
@@ -328,5 +379,7 @@ def _json_line(status, values: dict, state: dict | None, parameter_unit) -> dict
                          state['coefficients'].items()},
         'fit': {name: value for name, (value, _) in state['fit'].items()},
         'drift': values.get('drift', ''),
-        'data_quality': values.get('data_quality', ''), 'lost_samples': int(values.get('lost_samples', 0) or 0)}
+        'data_quality': values.get('data_quality', ''), 'lost_samples': int(values.get('lost_samples', 0) or 0),
+        'gaps': int(values.get('gaps', 0) or 0), 'data': window_data(values) or 'clean',
+        'span_s': list(window_span(values) or ())}
     return line

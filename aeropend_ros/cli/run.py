@@ -221,6 +221,9 @@ def _run(args) -> int:
             window_s=float(args.window), hop_s=float(args.hop), effects=list(args.model_effect) or ['']),
             namespace=namespace)
         nodes.append(identification)
+        # the console prints every window and warning of this node once (_WindowPrinter); its log would repeat them
+        from rclpy.logging import LoggingSeverity
+        identification.get_logger().set_level(LoggingSeverity.ERROR)
         if not args.no_record:
             from aeropend_ros.recorder_node import RecorderNode
             rig = f'{args.rig}_' if args.rig else ''
@@ -262,7 +265,7 @@ def _run(args) -> int:
         if excitation.started and not excitation.done:
             excitation.finish()          # duty back to 0 before the graph goes away
         if recorder is not None:
-            _drain(recorder)
+            _drain(recorder, getattr(source, 'sequence', None) if use_sim else None)
     except KeyboardInterrupt:
         interrupted = True
         print('aeropend run: interrupted; finalising', file=sys.stderr)
@@ -270,9 +273,9 @@ def _run(args) -> int:
         # A second Ctrl-C must not cut the finalisation of the bag short (it takes a second or two).
         previous_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN)
         for executor in executors:
-            executor.shutdown(timeout_sec=2.0)
+            executor.shutdown(timeout_sec=10.0)     # returns as soon as its callback ends; a busy host is slow
         for spinner in spinners:
-            spinner.join(timeout=2.0)
+            spinner.join(timeout=10.0)
         if recorder is not None:
             recorder.finish()
         for node in reversed(nodes):
@@ -310,59 +313,192 @@ def _spin(executor) -> None:
             raise
 
 
+#: Longest wait [s] for the windows still being computed when the experiment ends (a loaded host computes a window
+#: in tens of seconds; the wait ends as soon as every window that came due has its line).
+LAST_WINDOW_DEADLINE_S = 120.0
+#: Buffering progress before the first window when not a terminal: a line every this many seconds of samples
+#: (at most a fifth of the window) [s].
+BUFFERING_STEP_S = 5.0
+#: Console words of each window state (:class:`aeropend_ros.identification_node.WindowEvent`).
+STATE_WORDS = {'withheld': 'WITHHELD (not published)', 'refused': 'not analysed', 'skipped': 'SKIPPED (not computed)',
+               'failed': 'FAILED'}
+#: Prefixes of the node's status messages that the state words replace on the console.
+_MESSAGE_PREFIXES = ('window not analysed: ', 'window not analysed, ', 'window not published: ', 'window failed: ')
+
+
+def data_state(event) -> str:
+    """The data state of a window in words: 'data clean', or 'data FLAGGED: 312 samples lost in 20 gap(s) (the
+    fits were split there, nothing filled in); data quality: angle_wrap'."""
+    if event.state == 'clean':
+        return 'data clean'
+    parts = []
+    if event.lost_samples > 0:
+        parts.append(f'{event.lost_samples} samples lost in {event.gaps} gap(s) (the fits were split there, nothing '
+                     'filled in)')
+    codes = [code for code in event.data.split(',') if code and code != 'lost_samples']
+    if 'lost_samples' in event.data.split(',') and event.lost_samples <= 0:
+        parts.append('samples rejected')
+    if codes:
+        parts.append('data quality: ' + ', '.join(codes))
+    return 'data FLAGGED: ' + ('; '.join(parts) or event.data or 'see /diagnostics')
+
+
+def window_line(event) -> str:
+    """One console line per window: its span (acquisition time since the run's first sample [s]) and what became
+    of it; a published window carries its held-out fit and its data state, a withheld one no numbers."""
+    head = f'  window {event.start_s:5.1f}-{event.stop_s:5.1f} s: '
+    if event.state in ('clean', 'flagged'):
+        r = event.result
+        return (head + f'held-out fit {r.fit_percent:6.2f} %, rms error {r.rms_error * 1e3:6.2f} mrad (noise '
+                f'{r.noise_rms * 1e3:.2f} mrad), {r.compute_time:.2f} s to compute; {data_state(event)}')
+    message = event.message
+    if event.state == 'skipped' and ' skipped: ' in message:
+        message = message.split(' skipped: ', 1)[1]
+    for prefix in _MESSAGE_PREFIXES:
+        message = message.removeprefix(prefix)
+    lost = (f' [{event.lost_samples} samples lost in {event.gaps} gap(s)]'
+            if event.lost_samples > 0 and 'lost' not in message else '')
+    return head + f'{STATE_WORDS.get(event.state, event.state)}: {message}{lost}'
+
+
+class _WindowPrinter:
+    """The live part of the run's console: a buffering line until the first window (standard error, rewritten in
+    place on a terminal), then one line per window (standard output) and the node's other warnings, each once."""
+
+    def __init__(self, identification, window_s: float, quiet: bool = False) -> None:
+        self.node = identification
+        self.quiet = quiet             # --quiet: no progress (the buffering line); the window lines stay
+        self.window_s = float(window_s)
+        self.events = 0
+        self.notices = 0
+        self.buffered_step = -1
+        self.computing = False
+        self.tty = sys.stderr.isatty()
+        self.open_line = False         # a buffering line without its newline on the terminal
+
+    def _progress(self, text: str) -> None:
+        if self.quiet:
+            return
+        if self.tty:
+            sys.stderr.write('\r' + text + '\x1b[K')
+            self.open_line = True
+        else:
+            sys.stderr.write(text + '\n')
+        sys.stderr.flush()
+
+    def _end_progress(self) -> None:
+        if self.open_line:
+            sys.stderr.write('\n')
+            sys.stderr.flush()
+            self.open_line = False
+
+    def update(self) -> None:
+        node = self.node
+        while self.notices < len(node.notices):
+            self._end_progress()
+            print(f'  identification: {node.notices[self.notices]}', flush=True)
+            self.notices += 1
+        while self.events < len(node.window_events):
+            self._end_progress()
+            print(window_line(node.window_events[self.events]), flush=True)
+            self.events += 1
+        if self.events:
+            return
+        buffered = min(node.buffered_seconds(), self.window_s)
+        step = int(buffered) if self.tty else int(buffered // min(BUFFERING_STEP_S, self.window_s / 5))
+        if buffered < self.window_s and step > self.buffered_step:
+            self.buffered_step = step
+            self._progress(f'  buffering {buffered:.0f}/{self.window_s:g} s of samples for the first window')
+        elif buffered >= self.window_s and not self.computing:
+            self.computing = True
+            self._progress(f'  buffering {self.window_s:g}/{self.window_s:g} s: computing the first window ...')
+
+    def all_shown(self) -> bool:
+        """Every window that came due has its line."""
+        return len(self.node.window_events) >= self.node.windows_due and self.events >= self.node.windows_due
+
+
+#: Longest wait [s] for the identification node to take the samples still queued at the end, before counting.
+RECEIVED_DEADLINE_S = 10.0
+
+
+def _say_samples_received(identification, published: int) -> None:
+    """One line: the samples the identification node received of those the source published, and how the others
+    went (lost in gaps between received samples, counted by sequence number; or never seen at the end). Waits
+    (by condition, RECEIVED_DEADLINE_S at most) until the node has taken what is still queued for it."""
+    deadline = time.monotonic() + RECEIVED_DEADLINE_S
+    while (identification.samples_received + identification.samples_missed < published
+           and time.monotonic() < deadline):
+        time.sleep(0.05)
+    received, missed = identification.samples_received, identification.samples_missed
+    unseen = max(published - received - missed, 0)
+    print(f'  identification node: received {received} of {published} samples published ({missed} lost in gaps'
+          + (f', {unseen} not seen at the end' if unseen else '') + ')', flush=True)
+
+
 def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float,
                      recorder=None) -> bool:
-    """Print each new window's held-out fit until the experiment is over; True when interrupted (Ctrl-C).
+    """Print the live windows (one line each) until the experiment is over; True when interrupted (Ctrl-C).
 
     Stops early when the recorder cannot write the bag (disk full): the run then ends with that error."""
     started = time.monotonic()
-    progress = {'shown': 0, 'status': None}
-
-    def report() -> None:
-        if identification.windows_done > progress['shown'] and identification.last_result is not None:
-            progress['shown'] = identification.windows_done
-            r = identification.last_result
-            print(f'  window ending t = {r.stop - identification.first_stamp_ns * 1e-9:6.1f} s: held-out fit '
-                  f'{r.fit_percent:6.2f} %, rms error {r.rms_error * 1e3:6.2f} mrad '
-                  f'(noise {r.noise_rms * 1e3:.2f} mrad), {r.compute_time:.2f} s to compute', flush=True)
-            progress['status'] = identification.last_status
-        elif identification.last_status is not progress['status']:
-            progress['status'] = identification.last_status
-            if progress['status'][1] != b'\x00':      # not OK: say why no fit was published for this window
-                print(f'  window: {progress["status"][0]}', flush=True)
-
+    printer = _WindowPrinter(identification, args.window, quiet=getattr(args, 'quiet', False))
     try:
         while True:
-            report()
+            printer.update()
             if (use_sim and source.finished) or (not use_sim and time.monotonic() - started > args.duration):
                 break
             if recorder is not None and recorder.failed:
+                printer._end_progress()
                 print(f'aeropend run: recording stopped: {recorder.write_error}', file=sys.stderr, flush=True)
                 return False
             time.sleep(0.1)
-        # The window that came due with the last samples is still being computed: show it too.
-        deadline = time.monotonic() + 15.0
-        while identification.pending is not None and not identification.pending.done() \
-                and time.monotonic() < deadline:
+        # The window that came due with the last samples may still be computed: wait for its line (a condition:
+        # every window that came due has its event), with a deadline a loaded host does not reach.
+        deadline = time.monotonic() + LAST_WINDOW_DEADLINE_S
+        while not printer.all_shown() and time.monotonic() < deadline:
             time.sleep(0.1)
-        time.sleep(0.2)                    # its result callback publishes right after the future completes
-        report()
+            printer.update()
+        printer.update()
+        printer._end_progress()
+        if not printer.all_shown():
+            print(f'  the last window was still being computed after {LAST_WINDOW_DEADLINE_S:g} s: not shown',
+                  file=sys.stderr, flush=True)
+        published = getattr(source, 'sequence', None) if use_sim else getattr(source, 'stats', {}).get(
+            'samples_published')
+        if published:
+            _say_samples_received(identification, int(published))
         return False
     except KeyboardInterrupt:
+        printer._end_progress()
         print('aeropend run: interrupted; finalising', file=sys.stderr)
         return True
 
 
-def _drain(recorder, timeout: float = 5.0) -> None:
-    """Let the recorder receive what is still in flight (its per-topic counts stop growing)."""
+#: Longest wait [s] for the recorder to take the samples still in flight at the end (a condition: it has every
+#: sample the source published, counted or lost; or its counts stop growing for DRAIN_QUIET_S).
+DRAIN_DEADLINE_S = 30.0
+#: Time [s] the recorder's counts must stay unchanged before the drain ends when the published count is unknown.
+DRAIN_QUIET_S = 1.0
+
+
+def _drain(recorder, published: int | None = None, timeout: float = DRAIN_DEADLINE_S) -> None:
+    """Let the recorder receive what is still in flight: until it has received (or counted as lost) the `published`
+    samples, or, when that count is unknown, until its per-topic counts stop growing for DRAIN_QUIET_S."""
     deadline = time.monotonic() + timeout
-    previous = None
+    samples_topic = getattr(recorder, '_samples_topic', None)
+    previous, quiet_since = None, time.monotonic()
     while time.monotonic() < deadline:
         counts = dict(getattr(recorder, '_received', {}))
-        if counts == previous:
+        if published is not None and samples_topic is not None:
+            lost = recorder.lost_counts().get(samples_topic, 0) if hasattr(recorder, 'lost_counts') else 0
+            if counts.get(samples_topic, 0) + lost >= published:
+                return
+        elif counts != previous:
+            previous, quiet_since = counts, time.monotonic()
+        elif time.monotonic() - quiet_since >= DRAIN_QUIET_S:
             return
-        previous = counts
-        time.sleep(0.3)
+        time.sleep(0.05)
 
 
 class _MemoryRecorder:
