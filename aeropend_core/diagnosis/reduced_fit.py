@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import minimize
@@ -116,3 +117,78 @@ def _profile_errors(rss, x: np.ndarray, value: float, fit) -> tuple[float, float
         curvature = (rss(up) - 2 * value + rss(down)) / h ** 2 if h > 0 else float('nan')
         out.append(math.sqrt(2 * variance / curvature) if curvature > 0 else float('inf'))
     return out[0], out[1]
+
+
+@dataclass(frozen=True, eq=False)
+class ReducedFit:
+    """Result of :func:`identify_reduced`: the reduced model's parameters (SI) with their 1σ and its comparison.
+
+    Attributes
+    ----------
+    parameters : dict of str -> float [SI]
+        ``gravity_stiffness`` [1/s^2], ``damping`` [1/s], ``thrust_gain`` [rad/s^2/V^2 of the map],
+        ``motor_time_constant`` [s], ``voltage_map_curvature`` [1/V].
+    standard_errors : dict of str -> float [SI]
+        1σ (the map's are conditional, from the profile; the others are conditional on the map).
+    comparison : Comparison
+        The output-error fit and its held-out evaluation (fit %, RMS error [rad]).
+    """
+
+    parameters: dict[str, float]
+    standard_errors: dict[str, float]
+    comparison: object = field(repr=False)
+    estimator: str = 'output_error'
+
+    def format(self, warnings: dict[str, str] | None = None) -> str:
+        """Person-readable lines (units stated; a failing parameter's warning next to it)."""
+        from aeropend_core.model.names import parameter_unit
+        from aeropend_core.signals.reduced import MAP_PARAMETERS, NOT_IDENTIFIABLE
+        warnings = warnings or {}
+        c = self.comparison
+        lines = ['reduced model (no period-average armature current): dW/dt = -a sin y - b W + k e|e|, '
+                 'T de/dt = Va - e - q e|e|; output-error fit, held-out free-run fit '
+                 f'{c.fit_percent:.2f} % (RMS error {c.rms_error * 1e3:.2f} mrad, noise {c.noise_rms * 1e3:.2f} mrad)']
+        for name, value in self.parameters.items():
+            unit = MAP_PARAMETERS.get(name) or parameter_unit(name)
+            flag = f'   !! {warnings[name]}' if name in warnings else ''
+            lines.append(f'  {name} = {value:.6g} ± {self.standard_errors.get(name, float("nan")):.2g} {unit}{flag}')
+        lines.append('  not identifiable without the current: ' + '; '.join(f'{k} ({v})'
+                                                                            for k, v in NOT_IDENTIFIABLE.items()))
+        return '\n'.join(lines)
+
+
+def reduced_parameters(prep, comparison) -> tuple[dict[str, float], dict[str, float]]:
+    """The reduced model's reported parameters and 1σ (no armature resistance; the profiled map added)."""
+    values = {k: v for k, v in comparison.parameters.items() if k != 'armature_resistance'}
+    errors = {k: v for k, v in comparison.fit.standard_errors.items() if k != 'armature_resistance'}
+    motor = prep.motor_map or {}
+    for name in ('motor_time_constant', 'voltage_map_curvature'):
+        if name in motor:
+            values[name] = motor[name]
+            errors[name] = motor['standard_errors'][name]
+    return values, errors
+
+
+def identify_reduced(recording, effects=()) -> ReducedFit:
+    """Identify the reduced model (module docstring) from a record with the input and the angle only.
+
+    Parameters
+    ----------
+    recording : Recording
+        ``armature_voltage`` [V] (or ``duty``, turned into Va by the gate) and ``angle`` [rad], at least 20 s; an
+        ``armature_current`` column is ignored.
+    effects : sequence of str [-]
+        Catalog effects to include.
+
+    Returns
+    -------
+    ReducedFit
+        Parameters (SI) with 1σ and the held-out comparison.
+    """
+    from aeropend_core.diagnosis.compare import compare, prepare
+    from aeropend_core.io.recording import Recording
+    signals = {k: v for k, v in recording.signals.items() if k != 'armature_current'}
+    prep = prepare(Recording(recording.time, signals, recording.source, tuple(recording.findings)))
+    comparison = compare(prep, tuple(effects))
+    values, errors = reduced_parameters(prep, comparison)
+    return ReducedFit(values, errors, comparison)
