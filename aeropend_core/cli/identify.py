@@ -83,6 +83,11 @@ def main(args: argparse.Namespace) -> int:
             raise AeropendError('--calibration applies to the pendulum model (the full-state model uses simulator '
                                 'truth columns, which have no sensor filter)')
     filter_note = None
+    if args.model == 'pendulum' and 'armature_current' not in recording.signals:
+        if chain is not None:
+            raise AeropendError('--calibration is not supported by the reduced model (no armature current); use '
+                                'aeropend diagnose --calibration, which holds the angle filter in the model')
+        return _identify_reduced(args, recording)
     if args.model == 'pendulum':
         names = ('armature_voltage', 'armature_current', 'angle')
         columns = [np.asarray(recording.signal(name), dtype=float) for name in names]
@@ -118,6 +123,10 @@ def main(args: argparse.Namespace) -> int:
             fit = identify_pendulum(recording.time, *columns, duty=duty, effects=args.effect)
     else:
         fit = identify_full_state(recording)
+    from aeropend_core.identify.plausibility import check_parameters, free_oscillation, verdict_line
+    independent = free_oscillation(recording.time, recording.signal('angle'), recording.signal('armature_voltage'))
+    fitted = set(fit.parameters) - {'armature_resistance_from_current_square'}
+    warnings = check_parameters(fit.parameters, fit.standard_errors, independent, fitted)
     if args.json:
         out = {
             'model': args.model,
@@ -132,6 +141,9 @@ def main(args: argparse.Namespace) -> int:
             'samples': len(recording),
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
             'warnings': findings_to_json(recording.findings),
+            'parameter_warnings': warnings,
+            'verdict': 'model_does_not_fit' if warnings else 'parameters_plausible',
+            'free_oscillation': independent.to_dict(),
         }
         from aeropend_core.present.json_output import write_json
         write_json(args.json, out)
@@ -142,5 +154,55 @@ def main(args: argparse.Namespace) -> int:
         if filter_note is not None:
             print(f'Angle filter: delay {filter_note["delay"]} s, fixed from {filter_note["from"]}; '
                   f'{filter_note["correction"]}')
-        print(fit.format())
+        print(_flag_lines(fit.format(), warnings))
+        print(independent.describe())
+        if warnings:
+            print('Verdict: ' + verdict_line(warnings))
+    return 0
+
+
+def _flag_lines(text: str, warnings: dict[str, str]) -> str:
+    """`text` with each failing parameter's warning at the end of its line (``  name = value ...``)."""
+    lines = []
+    for line in text.splitlines():
+        name = line.strip().split(' = ')[0] if ' = ' in line and line.startswith('  ') else ''
+        lines.append(line + (f'   !! {warnings[name]}' if name in warnings else ''))
+    return '\n'.join(lines)
+
+
+def _identify_reduced(args: argparse.Namespace, recording) -> int:
+    """The pendulum model without a period-average current: the reduced model (docs/reduced-model.md)."""
+    from aeropend_core.diagnosis.reduced_fit import identify_reduced
+    from aeropend_core.identify.plausibility import check_parameters, free_oscillation, verdict_line
+    from aeropend_core.signals.quality import findings_to_json, quality_lines
+    from aeropend_core.signals.reduced import IDENTIFIABLE, MAP_PARAMETERS, NOT_IDENTIFIABLE, REDUCED_MODEL
+    print('aeropend identify: no period-average armature current in the record: fitting the reduced model (thrust '
+          'from Va through the motor map; output error, about a minute)', file=sys.stderr)
+    fit = identify_reduced(recording, args.effect)
+    prep = fit.prepared
+    independent = free_oscillation(recording.time, recording.signal('angle'), recording.signal('armature_voltage'),
+                                   None if prep is None else prep.step_indices)
+    warnings = check_parameters(fit.parameters, fit.standard_errors, independent)
+    if args.json:
+        from aeropend_core.model.names import parameter_unit
+        from aeropend_core.present.json_output import write_json
+        write_json(args.json, {
+            'model': REDUCED_MODEL, 'parameters': finite_json(fit.parameters),
+            'parameter_standard_errors': finite_json(fit.standard_errors),
+            'units': {k: MAP_PARAMETERS.get(k) or parameter_unit(k) for k in fit.parameters},
+            'estimator': 'output_error', 'fit_percent': fit.comparison.fit_percent,
+            'rms_error': fit.comparison.rms_error, 'noise_rms': fit.comparison.noise_rms,
+            'identifiable': IDENTIFIABLE, 'not_identifiable': NOT_IDENTIFIABLE,
+            'samples': len(recording), 'warnings': findings_to_json(recording.findings),
+            'parameter_warnings': warnings,
+            'verdict': 'model_does_not_fit' if warnings else 'parameters_plausible',
+            'free_oscillation': independent.to_dict()})
+    if args.json != '-':
+        duration = len(recording) * float(np.median(np.diff(recording.time))) if len(recording) > 1 else 0.0
+        print(f'{args.data}: {len(recording)} samples ({duration:.3g} s), model {REDUCED_MODEL}')
+        print(quality_lines(recording.findings))
+        print(fit.format(warnings))
+        print(independent.describe())
+        if warnings:
+            print('Verdict: ' + verdict_line(warnings))
     return 0

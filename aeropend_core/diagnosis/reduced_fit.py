@@ -132,11 +132,14 @@ class ReducedFit:
         1σ (the map's are conditional, from the profile; the others are conditional on the map).
     comparison : Comparison
         The output-error fit and its held-out evaluation (fit %, RMS error [rad]).
+    prepared : PreparedRecord
+        The conditioned record (its ``motor_map``, steps and split).
     """
 
     parameters: dict[str, float]
     standard_errors: dict[str, float]
     comparison: object = field(repr=False)
+    prepared: object = field(default=None, repr=False)
     estimator: str = 'output_error'
 
     def format(self, warnings: dict[str, str] | None = None) -> str:
@@ -147,7 +150,8 @@ class ReducedFit:
         c = self.comparison
         lines = ['reduced model (no period-average armature current): dW/dt = -a sin y - b W + k e|e|, '
                  'T de/dt = Va - e - q e|e|; output-error fit, held-out free-run fit '
-                 f'{c.fit_percent:.2f} % (RMS error {c.rms_error * 1e3:.2f} mrad, noise {c.noise_rms * 1e3:.2f} mrad)']
+                 f'{c.fit_percent:.2f} % (RMS error {c.rms_error * 1e3:.2f} mrad, noise {c.noise_rms * 1e3:.2f} mrad); '
+                 '± 1σ conditional on the profiled motor map (docs/reduced-model.md gives the measured bias)']
         for name, value in self.parameters.items():
             unit = MAP_PARAMETERS.get(name) or parameter_unit(name)
             flag = f'   !! {warnings[name]}' if name in warnings else ''
@@ -191,4 +195,4 @@ def identify_reduced(recording, effects=()) -> ReducedFit:
     prep = prepare(Recording(recording.time, signals, recording.source, tuple(recording.findings)))
     comparison = compare(prep, tuple(effects))
     values, errors = reduced_parameters(prep, comparison)
-    return ReducedFit(values, errors, comparison)
+    return ReducedFit(values, errors, comparison, prep)

@@ -424,7 +424,10 @@ def _check_current_consistency(gate: _Gate, voltage: np.ndarray, width: int) -> 
     whole = gate.span(0, n - 1)
     current = signals['armature_current']
     smooth = _running_median(current, width)
-    correlation = float(np.corrcoef(smooth, voltage)[0, 1])
+    driven = voltage > 0.05 * float(np.percentile(np.abs(voltage), 99))     # at positive duty (no pulse at 0)
+    if np.count_nonzero(driven) < 100 or np.ptp(voltage[driven]) <= 0 or np.ptp(smooth[driven]) <= 0:
+        return
+    correlation = float(np.corrcoef(smooth[driven], voltage[driven])[0, 1])
     magnitude = float(np.percentile(np.abs(current), 99))
     negative = magnitude > 0 and float(np.percentile(current, 99)) < 0.05 * magnitude
     if correlation < -0.5 and negative:
