@@ -373,7 +373,7 @@ def _check_signs(gate: _Gate) -> None:
 
     An angle whose relation to the thrust is clearly reversed (correlation < -0.5) was logged with the opposite
     sign (a mirrored encoder): negated, and said. A current is negated only on unambiguous evidence: it falls as Va
-    rises *and* it is negative throughout (a probe the other way round), so that the negated current is positive
+    rises *and* it is negative at positive duty (a probe the other way round), so that the negated current is positive
     as a unidirectional drive's must be. A current that is positive but falls as Va rises, or does not jump with Va
     at the duty steps, is not the period-average armature current (:func:`_check_current_consistency`)."""
     signals = gate.signals
@@ -413,8 +413,8 @@ def _check_current_consistency(gate: _Gate, voltage: np.ndarray, width: int) -> 
     """Is the current column the period-average armature current that eq (5) needs?
 
     With Va >= 0 from a unidirectional drive the armature current is >= 0 and rises with Va (Ia = (Va - e)/Ra, and
-    at a duty step e is continuous, so Ia jumps with Va). A current negative throughout that falls as Va rises is a
-    probe the other way round: negated (the only sign repair). A current that falls as Va rises while positive, or
+    at a duty step e is continuous, so Ia jumps with Va). A current negative at positive duty that falls as Va rises is
+    a probe the other way round: negated (the only sign repair). A current that falls as Va rises while positive, or
     that does not jump with Va at the duty steps, is not that current (a one-sided sensor read at a fixed phase
     inside the on-pulse gives (V_supply - e)/R, which falls as the speed rises): negating it would give a negative
     current at positive duty. It is then dropped and the reduced model (:mod:`aeropend_core.signals.reduced`) is
@@ -428,17 +428,18 @@ def _check_current_consistency(gate: _Gate, voltage: np.ndarray, width: int) -> 
     if np.count_nonzero(driven) < 100 or np.ptp(voltage[driven]) <= 0 or np.ptp(smooth[driven]) <= 0:
         return
     correlation = float(np.corrcoef(smooth[driven], voltage[driven])[0, 1])
-    magnitude = float(np.percentile(np.abs(current), 99))
-    negative = magnitude > 0 and float(np.percentile(current, 99)) < 0.05 * magnitude
+    # negative at positive duty (braking currents after a step down may be positive: three quarters suffice)
+    negative = float(np.percentile(current[driven], 75)) < 0.0
     if correlation < -0.5 and negative:
         if gate.context == 'window':
-            gate.add('current_sign', 'warning', "'armature_current' is negative throughout and falls when the "
+            gate.add('current_sign', 'warning', "'armature_current' is negative at positive duty and falls when the "
                      f'armature voltage rises (correlation {correlation:.2f}): its sign looks reversed; check the '
                      'probe', whole, n)
             return
         signals['armature_current'] = current = -current
-        gate.add('current_sign', 'repaired', f"'armature_current' is negative throughout and falls when the armature "
-                 f'voltage rises (correlation {correlation:.2f}): a probe the other way round; negated (now positive '
+        gate.add('current_sign', 'repaired', "'armature_current' is negative at positive duty and falls when the "
+                 f'armature voltage rises (correlation {correlation:.2f}): a probe the other way round; negated (now '
+                 'positive '
                  'and rising with Va, as a unidirectional drive gives)', whole, n)
         correlation = -correlation
     reason = ''
