@@ -167,6 +167,12 @@ def test_hidden_friction_is_named_from_duty_and_angle():
     assert 'coulomb_friction' in result.missing_effects, result.message
     assert result.parameter_warnings == {}
     assert 'armature_resistance' not in result.to_dict()['parameters']
+    from aeropend_core.present.report import render_report
+    from aeropend_core.present.summary import format_summary
+    assert 'motor_time_constant' in render_report(result) and 'Reduced model' in format_summary(result)
+    result.parameter_warnings = {'damping': 'IMPOSSIBLE: test'}          # a failing parameter: said next to it
+    assert 'IMPOSSIBLE: test' in render_report(result)
+    assert any('damping' in line and 'IMPOSSIBLE: test' in line for line in format_summary(result).splitlines())
 
 
 @pytest.mark.slow

@@ -28,8 +28,10 @@ TIME_CONSTANT_BOUNDS = (0.005, 3.0)
 CURVATURE_BOUNDS = (0.0, 10.0)
 #: The profile uses at most this much of the training part [s] (a long record's map is the same throughout).
 PROFILE_SECONDS = 45.0
-#: Nelder-Mead evaluations after the grid.
+#: Nelder-Mead evaluations after the grid, and the resolution it stops at (log T, q [1/V]); the resolution's
+#: uniform spread (resolution/sqrt(12)) is added to the profile's 1σ.
 SEARCH_EVALUATIONS = 30
+SEARCH_RESOLUTION = 0.01
 
 
 def _subset(data: SegmentedData, seconds: float) -> SegmentedData:
@@ -83,7 +85,7 @@ def profile_motor_map(prep):
     scores = [rss(x) for x in grid]
     best = grid[int(np.argmin(scores))]
     result = minimize(rss, best, method='Nelder-Mead',
-                      options={'maxfev': SEARCH_EVALUATIONS, 'xatol': 0.01, 'fatol': 1e-6 * min(scores)})
+                      options={'maxfev': SEARCH_EVALUATIONS, 'xatol': SEARCH_RESOLUTION, 'fatol': 1e-6 * min(scores)})
     x = result.x if result.fun <= min(scores) else best
     x = np.array([np.clip(x[0], *np.log(TIME_CONSTANT_BOUNDS)), np.clip(x[1], *CURVATURE_BOUNDS)])
     value = rss(x)
@@ -115,7 +117,8 @@ def _profile_errors(rss, x: np.ndarray, value: float, fit) -> tuple[float, float
         down[axis] = max(down[axis] - step, 0.0) if axis == 1 else down[axis] - step
         h = 0.5 * (up[axis] - down[axis])
         curvature = (rss(up) - 2 * value + rss(down)) / h ** 2 if h > 0 else float('nan')
-        out.append(math.sqrt(2 * variance / curvature) if curvature > 0 else float('inf'))
+        profile = 2 * variance / curvature if curvature > 0 else float('inf')
+        out.append(math.sqrt(profile + SEARCH_RESOLUTION ** 2 / 12.0))
     return out[0], out[1]
 
 
