@@ -6,6 +6,9 @@ measures), optionally simulator truth columns (true_motor_speed [rad/s], true_an
 Models:
   pendulum    (default) the live-rig fit from Va, Ia and angle only:
               d²y/dt² = −(mgd/J) sin y − (c/J) dy/dt + θ1 Va² + θ2 Va Ia + θ3 Ia²
+  (reduced)   a record without a period-average armature current (duty or Va and the angle only, or a
+              current read inside the PWM pulse): the pendulum with the thrust from Va through the motor's
+              static map and lag, T de/dt = Va - e - q e|e|, fitted by output error (docs/reduced-model.md)
   full-state  the four first-order equations of the paper "Data-Driven System Identification of an
               Aeropendulum" from [Va, Ia, ω1, y, Ω] (needs motor_speed and angular_rate columns, i.e. a
               simulation)
