@@ -443,7 +443,11 @@ def _check_current_consistency(gate: _Gate, voltage: np.ndarray, width: int) -> 
                  'and rising with Va, as a unidirectional drive gives)', whole, n)
         correlation = -correlation
     reason = ''
-    if correlation < -0.5:
+    if negative and correlation >= -0.5:
+        reason = (f'it is negative at positive duty but does not fall as the armature voltage rises (correlation '
+                  f'{correlation:.2f}): neither it nor its negation behaves like the current a unidirectional drive '
+                  'gives')
+    elif correlation < -0.5:
         reason = (f'it is positive but falls when the armature voltage rises (correlation {correlation:.2f}); '
                   'negated it would be negative at positive duty, which a unidirectional drive cannot give')
     else:
