@@ -52,13 +52,18 @@ def with_map(prep, time_constant: float, curvature: float):
                                voltage_ensemble=None)
 
 
-def profile_motor_map(prep):
+def profile_motor_map(prep, effects=(), start=None, fixed=None):
     """Profile T and q of the reduced model on `prep`'s training part; return `prep` driven by the best map.
 
     Parameters
     ----------
     prep : PreparedRecord
         A record prepared without a current (``prep.reduced``); its ``gate_voltage`` is the held Va [V].
+    effects : sequence of str [-]
+        Effects in the model the map is profiled with (default: the nominal model). With a map already profiled
+        (``prep.motor_map``) the search starts from it, without the grid.
+    start, fixed : dict of str -> float, optional [SI]
+        Starting and held parameter values of the fits (as :func:`aeropend_core.diagnosis.compare.fit_model`).
 
     Returns
     -------
@@ -74,7 +79,7 @@ def profile_motor_map(prep):
         trial = with_map(prep, time_constant, curvature)
         data = _subset(trial.train, PROFILE_SECONDS)
         try:
-            fit = fit_model(trial, (), data=data)
+            fit = fit_model(trial, tuple(effects), start=start, data=data, fixed=fixed)
         except (InsufficientDataError, ValueError, FloatingPointError, np.linalg.LinAlgError):
             return math.inf
         cache[tuple(np.round(x, 12))] = fit
@@ -82,6 +87,8 @@ def profile_motor_map(prep):
 
     cache: dict = {}
     grid = [np.array([math.log(t), q]) for t in TIME_CONSTANT_GRID for q in CURVATURE_GRID]
+    if prep.motor_map:
+        grid = [np.array([math.log(prep.motor_map['motor_time_constant']), prep.motor_map['voltage_map_curvature']])]
     scores = [rss(x) for x in grid]
     best = grid[int(np.argmin(scores))]
     result = minimize(rss, best, method='Nelder-Mead',
