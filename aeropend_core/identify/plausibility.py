@@ -9,7 +9,8 @@ cheap, against an independent estimate.
   over ~0.12 s). The median over the intervals estimates mgd/J (a) and c/J (b) with no thrust model at all. It is
   informative only where the rod rings after a step: with a heavy damping ratio (b / (2 sqrt a) above
   :data:`RINGING_DAMPING_RATIO`) or a thrust that still rises through the interval (a slow motor), the interval is
-  not free and the estimate is biased low; it is then reported as not informative and not used.
+  not free and the estimate is biased low; it is then reported as not informative and not used. Because of that
+  bias the comparison is one-sided (:data:`AGREEMENT_RATIO`): an identified value far *below* it fails.
 
 :func:`check_parameters` returns one warning per failing parameter; callers print it next to the number (text,
 JSON, report, topic), and the verdict then says the model does not fit this data.
@@ -38,8 +39,11 @@ RINGING_DAMPING_RATIO = 0.4
 MIN_INTERVALS = 5
 #: ... whose estimates of a spread by less than this (interquartile range over median).
 MAX_RELATIVE_SPREAD = 0.6
-#: An identified value disagrees with the independent one outside these ratios (identified / independent).
-AGREEMENT_RATIO = {'gravity_stiffness': (0.6, 1.6), 'damping': (0.4, 2.5)}
+#: An identified value disagrees with the independent one below this ratio (identified / independent). One-sided:
+#: a thrust that still rises (or decays) through the interval after a step biases the free-oscillation estimates
+#: low (on the default simulated rig, motor lag 0.3 s: mgd/J 43 against 131.75, c/J 6.3 against 13.8), so only an
+#: identified value well below them is evidence that the model does not fit.
+AGREEMENT_RATIO = {'gravity_stiffness': 0.6, 'damping': 0.4}
 
 
 @dataclass(frozen=True)
@@ -202,11 +206,11 @@ def check_parameters(parameters: Mapping[str, float], standard_errors: Mapping[s
             warnings[name] = f'at the bound of its range [{record.lower:g}, {record.upper:g}] {record.unit}: not ' \
                              'determined by this data'
     if independent is not None and independent.informative:
-        for name, (low, high) in AGREEMENT_RATIO.items():
+        for name, low in AGREEMENT_RATIO.items():
             value, reference = parameters.get(name), getattr(independent, name)
             if name in warnings or value is None or not math.isfinite(value) or not reference > 0:
                 continue
-            if not low <= value / reference <= high:
+            if value / reference < low:
                 q = independent.quartiles[name]
                 warnings[name] = (f'disagrees with the free oscillation after the duty steps ({reference:.3g}, IQR '
                                   f'{q[0]:.3g}-{q[1]:.3g}): the model does not fit this data')
