@@ -441,7 +441,7 @@ def _check_current_consistency(gate: _Gate, voltage: np.ndarray, width: int) -> 
                  f'armature voltage rises (correlation {correlation:.2f}): a probe the other way round; negated (now '
                  'positive '
                  'and rising with Va, as a unidirectional drive gives)', whole, n)
-        correlation = -correlation
+        correlation, negative = -correlation, False
     reason = ''
     if negative and correlation >= -0.5:
         reason = (f'it is negative at positive duty but does not fall as the armature voltage rises (correlation '
