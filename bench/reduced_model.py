@@ -2,8 +2,8 @@
 
 For each seed: a 60 s simulation at 40 dB with 10-bit quantisation (`aeropend simulate`'s defaults otherwise),
 optionally with a hidden effect; only t, duty and angle are kept (Va comes from the duty by eq (8)), and the
-record is diagnosed (the reduced model, ``--no-drift``). Reported: gravity_stiffness and damping against the
-truth, the motor map, and which effects were named. Run::
+record is diagnosed (the reduced model, ``--no-drift``). Reported: gravity_stiffness and damping of the final
+model (with the effects found) against the truth, the motor map, and which effects were named. Run::
 
     nice -n 10 python bench/reduced_model.py --seeds 1 2 3 --cases clean coulomb_friction=4 angle_offset=0.05
 
@@ -41,7 +41,7 @@ def run(seed: int, case: str, duration: float = 60.0, psnr: float = 40.0) -> dic
     recording = check_recording(recording, sample_time=SAMPLE_TIME).recording
     started = time.perf_counter()
     result = diagnose(recording, drift=False)
-    values = result.reported_parameters(result.current)
+    values = result.reported_parameters(result.final)        # the model with the effects found
     return {'seed': seed, 'case': case, 'seconds': round(time.perf_counter() - started, 1),
             'gravity_stiffness_error': values['gravity_stiffness'] / DEFAULT_PARAMETERS.gravity_stiffness - 1,
             'damping_error': values['damping'] / DEFAULT_PARAMETERS.damping - 1,
