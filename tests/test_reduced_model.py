@@ -166,7 +166,10 @@ def test_hidden_friction_is_named_from_duty_and_angle():
     assert result.prepared.reduced
     assert 'coulomb_friction' in result.missing_effects, result.message
     assert result.parameter_warnings == {}
-    assert 'armature_resistance' not in result.to_dict()['parameters']
+    summary = result.to_dict()
+    assert 'armature_resistance' not in summary['parameters'] and 'armature_resistance' in summary['not_identifiable']
+    assert summary['model'] == 'reduced' and summary['motor_map']['motor_time_constant'] > 0
+    json.dumps(summary)                                                  # serialisable
     from aeropend_core.present.report import render_report
     from aeropend_core.present.summary import format_summary
     assert 'motor_time_constant' in render_report(result) and 'Reduced model' in format_summary(result)

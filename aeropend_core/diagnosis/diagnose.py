@@ -274,6 +274,8 @@ class Diagnosis:
             'parameters': self.reported_parameters(current),
             'standard_errors': self.reported_errors(current), 'parameter_warnings': self.parameter_warnings,
             'model': 'reduced' if self.prepared is not None and self.prepared.reduced else 'full',
+            'not_identifiable': _not_identifiable(self.prepared),
+            'motor_map': getattr(self.prepared, 'motor_map', None),
             'free_oscillation': self.independent.to_dict() if self.independent is not None else None,
             'estimator': 'output_error',
             'estimators': self.estimators(current),
@@ -318,6 +320,12 @@ class Diagnosis:
         """A person-readable report of the diagnosis (units stated)."""
         from aeropend_core.present.summary import format_summary
         return format_summary(self)
+
+
+def _not_identifiable(prep) -> dict[str, str]:
+    """What the model of `prep` cannot identify (the reduced model's list; empty for the full model)."""
+    from aeropend_core.signals.reduced import NOT_IDENTIFIABLE
+    return dict(NOT_IDENTIFIABLE) if prep is not None and prep.reduced else {}
 
 
 def _finite(value: float) -> float | None:
