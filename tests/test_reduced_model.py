@@ -179,6 +179,21 @@ def test_hidden_friction_is_named_from_duty_and_angle():
 
 
 @pytest.mark.slow
+def test_hidden_angle_offset_is_named_from_duty_and_angle():
+    """Seed 3 is the one whose offset the map absorbed when it was profiled without an offset free."""
+    from aeropend_core.diagnosis.diagnose import diagnose
+    columns = simulated(seed=3, angle_offset=0.05)
+    recording = check_recording(Recording(columns['t'], {'duty': columns['duty'], 'angle': columns['angle']}, 'o'),
+                                sample_time=SAMPLE_TIME).recording
+    result = diagnose(recording, drift=False, candidates=('angle_offset', 'cable_torque', 'coulomb_friction'))
+    assert 'angle_offset' in result.missing_effects, result.message
+    final = result.reported_parameters(result.final)
+    assert final['angle_offset'] == pytest.approx(0.05, abs=0.01)
+    for name, truth in TRUTH.items():
+        assert final[name] == pytest.approx(truth, rel=0.05), name
+
+
+@pytest.mark.slow
 def test_identify_cli_on_an_in_pulse_current_uses_the_reduced_model(tmp_path, record, capsys):
     from aeropend_core.cli import main
     path = tmp_path / 'in-pulse.csv'
