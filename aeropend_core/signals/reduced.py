@@ -37,7 +37,8 @@ IDENTIFIABLE = {
     'thrust_gain': 'thrust per squared volt of the motor map: one product of Kq, Kw, the gear and the speed per volt',
     'motor_time_constant': 'the motor\'s mechanical lag near standstill (profiled)',
     'voltage_map_curvature': 'curvature of the static map from Va to the motor speed (profiled)',
-    'effects': 'coulomb_friction, quadratic_drag, cable_torque, angle_offset, angle_filter, dead_zone',
+    'effects': 'coulomb_friction, quadratic_drag, angle_offset, angle_filter, dead_zone; cable_torque only weakly '
+               '(it reshapes the static curve from Va to the angle as the map\'s curvature does)',
 }
 #: What it cannot identify, and why.
 NOT_IDENTIFIABLE = {
