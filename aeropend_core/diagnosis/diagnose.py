@@ -653,11 +653,10 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                 steps.append((rival, []))
         steps[position] = (chosen, still)
     if prep.reduced and steps:      # the motor map was profiled on the nominal model: again with the effects found
-        from aeropend_core.diagnosis.reduced_fit import profile_motor_map
+        from aeropend_core.diagnosis.reduced_fit import reprofile_and_recheck
         say(f'profiling the motor map again with {", ".join(model)}')
-        prep = profile_motor_map(prep, model, start=base.parameters, fixed=dict(held))
-        search, subset = search_record(prep)
-        base = compare(search, model, start=base.parameters, fixed=dict(held))
+        prep, search, subset, model, base, dropped = reprofile_and_recheck(prep, model, base, held, search_record)
+        steps, notes = [(c, g) for c, g in steps if c.effect in model], notes + dropped
     results = first_round
     results.sort(key=lambda c: (not np.isfinite(c.rms_error), c.rms_error if np.isfinite(c.rms_error) else 0.0))
     if subset is not None:

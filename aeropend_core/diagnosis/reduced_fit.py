@@ -212,3 +212,46 @@ def identify_reduced(recording, effects=()) -> ReducedFit:
     comparison = compare(prep, tuple(effects))
     values, errors = reduced_parameters(prep, comparison)
     return ReducedFit(values, errors, comparison, prep)
+
+
+def reprofile_and_recheck(prep, model, base, held, search_record):
+    """Profile the map again with the effects found, refit, and drop an effect that is no longer significant.
+
+    Parameters
+    ----------
+    prep : PreparedRecord
+        The reduced record (its map profiled on the nominal model).
+    model : tuple of str [-]
+        Effects the search selected.
+    base : Comparison
+        The selected model's comparison.
+    held : dict of str -> float [SI]
+        Parameters held (``--fix``).
+    search_record : callable
+        :func:`aeropend_core.diagnosis.long_record.search_record`.
+
+    Returns
+    -------
+    tuple
+        ``(prep, search, subset, model, base, notes)``: the record on the new map, the search record and subset, the
+        effects kept, their comparison, and one note per effect dropped.
+    """
+    from aeropend_core.diagnosis.compare import compare
+    from aeropend_core.diagnosis.diagnose import assess
+    prep = profile_motor_map(prep, model, start=base.parameters, fixed=dict(held))
+    search, subset = search_record(prep)
+    base = compare(search, model, start=base.parameters, fixed=dict(held))
+    notes = []
+    for name in tuple(model):
+        if name not in model or len(model) < 2:
+            continue
+        without = tuple(n for n in model if n != name)
+        try:
+            reduced = compare(search, without, start=base.parameters, fixed=dict(held))
+        except InsufficientDataError:
+            continue
+        if not assess(search, reduced, base, name).significant:
+            notes.append(f'{name} was dropped again: on the motor map profiled with the effects found it adds nothing '
+                         'significant.')
+            model, base = without, reduced
+    return prep, search, subset, model, base, notes
