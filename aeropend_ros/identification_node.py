@@ -82,6 +82,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.identify.plausibility import check_parameters, verdict_line
 from aeropend_core.model.parameters import SAMPLE_TIME
 from aeropend_core.signals.quality import DataQualityError, check_recording
 from aeropend_ros import topics
@@ -615,9 +616,13 @@ class IdentificationNode(Node):
         if health.get('lost_samples', '0') != '0' or 'rejected' in health:
             doubts.insert(0, 'lost_samples')
         trends, drift = self._trend(result, trend_key, flagged=bool(doubts))
+        # never an impossible number unflagged: each parameter checked against its physical sign and range
+        failed = check_parameters({k: v for k, (v, _) in result.parameters.items()},
+                                  {k: sigma for k, (_, sigma) in result.parameters.items()})
         self.coefficients_publisher.publish(named_values_msg(stop_ns, result.coefficients))
         self.parameters_publisher.publish(named_values_msg(stop_ns, result.parameters))
-        self._publish_parameters(stop_ns, result, 'flagged:' + ','.join(doubts) if doubts else 'clean', trends)
+        self._publish_parameters(stop_ns, result, 'flagged:' + ','.join(doubts) if doubts else 'clean', trends,
+                                 failed)
         fit = {'fit_percent': result.fit_percent, 'rms_error': result.rms_error, 'noise_rms': result.noise_rms,
                'held_out_seconds': result.held_out_seconds, 'compute_time': result.compute_time,
                'window_start': result.start}
@@ -646,6 +651,10 @@ class IdentificationNode(Node):
                        for name, row in trends.items()})
         if drift:
             message += f'; {drift}'
+            level = DiagnosticStatus.WARN
+        if failed:
+            health['parameter_warnings'] = ' | '.join(f'{name}: {text}' for name, text in failed.items())
+            message += f'; {verdict_line(failed)}'
             level = DiagnosticStatus.WARN
         self._report(message, level, health, excitation='sufficient', effects=effects)
         self.window_events.append(WindowEvent(*span, 'flagged' if doubts else 'clean', message, result,
@@ -686,8 +695,11 @@ class IdentificationNode(Node):
                 if topic not in self.parameter_publishers:
                     self.parameter_publishers[topic] = self.create_publisher(JointState, topic, results_qos())
 
-    def _publish_parameters(self, stop_ns: int, result: WindowResult, data: str, trends: dict[str, dict]) -> None:
-        """One message per parameter on aeropend/parameters/<name> (and weak SINDy's on .../weak_sindy/<name>)."""
+    def _publish_parameters(self, stop_ns: int, result: WindowResult, data: str, trends: dict[str, dict],
+                            failed: dict[str, str] | None = None) -> None:
+        """One message per parameter on aeropend/parameters/<name> (and weak SINDy's on .../weak_sindy/<name>); a
+        parameter that fails a physical check carries ``data=failed_check`` (the text is in /diagnostics)."""
+        failed = failed or {}
         estimates = [(name, value, sigma, result.estimators.get(name, 'output_error'))
                      for name, (value, sigma) in result.parameters.items()]
         estimates += [(name, value, sigma, 'weak_sindy') for name, (value, sigma) in result.weak_parameters.items()]
@@ -699,8 +711,9 @@ class IdentificationNode(Node):
                                                                                      results_qos())
             row = trends.get(name, {}) if estimator != 'weak_sindy' else {}
             change = row.get('change', float('nan')) if row.get('stretches', 0) >= 4 else float('nan')
+            flag = 'failed_check' if name in failed and estimator != 'weak_sindy' else data
             publisher.publish(topics.parameter_to_msg(topics.ParameterEstimate(
-                name, stop_ns, value, sigma, estimator, parameter_unit(name), data, change,
+                name, stop_ns, value, sigma, estimator, parameter_unit(name), flag, change,
                 bool(row.get('drifting', False)))))
 
     def _report(self, message: str, level: bytes, values: dict[str, str], excitation: str = '',

@@ -83,7 +83,9 @@ class ParameterEstimate(NamedTuple):
     unit : str
         SI unit of `value` and `sigma`.
     data : str
-        ``clean``, or ``flagged:<codes>`` when the window's data were repaired or warned about [-].
+        ``clean``, ``flagged:<codes>`` when the window's data were repaired or warned about, or ``failed_check``
+        when the value fails a physical check (sign, range: the model does not fit the window; the text is in
+        ``/diagnostics``, key ``parameter_warnings``) [-].
     trend_change : float
         Trend over the windows that do not overlap, fraction of the mean [-] (NaN: not tested yet).
     drifting : bool

@@ -1,9 +1,11 @@
 """Compare the model with a recording, show where it fails and which physical effect is missing.
 
-The recording (CSV from `aeropend simulate` or a rig log, or an MCAP bag) must hold armature_voltage [V],
-armature_current [A] and angle [rad]; only these are used. The model (nominal + the --add effects) is fitted on the
-first 75 % and judged on the last 25 % by a free-run simulation of the angle (fit % as MATLAB compare). Each
-catalog effect not yet in the model is tried as an augmentation and ranked.
+The recording (CSV from `aeropend simulate` or a rig log, or an MCAP bag) holds armature_voltage [V] (or the duty),
+armature_current [A] and angle [rad]; only these are used. Without a current, or with one that is not the
+period-average armature current (read inside the PWM pulse), the reduced model is used: the thrust from Va through
+the motor's static map and lag, no armature resistance (docs/reduced-model.md). The model (nominal + the --add
+effects) is fitted on the first 75 % and judged on the last 25 % by a free-run simulation of the angle (fit % as
+MATLAB compare). Each catalog effect not yet in the model is tried as an augmentation and ranked.
 
 Examples:
   aeropend diagnose bags/exercise.csv

@@ -6,6 +6,9 @@ measures), optionally simulator truth columns (true_motor_speed [rad/s], true_an
 Models:
   pendulum    (default) the live-rig fit from Va, Ia and angle only:
               d²y/dt² = −(mgd/J) sin y − (c/J) dy/dt + θ1 Va² + θ2 Va Ia + θ3 Ia²
+  (reduced)   a record without a period-average armature current (duty or Va and the angle only, or a
+              current read inside the PWM pulse): the pendulum with the thrust from Va through the motor's
+              static map and lag, T de/dt = Va - e - q e|e|, fitted by output error (docs/reduced-model.md)
   full-state  the four first-order equations of the paper "Data-Driven System Identification of an
               Aeropendulum" from [Va, Ia, ω1, y, Ω] (needs motor_speed and angular_rate columns, i.e. a
               simulation)
@@ -95,6 +98,11 @@ def main(args: argparse.Namespace) -> int:
             raise AeropendError('--calibration applies to the pendulum model (the full-state model uses simulator '
                                 'truth columns, which have no sensor filter)')
     filter_note = None
+    if args.model == 'pendulum' and 'armature_current' not in recording.signals:
+        if chain is not None:
+            raise AeropendError('--calibration is not supported by the reduced model (no armature current); use '
+                                'aeropend diagnose --calibration, which holds the angle filter in the model')
+        return _identify_reduced(args, recording)
     if args.model == 'pendulum':
         names = ('armature_voltage', 'armature_current', 'angle')
         columns = [np.asarray(recording.signal(name), dtype=float) for name in names]
@@ -138,12 +146,16 @@ def main(args: argparse.Namespace) -> int:
         from aeropend_core.diagnosis.agreement import cross_check
         fixed = {'angle_filter': chain.angle_filter_delay} if chain is not None and chain.angle_filter_delay else {}
         try:
-            check = cross_check(recording, fit, tuple(args.effect) + tuple(fixed), args.data, fixed)
+            check = cross_check(recording, fit, tuple(args.add) + tuple(fixed), args.data, fixed)
         except AeropendError as error:       # too short or too flat for the output-error fit: say so, keep the fit
             check_note = f'no held-out score or output-error cross-check: {error}'
         except (ValueError, FloatingPointError, np.linalg.LinAlgError) as error:      # the fit failed numerically
             check_note = (f'no held-out score or output-error cross-check: the output-error fit failed '
                           f'({type(error).__name__}: {error}); run aeropend diagnose {args.data} to see why')
+    from aeropend_core.identify.plausibility import check_parameters, free_oscillation, verdict_line
+    independent = free_oscillation(recording.time, recording.signal('angle'), recording.signal('armature_voltage'))
+    fitted = set(fit.parameters) - {'armature_resistance_from_current_square'}
+    warnings = check_parameters(fit.parameters, fit.standard_errors, independent, fitted)
     if args.json:
         out = {
             'model': args.model,
@@ -159,6 +171,9 @@ def main(args: argparse.Namespace) -> int:
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
             'warnings': findings_to_json(recording.findings),
             'cross_check': finite_json(check.to_dict()) if check is not None else check_note,
+            'parameter_warnings': warnings,
+            'verdict': 'model_does_not_fit' if warnings else 'parameters_plausible',
+            'free_oscillation': independent.to_dict(),
         }
         from aeropend_core.present.json_output import write_json
         write_json(args.json, out)
@@ -169,7 +184,57 @@ def main(args: argparse.Namespace) -> int:
         if filter_note is not None:
             print(f'Angle filter: delay {filter_note["delay"]} s, fixed from {filter_note["from"]}; '
                   f'{filter_note["correction"]}')
-        print(fit.format())
+        print(_flag_lines(fit.format(), warnings))
         for line in check.lines() if check is not None else [check_note] if check_note else []:
             print(line)
+        print(independent.describe())
+        if warnings:
+            print('Verdict: ' + verdict_line(warnings))
+    return 0
+
+
+def _flag_lines(text: str, warnings: dict[str, str]) -> str:
+    """`text` with each failing parameter's warning at the end of its line (``  name = value ...``)."""
+    lines = []
+    for line in text.splitlines():
+        name = line.strip().split(' = ')[0] if ' = ' in line and line.startswith('  ') else ''
+        lines.append(line + (f'   !! {warnings[name]}' if name in warnings else ''))
+    return '\n'.join(lines)
+
+
+def _identify_reduced(args: argparse.Namespace, recording) -> int:
+    """The pendulum model without a period-average current: the reduced model (docs/reduced-model.md)."""
+    from aeropend_core.diagnosis.reduced_fit import identify_reduced
+    from aeropend_core.identify.plausibility import check_parameters, free_oscillation, verdict_line
+    from aeropend_core.signals.quality import findings_to_json, quality_lines
+    from aeropend_core.signals.reduced import IDENTIFIABLE, MAP_PARAMETERS, NOT_IDENTIFIABLE, REDUCED_MODEL
+    print('aeropend identify: no period-average armature current in the record: fitting the reduced model (thrust '
+          'from Va through the motor map; output error, about a minute)', file=sys.stderr)
+    fit = identify_reduced(recording, args.add)
+    prep = fit.prepared
+    independent = free_oscillation(recording.time, recording.signal('angle'), recording.signal('armature_voltage'),
+                                   None if prep is None else prep.step_indices)
+    warnings = check_parameters(fit.parameters, fit.standard_errors, independent)
+    if args.json:
+        from aeropend_core.model.names import parameter_unit
+        from aeropend_core.present.json_output import write_json
+        write_json(args.json, {
+            'model': REDUCED_MODEL, 'parameters': finite_json(fit.parameters),
+            'parameter_standard_errors': finite_json(fit.standard_errors),
+            'units': {k: MAP_PARAMETERS.get(k) or parameter_unit(k) for k in fit.parameters},
+            'estimator': 'output_error', 'fit_percent': fit.comparison.fit_percent,
+            'rms_error': fit.comparison.rms_error, 'noise_rms': fit.comparison.noise_rms,
+            'identifiable': IDENTIFIABLE, 'not_identifiable': NOT_IDENTIFIABLE,
+            'samples': len(recording), 'warnings': findings_to_json(recording.findings),
+            'parameter_warnings': warnings,
+            'verdict': 'model_does_not_fit' if warnings else 'parameters_plausible',
+            'free_oscillation': independent.to_dict()})
+    if args.json != '-':
+        duration = len(recording) * float(np.median(np.diff(recording.time))) if len(recording) > 1 else 0.0
+        print(f'{args.data}: {len(recording)} samples ({duration:.3g} s), model {REDUCED_MODEL}')
+        print(quality_lines(recording.findings))
+        print(fit.format(warnings))
+        print(independent.describe())
+        if warnings:
+            print('Verdict: ' + verdict_line(warnings))
     return 0

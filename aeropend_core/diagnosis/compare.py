@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cached_property, partial
 
 import numpy as np
 from scipy.signal import savgol_filter
@@ -97,6 +97,10 @@ class PreparedRecord:
     #: (:func:`aeropend_core.signals.motor.back_emf_ensemble`); the training fits add their effect to the standard
     #: errors. None without the observer.
     voltage_ensemble: np.ndarray | None = None
+    #: No period-average armature current: the reduced model (thrust from Va through the motor map,
+    #: :mod:`aeropend_core.signals.reduced`); ``motor_map`` then holds its profiled parameters (SI) and doubts.
+    reduced: bool = False
+    motor_map: dict | None = None
     train: SegmentedData = field(init=False)
     heldout: SegmentedData = field(init=False)
 
@@ -277,17 +281,18 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
     Raises :class:`InsufficientDataError` / :class:`AeropendError` naming the problem and what to do.
     """
     source = recording.source or 'the recording'
-    for name in ('armature_voltage', 'armature_current', 'angle'):
+    for name in ('armature_voltage', 'angle'):
         if name not in recording.signals:
-            raise AeropendError(f'{source} has no {name!r} column; the diagnosis needs armature_voltage [V], '
-                                f'armature_current [A] and angle [rad]')
+            raise AeropendError(f'{source} has no {name!r} column; the diagnosis needs armature_voltage [V] (or the '
+                                f'duty) and angle [rad], and uses armature_current [A] when it is recorded')
     # The data-quality gate (aeropend_core.signals.quality): repairs what is unambiguous and says so, refuses the
     # rest; a recording loaded by load_recording has passed it already (its findings are kept, not repeated).
     from aeropend_core.signals.quality import check_recording
     checked = check_recording(recording).recording
     time = np.asarray(checked.time, dtype=float)
     voltage = np.asarray(checked.signals['armature_voltage'], dtype=float)
-    current = np.asarray(checked.signals['armature_current'], dtype=float)
+    reduced = 'armature_current' not in checked.signals     # the reduced model (aeropend_core.signals.reduced)
+    current = np.zeros_like(voltage) if reduced else np.asarray(checked.signals['armature_current'], dtype=float)
     angle = np.asarray(checked.signals['angle'], dtype=float)
     if time.size < 10:
         raise InsufficientDataError(f'{source} has only {time.size} samples; record at least {MIN_DURATION:g} s')
@@ -326,7 +331,10 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
     thrust_voltage, thrust_current, motor, ensemble = (conditioned.armature_voltage, conditioned.armature_current,
                                                        None, None)
     stepped = piecewise_constant(voltage, conditioned.step_indices)
-    if use_motor_observer and stepped is not None:
+    if reduced:     # Va's steps drive the motor map (profiled below): no current, R = 0 in the pendulum model
+        thrust_voltage = stepped if stepped is not None else conditioned.armature_voltage
+        thrust_current = np.zeros_like(current)
+    elif use_motor_observer and stepped is not None:
         try:
             motor = fit_motor(stepped, current, conditioned.step_indices, sample_time)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
@@ -340,12 +348,16 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         else:
             motor = None
     valid = gaps.valid
-    return PreparedRecord(time=time, armature_voltage=voltage, armature_current=current, angle=angle,
+    prep = PreparedRecord(time=time, armature_voltage=voltage, armature_current=current, angle=angle,
                           sample_time=sample_time, voltage=thrust_voltage, current=thrust_current,
                           step_indices=conditioned.step_indices, noise_rms=noise_rms(angle[valid]), split=split,
                           motor=motor, gate_voltage=stepped if stepped is not None else conditioned.armature_voltage,
                           gaps=gaps, angle_step=quantisation_step(angle[valid]), voltage_ensemble=ensemble,
-                          findings=tuple(checked.findings))
+                          findings=tuple(checked.findings), reduced=reduced)
+    if reduced:
+        from aeropend_core.diagnosis.reduced_fit import profile_motor_map
+        prep = profile_motor_map(prep)
+    return prep
 
 
 def initial_guess(prep: PreparedRecord, threshold_voltage: float | None = None) -> dict[str, float]:
@@ -366,7 +378,7 @@ def initial_guess(prep: PreparedRecord, threshold_voltage: float | None = None) 
         gate = (prep.gate_voltage[:stop] >= threshold_voltage).astype(float)
         va, ia = va * gate, ia * gate       # thrust terms are products of two of them: gated once
     keep = slice(window, stop - window)
-    if prep.motor is not None:
+    if prep.motor is not None or prep.reduced:
         regressors = np.column_stack([-np.sin(y), -dy, va * np.abs(va)])
         (gravity, damping, gain), *_ = np.linalg.lstsq(regressors[keep], ddy[keep], rcond=None)
         resistance = 0.0
@@ -432,7 +444,7 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     structure = Structure(tuple(effects))
     data = data if data is not None else prep.train
     values = dict(initial_guess(prep))
-    fixed_base = {'armature_resistance': 0.0} if prep.motor is not None else {}
+    fixed_base = {'armature_resistance': 0.0} if prep.motor is not None or prep.reduced else {}
     values.update(effect_start_values(effects))
     if start:
         values.update({k: v for k, v in start.items() if k in structure.parameter_names})
@@ -440,13 +452,12 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     values.update(fixed_base)
     gate = structure.gate_parameter
     if gate is None:
-        fit = fit_output_error(data, structure, values, fixed=fixed_base, initial_states=initial_states)
+        fit_from = partial(fit_output_error, data, structure, fixed=fixed_base, initial_states=initial_states)
+        fit = fit_from(values)
         for kind in PROFILED:        # a nonlinear time constant or offset: search its whole range
             name = kernel_parameter(structure.effects, kind)
             if name is not None and name not in fixed_base:
-                return search_lag_basins(prep, lambda s: fit_output_error(data, structure, s, fixed=fixed_base,
-                                                                          initial_states=initial_states),
-                                         values, name, fit, kind)
+                return search_lag_basins(prep, fit_from, values, name, fit, kind)
         return fit
     thresholds = gate_thresholds(prep)
     if thresholds.size == 0:

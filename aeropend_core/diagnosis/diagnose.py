@@ -47,7 +47,7 @@ import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
 from aeropend_core.diagnosis.evidence import diebold_mariano
-from aeropend_core.diagnosis.doubts import doubt_notes
+from aeropend_core.diagnosis.doubts import doubt_notes, residual_structure
 from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.io.recording import Recording
@@ -207,6 +207,9 @@ class Diagnosis:
     fixed: dict[str, float] = field(default_factory=dict)
     #: Where each held parameter's value came from (``'--fix'``, ``'calibration file PATH'``).
     fixed_from: dict[str, str] = field(default_factory=dict)
+    #: Parameters that fail a physical check -> the warning (:mod:`aeropend_core.diagnosis.checks`).
+    parameter_warnings: dict[str, str] = field(default_factory=dict)
+    independent: object = None      #: the free-oscillation estimate (aeropend_core.identify.plausibility)
 
     @property
     def missing_effects(self) -> list[str]:
@@ -228,17 +231,21 @@ class Diagnosis:
         return self.current.noise_rms
 
     def reported_parameters(self, comparison: Comparison) -> dict[str, float]:
-        """Fitted parameters in SI; with the motor observer, `armature_resistance` is the observer's fitted Rm."""
-        parameters = dict(comparison.parameters)
-        if self.prepared is not None and self.prepared.motor is not None:
-            parameters['armature_resistance'] = self.prepared.motor.parameters['motor_resistance']
-        return parameters
+        """Fitted parameters in SI; with the motor observer, `armature_resistance` is the observer's fitted Rm; the
+        reduced model has none and adds its motor map (:mod:`aeropend_core.signals.reduced`)."""
+        return self.reported_errors(comparison, values=True)
 
-    def reported_standard_errors(self, comparison: Comparison) -> dict[str, float]:
-        """1-sigma of :meth:`reported_parameters` (SI): a value from the motor observer carries the observer's."""
-        motor = self.prepared.motor if self.prepared is not None else None
-        return {**comparison.fit.standard_errors, **({'armature_resistance': motor.standard_errors.get(
-            'motor_resistance', math.nan)} if motor is not None else {})}
+    def reported_errors(self, comparison: Comparison, values: bool = False) -> dict[str, float]:
+        """1σ of :meth:`reported_parameters` (SI); ``values=True``: the parameters themselves."""
+        prep = self.prepared
+        if prep is not None and prep.reduced:
+            from aeropend_core.diagnosis.reduced_fit import reduced_parameters
+            return reduced_parameters(prep, comparison)[0 if values else 1]
+        out = dict(comparison.parameters if values else comparison.fit.standard_errors)
+        if prep is not None and prep.motor is not None:     # a value from the motor observer carries the observer's σ
+            out['armature_resistance'] = (prep.motor.parameters if values else prep.motor.standard_errors).get(
+                'motor_resistance', math.nan)
+        return out
 
     @property
     def final(self) -> Comparison:
@@ -265,7 +272,11 @@ class Diagnosis:
             'prediction_rms_error': _finite(current.evaluation.prediction_rms),
             'prediction_horizon': current.evaluation.prediction_horizon,
             'parameters': self.reported_parameters(current),
-            'standard_errors': self.reported_standard_errors(current),
+            'standard_errors': self.reported_errors(current), 'parameter_warnings': self.parameter_warnings,
+            'model': 'reduced' if self.prepared is not None and self.prepared.reduced else 'full',
+            'not_identifiable': _not_identifiable(self.prepared),
+            'motor_map': getattr(self.prepared, 'motor_map', None),
+            'free_oscillation': self.independent.to_dict() if self.independent is not None else None,
             'estimator': 'output_error',
             'estimators': self.estimators(current),
             'missing_effect': self.missing_effect,
@@ -309,6 +320,12 @@ class Diagnosis:
         """A person-readable report of the diagnosis (units stated)."""
         from aeropend_core.present.summary import format_summary
         return format_summary(self)
+
+
+def _not_identifiable(prep) -> dict[str, str]:
+    """What the model of `prep` cannot identify (the reduced model's list; empty for the full model)."""
+    from aeropend_core.signals.reduced import NOT_IDENTIFIABLE
+    return dict(NOT_IDENTIFIABLE) if prep is not None and prep.reduced else {}
 
 
 def _finite(value: float) -> float | None:
@@ -376,36 +393,6 @@ def _explain(effect: str, values: dict[str, float], errors: dict[str, float], ex
     if evidence:
         text += ' Improved most: ' + '; '.join(evidence) + '.'
     return text
-
-
-def residual_structure(prep: PreparedRecord, comparison: Comparison, count: int = 5) -> list[dict]:
-    """Correlation of the simulation residual with signatures of possible missing terms (best first).
-
-    Gives a user writing a new effect a lead: e.g. a strong correlation with angle^3 suggests a cubic spring.
-    """
-    simulated = comparison.evaluation.simulated
-    available = np.isfinite(simulated)
-    residual = prep.angle - np.nan_to_num(simulated)
-    angle, rate = prep.smoothed_angle, prep.smoothed_rate
-    e = prep.voltage - comparison.parameters.get('armature_resistance', 0.0) * prep.current
-    thrust = e * np.abs(e)
-    delay = int(round(0.1 / prep.sample_time))
-    delayed = np.concatenate([np.full(delay, thrust[0]), thrust[:-delay]])
-    signatures = {
-        'sign(rate) (dry friction)': np.sign(rate), 'rate|rate| (quadratic drag)': rate * np.abs(rate),
-        'rate (viscous damping)': rate, 'angle (linear spring)': angle, 'angle^3 (hardening spring)': angle ** 3,
-        'cos(angle) (offset / asymmetry)': np.cos(angle), 'sin(angle) (gravity)': np.sin(angle),
-        'thrust input (gain)': thrust, 'thrust input 0.1 s earlier (lag)': delayed,
-        'thrust input change (lag/lead)': thrust - delayed,
-    }
-    rows = []
-    r = residual[available] - residual[available].mean()
-    for name, signal in signatures.items():
-        s = signal[available] - signal[available].mean()
-        denominator = math.sqrt(float(np.dot(r, r) * np.dot(s, s))) or 1.0
-        rows.append({'signature': name, 'correlation': float(np.dot(r, s) / denominator)})
-    rows.sort(key=lambda row: -abs(row['correlation']))
-    return rows[:count]
 
 
 def _heldout_error(prep: PreparedRecord, comparison: Comparison) -> np.ndarray:
@@ -582,7 +569,8 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         say('fitting the model without the added effects (for before -> after)')
         before = compare(search, ())
     noise = prep.noise_rms
-    pool = [name for name in (candidates if candidates is not None else CATALOG) if name not in effects]
+    pool = [name for name in (candidates if candidates is not None else CATALOG) if name not in effects
+            and not (prep.reduced and name == 'thrust_lag')]     # the reduced model's motor lag carries it
     for name in pool:
         get_effect(name)
     # ---- forward selection with backward elimination, scored by the same evidence
@@ -664,6 +652,11 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                 model, base = model + (rival_name,), rival.comparison
                 steps.append((rival, []))
         steps[position] = (chosen, still)
+    if prep.reduced and steps:      # the motor map was profiled on the nominal model: again with the effects found
+        from aeropend_core.diagnosis.reduced_fit import reprofile_and_recheck
+        say(f'profiling the motor map again with {", ".join(model)}')
+        prep, search, subset, model, base, dropped = reprofile_and_recheck(prep, model, base, held, search_record)
+        steps, notes = [(c, g) for c, g in steps if c.effect in model], notes + dropped
     results = first_round
     results.sort(key=lambda c: (not np.isfinite(c.rms_error), c.rms_error if np.isfinite(c.rms_error) else 0.0))
     if subset is not None:
@@ -783,10 +776,12 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     notes += doubt_notes(results, found, current, prep, model)     # near misses, an unstated measurement chain
     if getattr(prep, 'gaps', None) is not None and prep.gaps.count:
         notes.append(prep.gaps.describe())
-    return Diagnosis(effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
-                     message=message, notes=notes, before=before, residual_structure=structure, prepared=prep,
-                     seconds=time.perf_counter() - started, found=found, selected=selected, drift=drift_rows,
-                     fixed=held, fixed_from=held_from)
+    from aeropend_core.diagnosis.checks import check_diagnosis
+    return check_diagnosis(Diagnosis(
+        effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
+        message=message, notes=notes, before=before, residual_structure=structure, prepared=prep,
+        seconds=time.perf_counter() - started, found=found, selected=selected, drift=drift_rows, fixed=held,
+        fixed_from=held_from))
 
 
 def size_text(found: Found) -> str:

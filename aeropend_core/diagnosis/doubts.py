@@ -27,6 +27,8 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
+import numpy as np
+
 from aeropend_core.model.effects import CATALOG, MEASUREMENT_FILTER, get_effect, separating_experiment
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 
@@ -208,4 +210,35 @@ def ambiguity_notes(candidates: Iterable, found: list, current) -> list[str]:
     return notes
 
 
-__all__ = ['ambiguity_notes', 'chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves']
+def residual_structure(prep, comparison, count: int = 5) -> list[dict]:
+    """Correlation of the simulation residual with signatures of possible missing terms (best first).
+
+    Gives a user writing a new effect a lead: e.g. a strong correlation with angle^3 suggests a cubic spring.
+    """
+    simulated = comparison.evaluation.simulated
+    available = np.isfinite(simulated)
+    residual = prep.angle - np.nan_to_num(simulated)
+    angle, rate = prep.smoothed_angle, prep.smoothed_rate
+    e = prep.voltage - comparison.parameters.get('armature_resistance', 0.0) * prep.current
+    thrust = e * np.abs(e)
+    delay = int(round(0.1 / prep.sample_time))
+    delayed = np.concatenate([np.full(delay, thrust[0]), thrust[:-delay]])
+    signatures = {
+        'sign(rate) (dry friction)': np.sign(rate), 'rate|rate| (quadratic drag)': rate * np.abs(rate),
+        'rate (viscous damping)': rate, 'angle (linear spring)': angle, 'angle^3 (hardening spring)': angle ** 3,
+        'cos(angle) (offset / asymmetry)': np.cos(angle), 'sin(angle) (gravity)': np.sin(angle),
+        'thrust input (gain)': thrust, 'thrust input 0.1 s earlier (lag)': delayed,
+        'thrust input change (lag/lead)': thrust - delayed,
+    }
+    rows = []
+    r = residual[available] - residual[available].mean()
+    for name, signal in signatures.items():
+        s = signal[available] - signal[available].mean()
+        denominator = math.sqrt(float(np.dot(r, r) * np.dot(s, s))) or 1.0
+        rows.append({'signature': name, 'correlation': float(np.dot(r, s) / denominator)})
+    rows.sort(key=lambda row: -abs(row['correlation']))
+    return rows[:count]
+
+
+__all__ = ['ambiguity_notes', 'chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves',
+           'residual_structure']

@@ -19,8 +19,13 @@ from aeropend_core.errors import AeropendError
 from aeropend_core.io.paths import write_atomically
 from aeropend_core.model.parameters import SAMPLE_TIME
 
-#: Columns every recording must have (what the rig measures), with units.
-REQUIRED_COLUMNS = {'t': 's', 'armature_voltage': 'V', 'armature_current': 'A', 'angle': 'rad'}
+#: Columns every recording must have, with units; and the input, given as either column (the duty is turned into
+#: Va by eq (8) by the data-quality gate). ``armature_current`` [A] is optional: without it (or when the gate finds
+#: it is not the period-average current) identify and diagnose use the reduced model (``docs/reduced-model.md``).
+REQUIRED_COLUMNS = {'t': 's', 'angle': 'rad'}
+INPUT_COLUMNS = {'armature_voltage': 'V', 'duty': '1 (fraction)'}
+#: Columns the full model uses when present.
+OPTIONAL_COLUMNS = {'armature_current': 'A'}
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,8 +78,8 @@ def from_columns(columns: Mapping[str, np.ndarray], source: str = '', findings: 
     Parameters
     ----------
     columns : mapping of str -> ndarray, shape (n,) [SI unit of each column]
-        ``t`` [s], ``armature_voltage`` [V], ``armature_current`` [A], ``angle`` [rad] at least; any other
-        column is kept as a signal.
+        ``t`` [s], ``angle`` [rad] and ``armature_voltage`` [V] or ``duty`` [1] at least (``armature_current`` [A]
+        for the full model); any other column is kept as a signal.
     source : str [-]
         Where the data came from, for messages.
     findings : tuple of Finding [-]
@@ -91,9 +96,13 @@ def from_columns(columns: Mapping[str, np.ndarray], source: str = '', findings: 
         A required column is missing, or a column's length differs from ``t``.
     """
     missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+    if not any(c in columns for c in INPUT_COLUMNS):
+        missing.append(' or '.join(INPUT_COLUMNS))
     if missing:
         raise AeropendError(f'{source or "data"} lacks required column(s) {missing}; need '
-                            + ', '.join(f'{k} [{u}]' for k, u in REQUIRED_COLUMNS.items()))
+                            + ', '.join(f'{k} [{u}]' for k, u in REQUIRED_COLUMNS.items()) + ' and '
+                            + ' or '.join(f'{k} [{u}]' for k, u in INPUT_COLUMNS.items())
+                            + ' (armature_current [A] too, for the full model)')
     time = np.asarray(columns['t'], dtype=float)
     signals = {k: np.asarray(v, dtype=float) for k, v in columns.items() if k != 't'}
     for k, v in signals.items():

@@ -50,11 +50,12 @@ VERDICT_TITLES = {
     'confounded': 'Confounded: the data cannot tell which effect is missing',
     'unexplained': 'Unexplained error: no catalog effect explains it',
     'drift': 'Parameter drift',
+    'model_does_not_fit': 'The model does not fit this data: a parameter fails a physical check',
 }
 
 
 VERDICT_CLASSES = {'effect_found': 'found', 'nothing_missing': 'ok', 'confounded': 'warn',
-                   'unexplained': 'bad', 'drift': 'warn'}
+                   'unexplained': 'bad', 'drift': 'warn', 'model_does_not_fit': 'bad'}
 
 
 def _esc(value: object) -> str:

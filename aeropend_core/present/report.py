@@ -28,6 +28,7 @@ from aeropend_core.diagnosis.diagnose import (BIC_MARGIN, DM_MIN, MATERIAL, T_MI
                                               Diagnosis)
 from aeropend_core.diagnosis.validation import Validation
 from aeropend_core.errors import AeropendError
+from aeropend_core.signals.reduced import MAP_PARAMETERS
 from aeropend_core.present.formatting import (
     BEFORE,
     CANDIDATE,
@@ -245,11 +246,19 @@ def _observer_meaning(name: str, motor, meaning: str) -> str:
 def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
     rows = []
     motor = diagnosis.prepared.motor if diagnosis.prepared is not None else None
-    for name, value in comparison.parameters.items():
+    errors = diagnosis.reported_errors(comparison)
+    warnings = diagnosis.parameter_warnings
+    reported = diagnosis.reported_parameters(comparison)
+    if motor is not None:            # the observer's R is shown from the comparison's row below
+        reported = {**reported, 'armature_resistance': comparison.parameters.get('armature_resistance', 0.0)}
+    for name, value in reported.items():
         unit, meaning = _unit_and_meaning(name)
-        sigma = comparison.fit.standard_errors.get(name, float('nan'))
+        unit = MAP_PARAMETERS.get(name, unit)
+        sigma = errors.get(name, float('nan'))
         relative = abs(sigma / value) * 100 if value and np.isfinite(sigma) else float('nan')
         shown = f'{_sig(value)} &plusmn; {_sig(sigma, 2)}'
+        if name in warnings:
+            shown += f' <b style="color:#b00">&#9888; {_esc(warnings[name])}</b>'
         if name == 'armature_resistance' and motor is not None:
             shown = (f'{_sig(motor.parameters["motor_resistance"])} &plusmn; '
                      f'{_sig(motor.standard_errors.get("motor_resistance", float("nan")), 2)} (motor observer)')

@@ -5,6 +5,7 @@ from aeropend_core.diagnosis.compare import excess_error
 from aeropend_core.diagnosis.diagnose import Diagnosis, size_text
 from aeropend_core.model.effects import find_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.signals.reduced import MAP_PARAMETERS
 
 
 def format_summary(diagnosis: Diagnosis) -> str:
@@ -24,21 +25,29 @@ def format_summary(diagnosis: Diagnosis) -> str:
         motor = diagnosis.prepared.motor
         lines.append(f'Armature current by the motor observer: RMS error {motor.current_rms_error * 1e3:.2f} mA, '
                      f'current noise {motor.current_noise_rms * 1e3:.2f} mA')
+    prep = diagnosis.prepared
+    if prep is not None and prep.reduced and prep.motor_map:
+        lines.append('Reduced model (no period-average armature current): thrust k e|e| with T de/dt = Va - e - q e|e| '
+                     f'(T, q profiled; residual {prep.motor_map["residual_rms"] * 1e3:.2f} mrad on the training part)')
     lines.append('Parameters (SI, +- 1 sigma):')
-    observer = diagnosis.prepared is not None and diagnosis.prepared.motor is not None
-    reported_errors = diagnosis.reported_standard_errors(current)
+    observer = prep is not None and prep.motor is not None
+    errors = diagnosis.reported_errors(current)
+    warnings = diagnosis.parameter_warnings
     for name, value in diagnosis.reported_parameters(current).items():
-        error = reported_errors.get(name, float('nan'))
+        error = errors.get(name, float('nan'))
         found = find_parameter(name)
         unit = NOMINAL_PARAMETERS[name][0] if name in NOMINAL_PARAMETERS else (found[1].unit if found else '')
+        unit = MAP_PARAMETERS.get(name, unit)
+        flag = f'   !! {warnings[name]}' if name in warnings else ''
         if name == 'armature_resistance' and observer:
-            lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit} (from the motor observer fitted to Ia)')
+            lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit} (from the motor observer fitted to Ia)'
+                         f'{flag}')
             continue
         if name in diagnosis.fixed:
             where = diagnosis.fixed_from.get(name, '--fix')
             lines.append(f'  {name:24s} {diagnosis.fixed[name]:12.5g} {unit} (fixed from {where}, not fitted)')
             continue
-        lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit}')
+        lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit}{flag}')
     if diagnosis.before is not None:
         before = diagnosis.before
         lines.append('Before -> after adding ' + ', '.join(diagnosis.effects) + ':')

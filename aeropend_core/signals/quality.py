@@ -38,7 +38,11 @@ code                        severity     when
 ``outlier``                 repaired /   isolated samples far from their neighbours (Hampel filter on the
                             refused      deviation from a 7-sample running median): interpolated
 ``voltage_sign``            repaired     Va negative throughout (a PWM drive gives Va >= 0): negated
-``current_sign``            repaired     the current falls as Va rises (correlation < -0.5): negated
+``current_sign``            repaired     the current is negative throughout and falls as Va rises: negated
+``current_inconsistent``    warning      the current is positive but falls as Va rises, or does not jump with
+                                         Va at the steps: not the period-average current (read inside the PWM
+                                         pulse?); dropped, the reduced model is used (a window: said only)
+``voltage_from_duty``       warning      no armature voltage column: Va from the duty by eq (8)
 ``angle_sign``              repaired     the angle falls as the thrust rises: negated (a node window: warning)
 ``column_names``            repaired     CSV header spellings and units (``Angle [deg]``): read as SI, said
 ``unknown_unit``            refused      a unit in the header that is not known for its column
@@ -76,6 +80,7 @@ from aeropend_core.signals.quality_base import (
 from aeropend_core.signals.quality_checks import (
     _check_angle_jumps,
     _check_angle_turns,
+    _derive_voltage,
     _check_finite,
     _check_held,
     _check_noise,
@@ -123,6 +128,7 @@ def check_recording(recording, *, sample_time: float | None = None, context: str
     for name in measured:
         _check_finite(gate, name)
     _check_units(gate)
+    _derive_voltage(gate)
     if 'angle' in gate.signals:
         _check_angle_turns(gate)
     for name in ('angle', 'armature_voltage', 'armature_current'):

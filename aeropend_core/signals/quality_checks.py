@@ -307,6 +307,14 @@ def _check_outliers(gate: _Gate, name: str) -> None:
     floor = max(5.0 * _quantum(values[:20000]), 0.01 * spread, 1e-12)
     threshold = max(HAMPEL_SIGMAS * sigma, floor)
     bad = np.abs(deviation) > threshold
+    # A sample within two quantisation steps of the line between its neighbours is no outlier, however far from
+    # the running median: at a low rate the bottom of a swing (counts 43, 39, 38, 39, 43) is far from the median
+    # of seven samples, yet it changes by one count.
+    quantum = _quantum(values[:20000])
+    if quantum > 0 and bad.any():
+        curvature = np.zeros_like(values)
+        curvature[1:-1] = values[1:-1] - 0.5 * (values[:-2] + values[2:])
+        bad &= np.abs(curvature) > 2.0 * quantum
     if not bad.any():
         return
     count = int(bad.sum())
@@ -362,8 +370,12 @@ def _check_angle_jumps(gate: _Gate) -> None:
 
 def _check_signs(gate: _Gate) -> None:
     """The rig's sign conventions: Va >= 0 (a PWM drive), the current follows Va, and the thrust lifts the angle.
-    A column whose relation to its cause is clearly reversed (correlation < -0.5) was logged with the opposite
-    sign (a mirrored encoder, a current probe the other way round): negated, and said."""
+
+    An angle whose relation to the thrust is clearly reversed (correlation < -0.5) was logged with the opposite
+    sign (a mirrored encoder): negated, and said. A current is negated only on unambiguous evidence: it falls as Va
+    rises *and* it is negative at positive duty (a probe the other way round), so that the negated current is positive
+    as a unidirectional drive's must be. A current that is positive but falls as Va rises, or does not jump with Va
+    at the duty steps, is not the period-average armature current (:func:`_check_current_consistency`)."""
     signals = gate.signals
     n = gate.time.size
     if n < 200 or 'armature_voltage' not in signals:
@@ -379,20 +391,112 @@ def _check_signs(gate: _Gate) -> None:
     thrust = voltage * np.abs(voltage)
     if np.ptp(thrust) <= 0:
         return
-    for name, cause, label in (('armature_current', voltage, 'the armature voltage'),
-                               ('angle', thrust, 'the thrust (Va^2)')):
-        if name not in signals or np.ptp(signals[name]) <= 0:
-            continue
-        correlation = float(np.corrcoef(_running_median(signals[name], width), cause)[0, 1])
+    if 'armature_current' in signals and np.ptp(signals['armature_current']) > 0:
+        _check_current_consistency(gate, voltage, width)
+    if 'angle' in signals and np.ptp(signals['angle']) > 0:
+        correlation = float(np.corrcoef(_running_median(signals['angle'], width), thrust)[0, 1])
         if correlation < -0.5:
-            code = f'{"current" if name == "armature_current" else "angle"}_sign'
-            text = f'{name!r} falls when {label} rises (correlation {correlation:.2f}): its sign is reversed ' \
-                   '(mirrored sensor or probe)'
+            text = f"'angle' falls when the thrust (Va^2) rises (correlation {correlation:.2f}): its sign is " \
+                   'reversed (mirrored sensor)'
             if gate.context == 'window':          # a few seconds are not enough to change data on: said only
-                gate.add(code, 'warning', text + '; check the sensor\'s sign', whole, n)
+                gate.add('angle_sign', 'warning', text + '; check the sensor\'s sign', whole, n)
             else:
-                signals[name] = -signals[name]
-                gate.add(code, 'repaired', text + '; negated', whole, n)
+                signals['angle'] = -signals['angle']
+                gate.add('angle_sign', 'repaired', text + '; negated', whole, n)
+
+
+#: The text every inconsistent-current finding carries (what it probably is).
+NOT_PERIOD_AVERAGE = 'does not look like the period-average armature current: read inside the PWM pulse?'
+
+
+def _check_current_consistency(gate: _Gate, voltage: np.ndarray, width: int) -> None:
+    """Is the current column the period-average armature current that eq (5) needs?
+
+    With Va >= 0 from a unidirectional drive the armature current is >= 0 and rises with Va (Ia = (Va - e)/Ra, and
+    at a duty step e is continuous, so Ia jumps with Va). A current negative at positive duty that falls as Va rises is
+    a probe the other way round: negated (the only sign repair). A current that falls as Va rises while positive, or
+    that does not jump with Va at the duty steps, is not that current (a one-sided sensor read at a fixed phase
+    inside the on-pulse gives (V_supply - e)/R, which falls as the speed rises): negating it would give a negative
+    current at positive duty. It is then dropped and the reduced model (:mod:`aeropend_core.signals.reduced`) is
+    used; said as a warning (in an online window: said only)."""
+    signals = gate.signals
+    n = gate.time.size
+    whole = gate.span(0, n - 1)
+    current = signals['armature_current']
+    smooth = _running_median(current, width)
+    driven = voltage > 0.05 * float(np.percentile(np.abs(voltage), 99))     # at positive duty (no pulse at 0)
+    if np.count_nonzero(driven) < 100 or np.ptp(voltage[driven]) <= 0 or np.ptp(smooth[driven]) <= 0:
+        return
+    correlation = float(np.corrcoef(smooth[driven], voltage[driven])[0, 1])
+    # negative at positive duty (braking currents after a step down may be positive: three quarters suffice)
+    negative = float(np.percentile(current[driven], 75)) < 0.0
+    if correlation < -0.5 and negative:
+        if gate.context == 'window':
+            gate.add('current_sign', 'warning', "'armature_current' is negative at positive duty and falls when the "
+                     f'armature voltage rises (correlation {correlation:.2f}): its sign looks reversed; check the '
+                     'probe', whole, n)
+            return
+        signals['armature_current'] = current = -current
+        gate.add('current_sign', 'repaired', "'armature_current' is negative at positive duty and falls when the "
+                 f'armature voltage rises (correlation {correlation:.2f}): a probe the other way round; negated (now '
+                 'positive '
+                 'and rising with Va, as a unidirectional drive gives)', whole, n)
+        correlation, negative = -correlation, False
+    reason = ''
+    if negative and correlation >= -0.5:
+        reason = (f'it is negative at positive duty but does not fall as the armature voltage rises (correlation '
+                  f'{correlation:.2f}): neither it nor its negation behaves like the current a unidirectional drive '
+                  'gives')
+    elif correlation < -0.5:
+        reason = (f'it is positive but falls when the armature voltage rises (correlation {correlation:.2f}); '
+                  'negated it would be negative at positive duty, which a unidirectional drive cannot give')
+    else:
+        jumps = _step_jumps(gate, voltage, current)
+        if jumps is not None and jumps <= 0:
+            reason = ('it does not jump up with the armature voltage at the duty steps (the back-EMF is continuous, '
+                      'so the period-average current must)')
+    if not reason:
+        return
+    text = f"'armature_current' {NOT_PERIOD_AVERAGE} {reason}"
+    if gate.context == 'window':
+        gate.add('current_inconsistent', 'warning', text + '; check the current sensing', whole, n)
+        return
+    del signals['armature_current']
+    gate.add('current_inconsistent', 'warning', text + '. The current is not used: the reduced model (thrust from '
+             'Va through the motor\'s static map and lag; no armature resistance) is fitted instead. If the current '
+             'is right, fix its column (sign, scale, sampling phase) in the log or its import profile', whole, n)
+
+
+def _step_jumps(gate: _Gate, voltage: np.ndarray, current: np.ndarray) -> float | None:
+    """Median of sign(dVa) x (jump of the current) across the larger Va steps, relative to the current's spread
+    (None: fewer than 5 steps)."""
+    from aeropend_core.signals.preprocess import detect_steps
+    sample_time = float(np.median(np.diff(gate.time)))
+    steps = detect_steps(voltage, sample_time)
+    span = float(np.subtract(*np.percentile(voltage, [99, 1])))
+    values = []
+    for k in steps:
+        if k < 3 or k + 3 > voltage.size:
+            continue
+        d_voltage = float(np.median(voltage[k:k + 3]) - np.median(voltage[k - 3:k]))
+        if abs(d_voltage) < 0.1 * span:
+            continue
+        values.append(np.sign(d_voltage) * (float(np.median(current[k:k + 2])) - float(np.median(current[k - 2:k]))))
+    if len(values) < 5:
+        return None
+    return float(np.median(values))
+
+
+def _derive_voltage(gate: _Gate) -> None:
+    """No armature voltage but a duty column: Va from the duty by the paper's eq (8) (said as a warning)."""
+    if 'armature_voltage' in gate.signals or 'duty' not in gate.signals:
+        return
+    from aeropend_core.signals.reduced import voltage_from_duty
+    n = gate.time.size
+    gate.signals['armature_voltage'] = voltage_from_duty(np.nan_to_num(gate.signals['duty']))
+    gate.add('voltage_from_duty', 'warning', "no 'armature_voltage' column: computed from 'duty' by the paper's eq "
+             '(8) (Va = k0 + k1 sqrt(k2 duty + k3) with its constants); the thrust gain is relative to that map',
+             gate.span(0, max(n - 1, 0)), n)
 
 
 def _check_rest_angle(gate: _Gate, sample_time: float) -> None:
