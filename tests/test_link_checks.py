@@ -130,3 +130,34 @@ def test_a_host_clock_step_is_detected_and_the_stamps_stay_on_the_device_clock(s
     spacing = np.diff(stamps) / P.SAMPLE_PERIOD
     assert spacing.min() > 0.55 and spacing.max() < 1.1          # no 1.227 ms spacing, no jump
     assert np.max(np.abs(stamps - acquisition - 0.001)[len(stamps) // 2:]) < 3e-3
+
+
+def test_a_burst_after_a_paused_device_is_no_clock_fault():
+    """The device link pauses 4 s early on (frames held, then drained in ~0.2 s): no rate fault, no host step."""
+    period = P.SAMPLE_PERIOD
+    clock = SampleClock(period)
+    sequence, now = 0, 50.0
+    for _ in range(60):                                   # 1.2 s of normal reads
+        now += 10 * period
+        clock.stamp_many(list(range(sequence, sequence + 10)), now + 0.001)
+        sequence += 10
+    start, first = now, sequence                          # the device keeps sampling from here on
+    read_at, reads = now + 4.0, 0
+    while True:                                           # the backlog drained 250 samples per read, 20 ms apart
+        acquired = first + int((read_at - start) / period)
+        block = list(range(sequence, min(acquired, sequence + 250)))
+        clock.stamp_many(block, read_at + 0.001)
+        sequence = block[-1] + 1
+        reads += 1
+        assert not clock.rate_fault and clock.host_steps == []
+        if sequence >= acquired:
+            break
+        read_at += 0.02
+    assert reads > 5
+    now = read_at
+    for _ in range(300):
+        now += 10 * period
+        clock.stamp_many(list(range(sequence, sequence + 10)), now + 0.001)
+        sequence += 10
+        assert not clock.rate_fault
+    assert clock.host_steps == [] and clock.rate_verified

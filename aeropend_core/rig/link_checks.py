@@ -11,8 +11,9 @@ decoder and the publisher:
 * **sequence**: a sample whose number is the previous one + 1 is accepted at once. Any other step (a gap, a
   duplicate, a step back) is *held* until the next sample: if that one continues the held one (1..``max_follow``
   further on) the step was real (an outage, a device reset) and both are accepted; if it continues the old run
-  instead (and the held one is not a small step ahead of it), the held sample contradicts the stream around it and is withheld (``implausible_sequence``). Two damaged
-  frames that pass the CRC *and* agree with each other would be needed to fake a jump.
+  instead (and the held one is not a small step ahead of it), the held sample contradicts the stream around it and
+  is withheld (``implausible_sequence``). Two damaged frames that pass the CRC *and* agree with each other would be
+  needed to fake a jump.
 * **wrap**: the firmware's counter is 32 bits (2^32 samples = 101 days at 490 Hz). Sequence numbers are extended
   past the wrap (modular difference), so the wrap is a continuation, never a reset; the extended number is what
   the caller publishes.

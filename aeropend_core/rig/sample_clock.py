@@ -115,6 +115,8 @@ class SampleClock:
         self._observed_sequence: int | None = None
         self._raw_slope = self.nominal_period
         self._raw_bound = float('inf')
+        self._coarse_fault = False
+        self._coarse_since: float | None = None
         #: Whether the hull (``min_span`` windows) has checked the rate since the last reset.
         self.rate_verified = False
         #: Host clock steps detected since the last reset [s] (negative: the host clock went back), in order.
@@ -146,7 +148,9 @@ class SampleClock:
     @property
     def rate_fault(self) -> bool:
         """True when the measured rate is outside ``max_drift`` by more than its uncertainty."""
-        return abs(self.rate_error) - self._raw_bound > self.max_drift
+        if self.rate_verified:
+            return abs(self.rate_error) - self._raw_bound > self.max_drift
+        return self._coarse_fault
 
     def stamp(self, sequence: int, arrival: float) -> float:
         """Acquisition time [s, host clock] of sample `sequence` that arrived at host time `arrival` [s].
@@ -225,6 +229,7 @@ class SampleClock:
         if sequence > first_sequence and relative > first_time:
             self._raw_slope = _bounded((relative - first_time) / (sequence - first_sequence), self.nominal_period)
             self._raw_bound = COARSE_JITTER / (relative - first_time)
+            self._coarse_fault = abs(self.rate_error) - self._raw_bound > self.max_drift
             self._slope = self._period = self._raw_slope
             self._anchor = relative - self._period * sequence
             self._minima.clear()
@@ -306,6 +311,14 @@ class SampleClock:
         if steps > 0 and elapsed > 0 and not self.rate_verified:
             self._raw_slope = _bounded(elapsed / steps, self.nominal_period)
             self._raw_bound = COARSE_JITTER / elapsed
+            # A gross error must persist over step_confirm s of host time (a burst of late reads drains faster).
+            if abs(self.rate_error) - self._raw_bound > self.max_drift:
+                if self._coarse_since is None:
+                    self._coarse_since = float(times[-1])
+                self._coarse_fault = self._coarse_fault or times[-1] - self._coarse_since >= self.step_confirm
+            else:
+                self._coarse_since = None
+                self._coarse_fault = False
 
 
 #: Arrival jitter assumed by the coarse rate check (the first arrival against a window minimum) [s].
