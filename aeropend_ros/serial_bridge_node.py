@@ -38,6 +38,7 @@ import time
 from aeropend_ros._node_util import (  # first: prepares the ROS environment  # isort: skip
     ParameterError,
     check_unknown_overrides,
+    DutySourceGuard,
     checked_duty,
     declare,
     run_node,
@@ -175,6 +176,7 @@ class SerialBridgeNode(Node):
         self.publisher = self.create_publisher(JointState, topics.SAMPLES, topics.samples_qos())
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS_TOPIC,
                                                            topics.diagnostics_qos())
+        self.duty_guard = DutySourceGuard(self, topics.DUTY_COMMAND, self._refuse_duty)
         self.create_subscription(Float64, topics.DUTY_COMMAND, self._on_duty, topics.command_qos())
         self.create_timer(self.heartbeat_period, self._on_heartbeat)
         self.create_timer(diagnostics_period, self._publish_diagnostics)
@@ -496,12 +498,19 @@ class SerialBridgeNode(Node):
             self._send_configuration()
 
     # ------------------------------------------------------------------------------------------------- commanding
-    def _on_duty(self, msg: Float64) -> None:
+    def _on_duty(self, msg: Float64, msg_info) -> None:
+        if not self.duty_guard.accept(msg_info):
+            return
         duty, clamped = checked_duty(self, float(msg.data), 'max_duty')
         self.stats['clamped_commands'] += clamped
         self.duty = duty
         self._last_command_time = time.monotonic()
         self._write(P.encode_command(P.SET_DUTY, duty))
+
+    def _refuse_duty(self) -> None:
+        """Two sources command this rig: duty 0 on the device now (DutySourceGuard); the heartbeat repeats it."""
+        self.duty = 0.0
+        self._write(P.encode_command(P.SET_DUTY, 0.0))
 
     def _on_heartbeat(self) -> None:
         if not self._device_spoke:
@@ -602,7 +611,9 @@ class SerialBridgeNode(Node):
         return DiagnosticStatus.OK, 'streaming'
 
     def _command_doubts(self) -> list[str]:
-        """Doubts about the duty commands (none yet)."""
+        """Doubts about the duty commands: two sources (the guard's own status is ERROR)."""
+        if self.duty_guard.contested:
+            return [f'two duty command sources: {self.duty_guard.refused} commands refused, duty held at 0']
         return []
 
     def destroy_node(self) -> None:

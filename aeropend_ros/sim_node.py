@@ -24,6 +24,7 @@ import math
 from aeropend_ros._node_util import (  # first: prepares the ROS environment  # isort: skip
     ParameterError,
     check_unknown_overrides,
+    DutySourceGuard,
     checked_duty,
     declare,
     run_node,
@@ -89,6 +90,7 @@ class SimNode(Node):
         self._message = JointState()
 
         self.publisher = self.create_publisher(JointState, topics.SAMPLES, topics.samples_qos())
+        self.duty_guard = DutySourceGuard(self, topics.DUTY_COMMAND, self._refuse_duty)
         self.create_subscription(Float64, topics.DUTY_COMMAND, self._on_duty, topics.command_qos())
         self.start_ns = self.get_clock().now().nanoseconds
         self.started = self.wait_for_subscribers == 0
@@ -100,8 +102,14 @@ class SimNode(Node):
             f'(realtime factor {self.realtime_factor:g}, noise {psnr_db:g} dB, {len(effects)} hidden effect(s))')
 
     # ------------------------------------------------------------------------------------------------------------
-    def _on_duty(self, msg: Float64) -> None:
+    def _on_duty(self, msg: Float64, msg_info) -> None:
+        if not self.duty_guard.accept(msg_info):
+            return
         self.commanded_duty, _ = checked_duty(self, float(msg.data), 'duty_limit')
+
+    def _refuse_duty(self) -> None:
+        """Two sources command this rig: hold the duty at 0 (DutySourceGuard)."""
+        self.commanded_duty = 0.0
 
     def _samples_due(self) -> int:
         if self.realtime_factor <= 0.0:

@@ -161,3 +161,27 @@ def test_a_burst_after_a_paused_device_is_no_clock_fault():
         sequence += 10
         assert not clock.rate_fault
     assert clock.host_steps == [] and clock.rate_verified
+
+
+@pytest.mark.parametrize('seed', [3, 4])
+def test_a_loaded_host_raises_no_clock_fault(seed):
+    """A right clock read by a host under heavy load (reads 10-200 ms apart, delays of tens of ms with stalls of up
+    to 0.4 s, and a backlog that builds up over 2 s and drains): no rate fault, no host step, ever."""
+    rng = np.random.default_rng(seed)
+    period = P.SAMPLE_PERIOD
+    n = int(40.0 / period)
+    acquisition = 10.0 + np.arange(n) * period * (1 + 300e-6)
+    clock = SampleClock(period)
+    start = 0
+    while start < n:
+        stop = min(n, start + int(rng.integers(5, 100)))
+        delay = 0.001 + rng.exponential(0.03)
+        if rng.random() < 0.02:
+            delay += rng.uniform(0.1, 0.4)
+        t = acquisition[stop - 1] - 10.0
+        if 12.0 < t < 14.0:
+            delay += 0.2 * (t - 12.0)              # falling behind, 0.4 s at worst
+        clock.stamp_many(list(range(start, stop)), acquisition[stop - 1] + delay)
+        assert not clock.rate_fault, (t, clock.rate_error, clock.rate_error_bound)
+        start = stop
+    assert clock.host_steps == [] and clock.rate_verified

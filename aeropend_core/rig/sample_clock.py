@@ -309,7 +309,8 @@ class SampleClock:
         span = sequences[-1] - sequences[0]
         if span >= self.min_span * self.window and len(sequences) >= 2:
             self._raw_slope = _bounded(_hull_slope(sequences, times), self.nominal_period)
-            self._raw_bound = 2.0 * _hull_jitter(sequences, times, self._raw_slope) / max(times[-1] - times[0], 1e-9)
+            low, high = _feasible_slopes(sequences, times, self._raw_slope)
+            self._raw_bound = max(high - self._raw_slope, self._raw_slope - low) / self.nominal_period
             self.rate_verified = True
             return
         first_sequence, first_time = self._first_point
@@ -341,11 +342,23 @@ def _bounded(period: float, nominal: float) -> float:
     return min(RATE_BOUNDS[1] * nominal, max(RATE_BOUNDS[0] * nominal, period))
 
 
-def _hull_jitter(x: np.ndarray, y: np.ndarray, slope: float) -> float:
-    """Uncertainty [s] of the window minima: their mean height above the lowest line of `slope` under them,
-    at least HULL_JITTER."""
+def _feasible_slopes(x: np.ndarray, y: np.ndarray, slope: float) -> tuple[float, float]:
+    """Range of line slopes [s per sample] consistent with the window minima (x sequences, y times [s]).
+
+    Each minimum lies above the true line (an arrival is never before its acquisition) by a delay of at most J;
+    J is taken as the largest height of the minima above the lowest line of `slope` (at least HULL_JITTER, so
+    `slope` itself is always in the range). Every pair of minima then bounds the slope: (dy - J)/dx <= s <=
+    (dy + J)/dx; the range is the intersection (the longest pairs decide: about +-2J/span).
+    """
     heights = y - slope * x
-    return max(HULL_JITTER, float(np.mean(heights - np.min(heights))))
+    jitter = max(HULL_JITTER, float(np.max(heights) - np.min(heights)))
+    i, j = np.triu_indices(len(x), k=1)
+    dx = x[j] - x[i]
+    dy = y[j] - y[i]
+    keep = dx > 0
+    if not np.any(keep):
+        return -np.inf, np.inf
+    return float(np.max((dy[keep] - jitter) / dx[keep])), float(np.min((dy[keep] + jitter) / dx[keep]))
 
 
 def _hull_slope(x: np.ndarray, y: np.ndarray) -> float:
