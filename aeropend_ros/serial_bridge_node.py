@@ -62,6 +62,9 @@ CALIBRATION_PARAMETERS = ('current_scale', 'current_offset', 'angle_zero', 'angl
                           'duty_voltage_k2', 'duty_voltage_k3')
 #: Parameters whose change is sent to the device.
 DEVICE_PARAMETERS = ('max_duty', 'watchdog_timeout')
+#: Host time [s] a clock rate fault must last before samples are withheld (a backlog on a loaded host can look like
+#: a rate error for a few seconds; a wrong clock stays wrong). Until then the samples go out with a WARN.
+CLOCK_FAULT_PERSIST = 5.0
 #: Reads observed before the first stamps of a (re)started clock are published (about 0.1 s of data).
 PRIME_ARRIVALS = 8
 
@@ -148,6 +151,7 @@ class SerialBridgeNode(Node):
         self._withheld_reported = (0, 0)
         self._implausible_previous = 0
         self._clock_state = ('unverified', 0)      # (rate state, host steps) last logged
+        self._rate_suspect_since: float | None = None
         self._priming: list[P.SampleFrame] = []
         self._serial = None
         self._serial_lock = threading.Lock()
@@ -411,7 +415,7 @@ class SerialBridgeNode(Node):
         else:
             stamps = clock.stamp_many([frame.sequence for frame in run], arrival)
         self._report_clock()
-        if clock.rate_fault:
+        if self._clock_withholds():
             # The device's clock is outside its tolerance: its stamps and its sample spacing are not what the data
             # claim. Withheld, and said on /diagnostics (ERROR) and in the log.
             self.stats['samples_withheld_clock'] += len(run)
@@ -431,10 +435,20 @@ class SerialBridgeNode(Node):
                 f'{clock.period * 1e3:.4f} ms ± {clock.rate_error_bound * 100:.2f} %, nominal '
                 f'{clock.nominal_period * 1e3:.4f} ms, tolerance ±{clock.max_drift * 100:.2f} %)')
 
+    def _clock_withholds(self) -> bool:
+        """True when the clock's rate fault has lasted CLOCK_FAULT_PERSIST s: its samples are then withheld."""
+        if not self.clock_model.rate_fault:
+            self._rate_suspect_since = None
+            return False
+        now = time.monotonic()
+        if self._rate_suspect_since is None:
+            self._rate_suspect_since = now
+        return now - self._rate_suspect_since >= CLOCK_FAULT_PERSIST
+
     def _report_clock(self) -> None:
         """Log a change of the clock's state: a rate fault raised or cleared, a host clock step."""
         clock = self.clock_model
-        state = ('fault' if clock.rate_fault else 'ok' if clock.rate_verified else 'unverified',
+        state = ('fault' if self._clock_withholds() else 'ok' if clock.rate_verified else 'unverified',
                  len(clock.host_steps))
         if state == self._clock_state:
             return
@@ -453,7 +467,7 @@ class SerialBridgeNode(Node):
         """Publish samples still held for priming (before the clock restarts)."""
         if self._priming:
             run, self._priming = self._priming, []
-            if self.clock_model.rate_fault:
+            if self._clock_withholds():
                 self.stats['samples_withheld_clock'] += len(run)
                 return
             stamps = self.clock_model.place([frame.sequence for frame in run])
@@ -570,7 +584,7 @@ class SerialBridgeNode(Node):
         elif not self._device_spoke and time.monotonic() - self._opened_at < self.boot_delay + 5.0:
             status.level = DiagnosticStatus.WARN
             status.message = 'port open, waiting for the device to talk (booting); nothing written yet'
-        elif self.clock_model.rate_fault:
+        elif self._clock_withholds():
             status.level = DiagnosticStatus.ERROR
             status.message = (f'{self._rate_text()}: samples withheld '
                               f'({self.stats["samples_withheld_clock"]} so far)')
@@ -602,7 +616,9 @@ class SerialBridgeNode(Node):
         if clock.host_steps:
             doubts.append(f'host clock stepped {len(clock.host_steps)} time(s), last {clock.host_steps[-1]:+.3f} s: '
                           f'stamps stay on the device clock, {-clock.host_offset:+.3f} s from the node clock')
-        if not clock.rate_verified:
+        if clock.rate_fault:
+            doubts.append(f'{self._rate_text()}: checking (withheld if it lasts {CLOCK_FAULT_PERSIST:g} s)')
+        elif not clock.rate_verified:
             doubts.append(f'device clock rate not verified yet ({clock.rate_error * 1e6:+.0f} ppm ± '
                           f'{min(clock.rate_error_bound, 9.99) * 1e6:.0f} ppm so far; needs ~3 s)')
         doubts += self._command_doubts()

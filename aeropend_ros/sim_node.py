@@ -159,7 +159,10 @@ class SimNode(Node):
 
 def main(args=None) -> int:
     """Run the sim node until Ctrl-C (or ``stop_after``)."""
-    return run_node(SimNode, args, until=lambda node: node.finished)
+    # SingleThreadedExecutor, as in `aeropend run`: the duty subscription takes the message info (its publication
+    # sequence number tells two duty sources apart, DutySourceGuard), which rclpy's EventsExecutor (Jazzy wheels)
+    # cannot deliver ("SystemError: null argument to internal routine").
+    return run_node(SimNode, args, until=lambda node: node.finished, prefer_events=False)
 
 
 if __name__ == '__main__':

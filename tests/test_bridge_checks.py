@@ -86,18 +86,21 @@ def test_bridge_withholds_samples_of_a_wrong_device_clock(ros_context, clock_ppm
                 said = re.search(r'device clock ([0-9.]+) % (slow|fast) \(measured period [0-9.]+ ms ± ([0-9.]+) %',
                                  message)
                 assert said and said.group(2) == word and 'withheld' in message, message
-                # The number said, within the uncertainty said next to it (plus the emulator's scheduling).
-                assert abs(float(said.group(1)) - abs(clock_ppm) * 1e-4) <= float(said.group(3)) + 0.1, message
+                # The number said, within the uncertainty said next to it plus a margin for the emulator: a Python
+                # thread whose writes queue up behind a slow reader on a loaded machine (a real Mega drops instead).
+                margin = max(0.25, 0.02 * abs(clock_ppm) * 1e-4)          # percentage points
+                assert abs(float(said.group(1)) - abs(clock_ppm) * 1e-4) <= float(said.group(3)) + margin, message
                 diagnostics = listener.last_diagnostics()
                 rate_ppm = float(diagnostics['clock_rate_error_ppm'])
                 bound_ppm = float(diagnostics['clock_rate_error_bound_ppm'])
-                assert abs(rate_ppm - clock_ppm) <= bound_ppm + 1000.0, diagnostics
+                assert abs(rate_ppm - clock_ppm) <= bound_ppm + margin * 1e4, diagnostics
                 published = counter(listener, 'samples_published')
                 withheld = counter(listener, 'samples_withheld_clock')
                 time.sleep(0.5)         # not a wait for a condition: a span in which nothing may be published
                 assert poll(lambda: counter(listener, 'samples_withheld_clock') > withheld + 200, 10.0)
                 assert counter(listener, 'samples_published') == published
-                # Whatever was published went out while /diagnostics said WARN (clock not verified yet): never OK.
+                # Whatever was published went out while /diagnostics said WARN (clock not verified yet, or the fault
+                # not yet lasted 5 s): never OK.
                 assert OK not in listener.diagnostic_levels, list(zip(listener.diagnostic_levels,
                                                                       listener.diagnostic_messages))
                 assert 'device clock' in bridge.output() and 'samples withheld' in bridge.output()
