@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import threading
 import time
 
 import pytest
@@ -87,16 +86,21 @@ def test_a_run_refuses_a_rig_whose_topics_are_already_published():
         assert other.returncode == 0, (out, err)
 
 
-def test_sim_refuses_two_duty_sources_and_says_so():
+def test_sim_refuses_two_duty_sources_and_says_so(caplog):
+    """The sim as `aeropend run` builds it (guard_duty_sources=True, SingleThreadedExecutor), in this process; the
+    sources and the listener are other nodes of the same process, over DDS."""
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
     from aeropend_ros import topics
+    from aeropend_ros.sim_node import SimNode
     domain_id = private_domain_id()
-    with own_context(domain_id) as context, \
-            NodeProcess('aeropend_ros.sim_node', ['-p', 'psnr_db:=0.0'], domain_id) as sim:
+    with own_context(domain_id) as context:
+        sim = SimNode(guard_duty_sources=True, context=context, start_parameter_services=False,
+                      cli_args=['--ros-args', '-p', 'psnr_db:=0.0'])
         node = rclpy.create_node('duty_sources_a', context=context)
         other = rclpy.create_node('duty_sources_b', context=context)
         first = node.create_publisher(Float64, topics.DUTY_COMMAND_TOPIC, topics.command_qos())
@@ -108,41 +112,39 @@ def test_sim_refuses_two_duty_sources_and_says_so():
         node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS_TOPIC,
                                  lambda msg: statuses.extend(s for s in msg.status if 'duty command source' in s.name),
                                  topics.diagnostics_qos())
-        from rclpy.executors import SingleThreadedExecutor
         executor = SingleThreadedExecutor(context=context)
-        executor.add_node(node)
-        executor.add_node(other)
+        for each in (sim, node, other):
+            executor.add_node(each)
         sending = {'first': 0.5, 'second': None}
-        stop = threading.Event()
+        sent = {'at': 0.0}
 
-        def send() -> None:               # the sources repeat their commands every 50 ms, as an excitation does
-            while not stop.is_set():
-                first.publish(Float64(data=sending['first']))
-                if sending['second'] is not None:
-                    second.publish(Float64(data=sending['second']))
-                stop.wait(0.05)
-        sender = threading.Thread(target=send, daemon=True)
+        def send() -> None:        # the sources repeat their commands every 50 ms, as an excitation does
+            if time.monotonic() - sent['at'] < 0.05:
+                return
+            sent['at'] = time.monotonic()
+            first.publish(Float64(data=sending['first']))
+            if sending['second'] is not None:
+                second.publish(Float64(data=sending['second']))
+
+        def spin_until(condition, timeout: float) -> bool:
+            def check() -> bool:
+                send()
+                return condition()
+            return wait_for(check, timeout, executor=executor, period=0.005)
         try:
-            assert wait_for(lambda: first.get_subscription_count() > 0 and second.get_subscription_count() > 0,
-                            30.0, executor=executor), sim.output()
-            sender.start()
-            assert wait_for(lambda: duties and duties[-1] == 0.5, 30.0, executor=executor), sim.output()
+            assert spin_until(lambda: duties and duties[-1] == 0.5, 30.0)
             sending['second'] = 0.2                             # a second excitation source appears
-            assert wait_for(lambda: any(s.level == b'\x02' or s.level == 2 for s in statuses), 30.0,
-                            executor=executor), (statuses[-1:], sim.output())
+            assert spin_until(lambda: any(s.level in (b'\x02', 2) for s in statuses), 30.0), statuses[-1:]
             contested = next(s for s in statuses if s.level in (b'\x02', 2))
             assert 'two or more sources' in contested.message and '/duty_sources_a' in contested.message
+            assert sim.duty_guard.contested and sim.duty_guard.refused > 0
             duties.clear()
-            time.sleep(1.0)        # a span of samples under the contest (not a synchronisation wait)
-            assert wait_for(lambda: len(duties) > 200, 30.0, executor=executor)
+            assert spin_until(lambda: len(duties) > 300, 30.0)
             assert set(duties[-200:]) == {0.0}, set(duties[-200:])          # neither source drives the rig
-            assert 'two excitation sources for one rig' in sim.output()
             sending['second'] = None                             # one source left: followed again
-            assert wait_for(lambda: duties and duties[-1] == 0.5, 30.0, executor=executor), sim.output()
+            assert spin_until(lambda: duties and duties[-1] == 0.5, 30.0)
+            assert not sim.duty_guard.contested
         finally:
-            stop.set()
-            if sender.is_alive():
-                sender.join(timeout=5.0)
             executor.shutdown()
-            node.destroy_node()
-            other.destroy_node()
+            for each in (other, node, sim):
+                each.destroy_node()

@@ -301,7 +301,7 @@ def _run(args) -> int:
             source = SimNode(parameter_overrides=overrides(
                 effects=list(hidden) or [''], psnr_db=float(args.psnr), seed=int(args.seed),
                 duty_limit=float(args.duty_cap), realtime_factor=float(args.realtime_factor),
-                stop_after=float(args.duration)), namespace=namespace)
+                stop_after=float(args.duration)), namespace=namespace, guard_duty_sources=True)
         else:
             from aeropend_ros.serial_bridge_node import SerialBridgeNode
             calibrated = {}
