@@ -203,9 +203,10 @@ class SampleClock:
 
         An arrival off the line by more than the allowed jitter starts a run; once the run spans ``step_confirm``
         s of host time it is judged: a constant offset (spread < ``step_threshold``) is a host clock step, taken
-        out of ``_reference`` at the run's smallest delay; an offset that grows is the device's rate, measured from
-        the first arrival and followed at once (:attr:`rate_fault` then says so). One arrival back in line ends
-        the run (a stall, a burst)."""
+        out of ``_reference`` at the run's smallest delay; an offset that grows is no step (a host falling behind;
+        a wrong device rate is measured by the window checks). One arrival back in line ends the run (a stall, a
+        burst). The stamping line is never bent to a suspected rate: stamps of a clock outside tolerance are wrong
+        by that rate, which is why the caller withholds them."""
         relative = arrival - self._reference
         lateness = relative - (self._anchor + self._period * sequence)
         since = sequence - (self._observed_sequence if self._observed_sequence is not None else sequence)
@@ -231,16 +232,8 @@ class SampleClock:
         if high - low < self.step_threshold:
             self._apply_step(low)
             return True
-        # The offset grew within the run: the device's clock, not the host's. Measure it from the first arrival.
-        first_sequence, first_time = self._first_point
-        if sequence > first_sequence and relative > first_time:
-            self._raw_slope = _bounded((relative - first_time) / (sequence - first_sequence), self.nominal_period)
-            self._raw_bound = COARSE_JITTER / (relative - first_time)
-            self._coarse_fault = abs(self.rate_error) - self._raw_bound > self.max_drift
-            self._slope = self._period = self._raw_slope
-            self._anchor = relative - self._period * sequence
-            self._minima.clear()
-            self._window_best = None
+        # The offset grew within the run: a host falling behind (or the device's rate, which the window checks
+        # measure): no step, and nothing here moves the stamping line.
         return True
 
     def _apply_step(self, step: float) -> None:
@@ -287,10 +280,6 @@ class SampleClock:
             low = self.nominal_period * (1.0 - self.max_drift)
             high = self.nominal_period * (1.0 + self.max_drift)
             slope = min(high, max(low, _hull_slope(sequences, times)))
-            if self.rate_fault:
-                # Outside the believable drift: follow the measured (bounded) rate, so the line stays under the
-                # arrivals (the caller withholds or flags these samples; see rate_fault).
-                slope = self._raw_slope
         # Lower envelope: the line with that slope under every window minimum. Steered towards over the next
         # window (at most `max_slew` x Ts), as a change of the stamping period, so stamps never jump; a sample
         # arriving below the line still lowers it at once (observe).
