@@ -275,3 +275,101 @@ def run_node(node_factory: Callable[[], object], args=None, prefer_events: bool 
         signal.signal(signal.SIGTERM, previous_sigterm)
         signal.signal(signal.SIGINT, signal.default_int_handler)
     return status
+
+
+class DutySourceGuard:
+    """Never two excitation sources for one rig: refuse duty commands while two publishers send them.
+
+    rclpy (Jazzy) gives a subscription callback the message's ``publication_sequence_number`` but not the
+    publisher's identity. One publisher's numbers only grow; numbers that do not grow while the graph shows two or
+    more publishers on the duty topic mean two sources are sending (two graphs on one rig, a stray
+    ``ros2 topic pub``): every duty command is then refused, the duty goes to 0, an ERROR goes to /diagnostics
+    (status ``<rig>/<node>: duty command source``, with the publishing nodes) and to the log, until the numbers
+    have grown for ``quiet`` s (one source left). A publisher that exists but sends nothing (a monitor, a test
+    harness) changes nothing; a restarted publisher (numbers from 1 again, the old one gone from the graph) is no
+    contest.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        The node that subscribes the duty topic (the sim or the serial bridge).
+    topic : str
+        The duty topic as the node resolves it.
+    on_refuse : callable
+        Called with no argument when a contest starts (set the duty to 0 and send it).
+    quiet : float
+        Seconds of growing numbers after which commands are accepted again [s] (default 2).
+    """
+
+    def __init__(self, node, topic: str, on_refuse: Callable[[], None], quiet: float = 2.0) -> None:
+        import time as _time
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+        from aeropend_ros import topics
+        self._time = _time.monotonic
+        self._node = node
+        self._topic = node.resolve_topic_name(topic)
+        self._on_refuse = on_refuse
+        self._quiet = float(quiet)
+        self._last_number: int | None = None
+        self._contested_until = -math.inf
+        self.refused = 0
+        self.contests = 0
+        self._publishers: list[str] = []
+        self._messages = (DiagnosticArray, DiagnosticStatus, KeyValue)
+        self._status_name = f'{topics.status_prefix(node.get_namespace())}{node.get_name()}: duty command source'
+        self._diagnostics = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS_TOPIC, topics.diagnostics_qos())
+        node.create_timer(1.0, self._publish_status)
+
+    @property
+    def contested(self) -> bool:
+        """Two sources were seen sending within the last ``quiet`` seconds."""
+        return self._time() < self._contested_until
+
+    def publishers(self) -> list[str]:
+        """Full names of the nodes publishing on the duty topic, as the graph shows them now."""
+        names = []
+        for info in self._node.get_publishers_info_by_topic(self._topic):
+            namespace = info.node_namespace.rstrip('/')
+            names.append(f'{namespace}/{info.node_name}')
+        return sorted(names)
+
+    def accept(self, msg_info) -> bool:
+        """Whether the duty command that came with `msg_info` may be applied (False: refused, counted, said)."""
+        number = msg_info.get('publication_sequence_number') if isinstance(msg_info, dict) else None
+        previous, self._last_number = self._last_number, number
+        if number is not None and previous is not None and number <= previous:
+            publishers = self.publishers()
+            if len(publishers) >= 2:
+                if not self.contested:
+                    self.contests += 1
+                    self._publishers = publishers
+                    self._node.get_logger().error(
+                        f'{len(publishers)} publishers send duty commands on {self._topic} ({", ".join(publishers)}): '
+                        'two excitation sources for one rig; every duty command refused and the duty set to 0 until '
+                        'one is left (another graph on this rig? give each rig its own --rig NAME or ROS_DOMAIN_ID)')
+                    self._on_refuse()
+                self._contested_until = self._time() + self._quiet
+        if self.contested:
+            self.refused += 1
+            return False
+        return True
+
+    def _publish_status(self) -> None:
+        DiagnosticArray, DiagnosticStatus, KeyValue = self._messages
+        status = DiagnosticStatus(name=self._status_name, hardware_id=self._topic)
+        if self.contested:
+            status.level = DiagnosticStatus.ERROR
+            status.message = (f'two or more sources send duty commands ({", ".join(self._publishers)}): '
+                              f'{self.refused} commands refused, duty held at 0')
+        else:
+            status.level = DiagnosticStatus.OK
+            status.message = 'one duty command source' if self.contests == 0 else \
+                f'one duty command source again ({self.contests} contest(s), {self.refused} commands refused)'
+        status.values = [KeyValue(key='duty_commands_refused', value=str(self.refused)),
+                         KeyValue(key='contests', value=str(self.contests)),
+                         KeyValue(key='publishers', value=', '.join(self.publishers()))]
+        array = DiagnosticArray()
+        array.header.stamp = self._node.get_clock().now().to_msg()
+        array.status = [status]
+        self._diagnostics.publish(array)

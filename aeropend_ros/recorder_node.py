@@ -147,8 +147,13 @@ class RecorderNode(Node):
         self._declare_parameters()
         get = self.get_parameter
         output = get('output').value or f'bags/aeropend_{time.strftime("%Y%m%d_%H%M%S")}'
+        empty = [index for index, name in enumerate(get('topics').value or []) if not name.strip()]
+        if empty:
+            raise AeropendError(f'topics {list(get("topics").value)!r}: entry {empty[0] + 1} is an empty topic name '
+                                "(nothing would be recorded under it); write names like 'aeropend/samples' or "
+                                "'/diagnostics', or leave topics at its default")
         try:
-            self._topics_wanted = {self.resolve_topic_name(t) for t in get('topics').value or [] if t}
+            self._topics_wanted = {self.resolve_topic_name(t) for t in get('topics').value or []}
         except Exception as error:  # noqa: BLE001 - rclpy raises its own name-validation errors
             raise AeropendError(f'topics {get("topics").value!r}: a name is not a valid ROS topic name ({error}); '
                                 "write names like 'aeropend/samples' or '/diagnostics'") from None

@@ -38,6 +38,7 @@ import time
 from aeropend_ros._node_util import (  # first: prepares the ROS environment  # isort: skip
     ParameterError,
     check_unknown_overrides,
+    DutySourceGuard,
     checked_duty,
     declare,
     run_node,
@@ -51,6 +52,7 @@ from std_msgs.msg import Float64
 from aeropend_core.rig import protocol as P
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS
+from aeropend_core.rig.link_checks import CheckedSample, FrameChecker
 from aeropend_core.rig.sample_clock import SampleClock
 from aeropend_ros import topics
 
@@ -60,6 +62,9 @@ CALIBRATION_PARAMETERS = ('current_scale', 'current_offset', 'angle_zero', 'angl
                           'duty_voltage_k2', 'duty_voltage_k3')
 #: Parameters whose change is sent to the device.
 DEVICE_PARAMETERS = ('max_duty', 'watchdog_timeout')
+#: Host time [s] a clock rate fault must last before samples are withheld (a backlog on a loaded host can look like
+#: a rate error for a few seconds; a wrong clock stays wrong). Until then the samples go out with a WARN.
+CLOCK_FAULT_PERSIST = 5.0
 #: Reads observed before the first stamps of a (re)started clock are published (about 0.1 s of data).
 PRIME_ARRIVALS = 8
 
@@ -142,6 +147,11 @@ class SerialBridgeNode(Node):
         self.clock_model = SampleClock(self.sample_period, max_drift=clock_max_drift, latency=self.clock_latency)
         self._epoch_ns = self.get_clock().now().nanoseconds
         self.decoder = P.FrameDecoder()
+        self.checker = FrameChecker()
+        self._withheld_reported = (0, 0)
+        self._implausible_previous = 0
+        self._clock_state = ('unverified', 0)      # (rate state, host steps) last logged
+        self._rate_suspect_since: float | None = None
         self._priming: list[P.SampleFrame] = []
         self._serial = None
         self._serial_lock = threading.Lock()
@@ -152,7 +162,7 @@ class SerialBridgeNode(Node):
         self.status: P.StatusFrame | None = None
         self.stats = {'samples_published': 0, 'samples_lost': 0, 'device_resets': 0, 'reconnects': 0,
                       'outage_samples_lost': 0, 'last_outage_lost': 0, 'watchdog_trips': 0,
-                      'clamped_commands': 0}
+                      'clamped_commands': 0, 'samples_withheld_clock': 0}
         self._after_reconnect = False
         self._device_spoke = False         # a valid frame arrived >= boot_delay after the port opened
         self._opened_at = time.monotonic()
@@ -170,6 +180,7 @@ class SerialBridgeNode(Node):
         self.publisher = self.create_publisher(JointState, topics.SAMPLES, topics.samples_qos())
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS_TOPIC,
                                                            topics.diagnostics_qos())
+        self.duty_guard = DutySourceGuard(self, topics.DUTY_COMMAND, self._refuse_duty)
         self.create_subscription(Float64, topics.DUTY_COMMAND, self._on_duty, topics.command_qos())
         self.create_timer(self.heartbeat_period, self._on_heartbeat)
         self.create_timer(diagnostics_period, self._publish_diagnostics)
@@ -313,39 +324,62 @@ class SerialBridgeNode(Node):
     def _handle_bytes(self, data: bytes) -> None:
         now_ns = self.get_clock().now().nanoseconds
         arrival = (now_ns - self._epoch_ns) * 1e-9
-        run: list[P.SampleFrame] = []         # samples since the last device reset in this read
         messages = self.decoder.feed(data)
         if not self._device_spoke:
             self._device_talks(messages)
-        for index, message in enumerate(messages):
+        samples = []
+        for message in messages:
             if type(message) is P.SampleFrame:
-                if self._check_sequence(message, arrival, messages, index):   # the device restarted: stamp the
-                    # old run first
-                    self._publish_run(run, arrival)
-                    self._flush_priming()
-                    run = []
-                    self.clock_model.reset()
-                run.append(message)
+                samples.append(message)
             else:
                 self._handle_status(message)
+        # Range and sequence plausibility after the CRC (aeropend_core.rig.link_checks): what the stream
+        # contradicts is withheld and counted, a sequence step is believed once the next sample confirms it.
+        checked = self.checker.check(samples)
+        self._report_withheld()
+        run: list[P.SampleFrame] = []         # samples since the last device reset in this read
+        for index, item in enumerate(checked):
+            if self._check_sequence(item, arrival, checked, index):   # the device restarted: stamp the old run
+                self._publish_run(run, arrival)
+                self._flush_priming()
+                run = []
+                self.clock_model.reset()
+            run.append(item.frame)
         self._publish_run(run, arrival)
 
-    def _check_sequence(self, frame: P.SampleFrame, arrival: float, messages: list, index: int) -> bool:
-        """Update loss statistics with one sample (``messages[index]`` of the read that arrived at `arrival`);
-        True when it reveals a device reset."""
+    def _report_withheld(self) -> None:
+        """Log newly withheld implausible frames (throttled); /diagnostics carries the counts."""
+        counters = self.checker.counters
+        now = (counters.implausible_range, counters.implausible_sequence)
+        if now != self._withheld_reported and self.checker.last_withheld is not None:
+            kind, sequence, expected = self.checker.last_withheld
+            reason = ('an ADC count above 1023 or an unknown flag' if kind == 'range' else
+                      f'sequence {sequence} where the stream continues from {expected}')
+            self.get_logger().warning(f'withheld an implausible frame that passed the CRC ({reason}); so far '
+                                      f'{now[0]} out of range, {now[1]} contradicted by the sequence',
+                                      throttle_duration_sec=5.0)
+            self._withheld_reported = now
+
+    def _check_sequence(self, item: CheckedSample, arrival: float, checked: list, index: int) -> bool:
+        """Update loss statistics with one accepted sample (``checked[index]`` of the read that arrived at
+        `arrival`); True when it starts a new device run (a confirmed reset)."""
+        frame = item.frame
         last = self._last_sequence
         reset = False
         if last is not None:
-            if frame.sequence > last + 1:
-                gap = frame.sequence - last - 1
+            if item.lost:
+                gap = item.lost
                 self.stats['samples_lost'] += gap
                 if self._after_reconnect:
                     self.stats['last_outage_lost'] = gap
                     self.get_logger().warning(f'link restored: {gap} samples lost during the outage '
                                               f'(sequence {last} -> {frame.sequence})')
-            elif frame.sequence <= last:
-                newest = max(m.sequence for m in messages[index:] if type(m) is P.SampleFrame
-                             and m.sequence >= frame.sequence)
+            elif item.reset:
+                newest = frame.sequence
+                for later in checked[index + 1:]:
+                    if later.reset:
+                        break
+                    newest = later.frame.sequence
                 self._device_reset(arrival, frame.sequence, newest)
                 reset = True
         self._after_reconnect = False
@@ -380,6 +414,12 @@ class SerialBridgeNode(Node):
             stamps = clock.place([frame.sequence for frame in run])
         else:
             stamps = clock.stamp_many([frame.sequence for frame in run], arrival)
+        self._report_clock()
+        if self._clock_withholds():
+            # The device's clock is outside its tolerance: its stamps and its sample spacing are not what the data
+            # claim. Withheld, and said on /diagnostics (ERROR) and in the log.
+            self.stats['samples_withheld_clock'] += len(run)
+            return
         to_si = self.calibration.to_si
         for frame, stamp in zip(run, stamps):
             angle, voltage, current, duty = to_si(frame)
@@ -388,10 +428,48 @@ class SerialBridgeNode(Node):
             self.publisher.publish(topics.sample_to_msg(sample, self._message))
         self.stats['samples_published'] += len(run)
 
+    def _rate_text(self) -> str:
+        clock = self.clock_model
+        error = clock.rate_error
+        return (f'device clock {abs(error) * 100:.2f} % {"slow" if error > 0 else "fast"} (measured period '
+                f'{clock.period * 1e3:.4f} ms ± {clock.rate_error_bound * 100:.2f} %, nominal '
+                f'{clock.nominal_period * 1e3:.4f} ms, tolerance ±{clock.max_drift * 100:.2f} %)')
+
+    def _clock_withholds(self) -> bool:
+        """True when the clock's rate fault has lasted CLOCK_FAULT_PERSIST s: its samples are then withheld."""
+        if not self.clock_model.rate_fault:
+            self._rate_suspect_since = None
+            return False
+        now = time.monotonic()
+        if self._rate_suspect_since is None:
+            self._rate_suspect_since = now
+        return now - self._rate_suspect_since >= CLOCK_FAULT_PERSIST
+
+    def _report_clock(self) -> None:
+        """Log a change of the clock's state: a rate fault raised or cleared, a host clock step."""
+        clock = self.clock_model
+        state = ('fault' if self._clock_withholds() else 'ok' if clock.rate_verified else 'unverified',
+                 len(clock.host_steps))
+        if state == self._clock_state:
+            return
+        previous, self._clock_state = self._clock_state, state
+        logger = self.get_logger()
+        if state[0] == 'fault' and previous[0] != 'fault':
+            logger.error(f'{self._rate_text()}: samples withheld until it is back within tolerance (wrong '
+                         'sample_period? a board whose clock is known to be off: raise clock_max_drift)')
+        elif previous[0] == 'fault' and state[0] != 'fault':
+            logger.warning(f'device clock back within tolerance ({clock.rate_error * 1e6:.0f} ppm): publishing again')
+        if state[1] > previous[1]:
+            logger.warning(f'host clock stepped by {clock.host_steps[-1]:+.3f} s (an NTP step?): the stamps continue '
+                           f'on the device clock, now {-clock.host_offset:+.3f} s from the node clock')
+
     def _flush_priming(self) -> None:
         """Publish samples still held for priming (before the clock restarts)."""
         if self._priming:
             run, self._priming = self._priming, []
+            if self._clock_withholds():
+                self.stats['samples_withheld_clock'] += len(run)
+                return
             stamps = self.clock_model.place([frame.sequence for frame in run])
             for frame, stamp in zip(run, stamps):
                 angle, voltage, current, duty = self.calibration.to_si(frame)
@@ -434,12 +512,19 @@ class SerialBridgeNode(Node):
             self._send_configuration()
 
     # ------------------------------------------------------------------------------------------------- commanding
-    def _on_duty(self, msg: Float64) -> None:
+    def _on_duty(self, msg: Float64, msg_info) -> None:
+        if not self.duty_guard.accept(msg_info):
+            return
         duty, clamped = checked_duty(self, float(msg.data), 'max_duty')
         self.stats['clamped_commands'] += clamped
         self.duty = duty
         self._last_command_time = time.monotonic()
         self._write(P.encode_command(P.SET_DUTY, duty))
+
+    def _refuse_duty(self) -> None:
+        """Two sources command this rig: duty 0 on the device now (DutySourceGuard); the heartbeat repeats it."""
+        self.duty = 0.0
+        self._write(P.encode_command(P.SET_DUTY, 0.0))
 
     def _on_heartbeat(self) -> None:
         if not self._device_spoke:
@@ -465,6 +550,15 @@ class SerialBridgeNode(Node):
             'clock_drift_ppm': f'{self.clock_model.drift_ppm:.1f}', 'duty_command': f'{self.duty:.4f}',
             'last_sequence': str(self._last_sequence if self._last_sequence is not None else -1),
             'device_talking': str(self._device_spoke),
+            'clock_rate_error_ppm': f'{self.clock_model.rate_error * 1e6:.1f}',
+            'clock_rate_error_bound_ppm': f'{min(self.clock_model.rate_error_bound, 9.99) * 1e6:.1f}',
+            'clock_rate_verified': str(self.clock_model.rate_verified),
+            'clock_max_drift_ppm': f'{self.clock_model.max_drift * 1e6:.0f}',
+            'host_clock_steps': str(len(self.clock_model.host_steps)),
+            'host_clock_offset_s': f'{self.clock_model.host_offset:.3f}',
+            'frames_implausible_range': str(self.checker.counters.implausible_range),
+            'frames_implausible_sequence': str(self.checker.counters.implausible_sequence),
+            'sequence_wraps': str(self.checker.counters.wraps),
         }
         values.update({name: str(count) for name, count in self.stats.items()})
         if self.status is not None:
@@ -490,19 +584,53 @@ class SerialBridgeNode(Node):
         elif not self._device_spoke and time.monotonic() - self._opened_at < self.boot_delay + 5.0:
             status.level = DiagnosticStatus.WARN
             status.message = 'port open, waiting for the device to talk (booting); nothing written yet'
+        elif self._clock_withholds():
+            status.level = DiagnosticStatus.ERROR
+            status.message = (f'{self._rate_text()}: samples withheld '
+                              f'({self.stats["samples_withheld_clock"]} so far)')
         elif new_samples == 0:
             status.level, status.message = DiagnosticStatus.ERROR, 'connected but no samples'
-        elif new_lost or new_corrupt or self._last_flags & P.FLAG_WATCHDOG_TRIPPED:
-            status.level = DiagnosticStatus.WARN
-            status.message = (f'{new_lost} samples lost, {new_corrupt} corrupt frames'
-                              + (', watchdog tripped' if self._last_flags & P.FLAG_WATCHDOG_TRIPPED else ''))
         else:
-            status.level, status.message = DiagnosticStatus.OK, 'streaming'
+            status.level, status.message = self._link_doubts(new_lost, new_corrupt)
         status.values = [KeyValue(key=key, value=value) for key, value in values.items()]
         array = DiagnosticArray()
         array.header.stamp = self.get_clock().now().to_msg()
         array.status = [status]
         self.diagnostics_publisher.publish(array)
+
+    def _link_doubts(self, new_lost: int, new_corrupt: int) -> tuple[int, str]:
+        """(level, message) of a streaming link: WARN with every doubt on the published samples, else OK."""
+        counters = self.checker.counters
+        implausible = counters.implausible_range + counters.implausible_sequence
+        new_implausible = implausible - self._implausible_previous
+        self._implausible_previous = implausible
+        clock = self.clock_model
+        doubts = []
+        if new_lost or new_corrupt:
+            doubts.append(f'{new_lost} samples lost, {new_corrupt} corrupt frames')
+        if new_implausible:
+            doubts.append(f'{new_implausible} implausible frames withheld (passed the CRC; out of range or '
+                          'contradicted by the sequence)')
+        if self._last_flags & P.FLAG_WATCHDOG_TRIPPED:
+            doubts.append('watchdog tripped')
+        if clock.host_steps:
+            doubts.append(f'host clock stepped {len(clock.host_steps)} time(s), last {clock.host_steps[-1]:+.3f} s: '
+                          f'stamps stay on the device clock, {-clock.host_offset:+.3f} s from the node clock')
+        if clock.rate_fault:
+            doubts.append(f'{self._rate_text()}: checking (withheld if it lasts {CLOCK_FAULT_PERSIST:g} s)')
+        elif not clock.rate_verified:
+            doubts.append(f'device clock rate not verified yet ({clock.rate_error * 1e6:+.0f} ppm ± '
+                          f'{min(clock.rate_error_bound, 9.99) * 1e6:.0f} ppm so far; needs ~3 s)')
+        doubts += self._command_doubts()
+        if doubts:
+            return DiagnosticStatus.WARN, '; '.join(doubts)
+        return DiagnosticStatus.OK, 'streaming'
+
+    def _command_doubts(self) -> list[str]:
+        """Doubts about the duty commands: two sources (the guard's own status is ERROR)."""
+        if self.duty_guard.contested:
+            return [f'two duty command sources: {self.duty_guard.refused} commands refused, duty held at 0']
+        return []
 
     def destroy_node(self) -> None:
         """Stop the reader thread, set the duty to 0 on the device and close the port."""

@@ -24,6 +24,7 @@ import math
 from aeropend_ros._node_util import (  # first: prepares the ROS environment  # isort: skip
     ParameterError,
     check_unknown_overrides,
+    DutySourceGuard,
     checked_duty,
     declare,
     run_node,
@@ -44,9 +45,21 @@ CATCH_UP_LIMIT = 490
 
 
 class SimNode(Node):
-    """Simulated rig: the model with hidden effects and noise, publishing samples and obeying duty commands."""
+    """Simulated rig: the model with hidden effects and noise, publishing samples and obeying duty commands.
 
-    def __init__(self, node_name: str = 'sim_node', **kwargs) -> None:
+    Parameters
+    ----------
+    node_name : str
+        The node's name.
+    guard_duty_sources : bool
+        Refuse duty commands while two sources send them (:class:`aeropend_ros._node_util.DutySourceGuard`). Needs
+        an executor that delivers message info (SingleThreadedExecutor, as in ``aeropend run``); rclpy's
+        EventsExecutor does not, so the standalone node runs without it.
+    **kwargs
+        Passed to ``rclpy.node.Node``.
+    """
+
+    def __init__(self, node_name: str = 'sim_node', guard_duty_sources: bool = False, **kwargs) -> None:
         super().__init__(node_name, **kwargs)
         effect_texts = declare(self, 'effects', [''],
                                'hidden effects, NAME=VALUE or NAME.PARAM=VALUE (aeropend effects lists them)',
@@ -89,7 +102,12 @@ class SimNode(Node):
         self._message = JointState()
 
         self.publisher = self.create_publisher(JointState, topics.SAMPLES, topics.samples_qos())
-        self.create_subscription(Float64, topics.DUTY_COMMAND, self._on_duty, topics.command_qos())
+        if guard_duty_sources:
+            self.duty_guard = DutySourceGuard(self, topics.DUTY_COMMAND, self._refuse_duty)
+            self.create_subscription(Float64, topics.DUTY_COMMAND, self._on_guarded_duty, topics.command_qos())
+        else:
+            self.duty_guard = None
+            self.create_subscription(Float64, topics.DUTY_COMMAND, self._on_duty, topics.command_qos())
         self.start_ns = self.get_clock().now().nanoseconds
         self.started = self.wait_for_subscribers == 0
         self.timer = self.create_timer(publish_period, self._on_timer)
@@ -102,6 +120,14 @@ class SimNode(Node):
     # ------------------------------------------------------------------------------------------------------------
     def _on_duty(self, msg: Float64) -> None:
         self.commanded_duty, _ = checked_duty(self, float(msg.data), 'duty_limit')
+
+    def _on_guarded_duty(self, msg: Float64, msg_info) -> None:
+        if self.duty_guard.accept(msg_info):
+            self._on_duty(msg)
+
+    def _refuse_duty(self) -> None:
+        """Two sources command this rig: hold the duty at 0 (DutySourceGuard)."""
+        self.commanded_duty = 0.0
 
     def _samples_due(self) -> int:
         if self.realtime_factor <= 0.0:
@@ -151,6 +177,8 @@ class SimNode(Node):
 
 def main(args=None) -> int:
     """Run the sim node until Ctrl-C (or ``stop_after``)."""
+    # EventsExecutor (a third of the CPU at 490 Hz): it cannot deliver message info, so the standalone node runs
+    # without the duty-source guard (SimNode(guard_duty_sources=True) in `aeropend run` has it).
     return run_node(SimNode, args, until=lambda node: node.finished)
 
 

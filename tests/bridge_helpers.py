@@ -124,6 +124,7 @@ class Listener:
         self.diagnostics: list[dict[str, str]] = []
         self.diagnostic_stamps: list[float] = []     # header stamps [s] of the diagnostics messages
         self.diagnostic_levels: list[int] = []
+        self.diagnostic_messages: list[str] = []
         # Best effort like the contract, with a deep queue so a slow Python listener does not drop.
         deep = QoSProfile(depth=5000, reliability=ReliabilityPolicy.BEST_EFFORT)
         self.node.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, deep)
@@ -157,6 +158,7 @@ class Listener:
                 self.diagnostics.append({kv.key: kv.value for kv in status.values})
                 self.diagnostic_levels.append(int.from_bytes(status.level, 'little')
                                               if isinstance(status.level, bytes) else int(status.level))
+                self.diagnostic_messages.append(status.message)
 
     def publish_duty(self, duty: float) -> None:
         self.duty_publisher.publish(self.Float64(data=float(duty)))

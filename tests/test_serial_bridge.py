@@ -190,7 +190,7 @@ def test_bridge_fuzz_publishes_every_intact_frame(ros_context):
                 # Exactly the intact frames were published; the damaged ones show up as sequence gaps and
                 # corrupt-frame counts (random garbage adds corrupt chunks of its own).
                 published = int(after['samples_published']) - int(before['samples_published'])
-                assert published == len(intact)
+                assert published == len(intact), (after, bridge.output()[-2000:])
                 assert int(after['samples_lost']) - int(before['samples_lost']) == len(damaged)
                 assert int(after['frames_corrupt']) - int(before['frames_corrupt']) >= len(damaged)
                 # What the listener got is intact, never damaged, and nearly all of it (best-effort DDS).
@@ -219,7 +219,8 @@ def test_bridge_survives_unplug_and_device_reset(ros_context):
                 assert poll(lambda: len(listener.samples) > 50, DISCOVERY_TIMEOUT), bridge.output()
                 assert poll(lambda: listener.duty_publisher.get_subscription_count() > 0, DISCOVERY_TIMEOUT)
                 listener.publish_duty(0.5)
-                assert poll(lambda: listener.samples[-1].duty > 0.49, 5.0)
+                assert poll(lambda: listener.samples[-1].duty > 0.49, 5.0), (listener.last_diagnostics(),
+                                                                             bridge.output()[-2000:])
                 assert emulator.max_duty_q16 == P.duty_to_q16(0.55) and emulator.watchdog_ms == 300
 
                 # 1. Unplug for 1.5 s, replug; the device kept sampling (powered from elsewhere).

@@ -164,7 +164,7 @@ def load_csv(path: str | Path) -> Recording:
         with path.open('rb') as raw:
             bom = raw.read(3) == b'\xef\xbb\xbf'
         with path.open(newline='', encoding='utf-8-sig') as handle:
-            reader = csv.reader(handle)
+            reader = csv.reader(_bounded_lines(handle, path))
             header = [h.strip() for h in next(reader, [])]
             table, ragged, non_numeric = _read_rows(reader, len(header))
     except OSError as error:    # permissions: exit 1 (the system refused), see aeropend_core.cli
@@ -208,6 +208,26 @@ def load_csv(path: str | Path) -> Recording:
                         findings=tuple(findings))
 
 
+#: Longest CSV line read [characters]: a row of this format is ~100 characters, a header with every column a few
+#: hundred. A longer line (a 1 GB file without line breaks) is refused before it is held in memory.
+MAX_CSV_LINE = 1 << 16
+
+
+def _bounded_lines(handle, path: Path):
+    """The lines of `handle`, refusing one longer than :data:`MAX_CSV_LINE` after reading only that much of it."""
+    number = 0
+    while True:
+        line = handle.readline(MAX_CSV_LINE + 1)
+        if not line:
+            return
+        number += 1
+        if len(line) > MAX_CSV_LINE:
+            raise AeropendError(f'{path}: line {number} is longer than {MAX_CSV_LINE} characters (a row of a '
+                                'recording is about 100); is this a CSV with one sample per line? (line breaks '
+                                'lost, or not a recording)')
+        yield line
+
+
 #: Rows converted to floats at once while reading a CSV (a long record is never held as text: 64 Ki rows of
 #: strings take ~25 MB, a 1-hour record's 1.8 M rows would take ~1.4 GB).
 CSV_BLOCK_ROWS = 65536
@@ -217,7 +237,9 @@ def _read_rows(reader, width: int) -> tuple[np.ndarray, tuple[int, int] | None, 
     """The non-blank rows of `reader` as a float table (empty cells NaN), converted block by block.
 
     Returns the table, the first ragged row as (1-based data row number, fields) or None, and the first
-    non-numeric value's error text or None (after one, rows are only checked for their field count).
+    non-numeric value's error text (with its data row number) or None. Reading stops at the first ragged row and
+    at the end of the block that holds the first non-numeric value; the first block is converted after its first
+    row, so a text row at the top is refused at once.
     """
     blocks: list[np.ndarray] = []
     block: list[list[str]] = []
@@ -225,12 +247,19 @@ def _read_rows(reader, width: int) -> tuple[np.ndarray, tuple[int, int] | None, 
 
     def convert() -> None:
         nonlocal non_numeric
+        first = number - len(block) + 1              # data row number of block[0]
         if block and non_numeric is None:
             try:
                 blocks.append(np.array([[float(cell) if cell.strip() else np.nan for cell in row] for row in block],
                                        dtype=float).reshape(len(block), width))
             except ValueError as error:
                 non_numeric = str(error)
+                for offset, row in enumerate(block):
+                    try:
+                        [float(cell) for cell in row if cell.strip()]
+                    except ValueError:
+                        non_numeric = f'{error}, data row {first + offset}'
+                        break
         block.clear()
 
     for row in reader:
@@ -241,8 +270,10 @@ def _read_rows(reader, width: int) -> tuple[np.ndarray, tuple[int, int] | None, 
             ragged = (number, len(row))
             break
         block.append(row)
-        if len(block) >= CSV_BLOCK_ROWS:
+        if number == 1 or len(block) >= CSV_BLOCK_ROWS:
             convert()
+            if non_numeric is not None:
+                break
     convert()
     table = np.concatenate(blocks) if blocks else np.zeros((0, width))
     return table, ragged, non_numeric

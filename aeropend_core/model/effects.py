@@ -561,11 +561,18 @@ def load_effects_module(path: str) -> None:
     if not file.is_file():
         from aeropend_core.io.paths import path_problem
         raise AeropendError(f'effects module {path} {path_problem(path) or "is not a file"}')
+    if file.suffix != '.py':
+        # importlib finds no loader for .txt or a bare name, and would load a .so as compiled code: refuse both.
+        raise AeropendError(f'effects module {path} is not a Python source file (.py); give the .py file that '
+                            'calls register_effect (rename it to end in .py)')
     spec = importlib.util.spec_from_file_location(f'aeropend_user_effects_{file.stem}', file)
     module = importlib.util.module_from_spec(spec)
     try:
         spec.loader.exec_module(module)
     except AeropendError:
         raise
-    except Exception as error:  # a user's file: report what went wrong in it, briefly
+    except SystemExit as error:  # sys.exit() in a user's file must not end aeropend silently (and exit 0)
+        raise AeropendError(f'loading {path} failed: it called sys.exit({error.code!r}); an effects module '
+                            'only registers effects') from None
+    except (Exception, GeneratorExit) as error:  # a user's file: report what went wrong in it, briefly
         raise AeropendError(f'loading {path} failed: {type(error).__name__}: {error}') from None

@@ -15,14 +15,16 @@ Faults (all thread-safe, take effect at the next emission):
 * :meth:`inject_garbage` random bytes between frames;
 * :meth:`corrupt_frames` flip one random bit in each of the next N frames;
 * :meth:`truncate_frames` cut each of the next N frames short (its closing delimiter is kept or dropped);
+* :meth:`tamper_frames` send the next frames with changed fields *and a valid CRC* (what a damaged frame that
+  passes CRC-16 looks like: a sequence number +100000, an ADC count of 65535);
 * :meth:`pause` stop writing for a while (frames delayed and delivered in a burst, or lost);
 * :attr:`locked_rotor` hold the propeller (for the locked-rotor calibration: Ia = Va / Ra in steady state);
 * :meth:`unplug` / :meth:`replug` close the pty and open a new one behind the same symlink, optionally resetting
   the device (sequence back to 0, configuration back to defaults: what a USB power cycle does).
 
 Every emitted sample is logged in :attr:`emitted` as ``(sequence, state)`` with state ``'intact'``, ``'corrupt'``,
-``'truncated'`` or ``'lost'`` (not written: paused with loss, unplugged, or no program has the port open), so tests
-know the truth (``keep_log=False`` keeps only the counts, for long runs: :meth:`samples_sent`).
+``'truncated'``, ``'tampered'`` or ``'lost'`` (not written: paused with loss, unplugged, or no program has the port
+open), so tests know the truth (``keep_log=False`` keeps only the counts, for long runs: :meth:`samples_sent`).
 
 **Auto-reset and bootloader** (``auto_reset=True``, the default: an Arduino Mega 2560). Opening the port asserts DTR,
 which resets the board; the stk500v2 bootloader then listens for ``config.boot_delay`` (~1 s) and answers nothing.
@@ -80,6 +82,7 @@ class _Faults:
     truncate_keep_delimiter: bool = True
     pause_until: float = 0.0
     pause_drop: bool = False
+    tamper: list = field(default_factory=list)
 
 
 class DeviceEmulator:
@@ -306,6 +309,20 @@ class DeviceEmulator:
             self._faults.truncate += int(count)
             self._faults.truncate_keep_delimiter = keep_delimiter
 
+    def tamper_frames(self, *changes: dict) -> None:
+        """Send the next ``len(changes)`` frames with their fields changed and a valid CRC.
+
+        Each element maps SampleFrame field names to new values, plus ``sequence_offset`` (added to the true
+        sequence number modulo 2^32); e.g. ``tamper_frames({'sequence_offset': 100000}, {'angle_counts': 65535})``.
+        The device's own counter is not changed (the next frames are numbered as if nothing happened).
+        """
+        for change in changes:
+            unknown = set(change) - set(P.SampleFrame._fields) - {'sequence_offset'}
+            if unknown:
+                raise ValueError(f'unknown SampleFrame fields {sorted(unknown)}')
+        with self._lock:
+            self._faults.tamper.extend(dict(change) for change in changes)
+
     def pause(self, seconds: float, drop: bool = False) -> None:
         """Stop writing for `seconds`: frames are held and sent in one burst afterwards, or lost when `drop`."""
         with self._lock:
@@ -432,9 +449,16 @@ class DeviceEmulator:
         for k in range(n):
             sequence = self.sequence
             self.sequence += 1
-            wire = P.encode_sample(P.SampleFrame(sequence, int(counts[0][k]), int(counts[1][k]), int(counts[2][k]),
-                                                 int(applied[k]), int(flags[k])))
-            out += self._apply_faults(sequence, wire)
+            sample = P.SampleFrame(sequence, int(counts[0][k]), int(counts[1][k]), int(counts[2][k]),
+                                   int(applied[k]), int(flags[k]))
+            if self._faults.tamper:
+                change = self._faults.tamper.pop(0)
+                offset = change.pop('sequence_offset', 0)
+                sample = sample._replace(sequence=(sequence + offset) % (1 << 32), **change)
+                self._log(sequence, 'tampered')
+                out += P.encode_sample(sample)
+            else:
+                out += self._apply_faults(sequence, P.encode_sample(sample))
             if self._status_due or sequence % self.config.status_every == self.config.status_every - 1:
                 out += self._status_frame()
         self._write(out, n)

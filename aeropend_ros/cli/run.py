@@ -14,6 +14,10 @@ Examples:
   aeropend run --foxglove                        # also serve the live graph to Foxglove on ws://127.0.0.1:8765
   aeropend run --rig rig1                        # one of several rigs on a network: namespace /rig1
 
+One graph per rig: before any node starts, a run takes a lock for its rig (namespace) and ROS domain on this host
+and looks at the ROS graph for another graph's nodes on the rig's topics; either refuses the run, naming the running
+one and the --rig / ROS_DOMAIN_ID to use (two graphs on one rig would each drive the other's motor).
+
 ROS_AUTOMATIC_DISCOVERY_RANGE is set to LOCALHOST for this demo unless you set it yourself (SUBNET to reach the
 other machines of a lab; README "Many rigs on one network").
 """
@@ -150,17 +154,120 @@ def _check_record_folder(folder: Path) -> None:
         raise AeropendError(f'--record {folder} is not a writable folder; choose another folder (or --no-record)')
 
 
+#: Longest wait for the ROS graph to show another graph's nodes before a run starts [s] (the wait ends earlier when
+#: the graph has been unchanged for GRAPH_SETTLE s after at least GRAPH_MIN_WAIT s).
+GRAPH_WAIT = 6.0
+GRAPH_MIN_WAIT = 1.5
+GRAPH_SETTLE = 1.0
+
+
+def _domain_id() -> int:
+    try:
+        return int(os.environ.get('ROS_DOMAIN_ID', '0') or 0)
+    except ValueError:
+        return 0
+
+
+def _rig_words(namespace: str) -> str:
+    return f'rig {namespace.strip("/")}' if namespace not in ('', '/') else 'the default rig (no --rig)'
+
+
+def claim_rig(namespace: str, lock_folder: str | os.PathLike | None = None):
+    """Take this host's lock for the graph of the rig in `namespace` on this ROS domain; returns the open file
+    (the lock lasts until it is closed or the process ends).
+
+    Raises
+    ------
+    AeropendError
+        Another process holds it: names that process and the --rig / ROS_DOMAIN_ID to use instead.
+    """
+    import fcntl
+    import tempfile
+    folder = Path(lock_folder or os.environ.get('XDG_RUNTIME_DIR') or tempfile.gettempdir())
+    domain = _domain_id()
+    name = namespace.strip('/').replace('/', '-') or 'default'
+    path = folder / f'aeropend-graph-domain{domain}-{name}.lock'
+    try:
+        handle = open(path, 'a+')          # noqa: SIM115 - held open for the whole run: that is the lock
+    except OSError:
+        handle = open(path)                # another user's lock file: a read-only open can still be locked
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        holder = handle.read().strip() or 'another process'
+        handle.close()
+        raise AeropendError(
+            f'{_rig_words(namespace)} on ROS domain {domain} already has a graph on this host ({holder}): a second '
+            'one would drive the same motor and mix both recordings; stop it, or give this run its own --rig NAME '
+            '(or another ROS_DOMAIN_ID)') from None
+    if handle.writable():
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f'aeropend run, pid {os.getpid()}, started {time.strftime("%Y-%m-%d %H:%M:%S")}')
+        handle.flush()
+    return handle
+
+
+def check_graph_is_free(node, namespace: str) -> None:
+    """Refuse when the ROS graph already has nodes on this rig's topics (another graph on this host or network).
+
+    A publisher of the rig's samples (a sim or a bridge) or duty commands (an excitation) belongs to another graph;
+    subscribers (a recorder, a monitor, Foxglove) only watch and are no conflict. Waits for discovery: until such a
+    publisher shows up (refused at once), or the graph has stayed unchanged for GRAPH_SETTLE s after
+    GRAPH_MIN_WAIT s, at most GRAPH_WAIT s.
+
+    Raises
+    ------
+    AeropendError
+        Naming the nodes found and the --rig / ROS_DOMAIN_ID to use instead.
+    """
+    import rclpy
+
+    from aeropend_ros import topics
+    prefix = namespace.rstrip('/')
+    watched = (f'{prefix}/{topics.SAMPLES}', f'{prefix}/{topics.DUTY_COMMAND}')
+    start = time.monotonic()
+    seen, changed = None, start
+    while True:
+        found = set()
+        for topic in watched:
+            for info in node.get_publishers_info_by_topic(topic):
+                found.add(f'{info.node_namespace.rstrip("/")}/{info.node_name}')
+        now = time.monotonic()
+        named = {name for name in found if '_UNKNOWN_' not in name}
+        if found and (named or now - start >= GRAPH_WAIT):
+            # Discovery may show an endpoint before its node's name: wait for the name, not past the deadline.
+            found = named or {'a node whose name discovery has not told yet'}
+            raise AeropendError(
+                f'{_rig_words(namespace)} on ROS domain {_domain_id()} is already in use: '
+                f'{", ".join(sorted(found))} publish on {" / ".join(watched)} (another aeropend run or launch, here '
+                'or on the network); a second graph would drive the same motor; stop it, or give this run its own '
+                '--rig NAME (or another ROS_DOMAIN_ID)')
+        names = frozenset(node.get_node_names_and_namespaces())
+        if names != seen:
+            seen, changed = names, now
+        if not found and (now - start >= GRAPH_WAIT or (now - start >= GRAPH_MIN_WAIT and
+                                                          now - changed >= GRAPH_SETTLE)):
+            return
+        rclpy.spin_once(node, timeout_sec=0.1)
+
+
 def main(args) -> int:
     _check_arguments(args)
     # Demo traffic stays on this machine unless the user chose otherwise.
     from aeropend_ros._ros_env import ensure_ros_environment
     ensure_ros_environment(local_only=True)
-    if args.json == '-':
-        # standard output carries the JSON object only; everything a person reads goes to standard error
-        import contextlib
-        with contextlib.redirect_stdout(sys.stderr):
-            return _run(args)
-    return _run(args)
+    lock = claim_rig(args.namespace)        # one graph per rig and domain on this host
+    try:
+        if args.json == '-':
+            # standard output carries the JSON object only; everything a person reads goes to standard error
+            import contextlib
+            with contextlib.redirect_stdout(sys.stderr):
+                return _run(args)
+        return _run(args)
+    finally:
+        lock.close()
 
 
 def _run(args) -> int:
@@ -195,12 +302,18 @@ def _run(args) -> int:
     recorder = None
     bag_folder = None
     try:
+        probe = rclpy.create_node('aeropend_run_probe', namespace=namespace, start_parameter_services=False,
+                                  enable_rosout=False)
+        try:
+            check_graph_is_free(probe, namespace)
+        finally:
+            probe.destroy_node()
         if use_sim:
             from aeropend_ros.sim_node import SimNode
             source = SimNode(parameter_overrides=overrides(
                 effects=list(hidden) or [''], psnr_db=float(args.psnr), seed=int(args.seed),
                 duty_limit=float(args.duty_cap), realtime_factor=float(args.realtime_factor),
-                stop_after=float(args.duration)), namespace=namespace)
+                stop_after=float(args.duration)), namespace=namespace, guard_duty_sources=True)
         else:
             from aeropend_ros.serial_bridge_node import SerialBridgeNode
             calibrated = {}
