@@ -570,7 +570,7 @@ def _k_step_prediction(prep: PreparedRecord, fit: OutputErrorFit, horizon: float
         return np.zeros(0, dtype=int), np.zeros(0)
     segments = [(int(s), int(s) + k + STRIDE) for s in starts]
     data = SegmentedData(prep.voltage, prep.current, prep.angle, segments, prep.sample_time,
-                              prep.gate_voltage)
+                         prep.gate_voltage, min_samples=2 * STRIDE)
     offset = fit.parameters.get(fit.structure.offset_parameter, 0.0)
     initial = np.column_stack([prep.smoothed_angle[starts] - offset, prep.smoothed_rate[starts]])
     predicted = data.simulate(fit.structure, fit.structure.row(fit.parameters)[None], initial[None])[0]

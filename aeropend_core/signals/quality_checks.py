@@ -307,6 +307,8 @@ def _check_outliers(gate: _Gate, name: str) -> None:
     floor = max(5.0 * _quantum(values[:20000]), 0.01 * spread, 1e-12)
     threshold = max(HAMPEL_SIGMAS * sigma, floor)
     bad = np.abs(deviation) > threshold
+    if name == 'armature_current' and bad.any():
+        bad &= ~_after_input_steps(gate, values.size)     # the current's kick at a step is physics, not a glitch
     if not bad.any():
         return
     count = int(bad.sum())
@@ -320,6 +322,30 @@ def _check_outliers(gate: _Gate, name: str) -> None:
     gate.add('outlier', 'repaired', f'{count} isolated outlier(s) in {name!r} (worst {values[worst]:.4g} at '
              f'{gate.at(worst)}, {abs(deviation[worst]) / max(sigma, 1e-300):.3g} robust sigmas off its neighbours) '
              'replaced by linear interpolation', gate.span(first, last), count)
+
+
+#: Time after a step of the input (duty or Va) in which the armature current's kick is physics, not an outlier [s]
+#: (at least the first two samples at and after the step: at 25-60 Hz the kick is one or two samples long).
+KICK_TIME = 0.02
+
+
+def _after_input_steps(gate: _Gate, n: int) -> np.ndarray:
+    """Mask (n,) of the samples within :data:`KICK_TIME` (at least two samples) of a step of the duty (or of Va
+    when there is no duty column): a step is a change beyond 6 robust sigmas of the changes and 2 % of the range."""
+    source = gate.signals.get('duty', gate.signals.get('armature_voltage'))
+    mask = np.zeros(n, dtype=bool)
+    if source is None or source.size != n or n < 3:
+        return mask
+    change = np.abs(np.diff(np.nan_to_num(source)))
+    spread = float(np.subtract(*np.percentile(source[np.isfinite(source)], [99.5, 0.5]))) if np.isfinite(
+        source).any() else 0.0
+    steps = np.flatnonzero(change > max(6.0 * _robust_sigma(np.diff(np.nan_to_num(source))), 0.02 * spread,
+                                        1e-12)) + 1
+    period = float(np.median(np.diff(gate.time))) if gate.time.size > 1 else 0.0
+    width = max(2, int(math.ceil(KICK_TIME / period))) if period > 0 else 2
+    for k in steps:
+        mask[k:k + width] = True
+    return mask
 
 
 def _check_noise(gate: _Gate, name: str) -> None:
