@@ -44,6 +44,8 @@ def _check_time(gate: _Gate, sample_time: float | None) -> None:
                  f'{bad[0]}); fix or remove those samples', count=bad.size)
     if time.size < 2:
         return
+    if _check_host_stamps(gate, sample_time):
+        time = gate.time
     step = np.diff(time)
     # Exact repeats (a message recorded twice) are dropped; the precision check below looks at the rest.
     repeated = np.flatnonzero(step == 0) + 1
@@ -96,6 +98,29 @@ def _check_time(gate: _Gate, sample_time: float | None) -> None:
                  f'held-input and current-kick model; {gate.rate_hint}', gate.span(0, time.size - 1), time.size)
     _check_sequence(gate, sample_time or typical)
     _check_gaps(gate, typical)
+
+
+def _check_host_stamps(gate: _Gate, sample_time: float | None) -> bool:
+    """Stamps of a host that buffers the lines (bursts 0 ms apart after stalls): the time is regularised from the
+    sample order (:mod:`aeropend_core.signals.host_clock`) at the declared rate, or at the rate the stamps show when
+    none is declared; refused with the cause when they contradict a constant rate. True when regularised."""
+    from aeropend_core.signals.host_clock import ClockContradiction, looks_host_buffered, regularise, resolution_of
+    time = gate.time
+    if not looks_host_buffered(time):
+        return False
+    n = time.size
+    try:
+        clock = regularise(time, None if sample_time is None else 1.0 / sample_time, resolution_of(time))
+    except ClockContradiction as error:
+        hint = ('; if the device logs at another rate, give it (--sample-rate HZ, or a log profile)'
+                if sample_time is not None else '')
+        gate.add('host_stamps', 'refused', f'the time stamps look like a host\'s (bursts of lines stamped together '
+                 f'after stalls) but {error}{hint}', gate.span(0, n - 1), n)
+        return False
+    gate.time = clock.time - clock.time[0] + time[0]
+    gate.add('host_stamps', 'repaired', f'the time stamps are a host\'s, delayed by its buffering (bursts after '
+             f'stalls), not the sample times: {clock.describe()}', gate.span(0, n - 1), n)
+    return True
 
 
 def _check_precision(gate: _Gate, sample_time: float | None) -> None:
