@@ -46,9 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from aeropend_core.io.recording import load_recording
 
-    from aeropend_core.cli._checks import print_findings, sample_time_from, time_window
+    from aeropend_core.cli._checks import load_for_analysis, print_findings, time_window
     from aeropend_core.model.effects import check_effect_names
     from aeropend_core.model.effects import load_effects_module
     for path in args.effects_module:
@@ -71,7 +70,7 @@ def main(args: argparse.Namespace) -> int:
         check_report_path(args.report)    # a folder, device, FIFO, link loop or missing folder: refused
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
-    recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
+    recording = load_for_analysis(args, 'diagnose')     # through the data-quality gate (and --profile)
     recording = time_window(recording, args.start, args.stop)     # --start/--stop: the same code path as identify
     print_findings('diagnose', recording.findings)          # first: before minutes of fitting, or a refusal
     from aeropend_core.diagnosis.diagnose import diagnose      # scipy and numba: imported once the input is known good

@@ -27,7 +27,6 @@ from aeropend_core.cli._checks import add_sample_rate_argument, add_time_range_a
 from aeropend_core.cli._checks import time_window as _window     # the range code path shared with diagnose
 from aeropend_core.present.json_output import finite_json
 from aeropend_core.errors import AeropendError
-from aeropend_core.io.recording import load_recording
 from aeropend_core.model.effects import CATALOG
 
 
@@ -63,12 +62,12 @@ def _pieces_between_gaps(time: np.ndarray, shortest: float = 1.0) -> list[tuple[
 
 
 def main(args: argparse.Namespace) -> int:
-    from aeropend_core.cli._checks import print_findings, sample_time_from
+    from aeropend_core.cli._checks import load_for_analysis, print_findings
     from aeropend_core.model.effects import check_effect_names
     check_effect_names(args.effect, '--effect')
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
-    recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
+    recording = load_for_analysis(args, 'identify')     # through the data-quality gate (and --profile)
     recording = _window(recording, args.start, args.stop)
     print_findings('identify', recording.findings)          # first, before any number
     # the fitting stack (scipy, numba) is imported once the input is known good: bad input is refused at once
