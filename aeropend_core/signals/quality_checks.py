@@ -35,6 +35,11 @@ from aeropend_core.signals.quality_base import (
 )
 
 
+#: Lowest sample rate the analysis takes [Hz] (a little below the 20 Hz it is built for: 22 PWM periods of 490 Hz
+#: are 22.3 Hz, and a logger's clock may run slow).
+LOWEST_RATE = 19.5
+
+
 # ------------------------------------------------------------------------------------------------------- checks
 def _check_time(gate: _Gate, sample_time: float | None) -> None:
     time = gate.time
@@ -88,9 +93,10 @@ def _check_time(gate: _Gate, sample_time: float | None) -> None:
                      'in seconds)', gate.span(0, time.size - 1), time.size)
             step, typical = np.diff(time), typical * factor
             break
-    if typical > 0.05:
+    if typical > 1.0 / LOWEST_RATE:
         gate.add('sample_rate_mismatch', 'refused', f'samples are {typical:g} time units apart; the t column must be '
-                 f'in seconds (the rig samples every 1/490 s = 0.00204 s; divide milliseconds by 1000)',
+                 f'in seconds (the rig samples every 1/490 s = 0.00204 s; divide milliseconds by 1000), and the '
+                 f'analysis needs at least {LOWEST_RATE:g} samples per second (a pendulum near 2 Hz)',
                  gate.span(0, time.size - 1), time.size)
     if sample_time is not None and abs(typical / sample_time - 1.0) > RATE_TOLERANCE:
         gate.add('sample_rate_mismatch', 'refused', f'samples are {typical * 1e3:.4g} ms apart ({1 / typical:.4g} Hz) '

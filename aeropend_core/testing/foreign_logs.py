@@ -250,7 +250,7 @@ RANDOM_EFFECTS = {'coulomb_friction': 2.0, 'angle_offset': 0.05, 'cable_torque':
 
 
 def random_spec(seed: int, duration: tuple[float, float] = (15.0, 40.0)) -> ForeignLogSpec:
-    """A random variant: rate (10-40 PWM periods per line), current kind, angle and duty encodings, stamps,
+    """A random variant: rate (10-24 PWM periods per line, 20.4-49 Hz), current kind, angle and duty encodings, stamps,
     stalls, encoder zero, ADC scale, and one hidden effect or none.
 
     Parameters
@@ -267,7 +267,7 @@ def random_spec(seed: int, duration: tuple[float, float] = (15.0, 40.0)) -> Fore
     effect = rng.choice([*RANDOM_EFFECTS, 'none', 'none'])
     effects = {} if effect == 'none' else {str(effect): RANDOM_EFFECTS[str(effect)] * float(rng.uniform(0.5, 1.5))}
     return replace(ForeignLogSpec(), seed=seed,
-                   periods_per_line=int(rng.integers(10, 41)),
+                   periods_per_line=int(rng.integers(10, 25)),
                    duration=float(rng.uniform(*duration)),
                    duty_low=int(rng.integers(50, 90)), duty_high=int(rng.integers(110, 200)),
                    current=str(rng.choice(['in_pulse', 'in_pulse', 'average', 'none'])),
