@@ -313,7 +313,7 @@ def import_log(path: str | Path, profile: dict, profile_source: str = '') -> tup
                 notes.append(regular.describe())
             else:
                 time = time - time[0]
-                if rate is None and n > 1:
+                if n > 1:      # the device's stamps say its rate (the gate checks them against the stated one)
                     rate = 1.0 / float(np.median(np.diff(time)))
         else:
             time = np.arange(n) / float(rate)
