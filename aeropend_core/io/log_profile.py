@@ -155,11 +155,13 @@ def _registry():
 
 
 def sha256_of(path: str | Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
+    """Hex SHA-256 of a file's bytes (a bag folder: of its files' bytes in name order)."""
     digest = hashlib.sha256()
-    with open(path, 'rb') as handle:
-        for block in iter(lambda: handle.read(1 << 20), b''):
-            digest.update(block)
+    path = Path(path)
+    for part in (sorted(p for p in path.iterdir() if p.is_file()) if path.is_dir() else [path]):
+        with open(part, 'rb') as handle:
+            for block in iter(lambda: handle.read(1 << 20), b''):
+                digest.update(block)
     return digest.hexdigest()
 
 
