@@ -87,13 +87,13 @@ def main() -> int:
             steps = [('import', status, err, {})]
             if status == 0:
                 for verb, extra in (('identify', []), ('diagnose', ['--no-drift', '--quiet', *DIAGNOSE_CANDIDATES])):
-                    status, out, err = run([verb, str(record), '--json', '-', *extra])
+                    json_path = Path(folder) / f'{seed}.{verb}.json'
+                    status, text, err = run([verb, str(record), '--json', str(json_path), *extra])
                     try:
-                        parameters = json.loads(out).get('parameters', {}) if status == 0 else {}
-                    except json.JSONDecodeError:
+                        parameters = json.loads(json_path.read_text()).get('parameters', {}) if status == 0 else {}
+                    except (OSError, json.JSONDecodeError):
                         parameters = {}
-                    text_status, text, text_err = run([verb, str(record), *extra]) if status == 0 else (0, '', '')
-                    steps.append((verb, status, err + text + text_err, parameters))
+                    steps.append((verb, status, err + text, parameters))
             for verb, status, text, parameters in steps:
                 kind = {0: 'ok', 2: 'refused'}.get(status, 'internal_error')
                 counts[verb][kind] += 1
