@@ -297,7 +297,7 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         # 12 significant digits leave 1e-8 s above 1000 s: 2e-6 relative), which over a 1-hour record (1.8 M
         # samples) puts the last samples 3 samples off the grid.
         sample_time = float((time[-1] - time[0]) / np.sum(np.maximum(np.rint(steps / sample_time), 1.0)))
-    if sample_time > 0.05:
+    if sample_time > 1.0 / 19.5:
         raise AeropendError(f'{source}: samples are {sample_time:g} time units apart; the t column must be in '
                             f'seconds (the rig samples every 1/490 s = 0.00204 s)')
     sequence = recording.signals.get('sequence')
@@ -325,14 +325,15 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
                                                        None, None)
     stepped = piecewise_constant(voltage, conditioned.step_indices)
     if use_motor_observer and stepped is not None:
+        observed = between_samples(stepped, conditioned.step_indices, sample_time)
         try:
-            motor = fit_motor(stepped, current, conditioned.step_indices, sample_time)
+            motor = fit_motor(observed, current, conditioned.step_indices, sample_time)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
             motor = None      # the observer is an improvement, not a requirement: use the measured Va - R Ia
         if motor is not None and motor.adequate and np.all(np.isfinite(motor.back_emf)):
             # the observer's back-EMF is the thrust voltage; R is then 0 in the pendulum model
             thrust_voltage, thrust_current = motor.back_emf, np.zeros_like(current)
-            ensemble = back_emf_ensemble(motor, stepped, voltage, current, conditioned.step_indices, sample_time)
+            ensemble = back_emf_ensemble(motor, observed, voltage, current, conditioned.step_indices, sample_time)
         else:
             motor = None
     valid = gaps.valid
@@ -342,6 +343,36 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
                           motor=motor, gate_voltage=stepped if stepped is not None else conditioned.armature_voltage,
                           gaps=gaps, angle_step=quantisation_step(angle[valid]), voltage_ensemble=ensemble,
                           findings=tuple(checked.findings))
+
+
+#: Sample time [s] above which a duty step is taken to land anywhere between two samples (a logger printing one line
+#: every N PWM periods changes the duty at any period); at the rig's 490 Hz it lands on a sample.
+BETWEEN_SAMPLES_TIME = 1.5 / 490.0
+
+
+def between_samples(stepped: np.ndarray, step_indices: np.ndarray, sample_time: float) -> np.ndarray:
+    """The piecewise-constant Va [V] the motor observer is driven with: at a low rate (sample time above
+    :data:`BETWEEN_SAMPLES_TIME`) the step seen first at sample k landed somewhere in (t_k-1, t_k], so the interval
+    before it holds the mean of the two levels (the expected input for a step time uniform over the interval);
+    at the rig's rate `stepped` itself.
+
+    Parameters
+    ----------
+    stepped : ndarray, shape (n,) [V]
+    step_indices : ndarray of int [-]
+    sample_time : float [s]
+
+    Returns
+    -------
+    ndarray, shape (n,) [V]
+    """
+    if sample_time <= BETWEEN_SAMPLES_TIME:
+        return stepped
+    out = np.array(stepped, dtype=float)
+    for k in np.asarray(step_indices, dtype=int):
+        if 1 <= k < out.size:
+            out[k - 1] = 0.5 * (stepped[k - 1] + stepped[k])
+    return out
 
 
 def initial_guess(prep: PreparedRecord, threshold_voltage: float | None = None) -> dict[str, float]:
