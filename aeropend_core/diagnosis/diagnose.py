@@ -47,7 +47,7 @@ import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
 from aeropend_core.diagnosis.evidence import diebold_mariano
-from aeropend_core.diagnosis.doubts import doubt_notes
+from aeropend_core.diagnosis.doubts import doubt_notes, rate_notes
 from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.io.recording import Recording
@@ -776,6 +776,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                 notes.append(f'{candidate.effect} cannot be told apart from {nominal} in this data; '
                              f'{separating_experiment(candidate.effect, nominal)}.')
     notes += doubt_notes(results, found, current, prep, model)     # near misses, an unstated measurement chain
+    notes += rate_notes(found, prep.sample_time)                  # what this sample rate cannot resolve
     if getattr(prep, 'gaps', None) is not None and prep.gaps.count:
         notes.append(prep.gaps.describe())
     return Diagnosis(effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
