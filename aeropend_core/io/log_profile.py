@@ -315,8 +315,8 @@ def import_log(path: str | Path, profile: dict, profile_source: str = '') -> tup
                 notes.append(regular.describe())
             else:
                 time = time - time[0]
-                if n > 1:      # the device's stamps say its rate (the gate checks them against the stated one)
-                    rate = 1.0 / float(np.median(np.diff(time)))
+                if n > 1 and time[-1] > 0:   # the device's stamps say its rate: end to end (a millis() column
+                    rate = (n - 1) / float(time[-1])  # steps 22 and 23 ms at 44.5 Hz; its median would be 45.5 Hz)
         else:
             time = np.arange(n) / float(rate)
             notes.append(f'time from the sample order at {rate:.6g} Hz (the log has no time column)')
