@@ -247,3 +247,33 @@ def condition_inputs(armature_voltage: np.ndarray, armature_current: np.ndarray,
         voltage = sosfiltfilt(sos, voltage)
         current = sosfiltfilt(sos, current)
     return ConditionedInputs(voltage, current, steps)
+
+
+#: Sample time [s] above which a duty step is taken to land anywhere between two samples (a logger printing one line
+#: every N PWM periods changes the duty at any period); at the rig's 490 Hz it lands on a sample.
+BETWEEN_SAMPLES_TIME = 1.5 / 490.0
+
+
+def between_samples(stepped: np.ndarray, step_indices: np.ndarray, sample_time: float) -> np.ndarray:
+    """The piecewise-constant Va [V] the motor observer is driven with: at a low rate (sample time above
+    :data:`BETWEEN_SAMPLES_TIME`) the step seen first at sample k landed somewhere in (t_k-1, t_k], so the interval
+    before it holds the mean of the two levels (the expected input for a step time uniform over the interval);
+    at the rig's rate `stepped` itself.
+
+    Parameters
+    ----------
+    stepped : ndarray, shape (n,) [V]
+    step_indices : ndarray of int [-]
+    sample_time : float [s]
+
+    Returns
+    -------
+    ndarray, shape (n,) [V]
+    """
+    if sample_time <= BETWEEN_SAMPLES_TIME:
+        return stepped
+    out = np.array(stepped, dtype=float)
+    for k in np.asarray(step_indices, dtype=int):
+        if 1 <= k < out.size:
+            out[k - 1] = 0.5 * (stepped[k - 1] + stepped[k])
+    return out
