@@ -117,6 +117,9 @@ def main(args: argparse.Namespace) -> int:
             fit = identify_pendulum(recording.time, *columns, duty=duty, effects=args.effect)
     else:
         fit = identify_full_state(recording)
+    rate_warning = _rate_warning(recording)
+    if rate_warning:
+        print(f'aeropend identify: warning: {rate_warning}', file=sys.stderr)
     if args.json:
         out = {
             'model': args.model,
@@ -132,6 +135,9 @@ def main(args: argparse.Namespace) -> int:
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
             'warnings': findings_to_json(recording.findings),
         }
+        if rate_warning:
+            out['warnings'].append({'code': 'low_sample_rate', 'severity': 'warning', 'message': rate_warning})
+            out['parameters_doubt'] = rate_warning
         from aeropend_core.present.json_output import write_json
         write_json(args.json, out)
     if args.json != '-':
@@ -141,5 +147,27 @@ def main(args: argparse.Namespace) -> int:
         if filter_note is not None:
             print(f'Angle filter: delay {filter_note["delay"]} s, fixed from {filter_note["from"]}; '
                   f'{filter_note["correction"]}')
+        if rate_warning:
+            print(f'Warning: {rate_warning}')
         print(fit.format())
+        if rate_warning:
+            print(f'Warning (about every number above): {rate_warning}')
     return 0
+
+
+#: Sample time [s] above which the weak-form fit is said to be biased (measured in bench/rate_sweep.py: at 245 Hz
+#: gravity_stiffness ~9 % low, at 122 Hz ~30 %, at 24.5 Hz a thrust gain of the wrong sign).
+WEAK_FORM_LOW_RATE_TIME = 1.5 / 490.0
+
+
+def _rate_warning(recording) -> str:
+    """The doubt a low sample rate casts on the weak-form numbers (empty at the rig's rate)."""
+    if len(recording) < 3:
+        return ''
+    step = float(np.median(np.diff(np.asarray(recording.time, dtype=float))))
+    if not step > WEAK_FORM_LOW_RATE_TIME:
+        return ''
+    return (f'at {1 / step:.4g} Hz the weak-form fit is biased: its thrust terms hold Va and Ia over each '
+            f'{step * 1e3:.3g} ms sample, while the motor speed (the thrust) moves within it; these parameters are '
+            'not trustworthy (bench/rate_sweep.py measures the bias). Use `aeropend diagnose` (output error with a '
+            'motor observer), whose parameters degrade much less with the rate')
