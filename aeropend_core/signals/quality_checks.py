@@ -339,7 +339,9 @@ def _check_outliers(gate: _Gate, name: str) -> None:
     threshold = max(HAMPEL_SIGMAS * sigma, floor)
     bad = np.abs(deviation) > threshold
     if name == 'armature_current' and bad.any():
-        bad &= ~_after_input_steps(gate, values.size)     # the current's kick at a step is physics, not a glitch
+        # the current's kick at a step is physics, not a glitch (when it stays within a few times the current's
+        # own range: a 50 A spike next to a step is still a glitch)
+        bad &= ~(_after_input_steps(gate, values.size) & (np.abs(deviation) <= 3.0 * max(spread, 1e-12)))
     if not bad.any():
         return
     count = int(bad.sum())
