@@ -1,14 +1,15 @@
 """How identify and diagnose degrade with the sample rate (issue #21 item 1).
 
-Records of the default rig at 490 Hz (Latin-hypercube excitation, 40 dB, 10-bit; 40 s) are decimated the way a
+Records of the default rig at 490 Hz (Latin-hypercube excitation, 40 dB, 10-bit; 30 s) are decimated the way a
 logger that prints every Nth PWM period decimates: by picking every Nth sample, no anti-alias filter. N = 1, 2, 5,
 10, 20: 490, 245, 98, 49 and 24.5 Hz (the issue's "245/100/50/25 Hz" at whole periods). Per rate:
 
 * the clean record through ``identify`` (weak SINDy) and ``diagnose`` (output error): gravity_stiffness, damping
   and thrust_gain against the truth, and whether the run completed;
-* one hidden effect at three sizes through ``diagnose --only EFFECT``: the smallest size that is selected (the
-  smallest detectable effect at that rate), and for a thrust lag whether the tool says "not resolvable at this
-  rate" when the lag is shorter than a sample.
+* below 490 Hz, one hidden effect at two sizes (Coulomb friction 1.5 and 4 rad/s^2, thrust lag 10 and 100 ms)
+  through ``diagnose --only EFFECT``: the smallest size that is selected (the smallest detectable effect at that
+  rate, of those tried), and for a thrust lag whether the tool says "not resolvable at this rate" when the lag is
+  shorter than a sample. (Sized to the 2 shared cores: about 25 diagnoses of 30 s records.)
 
 Stated tolerances (relative error of the diagnose parameters against the truth; a larger error is reported as a
 FAIL in the table, not hidden): gravity_stiffness and damping 5 % at 490/245 Hz, 10 % at 98 Hz, 15 % at 49 Hz,
@@ -43,8 +44,8 @@ TRUTH = {'gravity_stiffness': P.gravity_stiffness, 'damping': P.damping, 'thrust
 #: relative tolerance of gravity_stiffness and damping per decimation (thrust_gain: twice)
 TOLERANCE = {1: 0.05, 2: 0.05, 5: 0.10, 10: 0.15, 20: 0.25}
 #: effect -> the sizes tried (SI: rad/s^2 for the friction, s for the lag)
-EFFECT_SIZES = {'coulomb_friction': (1.0, 2.0, 4.0), 'thrust_lag': (0.01, 0.05, 0.15)}
-DURATION = 40.0
+EFFECT_SIZES = {'coulomb_friction': (1.5, 4.0), 'thrust_lag': (0.01, 0.1)}
+DURATION = 30.0
 COLUMNS = ('t', 'duty', 'armature_voltage', 'armature_current', 'angle')
 
 
@@ -103,7 +104,7 @@ def main() -> int:
                     for n in TRUTH)
             row['diagnose_relative_errors'] = errors
             row['effects'] = {}
-            for (effect, size), columns in with_effects.items():
+            for (effect, size), columns in with_effects.items() if every > 1 else ():   # 490 Hz: the baseline
                 result = analyse(columns, every, folder, f'{effect}{size}_{every}', 'diagnose',
                                  ['--quiet', '--no-drift', '--only', effect])
                 row['effects'][f'{effect}={size:g}'] = {
@@ -111,7 +112,7 @@ def main() -> int:
                     'resolvable_notes': result.get('notes', []), 'message': result['message'],
                     'candidate': next((c for c in result.get('candidates', []) if c.get('effect') == effect), None)}
             for effect, sizes in EFFECT_SIZES.items():
-                detected = [s for s in sizes if row['effects'][f'{effect}={s:g}']['found']]
+                detected = [s for s in sizes if row['effects'].get(f'{effect}={s:g}', {}).get('found')]
                 row[f'smallest_detected_{effect}'] = min(detected) if detected else None
             rows.append(row)
             print(json.dumps({k: row[k] for k in ('rate_hz', 'diagnose_relative_errors')} |
