@@ -53,6 +53,8 @@ published with its status at WARN and the findings in ``data_quality`` / ``data_
 Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
 are changeable at runtime (``ros2 param set /identification_node effects "['NAME']"``, names from
 ``aeropend effects``); unknown effect names are rejected with the reason. The new values apply from the next window.
+``sample_rate`` [Hz] (read at start-up; the rig's 490 by default, 20 to 2000 for another rig's logger) sets the
+sample period that windows, gaps, stamps and the analysis use.
 """
 from __future__ import annotations
 
