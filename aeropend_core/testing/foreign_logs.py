@@ -266,14 +266,16 @@ def random_spec(seed: int, duration: tuple[float, float] = (15.0, 40.0)) -> Fore
     rng = np.random.default_rng(10_000 + seed)
     effect = rng.choice([*RANDOM_EFFECTS, 'none', 'none'])
     effects = {} if effect == 'none' else {str(effect): RANDOM_EFFECTS[str(effect)] * float(rng.uniform(0.5, 1.5))}
+    offset = float(rng.choice([0.0, 0.0, 512.0]))       # a one-sided sensor, or one centred in the ADC's range
     return replace(ForeignLogSpec(), seed=seed,
                    periods_per_line=int(rng.integers(10, 25)),
                    duration=float(rng.uniform(*duration)),
                    duty_low=int(rng.integers(50, 90)), duty_high=int(rng.integers(110, 200)),
                    current=str(rng.choice(['in_pulse', 'in_pulse', 'average', 'none'])),
                    read_time=float(rng.uniform(0.1e-3, 1.0e-3)),
-                   current_counts_per_amp=float(rng.uniform(200, 500)),
-                   current_offset_counts=float(rng.choice([0.0, 0.0, 512.0])),
+                   # the ADC's scale leaves room for the largest in-pulse current (~2.5 A): no saturated rig
+                   current_counts_per_amp=float(rng.uniform(200, 400)) / (2.0 if offset else 1.0),
+                   current_offset_counts=offset,
                    angle=str(rng.choice(['counts', 'counts', 'degrees', 'radians'])),
                    counts_per_turn=int(rng.choice([1024, 4096])),
                    angle_zero_counts=int(rng.integers(0, 1024)),
