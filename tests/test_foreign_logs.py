@@ -60,6 +60,7 @@ def test_decimated_records_complete_identify_and_diagnose(record_490, every, tmp
     assert diagnosis['parameters']['gravity_stiffness'] == pytest.approx(131.75, rel=0.25)
     if every >= 10:          # below ~327 Hz the time constants a sample cannot resolve are said
         assert any('not resolvable at this rate' in note for note in diagnosis['notes'])
+    assert all('not_resolvable_at_this_rate' in c for c in diagnosis['candidates'])
 
 
 def test_quasi_static_observer_predicts_at_a_low_rate():

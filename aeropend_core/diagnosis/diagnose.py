@@ -47,7 +47,7 @@ import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
 from aeropend_core.diagnosis.evidence import diebold_mariano
-from aeropend_core.diagnosis.doubts import doubt_notes, rate_notes
+from aeropend_core.diagnosis.doubts import doubt_notes, rate_notes, unresolvable
 from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.io.recording import Recording
@@ -282,6 +282,10 @@ class Diagnosis:
             'seconds': round(self.seconds, 2),
             'warnings': [finding.to_dict() for finding in self.findings],
         }
+        if self.prepared is not None:        # a time constant below one sample is marked, not taken as a size
+            for entry in result['candidates']:
+                entry['not_resolvable_at_this_rate'] = unresolvable(entry['effect'], entry['parameters'] or {},
+                                                                    self.prepared.sample_time)
         result['signal_errors'] = {'angle': {'rms_error': _finite(current.rms_error), 'unit': 'rad',
                                              'noise_rms': _finite(current.noise_rms)}}
         if self.prepared is not None and self.prepared.motor is not None:
