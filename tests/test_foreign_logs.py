@@ -187,3 +187,13 @@ def test_random_foreign_logs_never_end_in_an_internal_error(seed, tmp_path, caps
                               '--only', 'angle_offset'], capsys)
     assert status in (0, 2), err
     assert 'internal error' not in err
+
+
+def test_stalls_in_a_row_are_not_taken_for_lost_lines(tmp_path, capsys):
+    """Stalls back to back can hold every line of an envelope block back (a bump that returns, not a step): the
+    variant of the sweep that was refused as "about 6.1 line periods lost" although no line was lost."""
+    log, log_path, profile_path = write_log(tmp_path, random_spec(184, duration=(21.0, 27.0)))
+    status, _, err = run_cli(['import', str(log_path), '--profile', str(profile_path), '-o', str(tmp_path / 'o.csv')],
+                             capsys)
+    assert status == 0, err
+    assert 'regularised from the sample order' in err

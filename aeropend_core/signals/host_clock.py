@@ -147,6 +147,10 @@ def regularise(time: np.ndarray, rate: float | None = None, resolution: float = 
                 f'given rate is {rate:.6g} Hz: lines were lost or the rate is wrong; give the rate the device logs '
                 'at (the stamps suggest ' f'{1 / fitted_period:.5g} Hz), or the device\'s own counter as time')
     idx, res = _envelope(time, period)
+    # the earliest stamp over three neighbouring blocks: a block whose every line was held back by stalls in a row
+    # is a bump that returns, lost lines a step that stays (and stays in this minimum too)
+    from scipy.ndimage import minimum_filter1d
+    res = minimum_filter1d(res, 3, mode='nearest') if res.size >= 3 else res
     offset = float(np.median(res))
     deviation = res - offset
     tolerance = max(ENVELOPE_TOLERANCE * period, 2.0 * resolution)
