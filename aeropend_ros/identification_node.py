@@ -58,6 +58,8 @@ skipped or failed, with its lost samples and gaps): ``aeropend run`` prints one 
 Parameters: ``window_s``, ``hop_s``, ``holdout_fraction`` and ``effects`` (string array of catalog effect names)
 are changeable at runtime (``ros2 param set /identification_node effects "['NAME']"``, names from
 ``aeropend effects``); unknown effect names are rejected with the reason. The new values apply from the next window.
+``sample_rate`` [Hz] (read at start-up; the rig's 490 by default, 20 to 2000 for another rig's logger) sets the
+sample period that windows, gaps, stamps and the analysis use.
 """
 from __future__ import annotations
 
@@ -229,10 +231,11 @@ def _never_called(_message) -> None:
 
 
 def _analyze_in_worker(*args, **keywords) -> WindowResult:
-    """Run :func:`analyze_window` in the worker process with single-threaded BLAS (2 shared cores)."""
+    """Run :func:`analyze_window` in the worker process with single-threaded BLAS (2 shared cores); the caller
+    passes ``sample_time`` (the node's sample_rate)."""
     from threadpoolctl import threadpool_limits
     with threadpool_limits(1):
-        return analyze_window(*args, sample_time=SAMPLE_TIME, **keywords)
+        return analyze_window(*args, **keywords)
 
 
 def _ignore_interrupts() -> None:
@@ -259,6 +262,10 @@ class IdentificationNode(Node):
         declare(self, 'holdout_fraction', 0.25, 'end fraction of each window held out for the fit score',
                 low=0.05, high=0.5)
         effects = declare(self, 'effects', [''], 'catalog effects in the model (names; aeropend effects)')
+        #: The source's sample period [s] (the rig's 1/490 s; another rig's logger: its own rate, 20 Hz to 2 kHz).
+        self.sample_time = 1.0 / float(declare(self, 'sample_rate', 1.0 / SAMPLE_TIME, 'sample rate of the source '
+                                               '[Hz] (the rig: 490; 20 to 2000)', low=20.0, high=2000.0,
+                                               read_only=True))
         check_unknown_overrides(self)
         try:
             self.effects = check_effect_names(effects, 'effects')
@@ -402,7 +409,7 @@ class IdentificationNode(Node):
                                  f'{(sample.stamp_ns - last_stamp) * 1e-9:+.6f} s after sample {last_sequence}')
                     return
                 else:
-                    expected = (sample.sequence - last_sequence) * SAMPLE_TIME
+                    expected = (sample.sequence - last_sequence) * self.sample_time
                     step = (sample.stamp_ns - last_stamp) * 1e-9
                     if abs(step - expected) > STAMP_JUMP_TOLERANCE[0] + STAMP_JUMP_TOLERANCE[1] * expected:
                         self._restart(f'stamps jumped by {step:.3f} s over {sample.sequence - last_sequence} '
@@ -511,7 +518,7 @@ class IdentificationNode(Node):
     # ---------------------------------------------------------------------------------------------- worker
     def _submit(self, snapshot: dict, effects: tuple[str, ...], holdout_fraction: float) -> None:
         sequence = snapshot['sequence']
-        stop_ns = int(snapshot['stamp_ns'][-1] + round(SAMPLE_TIME * 1e9))
+        stop_ns = int(snapshot['stamp_ns'][-1] + round(self.sample_time * 1e9))
         health = {'samples': str(sequence.size), 'window_stop_ns': str(stop_ns)}
         origin = self.first_stamp_ns if self.first_stamp_ns is not None else int(snapshot['stamp_ns'][0])
         health['stream_start_ns'] = str(origin)        # acquisition time 0 of the run (its console's t = 0)
@@ -529,7 +536,7 @@ class IdentificationNode(Node):
                                {**{k: snapshot[k] for k in self.signals}, 'sequence': sequence.astype(float)},
                                source='window')
             try:
-                report = check_recording(window, sample_time=SAMPLE_TIME, context='window')
+                report = check_recording(window, sample_time=self.sample_time, context='window')
             except DataQualityError as error:
                 health['data_quality'] = f'{error.finding.code}:refused'
                 message = f'window not analysed, data quality: {error}'
@@ -543,12 +550,12 @@ class IdentificationNode(Node):
         # samples missing from the whole window (also before its first received sample), rejected ones included.
         steps = np.diff(sequence)
         inside = int(np.sum(steps - 1)) if sequence.size > 1 else 0
-        expected = int(round(self._window_s() / SAMPLE_TIME))
+        expected = int(round(self._window_s() / self.sample_time))
         longest_gap = int(np.max(steps) - 1) if sequence.size > 1 else 0
         missing = max(inside, expected - int(sequence.size))
         health['lost_samples'] = str(missing)
         health['gaps'] = str(int(np.count_nonzero(steps > 1)))
-        health['longest_gap_s'] = f'{longest_gap * SAMPLE_TIME:.4f}'
+        health['longest_gap_s'] = f'{longest_gap * self.sample_time:.4f}'
         if missing > MAX_LOST_FRACTION * expected:
             why = f'{missing} of {expected} samples lost (> {MAX_LOST_FRACTION:.0%}): too little remains'
             message = (f'window not analysed: {why}' + (f', of them rejected: {rejected_text}' if rejected else '')
@@ -565,11 +572,11 @@ class IdentificationNode(Node):
         # Times from the window start: epoch seconds (~1.8e9 s) in float64 would jitter the 2 ms steps by ~2e-4.
         # Gaps stay gaps: the times skip the lost samples' slots, and the sequence numbers go with them.
         start_s = int(snapshot['stamp_ns'][0]) * 1e-9
-        time = (sequence - sequence[0]) * SAMPLE_TIME
+        time = (sequence - sequence[0]) * self.sample_time
         self.windows_submitted += 1
         self.pending = self.worker.submit(_analyze_in_worker, time, snapshot['armature_voltage'],
                                           snapshot['armature_current'], snapshot['angle'], effects, holdout_fraction,
-                                          sequence=sequence)
+                                          sequence=sequence, sample_time=self.sample_time)
         trend_key = (self._generation, tuple(effects), self._window_s())
         self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects, start_s,
                                                                       findings, trend_key, span))

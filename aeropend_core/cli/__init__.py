@@ -45,6 +45,7 @@ VERBS: dict[str, tuple[str, str]] = {
     'bag-recover': ('aeropend_core.cli.bag_recover', 'repair a bag whose recorder was killed'),
     'calibrate': ('aeropend_core.cli.calibrate', 'measure sensor zeros, angle scale, Ra and Kw on the rig (serial)'),
     'emulate': ('aeropend_core.cli.emulate', 'start the fake rig (device emulator) on a pty and print its port'),
+    'import': ('aeropend_core.cli.import_log', 'import a log written by another rig through a log profile, write CSV'),
 }
 
 

@@ -25,18 +25,54 @@ def print_findings(verb: str, findings) -> None:
 def add_sample_rate_argument(parser) -> None:
     """``--sample-rate HZ``: the acquisition rate the data must have (the rig's 490 Hz by default)."""
     from aeropend_core.model.parameters import SAMPLE_TIME
-    parser.add_argument('--sample-rate', type=float, default=1.0 / SAMPLE_TIME, metavar='HZ',
-                        help=f'acquisition rate of the recording [Hz] (default: the rig\'s {1.0 / SAMPLE_TIME:g}); a '
-                             'record at another rate is refused, one stamped in ms converted')
+    parser.add_argument('--sample-rate', type=float, default=None, metavar='HZ',
+                        help=f'acquisition rate of the recording [Hz], 20 Hz to 2 kHz (default: the rate an `aeropend '
+                             f'import` or --profile states, else the rig\'s {1.0 / SAMPLE_TIME:g}); a record at '
+                             'another rate is refused, one stamped in ms converted')
+    parser.add_argument('--profile', metavar='PROFILE.yaml',
+                        help='read DATA as a log written by another rig through this log profile (columns, units, '
+                             'clock; see docs/log-import.md and config/profiles/)')
 
 
-def sample_time_from(args) -> float:
-    """The declared sample time [s] from --sample-rate, refused unless a finite rate > 0."""
+def sample_time_from(args, stated_rate: float | None = None) -> float:
+    """The declared sample time [s]: --sample-rate, else `stated_rate` [Hz] (an imported record's or a profile's),
+    else the rig's 1/490 s; refused unless a finite rate > 0."""
     import math
-    rate = args.sample_rate
+
+    from aeropend_core.model.parameters import SAMPLE_TIME
+    rate = args.sample_rate if getattr(args, 'sample_rate', None) is not None else stated_rate
+    if rate is None:
+        return SAMPLE_TIME
     if not (math.isfinite(rate) and 0 < rate <= 1e6):
         raise AeropendError(f'--sample-rate must be a rate in Hz in (0, 1e6], got {rate}')
     return 1.0 / rate
+
+
+def load_for_analysis(args, verb: str, path=None):
+    """The recording of ``args.data`` (or `path`, e.g. a validation record of the same rig) through the data-quality
+    gate: read through ``--profile`` when given (a foreign log), else as our CSV/bag, at the rate --sample-rate, the
+    profile or the import metadata states.
+
+    Returns
+    -------
+    Recording
+        The repaired recording (its findings say every repair and warning, the import's notes included).
+    """
+    from aeropend_core.io.recording import Recording, load_recording
+    path = args.data if path is None else path
+    if getattr(args, 'profile', None):
+        from aeropend_core.io.log_profile import import_log, load_profile
+        from aeropend_core.signals.quality import Finding, check_recording
+        profile = load_profile(args.profile)
+        columns, metadata = import_log(path, profile, args.profile)
+        notes = tuple(Finding('log_profile', 'warning', f'{path}: {note} (profile {args.profile})')
+                      for note in metadata['notes'])
+        recording = Recording(columns['t'], {k: v for k, v in columns.items() if k != 't'}, str(path), notes)
+        return check_recording(recording, sample_time=sample_time_from(args, metadata['sample_rate_hz'])).recording
+    from aeropend_core.io.log_profile import read_import_metadata
+    metadata = read_import_metadata(path) if str(path).lower().endswith('.csv') else None
+    stated = metadata.get('sample_rate_hz') if metadata else None
+    return load_recording(path, sample_time=sample_time_from(args, stated))
 
 
 def add_json_argument(parser, what: str) -> None:

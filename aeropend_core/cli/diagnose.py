@@ -51,9 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from aeropend_core.io.recording import load_recording
 
-    from aeropend_core.cli._checks import print_findings, sample_time_from, time_window
+    from aeropend_core.cli._checks import load_for_analysis, print_findings, time_window
     from aeropend_core.model.effects import check_effect_names
     from aeropend_core.model.effects import load_effects_module
     for path in args.effects_module:
@@ -73,13 +72,13 @@ def main(args: argparse.Namespace) -> int:
         check_report_path(args.report)    # a folder, device, FIFO, link loop or missing folder: refused
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
-    recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
+    recording = load_for_analysis(args, 'diagnose')     # through the data-quality gate (and --profile)
     recording = time_window(recording, args.start, args.stop)     # --start/--stop: the same code path as identify
     print_findings('diagnose', recording.findings)          # first: before minutes of fitting, or a refusal
     validation_recording = None
     if args.validate:                    # loaded (and refused if unusable) before minutes of fitting
         try:
-            validation_recording = load_recording(args.validate, sample_time=sample_time_from(args))
+            validation_recording = load_for_analysis(args, 'diagnose', path=args.validate)
         except AeropendError as error:
             raise AeropendError(f'--validate: {error}') from None
         from aeropend_core.diagnosis.compare import MIN_DURATION

@@ -30,7 +30,6 @@ from aeropend_core.cli._checks import add_sample_rate_argument, add_time_range_a
 from aeropend_core.cli._checks import time_window as _window     # the range code path shared with diagnose
 from aeropend_core.present.json_output import finite_json
 from aeropend_core.errors import AeropendError
-from aeropend_core.io.recording import load_recording
 from aeropend_core.model.effects import CATALOG
 
 
@@ -74,7 +73,7 @@ def _pieces_between_gaps(time: np.ndarray, shortest: float = 1.0) -> list[tuple[
 
 
 def main(args: argparse.Namespace) -> int:
-    from aeropend_core.cli._checks import print_findings, sample_time_from
+    from aeropend_core.cli._checks import load_for_analysis, print_findings
     from aeropend_core.model.effects import check_effect_names
     if args.deprecated_effect:
         print('aeropend identify: warning: --effect is deprecated; write --add (the same flag as diagnose and run)',
@@ -83,7 +82,7 @@ def main(args: argparse.Namespace) -> int:
     check_effect_names(args.add, '--add')
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
-    recording = load_recording(args.data, sample_time=sample_time_from(args))     # through the data-quality gate
+    recording = load_for_analysis(args, 'identify')     # through the data-quality gate (and --profile)
     recording = _window(recording, args.start, args.stop)
     print_findings('identify', recording.findings)          # first, before any number
     # the fitting stack (scipy, numba) is imported once the input is known good: bad input is refused at once
@@ -156,6 +155,9 @@ def main(args: argparse.Namespace) -> int:
     independent = free_oscillation(recording.time, recording.signal('angle'), recording.signal('armature_voltage'))
     fitted = set(fit.parameters) - {'armature_resistance_from_current_square'}
     warnings = check_parameters(fit.parameters, fit.standard_errors, independent, fitted)
+    rate_warning = _rate_warning(recording)
+    if rate_warning:
+        print(f'aeropend identify: warning: {rate_warning}', file=sys.stderr)
     if args.json:
         out = {
             'model': args.model,
@@ -175,6 +177,9 @@ def main(args: argparse.Namespace) -> int:
             'verdict': 'model_does_not_fit' if warnings else 'parameters_plausible',
             'free_oscillation': independent.to_dict(),
         }
+        if rate_warning:
+            out['warnings'].append({'code': 'low_sample_rate', 'severity': 'warning', 'message': rate_warning})
+            out['parameters_doubt'] = rate_warning
         from aeropend_core.present.json_output import write_json
         write_json(args.json, out)
     if args.json != '-':
@@ -184,7 +189,11 @@ def main(args: argparse.Namespace) -> int:
         if filter_note is not None:
             print(f'Angle filter: delay {filter_note["delay"]} s, fixed from {filter_note["from"]}; '
                   f'{filter_note["correction"]}')
+        if rate_warning:
+            print(f'Warning: {rate_warning}')
         print(_flag_lines(fit.format(), warnings))
+        if rate_warning:
+            print(f'Warning (about every number above): {rate_warning}')
         for line in check.lines() if check is not None else [check_note] if check_note else []:
             print(line)
         print(independent.describe())
@@ -238,3 +247,21 @@ def _identify_reduced(args: argparse.Namespace, recording) -> int:
         if warnings:
             print('Verdict: ' + verdict_line(warnings))
     return 0
+
+
+#: Sample time [s] above which the weak-form fit is said to be biased (measured in bench/rate_sweep.py: at 245 Hz
+#: gravity_stiffness ~9 % low, at 122 Hz ~30 %, at 24.5 Hz a thrust gain of the wrong sign).
+WEAK_FORM_LOW_RATE_TIME = 1.5 / 490.0
+
+
+def _rate_warning(recording) -> str:
+    """The doubt a low sample rate casts on the weak-form numbers (empty at the rig's rate)."""
+    if len(recording) < 3:
+        return ''
+    step = float(np.median(np.diff(np.asarray(recording.time, dtype=float))))
+    if not step > WEAK_FORM_LOW_RATE_TIME:
+        return ''
+    return (f'at {1 / step:.4g} Hz the weak-form fit is biased: its thrust terms hold Va and Ia over each '
+            f'{step * 1e3:.3g} ms sample, while the motor speed (the thrust) moves within it; these parameters are '
+            'not trustworthy (bench/rate_sweep.py measures the bias). Use `aeropend diagnose` (output error with a '
+            'motor observer), whose parameters degrade much less with the rate')

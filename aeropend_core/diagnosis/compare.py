@@ -32,7 +32,7 @@ from aeropend_core.model.effects import kernel_parameter
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
                                         initial_states_from_data)
 from aeropend_core.signals.motor import MotorFit, back_emf_ensemble, fit_motor
-from aeropend_core.signals.preprocess import (condition_inputs, noise_rms, piecewise_constant,
+from aeropend_core.signals.preprocess import (between_samples, condition_inputs, noise_rms, piecewise_constant,
                                              quantisation_bias_rms, quantisation_step)
 from aeropend_core.io.recording import Recording
 
@@ -304,7 +304,7 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         # 12 significant digits leave 1e-8 s above 1000 s: 2e-6 relative), which over a 1-hour record (1.8 M
         # samples) puts the last samples 3 samples off the grid.
         sample_time = float((time[-1] - time[0]) / np.sum(np.maximum(np.rint(steps / sample_time), 1.0)))
-    if sample_time > 0.05:
+    if sample_time > 1.0 / 19.5:
         raise AeropendError(f'{source}: samples are {sample_time:g} time units apart; the t column must be in '
                             f'seconds (the rig samples every 1/490 s = 0.00204 s)')
     sequence = recording.signals.get('sequence')
@@ -335,14 +335,15 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         thrust_voltage = stepped if stepped is not None else conditioned.armature_voltage
         thrust_current = np.zeros_like(current)
     elif use_motor_observer and stepped is not None:
+        observed = between_samples(stepped, conditioned.step_indices, sample_time)
         try:
-            motor = fit_motor(stepped, current, conditioned.step_indices, sample_time)
+            motor = fit_motor(observed, current, conditioned.step_indices, sample_time)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
             motor = None      # the observer is an improvement, not a requirement: use the measured Va - R Ia
         if motor is not None and motor.adequate and np.all(np.isfinite(motor.back_emf)):
             # the observer's back-EMF is the thrust voltage; R is then 0 in the pendulum model
             thrust_voltage, thrust_current = motor.back_emf, np.zeros_like(current)
-            ensemble, motor_errors = back_emf_ensemble(motor, stepped, voltage, current, conditioned.step_indices,
+            ensemble, motor_errors = back_emf_ensemble(motor, observed, voltage, current, conditioned.step_indices,
                                                        sample_time, with_errors=True)
             motor = replace(motor, standard_errors=motor_errors)
         else:
@@ -354,10 +355,8 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
                           motor=motor, gate_voltage=stepped if stepped is not None else conditioned.armature_voltage,
                           gaps=gaps, angle_step=quantisation_step(angle[valid]), voltage_ensemble=ensemble,
                           findings=tuple(checked.findings), reduced=reduced)
-    if reduced:
-        from aeropend_core.diagnosis.reduced_fit import profile_motor_map
-        prep = profile_motor_map(prep)
-    return prep
+    from aeropend_core.diagnosis.reduced_fit import profile_motor_map     # here: it imports this module
+    return profile_motor_map(prep) if reduced else prep
 
 
 def initial_guess(prep: PreparedRecord, threshold_voltage: float | None = None) -> dict[str, float]:
@@ -592,7 +591,7 @@ def _k_step_prediction(prep: PreparedRecord, fit: OutputErrorFit, horizon: float
         return np.zeros(0, dtype=int), np.zeros(0)
     segments = [(int(s), int(s) + k + STRIDE) for s in starts]
     data = SegmentedData(prep.voltage, prep.current, prep.angle, segments, prep.sample_time,
-                              prep.gate_voltage)
+                         prep.gate_voltage, min_samples=2 * STRIDE)
     offset = fit.parameters.get(fit.structure.offset_parameter, 0.0)
     initial = np.column_stack([prep.smoothed_angle[starts] - offset, prep.smoothed_rate[starts]])
     predicted = data.simulate(fit.structure, fit.structure.row(fit.parameters)[None], initial[None])[0]

@@ -47,7 +47,7 @@ import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
 from aeropend_core.diagnosis.evidence import diebold_mariano
-from aeropend_core.diagnosis.doubts import doubt_notes, residual_structure
+from aeropend_core.diagnosis.doubts import doubt_notes, rate_notes, residual_structure, unresolvable
 from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.io.recording import Recording
@@ -298,6 +298,10 @@ class Diagnosis:
             'seconds': round(self.seconds, 2),
             'warnings': [finding.to_dict() for finding in self.findings],
         }
+        if self.prepared is not None:        # a time constant below one sample is marked, not taken as a size
+            for entry in result['candidates']:
+                entry['not_resolvable_at_this_rate'] = unresolvable(entry['effect'], entry['parameters'] or {},
+                                                                    self.prepared.sample_time)
         result['signal_errors'] = {'angle': {'rms_error': _finite(current.rms_error), 'unit': 'rad',
                                              'noise_rms': _finite(current.noise_rms)}}
         if self.prepared is not None and self.prepared.motor is not None:
@@ -774,6 +778,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                 notes.append(f'{candidate.effect} cannot be told apart from {nominal} in this data; '
                              f'{separating_experiment(candidate.effect, nominal)}.')
     notes += doubt_notes(results, found, current, prep, model)     # near misses, an unstated measurement chain
+    notes += rate_notes(found, prep.sample_time)                  # what this sample rate cannot resolve
     if getattr(prep, 'gaps', None) is not None and prep.gaps.count:
         notes.append(prep.gaps.describe())
     from aeropend_core.diagnosis.checks import check_diagnosis

@@ -240,5 +240,60 @@ def residual_structure(prep, comparison, count: int = 5) -> list[dict]:
     return rows[:count]
 
 
-__all__ = ['ambiguity_notes', 'chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves',
-           'residual_structure']
+#: Sample time [s] above which the rate's limit on time constants is said (below it the rig's 490 Hz resolves
+#: every catalog time constant).
+RATE_NOTE_TIME = 1.5 / 490.0
+
+
+def unresolvable(effect: str, parameters: dict, sample_time: float) -> list[str]:
+    """Names of `effect`'s time parameters (unit s) whose value is below one sample period `sample_time` [s]:
+    a time constant or delay shorter than a sample is not resolvable at that rate (its fitted value is no size).
+
+    Parameters
+    ----------
+    effect : str [-]
+    parameters : dict of str -> float [SI]
+    sample_time : float [s]
+
+    Returns
+    -------
+    list of str
+    """
+    from aeropend_core.model.effects import get_effect
+    try:
+        units = {p.name: p.unit for p in get_effect(effect).parameters}
+    except Exception:  # noqa: BLE001 - an unknown (user) effect has nothing to say here
+        return []
+    return [name for name, value in parameters.items()
+            if units.get(name) == 's' and math.isfinite(value) and value < sample_time]
+
+
+def rate_notes(found: list, sample_time: float) -> list[str]:
+    """What the sample rate cannot resolve: said at a rate below ~327 Hz, and for every selected effect whose time
+    parameter is below one sample period.
+
+    Parameters
+    ----------
+    found : list of Found [-]
+    sample_time : float [s]
+
+    Returns
+    -------
+    list of str
+    """
+    if sample_time <= RATE_NOTE_TIME:
+        return []
+    rate, period_ms = 1.0 / sample_time, sample_time * 1e3
+    notes = [f'at {rate:.4g} Hz one sample is {period_ms:.3g} ms: a time constant or delay shorter than that (a thrust '
+             f'lag, the angle filter, a sensor lag) is not resolvable at this rate; such a candidate\'s value is '
+             f'marked, not taken as a size']
+    for f in found:
+        for name in unresolvable(f.effect, f.parameters, sample_time):
+            notes.append(f'{f.effect}: {name} = {f.parameters[name] * 1e3:.3g} ms is below one sample period '
+                         f'({period_ms:.3g} ms at {rate:.4g} Hz): not resolvable at this rate; record faster to '
+                         'size it')
+    return notes
+
+
+__all__ = ['ambiguity_notes', 'chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves', 'rate_notes',
+           'residual_structure', 'unresolvable']

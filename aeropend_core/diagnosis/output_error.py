@@ -306,6 +306,9 @@ class SegmentedData:
     held_bias_rms : float [rad]
         RMS of a bias of the measured angle held over each input interval (an ADC that does not dither,
         :func:`aeropend_core.signals.preprocess.quantisation_bias_rms`); added to the covariance of a fit.
+    min_samples : int [-]
+        Fewest samples a segment may have (4 integration steps for a fit; one step, 2 STRIDE, for a k-step
+        prediction, which fits nothing: at 25-60 Hz a 0.1 s horizon is 2-6 samples).
     """
 
     voltage: np.ndarray
@@ -318,14 +321,18 @@ class SegmentedData:
     voltage_ensemble: np.ndarray | None = None
     hold_starts: np.ndarray | None = None
     held_bias_rms: float = 0.0
+    min_samples: int = 4 * STRIDE
 
     def __post_init__(self) -> None:
         if self.gate_signal is None:
             self.gate_signal = self.voltage
         starts = np.array([s for s, _ in self.segments], dtype=np.int64)
         stops = np.array([e for _, e in self.segments], dtype=np.int64)
-        if len(starts) == 0 or np.any(stops - starts < 4 * STRIDE):
-            raise InsufficientDataError('each segment needs at least a few samples; give a longer record')
+        if len(starts) == 0 or np.any(stops - starts < self.min_samples):
+            short = int(np.min(stops - starts)) if len(starts) else 0
+            raise InsufficientDataError(f'each segment needs at least {self.min_samples} samples ({short} given: '
+                                        f'{short * self.sample_time:.3g} s at {1 / self.sample_time:.4g} Hz); give a '
+                                        'longer record')
         self.seg_start, self.seg_stop = starts, stops
         # Residuals are taken where the integrator lands: every STRIDE-th sample of each segment.
         self.residual_index = np.concatenate([np.arange(s, e, STRIDE) for s, e in self.segments])

@@ -358,7 +358,12 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
         input_noise['armature_current'] = max(input_noise['armature_current'], estimate_noise_std(ia))
         if du is None or not denoise:
             input_noise['armature_voltage'] = max(input_noise['armature_voltage'], estimate_noise_std(va))
-        if step_handling == 'invert':
+        handling = step_handling
+        if handling == 'invert' and dt > INVERT_MAX_STEP * tau:
+            # a sample many La/Ra long: the motor speed moves within it, and the inversion (which needs w1 constant
+            # over the sample) would shift Ia by a sample; the raw samples are less wrong (bench/rate_sweep.py)
+            handling = 'none'
+        if handling == 'invert':
             ia_eff = interval_current(ia, dt, tau)
             t, va, y = t[:-1], va[:-1], y[:-1]
             if denoise:
@@ -366,7 +371,7 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
                 va, ia_eff = denoise_inputs(va, ia_eff, dt, parameters.armature_resistance, input_cutoff, steps)
         else:
             ia_eff = ia
-            if step_handling == 'mask':
+            if handling == 'mask':
                 exclude = np.zeros(t.size, bool)
                 for k in step_indices(va):
                     exclude[k:k + mask_samples] = True
@@ -398,7 +403,12 @@ def identify_pendulum(time, armature_voltage, armature_current, angle, *,
     result = fit_weak_sindy(times if len(times) > 1 else times[0], signals if len(signals) > 1 else signals[0],
                             [equation], half_width=half_width,
                             exclude=excludes if any(e is not None for e in excludes) else None, **options)
-    return _pendulum_parameters(result, parameters, [name for name, _ in extra], step_handling)
+    return _pendulum_parameters(result, parameters, [name for name, _ in extra], handling)
+
+
+#: Longest sample [in units of La/Ra] for which the 'invert' step handling is used; longer samples (below ~160 Hz
+#: with La/Ra = 2 ms) use the raw samples ('none').
+INVERT_MAX_STEP = 3.0
 
 
 def _pendulum_parameters(result: WeakSindyResult, parameters: RigParameters, effects, step_handling) -> PendulumFit:

@@ -166,6 +166,8 @@ def load_csv(path: str | Path) -> Recording:
         with path.open(newline='', encoding='utf-8-sig') as handle:
             reader = csv.reader(_bounded_lines(handle, path))
             header = [h.strip() for h in next(reader, [])]
+            while header and header[0].startswith('#'):      # `aeropend import` metadata: a leading comment
+                header = [h.strip() for h in next(reader, [])]
             table, ragged, non_numeric = _read_rows(reader, len(header))
     except OSError as error:    # permissions: exit 1 (the system refused), see aeropend_core.cli
         from aeropend_core.io.paths import storage_error

@@ -70,6 +70,9 @@ def format_summary(diagnosis: Diagnosis) -> str:
     for window in current.evaluation.worst_windows[:3]:
         lines.append(f'  t = {window["start"]:.1f}-{window["stop"]:.1f} s ({window["part"]}): '
                      f'{window["rms_error"] * 1e3:.2f} mrad, input {window["input"]}')
+    from aeropend_core.diagnosis.doubts import unresolvable
+    prepared = getattr(diagnosis, 'prepared', None)
+    sample_time = getattr(prepared, 'sample_time', None) if prepared is not None else None
     lines.append('Candidates (best first):')
     for candidate in diagnosis.candidates:
         if candidate.comparison is None:
@@ -77,6 +80,8 @@ def format_summary(diagnosis: Diagnosis) -> str:
             continue
         flag = 'SIGNIFICANT' if candidate.significant else ('held-out' if candidate.heldout_only else 'no')
         params = ', '.join(f'{k} = {v:.4g}' for k, v in candidate.parameters.items())
+        if sample_time and unresolvable(candidate.effect, candidate.parameters, sample_time):
+            params += ' (below one sample: not resolvable at this rate)'
         lines.append(f'  {candidate.effect:18s} fit {candidate.fit_percent:6.2f} %  beyond noise '
                      f'{candidate.excess_after * 1e3:6.2f} mrad  dBIC {candidate.delta_bic:9.1f}  {flag:11s} '
                      f'{params}')

@@ -21,6 +21,7 @@ its noise, the caller falls back to the measured Va - R Ia.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numba
@@ -28,17 +29,31 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from aeropend_core.signals.preprocess import STEP_SETTLING_SAMPLES, noise_rms
+from aeropend_core.signals.preprocess import noise_rms, settling_samples
 
 PARAMETER_NAMES = ('motor_drive_rate', 'motor_friction_rate', 'motor_drag_rate', 'motor_resistance')
 PARAMETER_UNITS = {'motor_drive_rate': '1/s', 'motor_friction_rate': '1/s', 'motor_drag_rate': '1/(V s)',
                    'motor_resistance': 'ohm', 'electrical_time_constant': 's'}
 
 
+@numba.njit(cache=True, nogil=True, inline='always')
+def _back_emf_step(p1, p2, p3, v, e, h):
+    """One RK4 step of length h [s] of de/dt = p1 (Va - e) - p2 e - p3 e|e|."""
+    k1 = p1 * (v - e) - p2 * e - p3 * e * abs(e)
+    e2 = e + 0.5 * h * k1
+    k2 = p1 * (v - e2) - p2 * e2 - p3 * e2 * abs(e2)
+    e3 = e + 0.5 * h * k2
+    k3 = p1 * (v - e3) - p2 * e3 - p3 * e3 * abs(e3)
+    e4 = e + h * k3
+    k4 = p1 * (v - e4) - p2 * e4 - p3 * e4 * abs(e4)
+    return e + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+
 @numba.njit(cache=True, nogil=True)
-def _back_emf_kernel(parameters, voltage, initial, sample_time, out):
-    """RK4 of de/dt = p1 (Va - e) - p2 e - p3 e|e| with Va held over each sample, for every parameter row."""
-    h = sample_time
+def _back_emf_kernel(parameters, voltage, initial, sample_time, substeps, out):
+    """RK4 of de/dt = p1 (Va - e) - p2 e - p3 e|e| with Va held over each sample, for every parameter row, in
+    `substeps` steps per sample (1 at 490 Hz; more at a low rate, where one step per sample is unstable)."""
+    h = sample_time / substeps
     for row in range(parameters.shape[0]):
         p1 = parameters[row, 0]
         p2 = parameters[row, 1]
@@ -47,28 +62,33 @@ def _back_emf_kernel(parameters, voltage, initial, sample_time, out):
         for i in range(voltage.shape[0]):
             out[row, i] = e
             v = voltage[i]
-            k1 = p1 * (v - e) - p2 * e - p3 * e * abs(e)
-            e2 = e + 0.5 * h * k1
-            k2 = p1 * (v - e2) - p2 * e2 - p3 * e2 * abs(e2)
-            e3 = e + 0.5 * h * k2
-            k3 = p1 * (v - e3) - p2 * e3 - p3 * e3 * abs(e3)
-            e4 = e + h * k3
-            k4 = p1 * (v - e4) - p2 * e4 - p3 * e4 * abs(e4)
-            e = e + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+            for _ in range(substeps):
+                e = _back_emf_step(p1, p2, p3, v, e, h)
 
 
-#: RK4 sub-steps per sample for the observer with the armature inductance (La/Ra ~ one sample).
+
+#: RK4 sub-steps per sample for the observer with the armature inductance (La/Ra ~ one sample at 490 Hz).
 ELECTRICAL_SUBSTEPS = 8
 
 
+def _substeps(sample_time: float, per_rig_sample: int) -> int:
+    """RK4 steps [-] per sample of `sample_time` [s]: `per_rig_sample` per 1/490 s (the rig's rate), so that the
+    step length, not the count, is the same at every rate (at 490 Hz exactly `per_rig_sample`)."""
+    return per_rig_sample * max(1, int(math.ceil(sample_time * 490.0 - 1e-6)))
+#: Time after the start over which the initial back-EMF is taken [s] (20 samples at 490 Hz).
+INITIAL_SPAN = 20.0 / 490.0
+#: Time on either side of a Va step from which the current is extrapolated to the step [s] (6 samples at 490 Hz).
+RESISTANCE_SPAN = 6.0 / 490.0
+
+
 @numba.njit(cache=True, nogil=True)
-def _motor_kernel(parameters, voltage, initial, sample_time, out_current, out_emf):
+def _motor_kernel(parameters, voltage, initial, sample_time, substeps, out_current, out_emf):
     """RK4 of  tau_e dIa/dt = (Va - e)/R - Ia,  de/dt = q1 Ia - p2 e - p3 e|e|  (Va held over each sample).
 
     parameters rows: R [ohm], tau_e = La/R [s], q1 = Kw Kt / Jm [V/(A s)], p2 [1/s], p3 [1/(V s)];
     initial rows: Ia0 [A], e0 [V]. Writes Ia and e at the start of each sample.
     """
-    h = sample_time / ELECTRICAL_SUBSTEPS
+    h = sample_time / substeps
     for row in range(parameters.shape[0]):
         r = parameters[row, 0]
         tau = parameters[row, 1]
@@ -81,7 +101,7 @@ def _motor_kernel(parameters, voltage, initial, sample_time, out_current, out_em
             out_current[row, k] = i
             out_emf[row, k] = e
             v = voltage[k]
-            for _ in range(ELECTRICAL_SUBSTEPS):
+            for _ in range(substeps):
                 di1 = ((v - e) / r - i) / tau
                 de1 = q1 * i - p2 * e - p3 * e * abs(e)
                 i2 = i + 0.5 * h * di1
@@ -137,21 +157,22 @@ class MotorFit:
 
 def _simulate(parameters: np.ndarray, voltage: np.ndarray, initial: np.ndarray, sample_time: float) -> np.ndarray:
     out = np.empty((parameters.shape[0], voltage.size))
-    _back_emf_kernel(parameters, voltage, initial, sample_time, out)
+    _back_emf_kernel(parameters, voltage, initial, sample_time, _substeps(sample_time, 1), out)
     return out
 
 
-def _fitted_samples(kind: str, n: int, step_indices) -> np.ndarray:
+def _fitted_samples(kind: str, n: int, step_indices, sample_time: float) -> np.ndarray:
     """Mask (n,) of the samples an observer of `kind` is fitted to: the inductance model all but the first two;
-    the quasi-static one none within STEP_SETTLING_SAMPLES of the start or of a Va step (its electrical transient
-    is not in that model)."""
+    the quasi-static one none within the settling time (:func:`~aeropend_core.signals.preprocess.settling_samples`
+    at `sample_time` [s]) of the start or of a Va step (its electrical transient is not in that model)."""
     mask = np.ones(n, dtype=bool)
     if kind == 'inductance':
         mask[:2] = False
         return mask
+    settling = settling_samples(sample_time)
     for k in step_indices:
-        mask[k:k + STEP_SETTLING_SAMPLES] = False
-    mask[:STEP_SETTLING_SAMPLES] = False
+        mask[k:k + settling] = False
+    mask[:settling] = False
     return mask
 
 
@@ -161,11 +182,13 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
     voltage = np.asarray(voltage, dtype=float)
     current = np.asarray(current, dtype=float)
     n = voltage.size
-    keep = _fitted_samples('quasi_static', n, step_indices)
-    resistance0 = _resistance_from_steps(voltage, current, step_indices)
+    keep = _fitted_samples('quasi_static', n, step_indices, sample_time)
+    resistance0 = _resistance_from_steps(voltage, current, step_indices, sample_time)
     e_measured = voltage - resistance0 * current
     ratio2, ratio3 = _rate_ratios_from_steady_states(voltage, e_measured, step_indices, sample_time)
-    initial_emf = float(np.median(e_measured[STEP_SETTLING_SAMPLES:20]))
+    settling = settling_samples(sample_time)
+    # the first ~40 ms after the settling (20 samples at 490 Hz), at least 3 samples at a low rate
+    initial_emf = float(np.median(e_measured[settling:max(settling + 3, int(round(INITIAL_SPAN / sample_time)))]))
     measured = current[keep]
     # The overall rate p1 sets the speed of the response: scan it on a log grid (mechanical time constants
     # from ~10 ms to ~10 s), the steady-state ratios fixed, then fit everything from the best.
@@ -228,13 +251,14 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
     x0 = np.array([r0, 2e-3, p['motor_drive_rate'] * r0, p['motor_friction_rate'], p['motor_drag_rate'],
                    float(current[0]), initial_emf])
     scale = np.maximum(np.abs(x0), np.array([0.1, 1e-4, 1e-3, 1e-3, 1e-3, 0.01, 0.01]))
-    use = _fitted_samples('inductance', voltage.size, ())
+    use = _fitted_samples('inductance', voltage.size, (), sample_time)
     measured = current[use]
 
     def model(rows):
         out_current = np.empty((rows.shape[0], voltage.size))
         out_emf = np.empty_like(out_current)
-        _motor_kernel(rows[:, :5], voltage, rows[:, 5:7], sample_time, out_current, out_emf)
+        _motor_kernel(rows[:, :5], voltage, rows[:, 5:7], sample_time, _substeps(sample_time, ELECTRICAL_SUBSTEPS),
+                      out_current, out_emf)
         return out_current, out_emf
 
     def residuals(z):
@@ -287,8 +311,10 @@ def _predict(kind: str, x: np.ndarray, voltage: np.ndarray, sample_time: float) 
     if kind == 'inductance':
         out_current = np.empty((1, voltage.size))
         out_emf = np.empty_like(out_current)
-        _motor_kernel(x[None, :5], voltage, x[None, 5:7], sample_time, out_current, out_emf)
+        _motor_kernel(x[None, :5], voltage, x[None, 5:7], sample_time, _substeps(sample_time, ELECTRICAL_SUBSTEPS),
+                      out_current, out_emf)
         return out_current[0], out_emf[0]
+    # the initial back-EMF as a 1-D array of one row (a (1, 1) slice made the kernel's state an array: TypingError)
     emf = _simulate(x[None, :3], voltage, x[4:5], sample_time)[0]
     return (voltage - emf) / x[3], emf
 
@@ -353,7 +379,7 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
     n = voltage.size
     x = np.asarray(fit.solution, dtype=float)
     kind = fit.kind
-    used = _fitted_samples(kind, n, step_indices)
+    used = _fitted_samples(kind, n, step_indices, sample_time)
     modelled, emf = _predict(kind, x, voltage, sample_time)
     residual = current - modelled
     # Jacobian of the modelled current on the fitted samples (forward differences), and d back-EMF / d state (a
@@ -421,17 +447,24 @@ def _bounded(values: np.ndarray) -> np.ndarray:
                    -DIVERGED_CURRENT, DIVERGED_CURRENT)
 
 
-def _resistance_from_steps(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray) -> float:
-    """Rm from the current jump across each step (e is continuous): median of dVa/dIa over the larger steps."""
+def _resistance_from_steps(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray,
+                           sample_time: float) -> float:
+    """Rm from the current jump across each step (e is continuous): median of dVa/dIa over the larger steps.
+
+    The current is extrapolated to the step from ~12 ms on either side (6 samples at 490 Hz, at least 3 at a
+    low rate, where the motor speed moves between samples and the estimate is rougher).
+    """
     ratios, weights = [], []
     n = voltage.size
+    settling = settling_samples(sample_time)
+    span = max(3, int(round(RESISTANCE_SPAN / sample_time)))
     for k in step_indices:
-        a, b = k - 6, k + STEP_SETTLING_SAMPLES + 6
+        a, b = k - span, k + settling + span
         if a < 0 or b > n:
             continue
         d_voltage = np.median(voltage[k:b]) - np.median(voltage[a:k])
         before = np.polyval(np.polyfit(np.arange(a, k), current[a:k], 1), k)
-        after_index = np.arange(k + STEP_SETTLING_SAMPLES, b)
+        after_index = np.arange(k + settling, b)
         after = np.polyval(np.polyfit(after_index, current[after_index], 1), k)
         d_current = after - before
         if abs(d_voltage) > 0.05 and d_current * d_voltage > 0:

@@ -20,8 +20,19 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import butter, sosfiltfilt
 
-#: Samples after a step of Va bridged by interpolation: 5 samples ~ 10 ms ~ 5 La/Ra.
+#: Time after a step of Va bridged by interpolation [s]: ~10 ms ~ 5 La/Ra (5 samples at the rig's 490 Hz).
+STEP_SETTLING_TIME = 5.0 / 490.0
+#: Samples after a step of Va bridged at the rig's 490 Hz (:func:`settling_samples` gives it at any rate).
 STEP_SETTLING_SAMPLES = 5
+
+
+def settling_samples(sample_time: float) -> int:
+    """Samples [-] covering :data:`STEP_SETTLING_TIME` at the sample time `sample_time` [s] (at least one).
+
+    At 490 Hz 5 samples; at 25 Hz or slower the electrical transient is over within the first sample, and one
+    sample after the step is bridged.
+    """
+    return max(1, int(math.ceil(STEP_SETTLING_TIME / sample_time - 1e-9)))
 #: Cut-off of the zero-phase low-pass applied to Va and Ia [Hz]; the pendulum and motor respond below ~5 Hz.
 INPUT_CUTOFF_HZ = 25.0
 
@@ -226,8 +237,9 @@ def condition_inputs(armature_voltage: np.ndarray, armature_current: np.ndarray,
     stepped = piecewise_constant(armature_voltage, steps)
     if stepped is not None:
         armature_voltage = stepped
-    voltage = bridge_steps(armature_voltage, steps)
-    current = bridge_steps(armature_current, steps)
+    settling = settling_samples(sample_time)
+    voltage = bridge_steps(armature_voltage, steps, settling)
+    current = bridge_steps(armature_current, steps, settling)
     cutoff_hz = INPUT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz
     nyquist = 0.5 / sample_time
     if cutoff_hz < nyquist and voltage.size > 60:
@@ -235,3 +247,33 @@ def condition_inputs(armature_voltage: np.ndarray, armature_current: np.ndarray,
         voltage = sosfiltfilt(sos, voltage)
         current = sosfiltfilt(sos, current)
     return ConditionedInputs(voltage, current, steps)
+
+
+#: Sample time [s] above which a duty step is taken to land anywhere between two samples (a logger printing one line
+#: every N PWM periods changes the duty at any period); at the rig's 490 Hz it lands on a sample.
+BETWEEN_SAMPLES_TIME = 1.5 / 490.0
+
+
+def between_samples(stepped: np.ndarray, step_indices: np.ndarray, sample_time: float) -> np.ndarray:
+    """The piecewise-constant Va [V] the motor observer is driven with: at a low rate (sample time above
+    :data:`BETWEEN_SAMPLES_TIME`) the step seen first at sample k landed somewhere in (t_k-1, t_k], so the interval
+    before it holds the mean of the two levels (the expected input for a step time uniform over the interval);
+    at the rig's rate `stepped` itself.
+
+    Parameters
+    ----------
+    stepped : ndarray, shape (n,) [V]
+    step_indices : ndarray of int [-]
+    sample_time : float [s]
+
+    Returns
+    -------
+    ndarray, shape (n,) [V]
+    """
+    if sample_time <= BETWEEN_SAMPLES_TIME:
+        return stepped
+    out = np.array(stepped, dtype=float)
+    for k in np.asarray(step_indices, dtype=int):
+        if 1 <= k < out.size:
+            out[k - 1] = 0.5 * (stepped[k - 1] + stepped[k])
+    return out

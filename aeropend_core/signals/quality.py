@@ -23,6 +23,9 @@ code                        severity     when
 ``time_in_microseconds``    repaired     ... 1e6 x (``time_in_nanoseconds``: 1e9 x)
 ``time_precision``          repaired /   stamps rounded (or jittered) by more than 1 % of the step: replaced by
                             refused      the uniform grid they fit, or refused when no grid fits them
+``host_stamps``             repaired /   host stamps with buffering (bursts after stalls): time regularised
+                            refused      from the sample order at the declared (or evident) rate, with the
+                                         fit's residual; refused when they contradict a constant rate
 ``sample_rate_mismatch``    refused      stamps (or stamps per sequence count) disagree with the declared rate
 ``lost_samples``            warning      gaps in the stamps / sequence numbers (not filled here)
 ``angle_in_degrees``        repaired     the angle spans more than a turn and moves faster than the rod can in

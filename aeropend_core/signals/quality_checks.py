@@ -35,6 +35,11 @@ from aeropend_core.signals.quality_base import (
 )
 
 
+#: Lowest sample rate the analysis takes [Hz] (a little below the 20 Hz it is built for: 22 PWM periods of 490 Hz
+#: are 22.3 Hz, and a logger's clock may run slow).
+LOWEST_RATE = 19.5
+
+
 # ------------------------------------------------------------------------------------------------------- checks
 def _check_time(gate: _Gate, sample_time: float | None) -> None:
     time = gate.time
@@ -44,6 +49,8 @@ def _check_time(gate: _Gate, sample_time: float | None) -> None:
                  f'{bad[0]}); fix or remove those samples', count=bad.size)
     if time.size < 2:
         return
+    if _check_host_stamps(gate, sample_time):
+        time = gate.time
     step = np.diff(time)
     # Exact repeats (a message recorded twice) are dropped; the precision check below looks at the rest.
     repeated = np.flatnonzero(step == 0) + 1
@@ -86,9 +93,10 @@ def _check_time(gate: _Gate, sample_time: float | None) -> None:
                      'in seconds)', gate.span(0, time.size - 1), time.size)
             step, typical = np.diff(time), typical * factor
             break
-    if typical > 0.05:
+    if typical > 1.0 / LOWEST_RATE:
         gate.add('sample_rate_mismatch', 'refused', f'samples are {typical:g} time units apart; the t column must be '
-                 f'in seconds (the rig samples every 1/490 s = 0.00204 s; divide milliseconds by 1000)',
+                 f'in seconds (the rig samples every 1/490 s = 0.00204 s; divide milliseconds by 1000), and the '
+                 f'analysis needs at least {LOWEST_RATE:g} samples per second (a pendulum near 2 Hz)',
                  gate.span(0, time.size - 1), time.size)
     if sample_time is not None and abs(typical / sample_time - 1.0) > RATE_TOLERANCE:
         gate.add('sample_rate_mismatch', 'refused', f'samples are {typical * 1e3:.4g} ms apart ({1 / typical:.4g} Hz) '
@@ -96,6 +104,29 @@ def _check_time(gate: _Gate, sample_time: float | None) -> None:
                  f'held-input and current-kick model; {gate.rate_hint}', gate.span(0, time.size - 1), time.size)
     _check_sequence(gate, sample_time or typical)
     _check_gaps(gate, typical)
+
+
+def _check_host_stamps(gate: _Gate, sample_time: float | None) -> bool:
+    """Stamps of a host that buffers the lines (bursts 0 ms apart after stalls): the time is regularised from the
+    sample order (:mod:`aeropend_core.signals.host_clock`) at the declared rate, or at the rate the stamps show when
+    none is declared; refused with the cause when they contradict a constant rate. True when regularised."""
+    from aeropend_core.signals.host_clock import ClockContradiction, looks_host_buffered, regularise, resolution_of
+    time = gate.time
+    if not looks_host_buffered(time):
+        return False
+    n = time.size
+    try:
+        clock = regularise(time, None if sample_time is None else 1.0 / sample_time, resolution_of(time))
+    except ClockContradiction as error:
+        hint = ('; if the device logs at another rate, give it (--sample-rate HZ, or a log profile)'
+                if sample_time is not None else '')
+        gate.add('host_stamps', 'refused', f'the time stamps look like a host\'s (bursts of lines stamped together '
+                 f'after stalls) but {error}{hint}', gate.span(0, n - 1), n)
+        return False
+    gate.time = clock.time - clock.time[0] + time[0]
+    gate.add('host_stamps', 'repaired', f'the time stamps are a host\'s, delayed by its buffering (bursts after '
+             f'stalls), not the sample times: {clock.describe()}', gate.span(0, n - 1), n)
+    return True
 
 
 def _check_precision(gate: _Gate, sample_time: float | None) -> None:
@@ -315,6 +346,10 @@ def _check_outliers(gate: _Gate, name: str) -> None:
         curvature = np.zeros_like(values)
         curvature[1:-1] = values[1:-1] - 0.5 * (values[:-2] + values[2:])
         bad &= np.abs(curvature) > 2.0 * quantum
+    if name == 'armature_current' and bad.any():
+        # the current's kick at a step is physics, not a glitch (when it stays within a few times the current's
+        # own range: a 50 A spike next to a step is still a glitch)
+        bad &= ~(_after_input_steps(gate, values.size) & (np.abs(deviation) <= 3.0 * max(spread, 1e-12)))
     if not bad.any():
         return
     count = int(bad.sum())
@@ -328,6 +363,30 @@ def _check_outliers(gate: _Gate, name: str) -> None:
     gate.add('outlier', 'repaired', f'{count} isolated outlier(s) in {name!r} (worst {values[worst]:.4g} at '
              f'{gate.at(worst)}, {abs(deviation[worst]) / max(sigma, 1e-300):.3g} robust sigmas off its neighbours) '
              'replaced by linear interpolation', gate.span(first, last), count)
+
+
+#: Time after a step of the input (duty or Va) in which the armature current's kick is physics, not an outlier [s]
+#: (at least the first two samples at and after the step: at 25-60 Hz the kick is one or two samples long).
+KICK_TIME = 0.02
+
+
+def _after_input_steps(gate: _Gate, n: int) -> np.ndarray:
+    """Mask (n,) of the samples within :data:`KICK_TIME` (at least two samples) of a step of the duty (or of Va
+    when there is no duty column): a step is a change beyond 6 robust sigmas of the changes and 2 % of the range."""
+    source = gate.signals.get('duty', gate.signals.get('armature_voltage'))
+    mask = np.zeros(n, dtype=bool)
+    if source is None or source.size != n or n < 3:
+        return mask
+    change = np.abs(np.diff(np.nan_to_num(source)))
+    spread = float(np.subtract(*np.percentile(source[np.isfinite(source)], [99.5, 0.5]))) if np.isfinite(
+        source).any() else 0.0
+    steps = np.flatnonzero(change > max(6.0 * _robust_sigma(np.diff(np.nan_to_num(source))), 0.02 * spread,
+                                        1e-12)) + 1
+    period = float(np.median(np.diff(gate.time))) if gate.time.size > 1 else 0.0
+    width = max(2, int(math.ceil(KICK_TIME / period))) if period > 0 else 2
+    for k in steps:
+        mask[k:k + width] = True
+    return mask
 
 
 def _check_noise(gate: _Gate, name: str) -> None:
