@@ -372,10 +372,10 @@ def test_run_stops_with_a_clear_error_when_its_recording_disk_fills(tmp_path, ro
         bag = next(p for p in disk.iterdir() if p.is_dir())
         copy = tmp_path / 'bag'
         shutil.copytree(bag, copy)
-    repaired = aeropend(['bag-recover', str(copy)])
-    assert repaired.returncode == 0 and 'repaired' in repaired.stdout, repaired.stderr
+    repaired = aeropend(['bag-recover', str(copy)])          # into copy_recovered, the original left as it was
+    assert repaired.returncode == 0 and 'recovered into' in repaired.stdout, repaired.stderr
     from aeropend_core.io.bag import read_samples
-    sequence = read_samples(copy, on_incomplete='raise')['sequence']
+    sequence = read_samples(copy.with_name(copy.name + '_recovered'), on_incomplete='raise')['sequence']
     assert sequence.size > 0 and np.all(np.diff(sequence) == 1)
 
 

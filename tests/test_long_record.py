@@ -83,10 +83,15 @@ def test_csv_read_block_by_block_is_the_same_table(tmp_path, monkeypatch):
         np.testing.assert_array_equal(blocks.signals[name], whole.signals[name])
     np.testing.assert_array_equal(blocks.time, whole.time)
     lines = path.read_text().splitlines()
+    good = lines[10]
     lines[10] = lines[10].replace(lines[10].split(',')[1], 'abc', 1)       # data row 10: not a number
     lines[50] = lines[50] + ',1.0'                                          # data row 50: a field too many
     path.write_text('\n'.join(lines) + '\n')
     from aeropend_core.errors import AeropendError
+    with pytest.raises(AeropendError, match=r"non-numeric value .*'abc', data row 10"):      # the first one in the file
+        load_csv(path)
+    lines[10] = good
+    path.write_text('\n'.join(lines) + '\n')
     with pytest.raises(AeropendError, match='data row 50 has 5 fields, the header has 4'):
         load_csv(path)
 

@@ -122,7 +122,7 @@ def search_lag_basins(prep, fit_from: Callable, values: dict[str, float], parame
     values : dict of str -> float [SI]
         The start values of the local fit (other parameters keep them).
     parameter : str [-]
-        The profiled parameter's name (``time_constant``, ``angle_offset``).
+        The profiled parameter's name (the lag's time constant, the measured offset).
     local_fit : OutputErrorFit
         The fit from the default start.
     kind : str [-]

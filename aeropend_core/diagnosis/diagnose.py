@@ -51,7 +51,7 @@ from aeropend_core.diagnosis.doubts import doubt_notes, rate_notes, residual_str
 from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.io.recording import Recording
-from aeropend_core.model.effects import CATALOG, get_effect
+from aeropend_core.model.effects import CATALOG, THRUST_LAG, get_effect
 from aeropend_core.model.effects import separating_experiment as record_experiment
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 
@@ -574,7 +574,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         before = compare(search, ())
     noise = prep.noise_rms
     pool = [name for name in (candidates if candidates is not None else CATALOG) if name not in effects
-            and not (prep.reduced and name == 'thrust_lag')]     # the reduced model's motor lag carries it
+            and not (prep.reduced and get_effect(name).kind == THRUST_LAG)]   # the motor map's lag carries it
     for name in pool:
         get_effect(name)
     # ---- forward selection with backward elimination, scored by the same evidence

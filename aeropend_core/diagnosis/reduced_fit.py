@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize
 
+from aeropend_core.model.effects import CATALOG, MEASUREMENT
+
 from aeropend_core.diagnosis.output_error import SegmentedData
 from aeropend_core.errors import InsufficientDataError
 from aeropend_core.signals.reduced import motor_map
@@ -31,7 +33,7 @@ PROFILE_SECONDS = 45.0
 #: Effects always free while the map is profiled for the nominal model: an angle offset reshapes the static
 #: thrust-to-angle curve as the map's curvature does, so a map profiled without it absorbs an offset (seed 2 of
 #: bench/reduced_model.py: T 0.51 s, q 2.4 1/V, and the offset not named); it is ~0 when there is none.
-PROFILE_NUISANCE = ('angle_offset',)
+PROFILE_NUISANCE = tuple(name for name, effect in CATALOG.items() if effect.builtin and effect.kind == MEASUREMENT)
 #: Nelder-Mead evaluations after the grid, and the resolution it stops at (log T, q [1/V]); the resolution's
 #: uniform spread (resolution/sqrt(12)) is added to the profile's 1σ.
 SEARCH_EVALUATIONS = 30

@@ -322,7 +322,7 @@ def _load_bag(path: Path) -> Recording:
     """The ``/aeropend/samples`` of an MCAP bag (folder or ``.mcap``), see :func:`aeropend_core.io.bag.read_samples`."""
     from aeropend_core.io.bag import read_samples
     damage: list = []
-    samples = read_samples(path, damage=damage)
+    samples = read_samples(path, on_incomplete='ignore', damage=damage)     # said once: as findings, below
     columns = {'t': samples['time']}
     # integer-nanosecond clocks (stamp_ns, receive_time_ns) do not survive float64; t already holds the stamps
     columns.update({k: v for k, v in samples.items() if k != 'time' and not k.endswith('_ns')})

@@ -151,7 +151,7 @@ def _without_title(message: str) -> str:
     """The verdict message without an opening that repeats the banner's title."""
     rest = _TITLE_REPEATS.sub('', message, count=1)
     first_word = rest.split(' ', 1)[0]
-    # a sentence starts with a capital; an effect's name (coulomb_friction) keeps its spelling
+    # a sentence starts with a capital; an effect's snake_case name keeps its spelling
     return rest[:1].upper() + rest[1:] if rest != message and '_' not in first_word else rest
 
 

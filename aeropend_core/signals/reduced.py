@@ -37,15 +37,16 @@ IDENTIFIABLE = {
     'thrust_gain': 'thrust per squared volt of the motor map: one product of Kq, Kw, the gear and the speed per volt',
     'motor_time_constant': 'the motor\'s mechanical lag near standstill (profiled)',
     'voltage_map_curvature': 'curvature of the static map from Va to the motor speed (profiled)',
-    'effects': 'coulomb_friction, quadratic_drag, angle_offset, angle_filter, dead_zone; cable_torque only weakly '
-               '(it reshapes the static curve from Va to the angle as the map\'s curvature does)',
+    # effects named in words: a catalog effect's name lives in its record (tests/test_effect_records.py)
+    'effects': 'dry friction, quadratic drag, the angle offset, the angle filter, the dead zone; a cable torque only '
+               'weakly (it reshapes the static curve from Va to the angle as the map\'s curvature does)',
 }
 #: What it cannot identify, and why.
 NOT_IDENTIFIABLE = {
     'armature_resistance': 'no period-average armature current: Va - Ra Ia cannot be formed',
     'thrust_coefficient, back_emf_constant, torque_constant': 'only their product enters the thrust gain; the '
                                                               'motor speed is not measured',
-    'thrust_lag': 'a thrust lag and the motor\'s lag act in series: the motor time constant carries both',
+    'a thrust lag': 'a thrust lag and the motor\'s lag act in series: the motor time constant carries both',
 }
 
 
@@ -74,11 +75,11 @@ def motor_map(armature_voltage: np.ndarray, time_constant: float, curvature: flo
     rate = 1.0 / time_constant
     steps = max(1, int(np.ceil(sample_time / (0.25 * time_constant))))     # RK4 stable for any rate
     if steps == 1:
-        _back_emf_kernel(np.array([[rate, 0.0, curvature * rate]]), voltage, np.zeros(1), sample_time, out)
+        _back_emf_kernel(np.array([[rate, 0.0, curvature * rate]]), voltage, np.zeros(1), sample_time, 1, out)
         return out[0]
     fine = np.repeat(voltage, steps)
     out = np.empty((1, fine.size))
-    _back_emf_kernel(np.array([[rate, 0.0, curvature * rate]]), fine, np.zeros(1), sample_time / steps, out)
+    _back_emf_kernel(np.array([[rate, 0.0, curvature * rate]]), fine, np.zeros(1), sample_time / steps, 1, out)
     return out[0, ::steps]
 
 

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from aeropend_core.model.effects import CATALOG, MEASUREMENT, PENDULUM, THRUST_LAG
+
 #: The rig's PWM frequency [Hz] (Timer1 phase-correct at 16 MHz / 64 / 510).
 PWM_RATE = 490.0
 
@@ -245,8 +247,11 @@ def generate(spec: ForeignLogSpec) -> ForeignLog:
     return ForeignLog(text=text, profile=profile, truth=truth, spec=spec)
 
 
-#: Hidden effects the random variants draw from (name -> a typical size), one or none per variant.
-RANDOM_EFFECTS = {'coulomb_friction': 2.0, 'angle_offset': 0.05, 'cable_torque': 15.0, 'thrust_lag': 0.1}
+#: Hidden effects the random variants draw from (name -> a size: 0.6 x the record's typical one), one or none per
+#: variant: the catalog's effects on the pendulum, the angle and the thrust's lag (a dead zone needs small duties these
+#: logs do not have; the angle filter is the measurement chain's).
+RANDOM_EFFECTS = {name: 0.6 * effect.parameters[0].typical for name, effect in CATALOG.items()
+                  if effect.builtin and effect.kind in (PENDULUM, MEASUREMENT, THRUST_LAG)}
 
 
 def random_spec(seed: int, duration: tuple[float, float] = (15.0, 40.0)) -> ForeignLogSpec:
