@@ -346,7 +346,8 @@ def bag_findings(path: str | Path, damage: list) -> tuple:
     from aeropend_core.io import bag_lock
     from aeropend_core.signals.quality import Finding
     findings = []
-    live = bag_lock.live_writer(path) is not None
+    writer = bag_lock.live_writer(path)
+    live = writer is not None
     for item in damage:
         kind = item.damage.kind
         if kind == 'no_crc':
@@ -357,7 +358,8 @@ def bag_findings(path: str | Path, damage: list) -> tuple:
         severity = 'warning' if code != 'bag_structure' else 'repaired'
         advice = ''
         if item.damage.lost:
-            advice = ('; the recording is still running: read again once it ends' if live and kind == 'cut'
+            advice = (f'; still being recorded by {writer.describe()}: read again once the recording ends'
+                      if live and kind == 'cut'
                       else f'; the rest was read. aeropend bag-recover {path} writes a repaired copy')
         where = None
         if item.t_start is not None or item.t_stop is not None:
