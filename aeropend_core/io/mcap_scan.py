@@ -244,7 +244,7 @@ def _footer_at_end(buf, size: int):
 def _read_summary(buf, size: int, scan: FileScan) -> None:
     """Definitions and statistics from an intact summary section (footer at the end, its CRC matching)."""
     from mcap.data_stream import ReadDataStream
-    from mcap.records import Channel, Schema, Statistics
+    from mcap.records import Statistics
     footer = _footer_at_end(buf, size)
     footer_start = size - len(MCAP_MAGIC) - _FOOTER_BYTES
     if footer is None or not footer.summary_start or not len(MCAP_MAGIC) < footer.summary_start <= footer_start:
@@ -263,17 +263,28 @@ def _read_summary(buf, size: int, scan: FileScan) -> None:
             if end > footer_start:
                 break
             stream = ReadDataStream(_Window(buf, body, end))
-            if opcode == 0x03:
-                schema = Schema.read(stream)
-                scan.schemas.setdefault(schema.id, schema)
-            elif opcode == 0x04:
-                channel = Channel.read(stream)
-                scan.channels.setdefault(channel.id, channel)
+            if _remember_definition(scan, opcode, stream):
+                pass
             elif opcode == _OP_STATISTICS:
                 scan.statistics = Statistics.read(stream)
             position = end
     except Exception:               # a summary that passed its CRC but does not parse: written by a broken writer
         scan.statistics = None
+
+
+def _remember_definition(scan, opcode: int, stream) -> bool:
+    """Read a schema (0x03) or channel (0x04) record from `stream` into `scan`, under its id, the first definition
+    of an id winning (in the data and in the summary alike); False for any other record, `stream` untouched."""
+    from mcap.records import Channel, Schema
+    if opcode == 0x03:
+        schema = Schema.read(stream)
+        scan.schemas.setdefault(schema.id, schema)
+    elif opcode == 0x04:
+        channel = Channel.read(stream)
+        scan.channels.setdefault(channel.id, channel)
+    else:
+        return False
+    return True
 
 
 def _open(path: Path):
@@ -429,12 +440,8 @@ def _walk(buf, size: int, scan: FileScan) -> Iterator[ChunkRead]:
                 profile = Header.read(stream).profile
                 if profile != ROS2_PROFILE:
                     raise AeropendError(f'{scan.path} has MCAP profile {profile!r}, not ros2: not a ROS 2 bag')
-            elif opcode == 0x03:
-                schema = Schema.read(stream)
-                scan.schemas.setdefault(schema.id, schema)
-            elif opcode == 0x04:
-                channel = Channel.read(stream)
-                scan.channels.setdefault(channel.id, channel)
+            elif _remember_definition(scan, opcode, stream):
+                pass
             elif opcode == 0x05:
                 message = Message.read(stream, length)
                 scan.messages_read += 1
