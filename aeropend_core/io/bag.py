@@ -180,20 +180,26 @@ def _say_damage(path, file: Path, scan: FileScan, on_incomplete: str) -> None:
     lost = scan.lost
     if not lost or on_incomplete == 'ignore':
         return
+    message = _damage_message(path, file, lost)
+    if on_incomplete == 'raise':
+        raise AeropendError(message)
+    warnings.warn(message, stacklevel=3)
+
+
+def _damage_message(path, file: Path, lost: list[BagDamage]) -> str:
+    """What reading ``file`` of the bag ``path`` lost (``lost``: its damage that lost data), and what to do."""
     in_bag = Path(path).is_dir() or (file.parent / 'metadata.yaml').is_file()
     writer = bag_lock.live_writer(file) if [d.kind for d in lost] == ['cut'] else None
     if writer is not None:      # being recorded: no repair to advise, only that the end is still coming
         message = (f'{file} is still being recorded by {writer.describe()}; read up to its last complete '
                    'chunk (the newest samples are not in it yet; read it again once the recording ends)')
     elif [d.kind for d in lost] == ['cut']:
-        message = (f'{file} is incomplete ({scan.problem}); read up to its last complete chunk. '
+        message = (f'{file} is incomplete ({lost[0].detail}); read up to its last complete chunk. '
                    f'Repair it with: aeropend bag-recover {file.parent if in_bag else file}')
     else:
         message = (f'{file} is damaged: ' + '; '.join(damage_line(d) for d in lost) + '; the rest was read. '
                    f'Write a repaired copy with: aeropend bag-recover {file.parent if in_bag else file}')
-    if on_incomplete == 'raise':
-        raise AeropendError(message)
-    warnings.warn(message, stacklevel=3)
+    return message
 
 
 def damage_line(damage: BagDamage) -> str:
@@ -375,6 +381,20 @@ def _sample_damage(found: list[BagDamage], order: np.ndarray, receive_ns: np.nda
     return out
 
 
+def _refuse_empty(path, topic: str, found: list[BagDamage]) -> None:
+    """Raise why a bag whose samples could not be read is empty on ``topic``, when its damage explains it (whatever
+    ``on_incomplete`` asked for: with no sample read, the damage is the whole answer and must be said)."""
+    lost = [d for d in found if d.lost]
+    if not lost:
+        return
+    file = lost[0].file
+    message = _damage_message(path, file, [d for d in lost if d.file == file])
+    if 'is still being recorded' in message:
+        raise AeropendError(f'no {topic} message in {path} yet: {message}')
+    where = 'before it is cut short' if 'is incomplete' in message else 'outside its damaged parts'
+    raise AeropendError(f'no {topic} message in {path} {where}: {message}')
+
+
 def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomplete: str = 'warn',
                  damage: list[SampleDamage] | None = None) -> dict[str, np.ndarray]:
     """Acquisition samples of a recording as arrays (the JointState messages of ``/aeropend/samples``).
@@ -425,10 +445,6 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
             received.extend([m.log_time for m in kept])
             chunk_start.extend([chunk.start_ns] * len(kept))
             chunk_offset.extend([chunk.offset] * len(kept))
-    incomplete = [w for w in cut if 'is incomplete' in str(w.message) or 'is damaged' in str(w.message)]
-    live = [w for w in cut if 'is still being recorded' in str(w.message)]
-    if not datas and live:
-        raise AeropendError(f'no {topic} message in {path} yet: {live[0].message}')
     if not datas:
         topics = bag_topics(path)
         rigs = sorted(t for t in topics if t.endswith(_SAMPLES_TOPIC) and t != _SAMPLES_TOPIC)
@@ -438,10 +454,7 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
             raise AeropendError(f'{path} holds the samples of several rigs ({", ".join(rigs)}), not one: record '
                                 'each rig with its own recorder (aeropend run --rig NAME, or a recorder_node in '
                                 'the rig\'s namespace)')
-        if incomplete:
-            where = 'before it is cut short' if 'is incomplete' in str(incomplete[0].message) else \
-                'outside its damaged parts'
-            raise AeropendError(f'no {topic} message in {path} {where}: {incomplete[0].message}')
+        _refuse_empty(path, topic, found)
         raise AeropendError(f'no {topic} messages in {path} (it holds: '
                             f'{", ".join(f"{t} [{k}]" for t, k in topics.items()) or "no topic"}): '
                             'was the sample topic recorded? (recorder_node records it by default)')
