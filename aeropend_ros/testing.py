@@ -8,9 +8,26 @@ from __future__ import annotations
 import contextlib
 import os
 import random
+import signal
+import subprocess
 import time
 
 from aeropend_ros._ros_env import ensure_ros_environment
+
+
+def interrupt(process: subprocess.Popen, timeout: float = 30.0) -> int:
+    """Stop a child process as a user would: SIGINT (Ctrl-C), SIGKILL if it has not ended after ``timeout`` [s].
+
+    Returns its exit status (negative: ended by that signal).
+    """
+    if process.poll() is None:
+        process.send_signal(signal.SIGINT)
+        try:
+            process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+    return process.returncode
 
 
 #: Domains handed out in this process (never twice).
@@ -127,13 +144,7 @@ def recover_race(folder, domain_id: int, record_seconds: float = 2.0, timeout: f
     finally:
         stop.set()
         thread.join(30)
-        if recorder.poll() is None:
-            recorder.send_signal(2)
-        try:
-            recorder.wait(30)
-        except subprocess.TimeoutExpired:
-            recorder.kill()
-            recorder.wait()
+        interrupt(recorder)
         log.flush()
         output = Path(log.name).read_text(errors='replace')
         log.close()

@@ -34,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 from _common import add_json_argument, figure, write_json
 
 from aeropend_ros._ros_env import ensure_ros_environment, local_ros_environment
+from aeropend_ros.testing import interrupt
 
 
 def bare_subscriber() -> int:
@@ -68,12 +69,8 @@ def start(command: list[str], env: dict) -> tuple[subprocess.Popen, object]:
 
 
 def stop(process: subprocess.Popen, log) -> str:
-    process.send_signal(2)
-    try:
-        process.wait(15)
-    except subprocess.TimeoutExpired:
-        process.kill()
-        process.wait()
+    """Ctrl-C the process (SIGKILL after 15 s) and return its log."""
+    interrupt(process, 15)
     log.seek(0)
     return log.read()
 

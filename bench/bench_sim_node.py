@@ -32,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 from _common import add_json_argument, figure, write_json
 
 from aeropend_ros._ros_env import ensure_ros_environment, local_ros_environment
+from aeropend_ros.testing import interrupt
 
 
 def baseline_publisher() -> int:
@@ -105,11 +106,7 @@ def measure(command: list[str], env: dict, seconds: float, context) -> dict:
         window = time.monotonic() - wall_start
         cpu = (cpu_seconds(process.pid) - cpu_start) / window
     finally:
-        process.send_signal(2)
-        try:
-            process.wait(10)
-        except subprocess.TimeoutExpired:
-            process.kill()
+        interrupt(process, 10)
         executor.shutdown()
         node.destroy_node()
     arrival = np.array([t for t, _ in received])

@@ -32,7 +32,6 @@ import os
 import random
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import tempfile
@@ -40,6 +39,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+from aeropend_ros.testing import interrupt  # noqa: E402
 CLI = 'import sys; from aeropend_core.cli import main; sys.exit(main())'
 #: A published window's console line: the new form ("window  30.0- 55.0 s: held-out fit ...; data clean") or the
 #: old one ("window ending t =  55.0 s: held-out fit ...").
@@ -103,11 +104,7 @@ def run_case(tree: Path, duration: float, hog: int, label: str) -> dict:
         wall = time.monotonic() - started
         load_after = os.getloadavg()[0]
         time.sleep(3.0)               # the last statuses reach the monitor (reliable); then stop it
-        monitor.send_signal(signal.SIGINT)
-        try:
-            monitor.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            monitor.kill()
+        interrupt(monitor)
         if hog_process is not None:
             hog_process.terminate()
             hog_process.wait(timeout=30)

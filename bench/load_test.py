@@ -44,7 +44,6 @@ import argparse
 import json
 import os
 import shutil
-import signal
 import struct
 import subprocess
 import sys
@@ -61,6 +60,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from aeropend_ros._ros_env import ensure_ros_environment, local_ros_environment  # noqa: E402
+from aeropend_ros.testing import interrupt  # noqa: E402
 
 SAMPLE_TIME = 1.0 / 490.0          # same as aeropend_core.model.parameters.SAMPLE_TIME (checked in main)
 SAMPLES_TOPIC = '/aeropend/samples'
@@ -222,18 +222,6 @@ def start_graph(args, domain_id: int, bag_folder: Path, log_folder: Path) -> dic
         processes[name] = subprocess.Popen(command, env=env, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
         log.close()
     return processes
-
-
-def stop(process: subprocess.Popen, timeout: float = 30.0) -> int:
-    """SIGINT (Ctrl-C), SIGKILL after `timeout` [s]; the exit status (negative: killed by that signal)."""
-    if process.poll() is None:
-        process.send_signal(signal.SIGINT)
-        try:
-            process.wait(timeout)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-    return process.returncode
 
 
 # ------------------------------------------------------------------------------------------------ measurements
@@ -564,7 +552,7 @@ def run(args) -> dict:
     finally:
         for name in ('excitation_node', 'identification_node', 'recorder_node', 'sim_node'):
             if name in processes:
-                exit_codes[name] = stop(processes[name])
+                exit_codes[name] = interrupt(processes[name])
         listener.close()
     wall = time.monotonic() - started
     print(f'graph stopped after {wall:.0f} s (exit codes {exit_codes}); reading the bag', flush=True)
