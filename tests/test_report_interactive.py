@@ -133,17 +133,17 @@ def test_candidate_chart_after_add_shows_before_and_after(added, tmp_path):
     assert not re.search(r'\binf\b', visible)                 # a profiled threshold's t statistic said in words
 
 
-def test_rows_without_error_to_remove_do_not_claim_a_share(diagnosis):
-    """A candidate added to a model already within the noise removes nothing: no 'removes 100 %' on a 'no' row."""
+def test_rows_without_error_to_remove_do_not_claim_a_share():
+    """A candidate added to a model already within the noise removes nothing: no 'removes 100 %' on a 'no' row, and a
+    profiled threshold's infinite t statistic said in words -- by the diagnosis's own wording, not patched later."""
+    from aeropend_core.diagnosis.evidence import share_words, t_statistic_words
     from aeropend_core.present.report import _plain
-    candidate = dataclasses.replace(diagnosis.candidates[-1], excess_before=0.0, excess_after=0.0,
-                                    significant=False, explanation='Held-out error beyond the noise 0.00 -> 0.00 '
-                                    'mrad. Evidence: parameter inf HAC standard errors from zero, training BIC +3.0, '
-                                    'held-out Diebold-Mariano +0.4; it removes 100 % of the held-out mean-square '
-                                    'error beyond the noise.')
-    text = _plain(candidate.explanation, candidate)
+    text = f'{t_statistic_words(float("inf"))}; {share_words(1.0, 0.0)}'
     assert 'removes 100 %' not in text and 'no error beyond the noise' in text
     assert 'inf' not in text.split() and 'threshold' in text
+    assert share_words(0.42, 1e-3) == 'it removes 42 % of the held-out mean-square error beyond the noise'
+    assert t_statistic_words(4.25) == 'parameter 4.2 HAC standard errors from zero'
+    assert _plain('interval [0.1, inf] rad') == 'interval [0.1, unbounded] rad'
 
 
 def test_csv_export_holds_every_sample_and_the_models(page, diagnosis):

@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
-from aeropend_core.diagnosis.evidence import diebold_mariano
+from aeropend_core.diagnosis.evidence import diebold_mariano, share_words, t_statistic_words
 from aeropend_core.diagnosis.doubts import doubt_notes, rate_notes, residual_structure, unresolvable
 from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
@@ -450,12 +450,11 @@ def assess(prep: PreparedRecord, base: Comparison, augmented: Comparison, name: 
                           dm_statistic=float(dm), mse_gain=float(gain), share_removed=share,
                           share_measurable=share_measurable)
     candidate.explanation = _explain(name, values, errors, excess_before, excess_after, evidence)
-    candidate.explanation += (f' Evidence: parameter {t_statistic:.1f} HAC standard errors from zero, training BIC '
-                              f'{delta_bic:+.1f}, held-out Diebold-Mariano {dm:+.1f}; it removes {share * 100:.0f} % '
-                              f'of the held-out mean-square error beyond the noise'
+    candidate.explanation += (f' Evidence: {t_statistic_words(t_statistic)}, training BIC {delta_bic:+.1f}, '
+                              f'held-out Diebold-Mariano {dm:+.1f}; {share_words(share, excess_before)}'
                               + (f' ({share_measurable * 100:.0f} % of the part beyond the noise estimate\'s '
                                  f'uncertainty, +-{spread / noise ** 2 * 100:.1f} % of the noise variance)'
-                                 if share_measurable > share + 0.005 else '') + '.')
+                                 if share_measurable > share + 0.005 and excess_before > 0 else '') + '.')
     if gate in values and 'threshold_interval' in augmented.fit.extra:
         low, high = augmented.fit.extra['threshold_interval']
         candidate.explanation += (f' The threshold lies between the input levels {low:.3f} V and {high:.3f} V '

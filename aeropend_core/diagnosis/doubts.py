@@ -29,6 +29,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
+from aeropend_core.diagnosis.evidence import t_statistic_words
 from aeropend_core.model.effects import CATALOG, MEASUREMENT_FILTER, get_effect, separating_experiment
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 
@@ -105,12 +106,14 @@ def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
         moved = '; '.join(f'{name} {old:.4g} -> {new:.4g} {NOMINAL_PARAMETERS[name][0]} ({change * 100:+.1f} %)'
                           for name, old, new, change in moves[:3])
         notes.append(
-            f'{candidate.effect} is supported by the statistics ({values}; parameter {candidate.t_statistic:.1f} '
-            f'HAC standard errors from zero, training BIC {candidate.delta_bic:+.0f}, held-out Diebold-Mariano '
-            f'{candidate.dm_statistic:+.1f}) but not named: {"; ".join(failed) or "it is not significant"}. It '
-            f'removes {candidate.share_removed * 100:.0f} % of the held-out error beyond the noise '
-            f'({candidate.mse_gain * 1e6:.2f} of {beyond * 1e6:.2f} mrad^2, which is known only to '
-            f'+-{spread * 1e6:.2f} mrad^2).'
+            f'{candidate.effect} is supported by the statistics ({values}; {t_statistic_words(candidate.t_statistic)}'
+            f', training BIC {candidate.delta_bic:+.0f}, held-out Diebold-Mariano {candidate.dm_statistic:+.1f}) '
+            f'but not named: {"; ".join(failed) or "it is not significant"}. '
+            + (f'It removes {candidate.share_removed * 100:.0f} % of the held-out error beyond the noise '
+               f'({candidate.mse_gain * 1e6:.2f} of {beyond * 1e6:.2f} mrad^2, which is known only to '
+               f'+-{spread * 1e6:.2f} mrad^2).' if candidate.excess_before > 0 else
+               f'The model it was added to is already within the noise: no error beyond the noise is left for it to '
+               f'remove (it lowers the held-out mean-square error by {candidate.mse_gain * 1e6:.2f} mrad^2).')
             + (f' With it the nominal parameters move: {moved}; the reported values are uncertain by that much'
                f' (the nominal parameters can absorb most of a small {candidate.effect}).' if moves else '')
             + f' To decide, {rules.excitation_advice(candidate.effect)}.')

@@ -225,3 +225,21 @@ def diebold_mariano(error_reference: np.ndarray, error_candidate: np.ndarray) ->
 __all__ = ['bandwidth', 'long_run_variance', 'effective_samples', 'hac_covariance', 'input_covariance',
            'held_bias_covariance',
            'diebold_mariano']
+
+
+def t_statistic_words(t_statistic: float) -> str:
+    """A candidate's parameter test in words: ``'parameter 4.2 HAC standard errors from zero'``, or, for a profiled
+    threshold (infinite t: it has no standard error and is not tested against zero), what was done instead."""
+    if math.isfinite(t_statistic):
+        return f'parameter {t_statistic:.1f} HAC standard errors from zero'
+    return 'parameter a threshold placed between two input levels (no standard error; not tested against zero)'
+
+
+def share_words(share: float, excess_before: float) -> str:
+    """The share of the held-out error beyond the noise that a candidate removes, in words; when the model it was
+    added to is already within the noise (no error beyond it, ``excess_before`` [rad] <= 0), that instead of a share
+    computed from a zero denominator."""
+    if not excess_before > 0:
+        return ('the model it was added to is already within the noise, so there is no error beyond the noise for '
+                'it to remove')
+    return f'it removes {share * 100:.0f} % of the held-out mean-square error beyond the noise'

@@ -155,20 +155,8 @@ def _without_title(message: str) -> str:
     return rest[:1].upper() + rest[1:] if rest != message and '_' not in first_word else rest
 
 
-def _plain(text: str, candidate: Candidate | None = None) -> str:
-    """Text for the page without an 'inf' and without a share of an error that is not there.
-
-    A profiled threshold (dead zone) has no standard error, so its t statistic is infinite: said in words. A
-    candidate added to a model already within the noise has no error beyond the noise to remove, whatever the
-    share computed from a zero denominator says.
-    """
-    text = re.sub(r'parameter [+-]?inf HAC standard errors from zero',
-                  'parameter a threshold placed between two input levels (no standard error; not tested against '
-                  'zero)', text)
-    if candidate is not None and not candidate.excess_before > 0:
-        text = re.sub(r'it removes \d+ % of the held-out mean-square error beyond the noise( \([^)]*\))?',
-                      'the model it was added to is already within the noise, so there is no error beyond the noise '
-                      'for it to remove', text)
+def _plain(text: str) -> str:
+    """Text for the page without an 'inf' (an unbounded interval or ratio said in a word)."""
     return re.sub(r'(?<![\w.])[+-]?inf(?![\w])', 'unbounded', text)
 
 
@@ -346,7 +334,7 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
             f'<small>RMS {_mrad(candidate.rms_error)}</small></td>'
             f'<td class="num">{_num(candidate.delta_bic, 1)}</td><td>{_parameters_with_sigma(candidate)}</td>'
             f'<td>{confounded}</td></tr>')
-        detail = _esc(_plain(candidate.explanation or candidate.error, candidate))
+        detail = _esc(_plain(candidate.explanation or candidate.error))
         if candidate.evidence and 'Improved most' not in (candidate.explanation or ''):
             detail += '<br><b>Evidence</b> (regimes that improved most): ' + '; '.join(
                 _esc(e) for e in candidate.evidence)
