@@ -112,8 +112,8 @@ def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
             + (f'It removes {candidate.share_removed * 100:.0f} % of the held-out error beyond the noise '
                f'({candidate.mse_gain * 1e6:.2f} of {beyond * 1e6:.2f} mrad^2, which is known only to '
                f'+-{spread * 1e6:.2f} mrad^2).' if candidate.excess_before > 0 else
-               f'The model it was added to is already within the noise: no error beyond the noise is left for it to '
-               f'remove (it lowers the held-out mean-square error by {candidate.mse_gain * 1e6:.2f} mrad^2).')
+               'The model it was added to is already within the noise: no error beyond the noise is left for it to '
+               'remove.')
             + (f' With it the nominal parameters move: {moved}; the reported values are uncertain by that much'
                f' (the nominal parameters can absorb most of a small {candidate.effect}).' if moves else '')
             + f' To decide, {rules.excitation_advice(candidate.effect)}.')
