@@ -9,6 +9,36 @@ import numpy as np
 DOES_NOT_FIT = 'model_does_not_fit'
 
 
+def misfit_doubt(diagnosis) -> str | None:
+    """The doubt a model's misfit casts on its parameters, or None when it fits within the noise.
+
+    A model that misses the data by more than half the noise RMS beyond the noise (the diagnosis's own
+    ``UNEXPLAINED_NOISE`` line) has parameters that absorb what it misses: their ± is the spread the noise alone
+    would give, and says nothing of that bias.
+
+    Parameters
+    ----------
+    diagnosis : Diagnosis
+        A finished diagnosis; its ``current`` model is the one whose parameters are reported.
+
+    Returns
+    -------
+    str or None
+        One sentence (no final full stop), with the misfit in mrad.
+    """
+    from aeropend_core.diagnosis.compare import excess_error
+    from aeropend_core.diagnosis.diagnose import UNEXPLAINED_NOISE
+    current = diagnosis.current
+    noise = current.noise_rms
+    beyond = excess_error(current.rms_error, noise)
+    if not beyond > UNEXPLAINED_NOISE * noise:
+        return None
+    return (f'the parameters are those of a model that misses the data by {beyond * 1e3:.2f} mrad beyond the noise '
+            f'({noise * 1e3:.2f} mrad): they absorb what it misses, so they can be off by more than their +- says '
+            '(the +- is the spread the noise alone gives)'
+            + ('; the values with the missing effects added are given with them' if diagnosis.found else ''))
+
+
 def check_diagnosis(diagnosis):
     """Check `diagnosis`'s reported parameters; set ``parameter_warnings`` and ``independent`` and, when one fails,
     the verdict :data:`DOES_NOT_FIT` with the reason first in the message. Returns the diagnosis.
@@ -53,4 +83,7 @@ def check_diagnosis(diagnosis):
                                + '; '.join(f'{k} ({v})' for k, v in NOT_IDENTIFIABLE.items()) + '.')
     if independent is not None:
         diagnosis.notes.append(independent.describe() + '.')
+    doubt = misfit_doubt(diagnosis)
+    if doubt is not None:
+        diagnosis.notes.insert(0, doubt + '.')
     return diagnosis

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
+from aeropend_core.diagnosis.checks import check_diagnosis, misfit_doubt
 from aeropend_core.diagnosis.evidence import diebold_mariano, share_words, t_statistic_words
 from aeropend_core.diagnosis.doubts import doubt_notes, rate_notes, residual_structure, unresolvable
 from aeropend_core.diagnosis.output_error import _bounds
@@ -273,6 +274,7 @@ class Diagnosis:
             'prediction_horizon': current.evaluation.prediction_horizon,
             'parameters': self.reported_parameters(current),
             'standard_errors': self.reported_errors(current), 'parameter_warnings': self.parameter_warnings,
+            'parameters_doubt': misfit_doubt(self),
             'model': 'reduced' if self.prepared is not None and self.prepared.reduced else 'full',
             'not_identifiable': _not_identifiable(self.prepared),
             'motor_map': getattr(self.prepared, 'motor_map', None),
@@ -780,7 +782,6 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     notes += rate_notes(found, prep.sample_time)                  # what this sample rate cannot resolve
     if getattr(prep, 'gaps', None) is not None and prep.gaps.count:
         notes.append(prep.gaps.describe())
-    from aeropend_core.diagnosis.checks import check_diagnosis
     return check_diagnosis(Diagnosis(
         effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
         message=message, notes=notes, before=before, residual_structure=structure, prepared=prep,

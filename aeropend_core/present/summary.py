@@ -29,7 +29,9 @@ def format_summary(diagnosis: Diagnosis) -> str:
     if prep is not None and prep.reduced and prep.motor_map:
         lines.append('Reduced model (no period-average armature current): thrust k e|e| with T de/dt = Va - e - q e|e| '
                      f'(T, q profiled; residual {prep.motor_map["residual_rms"] * 1e3:.2f} mrad on the training part)')
-    lines.append('Parameters (SI, +- 1 sigma):')
+    from aeropend_core.diagnosis.checks import misfit_doubt
+    lines.append('Parameters (SI, +- 1 sigma' + ('; the model misses the data: biased by what it misses, see the first '
+                                               'note' if misfit_doubt(diagnosis) else '') + '):')
     observer = prep is not None and prep.motor is not None
     errors = diagnosis.reported_errors(current)
     warnings = diagnosis.parameter_warnings
