@@ -45,6 +45,9 @@ code                        severity     when
 ``current_inconsistent``    warning      the current is positive but falls as Va rises, or does not jump with
                                          Va at the steps: not the period-average current (read inside the PWM
                                          pulse?); dropped, the reduced model is used (a window: said only)
+``current_clipped``         warning      the current holds its lowest value without noise in runs starting where
+                                         Va falls (a braking current a one-sided sensor cannot read): dropped,
+                                         the reduced model is used (a window: said only)
 ``voltage_from_duty``       warning      no armature voltage column: Va from the duty by eq (8)
 ``angle_sign``              repaired     the angle falls as the thrust rises: negated (a node window: warning)
 ``column_names``            repaired     CSV header spellings and units (``Angle [deg]``): read as SI, said
@@ -89,6 +92,7 @@ from aeropend_core.signals.quality_checks import (
     _check_noise,
     _check_outliers,
     _check_rest_angle,
+    _check_current_floor,
     _check_signs,
     _check_stuck,
     _check_time,
@@ -145,6 +149,7 @@ def check_recording(recording, *, sample_time: float | None = None, context: str
     if 'angle' in gate.signals:
         _check_angle_jumps(gate)
     _check_signs(gate)
+    _check_current_floor(gate)
     for name in ('angle', 'armature_current'):
         if name in gate.signals:
             _check_noise(gate, name)

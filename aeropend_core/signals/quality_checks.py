@@ -526,6 +526,52 @@ def _check_current_consistency(gate: _Gate, voltage: np.ndarray, width: int) -> 
              'is right, fix its column (sign, scale, sampling phase) in the log or its import profile', whole, n)
 
 
+def _check_current_floor(gate: _Gate) -> None:
+    """A current column that cannot go below a floor: a one-sided sense resistor or an ADC that reads 0 for the
+    braking current.
+
+    After the armature voltage falls, the back-EMF exceeds Va and the period-average current of a braking drive is
+    negative until the motor slows. A sensor that cannot read it holds its lowest value exactly (no noise) in runs that
+    start at those falls. The clipped samples would pull the motor observer (and the armature resistance) away from
+    the truth, and a corrected value cannot be made up, so the current is not used: the reduced model is fitted
+    instead (in an online window: said only). A current whose lowest value is simply its rest (the record starts at
+    duty 0) is not this: its runs at the floor do not follow falls of Va."""
+    signals = gate.signals
+    current, voltage = signals.get('armature_current'), signals.get('armature_voltage')
+    n = gate.time.size
+    if current is None or voltage is None or n < 200:
+        return
+    floor = float(np.min(current))
+    at_floor = current == floor
+    runs = [(a, b) for a, b in _runs(at_floor) if b - a >= 2]               # three or more samples held exactly
+    moving = np.diff(current)[~(at_floor[1:] & at_floor[:-1])]
+    if not runs or moving.size == 0 or np.mean(moving == 0) > 0.5:          # a coarse or held sensor: not this
+        return
+    from aeropend_core.signals.preprocess import detect_steps
+    sample_time = float(np.median(np.diff(gate.time)))
+    span = float(np.subtract(*np.percentile(voltage, [99, 1])))
+    falls = [k for k in detect_steps(voltage, sample_time) if 3 <= k <= n - 3
+             and float(np.median(voltage[k:k + 3]) - np.median(voltage[k - 3:k])) < -0.1 * span]
+    window = max(int(round(0.5 / sample_time)), 2)
+    after_fall = [(a, b) for a, b in runs if any(0 <= a - k <= window for k in falls)]
+    held = sum(b - a + 1 for a, b in after_fall)
+    if len(after_fall) < 3 or held < max(10, 0.005 * n) or len(after_fall) < 0.5 * len(falls):
+        return
+    text = (f"'armature_current' holds its lowest value ({floor:.4g} A) without noise for {held} samples "
+            f'({held / n * 100:.1f} %) in {len(after_fall)} runs that start when the armature voltage falls, where a '
+            'braking drive\'s current is negative: the sensor cannot read below that value (a one-sided sense resistor '
+            'or ADC)')
+    if gate.context == 'window':
+        gate.add('current_clipped', 'warning', text + '; check the current sensing', gate.span(0, n - 1), held)
+        return
+    del signals['armature_current']
+    gate.add('current_clipped', 'warning', text + '. The clipped current would bias the motor observer and the '
+             'armature resistance, so it is not used: the reduced model (thrust from Va through the motor\'s static '
+             'map and lag; no armature resistance) is fitted instead. A sensor that reads both signs (or a current '
+             'offset that keeps the braking current above the ADC\'s zero) gives the full model', gate.span(0, n - 1),
+             held)
+
+
 def _step_jumps(gate: _Gate, voltage: np.ndarray, current: np.ndarray) -> float | None:
     """Median of sign(dVa) x (jump of the current) across the larger Va steps, relative to the current's spread
     (None: fewer than 5 steps)."""
