@@ -38,6 +38,8 @@ import numpy as np
 
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
+from aeropend_core.sim.schedule_file import (SWEEP_HOLD, Block, DutySchedule, read_schedule, steps_to_duty,
+                                             write_schedule)
 
 #: Default duration budget of a designed experiment [s] (the diagnosis needs at least 20 s of a record).
 DEFAULT_DURATION = 30.0
@@ -47,8 +49,6 @@ MIN_DURATION = 20.0
 DEFAULT_DUTY_LIMIT = 0.7
 #: Default limit on every model's predicted angle [rad] (80 deg: below the horizontal with margin).
 DEFAULT_ANGLE_LIMIT = math.radians(80.0)
-#: Hold time of the steps a sine sweep is rendered with [s] (20 holds per second: the sweeps stay below 4 Hz).
-SWEEP_HOLD = 0.05
 #: Rest at duty 0 at the start of every design [s] (the rod starts hanging still, as the models assume).
 LEAD_REST = 1.0
 #: Parameter draws per model for the uncertainty (the score is the minimum over the paired draws).
@@ -121,93 +121,6 @@ class CompetingModel:
         effects = tuple(comparison.effects)
         return cls(effects, dict(fit.parameters), names, covariance, thrust_from_back_emf,
                    label or ' + '.join(('nominal',) + effects))
-
-
-@dataclass(frozen=True)
-class Block:
-    """One piece of a schedule: a held duty (``kind`` 'step', or 'rest' at duty 0), a sine sweep or a square wave
-    whose frequency sweeps (``kind`` 'square': sharp full steps, which show a lag's shape best).
-
-    Attributes
-    ----------
-    kind : str
-        'step', 'rest', 'sweep' or 'square'.
-    seconds : float [s]
-        Length of the block.
-    level : float, dimensionless
-        Duty fraction of a step; mean duty of a sweep.
-    amplitude : float, dimensionless
-        Duty amplitude of a sweep or square wave (0 otherwise).
-    start_hz, stop_hz : float [Hz]
-        Frequencies at the start and end of a sweep (linear sweep).
-    """
-
-    kind: str
-    seconds: float
-    level: float = 0.0
-    amplitude: float = 0.0
-    start_hz: float = 0.0
-    stop_hz: float = 0.0
-
-    def steps(self) -> list[tuple[float, float]]:
-        """The block as ``(duty, dwell_s)`` steps (a sweep or square wave in holds of SWEEP_HOLD seconds)."""
-        if self.kind not in ('sweep', 'square'):
-            return [(self.level if self.kind == 'step' else 0.0, self.seconds)]
-        count = max(1, int(round(self.seconds / SWEEP_HOLD)))
-        t = (np.arange(count) + 0.5) * SWEEP_HOLD
-        rate = (self.stop_hz - self.start_hz) / max(self.seconds, 1e-9)
-        phase = 2 * math.pi * (self.start_hz * t + 0.5 * rate * t ** 2)
-        wave = np.sin(phase) if self.kind == 'sweep' else np.where(np.sin(phase) >= 0.0, 1.0, -1.0)
-        duty = np.clip(self.level + self.amplitude * wave, 0.0, 1.0)
-        return [(float(d), SWEEP_HOLD) for d in duty]
-
-    def text(self) -> str:
-        """The block in words, SI units."""
-        if self.kind == 'rest':
-            return f'rest at duty 0 for {self.seconds:.1f} s'
-        if self.kind == 'step':
-            return f'duty {self.level:.3f} for {self.seconds:.1f} s'
-        if self.kind == 'square':
-            return (f'square wave {self.start_hz:.2f}->{self.stop_hz:.2f} Hz between duty '
-                    f'{self.level - self.amplitude:.3f} and {self.level + self.amplitude:.3f} for {self.seconds:.1f} s')
-        return (f'sine sweep {self.start_hz:.2f}->{self.stop_hz:.2f} Hz around duty {self.level:.3f} '
-                f'+- {self.amplitude:.3f} for {self.seconds:.1f} s')
-
-
-@dataclass(frozen=True)
-class DutySchedule:
-    """A designed duty schedule: blocks rendered as ``(duty, dwell_s)`` steps (what the excitation node plays)."""
-
-    blocks: tuple[Block, ...]
-
-    @property
-    def steps(self) -> np.ndarray:
-        """Shape (n_steps, 2): duty fraction, dwell [s]; adjacent equal duties merged."""
-        merged: list[list[float]] = []
-        for block in self.blocks:
-            for duty, dwell in block.steps():
-                if merged and abs(merged[-1][0] - duty) < 1e-12:
-                    merged[-1][1] += dwell
-                else:
-                    merged.append([duty, dwell])
-        return np.array(merged, dtype=float).reshape(-1, 2)
-
-    @property
-    def duration(self) -> float:
-        """Total length [s]."""
-        return float(sum(b.seconds for b in self.blocks))
-
-    def duty(self, sample_time: float = SAMPLE_TIME) -> np.ndarray:
-        """Duty per sample (zero-order hold at `sample_time` [s]), shape (n,)."""
-        return steps_to_duty(self.steps, sample_time)
-
-
-def steps_to_duty(steps: np.ndarray, sample_time: float = SAMPLE_TIME) -> np.ndarray:
-    """Duty per sample [fraction] from ``(duty, dwell_s)`` steps (rounded to whole samples at their ends)."""
-    steps = np.asarray(steps, dtype=float).reshape(-1, 2)
-    counts = np.round(np.cumsum(steps[:, 1]) / sample_time).astype(int)
-    lengths = np.diff(np.concatenate(([0], counts)))
-    return np.repeat(steps[:, 0], np.maximum(lengths, 0))
 
 
 @dataclass
@@ -289,93 +202,6 @@ class ExperimentDesign:
     def write(self, path: str | Path) -> Path:
         """Write the schedule file (YAML, SI units; see :func:`write_schedule`)."""
         return write_schedule(path, self.schedule.steps, self.to_dict())
-
-
-# ------------------------------------------------------------------------------------------------ schedule files
-SCHEDULE_FORMAT = 'aeropend-duty-schedule-1'
-
-
-def write_schedule(path: str | Path, steps: np.ndarray, experiment: Mapping | None = None) -> Path:
-    """Write ``(duty, dwell_s)`` steps as the YAML step file the excitation node plays (``steps_file``).
-
-    Parameters
-    ----------
-    path : str or Path [-]
-        The file to write (its folder must exist).
-    steps : ndarray, shape (n_steps, 2) [fraction, s]
-        Duty fraction 0..1 and dwell of each step.
-    experiment : mapping, optional [SI]
-        What the schedule was designed for (written under ``experiment``; the node ignores it).
-
-    Returns
-    -------
-    Path
-        The written file.
-    """
-    import yaml
-    path = Path(path)
-    document = {'format': SCHEDULE_FORMAT,
-                'units': {'duty': 'fraction 0..1 of the PWM period', 'dwell': 's'},
-                'steps': [[round(float(d), 6), round(float(s), 6)] for d, s in np.asarray(steps).reshape(-1, 2)]}
-    if experiment:
-        document['experiment'] = dict(experiment)
-    header = ('# aeropend duty schedule: each step is [duty fraction 0..1, dwell in s], played in order from duty 0\n'
-              '# by the excitation node (aeropend run --experiment THIS_FILE); the duty returns to 0 at the end.\n')
-    text = header + yaml.safe_dump(document, sort_keys=False, default_flow_style=None, width=110)
-    try:
-        path.write_text(text, encoding='utf-8')
-    except OSError as error:
-        raise AeropendError(f'cannot write the schedule file {path}: {error.strerror}; choose a writable '
-                            'folder') from None
-    return path
-
-
-def read_schedule(path: str | Path, duty_limit: float = 1.0) -> tuple[np.ndarray, dict]:
-    """Read a schedule file: its steps and its ``experiment`` section (empty when absent).
-
-    Parameters
-    ----------
-    path : str or Path [-]
-        A YAML file with ``steps: [[duty, dwell_s], ...]``.
-    duty_limit : float, dimensionless
-        Refuse steps above this duty fraction (the run's safety cap).
-
-    Returns
-    -------
-    steps : ndarray, shape (n_steps, 2) [fraction, s]
-        The steps.
-    experiment : dict
-        The file's ``experiment`` section (SI).
-
-    Raises
-    ------
-    AeropendError
-        An unreadable file, no valid steps, or a step above `duty_limit` (named).
-    """
-    import yaml
-    path = Path(path)
-    try:
-        document = yaml.safe_load(path.read_text(encoding='utf-8'))
-    except OSError as error:
-        raise AeropendError(f'cannot read the experiment file {path}: {error.strerror}') from None
-    except (yaml.YAMLError, UnicodeDecodeError) as error:
-        raise AeropendError(f'experiment file {path} is not valid YAML ({type(error).__name__}); write '
-                            '"steps: [[duty, dwell_s], ...]"') from None
-    raw = document.get('steps') if isinstance(document, dict) else None
-    try:
-        steps = np.asarray(raw, dtype=float).reshape(-1, 2)
-    except (TypeError, ValueError):
-        steps = np.zeros((0, 2))
-    if not isinstance(raw, list) or steps.size == 0:
-        raise AeropendError(f'experiment file {path} needs a list "steps: [[duty fraction, dwell s], ...]"')
-    if not np.all(np.isfinite(steps)) or np.any(steps[:, 0] < 0) or np.any(steps[:, 1] <= 0):
-        raise AeropendError(f'experiment file {path}: every step needs a duty fraction >= 0 and a positive dwell [s]')
-    above = np.flatnonzero(steps[:, 0] > duty_limit + 1e-9)
-    if above.size:
-        raise AeropendError(f'experiment file {path}: step {int(above[0]) + 1} asks for duty {steps[above[0], 0]:g}, '
-                            f'above the duty cap {duty_limit:g}; design it again within the cap or raise --duty-cap')
-    experiment = document.get('experiment') if isinstance(document.get('experiment'), dict) else {}
-    return steps, experiment
 
 
 # ------------------------------------------------------------------------------------------------ predictions
@@ -697,6 +523,9 @@ def design_experiment(models: Sequence[CompetingModel], noise_rms: float, durati
     for _ in range(refinements):
         evaluate(_mutate(best[0], rng, duration, duty_limit))
     blocks, score = best
+    if not score.separation > 0:
+        raise DesignRefused(f'no schedule of {tried} tried within duty {duty_limit:g} and angle '
+                            f'{math.degrees(angle_limit):.0f} deg separates the two models at all; widen the limits')
     schedule = DutySchedule(blocks)
     if float(schedule.steps[:, 0].max()) > duty_limit + 1e-12:       # never: blocks are built within the limit
         raise DesignRefused(f'internal check: a designed step exceeds the duty limit {duty_limit:g}')
@@ -709,6 +538,41 @@ def design_experiment(models: Sequence[CompetingModel], noise_rms: float, durati
     return ExperimentDesign(schedule, (models[0], models[1]), score.separation, score.separation_fitted, score.peak,
                             max(baseline.separation, 0.0), noise_rms, score.max_angle, duty_limit, angle_limit,
                             tried, doubts)
+
+
+def measured_separation(recording, effect_sets: Sequence[Sequence[str]], noise_rms: float,
+                        fixed: Mapping[str, float] | None = None) -> dict[str, float]:
+    """The separation of two models measured on a played record: each fitted on the whole record (all segments,
+    its own initial states), ``sqrt(|rms_a^2 - rms_b^2|) / noise_rms``.
+
+    Parameters
+    ----------
+    recording : Recording or PreparedRecord [-]
+        The played record (at least 20 s).
+    effect_sets : sequence of two sequences of str [-]
+        The effects of the two models.
+    noise_rms : float [rad]
+        The unit of the separation (the design's noise RMS).
+    fixed : mapping of str -> float, optional [SI]
+        Parameters held at known values.
+
+    Returns
+    -------
+    dict
+        ``separation`` [-], the residual RMS of each model ``rms`` [rad] (list, in the order given) and
+        ``better`` (the index of the model with the smaller residual).
+    """
+    from aeropend_core.diagnosis.compare import PreparedRecord, fit_model, prepare, segment_at_steps
+    from aeropend_core.diagnosis.output_error import SegmentedData
+    prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
+    pieces = [piece for a, b in prep.gaps.pieces(0, len(prep.time))
+              for piece in segment_at_steps(a, b, prep.step_indices, prep.sample_time)]
+    data = SegmentedData(prep.voltage, prep.current, prep.angle, pieces, prep.sample_time, prep.gate_voltage,
+                         prep.valid, None, prep.step_indices)
+    rms = [float(fit_model(prep, tuple(effects), data=data, fixed=dict(fixed or {})).residual_rms)
+           for effects in effect_sets]
+    return {'separation': math.sqrt(abs(rms[0] ** 2 - rms[1] ** 2)) / noise_rms, 'rms': rms,
+            'better': int(np.argmin(rms))}
 
 
 # ------------------------------------------------------------------------------------------------ from a diagnosis
@@ -778,5 +642,5 @@ def confounded_models(diagnosis) -> list[CompetingModel]:
 
 
 __all__ = ['CompetingModel', 'Block', 'DutySchedule', 'ExperimentDesign', 'DesignRefused', 'design_experiment',
-           'predict_separation', 'competing_models', 'confounded_models', 'write_schedule', 'read_schedule',
-           'steps_to_duty', 'motor_inputs', 'baseline_duty']
+           'predict_separation', 'measured_separation', 'competing_models', 'confounded_models', 'write_schedule',
+           'read_schedule', 'steps_to_duty', 'motor_inputs', 'baseline_duty']
