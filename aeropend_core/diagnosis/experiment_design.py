@@ -276,6 +276,33 @@ class _Predictor:
         return np.column_stack(columns) if columns else np.zeros((len(self.index), 0))
 
 
+def predicted_angle(model: CompetingModel, duty: np.ndarray, parameters: RigParameters = DEFAULT_PARAMETERS,
+                    sample_time: float = SAMPLE_TIME) -> tuple[np.ndarray, np.ndarray]:
+    """A model's predicted measured angle for a duty sequence, from rest (what the design compares).
+
+    Parameters
+    ----------
+    model : CompetingModel [-]
+        The model (fitted parameters).
+    duty : ndarray, shape (n,), dimensionless
+        Duty fraction per sample.
+    parameters : RigParameters [SI]
+        The motor model that turns duty into the model's inputs.
+    sample_time : float [s]
+        Ts.
+
+    Returns
+    -------
+    index : ndarray of int
+        The samples predicted (every integration step).
+    angle : ndarray [rad]
+        The predicted measured angle there.
+    """
+    duty = np.asarray(duty, dtype=float)
+    predictor = _Predictor(model, motor_inputs(duty, parameters, sample_time), sample_time, [(0, len(duty))])
+    return predictor.index, predictor.run([model.parameters])[0]
+
+
 def _draws(model: CompetingModel, count: int, rng: np.random.Generator) -> list[dict[str, float]]:
     """The fitted parameters, then `count` draws from their covariance (clipped to each parameter's bounds)."""
     from aeropend_core.diagnosis.output_error import _bounds
@@ -643,4 +670,4 @@ def confounded_models(diagnosis) -> list[CompetingModel]:
 
 __all__ = ['CompetingModel', 'Block', 'DutySchedule', 'ExperimentDesign', 'DesignRefused', 'design_experiment',
            'predict_separation', 'measured_separation', 'competing_models', 'confounded_models', 'write_schedule',
-           'read_schedule', 'steps_to_duty', 'motor_inputs', 'baseline_duty']
+           'read_schedule', 'steps_to_duty', 'motor_inputs', 'baseline_duty', 'predicted_angle']
