@@ -82,14 +82,18 @@ def main() -> None:
     args = parser.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
     rows = []
-    for name, truth, right, wrong, cap in PAIRS:
-        for k in range(args.seeds):
+    for k in range(args.seeds):
+        for name, truth, right, wrong, cap in PAIRS:
             row = one_case(name, truth, right, wrong, cap, 9100 + 10 * k + len(rows), args)
             rows.append(row)
             print(json.dumps({key: row[key] for key in ('pair', 'seed', 'first_verdict', 'predicted_separation',
                                                         'baseline_separation', 'measured_separation_40dB',
                                                         'measured_separation_noise_free', 'joint_verdict',
                                                         'decided_correctly', 'cpu_seconds')}), flush=True)
+            write(rows, args)       # after every case: a long run stopped early keeps what it measured
+
+
+def write(rows: list[dict], args) -> None:
     (OUT / 'results.json').write_text(json.dumps(finite_json({'rows': rows, 'psnr_db': PSNR,
                                                               'settings': vars(args)}), indent=2) + '\n')
     lines = ['| pair | seed | first record alone | predicted (x noise RMS) | original excitation | measured, 40 dB | '
@@ -100,7 +104,6 @@ def main() -> None:
                      f'{r["measured_separation_noise_free"]:.3g} | {r["joint_verdict"]} | {r["decided_correctly"]} | '
                      f'{r["cpu_seconds"]:.0f} |')
     (OUT / 'table.md').write_text('\n'.join(lines) + '\n')
-    print('\n'.join(lines))
 
 
 if __name__ == '__main__':

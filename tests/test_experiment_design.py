@@ -24,7 +24,7 @@ from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P
 from aeropend_core.sim.simulate import simulate
 
 AEROPEND = [sys.executable, '-c', 'import sys; from aeropend_core.cli import main; sys.exit(main())']
-#: A small, quick search for the fast tests (the CLI's default is 120 + 60 schedules).
+#: A small, quick search for the fast tests (the default is 60 + 30 schedules).
 QUICK = dict(candidates=10, refinements=5, draws=2)
 
 

@@ -54,8 +54,8 @@ LEAD_REST = 1.0
 #: Parameter draws per model for the uncertainty (the score is the minimum over the paired draws).
 DEFAULT_DRAWS = 4
 #: Random schedules tried, then local changes of the best.
-DEFAULT_CANDIDATES = 120
-DEFAULT_REFINEMENTS = 60
+DEFAULT_CANDIDATES = 60
+DEFAULT_REFINEMENTS = 30
 #: Relative step of the finite-difference sensitivities.
 SENSITIVITY_STEP = 1e-3
 
