@@ -56,6 +56,9 @@ DEFAULT_DRAWS = 4
 #: Random schedules tried, then local changes of the best.
 DEFAULT_CANDIDATES = 60
 DEFAULT_REFINEMENTS = 30
+#: Accumulated evidence, sum of (separation / noise)^2 over the samples compared, taken as decisive (a 5-sigma
+#: difference for white noise; correlated noise needs more): how long a schedule must run to decide.
+DECISIVE_EVIDENCE = 25.0
 #: Relative step of the finite-difference sensitivities.
 SENSITIVITY_STEP = 1e-3
 
@@ -166,6 +169,14 @@ class ExperimentDesign:
     angle_limit: float
     tried: int
     doubts: list[str] = field(default_factory=list)
+    #: Samples compared over the schedule (every integration step) [-].
+    samples: int = 0
+
+    @property
+    def seconds_to_decide(self) -> float:
+        """How long [s] this schedule (repeated) must run for its separation to add up to DECISIVE_EVIDENCE."""
+        evidence = self.separation ** 2 * self.samples
+        return self.schedule.duration * DECISIVE_EVIDENCE / evidence if evidence > 0 else math.inf
 
     @property
     def gain(self) -> float:
@@ -183,7 +194,13 @@ class ExperimentDesign:
                 f'difference {self.peak_separation:.2g} x). The original excitation of the same length: '
                 f'{self.baseline_separation:.2g} x ({self.gain:.1f} times less). Largest predicted angle '
                 f'{math.degrees(self.max_angle):.0f} deg (limit {math.degrees(self.angle_limit):.0f}), duty at most '
-                f'{highest_duty:.3f} (limit {self.duty_limit:.3f}).')
+                f'{highest_duty:.3f} (limit {self.duty_limit:.3f}). '
+                + (f'Enough to decide: the difference adds up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 in '
+                   f'{self.seconds_to_decide:.0f} s if the noise is white.' if self.seconds_to_decide <=
+                   self.schedule.duration else
+                   f'Likely too small to decide: the difference adds up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 only '
+                   f'after about {self.seconds_to_decide:.3g} s of such experiments (white noise; more if not); lower '
+                   f'noise or a hardware value (--fix) decides sooner.'))
 
     def to_dict(self) -> dict:
         """Machine-readable form (SI units), as written into the schedule file's ``experiment`` section."""
@@ -196,7 +213,8 @@ class ExperimentDesign:
                 'original_excitation_separation_noise_rms': float(self.baseline_separation),
                 'noise_rms_rad': float(self.noise_rms), 'max_predicted_angle_rad': float(self.max_angle),
                 'duty_limit': float(self.duty_limit), 'angle_limit_rad': float(self.angle_limit),
-                'schedules_tried': int(self.tried), 'blocks': [b.text() for b in self.schedule.blocks],
+                'schedules_tried': int(self.tried), 'seconds_to_decide': float(self.seconds_to_decide),
+                'blocks': [b.text() for b in self.schedule.blocks],
                 'description': self.describe(), 'doubts': list(self.doubts)}
 
     def write(self, path: str | Path) -> Path:
@@ -343,6 +361,7 @@ class _Score:
     separation_fitted: float
     peak: float
     max_angle: float
+    samples: int = 0
 
 
 def predict_separation(models: Sequence[CompetingModel], duty: np.ndarray, noise_rms: float,
@@ -400,7 +419,7 @@ def _score(models, duty, noise_rms, parameters, sample_time, draws, rng, angle_l
         right = _remainder(columns[0], -difference)
         separations.append(min(float(np.sqrt(np.mean(left ** 2))), float(np.sqrt(np.mean(right ** 2)))) / noise_rms)
     peak = float(np.max(np.abs(runs[0][0] - runs[1][0]))) / noise_rms
-    return _Score(float(min(separations)), float(separations[0]), peak, max_angle)
+    return _Score(float(min(separations)), float(separations[0]), peak, max_angle, int(len(runs[0][0])))
 
 
 # ------------------------------------------------------------------------------------------------ the search
@@ -564,7 +583,7 @@ def design_experiment(models: Sequence[CompetingModel], noise_rms: float, durati
               'an estimate, checked by the diagnosis of the played record']
     return ExperimentDesign(schedule, (models[0], models[1]), score.separation, score.separation_fitted, score.peak,
                             max(baseline.separation, 0.0), noise_rms, score.max_angle, duty_limit, angle_limit,
-                            tried, doubts)
+                            tried, doubts, score.samples)
 
 
 def measured_separation(recording, effect_sets: Sequence[Sequence[str]], noise_rms: float,
