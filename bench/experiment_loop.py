@@ -55,7 +55,8 @@ def one_case(name, truth, right, wrong, cap, seed, args) -> dict:
     alone = diagnose(prep, drift=False)
     models = competing_models(prep, [right, wrong])
     design = design_experiment(models, prep.noise_rms, duration=args.design_seconds, duty_limit=0.7,
-                               candidates=args.candidates, refinements=args.refinements, seed=seed)
+                               candidates=args.candidates, refinements=args.refinements, seed=seed,
+                               original_duty_limit=cap)
     played = steps_to_duty(design.schedule.steps)
     second = record(played, truth, seed + 2, source='designed')
     measured = measured_separation(second, [right, wrong], prep.noise_rms)

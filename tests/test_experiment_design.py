@@ -135,8 +135,9 @@ def test_the_design_separates_a_confounded_pair_more_than_the_original_and_as_pr
                                                                                      seed):
     prep = first_record(truth, seed, cap)
     models = competing_models(prep, [right, wrong])
-    design = design_experiment(models, prep.noise_rms, duration=30.0, candidates=30, refinements=15, seed=seed)
-    again = predict_separation(models, baseline_duty(30.0, 0.7), prep.noise_rms, seed=seed + 1)
+    design = design_experiment(models, prep.noise_rms, duration=30.0, candidates=30, refinements=15, seed=seed,
+                               original_duty_limit=cap)
+    again = predict_separation(models, baseline_duty(30.0, cap), prep.noise_rms, seed=seed + 1)
     assert again['separation'] == pytest.approx(design.baseline_separation)
     assert design.gain >= GAIN_BOUND, design.describe()
     from aeropend_core.io.recording import from_columns

@@ -496,7 +496,8 @@ def design_experiment(models: Sequence[CompetingModel], noise_rms: float, durati
                       duty_limit: float = DEFAULT_DUTY_LIMIT, angle_limit: float = DEFAULT_ANGLE_LIMIT,
                       parameters: RigParameters = DEFAULT_PARAMETERS, sample_time: float = SAMPLE_TIME,
                       candidates: int = DEFAULT_CANDIDATES, refinements: int = DEFAULT_REFINEMENTS,
-                      draws: int = DEFAULT_DRAWS, seed: int = 0) -> ExperimentDesign:
+                      draws: int = DEFAULT_DRAWS, seed: int = 0,
+                      original_duty_limit: float | None = None) -> ExperimentDesign:
     """Search the schedule that separates two models most, within the duty and angle limits and the budget.
 
     Parameters
@@ -521,6 +522,8 @@ def design_experiment(models: Sequence[CompetingModel], noise_rms: float, durati
         Parameter draws per model (the score is the minimum over paired draws).
     seed : int [-]
         Seed of the search and the draws (the design is reproducible).
+    original_duty_limit : float, optional, dimensionless
+        Highest duty of the original excitation the design is compared with (default: `duty_limit`, at most 0.7).
 
     Returns
     -------
@@ -575,7 +578,8 @@ def design_experiment(models: Sequence[CompetingModel], noise_rms: float, durati
     schedule = DutySchedule(blocks)
     if float(schedule.steps[:, 0].max()) > duty_limit + 1e-12:       # never: blocks are built within the limit
         raise DesignRefused(f'internal check: a designed step exceeds the duty limit {duty_limit:g}')
-    baseline = _score(models, baseline_duty(duration, duty_limit, sample_time=sample_time), noise_rms, parameters,
+    original = duty_limit if original_duty_limit is None else original_duty_limit
+    baseline = _score(models, baseline_duty(duration, original, sample_time=sample_time), noise_rms, parameters,
                       sample_time, draws, np.random.default_rng(seed + 1), math.inf)
     doubts = ['predicted with the nominal motor model turning duty into armature voltage, current and back-EMF; on a '
               'rig whose motor differs, the predicted angles scale with the difference',
