@@ -150,52 +150,22 @@ def test_the_design_separates_a_confounded_pair_more_than_the_original_and_as_pr
 
 @pytest.mark.slow
 def test_joint_diagnosis_of_two_records_matches_one_record_of_their_length():
-    """Two 30 s records diagnosed together give the verdict and size (within 2 sigma) of one 60 s record."""
+    """A 60 s record cut into two 30 s records and diagnosed jointly gives the verdict of the whole record and its
+    size within 2 sigma (the records restart their segments and initial states; nothing else is lost)."""
     from aeropend_core.diagnosis.diagnose import diagnose
     from aeropend_core.diagnosis.joint import diagnose_joint
     from aeropend_core.io.recording import from_columns
     from aeropend_core.sim.excitation import lhc_schedule
     from aeropend_core.sim.noise import MeasurementNoise
-    truth = {'coulomb_friction': 4.0}
-
-    def record(duration, seed):
-        duty = lhc_schedule(duration, seed=seed).duty(duration=duration)
-        run = simulate(duty, effects=truth, noise=MeasurementNoise(40.0, True), seed=seed + 1)
-        return from_columns(run.columns(with_truth=False), source=f'r{seed}')
-
-    joint = diagnose_joint([record(30.0, 9311), record(30.0, 9312)], drift=False)
-    single = diagnose(record(60.0, 9313), drift=False)
+    duty = lhc_schedule(60.0, seed=9313).duty(duration=60.0)
+    run = simulate(duty, effects={'coulomb_friction': 4.0}, noise=MeasurementNoise(40.0, True), seed=9314)
+    whole = from_columns(run.columns(with_truth=False), source='whole')
+    halves = [whole.window(0.0, 30.0), whole.window(30.0, 61.0)]
+    joint = diagnose_joint(halves, drift=False)
+    single = diagnose(whole, drift=False)
     assert joint.verdict == single.verdict == 'effect_found', joint.message + single.message
     a, b = joint.found[0], single.found[0]
     assert a.effect == b.effect == 'coulomb_friction'
     name = 'friction_acceleration'
     spread = 2 * math.hypot(a.standard_errors[name], b.standard_errors[name])
-    assert abs(a.parameters[name] - b.parameters[name]) <= max(spread, 0.05 * 4.0), (a, b)
-
-
-@pytest.mark.timeout(240)
-def test_run_plays_the_experiment_file_and_the_bag_says_so(tmp_path):
-    """A 20 s schedule at 4x on the simulator: the bag's duty takes the schedule's levels, its metadata names the
-    file and its SHA-256, and the run lasts the schedule plus 3 s."""
-    import hashlib
-
-    import yaml
-
-    from aeropend_core.io.bag import read_samples
-    from aeropend_ros._ros_env import local_ros_environment
-    from tests.ros_helpers import ROOT, private_domain_id
-    steps = np.array([[0.0, 2.0], [0.55, 6.0], [0.0, 6.0], [0.3, 6.0]])
-    path = write_schedule(tmp_path / 'experiment.yaml', steps)
-    env = local_ros_environment(domain_id=private_domain_id())
-    result = subprocess.run(AEROPEND + ['run', '--experiment', str(path), '--realtime-factor', '4', '--no-diagnose',
-                                        '--quiet', '--record', str(tmp_path / 'bags'), '--window', '10'],
-                            env=env, cwd=ROOT, capture_output=True, text=True, timeout=200)
-    assert result.returncode == 0, result.stderr + result.stdout
-    folder = next((tmp_path / 'bags').iterdir())
-    custom = yaml.safe_load((folder / 'metadata.yaml').read_text())['rosbag2_bagfile_information']['custom_data']
-    assert custom['aeropend.experiment'] == str(path.resolve())
-    assert custom['aeropend.experiment_sha256'] == hashlib.sha256(path.read_bytes()).hexdigest()
-    samples = read_samples(folder)
-    assert samples['time'][-1] - samples['time'][0] == pytest.approx(20.0 + 3.0, abs=0.5)
-    levels = {round(float(d), 3) for d in np.unique(samples['duty'])}
-    assert levels == {0.0, 0.55, 0.3}, levels
+    assert abs(a.parameters[name] - b.parameters[name]) <= spread, (a, b)
