@@ -7,7 +7,8 @@ bag's ``metadata.yaml`` names the file and its SHA-256 (``custom_data``: ``aerop
 record so far together -> if two effects are confounded, design the experiment that separates them -> run it ->
 diagnose again, until the verdict is no longer "confounded" or the budget (``--max-runs``, ``--max-seconds``) is
 spent. Every round's verdict, schedule and bag are listed at the end; ``--json`` holds every round's diagnosis in
-order, the last one being the decision.
+order, the last one being the decision. A design that cannot be made within the limits ends the loop with its
+reason as the one-line error (exit 2), after the rounds so far are listed.
 """
 from __future__ import annotations
 
@@ -119,6 +120,7 @@ def run_until_decided(args, run_once) -> int:
     spent = 0.0
     schedule = None
     ending = ''
+    refused = ''
     diagnosis = None
     while True:
         args.experiment = str(schedule) if schedule else None
@@ -154,7 +156,7 @@ def run_until_decided(args, run_once) -> int:
                                        duty_limit=min(0.7, args.duty_cap), angle_limit=math.radians(args.max_angle),
                                        seed=args.seed + len(bags))
         except DesignRefused as error:
-            ending = f'no experiment designed: {error}'
+            refused = ending = f'no experiment designed: {error}'
             break
         schedule = Path(args.record) / f'experiment_round{len(bags) + 1}_{time.strftime("%Y%m%d_%H%M%S")}.yaml'
         design.write(schedule)
@@ -173,6 +175,8 @@ def run_until_decided(args, run_once) -> int:
         from aeropend_ros.cli.run import _write_json
         _write_json(args.json, {'rounds': rounds, 'ending': ending, 'bags': [str(b) for b in bags],
                                 'decision': rounds[-1]['diagnosis'] if rounds else None})
+    if refused:         # the rounds so far are listed (and in --json); the refusal is the one-line error, exit 2
+        raise AeropendError(refused)
     if not rounds:
         print(f'aeropend run: {ending}', file=sys.stderr)
         return 1
