@@ -169,3 +169,31 @@ def test_joint_diagnosis_of_two_records_matches_one_record_of_their_length():
     name = 'friction_acceleration'
     spread = 2 * math.hypot(a.standard_errors[name], b.standard_errors[name])
     assert abs(a.parameters[name] - b.parameters[name]) <= spread, (a, b)
+
+
+@pytest.mark.timeout(240)
+def test_run_plays_the_experiment_file_and_the_bag_says_so(tmp_path):
+    """A 20 s schedule at 4x on the simulator: the bag's duty takes the schedule's levels, its metadata names the
+    file and its SHA-256, and the run lasts the schedule plus 3 s."""
+    import hashlib
+
+    import yaml
+
+    from aeropend_core.io.bag import read_samples
+    from aeropend_ros._ros_env import local_ros_environment
+    from tests.ros_helpers import ROOT, private_domain_id
+    steps = np.array([[0.0, 2.0], [0.55, 6.0], [0.0, 6.0], [0.3, 6.0]])
+    path = write_schedule(tmp_path / 'experiment.yaml', steps)
+    env = local_ros_environment(domain_id=private_domain_id())
+    result = subprocess.run(AEROPEND + ['run', '--experiment', str(path), '--realtime-factor', '4', '--no-diagnose',
+                                        '--quiet', '--record', str(tmp_path / 'bags'), '--window', '10'],
+                            env=env, cwd=ROOT, capture_output=True, text=True, timeout=200)
+    assert result.returncode == 0, result.stderr + result.stdout
+    folder = next((tmp_path / 'bags').iterdir())
+    custom = yaml.safe_load((folder / 'metadata.yaml').read_text())['rosbag2_bagfile_information']['custom_data']
+    assert custom['aeropend.experiment'] == str(path.resolve())
+    assert custom['aeropend.experiment_sha256'] == hashlib.sha256(path.read_bytes()).hexdigest()
+    samples = read_samples(folder)
+    assert samples['time'][-1] - samples['time'][0] == pytest.approx(20.0 + 3.0, abs=0.5)
+    levels = {round(float(d), 3) for d in np.unique(samples['duty'])}
+    assert levels == {0.0, 0.55, 0.3}, levels
