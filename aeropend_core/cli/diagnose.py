@@ -16,6 +16,7 @@ Examples:
   aeropend diagnose run.csv --fix angle_filter=0.0141          # a known hardware value (the rig's RC filter)
   aeropend diagnose run.csv --calibration config/serial_bridge_node.yaml   # the same, from the calibration file
   aeropend diagnose run.csv --effects-module my_effects.py     # your own registered effects become candidates
+  aeropend diagnose first.mcap experiment.mcap     # several records of one rig judged together (joint)
 """
 from __future__ import annotations
 
@@ -26,7 +27,9 @@ from aeropend_core.errors import AeropendError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument('data', metavar='RECORDING', help='recording: .csv, .mcap or an MCAP bag folder')
+    parser.add_argument('data', metavar='RECORDING', nargs='+',
+                        help='recording: .csv, .mcap or an MCAP bag folder; several recordings of the same rig are '
+                             'diagnosed together (shared parameters, each record with its own initial states)')
     parser.add_argument('--add', action='append', default=[], metavar='EFFECT',
                         help='effect to include in the model (repeatable); see `aeropend effects`')
     from aeropend_core.cli._checks import add_calibration_argument, add_fix_argument
@@ -72,9 +75,14 @@ def main(args: argparse.Namespace) -> int:
         check_report_path(args.report)    # a folder, device, FIFO, link loop or missing folder: refused
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
-    recording = load_for_analysis(args, 'diagnose')     # through the data-quality gate (and --profile)
-    recording = time_window(recording, args.start, args.stop)     # --start/--stop: the same code path as identify
-    print_findings('diagnose', recording.findings)          # first: before minutes of fitting, or a refusal
+    records = []
+    for path in args.data:      # each through the data-quality gate (and --profile), each cut by --start/--stop
+        records.append(time_window(load_for_analysis(args, 'diagnose', path=path), args.start, args.stop))
+        print_findings('diagnose', records[-1].findings)    # first: before minutes of fitting, or a refusal
+    recording = records[0]
+    if len(records) > 1:
+        from aeropend_core.diagnosis.joint import prepare_joint
+        recording = prepare_joint(records)
     validation_recording = None
     if args.validate:                    # loaded (and refused if unusable) before minutes of fitting
         try:
@@ -108,12 +116,12 @@ def main(args: argparse.Namespace) -> int:
             raise AeropendError(f'--validate {args.validate}: {error}') from None
     if args.report:
         from aeropend_core.present.report import write_report
-        written = write_report(diagnosis, args.report, source=args.data, validation=validation)
+        written = write_report(diagnosis, args.report, source=' + '.join(args.data), validation=validation)
         progress(f'report written to {written}')
     time_range = None
     if args.start is not None or args.stop is not None:     # the numbers below are about this range only: say so
         time_range = {'start_s': args.start, 'stop_s': args.stop,
-                      'samples_start_s': float(recording.time[0]), 'samples_stop_s': float(recording.time[-1])}
+                      'samples_start_s': float(records[0].time[0]), 'samples_stop_s': float(records[0].time[-1])}
     if args.json:
         from aeropend_core.present.json_output import write_json
         out = diagnosis.to_dict()
@@ -125,7 +133,7 @@ def main(args: argparse.Namespace) -> int:
     if args.json != '-':
         if time_range:
             print(f'time range: samples from {time_range["samples_start_s"]:g} s to {time_range["samples_stop_s"]:g} s '
-                  f'of {args.data} (--start/--stop)')
+                  f'of {" + ".join(args.data)} (--start/--stop)')
         print(diagnosis.summary())
         if validation is not None:
             model = ' + '.join(('nominal', *validation.effects))

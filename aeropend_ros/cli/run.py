@@ -13,6 +13,8 @@ Examples:
   aeropend run --port /dev/ttyACM0 --duration 90 # the real rig through the serial bridge
   aeropend run --foxglove                        # also serve the live graph to Foxglove on ws://127.0.0.1:8765
   aeropend run --rig rig1                        # one of several rigs on a network: namespace /rig1
+  aeropend run --experiment experiment.yaml      # play a designed schedule file instead of the hypercube
+  aeropend run --until-decided --effect thrust_lag=0.02   # diagnose, design, run again until decided
 
 One graph per rig: before any node starts, a run takes a lock for its rig (namespace) and ROS domain on this host
 and looks at the ROS graph for another graph's nodes on the rig's topics; either refuses the run, naming the running
@@ -79,6 +81,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--foxglove', nargs='?', type=int, const=8765, default=None, metavar='PORT',
                         help='serve the live graph to Foxglove on ws://127.0.0.1:PORT (default 8765; 0 = any free '
                              'port); layout: config/aeropend.foxglove.json')
+    from aeropend_ros.cli.experiment_loop import add_arguments as add_experiment_arguments
+    add_experiment_arguments(parser)
 
 
 def _check_arguments(args) -> None:
@@ -86,6 +90,8 @@ def _check_arguments(args) -> None:
 
     from aeropend_ros.topics import rig_namespace
     args.namespace = rig_namespace(getattr(args, 'rig', None))      # AeropendError (exit 2) for a bad name
+    from aeropend_ros.cli.experiment_loop import check_arguments as check_experiment
+    check_experiment(args)          # --experiment sets the duration from its schedule
     if not 0 < args.duration < math.inf:
         raise AeropendError(f'--duration must be a positive number of seconds, got {args.duration}')
     from aeropend_core.diagnosis.compare import MIN_DURATION
@@ -264,10 +270,26 @@ def main(args) -> int:
             # standard output carries the JSON object only; everything a person reads goes to standard error
             import contextlib
             with contextlib.redirect_stdout(sys.stderr):
-                return _run(args)
-        return _run(args)
+                return _run_or_loop(args)
+        return _run_or_loop(args)
     finally:
         lock.close()
+
+
+def _run_or_loop(args) -> int:
+    if not args.until_decided:
+        return _run(args)
+    from aeropend_ros.cli.experiment_loop import run_until_decided
+
+    def run_once(round_args):       # one run of the graph, recorded, not diagnosed: the loop diagnoses
+        round_args.no_diagnose, json_target, round_args.json = True, round_args.json, None
+        try:
+            code = _run(round_args)
+        finally:
+            round_args.no_diagnose, round_args.json = False, json_target
+        return code, getattr(round_args, 'recorded_bag', None)
+
+    return run_until_decided(args, run_once)
 
 
 def _run(args) -> int:
@@ -276,6 +298,8 @@ def _run(args) -> int:
     from rclpy.parameter import Parameter
 
     from aeropend_core.model.parameters import SAMPLE_TIME
+    from aeropend_ros.cli.experiment_loop import excitation_overrides as experiment_overrides
+    from aeropend_ros.cli.experiment_loop import experiment_metadata
     from aeropend_ros.excitation_node import ExcitationNode
     from aeropend_ros.identification_node import IdentificationNode
 
@@ -327,8 +351,8 @@ def _run(args) -> int:
         excitation = ExcitationNode(parameter_overrides=overrides(
             duration=max(float(args.duration) - start_delay - 2.0, 1.0), seed=int(args.seed),
             duty_cap=float(args.duty_cap), duty_max=min(0.7, float(args.duty_cap)), start_delay=start_delay,
-            time_source='wall', time_scale=float(args.realtime_factor) if use_sim else 1.0, exit_when_done=False),
-            namespace=namespace)
+            time_source='wall', time_scale=float(args.realtime_factor) if use_sim else 1.0, exit_when_done=False,
+            **experiment_overrides(args)), namespace=namespace)
         nodes.append(excitation)
         identification = IdentificationNode(parameter_overrides=overrides(
             window_s=float(args.window), hop_s=float(args.hop), effects=list(args.model_effect) or ['']),
@@ -343,6 +367,7 @@ def _run(args) -> int:
             folder = Path(args.record) / f'aeropend_{rig}{time.strftime("%Y%m%d_%H%M%S")}'
             folder.parent.mkdir(parents=True, exist_ok=True)
             recorder = RecorderNode(parameter_overrides=overrides(output=str(folder)), namespace=namespace)
+            recorder.writer.custom_data.update(experiment_metadata(args))      # which schedule this bag played
             nodes.append(recorder)
             bag_folder = folder
         else:
@@ -400,6 +425,7 @@ def _run(args) -> int:
         print(f'aeropend run: error: the recording failed, so the run stopped: {recorder.write_error}',
               file=sys.stderr)
         return 1
+    args.recorded_bag = bag_folder
     if bag_folder is not None:
         print(f'recorded: {bag_folder}')
     if args.no_diagnose:

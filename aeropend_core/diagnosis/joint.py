@@ -1,0 +1,138 @@
+"""Diagnose several recordings of the same rig together: shared parameters, per-record initial states.
+
+The records are put on one sample grid separated by gaps of lost samples (:class:`aeropend_core.diagnosis.compare.
+Gaps`), so the existing diagnosis treats them as one record with gaps: no multiple-shooting segment spans two
+records (each piece has its own fitted initial angle and rate), every model's parameters are shared, and the noise
+is estimated over all of them. The training / held-out split is taken *within each record*: the first 75 % of
+every record goes to the training part and the last 25 % to the held-out part (the pieces are ordered
+``A-train, B-train, ..., A-held, B-held, ...``), so a separating experiment's evidence enters both the fit and the
+held-out judgement.
+"""
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+
+from aeropend_core.errors import AeropendError
+
+#: Lost samples put between two pieces [s] (a gap: the segments restart after it; too short to matter otherwise).
+GAP_SECONDS = 0.2
+#: Sample times of the records may differ by at most this fraction.
+SAMPLE_TIME_TOLERANCE = 0.01
+
+
+def joint_recording(recordings: Sequence, train_fraction: float | None = None):
+    """One recording from several of the same rig, pieces separated by gaps, and the index of the split.
+
+    Parameters
+    ----------
+    recordings : sequence of Recording [-]
+        At least two records with ``armature_voltage`` [V], ``angle`` [rad] and, in every one or none,
+        ``armature_current`` [A]; the same sample time.
+    train_fraction : float, optional [-]
+        Fraction of each record that goes to the training part (default: the diagnosis's 0.75).
+
+    Returns
+    -------
+    recording : Recording
+        The pieces on one grid (time [s] from 0, lost samples between pieces).
+    split : int
+        The grid index where the held-out pieces start.
+
+    Raises
+    ------
+    AeropendError
+        Fewer than two records, different sample times, or the current in some records only.
+    """
+    from aeropend_core.diagnosis.compare import TRAIN_FRACTION
+    from aeropend_core.io.recording import from_columns
+    fraction = TRAIN_FRACTION if train_fraction is None else float(train_fraction)
+    if len(recordings) < 2:
+        raise AeropendError('a joint diagnosis needs at least two recordings')
+    sample_times = [float(np.median(np.diff(r.time))) for r in recordings]
+    reference = sample_times[0]
+    for recording, sample_time in zip(recordings, sample_times):
+        if abs(sample_time - reference) > SAMPLE_TIME_TOLERANCE * reference:
+            raise AeropendError(f'{recording.source or "a recording"} is sampled every {sample_time * 1e3:.3f} ms, '
+                                f'the first every {reference * 1e3:.3f} ms: record the same rig at the same rate')
+    has_current = ['armature_current' in r.signals for r in recordings]
+    if any(has_current) and not all(has_current):
+        raise AeropendError('some recordings have the armature current and some do not; diagnose records of the same '
+                            'kind together')
+    names = ['armature_voltage', 'angle'] + (['armature_current'] if all(has_current) else [])
+    training, heldout = [], []
+    for recording in recordings:
+        cut = int(round(fraction * len(recording.time)))
+        columns = {name: np.asarray(recording.signals[name], dtype=float) for name in names}
+        training.append({name: values[:cut] for name, values in columns.items()})
+        heldout.append({name: values[cut:] for name, values in columns.items()})
+    gap = max(1, int(round(GAP_SECONDS / reference)))
+    index, parts, split = [], {name: [] for name in names}, 0
+    position = 0
+    for order, piece in enumerate(training + heldout):
+        count = len(piece['angle'])
+        if order == len(training):
+            split = position
+        index.append(position + np.arange(count))
+        for name in names:
+            parts[name].append(piece[name])
+        position += count + gap
+    grid = np.concatenate(index)
+    columns = {'t': grid * reference, **{name: np.concatenate(parts[name]) for name in names}}
+    sources = ' + '.join(r.source or f'record {i + 1}' for i, r in enumerate(recordings))
+    return from_columns(columns, source=f'{sources} (joint)'), split
+
+
+def prepare_joint(recordings: Sequence, train_fraction: float | None = None):
+    """A :class:`~aeropend_core.diagnosis.compare.PreparedRecord` of several records (module docstring).
+
+    Parameters
+    ----------
+    recordings : sequence of Recording [-]
+        Records of the same rig (see :func:`joint_recording`).
+    train_fraction : float, optional [-]
+        Fraction of each record in the training part (default 0.75).
+
+    Returns
+    -------
+    PreparedRecord
+        Ready for :func:`aeropend_core.diagnosis.diagnose.diagnose`; its training part holds the first part of
+        every record, its held-out part the rest of every record.
+    """
+    from aeropend_core.diagnosis.compare import prepare
+    recording, split = joint_recording(recordings, train_fraction)
+    prepared = prepare(recording)
+    # the gaps put between the records are no lost data: their finding is not reported
+    inserted = (2 * len(recordings) - 1) * max(1, int(round(GAP_SECONDS / prepared.sample_time)))
+    findings = tuple(f for f in prepared.findings if not (f.code == 'lost_samples' and f.count == inserted))
+    # the split between the records' training and held-out pieces, exactly at the gap (prepare placed it by share)
+    return dataclasses.replace(prepared, split=int(split), findings=findings)
+
+
+def diagnose_joint(recordings: Sequence, **options):
+    """Diagnose several records of the same rig together (shared parameters, per-record initial states).
+
+    Parameters
+    ----------
+    recordings : sequence of Recording [-]
+        At least two records (see :func:`joint_recording`).
+    **options
+        Passed to :func:`aeropend_core.diagnosis.diagnose.diagnose` (``effects``, ``fixed``, ``progress``, ...).
+
+    Returns
+    -------
+    Diagnosis
+        As :func:`~aeropend_core.diagnosis.diagnose.diagnose`; a note names the records.
+    """
+    from aeropend_core.diagnosis.diagnose import diagnose
+    prepared = prepare_joint(recordings)
+    diagnosis = diagnose(prepared, **options)
+    diagnosis.notes.append(f'joint diagnosis of {len(recordings)} recordings of the same rig (shared parameters, '
+                           'each record with its own initial states; the first 75 % of each record trains, the rest '
+                           'is held out).')
+    return diagnosis
+
+
+__all__ = ['joint_recording', 'prepare_joint', 'diagnose_joint']

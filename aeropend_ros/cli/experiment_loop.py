@@ -1,0 +1,186 @@
+"""``aeropend run --experiment FILE`` and ``aeropend run --until-decided``: play a designed schedule, close the loop.
+
+``--experiment FILE`` plays a schedule file (``steps: [[duty, dwell_s], ...]``, as written by the design,
+:mod:`aeropend_core.diagnosis.experiment_design`) through the excitation node instead of the Latin hypercube; the
+bag's ``metadata.yaml`` names the file and its SHA-256 (``custom_data``: ``aeropend.experiment``,
+``aeropend.experiment_sha256``). ``--until-decided`` loops: run (the Latin hypercube first) -> diagnose every
+record so far together -> if two effects are confounded, design the experiment that separates them -> run it ->
+diagnose again, until the verdict is no longer "confounded" or the budget (``--max-runs``, ``--max-seconds``) is
+spent. Every round's verdict, schedule and bag are listed at the end; ``--json`` holds every round's diagnosis in
+order, the last one being the decision. A design that cannot be made within the limits ends the loop with its
+reason as the one-line error (exit 2), after the rounds so far are listed.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import math
+import sys
+import time
+from pathlib import Path
+
+from aeropend_core.errors import AeropendError
+
+#: Rest before the first step [s] and margin after the last [s] of a played schedule (the run's start delay, and
+#: time for the recorder to see the last samples).
+START_DELAY = 1.0
+END_MARGIN = 2.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The experiment options of ``aeropend run``."""
+    parser.add_argument('--experiment', metavar='FILE.yaml', default=None,
+                        help='play this schedule file (steps: [[duty, dwell_s], ...], e.g. written by --until-decided) '
+                             'instead of the Latin hypercube; the run lasts the schedule (+3 s) and the bag\'s '
+                             'metadata names the file (default: none)')
+    parser.add_argument('--until-decided', action='store_true',
+                        help='loop: run, diagnose all records so far together, and while two effects are confounded '
+                             'design the experiment that separates them and run it (needs recording)')
+    parser.add_argument('--max-runs', type=int, default=3, metavar='N',
+                        help='with --until-decided: at most N runs, the first included (default 3)')
+    parser.add_argument('--max-seconds', type=float, default=300.0, metavar='S',
+                        help='with --until-decided: at most S seconds of excitation over all runs (default 300)')
+    parser.add_argument('--design-seconds', type=float, default=30.0, metavar='S',
+                        help='with --until-decided: length of each designed experiment [s] (default 30, at least 20)')
+    parser.add_argument('--max-angle', type=float, default=80.0, metavar='DEG',
+                        help='with --until-decided: every competing model\'s predicted angle stays below this '
+                             '[deg] (default 80)')
+
+
+def check_arguments(args) -> None:
+    """Refuse inconsistent experiment options before any node starts (AeropendError: one line, exit 2)."""
+    if args.experiment and args.until_decided:
+        raise AeropendError('--experiment plays one given schedule and --until-decided designs its own; use one')
+    if args.experiment:
+        from aeropend_core.diagnosis.experiment_design import read_schedule
+        steps, _ = read_schedule(args.experiment, duty_limit=args.duty_cap)
+        args.duration = float(steps[:, 1].sum()) + START_DELAY + END_MARGIN
+    if not args.until_decided:
+        return
+    if args.no_record:
+        raise AeropendError('--until-decided keeps every round\'s bag and diagnoses them together; drop --no-record')
+    if args.no_diagnose:
+        raise AeropendError('--until-decided decides by the diagnosis; drop --no-diagnose')
+    if not 1 <= args.max_runs <= 20:
+        raise AeropendError(f'--max-runs must be a whole number in [1, 20], got {args.max_runs}')
+    if not 0 < args.max_seconds < math.inf:
+        raise AeropendError(f'--max-seconds must be a positive number of seconds, got {args.max_seconds}')
+    from aeropend_core.diagnosis.experiment_design import MIN_DURATION
+    if not MIN_DURATION <= args.design_seconds <= 600:
+        raise AeropendError(f'--design-seconds must be in [{MIN_DURATION:g}, 600] s (a record shorter than '
+                            f'{MIN_DURATION:g} s cannot be diagnosed), got {args.design_seconds}')
+    if not 5 <= args.max_angle <= 90:
+        raise AeropendError(f'--max-angle must be in [5, 90] deg, got {args.max_angle}')
+    if args.duration > args.max_seconds:
+        raise AeropendError(f'--duration {args.duration:g} s already exceeds --max-seconds {args.max_seconds:g} s; '
+                            'raise --max-seconds or shorten the first run')
+
+
+def experiment_metadata(args) -> dict[str, str]:
+    """What the run plays, for the bag's metadata.yaml ``custom_data`` (string -> string)."""
+    if not getattr(args, 'experiment', None):
+        return {'aeropend.experiment': f'latin hypercube, seed {args.seed}, duty up to {min(0.7, args.duty_cap):g}'}
+    path = Path(args.experiment)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    return {'aeropend.experiment': str(path.resolve()), 'aeropend.experiment_sha256': digest}
+
+
+def excitation_overrides(args) -> dict:
+    """Excitation-node parameters that play ``--experiment`` (its steps file; empty without the option)."""
+    if not getattr(args, 'experiment', None):
+        return {}
+    return {'schedule': 'steps', 'steps_file': str(args.experiment)}
+
+
+def _diagnose(bags: list[Path], args, say):
+    from aeropend_core.cli._checks import calibration_fixed, fixed_effects
+    from aeropend_core.diagnosis.diagnose import diagnose
+    from aeropend_core.io.recording import load_recording
+    fixed, fixed_from, _ = calibration_fixed(args.calibration, fixed_effects(args.fix, args.model_effect))
+    options = dict(effects=tuple(args.model_effect), fixed=fixed, fixed_from=fixed_from, progress=say, drift=False)
+    records = [load_recording(bag) for bag in bags]
+    if len(records) == 1:
+        return diagnose(records[0], **options)
+    from aeropend_core.diagnosis.joint import diagnose_joint
+    return diagnose_joint(records, **options)
+
+
+def run_until_decided(args, run_once) -> int:
+    """The loop of ``--until-decided`` (module docstring); `run_once(args)` runs the graph once and returns
+    ``(exit code, bag folder)``."""
+    from aeropend_core.diagnosis.experiment_design import DesignRefused, confounded_models, design_experiment
+    from aeropend_core.errors import InsufficientDataError
+
+    def say(message: str) -> None:
+        if not args.quiet:
+            print(f'  ... {message}', file=sys.stderr, flush=True)
+
+    rounds: list[dict] = []
+    bags: list[Path] = []
+    spent = 0.0
+    schedule = None
+    ending = ''
+    refused = ''
+    diagnosis = None
+    while True:
+        args.experiment = str(schedule) if schedule else None
+        code, bag = run_once(args)
+        if code != 0 or bag is None:
+            ending = f'round {len(bags) + 1} did not complete (exit {code}); the loop stops'
+            break
+        bags.append(Path(bag))
+        spent += args.duration
+        print(f'\nRound {len(bags)}: diagnosing {" + ".join(str(b) for b in bags)}', file=sys.stderr, flush=True)
+        try:
+            diagnosis = _diagnose(bags, args, say)
+        except InsufficientDataError as error:
+            ending = f'cannot diagnose: {error}'
+            break
+        entry = {'round': len(bags), 'bag': str(bag), 'schedule': args.experiment or experiment_metadata(args)[
+            'aeropend.experiment'], 'verdict': diagnosis.verdict, 'message': diagnosis.message,
+            'diagnosis': diagnosis.to_dict()}
+        rounds.append(entry)
+        print(f'round {len(bags)}: {diagnosis.verdict}: {diagnosis.message}', flush=True)
+        if diagnosis.verdict != 'confounded':
+            ending = f'decided after {len(bags)} run(s) ({spent:.0f} s of excitation)'
+            break
+        next_length = args.design_seconds + START_DELAY + END_MARGIN
+        if len(bags) >= args.max_runs or spent + next_length > args.max_seconds:
+            ending = (f'budget spent ({len(bags)} of --max-runs {args.max_runs}, {spent:.0f} s of --max-seconds '
+                      f'{args.max_seconds:g}): still confounded; the records so far are listed below')
+            break
+        say('designing the experiment that separates the confounded effects')
+        try:
+            models = confounded_models(diagnosis)
+            design = design_experiment(models, diagnosis.noise_rms, duration=args.design_seconds,
+                                       duty_limit=min(0.7, args.duty_cap), angle_limit=math.radians(args.max_angle),
+                                       seed=args.seed + len(bags))
+        except DesignRefused as error:
+            refused = ending = f'no experiment designed: {error}'
+            break
+        schedule = Path(args.record) / f'experiment_round{len(bags) + 1}_{time.strftime("%Y%m%d_%H%M%S")}.yaml'
+        design.write(schedule)
+        entry['design'] = design.to_dict()
+        entry['next_schedule'] = str(schedule)
+        print(f'designed {schedule}: {design.describe()}', flush=True)
+        args.duration = design.schedule.duration + START_DELAY + END_MARGIN
+    print(f'\n--until-decided: {ending}', flush=True)
+    for entry in rounds:
+        print(f'  round {entry["round"]}: {entry["verdict"]:<16} schedule {entry["schedule"]}  bag {entry["bag"]}',
+              flush=True)
+    if args.report and diagnosis is not None:
+        from aeropend_core.present.report import write_report
+        print(f'report: {write_report(diagnosis, args.report, source=" + ".join(map(str, bags)))}')
+    if args.json:
+        from aeropend_ros.cli.run import _write_json
+        _write_json(args.json, {'rounds': rounds, 'ending': ending, 'bags': [str(b) for b in bags],
+                                'decision': rounds[-1]['diagnosis'] if rounds else None})
+    if refused:         # the rounds so far are listed (and in --json); the refusal is the one-line error, exit 2
+        raise AeropendError(refused)
+    if not rounds:
+        print(f'aeropend run: {ending}', file=sys.stderr)
+        return 1
+    return 0
+
+
+__all__ = ['add_arguments', 'check_arguments', 'experiment_metadata', 'excitation_overrides', 'run_until_decided']
