@@ -21,7 +21,7 @@ from aeropend_core.testing.foreign_logs import PWM_RATE, ForeignLogSpec, _duty_s
 
 
 def _shuffled_levels(duration: float, seed: int) -> np.ndarray:
-    """The duty (fraction) of the paper's kind of log: levels 70-125/255 held 1.5-4 s, sometimes 0, one per PWM period."""
+    """The duty (fraction) of the paper's kind of log: levels 70-125/255 held 1.5-4 s, sometimes 0, per PWM period."""
     spec = ForeignLogSpec(seed=seed, duration=duration)
     return _duty_schedule(spec, np.random.default_rng(seed), int(duration * PWM_RATE)) / 255.0
 
