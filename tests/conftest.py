@@ -3,6 +3,10 @@
 - Tests never multicast off the machine (ROS 2 discovery stays on localhost).
 - Every test that uses ROS (rclpy, the node modules, the ROS test helpers, ``aeropend run``), itself or through a
   fixture, is marked ``ros`` when collected (by reading its source): ``pytest -m "not ros"`` runs the core alone.
+- Numerical libraries run one thread per process (``OPENBLAS_NUM_THREADS`` etc., unless already set, so the
+  subprocesses the tests start inherit it too): the suite's matrices are small, and on a 2-core machine that runs a
+  test process, ROS nodes and CLI subprocesses at once, OpenBLAS's second thread mostly spins. One diagnosis of a
+  60 s record took 16.3 s of CPU with the default 2 threads and 10.9 s with 1 (same verdict; load ~15).
 - ``clean_record``: one 60 s simulated record of the default rig (Latin-hypercube excitation, 40 dB, 10-bit
   quantisation, seed 7) with its truth, shared by the modules that only read it.
 """
@@ -15,6 +19,8 @@ import re
 import pytest
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+for _threads in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'NUMBA_NUM_THREADS'):
+    os.environ.setdefault(_threads, '1')            # before numpy is first imported (test modules import it later)
 
 #: what marks a test (or one of its fixtures) as using ROS: rclpy, the nodes, the ROS test helpers, `aeropend run`
 _ROS_USE = re.compile(r'rclpy|aeropend_ros|NodeProcess|private_domain_id|own_context|use_domain|ros2|'
