@@ -218,6 +218,7 @@ def _record(tmp_path, name: str, effects: dict, psnr: float, seed: int):
     return path
 
 
+@pytest.mark.slow
 def test_diagnose_holds_the_angle_filter_from_the_calibration_file(capsys, tmp_path):
     """The rig's 14.1 ms filter and a small 30 ms thrust lag, 40 dB: on their own the two are interchangeable on
     this data (the verdict says so); with the filter fixed from the calibration file the lag is named with

@@ -182,6 +182,7 @@ def test_bad_recording_is_refused_clearly(files, verb, name, keywords):
     assert_refused(aeropend([verb, str(files / name)]), keywords)
 
 
+@pytest.mark.slow
 def test_lost_samples_split_the_record_at_the_gap_for_identify_and_diagnose(files):
     fitted = aeropend(['identify', str(files / 'gap.csv'), '--json'])
     assert fitted.returncode == 0 and 'gap' in fitted.stderr, fitted.stderr
@@ -544,6 +545,7 @@ def clean_diagnosis(faulted) -> dict:
     return diagnose_json(faulted / 'clean.csv')
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', ['glitch_2pi', 'angle_in_degrees', 'outlier_1e308'])
 def test_diagnose_repaired_record_gives_the_clean_verdict(faulted, clean_diagnosis, name):
     """Full diagnoses on representative faults: the 2 pi encoder glitch once named cable_torque as the missing
