@@ -561,6 +561,7 @@ def start_live_writer(folder: Path) -> tuple[subprocess.Popen, dict]:
     return child, json.loads(child.stdout.readline())
 
 
+@pytest.mark.slow
 def test_live_bag_is_marked_refused_by_recover_and_read_without_repair_advice(tmp_path):
     """While a bag is written: its writer holds the lock (naming the process); bag-recover refuses it (exit 2,
     naming the pid) and changes nothing; readers and `aeropend identify` read it up to its last complete chunk with a

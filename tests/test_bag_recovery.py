@@ -140,6 +140,7 @@ def test_recover_report_per_chunk_and_in_place_replacement(tmp_path, originals):
         recover_bag(path, in_place=True, output=tmp_path / 'y.mcap')
 
 
+@pytest.mark.slow
 def test_identify_on_a_damaged_bag_reads_past_the_chunk_and_says_what_is_lost(tmp_path):
     """The identify verb: the rest of the bag is used, the text never says 'clean', the JSON warnings hold the
     lost span and sample count."""

@@ -62,6 +62,7 @@ def value_of(output: str, key: str) -> float:
     return float(line.split(':', 1)[1].split('#')[0])
 
 
+@pytest.mark.slow
 def test_calibrate_cli_against_the_emulator(capsys, tmp_path):
     # The emulated sensor reads 530 counts hanging down and 6 counts at zero current: calibration must find them.
     truth = P.Calibration(angle_zero=530.0, current_offset=6.0)

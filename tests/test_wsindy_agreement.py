@@ -146,6 +146,7 @@ def test_dense_measurement_band_is_the_fast_one_on_real_equations():
                                        atol=1e-12 * np.max(np.abs(dense[0])))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('library', LIBRARIES)
 def test_fast_noise_model_agrees_with_the_dense_formulas(library, monkeypatch):
     """The full method with the fast residual covariance (fused coefficient products, blocked window products)
