@@ -233,6 +233,7 @@ def test_isolated_non_finite_sample_is_interpolated_and_said(files, name, keywor
     assert [w['code'] for w in out['warnings']] == ['non_finite'] and out['warnings'][0]['severity'] == 'repaired'
 
 
+@pytest.mark.slow
 def test_truncated_bag_is_read_to_its_last_chunk_with_a_warning(files):
     """A bag cut mid-chunk (killed recorder): the complete chunks are used and a one-line warning says so and how
     to repair it."""
