@@ -33,8 +33,7 @@ _ROS_USE = re.compile(r'rclpy|aeropend_ros|NodeProcess|private_domain_id|own_con
 #: a module that imports these at its top needs ROS for every test in it
 _ROS_MODULE = re.compile(r'^(from|import) (rclpy|sensor_msgs|std_msgs|diagnostic_msgs|rcl_interfaces)\b', re.M)
 #: a module that uses ROS already at import: it cannot even be collected without ROS
-_ROS_AT_IMPORT = re.compile(r'^(from|import) (rclpy|sensor_msgs|std_msgs|diagnostic_msgs|rcl_interfaces)\b|'
-                            r'^\w+ = private_domain_id\(\)', re.M)
+_ROS_AT_IMPORT = re.compile(_ROS_MODULE.pattern + r'|^\w+ = private_domain_id\(\)', re.M)
 _seen: dict[object, bool] = {}
 _not_collected: list[str] = []
 
