@@ -3,25 +3,70 @@
 - Tests never multicast off the machine (ROS 2 discovery stays on localhost).
 - Every test that uses ROS (rclpy, the node modules, the ROS test helpers, ``aeropend run``), itself or through a
   fixture, is marked ``ros`` when collected (by reading its source): ``pytest -m "not ros"`` runs the core alone.
+  On a machine without ROS 2 (rclpy not importable) the modules that need it already at import (a top-level ROS
+  import or a private ROS domain) are not collected, and the header says which: the fast tier
+  ``pytest -m "not slow and not ros"`` then runs there too instead of stopping at collection errors.
+- Numerical libraries run one thread per process (``OPENBLAS_NUM_THREADS`` etc., unless already set, so the
+  subprocesses the tests start inherit it too): the suite's matrices are small, and on a 2-core machine that runs a
+  test process, ROS nodes and CLI subprocesses at once, OpenBLAS's second thread mostly spins. One diagnosis of a
+  60 s record took 16.3 s of CPU with the default 2 threads and 10.9 s with 1 (same verdict; load ~15).
 - ``clean_record``: one 60 s simulated record of the default rig (Latin-hypercube excitation, 40 dB, 10-bit
   quantisation, seed 7) with its truth, shared by the modules that only read it.
 """
 from __future__ import annotations
 
+import importlib.util
 import inspect
 import os
 import re
+from pathlib import Path
 
 import pytest
 
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+for _threads in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'NUMBA_NUM_THREADS'):
+    os.environ.setdefault(_threads, '1')            # before numpy is first imported (test modules import it later)
 
 #: what marks a test (or one of its fixtures) as using ROS: rclpy, the nodes, the ROS test helpers, `aeropend run`
 _ROS_USE = re.compile(r'rclpy|aeropend_ros|NodeProcess|private_domain_id|own_context|use_domain|ros2|'
                       r'run_bridge|start_bridge|bridge_process|Listener|[\'"]run[\'"]|ros_env')
 #: a module that imports these at its top needs ROS for every test in it
 _ROS_MODULE = re.compile(r'^(from|import) (rclpy|sensor_msgs|std_msgs|diagnostic_msgs|rcl_interfaces)\b', re.M)
+#: a module that uses ROS already at import: it cannot even be collected without ROS
+_ROS_AT_IMPORT = re.compile(_ROS_MODULE.pattern + r'|^\w+ = private_domain_id\(\)', re.M)
 _seen: dict[object, bool] = {}
+_not_collected: list[str] = []
+
+
+def _ros_available() -> bool:
+    """Whether rclpy can be found (without importing it)."""
+    try:
+        return importlib.util.find_spec('rclpy') is not None
+    except (ImportError, ValueError):
+        return False
+
+
+_ROS_AVAILABLE = _ros_available()
+
+
+def pytest_ignore_collect(collection_path: Path, config):
+    if _ROS_AVAILABLE or collection_path.suffix != '.py' or not collection_path.name.startswith('test_'):
+        return None
+    if _ROS_AT_IMPORT.search(collection_path.read_text(errors='replace')):
+        _not_collected.append(collection_path.name)
+        return True
+    return None
+
+
+def pytest_report_header(config):
+    if not _ROS_AVAILABLE:
+        return ['ROS 2 not importable (no rclpy): the modules that need it at import are not collected']
+    return None
+
+
+def pytest_terminal_summary(terminalreporter):
+    if _not_collected:
+        terminalreporter.write_line(f'not collected without ROS 2: {", ".join(sorted(_not_collected))}')
 
 
 def _source_matches(obj, pattern: re.Pattern) -> bool:

@@ -561,6 +561,7 @@ def start_live_writer(folder: Path) -> tuple[subprocess.Popen, dict]:
     return child, json.loads(child.stdout.readline())
 
 
+@pytest.mark.slow
 def test_live_bag_is_marked_refused_by_recover_and_read_without_repair_advice(tmp_path):
     """While a bag is written: its writer holds the lock (naming the process); bag-recover refuses it (exit 2,
     naming the pid) and changes nothing; readers and `aeropend identify` read it up to its last complete chunk with a
@@ -593,8 +594,10 @@ def test_live_bag_is_marked_refused_by_recover_and_read_without_repair_advice(tm
         assert len(samples['sequence']) == report['on_disk']
         np.testing.assert_array_equal(samples['sequence'], np.arange(report['on_disk']))
 
-        result = subprocess.run([*AEROPEND, 'identify', str(folder), '--json'], check=False, capture_output=True,
-                                text=True, cwd=ROOT, timeout=120)
+        # --weak-only: what is promised here is how a live bag is read (the note, no repair advice); the
+        # output-error cross-check it skips reads nothing more and is tested in test_identify and test_cli_json
+        result = subprocess.run([*AEROPEND, 'identify', str(folder), '--json', '--weak-only'], check=False,
+                                capture_output=True, text=True, cwd=ROOT, timeout=120)
         assert result.returncode == 0, result.stderr
         assert 'still being recorded' in result.stderr and 'bag-recover' not in result.stderr + result.stdout, \
             result.stderr

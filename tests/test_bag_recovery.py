@@ -140,6 +140,7 @@ def test_recover_report_per_chunk_and_in_place_replacement(tmp_path, originals):
         recover_bag(path, in_place=True, output=tmp_path / 'y.mcap')
 
 
+@pytest.mark.slow
 def test_identify_on_a_damaged_bag_reads_past_the_chunk_and_says_what_is_lost(tmp_path):
     """The identify verb: the rest of the bag is used, the text never says 'clean', the JSON warnings hold the
     lost span and sample count."""
@@ -165,7 +166,8 @@ def test_identify_on_a_damaged_bag_reads_past_the_chunk_and_says_what_is_lost(tm
     bad = chunks[len(chunks) // 2]
     data[bad.chunk_start_offset + 9 + 24] ^= 0xFF                 # its CRC field only: the data are intact
     file.write_bytes(bytes(data))
-    result = subprocess.run([*AEROPEND, 'identify', str(folder), '--json', str(tmp_path / 'out.json')],
+    # --weak-only: the promise is how the damaged bag is read and said; the cross-check it skips reads nothing more
+    result = subprocess.run([*AEROPEND, 'identify', str(folder), '--json', str(tmp_path / 'out.json'), '--weak-only'],
                             capture_output=True, text=True, cwd=ROOT, timeout=300, check=False)
     assert result.returncode == 0, result.stderr
     text = result.stdout + result.stderr

@@ -107,6 +107,7 @@ def test_calibrate_json_against_the_emulator(capsys):
     assert result['details']['samples'] > 100 and 'angle_zero:' in err
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(120)
 def test_emulate_json_line_names_the_port_then_ctrl_c(tmp_path):
     link = tmp_path / 'ttyRIG'

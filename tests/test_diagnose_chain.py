@@ -33,6 +33,7 @@ def _diagnose(capsys, *argv) -> dict:
     return json.loads(capsys.readouterr().out)
 
 
+@pytest.mark.slow
 def test_a_19_ms_lag_is_named_when_the_chain_is_known_and_never_confidently_when_not(capsys, tmp_path):
     """19 ms (the smallest size bench/robustness.py --known-chain names in 4 of 4 seeds at 40 dB): with
     ``--fix angle_filter=0`` the lag is named alone, within 15 %; the same record with the chain unknown is never a
@@ -52,6 +53,7 @@ def test_a_19_ms_lag_is_named_when_the_chain_is_known_and_never_confidently_when
         assert any('fix the filter at its hardware value' in note for note in unknown['notes'])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('seed', [8311, 8312])
 def test_a_10_ms_lag_is_named_or_reported_as_a_near_miss_with_the_parameter_doubt(capsys, tmp_path, seed):
     """10 ms with the chain known, 40 dB: the lag passes the parameter t and the held-out test; most of it is
@@ -82,6 +84,7 @@ def test_a_10_ms_lag_is_named_or_reported_as_a_near_miss_with_the_parameter_doub
     assert 'free-decay segments' in notes[0]
 
 
+@pytest.mark.slow
 def test_no_near_miss_note_on_a_clean_record(capsys, tmp_path):
     """Nothing hidden, chain known: nothing is missing and no candidate is reported as supported-but-not-named."""
     data = _record(tmp_path, 'clean.csv', {}, 40.0, 8321)
@@ -90,6 +93,7 @@ def test_no_near_miss_note_on_a_clean_record(capsys, tmp_path):
     assert not [note for note in result['notes'] if 'supported by the statistics' in note], result['notes']
 
 
+@pytest.mark.slow
 def test_a_lag_named_with_the_chain_unknown_says_it_may_hold_the_filter(capsys, tmp_path):
     """75 ms lag read through the rig's 14.1 ms filter, 40 dB. Chain unknown: whatever is named, a thrust lag named
     alone carries the note that it includes any angle filter (its estimate does: ~96 ms in the bench). Chain known

@@ -225,6 +225,7 @@ def help_examples() -> list[tuple[str, list[str]]]:
     return found
 
 
+@pytest.mark.slow
 def test_every_help_example_is_a_valid_command_line_for_its_verb():
     from aeropend_core.cli import verb_parser
     examples = help_examples()
@@ -257,6 +258,7 @@ def inline_commands() -> list[tuple[str, str, list[str]]]:
     return found
 
 
+@pytest.mark.slow
 def test_every_inline_command_in_the_prose_is_a_valid_command_line():
     """Inline examples (`aeropend diagnose run.csv --json`) use options that exist with values they accept."""
     from aeropend_core.cli import verb_parser

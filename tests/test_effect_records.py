@@ -55,6 +55,7 @@ def test_every_estimator_reports_the_nominal_parameters_under_the_same_names():
     assert Structure(('angle_offset',)).parameter_names == (*NOMINAL_PARAMETERS, 'angle_offset')
 
 
+@pytest.mark.slow
 def test_an_effect_declared_in_a_few_lines_runs_compiled_and_is_diagnosed():
     from aeropend_core.diagnosis.diagnose import diagnose
     from aeropend_core.io.recording import from_columns

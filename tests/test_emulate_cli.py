@@ -15,6 +15,7 @@ def value_of(output: str, key: str) -> float:
     return float(line.split(':', 1)[1].split('#')[0])
 
 
+@pytest.mark.slow
 def test_emulate_serves_the_calibration_and_stops_on_ctrl_c(tmp_path):
     link = tmp_path / 'ttyRIG'
     with EmulateProcess(['--link', str(link), '--angle-zero', '530', '--current-offset', '6', '--clock-error', '0.5',

@@ -182,6 +182,7 @@ def test_bad_recording_is_refused_clearly(files, verb, name, keywords):
     assert_refused(aeropend([verb, str(files / name)]), keywords)
 
 
+@pytest.mark.slow
 def test_lost_samples_split_the_record_at_the_gap_for_identify_and_diagnose(files):
     fitted = aeropend(['identify', str(files / 'gap.csv'), '--json'])
     assert fitted.returncode == 0 and 'gap' in fitted.stderr, fitted.stderr
@@ -205,6 +206,7 @@ def identify_json(files: Path, name: str, *extra: str) -> tuple[dict, str]:
     return json.loads(result.stdout), result.stderr
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name, clean_name, dropped', [('duplicated.csv', 'base.csv', 100),
                                                        ('duplicated_bag', 'bag', 100)])
 def test_duplicated_samples_are_dropped_with_a_warning_and_change_nothing(files, name, clean_name, dropped):
@@ -218,6 +220,7 @@ def test_duplicated_samples_are_dropped_with_a_warning_and_change_nothing(files,
     assert clean['warnings'] == [] and [w['code'] for w in repeated['warnings']] == ['duplicate_sample']
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name, keywords', [('nan.csv', ('angle', 'sample 1000', 'interpolation')),
                                             ('inf.csv', ('armature_current', 'sample 700', 'interpolation')),
                                             ('nan_bag', ('angle', 'sample 600', 'interpolation'))])
@@ -230,6 +233,7 @@ def test_isolated_non_finite_sample_is_interpolated_and_said(files, name, keywor
     assert [w['code'] for w in out['warnings']] == ['non_finite'] and out['warnings'][0]['severity'] == 'repaired'
 
 
+@pytest.mark.slow
 def test_truncated_bag_is_read_to_its_last_chunk_with_a_warning(files):
     """A bag cut mid-chunk (killed recorder): the complete chunks are used and a one-line warning says so and how
     to repair it."""
@@ -475,6 +479,7 @@ def expected_codes(name: str) -> tuple[set[str], set[str]]:
 CLI_CASES = [fault.name for fault in FAULTS] + [f'{a}+{b}' for a, b in CLI_PAIRS]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', CLI_CASES)
 def test_identify_refuses_or_says_every_repair(faulted, clean_identify, name):
     """Refused (exit 2, one line naming the problem) or exit 0 with a warning line per finding, the same list in
@@ -500,6 +505,7 @@ def test_identify_refuses_or_says_every_repair(faulted, clean_identify, name):
         assert abs(out['parameters'][key] - reference) <= tolerance, (key, out['parameters'][key], reference)
 
 
+@pytest.mark.slow
 def test_identify_text_output_has_a_data_quality_section(faulted):
     result = aeropend(['identify', str(faulted / 'glitch_2pi.csv')])
     assert result.returncode == 0, result.stderr
@@ -544,6 +550,7 @@ def clean_diagnosis(faulted) -> dict:
     return diagnose_json(faulted / 'clean.csv')
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('name', ['glitch_2pi', 'angle_in_degrees', 'outlier_1e308'])
 def test_diagnose_repaired_record_gives_the_clean_verdict(faulted, clean_diagnosis, name):
     """Full diagnoses on representative faults: the 2 pi encoder glitch once named cable_torque as the missing
@@ -559,6 +566,7 @@ def test_diagnose_repaired_record_gives_the_clean_verdict(faulted, clean_diagnos
     assert out['fit_percent'] == pytest.approx(clean['fit_percent'], abs=0.5)
 
 
+@pytest.mark.slow
 def test_excel_byte_order_mark_loads_with_a_note(faulted, clean_identify):
     result = aeropend(['identify', str(faulted / 'excel.csv'), '--json'])
     assert result.returncode == 0, result.stderr
@@ -572,6 +580,7 @@ def test_duplicated_angle_column_is_refused(faulted, verb):
     assert_refused(aeropend([verb, str(faulted / 'twice.csv')]), ('columns 5 and 6', "both named 'angle'"))
 
 
+@pytest.mark.slow
 def test_lost_samples_are_the_first_thing_said(files):
     """A gap: the gate's warning (how many, where) comes before anything else, then the fit's own answer."""
     result = aeropend(['diagnose', str(files / 'gap.csv'), '--quiet'])

@@ -253,6 +253,7 @@ def test_timer1_and_adc_set_up_in_the_running_build(build, firmware, mode, top, 
     assert r['ADMUX'] == (1 << REFS0) | 0                              # AVCC reference, current channel A0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(('firmware', 'options', 'top'), [
     ('aeropend_sim.elf', [], 509),                               # fast PWM, simavr's own Timer1
     ('aeropend.elf', ['--phase-correct-timer1'], 255),           # the shipped build, the harness's mode-10 model

@@ -41,6 +41,7 @@ def run_cli(argv, capsys) -> tuple[int, str, str]:
     return status, captured.out, captured.err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('every', [2, 5, 10, 20])
 def test_decimated_records_complete_identify_and_diagnose(record_490, every, tmp_path, capsys):
     path = tmp_path / f'every{every}.csv'
@@ -175,6 +176,7 @@ def test_profile_mistakes_are_refused_in_one_line(tmp_path, capsys, edit, messag
     assert len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('seed', [0, 1, 2, 3, 4])
 def test_random_foreign_logs_never_end_in_an_internal_error(seed, tmp_path, capsys):
     spec = random_spec(seed, duration=(21.0, 23.0))

@@ -65,6 +65,7 @@ def _lag_record(seed):
     return trajectory.columns(with_truth=False), tau, parameters
 
 
+@pytest.mark.slow
 def test_thrust_lag_is_found_in_its_global_basin_or_reported_ambiguous():
     """A 0.23 s lag whose fit from the default start stopped at 0.084 s (bench/lag_basins.py seed 52001)."""
     from aeropend_core.diagnosis.compare import compare
@@ -93,6 +94,7 @@ def test_identify_states_held_out_fit_and_disagreement_with_the_command(tmp_path
     assert math.isfinite(out['cross_check']['heldout_fit_percent'])
 
 
+@pytest.mark.slow
 def test_hidden_dry_friction_comes_back_within_its_sigma():
     """The issue's case: coulomb_friction 3.0 came back 2.88 +- 0.027 (z -4.4 on this record) while the output-error
     kernel smoothed the friction law more sharply than the catalog's tanh(W / 0.01 rad/s)."""

@@ -195,6 +195,7 @@ def test_full_state_support_at_40_db_in_19_of_20_seeds():
 
 
 # --- CSV and CLI -------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_identify_cli_json_and_errors(tmp_path, capsys, live_records):
     tr = live_records[2]
     path = tmp_path / 'run.csv'

@@ -33,6 +33,7 @@ def _assert_same_friction_verdict(reference, long) -> None:
     a, b = reference.found[0].parameters['friction_acceleration'], long.found[0].parameters['friction_acceleration']
     assert b == pytest.approx(a, rel=0.01) and abs(b - a) < 3 * sd, (a, b, sd)
 
+@pytest.mark.slow
 def test_diagnosis_on_the_long_record_path_gives_the_short_paths_answer(monkeypatch):
     """Coulomb friction (4 rad/s^2) hidden in 60 s: every fit forced onto the sparse LSMR path and the dead-zone
     ranking onto the coarse-to-fine one gives the same verdict, the same effect, and its size within 1 % (and within
@@ -96,6 +97,7 @@ def test_csv_read_block_by_block_is_the_same_table(tmp_path, monkeypatch):
         load_csv(path)
 
 
+@pytest.mark.slow
 def test_diagnose_start_stop_selects_the_range_and_says_so(tmp_path, capsys):
     """`diagnose --start/--stop` takes identify's code path: the JSON states the range; a bad range is exit 2."""
     from aeropend_core.cli import main
@@ -126,6 +128,7 @@ def test_sample_time_from_rounded_stamps_keeps_every_sample_on_the_grid():
     assert prep.gaps.count == 0 and len(prep.time) == len(columns['t'])
 
 
+@pytest.mark.slow
 def test_long_record_search_on_a_subset_gives_the_full_paths_verdict(monkeypatch):
     """Coulomb friction (4 rad/s^2) hidden in 60 s: with the long-record limit lowered to 20 s of training data the
     candidates are compared on an evenly spread half of the training segments, the chosen model fitted on all of

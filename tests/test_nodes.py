@@ -30,6 +30,10 @@ pytestmark = pytest.mark.timeout(180)
 
 #: Discovery plus the first message can take a few seconds on a loaded machine (docs/ros.md section 4).
 DISCOVERY_TIMEOUT = 20.0
+#: A node process's start (Python and numba imports, then discovery): beside `stress-ng --cpu 2` at load ~25 the sim
+#: had printed nothing yet after 20 s and the unknown-effect sim had not exited after 30 s. The waits below end as
+#: soon as their condition holds (or the node exits), so a generous deadline costs nothing on an idle machine.
+START_TIMEOUT = 180.0
 
 
 class Listener:
@@ -91,11 +95,12 @@ def sim(listener):
     """A real-time sim without noise (exact values for the duty checks)."""
     with NodeProcess('aeropend_ros.sim_node', ['-p', 'psnr_db:=0.0', '-p', 'quantise:=false',
                                                '-p', 'duty_limit:=0.7'], DOMAIN_ID) as process:
-        assert listener.wait_for(lambda: len(listener.samples) > 10), process.output()
+        assert listener.wait_for(lambda: len(listener.samples) > 10 or process.process.poll() is not None,
+                                 START_TIMEOUT) and len(listener.samples) > 10, process.output()
         yield process
 
 
-def set_parameters(context, node_name: str, parameters: list[Parameter], timeout: float = DISCOVERY_TIMEOUT):
+def set_parameters(context, node_name: str, parameters: list[Parameter], timeout: float = START_TIMEOUT):
     """The ``ros2 param set`` equivalent: returns the list of SetParametersResult."""
     helper = rclpy.create_node('test_param_client', context=context)
     executor = SingleThreadedExecutor(context=context)
@@ -114,12 +119,14 @@ def set_parameters(context, node_name: str, parameters: list[Parameter], timeout
 
 # --------------------------------------------------------------------------------------------------------------
 def test_sim_rate_490hz_cross_process(sim, listener):
-    """490 Hz +- 1 % across processes, stamps exactly k Ts apart, nothing lost, no drift against the wall clock.
+    """490 Hz +- 1 % across processes, stamps exactly k Ts apart, no drift against the wall clock; loss counted.
 
     The rate is the slope of the publisher's sample counter against the receive (wall) time over a 10 s window
-    (Theil-Sen: a late tick that the sim catches up by count does not tilt it); the plain receive count over the
-    window must be within 2 % (it also counts a catch-up burst at an edge of the window, which on this shared
-    2-core machine can be a few tens of milliseconds).
+    (Theil-Sen: a late tick that the sim catches up by count does not tilt it). The samples go out best effort
+    (SensorData QoS), so how many reach this in-test Python listener depends on the machine's load, not on the sim:
+    beside `stress-ng --cpu 2` (load ~14) it received 3,875 in the 10 s window (387.5 Hz) while the counter advanced
+    at 490 Hz. The loss is counted from the sequence numbers and said (printed), not asserted away; the sim's own
+    promises (rate, stamps, clock) are asserted.
     """
     from scipy.stats import theilslopes
     listener.spin_for(2.0)          # warm-up: a just-started sim catches up its start-up backlog by count
@@ -131,14 +138,13 @@ def test_sim_rate_490hz_cross_process(sim, listener):
     sequence = np.array([s.sequence for s in samples])
     stamps = np.array([s.stamp_ns for s in samples], dtype=np.int64)
     assert np.all(np.diff(sequence) >= 1), 'sequence numbers must increase'
+    assert count >= 1000, f'only {count} samples in {window} s: too few to measure the rate'
     pick = np.linspace(0, count - 1, 300).astype(int)
     rate = theilslopes(sequence[pick], receive[pick])[0]
     assert abs(rate - 490.0) <= 4.9, f'sample counter advances at {rate:.2f} Hz'
-    rate_by_count = count / window
-    assert abs(rate_by_count - 490.0) <= 9.8, f'received {count} samples in {window} s = {rate_by_count:.1f} Hz'
-    print(f'\nsim rate {rate:.2f} Hz (counter vs wall clock), {rate_by_count:.1f} Hz by receive count')
     missing = int(np.sum(np.diff(sequence) - 1))
-    assert missing <= 0.01 * count, f'{missing} samples lost of {count}'
+    print(f'\nsim rate {rate:.2f} Hz (counter vs wall clock); this listener received {count} samples in {window} s, '
+          f'{missing} of the {count + missing} in between lost on the way (best effort)')
     # Stamps are sample counter x Ts anchored at the start: exact to the rounding nanosecond.
     expected = (sequence - sequence[0]) * SAMPLE_TIME * 1e9
     assert np.max(np.abs((stamps - stamps[0]) - expected)) <= 1.0
@@ -177,7 +183,7 @@ def test_sim_rejects_out_of_range_parameter(sim, ros_context):
 
 def test_sim_unknown_effect_exits_with_reason():
     with NodeProcess('aeropend_ros.sim_node', ['-p', "effects:=['no_such_effect=1']"], DOMAIN_ID) as process:
-        process.process.wait(30)
+        process.process.wait(START_TIMEOUT)
         assert process.process.returncode == 2
         assert 'unknown effect' in process.output() and 'coulomb_friction' in process.output()
 
@@ -344,15 +350,16 @@ def test_sim_faster_than_real_time_stops_after(tmp_path, own_domain):
     context, domain_id = own_domain
     listener = Listener(context, depth=4000)
     try:
-        started = time.monotonic()
         with NodeProcess('aeropend_ros.sim_node', ['-p', 'realtime_factor:=10.0', '-p', 'stop_after:=4.0',
                                                    '-p', 'publish_period:=0.01', '-p', 'wait_for_subscribers:=2'],
                          domain_id) as process:
-            assert listener.wait_for(lambda: listener.samples_subscription.get_publisher_count() > 0,
-                                     DISCOVERY_TIMEOUT), process.output()
+            assert listener.wait_for(lambda: listener.samples_subscription.get_publisher_count() > 0
+                                     or process.process.poll() is not None, START_TIMEOUT), process.output()
+            assert listener.samples_subscription.get_publisher_count() > 0, process.output()
             assert not listener.samples, 'the sim started before its second subscriber'
             gate = listener.node.create_subscription(JointState, topics.SAMPLES_TOPIC, lambda _msg: None,
                                                      topics.samples_qos())
+            started = time.monotonic()          # the sim publishes from now on (its start-up is not timed)
             assert listener.wait_for(lambda: process.process.poll() is not None, 60.0), process.output()
             wall = time.monotonic() - started
             assert process.process.returncode == 0, process.output()
@@ -369,7 +376,7 @@ def test_sim_faster_than_real_time_stops_after(tmp_path, own_domain):
     finally:
         listener.executor.shutdown()
         listener.node.destroy_node()
-    assert wall < 4.0 + 10.0 + DISCOVERY_TIMEOUT, 'should not be slower than real time plus start-up'   # functional
+    assert wall < 4.0 + 10.0, 'should not be slower than real time plus 10 s'   # functional: the speed is in bench/
     sequence = np.array([s.sequence for s in listener.samples])
     stamps = np.array([s.stamp_ns for s in listener.samples], dtype=np.int64)
     # The sim published all 1960 (its own count, asserted above). Samples go out best effort (SensorData QoS, as a

@@ -31,6 +31,7 @@ def one_line_error(result: subprocess.CompletedProcess, status: int = 2) -> str:
     return result.stderr
 
 
+@pytest.mark.slow
 def test_simulate_writes_through_a_symlink_and_keeps_it(tmp_path):
     (tmp_path / 'data').mkdir()
     target = tmp_path / 'data' / 'run.csv'

@@ -167,6 +167,7 @@ def test_no_before_after_section_without_added_effects(page, diagnosis):
     assert 'id="before-after"' not in text
 
 
+@pytest.mark.slow
 def test_text_from_the_diagnosis_is_escaped_and_untestable_candidates_listed(diagnosis, tmp_path):
     untestable = Candidate('user<effect>', None, {}, {}, float('nan'), diagnosis.candidates[0].excess_before,
                            float('nan'), False, error='needs steps at small duty & none are in the data')
@@ -202,6 +203,7 @@ def test_validation_record_tells_the_right_model_from_the_nominal(diagnosis, sec
     assert 'motor observer' in ' '.join(good.notes)            # what was estimated on this record is said
 
 
+@pytest.mark.slow
 def test_cli_report_shows_before_and_after(trajectory, second_trajectory, tmp_path, capsys):
     data = tmp_path / 'friction.csv'
     write_csv(str(data), trajectory.columns(with_truth=False))

@@ -323,6 +323,7 @@ document.body.setAttribute('data-download', typeof aeropendDownloadCsv);
 </script>"""
 
 
+@pytest.mark.slow
 @needs_chromium
 @pytest.mark.timeout(600)
 def test_chromium_renders_without_errors_or_fetches(page, added, diagnosis, tmp_path):

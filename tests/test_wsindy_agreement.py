@@ -146,14 +146,16 @@ def test_dense_measurement_band_is_the_fast_one_on_real_equations():
                                        atol=1e-12 * np.max(np.abs(dense[0])))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize('library', LIBRARIES)
 def test_fast_noise_model_agrees_with_the_dense_formulas(library, monkeypatch):
     """The full method with the fast residual covariance (fused coefficient products, blocked window products)
     and the fast noise compensation (band of Σ⁻¹, banded overlap, vectorised weighted products) against the same
     fit with both written out with dense matrices: same support, coefficients within the bar, on seeded windows
-    at 30 and 40 dB."""
+    at 30 and 40 dB (one window each: a second 40 dB seed took the same paths and a third of the test's time;
+    more seeds and noise levels are `bench/wsindy_ulp_sensitivity.py`'s business)."""
     options = LIBRARIES[library]
-    cases = [(0, 40.0), (1, 40.0), (2, 30.0)]
+    cases = [(0, 40.0), (2, 30.0)]
     fast = [_fits(window(seed, psnr), **options) for seed, psnr in cases]
     monkeypatch.setattr(weak_form, '_noise_gram', _dense_noise_gram)
     monkeypatch.setattr(weak_form, '_measurement_band', _dense_measurement_band)
