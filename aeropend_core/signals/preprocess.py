@@ -254,26 +254,34 @@ def condition_inputs(armature_voltage: np.ndarray, armature_current: np.ndarray,
 BETWEEN_SAMPLES_TIME = 1.5 / 490.0
 
 
-def between_samples(stepped: np.ndarray, step_indices: np.ndarray, sample_time: float) -> np.ndarray:
-    """The piecewise-constant Va [V] the motor observer is driven with: at a low rate (sample time above
-    :data:`BETWEEN_SAMPLES_TIME`) the step seen first at sample k landed somewhere in (t_k-1, t_k], so the interval
-    before it holds the mean of the two levels (the expected input for a step time uniform over the interval);
-    at the rig's rate `stepped` itself.
+def step_switches(step_indices: np.ndarray, n: int, sample_time: float) -> np.ndarray:
+    """Where inside each sample interval the duty (Va) changes [fraction of the interval], for the motor observer.
+
+    At a low rate (sample time above :data:`BETWEEN_SAMPLES_TIME`) a step first seen at sample k landed somewhere in
+    (t_k-1, t_k]: the observer holds the old level over the first half of interval k-1 and the new one over the
+    second half (the expected step time for a step time uniform over the interval). Unlike holding the mean of the two
+    levels over the whole interval, this keeps the modelled current right at both samples: the armature current
+    follows Va within ~2 ms (La/Ra), so at t_k it has the new level's value and at t_k-1 the old one's, and holding
+    the mean put a modelled current off by dVa / (2 R) (~0.5 A against ~17 mA of noise) at one sample per step,
+    which bent the observer's fit (Rm -4.5 % at 98 Hz; no adequate observer at all at 49 and 24.5 Hz).
 
     Parameters
     ----------
-    stepped : ndarray, shape (n,) [V]
     step_indices : ndarray of int [-]
+        Samples where a Va step is first seen.
+    n : int [-]
+        Number of samples.
     sample_time : float [s]
 
     Returns
     -------
-    ndarray, shape (n,) [V]
+    ndarray, shape (n,) [1]
+        0.5 in the interval before each step at a low rate, 1 (held over the whole interval) elsewhere.
     """
+    out = np.ones(int(n))
     if sample_time <= BETWEEN_SAMPLES_TIME:
-        return stepped
-    out = np.array(stepped, dtype=float)
+        return out
     for k in np.asarray(step_indices, dtype=int):
-        if 1 <= k < out.size:
-            out[k - 1] = 0.5 * (stepped[k - 1] + stepped[k])
+        if 1 <= k < n:
+            out[k - 1] = 0.5
     return out
