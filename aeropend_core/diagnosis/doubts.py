@@ -295,5 +295,57 @@ def rate_notes(found: list, sample_time: float) -> list[str]:
     return notes
 
 
-__all__ = ['ambiguity_notes', 'chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves', 'rate_notes',
-           'residual_structure', 'unresolvable']
+#: Largest |relative error| of diagnose's nominal parameters measured per sample rate [Hz] on seeded simulations
+#: (bench/lowrate_accuracy.py: default rig, 40 dB, 10-bit, 30 s, 4 seeds; bench/results/2026-11-27-lowrate), and
+#: the tolerance the rate is held to (damping and gravity_stiffness; thrust_gain twice it).
+RATE_ACCURACY = (
+    (98.0, {'gravity_stiffness': 0.049, 'damping': 0.014, 'thrust_gain': 0.058}, 0.10),
+    (49.0, {'gravity_stiffness': 0.126, 'damping': 0.033, 'thrust_gain': 0.189}, 0.15),
+    (24.5, {'gravity_stiffness': 0.196, 'damping': 0.120, 'thrust_gain': 0.288}, 0.25),
+)
+
+
+def rate_doubts(sample_time: float | None, reduced: bool = False) -> dict[str, str]:
+    """What the sample rate does to the accuracy of each nominal parameter, to be said next to its number.
+
+    Below ~327 Hz (:data:`RATE_NOTE_TIME`) each of gravity_stiffness, damping and thrust_gain gets the largest error
+    measured at the nearest measured rate at or below this one (:data:`RATE_ACCURACY`); a rate below the lowest
+    measured one says that the error there is larger than measured.
+
+    Parameters
+    ----------
+    sample_time : float or None [s]
+    reduced : bool [-]
+        The reduced model (no period-average current): its accuracy per rate was not measured, and that is said.
+
+    Returns
+    -------
+    dict of str -> str
+        Parameter name -> the doubt (empty at the rig's rate or without a sample time).
+    """
+    if sample_time is None or not sample_time > RATE_NOTE_TIME:
+        return {}
+    if reduced:
+        return dict.fromkeys(('gravity_stiffness', 'damping', 'thrust_gain'),
+                             f'rate: the reduced model\'s accuracy at {1.0 / sample_time:.4g} Hz has not been measured')
+    rate = 1.0 / sample_time
+    measured = [entry for entry in RATE_ACCURACY if entry[0] <= rate * 1.02] or [RATE_ACCURACY[-1]]
+    at, errors, tolerance = measured[0]
+    below = rate < RATE_ACCURACY[-1][0] * 0.98
+    out = {}
+    for name, error in errors.items():
+        if error is None:
+            continue
+        limit = tolerance * (2 if name == 'thrust_gain' else 1)
+        text = (f'rate: at {at:g} Hz this parameter was off by up to {error * 100:.0f} % on seeded simulations '
+                f'(bench/lowrate_accuracy.py)')
+        if below:
+            text += f'; {rate:.4g} Hz is slower than any rate measured: expect more'
+        if error > limit:
+            text += f', beyond the {limit * 100:.0f} % this rate is held to: not trustworthy as a number'
+        out[name] = text
+    return out
+
+
+__all__ = ['ambiguity_notes', 'chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves', 'rate_doubts',
+           'rate_notes', 'residual_structure', 'unresolvable']
