@@ -300,8 +300,8 @@ def rate_notes(found: list, sample_time: float) -> list[str]:
 #: the tolerance the rate is held to (damping and gravity_stiffness; thrust_gain twice it).
 RATE_ACCURACY = (
     (98.0, {'gravity_stiffness': 0.049, 'damping': 0.014, 'thrust_gain': 0.058}, 0.10),
-    (49.0, {'gravity_stiffness': 0.126, 'damping': 0.033, 'thrust_gain': 0.189}, 0.15),
-    (24.5, {'gravity_stiffness': 0.196, 'damping': 0.120, 'thrust_gain': 0.288}, 0.25),
+    (49.0, {'gravity_stiffness': 0.037, 'damping': 0.021, 'thrust_gain': 0.043}, 0.15),
+    (24.5, {'gravity_stiffness': 0.103, 'damping': 0.066, 'thrust_gain': 0.127}, 0.25),
 )
 
 
@@ -309,8 +309,8 @@ def rate_doubts(sample_time: float | None, reduced: bool = False) -> dict[str, s
     """What the sample rate does to the accuracy of each nominal parameter, to be said next to its number.
 
     Below ~327 Hz (:data:`RATE_NOTE_TIME`) each of gravity_stiffness, damping and thrust_gain gets the largest error
-    measured at the nearest measured rate at or below this one (:data:`RATE_ACCURACY`); a rate below the lowest
-    measured one says that the error there is larger than measured.
+    measured at this rate (within 2 %), else the larger of the two measured rates around it (:data:`RATE_ACCURACY`);
+    a rate below the lowest measured one says that the error there may be larger than measured.
 
     Parameters
     ----------
@@ -329,18 +329,24 @@ def rate_doubts(sample_time: float | None, reduced: bool = False) -> dict[str, s
         return dict.fromkeys(('gravity_stiffness', 'damping', 'thrust_gain'),
                              f'rate: the reduced model\'s accuracy at {1.0 / sample_time:.4g} Hz has not been measured')
     rate = 1.0 / sample_time
-    measured = [entry for entry in RATE_ACCURACY if entry[0] <= rate * 1.02] or [RATE_ACCURACY[-1]]
-    at, errors, tolerance = measured[0]
+    exact = [entry for entry in RATE_ACCURACY if abs(entry[0] / rate - 1.0) <= 0.02]
+    lower = [entry for entry in RATE_ACCURACY if entry[0] <= rate] or [RATE_ACCURACY[-1]]
+    upper = [entry for entry in RATE_ACCURACY if entry[0] > rate][-1:]
+    # between two measured rates: the larger error of the two (the measured errors do not fall monotonically)
     below = rate < RATE_ACCURACY[-1][0] * 0.98
+    chosen = exact[:1] or (RATE_ACCURACY[-1:] if below else lower[:1] + upper)
+    at = ' and '.join(f'{entry[0]:g}' for entry in chosen)
+    errors = {name: max(entry[1][name] for entry in chosen) for name in chosen[0][1]}
+    tolerance = chosen[0][2]
     out = {}
     for name, error in errors.items():
         if error is None:
             continue
         limit = tolerance * (2 if name == 'thrust_gain' else 1)
-        text = (f'rate: at {at:g} Hz this parameter was off by up to {error * 100:.0f} % on seeded simulations '
+        text = (f'rate: at {at} Hz this parameter was off by up to {error * 100:.0f} % on seeded simulations '
                 f'(bench/lowrate_accuracy.py)')
         if below:
-            text += f'; {rate:.4g} Hz is slower than any rate measured: expect more'
+            text += f'; {rate:.4g} Hz is slower than any rate measured: the error may be larger'
         if error > limit:
             text += f', beyond the {limit * 100:.0f} % this rate is held to: not trustworthy as a number'
         out[name] = text
