@@ -252,16 +252,27 @@ def _identify_reduced(args: argparse.Namespace, recording) -> int:
 #: Sample time [s] above which the weak-form fit is said to be biased (measured in bench/rate_sweep.py: at 245 Hz
 #: gravity_stiffness ~9 % low, at 122 Hz ~30 %, at 24.5 Hz a thrust gain of the wrong sign).
 WEAK_FORM_LOW_RATE_TIME = 1.5 / 490.0
+#: The weak form's largest measured relative error of (gravity_stiffness, damping, thrust_gain) per rate [Hz] over
+#: seeds 11-14 (bench/lowrate_weak_form.py, 40 dB, 10-bit; bench/results/2026-11-27-lowrate/weak_form.json).
+WEAK_FORM_RATE_BIAS = ((245.0, (-0.141, -0.086, -0.191)), (98.0, (-0.444, -0.368, -0.530)),
+                       (49.0, (-0.577, -0.435, -0.706)), (24.5, (-0.684, -0.487, -0.860)))
 
 
 def _rate_warning(recording) -> str:
-    """The doubt a low sample rate casts on the weak-form numbers (empty at the rig's rate)."""
+    """The doubt a low sample rate casts on the weak-form numbers, with the bias measured near that rate (empty at
+    the rig's rate)."""
     if len(recording) < 3:
         return ''
     step = float(np.median(np.diff(np.asarray(recording.time, dtype=float))))
     if not step > WEAK_FORM_LOW_RATE_TIME:
         return ''
-    return (f'at {1 / step:.4g} Hz the weak-form fit is biased: its thrust terms hold Va and Ia over each '
-            f'{step * 1e3:.3g} ms sample, while the motor speed (the thrust) moves within it; these parameters are '
-            'not trustworthy (bench/rate_sweep.py measures the bias). Use `aeropend diagnose` (output error with a '
-            'motor observer), whose parameters degrade much less with the rate')
+    rate = 1.0 / step
+    at, (gravity, damping, gain) = next((entry for entry in WEAK_FORM_RATE_BIAS if entry[0] <= rate * 1.02),
+                                        WEAK_FORM_RATE_BIAS[-1])
+    slower = f'; {rate:.4g} Hz is slower than any rate measured' if rate < 0.98 * WEAK_FORM_RATE_BIAS[-1][0] else ''
+    return (f'at {rate:.4g} Hz ({step * 1e3:.3g} ms per sample) the weak-form fit is biased low. Measured at {at:g} '
+            f'Hz on four seeded simulations, as far off as gravity_stiffness {gravity * 100:+.0f} %, damping '
+            f'{damping * 100:+.0f} %, thrust_gain {gain * 100:+.0f} %{slower} (bench/lowrate_weak_form.py); these '
+            'parameters are not trustworthy. '
+            'Use `aeropend diagnose` (output error with a motor observer): at 24.5-98 Hz its parameters were within '
+            'the tolerances of docs/log-import.md')

@@ -32,7 +32,7 @@ from aeropend_core.model.effects import kernel_parameter
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
                                         initial_states_from_data)
 from aeropend_core.signals.motor import MotorFit, back_emf_ensemble, fit_motor
-from aeropend_core.signals.preprocess import (between_samples, condition_inputs, noise_rms, piecewise_constant,
+from aeropend_core.signals.preprocess import (condition_inputs, noise_rms, piecewise_constant, step_switches,
                                              quantisation_bias_rms, quantisation_step)
 from aeropend_core.io.recording import Recording
 
@@ -335,9 +335,10 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         thrust_voltage = stepped if stepped is not None else conditioned.armature_voltage
         thrust_current = np.zeros_like(current)
     elif use_motor_observer and stepped is not None:
-        observed = between_samples(stepped, conditioned.step_indices, sample_time)
+        observed = stepped
+        switch = step_switches(conditioned.step_indices, stepped.size, sample_time)
         try:
-            motor = fit_motor(observed, current, conditioned.step_indices, sample_time)
+            motor = fit_motor(observed, current, conditioned.step_indices, sample_time, switch)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
             motor = None      # the observer is an improvement, not a requirement: use the measured Va - R Ia
         if motor is not None and motor.adequate and np.all(np.isfinite(motor.back_emf)):

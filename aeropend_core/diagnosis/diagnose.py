@@ -48,7 +48,7 @@ import numpy as np
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
 from aeropend_core.diagnosis.checks import check_diagnosis, misfit_doubt
 from aeropend_core.diagnosis.evidence import diebold_mariano, share_words, t_statistic_words
-from aeropend_core.diagnosis.doubts import doubt_notes, rate_notes, residual_structure, unresolvable
+from aeropend_core.diagnosis.doubts import doubt_notes, rate_doubts, rate_notes, residual_structure, unresolvable
 from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.io.recording import Recording
@@ -267,8 +267,7 @@ class Diagnosis:
             'model_effects': list(self.effects),
             'fit_percent': _finite(current.fit_percent),
             'fit_definition': 'held-out free-run simulation of the angle, NRMSE fit % as MATLAB compare',
-            'rms_error': _finite(current.rms_error),
-            'noise_rms': _finite(current.noise_rms),
+            'rms_error': _finite(current.rms_error), 'noise_rms': _finite(current.noise_rms),
             'error_beyond_noise': _finite(excess_error(current.rms_error, current.noise_rms)),
             'prediction_rms_error': _finite(current.evaluation.prediction_rms),
             'prediction_horizon': current.evaluation.prediction_horizon,
@@ -279,8 +278,9 @@ class Diagnosis:
             'not_identifiable': _not_identifiable(self.prepared),
             'motor_map': getattr(self.prepared, 'motor_map', None),
             'free_oscillation': self.independent.to_dict() if self.independent is not None else None,
-            'estimator': 'output_error',
-            'estimators': self.estimators(current),
+            'estimator': 'output_error', 'estimators': self.estimators(current),
+            'parameter_rate_doubts': rate_doubts(getattr(self.prepared, 'sample_time', None),
+                                                 getattr(self.prepared, 'reduced', False)),
             'missing_effect': self.missing_effect,
             'verdict': self.verdict,
             'message': self.message,

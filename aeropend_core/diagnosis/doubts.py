@@ -298,5 +298,63 @@ def rate_notes(found: list, sample_time: float) -> list[str]:
     return notes
 
 
-__all__ = ['ambiguity_notes', 'chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves', 'rate_notes',
-           'residual_structure', 'unresolvable']
+#: Largest |relative error| of diagnose's nominal parameters measured per sample rate [Hz] on seeded simulations
+#: (bench/lowrate_accuracy.py: default rig, 40 dB, 10-bit, 30 s, 4 seeds; bench/results/2026-11-27-lowrate), and
+#: the tolerance the rate is held to (damping and gravity_stiffness; thrust_gain twice it).
+RATE_ACCURACY = (
+    (98.0, {'gravity_stiffness': 0.049, 'damping': 0.014, 'thrust_gain': 0.058}, 0.10),
+    (49.0, {'gravity_stiffness': 0.037, 'damping': 0.021, 'thrust_gain': 0.043}, 0.15),
+    (24.5, {'gravity_stiffness': 0.103, 'damping': 0.066, 'thrust_gain': 0.127}, 0.25),
+)
+
+
+def rate_doubts(sample_time: float | None, reduced: bool = False) -> dict[str, str]:
+    """What the sample rate does to the accuracy of each nominal parameter, to be said next to its number.
+
+    Below ~327 Hz (:data:`RATE_NOTE_TIME`) each of gravity_stiffness, damping and thrust_gain gets the largest error
+    measured at this rate (within 2 %), else the larger of the two measured rates around it (:data:`RATE_ACCURACY`);
+    a rate below the lowest measured one says that the error there may be larger than measured.
+
+    Parameters
+    ----------
+    sample_time : float or None [s]
+    reduced : bool [-]
+        The reduced model (no period-average current): its accuracy per rate was not measured, and that is said.
+
+    Returns
+    -------
+    dict of str -> str
+        Parameter name -> the doubt (empty at the rig's rate or without a sample time).
+    """
+    if sample_time is None or not sample_time > RATE_NOTE_TIME:
+        return {}
+    if reduced:
+        return dict.fromkeys(('gravity_stiffness', 'damping', 'thrust_gain'),
+                             f'rate: the reduced model\'s accuracy at {1.0 / sample_time:.4g} Hz has not been measured')
+    rate = 1.0 / sample_time
+    exact = [entry for entry in RATE_ACCURACY if abs(entry[0] / rate - 1.0) <= 0.02]
+    lower = [entry for entry in RATE_ACCURACY if entry[0] <= rate] or [RATE_ACCURACY[-1]]
+    upper = [entry for entry in RATE_ACCURACY if entry[0] > rate][-1:]
+    # between two measured rates: the larger error of the two (the measured errors do not fall monotonically)
+    below = rate < RATE_ACCURACY[-1][0] * 0.98
+    chosen = exact[:1] or (RATE_ACCURACY[-1:] if below else lower[:1] + upper)
+    at = ' and '.join(f'{entry[0]:g}' for entry in chosen)
+    errors = {name: max(entry[1][name] for entry in chosen) for name in chosen[0][1]}
+    tolerance = chosen[0][2]
+    out = {}
+    for name, error in errors.items():
+        if error is None:
+            continue
+        limit = tolerance * (2 if name == 'thrust_gain' else 1)
+        text = (f'rate: at {at} Hz this parameter was off by up to {error * 100:.0f} % on seeded simulations '
+                f'(bench/lowrate_accuracy.py)')
+        if below:
+            text += f'; {rate:.4g} Hz is slower than any rate measured: the error may be larger'
+        if error > limit:
+            text += f', beyond the {limit * 100:.0f} % this rate is held to: not trustworthy as a number'
+        out[name] = text
+    return out
+
+
+__all__ = ['ambiguity_notes', 'chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves', 'rate_doubts',
+           'rate_notes', 'residual_structure', 'unresolvable']

@@ -20,6 +20,7 @@ from aeropend_core.model.effects import CATALOG, MEASUREMENT
 
 from aeropend_core.diagnosis.output_error import SegmentedData
 from aeropend_core.errors import InsufficientDataError
+from aeropend_core.signals.preprocess import step_switches
 from aeropend_core.signals.reduced import motor_map
 
 #: Coarse grid of the motor time constant [s] and the map curvature [1/V] before the local search.
@@ -53,7 +54,8 @@ def _subset(data: SegmentedData, seconds: float) -> SegmentedData:
 
 def with_map(prep, time_constant: float, curvature: float):
     """`prep` with its thrust voltage from the motor map (T [s], q [1/V]) and no current."""
-    voltage = motor_map(prep.gate_voltage, time_constant, curvature, prep.sample_time)
+    switch = step_switches(prep.step_indices, len(prep.gate_voltage), prep.sample_time)
+    voltage = motor_map(prep.gate_voltage, time_constant, curvature, prep.sample_time, switch)
     return dataclasses.replace(prep, voltage=voltage, current=np.zeros_like(voltage), reduced=True,
                                voltage_ensemble=None)
 

@@ -236,6 +236,9 @@ def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
     motor = diagnosis.prepared.motor if diagnosis.prepared is not None else None
     errors = diagnosis.reported_errors(comparison)
     warnings = diagnosis.parameter_warnings
+    from aeropend_core.diagnosis.doubts import rate_doubts
+    prep = diagnosis.prepared
+    doubts = rate_doubts(getattr(prep, 'sample_time', None), getattr(prep, 'reduced', False))
     reported = diagnosis.reported_parameters(comparison)
     if motor is not None:            # the observer's R is shown from the comparison's row below
         reported = {**reported, 'armature_resistance': comparison.parameters.get('armature_resistance', 0.0)}
@@ -247,6 +250,8 @@ def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
         shown = f'{_sig(value)} &plusmn; {_sig(sigma, 2)}'
         if name in warnings:
             shown += f' <b style="color:#b00">&#9888; {_esc(warnings[name])}</b>'
+        if name in doubts:
+            shown += f' <i>({_esc(doubts[name])})</i>'
         if name == 'armature_resistance' and motor is not None:
             shown = (f'{_sig(motor.parameters["motor_resistance"])} &plusmn; '
                      f'{_sig(motor.standard_errors.get("motor_resistance", float("nan")), 2)} (motor observer)')

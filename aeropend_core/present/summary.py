@@ -35,12 +35,15 @@ def format_summary(diagnosis: Diagnosis) -> str:
     observer = prep is not None and prep.motor is not None
     errors = diagnosis.reported_errors(current)
     warnings = diagnosis.parameter_warnings
+    from aeropend_core.diagnosis.doubts import rate_doubts
+    doubts = rate_doubts(getattr(prep, 'sample_time', None), getattr(prep, 'reduced', False))
     for name, value in diagnosis.reported_parameters(current).items():
         error = errors.get(name, float('nan'))
         found = find_parameter(name)
         unit = NOMINAL_PARAMETERS[name][0] if name in NOMINAL_PARAMETERS else (found[1].unit if found else '')
         unit = MAP_PARAMETERS.get(name, unit)
         flag = f'   !! {warnings[name]}' if name in warnings else ''
+        flag += f'   ~ {doubts[name]}' if name in doubts else ''
         if name == 'armature_resistance' and observer:
             lines.append(f'  {name:24s} {value:12.5g} +- {error:9.2g} {unit} (from the motor observer fitted to Ia)'
                          f'{flag}')

@@ -49,11 +49,40 @@ def _back_emf_step(p1, p2, p3, v, e, h):
     return e + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
 
 
+@numba.njit(cache=True, nogil=True, inline='always')
+def _input_at(voltage, switch, i, start, stop):
+    """Va held over the sub-step [start, stop) [fraction of sample i's interval]: voltage[i] before the interval's
+    switch (``switch[i]``, a fraction; 1 = none), voltage[i + 1] after it (a sub-step never straddles it)."""
+    if start >= switch[i] - 1e-12 and i + 1 < voltage.shape[0]:
+        return voltage[i + 1]
+    return voltage[i]
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
+def _sub_steps(switch, i, substeps):
+    """Boundaries [fraction of the interval] of the RK4 sub-steps of interval i: `substeps` equal steps, the one that
+    holds the switch of Va (``switch[i]`` < 1) split at it, so that the hold is integrated exactly."""
+    bounds = np.empty(substeps + 2)
+    count = 0
+    bounds[0] = 0.0
+    for q in range(1, substeps + 1):
+        edge = q / substeps
+        previous = bounds[count]
+        if previous + 1e-12 < switch[i] < edge - 1e-12:
+            count += 1
+            bounds[count] = switch[i]
+        count += 1
+        bounds[count] = edge
+    return bounds[:count + 1]
+
+
 @numba.njit(cache=True, nogil=True)
-def _back_emf_kernel(parameters, voltage, initial, sample_time, substeps, out):
+def _back_emf_kernel(parameters, voltage, initial, sample_time, substeps, out, switch):
     """RK4 of de/dt = p1 (Va - e) - p2 e - p3 e|e| with Va held over each sample, for every parameter row, in
-    `substeps` steps per sample (1 at 490 Hz; more at a low rate, where one step per sample is unstable)."""
-    h = sample_time / substeps
+    `substeps` steps per sample (1 at 490 Hz; more at a low rate, where one step per sample is unstable).
+
+    `switch` (n,) [fraction of the sample interval]: where in interval i Va changes to voltage[i + 1] (a duty step
+    that landed between two samples of a low-rate log); 1 where it is held over the whole interval."""
     for row in range(parameters.shape[0]):
         p1 = parameters[row, 0]
         p2 = parameters[row, 1]
@@ -61,10 +90,16 @@ def _back_emf_kernel(parameters, voltage, initial, sample_time, substeps, out):
         e = initial[row]
         for i in range(voltage.shape[0]):
             out[row, i] = e
-            v = voltage[i]
-            for _ in range(substeps):
-                e = _back_emf_step(p1, p2, p3, v, e, h)
-
+            if switch[i] >= 1.0:
+                v = voltage[i]
+                h = sample_time / substeps
+                for _ in range(substeps):
+                    e = _back_emf_step(p1, p2, p3, v, e, h)
+                continue
+            bounds = _sub_steps(switch, i, substeps)
+            for q in range(bounds.shape[0] - 1):
+                v = _input_at(voltage, switch, i, bounds[q], bounds[q + 1])
+                e = _back_emf_step(p1, p2, p3, v, e, (bounds[q + 1] - bounds[q]) * sample_time)
 
 
 #: RK4 sub-steps per sample for the observer with the armature inductance (La/Ra ~ one sample at 490 Hz).
@@ -81,14 +116,34 @@ INITIAL_SPAN = 20.0 / 490.0
 RESISTANCE_SPAN = 6.0 / 490.0
 
 
+@numba.njit(cache=True, nogil=True, inline='always')
+def _motor_step(r, tau, q1, p2, p3, v, i, e, h):
+    """One RK4 step of length h [s] of tau_e dIa/dt = (Va - e)/R - Ia, de/dt = q1 Ia - p2 e - p3 e|e|."""
+    di1 = ((v - e) / r - i) / tau
+    de1 = q1 * i - p2 * e - p3 * e * abs(e)
+    i2 = i + 0.5 * h * di1
+    e2 = e + 0.5 * h * de1
+    di2 = ((v - e2) / r - i2) / tau
+    de2 = q1 * i2 - p2 * e2 - p3 * e2 * abs(e2)
+    i3 = i + 0.5 * h * di2
+    e3 = e + 0.5 * h * de2
+    di3 = ((v - e3) / r - i3) / tau
+    de3 = q1 * i3 - p2 * e3 - p3 * e3 * abs(e3)
+    i4 = i + h * di3
+    e4 = e + h * de3
+    di4 = ((v - e4) / r - i4) / tau
+    de4 = q1 * i4 - p2 * e4 - p3 * e4 * abs(e4)
+    return i + h / 6.0 * (di1 + 2.0 * di2 + 2.0 * di3 + di4), e + h / 6.0 * (de1 + 2.0 * de2 + 2.0 * de3 + de4)
+
+
 @numba.njit(cache=True, nogil=True)
-def _motor_kernel(parameters, voltage, initial, sample_time, substeps, out_current, out_emf):
-    """RK4 of  tau_e dIa/dt = (Va - e)/R - Ia,  de/dt = q1 Ia - p2 e - p3 e|e|  (Va held over each sample).
+def _motor_kernel(parameters, voltage, initial, sample_time, substeps, out_current, out_emf, switch):
+    """RK4 of  tau_e dIa/dt = (Va - e)/R - Ia,  de/dt = q1 Ia - p2 e - p3 e|e|  (Va held over each sample, changing
+    to voltage[i + 1] at the fraction ``switch[i]`` of interval i; 1: no change, as in :func:`_back_emf_kernel`).
 
     parameters rows: R [ohm], tau_e = La/R [s], q1 = Kw Kt / Jm [V/(A s)], p2 [1/s], p3 [1/(V s)];
     initial rows: Ia0 [A], e0 [V]. Writes Ia and e at the start of each sample.
     """
-    h = sample_time / substeps
     for row in range(parameters.shape[0]):
         r = parameters[row, 0]
         tau = parameters[row, 1]
@@ -100,24 +155,16 @@ def _motor_kernel(parameters, voltage, initial, sample_time, substeps, out_curre
         for k in range(voltage.shape[0]):
             out_current[row, k] = i
             out_emf[row, k] = e
-            v = voltage[k]
-            for _ in range(substeps):
-                di1 = ((v - e) / r - i) / tau
-                de1 = q1 * i - p2 * e - p3 * e * abs(e)
-                i2 = i + 0.5 * h * di1
-                e2 = e + 0.5 * h * de1
-                di2 = ((v - e2) / r - i2) / tau
-                de2 = q1 * i2 - p2 * e2 - p3 * e2 * abs(e2)
-                i3 = i + 0.5 * h * di2
-                e3 = e + 0.5 * h * de2
-                di3 = ((v - e3) / r - i3) / tau
-                de3 = q1 * i3 - p2 * e3 - p3 * e3 * abs(e3)
-                i4 = i + h * di3
-                e4 = e + h * de3
-                di4 = ((v - e4) / r - i4) / tau
-                de4 = q1 * i4 - p2 * e4 - p3 * e4 * abs(e4)
-                i += h / 6.0 * (di1 + 2.0 * di2 + 2.0 * di3 + di4)
-                e += h / 6.0 * (de1 + 2.0 * de2 + 2.0 * de3 + de4)
+            if switch[k] >= 1.0:
+                v = voltage[k]
+                h = sample_time / substeps
+                for _ in range(substeps):
+                    i, e = _motor_step(r, tau, q1, p2, p3, v, i, e, h)
+                continue
+            bounds = _sub_steps(switch, k, substeps)
+            for q in range(bounds.shape[0] - 1):
+                v = _input_at(voltage, switch, k, bounds[q], bounds[q + 1])
+                i, e = _motor_step(r, tau, q1, p2, p3, v, i, e, (bounds[q + 1] - bounds[q]) * sample_time)
 
 
 @dataclass(frozen=True)
@@ -148,6 +195,9 @@ class MotorFit:
     #: 1-sigma of the parameters the observer reports (``motor_resistance`` [ohm], ...), filled in by the caller
     #: from :func:`back_emf_ensemble` (empty: not computed).
     standard_errors: dict[str, float] = field(default_factory=dict)
+    #: Where inside each sample interval the observer's Va changed to the next sample's level [fraction of the
+    #: interval] (see :func:`fit_motor`; None: held over whole intervals).
+    switch: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def adequate(self) -> bool:
@@ -155,9 +205,21 @@ class MotorFit:
         return self.current_rms_error <= 1.5 * self.current_noise_rms + 1e-4
 
 
-def _simulate(parameters: np.ndarray, voltage: np.ndarray, initial: np.ndarray, sample_time: float) -> np.ndarray:
+def held_switches(switch: np.ndarray | None, n: int) -> np.ndarray:
+    """The kernels' `switch` array (n,) [fraction of a sample interval]: `switch` as floats, or 1 (Va held over
+    every whole interval) when None."""
+    if switch is None:
+        return np.ones(n)
+    switch = np.ascontiguousarray(switch, dtype=float)
+    if switch.shape != (n,):
+        raise ValueError(f'switch has shape {switch.shape}; expected ({n},)')
+    return switch
+
+
+def _simulate(parameters: np.ndarray, voltage: np.ndarray, initial: np.ndarray, sample_time: float,
+              switch: np.ndarray) -> np.ndarray:
     out = np.empty((parameters.shape[0], voltage.size))
-    _back_emf_kernel(parameters, voltage, initial, sample_time, _substeps(sample_time, 1), out)
+    _back_emf_kernel(parameters, voltage, initial, sample_time, _substeps(sample_time, 1), out, switch)
     return out
 
 
@@ -177,11 +239,17 @@ def _fitted_samples(kind: str, n: int, step_indices, sample_time: float) -> np.n
 
 
 def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray,
-              sample_time: float) -> MotorFit:
-    """Fit the motor observer to a step-input Va [V] (piecewise constant) and the measured Ia [A]."""
+              sample_time: float, switch: np.ndarray | None = None) -> MotorFit:
+    """Fit the motor observer to a step-input Va [V] (piecewise constant) and the measured Ia [A].
+
+    `switch` (n,) [fraction of a sample interval], optional: where inside interval i Va changes to voltage[i + 1]
+    (:func:`aeropend_core.signals.preprocess.step_switches`: a low-rate log's duty step lands between two samples);
+    default Va held over each whole interval.
+    """
     voltage = np.asarray(voltage, dtype=float)
     current = np.asarray(current, dtype=float)
     n = voltage.size
+    switch = held_switches(switch, n)
     keep = _fitted_samples('quasi_static', n, step_indices, sample_time)
     resistance0 = _resistance_from_steps(voltage, current, step_indices, sample_time)
     e_measured = voltage - resistance0 * current
@@ -197,7 +265,7 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
     # one rate at a time: 41 rows of a 1-hour record would take 0.6 GB, and their temporaries several times that
     scan = np.empty(grid.size)
     for i in range(grid.size):
-        emf = _simulate(rows[i:i + 1], voltage, np.full(1, initial_emf), sample_time)[0]
+        emf = _simulate(rows[i:i + 1], voltage, np.full(1, initial_emf), sample_time, switch)[0]
         scan[i] = np.mean(((voltage - emf) / resistance0 - current)[keep] ** 2)
     p1_0 = float(grid[int(np.argmin(np.nan_to_num(scan, nan=np.inf)))])
     p2_0, p3_0 = p1_0 * ratio2, p1_0 * ratio3
@@ -205,7 +273,7 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
     x0 = np.array([p1_0, p2_0, p3_0, resistance0, initial_emf]) / scale
 
     def model_current(rows):
-        emf = _simulate(rows[:, :3], voltage, rows[:, 4], sample_time)
+        emf = _simulate(rows[:, :3], voltage, rows[:, 4], sample_time, switch)
         return (voltage[None, :] - emf) / rows[:, 3:4]
 
     def residuals(x):
@@ -229,17 +297,62 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
         result = least_squares(residuals, x0, jac=jacobian, bounds=(lower, upper), method='trf', x_scale='jac',
                                max_nfev=100)
     x = result.x * scale
-    emf = _simulate(x[None, :3], voltage, x[None, 4], sample_time)[0]
+    emf = _simulate(x[None, :3], voltage, x[None, 4], sample_time, switch)[0]
     error = float(np.sqrt(np.mean(result.fun ** 2)))
     parameters = dict(zip(PARAMETER_NAMES, (float(v) for v in x[:4])))
     quasi_static = MotorFit(parameters=parameters, back_emf=emf, current_rms_error=error,
                             current_noise_rms=noise_rms(current[keep]), solution=tuple(float(v) for v in x),
-                            kind='quasi_static')
-    with_inductance = _fit_with_inductance(voltage, current, keep, sample_time, quasi_static, x[4])
+                            kind='quasi_static', switch=switch)
+    with_inductance = _fit_with_inductance(voltage, current, keep, sample_time, quasi_static, x[4], switch,
+                                           step_indices)
     return with_inductance if with_inductance is not None else quasi_static
 
 
-def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, initial_emf: float):
+#: Gauss-Newton passes of :func:`_fit_switches` (the current is nearly linear in a step's position).
+SWITCH_ITERATIONS = 3
+#: Change of a step's position [fraction of the interval] for its finite-difference derivative.
+SWITCH_DELTA = 0.1
+
+
+def _fit_switches(predict, switch: np.ndarray, step_indices: np.ndarray, current: np.ndarray,
+                  used: np.ndarray, iterations: int = SWITCH_ITERATIONS) -> np.ndarray:
+    """Where inside its interval each duty step landed [fraction], by Gauss-Newton on the current after it.
+
+    `predict(switch)` gives the modelled Ia [A] (n,) for switch positions `switch` (n,); only intervals with a switch
+    (< 1) are moved, each from the samples `used` between its step and the next. Steps are moved in two interleaved
+    sets (even, odd), so a derivative holds one step's effect and not its neighbour's (the back-EMF a step leaves
+    decays at the motor's time constant, ~0.4 s, against dwells of ~1 s). Positions stay in [0, 1).
+    """
+    n = switch.size
+    steps = np.array([k for k in np.asarray(step_indices, dtype=int) if 1 <= k < n and switch[k - 1] < 1.0])
+    if steps.size == 0:
+        return switch
+    ends = np.append(steps[1:], n)
+    switch = np.array(switch, dtype=float)
+    for _ in range(iterations):
+        base = predict(switch)
+        residual = current - base
+        update = switch.copy()
+        for parity in (0, 1):
+            chosen = np.arange(parity, steps.size, 2)
+            trial = switch.copy()
+            delta = np.where(switch[steps[chosen] - 1] <= 0.5, SWITCH_DELTA, -SWITCH_DELTA)
+            trial[steps[chosen] - 1] += delta
+            moved = predict(trial)
+            for j, d in zip(chosen, delta):
+                block = np.arange(steps[j], ends[j])
+                block = block[used[block]]
+                slope = (moved[block] - base[block]) / d
+                weight = float(slope @ slope)
+                if weight > 0 and np.isfinite(weight):
+                    position = switch[steps[j] - 1] + float(slope @ residual[block]) / weight
+                    update[steps[j] - 1] = min(max(position, 0.0), 0.999)
+        switch = update
+    return switch
+
+
+def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, initial_emf: float, switch,
+                        step_indices=()):
     """Refine the observer with the armature inductance (all samples but the first few are then usable).
 
     Neglecting La dIa/dt biases the fitted resistance while the motor speeds up or slows down (Ia moves at the
@@ -258,7 +371,7 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
         out_current = np.empty((rows.shape[0], voltage.size))
         out_emf = np.empty_like(out_current)
         _motor_kernel(rows[:, :5], voltage, rows[:, 5:7], sample_time, _substeps(sample_time, ELECTRICAL_SUBSTEPS),
-                      out_current, out_emf)
+                      out_current, out_emf, switch)
         return out_current, out_emf
 
     def residuals(z):
@@ -281,10 +394,30 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
     with np.errstate(all='ignore'), threadpool_limits(1):
         result = least_squares(residuals, z0, jac=jacobian, bounds=(lower, upper), method='trf', x_scale='jac',
                                max_nfev=60)
+    if np.any(switch < 1.0):
+        # where each duty step landed inside its interval: estimated from the current after it (the back-EMF it
+        # leaves at the next sample decays at the motor's time constant over the following samples), then the
+        # parameters refitted with those positions
+        def predict(trial_switch):
+            nonlocal switch
+            held, switch = switch, trial_switch
+            try:
+                return model(result.x[None, :] * scale)[0][0]
+            finally:
+                switch = held
+        switch = _fit_switches(predict, switch, step_indices, current, use)
+        with np.errstate(all='ignore'), threadpool_limits(1):
+            result = least_squares(residuals, result.x, jac=jacobian, bounds=(lower, upper), method='trf',
+                                   x_scale='jac', max_nfev=60)
     x = result.x * scale
     fitted_current, emf = model(x[None, :])
     if not np.all(np.isfinite(emf)) or not np.all(np.isfinite(fitted_current)):
         return None
+    # compared on the samples both models were fitted to: at a low rate the quasi-static mask leaves the second
+    # sample in (one settling sample), which the refinement does not fit (its free initial current and back-EMF):
+    # a record that starts with the motor switching on put 1.3 A there at 49 Hz, and that one sample made the
+    # observer look inadequate (39 mA RMS against 21 mA of noise; 20 mA without it)
+    keep = keep & use
     refined_error = (fitted_current[0] - current)[keep]
     quasi_static_error = ((voltage - start.back_emf) / p['motor_resistance'] - current)[keep]
     error_on_keep = float(np.sqrt(np.mean(refined_error ** 2)))
@@ -303,19 +436,23 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
                   'motor_drag_rate': float(x[4]), 'motor_resistance': float(x[0]),
                   'electrical_time_constant': float(x[1])}
     return MotorFit(parameters=parameters, back_emf=emf[0], current_rms_error=error_on_keep,
-                    current_noise_rms=start.current_noise_rms, solution=tuple(float(v) for v in x), kind='inductance')
+                    current_noise_rms=start.current_noise_rms, solution=tuple(float(v) for v in x), kind='inductance',
+                    switch=switch)
 
 
-def _predict(kind: str, x: np.ndarray, voltage: np.ndarray, sample_time: float) -> tuple[np.ndarray, np.ndarray]:
-    """Modelled Ia [A] and back-EMF [V] of a fitted observer (`kind`, state vector `x`) for the input `voltage`."""
+def _predict(kind: str, x: np.ndarray, voltage: np.ndarray, sample_time: float,
+             switch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Modelled Ia [A] and back-EMF [V] of a fitted observer (`kind`, state vector `x`) for the input `voltage`
+    (changing inside interval i at the fraction `switch[i]`, see :func:`fit_motor`)."""
+    switch = held_switches(switch, voltage.size)
     if kind == 'inductance':
         out_current = np.empty((1, voltage.size))
         out_emf = np.empty_like(out_current)
         _motor_kernel(x[None, :5], voltage, x[None, 5:7], sample_time, _substeps(sample_time, ELECTRICAL_SUBSTEPS),
-                      out_current, out_emf)
+                      out_current, out_emf, switch)
         return out_current[0], out_emf[0]
     # the initial back-EMF as a 1-D array of one row (a (1, 1) slice made the kernel's state an array: TypingError)
-    emf = _simulate(x[None, :3], voltage, x[4:5], sample_time)[0]
+    emf = _simulate(x[None, :3], voltage, x[4:5], sample_time, switch)[0]
     return (voltage - emf) / x[3], emf
 
 
@@ -380,7 +517,8 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
     x = np.asarray(fit.solution, dtype=float)
     kind = fit.kind
     used = _fitted_samples(kind, n, step_indices, sample_time)
-    modelled, emf = _predict(kind, x, voltage, sample_time)
+    switch = fit.switch if fit.switch is not None and len(fit.switch) == n else None
+    modelled, emf = _predict(kind, x, voltage, sample_time, switch)
     residual = current - modelled
     # Jacobian of the modelled current on the fitted samples (forward differences), and d back-EMF / d state (a
     # member's back-EMF after its step, linearised); float32 columns and products column by column keep a 1-hour
@@ -391,7 +529,7 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
     for i in range(x.size):
         shifted = x.copy()
         shifted[i] += steps[i]
-        shifted_current, shifted_emf = _predict(kind, shifted, voltage, sample_time)
+        shifted_current, shifted_emf = _predict(kind, shifted, voltage, sample_time, switch)
         jacobian[:, i] = (shifted_current - modelled)[used] / steps[i]
         emf_jacobian[:, i] = (shifted_emf - emf) / steps[i]
     if not (np.all(np.isfinite(jacobian)) and np.all(np.isfinite(emf_jacobian))):
@@ -410,7 +548,7 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
         signs = rng.choice((-1.0, 1.0), size=len(lengths))
         shifted_voltage = voltage + (rng.standard_normal(len(lengths)) * level_sigma)[block]
         redrawn = modelled + signs[block] * residual
-        moved, member = _predict(kind, x, shifted_voltage, sample_time)
+        moved, member = _predict(kind, x, shifted_voltage, sample_time, switch)
         target = (redrawn - moved)[used]
         change = inverse @ np.array([np.dot(jacobian[:, i].astype(float), target) for i in range(x.size)])
         level_target = (modelled - moved)[used]

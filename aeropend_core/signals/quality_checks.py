@@ -94,9 +94,14 @@ def _check_time(gate: _Gate, sample_time: float | None) -> None:
             step, typical = np.diff(time), typical * factor
             break
     if typical > 1.0 / LOWEST_RATE:
+        from aeropend_core.diagnosis.doubts import RATE_ACCURACY
+        slowest, errors, _ = RATE_ACCURACY[-1]
         gate.add('sample_rate_mismatch', 'refused', f'samples are {typical:g} time units apart; the t column must be '
                  f'in seconds (the rig samples every 1/490 s = 0.00204 s; divide milliseconds by 1000), and the '
-                 f'analysis needs at least {LOWEST_RATE:g} samples per second (a pendulum near 2 Hz)',
+                 f'analysis needs at least {LOWEST_RATE:g} samples per second (a pendulum near 2 Hz): already at '
+                 f'{slowest:g} Hz the fitted parameters were off by up to {errors["gravity_stiffness"] * 100:.0f} % '
+                 f'(gravity_stiffness), {errors["damping"] * 100:.0f} % (damping) and '
+                 f'{errors["thrust_gain"] * 100:.0f} % (thrust_gain) on seeded simulations; record faster',
                  gate.span(0, time.size - 1), time.size)
     if sample_time is not None and abs(typical / sample_time - 1.0) > RATE_TOLERANCE:
         gate.add('sample_rate_mismatch', 'refused', f'samples are {typical * 1e3:.4g} ms apart ({1 / typical:.4g} Hz) '
@@ -372,7 +377,8 @@ KICK_TIME = 0.02
 
 def _after_input_steps(gate: _Gate, n: int) -> np.ndarray:
     """Mask (n,) of the samples within :data:`KICK_TIME` (at least two samples) of a step of the duty (or of Va
-    when there is no duty column): a step is a change beyond 6 robust sigmas of the changes and 2 % of the range."""
+    when there is no duty column), and of the record's start: a step is a change beyond 6 robust sigmas of the
+    changes and 2 % of the range."""
     source = gate.signals.get('duty', gate.signals.get('armature_voltage'))
     mask = np.zeros(n, dtype=bool)
     if source is None or source.size != n or n < 3:
@@ -386,6 +392,10 @@ def _after_input_steps(gate: _Gate, n: int) -> np.ndarray:
     width = max(2, int(math.ceil(KICK_TIME / period))) if period > 0 else 2
     for k in steps:
         mask[k:k + width] = True
+    # the record's start counts as a step: a log may start as the motor switches on (at 24.5 Hz the current went
+    # 0.04, 1.55, 1.38, 1.26 A, and its 2nd and 3rd samples were "repaired" to 0.44 and 0.85 A, which bent the
+    # motor observer's Rm 6 % low), and the running median has no samples before it
+    mask[:max(width, HAMPEL_WIDTH // 2 + 1)] = True
     return mask
 
 

@@ -51,7 +51,7 @@ NOT_IDENTIFIABLE = {
 
 
 def motor_map(armature_voltage: np.ndarray, time_constant: float, curvature: float,
-              sample_time: float) -> np.ndarray:
+              sample_time: float, switch: np.ndarray | None = None) -> np.ndarray:
     """The reduced model's thrust voltage: ``T de/dt = Va - e - q e|e|`` from rest, Va held over each sample.
 
     Parameters
@@ -64,6 +64,10 @@ def motor_map(armature_voltage: np.ndarray, time_constant: float, curvature: flo
         q, the static map's curvature (>= 0).
     sample_time : float [s]
         Ts.
+    switch : ndarray, shape (n,), optional [1]
+        Where inside interval i Va changes to the next sample's level, as a fraction of the interval
+        (:func:`aeropend_core.signals.preprocess.step_switches`: at a low rate a duty step lands between two
+        samples); default Va held over each whole interval.
 
     Returns
     -------
@@ -74,13 +78,10 @@ def motor_map(armature_voltage: np.ndarray, time_constant: float, curvature: flo
     out = np.empty((1, voltage.size))
     rate = 1.0 / time_constant
     steps = max(1, int(np.ceil(sample_time / (0.25 * time_constant))))     # RK4 stable for any rate
-    if steps == 1:
-        _back_emf_kernel(np.array([[rate, 0.0, curvature * rate]]), voltage, np.zeros(1), sample_time, 1, out)
-        return out[0]
-    fine = np.repeat(voltage, steps)
-    out = np.empty((1, fine.size))
-    _back_emf_kernel(np.array([[rate, 0.0, curvature * rate]]), fine, np.zeros(1), sample_time / steps, 1, out)
-    return out[0, ::steps]
+    switch = np.ones(voltage.size) if switch is None else np.ascontiguousarray(switch, dtype=float)
+    _back_emf_kernel(np.array([[rate, 0.0, curvature * rate]]), voltage, np.zeros(1), sample_time, steps, out,
+                     switch)
+    return out[0]
 
 
 def voltage_from_duty(duty: np.ndarray, parameters=None) -> np.ndarray:
