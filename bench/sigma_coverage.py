@@ -53,9 +53,26 @@ def cases() -> tuple[str, ...]:
     return tuple(name for name, effect in CATALOG.items() if getattr(effect, 'builtin', False)) + (CLEAN,)
 
 
+def _draws(seed: int):
+    """(generator, effect, parameter factors, PSNR [dB], duration [s]) of record `seed`: the draws made before
+    anything is simulated (so a log can be annotated without simulating)."""
+    import numpy as np
+    rng = np.random.default_rng(seed)
+    all_cases = cases()
+    effect = all_cases[seed % len(all_cases)]
+    factors = {name: float(1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.15, 0.25)) for name in MOVED}
+    psnr = float(rng.uniform(30.0, 50.0))
+    duration = 300.0 if seed % 5 == 4 else 60.0
+    return rng, effect, factors, psnr, duration
+
+
+def excitation_kind(seed: int, duration: float) -> str:
+    """The schedule of record `seed`: the staircase for odd seeds of 60 s, else Latin-hypercube steps."""
+    return 'staircase' if seed % 2 and duration <= 60.0 else 'lhc'
+
+
 def record(seed: int):
     """(recording, truth dict, description) of record `seed`."""
-    import numpy as np
 
     from aeropend_core.io.recording import from_columns
     from aeropend_core.model.effects import get_effect
@@ -64,13 +81,8 @@ def record(seed: int):
     from aeropend_core.sim.noise import MeasurementNoise
     from aeropend_core.sim.simulate import simulate
     from false_alarms import duty_cap
-    rng = np.random.default_rng(seed)
-    all_cases = cases()
-    effect = all_cases[seed % len(all_cases)]
-    factors = {name: float(1.0 + rng.choice((-1.0, 1.0)) * rng.uniform(0.15, 0.25)) for name in MOVED}
+    rng, effect, factors, psnr, duration = _draws(seed)
     parameters = DEFAULT_PARAMETERS.scaled(**factors)
-    psnr = float(rng.uniform(30.0, 50.0))
-    duration = 300.0 if seed % 5 == 4 else 60.0
     effects = {}
     if effect != CLEAN:
         values = {}
@@ -82,10 +94,11 @@ def record(seed: int):
             values[p.name] = value
         effects[effect] = values
     cap = duty_cap(parameters)
-    if seed % 2 and duration <= 60.0:
-        schedule, kind = staircase_schedule(step=cap / 14, top=cap), 'staircase'
+    kind = excitation_kind(seed, duration)
+    if kind == 'staircase':
+        schedule = staircase_schedule(step=cap / 14, top=cap)
     else:
-        schedule, kind = lhc_schedule(duration, duty_range=(0.0, cap), duty_cap=cap, seed=seed), 'lhc'
+        schedule = lhc_schedule(duration, duty_range=(0.0, cap), duty_cap=cap, seed=seed)
     duty = schedule.duty(duration=duration)
     trajectory = simulate(duty, parameters=parameters, effects=effects or None, noise=MeasurementNoise(psnr, True),
                           seed=seed + 1)
@@ -148,13 +161,19 @@ def _agreement(recording, prep, comparison, values, errors) -> str:
 
 
 def summarise(rows: list[dict]) -> dict[str, dict]:
-    """Per parameter (and per parameter and duration): n, share within 1 and 2 sigma, mean z, median |z|."""
+    """Per parameter, and per parameter split by record length, excitation kind and noise band (30-40 / 40-50 dB)
+    and by effect: n, share within 1 and 2 sigma, mean z, median |z|."""
     import numpy as np
     groups: dict[str, list[float]] = {}
     for r in rows:
         for name, entry in r.get('parameters', {}).items():
             key = name if name in NOMINAL else 'effect parameter'
-            for label in (key, f'{key} ({r["duration"]:.0f} s)', f'{name} [{r["effect"]}]'):
+            splits = [f'{r["duration"]:.0f} s']
+            if r.get('excitation'):
+                splits.append(r['excitation'])
+            if isinstance(r.get('psnr_db'), (int, float)):
+                splits.append('30-40 dB' if r['psnr_db'] < 40.0 else '40-50 dB')
+            for label in (key, *(f'{key} ({split})' for split in splits), f'{name} [{r["effect"]}]'):
                 groups.setdefault(label, []).append(entry['z'])
     summary = {}
     for label, zs in groups.items():
@@ -214,8 +233,10 @@ def rows_from_log(path: str) -> list[dict]:
         if not match:
             continue
         seed, effect, duration, seconds, rest, agreement = match.groups()
+        psnr = _draws(int(seed))[3]
         row = {'seed': int(seed), 'effect': effect, 'duration': float(duration), 'seconds': float(seconds),
-               'excitation': '', 'psnr_db': '', 'agreement': agreement or ''}
+               'excitation': excitation_kind(int(seed), float(duration)), 'psnr_db': round(psnr, 1),
+               'agreement': agreement or ''}
         if rest.startswith('CRASH'):
             row['crash'] = rest[6:]
         else:

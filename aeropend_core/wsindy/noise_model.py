@@ -53,6 +53,72 @@ def _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata):
     return sigma2 * _pinvh(gram_sel / scale_sel) / scale_sel, resid_vec
 
 
+def _bartlett_width(x: np.ndarray) -> int:
+    """Bartlett block length [rows] by Andrews' AR(1) plug-in rule, between 1 and n/8 (the rule of
+    :func:`aeropend_core.diagnosis.evidence.bandwidth`; repeated here, the weak form sits below the diagnosis)."""
+    n = x.size
+    centred = x - x.mean()
+    denominator = float(centred @ centred)
+    if n < 16 or denominator <= 0:
+        return 1
+    rho = min(max(float(centred[1:] @ centred[:-1]) / denominator, 0.0), 0.999)
+    alpha = 4.0 * rho ** 2 / ((1.0 - rho) ** 2 * (1.0 + rho) ** 2)
+    return int(min(max(round(1.1447 * (alpha * n) ** (1.0 / 3.0)), 1), max(n // 8, 1)))
+
+
+def _sandwich_covariance(a, resid_vec, sel, covariance, groups):
+    """The reported coefficient covariance: a sandwich ``B M B`` that stays honest when the whitened residual rows
+    are correlated.
+
+    The model-based covariance σ̂² (G̃ᵀG̃ − C)⁻¹ assumes the whitened residual is white. It is not: the noise
+    model is linearised and the library misses what the data hold beyond it (La dIa/dt at every step), and the
+    rows of neighbouring test functions stay correlated (lag-1 correlation 0.2-0.4 on simulated clean records at
+    30-50 dB). The truth then fell within 1σ of gravity_stiffness, damping and thrust_gain on 30-35 % of 23 clean
+    records (median |z| 1.9-2.4). Here ``B = (G̃ᵀG̃ − C)⁻¹`` (the model-based covariance / σ̂²) and ``M`` sums the
+    scores ``G̃_i r̃_i`` over blocks of neighbouring rows (Bartlett, Andrews' width, half-overlapping, never across
+    segments), as the output-error fit does (:func:`aeropend_core.diagnosis.evidence.hac_covariance`).
+
+    Parameters
+    ----------
+    a : ndarray, shape (rows, J)
+        Whitened Gram rows G̃.
+    resid_vec : ndarray, shape (rows,)
+        Whitened residual r̃.
+    sel : ndarray of int
+        Selected columns.
+    covariance : ndarray, shape (len(sel), len(sel))
+        The model-based covariance [coefficient units squared].
+    groups : ndarray of int, shape (rows,)
+        Segment of each row.
+
+    Returns
+    -------
+    ndarray, shape (len(sel), len(sel))
+        The sandwich covariance [coefficient units squared]; `covariance` itself when there is nothing to fit.
+    """
+    rows = resid_vec.size
+    dof = max(rows - sel.size, 1)
+    sigma2 = float(resid_vec @ resid_vec) / dof
+    if not sel.size or not sigma2 > 0:
+        return covariance
+    bread = covariance / sigma2
+    scores = a[:, sel] * resid_vec[:, None]
+    width = _bartlett_width(resid_vec)
+    meat = np.zeros((sel.size, sel.size))
+    shifts = (0, width // 2) if width > 1 else (0,)
+    for shift in shifts:
+        block = np.empty(rows, dtype=np.int64)
+        label, start = 0, 0
+        for stop in [*(np.flatnonzero(np.diff(groups)) + 1), rows]:
+            block[start:stop] = label + (np.arange(stop - start) + shift) // width
+            label = int(block[stop - 1]) + 1
+            start = stop
+        sums = np.zeros((label, sel.size))
+        np.add.at(sums, block, scores)
+        meat += sums.T @ sums
+    return bread @ (meat / len(shifts)) @ bread * rows / dof
+
+
 def _cached(cache: dict, key, make):
     value = cache.get(key)
     if value is None:

@@ -39,8 +39,10 @@ which gives a linear system ``G w = b`` (one row per test function). Steps:
    support of up to ``exhaustive_terms`` terms are scored with the same loss L too; the best is refined by
    single additions/removals while L drops; the overall minimiser wins (λ reported as NaN when it is not on
    the MSTLS path).
-5. Standard errors of the kept coefficients from the whitened residual: σ̂² = ‖r‖²/(n_rows − n_kept),
-   Cov(w) = σ̂² (G̃ᵀG̃ − C)⁻¹ (C the noise compensation, when used).
+5. Standard errors of the kept coefficients: the significance guard uses the model-based σ̂² (G̃ᵀG̃ − C)⁻¹
+   (σ̂² = ‖r‖²/(n_rows − n_kept), C the noise compensation, when used); the reported covariance is the sandwich
+   B M B with B = (G̃ᵀG̃ − C)⁻¹ and M the block sums of the scores G̃_i r̃_i (Bartlett, Andrews' width), because
+   the whitened residual rows stay correlated (:func:`aeropend_core.wsindy.noise_model._sandwich_covariance`).
 
 Test-function centres are ``stride`` = m/4 samples apart (overlapping supports; the GLS covariance accounts
 for the overlap). Heavy loops (support selection, banded covariance, band of Σ⁻¹) are numba kernels cached on
@@ -69,6 +71,7 @@ from aeropend_core.wsindy.noise_model import (
     _banded_lower_solve,
     _cholesky_band,
     _coefficient_covariance,
+    _sandwich_covariance,
     _measurement_band,
     _noise_gram,
     _noise_model,
@@ -460,6 +463,7 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
                 cg, cr = _noise_gram(model, chol, len(eq.terms))
                 noise_gram += cg
                 noise_rhs += cr
+        groups = np.repeat(np.arange(len(rows_a)), [len(r) for r in rows_a])
         a = rows_a[0] if len(rows_a) == 1 else np.vstack(rows_a)
         bw = rows_b[0] if len(rows_b) == 1 else np.concatenate(rows_b)
         # Earlier passes only supply w for the covariance: the greedy paths and the exhaustive search run in
@@ -492,6 +496,8 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
                 w[sel] = linalg.solve(gram_c[np.ix_(sel, sel)] / np.outer(cs, cs), rhs_c[sel] / cs,
                                       assume_a='sym', check_finite=False) / cs
             cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata)
+    if sel.size:     # the reported sigma: honest under correlated whitened residuals (the guard above keeps its own)
+        cov = _sandwich_covariance(a, resid_vec, sel, cov, groups)
     names = [eq.terms[j].name for j in sel]
     return EquationFit(
         name=eq.name,
