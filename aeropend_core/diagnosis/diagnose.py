@@ -68,6 +68,9 @@ CONFOUNDING_FACTOR = 1.3
 #: Candidates set aside in the first round (no training evidence) are tried again once, on top of the effects found,
 #: while the error beyond the noise exceeds this multiple of the noise RMS (an effect masked by others).
 RETRY_NOISE = 0.25
+#: The discovery stage runs when the best set leaves more than this multiple of the noise RMS beyond the noise (or the
+#: set is suspect); its terms must pass the catalog's evidence to be proposed, so running it adds no false alarm.
+DISCOVERY_NOISE = 0.25
 #: At most this many effects are added by the search.
 MAX_EFFECTS = 4
 DEFAULT_EXPERIMENT = 'vary the step amplitudes and add rests at duty 0; longer records narrow the uncertainty'
@@ -140,6 +143,8 @@ class Diagnosis:
     #: Parameters that fail a physical check -> the warning (:mod:`aeropend_core.diagnosis.checks`).
     parameter_warnings: dict[str, str] = field(default_factory=dict)
     independent: object = None      #: the free-oscillation estimate (aeropend_core.identify.plausibility)
+    #: The discovery stage's result (:class:`aeropend_core.diagnosis.discovery.Discovery`; None when it did not run).
+    discovery: object = None
 
     @property
     def missing_effects(self) -> list[str]:
@@ -216,6 +221,8 @@ class Diagnosis:
             'missing_effects': [f.to_dict() for f in self.found],
             'add': [f.effect for f in self.found if not f.confounded_with],
             'remaining_error_beyond_noise': _finite(excess_error(self.final.rms_error, self.final.noise_rms)),
+            'discovered_terms': [t.to_dict() for t in self.discovery.proven] if self.discovery is not None else [],
+            'discovery': self.discovery.to_dict() if self.discovery is not None else None,
             'drift': self.drift,
             'gaps': self.prepared.gaps.to_dict() if self.prepared is not None and self.prepared.gaps is not None
             else None,
@@ -314,7 +321,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
              candidates: Sequence[str] | None = None,
              progress: Callable[[str], None] | None = None,
              fixed: Mapping[str, Mapping[str, float] | float] | None = None,
-             drift: bool = True, fixed_from: Mapping[str, str] | None = None) -> Diagnosis:
+             drift: bool = True, fixed_from: Mapping[str, str] | None = None, discovery: bool = True) -> Diagnosis:
     """Diagnose which effects are missing from nominal + `effects`, using only Va, Ia and the angle.
 
     Parameters
@@ -335,6 +342,9 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     fixed_from : mapping of str -> str, optional [-]
         Where each fixed effect's values came from (``{effect: 'calibration file PATH'}``), reported next to the
         numbers; default ``'--fix'``.
+    discovery : bool [-]
+        Run the discovery stage (:mod:`aeropend_core.diagnosis.discovery`) when the best catalog set leaves error
+        beyond the noise or is suspect: a term outside the catalog, proven by the same evidence.
 
     Returns
     -------
@@ -367,6 +377,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         before = compare(search, ())
     noise = prep.noise_rms
     pool = [name for name in (candidates if candidates is not None else CATALOG) if name not in effects
+            and (candidates is not None or not name.startswith('term_'))     # discovered terms: the discovery's
             and not (prep.reduced and get_effect(name).kind == THRUST_LAG)]   # the motor map's lag carries it
     for name in pool:
         get_effect(name)
@@ -488,6 +499,14 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     reference = max(noise, 0.5 * prep.angle_step)
     remainder = final.rms_error ** 2 - noise ** 2 - quantisation > (UNEXPLAINED_NOISE * reference) ** 2
     structure: list[dict] = []
+    found_terms = None
+    # ---- discovery: a term outside the catalog, when the best set leaves error beyond the noise or is suspect
+    suspect = any(f.confounded_with for f in found) or any(n for c, _ in steps for n in c.confounded_with)
+    if discovery and (excess_final > DISCOVERY_NOISE * reference or suspect):
+        from aeropend_core.diagnosis.discovery import discover
+        catalog_set = tuple(f.effect for f in found)
+        found_terms = discover(prep, final, model, held, catalog_set, current if catalog_set else None, say)
+    proven = found_terms.proven if found_terms is not None else []
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]
     missing = pinned[0].effect if pinned else None
@@ -497,6 +516,9 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         message = drift_message(drifting, final)
         if found:
             message += f' The effect search also selected {sizes}; a drifting parameter can mimic effects.'
+    elif proven and (remainder or not found):
+        verdict = 'term_discovered'
+        message = (f'{sizes} {"explain" if len(found) > 1 else "explains"} part of the error. ' if found else '')
     elif found and remainder:
         verdict = 'unexplained'
         structure = residual_structure(prep, final)
@@ -551,6 +573,9 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                        f'residual correlates most with: {structure[0]["signature"]} (r = '
                        f'{structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
                        f'(aeropend_core.model.effects.register_effect).')
+    if found_terms is not None:
+        from aeropend_core.present.discovery_text import discovery_sentence
+        message = (message + ' ' + discovery_sentence(found_terms, noise)).strip()
     if found and verdict in ('effect_found', 'confounded'):
         for f in found:
             step = next(c for c, _ in steps if c.effect == f.effect)
@@ -579,7 +604,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
         message=message, notes=notes, before=before, residual_structure=structure, prepared=prep,
         seconds=time.perf_counter() - started, found=found, selected=selected, drift=drift_rows, fixed=held,
-        fixed_from=held_from))
+        fixed_from=held_from, discovery=found_terms))
 
 
 def size_text(found: Found) -> str:

@@ -33,7 +33,7 @@ from aeropend_core.diagnosis.evidence import (effective_samples, hac_covariance,
                                               input_covariance)
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import (FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, find_parameter, get_effect,
-                                         kernel_parameter)
+                                         kernel_parameter, wants_thrust)
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.model.sensor_filter import filter_angle
 
@@ -149,7 +149,8 @@ def _simulate_numpy(theta, voltage, current, gate_signal, seg_start, seg_stop, i
                     out, user_terms):
     """The kernel's scheme in numpy, vectorised over parameter rows; also runs users' pendulum effects.
 
-    `user_terms` is a list of ``(function, {parameter name: column})``.
+    `user_terms` is a list of ``(function, {parameter name: column})``; a function with a ``thrust`` keyword also gets
+    the thrust's angular acceleration [rad/s^2] (:func:`aeropend_core.model.effects.wants_thrust`).
     """
     h = STRIDE * sample_time
     a, b, k, r, fc, cd, kc, offset = (theta[:, c] for c in range(8))
@@ -165,7 +166,8 @@ def _simulate_numpy(theta, voltage, current, gate_signal, seg_start, seg_stop, i
     def accel(y, w, t):
         value = -a * np.sin(y) - b * w + t - fc * np.tanh(w / smooth) - cd * w * np.abs(w) - kc * y
         for function, columns in user_terms:
-            value = value + function(y, w, **{name: theta[:, c] for name, c in columns.items()})
+            values = {name: theta[:, c] for name, c in columns.items()}
+            value = value + (function(y, w, **values, thrust=t) if wants_thrust(function) else function(y, w, **values))
         return value
 
     for s in range(len(seg_start)):
