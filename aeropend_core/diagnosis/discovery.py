@@ -213,6 +213,8 @@ def term_effect(term: Term | str) -> str:
     else:
         def function(angle, angular_rate, **values):
             return next(iter(values.values())) * base(angle, angular_rate, 0.0, None)
+    from aeropend_core.diagnosis.term_kernel import TERM_CODES
+    function.term_code = TERM_CODES[term.slug]      # the compiled kernel runs it (same values as term.function)
     parameter = EffectParameter(f'{name}_coefficient', term.unit, f'coefficient of {term.expression}', 0.0,
                                 -1e6, 1e6, start=0.0)
     add_effect(Effect(name, term.reading, f'residual ~ {term.expression}', PENDULUM, (parameter,), function,
