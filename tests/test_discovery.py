@@ -30,6 +30,16 @@ HALF = 0.5
 EFFECTS_MODULE = str(__import__('pathlib').Path(__file__).with_name('discovery_effects.py'))
 
 
+@pytest.fixture(autouse=True)
+def catalog_restored():
+    """Effects registered here (the test-local module, discovered terms) leave the catalog after each test: other
+    test files' diagnoses must not try them as candidates."""
+    before = dict(CATALOG)
+    yield
+    CATALOG.clear()
+    CATALOG.update(before)
+
+
 def measured_columns(effects=None, seed=11, duration=60.0):
     """Only the measured columns (t, duty, Va, Ia, angle) of a simulated, noisy, quantised record."""
     load_effects_module(EFFECTS_MODULE)
@@ -95,7 +105,8 @@ def test_cli_writes_the_module_and_refuses_bad_input(tmp_path, capsys):
 
 # ---------------------------------------------------------------------------------------------- slow: the physics
 OUTSIDE = {
-    'test_power_damping': ({'test_power_damping': 1.5}, 'abs(angular_rate)^1.5*sign(angular_rate)'),
+    'test_stribeck': ({'test_stribeck': {'test_stribeck_level': 5.0, 'test_stribeck_speed': 0.15}},
+                      'exp(-(angular_rate/0.2)^2)*sign(angular_rate)'),
     'test_inflow': ({'test_inflow': 0.05}, 'thrust*angular_rate'),
     'test_second_harmonic': ({'test_second_harmonic': 6.0}, 'sin(2*angle)'),
 }
@@ -148,3 +159,15 @@ def test_the_cli_add_reproduces_the_fall(tmp_path, capsys):
     assert cli_main(['diagnose', str(path), '--no-drift', '--quiet', '--json', str(again), *term['add']]) == 0
     second = json.loads(again.read_text())
     assert second['error_beyond_noise'] == pytest.approx(term['error_beyond_noise_after'], rel=0.2, abs=2e-4)
+
+
+def test_the_compiled_kernel_evaluates_every_simulated_term_as_the_vocabulary_does():
+    from aeropend_core.diagnosis.term_kernel import TERM_CODES, term_value
+    simulated = [t for t in VOCABULARY if t.simulated]
+    assert {t.slug for t in simulated} == set(TERM_CODES)
+    rng = np.random.default_rng(3)
+    y, w, u = rng.uniform(-1.4, 1.4, 50), rng.uniform(-3, 3, 50), rng.uniform(0, 120, 50)
+    for term in simulated:
+        expected = term.function(y, w, u, None)
+        got = np.array([term_value(TERM_CODES[term.slug], a, b, c) for a, b, c in zip(y, w, u)])
+        np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12, err_msg=term.expression)

@@ -119,10 +119,10 @@ def _vocabulary() -> tuple[Term, ...]:
         _state('angular_rate*abs(angular_rate)', 'rate_square', '1/rad', 'aerodynamic drag',
                lambda y, w: w * np.abs(w), 'rate_square'),
     ]
-    for power, reading in ((0.5, 'damping that grows with the square root of the speed (mixed dry/viscous)'),
-                           (1.5, 'damping between viscous and quadratic (a transitional air flow)'),
-                           (3.0, 'damping that grows with the cube of the speed')):
-        unit = f'rad^{1 - power:g}/s^{2 - power:g}'
+    for power, unit, reading in (
+            (0.5, 'rad^0.5/s^1.5', 'damping that grows with the square root of the speed (mixed dry/viscous)'),
+            (1.5, '1/(rad^0.5 s^0.5)', 'damping between viscous and quadratic (a transitional air flow)'),
+            (3.0, 's/rad^2', 'damping that grows with the cube of the speed')):
         terms.append(_state(f'abs(angular_rate)^{power:g}*sign(angular_rate)', f'rate_power_{power:g}'.replace(
             '.', 'p'), unit, reading, lambda y, w, p=power: np.abs(w) ** p * np.sign(w)))
     for speed in (0.05, 0.1, 0.2, 0.4):
