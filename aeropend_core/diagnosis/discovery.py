@@ -43,6 +43,9 @@ from aeropend_core.model.effects import (CATALOG, FRICTION_SMOOTHING, KERNEL_KIN
 
 #: A term and a catalog effect whose columns correlate beyond this on the model's states are the same term here.
 SPAN_CORRELATION = 0.95
+#: A term's evidence is compared with a catalog effect's held-out error with this factor (as the catalog's
+#: confounding test, :data:`aeropend_core.diagnosis.diagnose.CONFOUNDING_FACTOR`).
+CONFOUNDING_FACTOR = 1.3
 #: At most this many surviving terms are refitted by output error (strongest weak-form evidence first).
 MAX_REFITS = 3
 #: Family-wise significance of the weak-form selection (Bonferroni over the free candidate terms).
@@ -432,31 +435,72 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         return Discovery([], note=f'the weak-form regression failed: {error}')
     chosen = [(name, value, fit.standard_errors.get(name, math.nan)) for name, value in fit.coefficients.items()
               if name not in kept]
-    chosen.sort(key=lambda item: -abs(item[1]) / item[2] if item[2] > 0 else 0.0)
+    # Each term alone (with the sensitivities kept): nearly collinear terms split the evidence in the joint
+    # selection, so a true term can lose there to a combination of lookalikes; alone it shows its own strength.
+    screened = {}
+    for term in terms:
+        if term.simulated and not term.catalog_kind:
+            alone, _ = weak_discrepancy(segments, (term,), prep.noise_rms, prep.sample_time)
+            if term.expression in alone.coefficients:
+                value, sigma = alone.coefficients[term.expression], alone.standard_errors[term.expression]
+                screened[term.expression] = (value, sigma)
+    order = {name: (value, sigma) for name, value, sigma in chosen}
+    for name, (value, sigma) in screened.items():
+        order.setdefault(name, (value, sigma))
+    # terms that stand out alone first (by their own t), then the joint selection's others (artefacts of collinearity
+    # more often than not)
+    ranked = sorted(order.items(), key=lambda kv: (kv[0] not in screened, -_strength(*screened.get(kv[0], kv[1]))))
     by_expression = {t.expression: t for t in terms}
     found: list[DiscoveredTerm] = []
     excess_now = excess_error(base.rms_error, prep.noise_rms)
-    for name, value, sigma in chosen:
+    refits = 0
+    for name, (value, sigma) in ranked:
         term = by_expression[name]
         entry = DiscoveredTerm(term, 'not_proven', float(value), float(sigma), excess_before=excess_now)
-        entry.catalog_effect = _span(term, segments, model)
         found.append(entry)
-        if entry.catalog_effect:
+        if term.catalog_kind:
+            entry.catalog_effect = _span(term, segments, model)
             entry.status = 'catalog'
-            entry.why_not = (f'the catalog effect {entry.catalog_effect} is this term here (its column correlates '
-                             f'beyond {SPAN_CORRELATION} on the model\'s states)')
+            entry.why_not = f'it is the catalog effect {entry.catalog_effect}\'s own term'
             continue
         if not term.simulated:
             entry.why_not = ('a term of time, a lag or heating: the output-error model cannot simulate it, so it is '
                              'not proven; see the drift test and the thrust_lag effect')
             continue
-        if sum(1 for f in found if math.isfinite(f.value)) >= MAX_REFITS:
-            entry.why_not = 'not refitted: weaker weak-form evidence than the terms refitted before it'
+        if any(f.status == 'proven' for f in found):
+            entry.why_not = 'not refitted: a term with stronger weak-form evidence is proven'
             continue
+        if refits >= MAX_REFITS:
+            entry.why_not = f'not refitted: weaker weak-form evidence than the {MAX_REFITS} terms refitted before it'
+            continue
+        refits += 1
         say(f'discovery: refitting {term.expression} by output error')
         _prove(prep, base, model, fixed, entry, catalog_set, without_set)
+        lookalike = _span(term, segments, model) if entry.status == 'proven' else None
+        if lookalike:
+            _against_catalog(prep, base, model, fixed, entry, lookalike)
     found.sort(key=lambda f: (f.status != 'proven', -(f.share_removed if math.isfinite(f.share_removed) else -1)))
     return Discovery(found, selected=tuple(name for name, _, _ in chosen))
+
+
+def _strength(value: float, sigma: float) -> float:
+    return abs(value) / sigma if sigma > 0 and math.isfinite(sigma) else 0.0
+
+
+def _against_catalog(prep, base, model, fixed, entry: DiscoveredTerm, effect: str) -> None:
+    """A proven term that correlates with a catalog effect's term: the catalog effect, if it explains as much."""
+    try:
+        rival = compare(prep, model + (effect,), start=base.parameters, fixed=dict(fixed),
+                        initial_states=base.fit.initial_states)
+    except InsufficientDataError:
+        return
+    after = excess_error(rival.rms_error, prep.noise_rms)
+    if after <= CONFOUNDING_FACTOR * max(entry.excess_after, 0.2 * prep.noise_rms):
+        entry.status = 'catalog'
+        entry.catalog_effect = effect
+        entry.why_not = (f'the catalog effect {effect} explains as much ({after * 1e3:.2f} mrad beyond the noise '
+                         f'against {entry.excess_after * 1e3:.2f}): their terms correlate beyond {SPAN_CORRELATION} '
+                         'on these states')
 
 
 def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without_set) -> None:
