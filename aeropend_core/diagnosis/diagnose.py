@@ -507,6 +507,8 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         catalog_set = tuple(f.effect for f in found)
         found_terms = discover(prep, final, model, held, catalog_set, current if catalog_set else None, say)
     proven = found_terms.proven if found_terms is not None else []
+    # a proven term is the verdict only when it explains the error (what it leaves is within the noise's reach)
+    proven = [t for t in proven if t.excess_after <= UNEXPLAINED_NOISE * reference]
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]
     missing = pinned[0].effect if pinned else None
@@ -575,7 +577,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                        f'(aeropend_core.model.effects.register_effect).')
     if found_terms is not None:
         from aeropend_core.present.discovery_text import discovery_sentence
-        message = (message + ' ' + discovery_sentence(found_terms, noise)).strip()
+        message = (message + ' ' + discovery_sentence(found_terms, noise, UNEXPLAINED_NOISE * reference)).strip()
     if found and verdict in ('effect_found', 'confounded'):
         for f in found:
             step = next(c for c, _ in steps if c.effect == f.effect)

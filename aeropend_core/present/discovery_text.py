@@ -25,7 +25,7 @@ def term_text(term) -> str:
     return f'dW/dt += c * {term.term.expression} with c = {value:.4g} +- {sigma:.2g} {term.term.unit}'
 
 
-def discovery_sentence(discovery, noise_rms: float) -> str:
+def discovery_sentence(discovery, noise_rms: float, explained_below: float = math.inf) -> str:
     """The verdict's sentence about the discovery stage ('' when it found nothing worth saying).
 
     Parameters
@@ -34,6 +34,8 @@ def discovery_sentence(discovery, noise_rms: float) -> str:
         The stage's result.
     noise_rms : float [rad]
         The angle's measurement noise.
+    explained_below : float [rad]
+        A proven term that leaves more error beyond the noise than this explains only part of it (said so).
 
     Returns
     -------
@@ -43,6 +45,12 @@ def discovery_sentence(discovery, noise_rms: float) -> str:
     if discovery is None:
         return ''
     proven = [t for t in discovery.terms if t.status == 'proven']
+    if proven and proven[0].excess_after > explained_below:
+        best = proven[0]
+        return (f'Outside the catalog, the term {term_text(best)} ({best.term.reading}) is significant but explains '
+                f'only part of the error: {best.excess_before * 1e3:.2f} -> {best.excess_after * 1e3:.2f} mrad beyond '
+                f'the noise ({best.share_removed * 100:.0f} %); the rest is unexplained, so it is a hint, not the '
+                f'missing physics (try it with {" ".join(_quoted(best.add))}).')
     if proven:
         best = proven[0]
         return (f'Outside the catalog, the data support the term {term_text(best)} ({best.term.reading}): it removes '
