@@ -575,6 +575,9 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                        f'residual correlates most with: {structure[0]["signature"]} (r = '
                        f'{structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
                        f'(aeropend_core.model.effects.register_effect).')
+    if found_terms is not None and verdict == 'effect_found' and any(t.status == 'confounded'
+                                                                   for t in found_terms.terms):
+        verdict = 'confounded'      # a term outside the catalog explains the data as well as the set chosen
     if found_terms is not None:
         from aeropend_core.present.discovery_text import discovery_sentence
         message = (message + ' ' + discovery_sentence(found_terms, noise, UNEXPLAINED_NOISE * reference)).strip()
