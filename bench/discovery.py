@@ -40,9 +40,16 @@ def outside_record(name: str, seed: int = 11):
     from aeropend_core.sim.excitation import lhc_schedule
     from aeropend_core.sim.noise import MeasurementNoise
     from aeropend_core.sim.simulate import simulate
-    schedule = lhc_schedule(60.0, duty_range=(0.0, 0.7), duty_cap=0.7, seed=seed)
-    trajectory = simulate(schedule.duty(duration=60.0), effects=OUTSIDE[name],
-                          noise=MeasurementNoise(psnr_db=40.0, quantise=True), seed=seed + 1)
+    from aeropend_core.model.effects import CATALOG, load_effects_module
+    builtin = set(CATALOG)
+    load_effects_module(str(ROOT / 'discovery_effects.py'))
+    try:        # the simulator has them; the diagnosis must not (they would be catalog candidates)
+        schedule = lhc_schedule(60.0, duty_range=(0.0, 0.7), duty_cap=0.7, seed=seed)
+        trajectory = simulate(schedule.duty(duration=60.0), effects=OUTSIDE[name],
+                              noise=MeasurementNoise(psnr_db=40.0, quantise=True), seed=seed + 1)
+    finally:
+        for extra in set(CATALOG) - builtin:
+            CATALOG.pop(extra)
     return from_columns(trajectory.columns(with_truth=False), source=name)
 
 
@@ -72,9 +79,7 @@ def main() -> int:
     from threadpoolctl import threadpool_limits
 
     from aeropend_core.diagnosis.diagnose import diagnose
-    from aeropend_core.model.effects import load_effects_module
     from false_alarms import SEED_BASE, record
-    load_effects_module(str(ROOT / 'discovery_effects.py'))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     results: dict = {'outside': {}, 'clean': [], 'timing': {}}

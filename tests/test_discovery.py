@@ -41,11 +41,17 @@ def catalog_restored():
 
 
 def measured_columns(effects=None, seed=11, duration=60.0):
-    """Only the measured columns (t, duty, Va, Ia, angle) of a simulated, noisy, quantised record."""
+    """Only the measured columns (t, duty, Va, Ia, angle) of a simulated, noisy, quantised record; the test-local
+    effects are in the catalog only while simulating (the diagnosis must not have them as candidates)."""
+    builtin = set(CATALOG)
     load_effects_module(EFFECTS_MODULE)
-    schedule = lhc_schedule(duration, duty_range=(0.0, 0.7), duty_cap=0.7, seed=seed)
-    trajectory = simulate(schedule.duty(duration=duration), effects=effects,
-                          noise=MeasurementNoise(psnr_db=40.0, quantise=True), seed=seed + 1)
+    try:
+        schedule = lhc_schedule(duration, duty_range=(0.0, 0.7), duty_cap=0.7, seed=seed)
+        trajectory = simulate(schedule.duty(duration=duration), effects=effects,
+                              noise=MeasurementNoise(psnr_db=40.0, quantise=True), seed=seed + 1)
+    finally:
+        for name in set(CATALOG) - builtin:
+            CATALOG.pop(name)
     return trajectory.columns(with_truth=False)
 
 
@@ -117,6 +123,7 @@ OUTSIDE = {
 def test_an_effect_outside_the_catalog_is_discovered_and_the_error_falls_below_half_the_noise(effect):
     truth, _expected = OUTSIDE[effect]
     found = diagnose(recording(truth), drift=False)
+    assert not any(c.effect.startswith('test_') for c in found.candidates)      # outside the catalog indeed
     proven = found.discovery.proven if found.discovery is not None else []
     assert proven, (found.verdict, found.message)
     best = proven[0]
