@@ -518,7 +518,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         message = drift_message(drifting, final)
         if found:
             message += f' The effect search also selected {sizes}; a drifting parameter can mimic effects.'
-    elif proven and (remainder or not found):
+    elif proven and (remainder or not found or proven[0].replaces):
         verdict = 'term_discovered'
         message = (f'{sizes} {"explain" if len(found) > 1 else "explains"} part of the error. ' if found else '')
     elif found and remainder:

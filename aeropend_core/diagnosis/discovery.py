@@ -315,7 +315,7 @@ class DiscoveredTerm:
 
     ``status``: ``'proven'`` (significant by the catalog's evidence), ``'catalog'`` (a catalog effect spans it:
     ``catalog_effect``), ``'confounded'`` (it explains the data as well as the catalog set ``confounded_with``),
-    ``'not_proven'`` (``why_not`` says why).
+    ``'not_proven'`` (``why_not`` says why). A proven term may make the catalog set redundant (``replaces``).
     """
 
     term: Term
@@ -333,6 +333,9 @@ class DiscoveredTerm:
     catalog_effect: str | None = None
     confounded_with: list[str] = field(default_factory=list)
     why_not: str = ''
+    #: Catalog effects the search chose that add nothing significant once the term is in the model (it explains
+    #: more than they do: they were its shadow).
+    replaces: list[str] = field(default_factory=list)
 
     @property
     def effect(self) -> str:
@@ -360,6 +363,7 @@ class DiscoveredTerm:
                 'share_of_error_removed': finite(self.share_removed), 't_statistic': finite(self.t_statistic),
                 'delta_bic': finite(self.delta_bic), 'dm_statistic': finite(self.dm_statistic),
                 'catalog_effect': self.catalog_effect, 'confounded_with': self.confounded_with,
+                'replaces': self.replaces,
                 'why_not_proven': self.why_not, 'add': self.add}
 
 
@@ -535,15 +539,22 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
         return
     entry.status = 'proven'
     if catalog_set and without_set is not None:
-        # the term in place of the catalog set: as good on the held-out part -> confounded with the set
+        # the term in place of the catalog set: does the set still add anything significant on top of the term?
         kept = tuple(n for n in model if n not in catalog_set)
         try:
             swapped = compare(prep, kept + (name,), start=start, fixed=dict(fixed))
         except InsufficientDataError:
             return
-        if not assess(prep, swapped, augmented, catalog_set[0]).significant:
-            entry.status = 'confounded'
+        if assess(prep, swapped, augmented, catalog_set[0]).significant:
+            return                      # both are needed: the term is proven alongside the set
+        noise = prep.noise_rms
+        alone, chosen = excess_error(swapped.rms_error, noise), excess_error(base.rms_error, noise)
+        floor = 0.2 * noise
+        if alone <= CONFOUNDING_FACTOR * max(chosen, floor) and chosen <= CONFOUNDING_FACTOR * max(alone, floor):
+            entry.status = 'confounded'         # they explain the data equally
             entry.confounded_with = list(catalog_set)
+        else:
+            entry.replaces = list(catalog_set)  # the term explains more, and with it the set adds nothing
 
 
 __all__ = ['VOCABULARY', 'Term', 'DiscoveredTerm', 'Discovery', 'discover', 'find_term', 'term_effect',

@@ -57,7 +57,11 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
                 f'{best.share_removed * 100:.0f} % of the held-out error beyond the noise, '
                 f'{best.excess_before * 1e3:.2f} -> {best.excess_after * 1e3:.2f} mrad (noise '
                 f'{noise_rms * 1e3:.2f} mrad); HAC t = {best.t_statistic:.1f}, training BIC {best.delta_bic:+.1f}, '
-                f'held-out Diebold-Mariano {best.dm_statistic:+.1f}. Add it with '
+                f'held-out Diebold-Mariano {best.dm_statistic:+.1f}.'
+                + (f' With it, {" + ".join(best.replaces)} add{"s" if len(best.replaces) == 1 else ""} nothing '
+                   f'significant: {"it was" if len(best.replaces) == 1 else "they were"} the term\'s shadow, not the '
+                   'physics.' if best.replaces else '')
+                + ' Add it with '
                 f'{" ".join(_quoted(best.add))}, or keep it as an effect module (aeropend effects '
                 f'--write-discovered FILE.py --term \'{best.term.expression}\').')
     confounded = [t for t in discovery.terms if t.status == 'confounded']
