@@ -336,6 +336,8 @@ class DiscoveredTerm:
     #: Catalog effects the search chose that add nothing significant once the term is in the model (it explains
     #: more than they do: they were its shadow).
     replaces: list[str] = field(default_factory=list)
+    #: Other proven terms that explain about as much on this data (within the confounding factor): lookalikes.
+    alternatives: list[str] = field(default_factory=list)
 
     @property
     def effect(self) -> str:
@@ -363,7 +365,7 @@ class DiscoveredTerm:
                 'share_of_error_removed': finite(self.share_removed), 't_statistic': finite(self.t_statistic),
                 'delta_bic': finite(self.delta_bic), 'dm_statistic': finite(self.dm_statistic),
                 'catalog_effect': self.catalog_effect, 'confounded_with': self.confounded_with,
-                'replaces': self.replaces,
+                'replaces': self.replaces, 'alternatives': self.alternatives,
                 'why_not_proven': self.why_not, 'add': self.add}
 
 
@@ -471,9 +473,6 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
             entry.why_not = ('a term of time, a lag or heating: the output-error model cannot simulate it, so it is '
                              'not proven; see the drift test and the thrust_lag effect')
             continue
-        if any(f.status == 'proven' for f in found):
-            entry.why_not = 'not refitted: a term with stronger weak-form evidence is proven'
-            continue
         if refits >= MAX_REFITS:
             entry.why_not = f'not refitted: weaker weak-form evidence than the {MAX_REFITS} terms refitted before it'
             continue
@@ -483,7 +482,14 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         lookalike = _span(term, segments, model) if entry.status == 'proven' else None
         if lookalike:
             _against_catalog(prep, base, model, fixed, entry, lookalike)
-    found.sort(key=lambda f: (f.status != 'proven', -(f.share_removed if math.isfinite(f.share_removed) else -1)))
+    found.sort(key=lambda f: (f.status != 'proven', f.excess_after if math.isfinite(f.excess_after) else math.inf))
+    if found and found[0].status == 'proven':
+        # other proven terms that explain about as much: the data cannot tell them from the best (a quasi-static rig
+        # ties the thrust to sin(angle), so thrust and angle terms can be lookalikes) -- said, not hidden
+        best = found[0]
+        floor = max(best.excess_after, 0.2 * prep.noise_rms)
+        best.alternatives = [f.term.expression for f in found[1:] if f.status == 'proven'
+                             and f.excess_after <= CONFOUNDING_FACTOR * floor]
     return Discovery(found, selected=tuple(name for name, _, _ in chosen))
 
 

@@ -61,6 +61,8 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
                 + (f' With it, {" + ".join(best.replaces)} add{"s" if len(best.replaces) == 1 else ""} nothing '
                    f'significant: {"it was" if len(best.replaces) == 1 else "they were"} the term\'s shadow, not the '
                    'physics.' if best.replaces else '')
+                + (f' This data explains about as well with {", ".join(best.alternatives)}: the physics is one of '
+                   'these; excite larger angles and free decays to separate them.' if best.alternatives else '')
                 + ' Add it with '
                 f'{" ".join(_quoted(best.add))}, or keep it as an effect module (aeropend effects '
                 f'--write-discovered FILE.py --term \'{best.term.expression}\').')
