@@ -393,10 +393,12 @@ def _span(term: Term, segments, model_effects: tuple[str, ...]) -> str | None:
     if term.catalog_kind:
         return kinds.get(term.catalog_kind)
     column = np.concatenate([_columns(term, s) for s in segments])
+    if not np.std(column) > 0:           # a constant: no correlation to speak of
+        return None
     for other in VOCABULARY:
         if other.catalog_kind in kinds and other is not term:
             reference = np.concatenate([_columns(other, s) for s in segments])
-            if abs(np.corrcoef(column, reference)[0, 1]) > SPAN_CORRELATION:
+            if np.std(reference) > 0 and abs(np.corrcoef(column, reference)[0, 1]) > SPAN_CORRELATION:
                 return kinds[other.catalog_kind]
     return None
 
