@@ -17,6 +17,7 @@ Examples:
   aeropend diagnose run.csv --calibration config/serial_bridge_node.yaml   # the same, from the calibration file
   aeropend diagnose run.csv --effects-module my_effects.py     # your own registered effects become candidates
   aeropend diagnose first.mcap experiment.mcap     # several records of one rig judged together (joint)
+  aeropend diagnose run.csv --term 'thrust*angular_rate'       # a term the discovery stage proposed
 """
 from __future__ import annotations
 
@@ -36,6 +37,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_fix_argument(parser)
     add_calibration_argument(parser)
     parser.add_argument('--no-drift', action='store_true', help='skip the per-segment drift test')
+    parser.add_argument('--term', action='append', default=[], metavar='EXPRESSION',
+                        help='a term outside the catalog to include in the model, dW/dt += c * EXPRESSION with c '
+                             'fitted (repeatable; the expressions the discovery stage proposes, e.g. '
+                             "'thrust*angular_rate'; docs/discovery.md lists them)")
+    parser.add_argument('--no-discovery', action='store_true',
+                        help='skip the discovery stage (sparse regression for a term outside the catalog, run when '
+                             'the catalog leaves error beyond the noise)')
     parser.add_argument('--only', action='append', default=None, metavar='EFFECT',
                         help='try only these candidate effects (repeatable; default: the whole catalog)')
     parser.add_argument('--effects-module', action='append', default=[], metavar='FILE.py',
@@ -60,6 +68,9 @@ def main(args: argparse.Namespace) -> int:
     from aeropend_core.model.effects import load_effects_module
     for path in args.effects_module:
         load_effects_module(path)
+    if args.term:                   # a discovered term becomes a one-parameter effect named term_<slug>
+        from aeropend_core.diagnosis.discovery import term_effect
+        args.add = list(args.add) + [term_effect(text) for text in args.term]
     check_effect_names(args.add, '--add')
     check_effect_names(args.only or [], '--only')
     from aeropend_core.cli._checks import fixed_effects
@@ -105,7 +116,7 @@ def main(args: argparse.Namespace) -> int:
     if calibration_message:
         print(f'aeropend diagnose: {calibration_message}', file=sys.stderr, flush=True)
     diagnosis = diagnose(recording, effects=args.add, candidates=args.only, progress=progress, fixed=fixed,
-                         drift=not args.no_drift, fixed_from=fixed_from)
+                         drift=not args.no_drift, fixed_from=fixed_from, discovery=not args.no_discovery)
     validation = None
     if validation_recording is not None:
         from aeropend_core.diagnosis.validation import validate

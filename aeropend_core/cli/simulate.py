@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--quantise', action='store_true', help='10-bit angle and current ADC quantisation')
     parser.add_argument('--effect', action='append', default=[], metavar='NAME=VALUE',
                         help='hidden effect (repeatable), e.g. coulomb_friction=4 or thrust_lag.time_constant=0.2')
+    parser.add_argument('--effects-module', action='append', default=[], metavar='FILE.py',
+                        help='a Python file that registers your own effects (register_effect): --effect can then '
+                             'name them as hidden truth')
     parser.add_argument('--preset', choices=sorted(PRESETS), default='default', help='nominal parameter set')
     parser.add_argument('--max-duty', type=float, default=0.7, help='upper end of the duty range (default 0.7)')
     parser.add_argument('--no-truth', action='store_true', help='write only the measured columns')
@@ -67,6 +70,9 @@ def check_arguments(args: argparse.Namespace) -> None:
 
 def main(args: argparse.Namespace) -> int:
     check_arguments(args)
+    from aeropend_core.model.effects import load_effects_module
+    for path in args.effects_module:
+        load_effects_module(path)
     effects = parse_effect_assignments(args.effect)
     if args.output != '-':
         _check_output(args.output)

@@ -45,35 +45,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from aeropend_core.diagnosis.candidates import (  # noqa: F401  (re-exported: the evidence's thresholds)
+    BIC_MARGIN, CORRELATION_LIMIT, DM_MIN, DM_WEAK, MAJOR_SHARE, MATERIAL, NOISE_ESTIMATE_VARIANCE, T_MIN, Candidate,
+    _effect_parameters, _try, assess, beyond_spread)
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
 from aeropend_core.diagnosis.checks import check_diagnosis, misfit_doubt
-from aeropend_core.diagnosis.evidence import diebold_mariano, share_words, t_statistic_words
 from aeropend_core.diagnosis.doubts import doubt_notes, rate_doubts, rate_notes, residual_structure, unresolvable
-from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.io.recording import Recording
 from aeropend_core.model.effects import CATALOG, THRUST_LAG, get_effect
 from aeropend_core.model.effects import separating_experiment as record_experiment
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 
-#: A candidate's parameter must be this many (HAC) standard errors from zero ...
-T_MIN = 4.0
-#: ... it must lower the training BIC by more than this ...
-BIC_MARGIN = 10.0
-#: ... its held-out Diebold-Mariano statistic must exceed this (one-sided, ~2.3 sigma) ...
-DM_MIN = 2.33
-#: ... or above DM_WEAK when it removes at least MAJOR_SHARE of the held-out mean-square error beyond the noise ...
-DM_WEAK = 1.0
-MAJOR_SHARE = 0.5
-#: ... and the held-out mean-square error must fall by more than (this x the noise RMS)^2 (0.25 % of the noise
-#: variance: below that an improvement is immaterial however certain).
-MATERIAL = 0.05
-#: The error beyond the noise is a difference of two noise powers, each known only to a sampling spread: the held-out
-#: part's realised noise power (relative standard deviation sqrt(2 / n) for n white residuals) and the noise
-#: estimate from third differences (relative variance ``NOISE_ESTIMATE_VARIANCE / n`` over the record: 2 x the sum
-#: of the squared autocorrelations of a white series' third difference, 2 (1 + 2 (0.75^2 + 0.3^2 + 0.05^2))).
-#: The share of the measurable error beyond the noise (less this spread) is reported next to the raw share.
-NOISE_ESTIMATE_VARIANCE = 4.62
 #: "Unexplained" (the best set leaves error no catalog effect explains) is claimed beyond this multiple of the
 #: noise RMS: a smaller excess can come from the noise estimate itself (quantisation that does not dither is partly
 #: a slow bias).
@@ -83,11 +66,12 @@ UPRIGHT_WARNING = math.radians(95.0)
 #: A significant runner-up is tested for interchangeability with the best when its held-out error beyond the noise
 #: is within this factor of the best's.
 CONFOUNDING_FACTOR = 1.3
-#: An effect parameter correlated beyond this with a nominal parameter is not separable from it in this data.
-CORRELATION_LIMIT = 0.97
 #: Candidates set aside in the first round (no training evidence) are tried again once, on top of the effects found,
 #: while the error beyond the noise exceeds this multiple of the noise RMS (an effect masked by others).
 RETRY_NOISE = 0.25
+#: The discovery stage runs when the best set leaves more than this multiple of the noise RMS beyond the noise (or the
+#: set is suspect); its terms must pass the catalog's evidence to be proposed, so running it adds no false alarm.
+DISCOVERY_NOISE = 0.25
 #: At most this many effects are added by the search.
 MAX_EFFECTS = 4
 DEFAULT_EXPERIMENT = 'vary the step amplitudes and add rests at duty 0; longer records narrow the uncertainty'
@@ -105,57 +89,6 @@ def excitation_advice(effect: str) -> str:
         if advice:
             return advice
     return DEFAULT_EXPERIMENT
-
-
-@dataclass
-class Candidate:
-    """One catalog effect tried as an augmentation of the current model."""
-
-    effect: str
-    comparison: Comparison | None
-    parameters: dict[str, float]
-    standard_errors: dict[str, float]
-    delta_bic: float
-    excess_before: float
-    excess_after: float
-    significant: bool
-    confounded_with: list[str] = field(default_factory=list)
-    evidence: list[str] = field(default_factory=list)
-    explanation: str = ''
-    error: str = ''
-    #: It explains the held-out error (enough improvement, parameter nonzero) but the training part shows no
-    #: evidence for it (its BIC does not fall): the held-out part holds conditions the training part lacks.
-    heldout_only: bool = False
-    #: Smallest |parameter| / HAC standard error over its parameters (inf for a profiled threshold in range).
-    t_statistic: float = float('nan')
-    #: Held-out Diebold-Mariano statistic (positive: predicts better than the model it was added to).
-    dm_statistic: float = float('nan')
-    #: Held-out mean-square error removed [rad^2].
-    mse_gain: float = float('nan')
-    #: Share of the held-out error beyond the noise that it removes (0..1; of the mean-square error beyond it).
-    share_removed: float = float('nan')
-    #: The same share of the error beyond the noise less its sampling spread (:func:`beyond_spread`); reported only.
-    share_measurable: float = float('nan')
-
-    @property
-    def fit_percent(self) -> float:
-        return self.comparison.fit_percent if self.comparison else float('nan')
-
-    @property
-    def rms_error(self) -> float:
-        return self.comparison.rms_error if self.comparison else float('nan')
-
-    @property
-    def improvement(self) -> float:
-        """Fraction by which the held-out error beyond the noise falls."""
-        if self.excess_before <= 0:
-            return 0.0
-        return 1.0 - self.excess_after / self.excess_before
-
-    @property
-    def strength(self) -> float:
-        """Training evidence for the search's ordering: the BIC drop (larger is stronger)."""
-        return -self.delta_bic if np.isfinite(self.delta_bic) else -np.inf
 
 
 @dataclass
@@ -211,6 +144,8 @@ class Diagnosis:
     #: Parameters that fail a physical check -> the warning (:mod:`aeropend_core.diagnosis.checks`).
     parameter_warnings: dict[str, str] = field(default_factory=dict)
     independent: object = None      #: the free-oscillation estimate (aeropend_core.identify.plausibility)
+    #: The discovery stage's result (:class:`aeropend_core.diagnosis.discovery.Discovery`; None when it did not run).
+    discovery: object = None
 
     @property
     def missing_effects(self) -> list[str]:
@@ -288,6 +223,8 @@ class Diagnosis:
             'missing_effects': [f.to_dict() for f in self.found],
             'add': [f.effect for f in self.found if not f.confounded_with],
             'remaining_error_beyond_noise': _finite(excess_error(self.final.rms_error, self.final.noise_rms)),
+            'discovered_terms': [t.to_dict() for t in self.discovery.proven] if self.discovery is not None else [],
+            'discovery': self.discovery.to_dict() if self.discovery is not None else None,
             'drift': self.drift,
             'gaps': self.prepared.gaps.to_dict() if self.prepared is not None and self.prepared.gaps is not None
             else None,
@@ -351,142 +288,6 @@ def _candidate_dict(candidate: Candidate) -> dict:
             'share_of_measurable_error_removed': _finite(candidate.share_measurable)}
 
 
-def _effect_parameters(comparison: Comparison, effect: str) -> tuple[dict[str, float], dict[str, float]]:
-    names = get_effect(effect).parameter_names
-    values = {n: comparison.fit.parameters[n] for n in names}
-    errors = {n: comparison.fit.standard_errors.get(n, float('nan')) for n in names}
-    return values, errors
-
-
-def _correlated_nominals(comparison: Comparison, effect: str) -> list[str]:
-    """Nominal parameters whose estimate is correlated beyond CORRELATION_LIMIT with the effect's parameter."""
-    fit = comparison.fit
-    names = list(fit.free_names)
-    confounded = []
-    for parameter in get_effect(effect).parameter_names:
-        if parameter not in names:
-            continue
-        i = names.index(parameter)
-        for nominal in NOMINAL_PARAMETERS:
-            if nominal in names:
-                value = fit.correlation[i, names.index(nominal)]
-                if np.isfinite(value) and abs(value) > CORRELATION_LIMIT:
-                    confounded.append(nominal)
-    return confounded
-
-
-def _regime_evidence(before: Comparison, after: Comparison, count: int = 2) -> list[str]:
-    """The regimes whose error fell the most (relative), as sentences with numbers in mrad."""
-    changes = []
-    for name, stats in before.evaluation.regimes.items():
-        if name in after.evaluation.regimes:
-            old, new = stats['rms_error'], after.evaluation.regimes[name]['rms_error']
-            if old > 0:
-                changes.append(((old - new) / old, name, old, new))
-    changes.sort(reverse=True)
-    return [f'{name}: {old * 1e3:.1f} -> {new * 1e3:.1f} mrad' for drop, name, old, new in changes[:count]
-            if drop > 0.05]
-
-
-def _explain(effect: str, values: dict[str, float], errors: dict[str, float], excess_before: float,
-             excess_after: float, evidence: list[str]) -> str:
-    entry = get_effect(effect)
-    units = {p.name: p.unit for p in entry.parameters}
-    estimates = ', '.join(f'{name} = {value:.4g} +- {errors.get(name, float("nan")):.2g} {units[name]}'
-                          for name, value in values.items())
-    text = (f'{entry.description} [{entry.equation}]. Estimated {estimates}. Held-out error beyond the noise '
-            f'{excess_before * 1e3:.2f} -> {excess_after * 1e3:.2f} mrad.')
-    if evidence:
-        text += ' Improved most: ' + '; '.join(evidence) + '.'
-    return text
-
-
-def _heldout_error(prep: PreparedRecord, comparison: Comparison) -> np.ndarray:
-    index = prep.heldout.residual_index
-    return prep.angle[index] - comparison.evaluation.simulated[index]
-
-
-def assess(prep: PreparedRecord, base: Comparison, augmented: Comparison, name: str) -> Candidate:
-    """The evidence that `augmented` (= `base` + effect `name`) explains the data better (module docstring)."""
-    noise = prep.noise_rms
-    values, errors = _effect_parameters(augmented, name)
-    excess_before = excess_error(base.rms_error, noise)
-    excess_after = excess_error(augmented.rms_error, noise)
-    effective = max(augmented.fit.effective_samples, 2.0)
-    rss_ratio = (base.fit.residual_rms / max(augmented.fit.residual_rms, 1e-300)) ** 2
-    added = augmented.fit.n_free - base.fit.n_free
-    delta_bic = float(-effective * math.log(max(rss_ratio, 1e-300)) + added * math.log(effective))
-    gate = augmented.fit.structure.gate_parameter
-    if gate in values:   # profiled, no standard error: a threshold inside the data's range counts
-        t_statistic = math.inf if values[gate] > 0.0 else 0.0
-    else:
-        # a parameter pinned at a positive lower bound of the fit (the smallest lag the integrator takes) is "off"
-        lower = dict(zip(values, _bounds(tuple(values))[0]))
-        ratios = [0.0 if lower[k] > 0 and v <= lower[k] * (1 + 1e-6) else abs(v) / s
-                  for k, v, s in ((k, values[k], errors.get(k, float('nan'))) for k in values)
-                  if np.isfinite(s) and s > 0]
-        t_statistic = min(ratios) if ratios else 0.0
-    dm, gain = diebold_mariano(_heldout_error(prep, base), _heldout_error(prep, augmented))
-    beyond = max(base.rms_error ** 2 - noise ** 2, 0.0)
-    share = float(np.clip(gain / beyond, 0.0, 1.0)) if beyond > 0 and np.isfinite(gain) else (
-        1.0 if np.isfinite(gain) and gain > 0 else 0.0)
-    # The share of the *measurable* error beyond the noise, reported (not decided on; module docstring): a remainder
-    # within one standard deviation of the noise powers' sampling spread cannot be told from noise (40 dB, 3,700
-    # held-out residuals: +-2.6 % of the noise variance, an "error beyond the noise" of up to ~0.16 x the noise RMS).
-    spread = beyond_spread(prep)
-    measurable = max(beyond - spread, 0.0)
-    share_measurable = float(np.clip(gain / measurable, 0.0, 1.0)) if measurable > 0 and np.isfinite(gain) else (
-        1.0 if np.isfinite(gain) and gain > 0 else 0.0)
-    # The held-out part is short and model errors are slow: it may hold only a few independent pieces of evidence,
-    # so a candidate that removes most of its error beyond the noise needs only a positive DM above DM_WEAK.
-    predictive = np.isfinite(dm) and (dm >= DM_MIN or (dm >= DM_WEAK and share >= MAJOR_SHARE))
-    material = np.isfinite(gain) and gain >= (MATERIAL * noise) ** 2
-    supported = bool(t_statistic >= T_MIN and predictive and material)
-    significant = bool(supported and delta_bic < -BIC_MARGIN)
-    evidence = _regime_evidence(base, augmented)
-    candidate = Candidate(name, augmented, values, errors, delta_bic, excess_before, excess_after, significant,
-                          confounded_with=_correlated_nominals(augmented, name), evidence=evidence,
-                          heldout_only=bool(not significant and t_statistic >= T_MIN and material
-                                            and (predictive or (dm > 0 and share >= MAJOR_SHARE))),
-                          t_statistic=float(t_statistic),
-                          dm_statistic=float(dm), mse_gain=float(gain), share_removed=share,
-                          share_measurable=share_measurable)
-    candidate.explanation = _explain(name, values, errors, excess_before, excess_after, evidence)
-    candidate.explanation += (f' Evidence: {t_statistic_words(t_statistic)}, training BIC {delta_bic:+.1f}, '
-                              f'held-out Diebold-Mariano {dm:+.1f}; {share_words(share, excess_before)}'
-                              + (f' ({share_measurable * 100:.0f} % of the part beyond the noise estimate\'s '
-                                 f'uncertainty, +-{spread / noise ** 2 * 100:.1f} % of the noise variance)'
-                                 if share_measurable > share + 0.005 and excess_before > 0 else '') + '.')
-    if gate in values and 'threshold_interval' in augmented.fit.extra:
-        low, high = augmented.fit.extra['threshold_interval']
-        candidate.explanation += (f' The threshold lies between the input levels {low:.3f} V and {high:.3f} V '
-                                  f'present in the data.')
-    return candidate
-
-
-def beyond_spread(prep: PreparedRecord) -> float:
-    """Standard deviation [rad^2] of the held-out error beyond the noise (rms^2 - noise^2) when the model is exact.
-
-    From the sampling spread of the held-out part's noise power (its n residuals, white) and of the noise estimate
-    over the record's measured samples (see ``NOISE_ESTIMATE_VARIANCE``).
-    """
-    held = max(int(prep.heldout.residual_index.size), 1)
-    measured = max(int(np.count_nonzero(prep.gaps.valid)) if prep.gaps is not None else len(prep.angle), 1)
-    return float(prep.noise_rms ** 2 * math.sqrt(2.0 / held + NOISE_ESTIMATE_VARIANCE / measured))
-
-
-def _try(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], name: str,
-         fixed: Mapping[str, float]) -> Candidate:
-    excess_now = excess_error(base.rms_error, prep.noise_rms)
-    try:
-        augmented = compare(prep, model + (name,), start=base.parameters, fixed=dict(fixed),
-                            initial_states=base.fit.initial_states)     # long records: start from base's states
-    except InsufficientDataError as error:
-        return Candidate(name, None, {}, {}, float('nan'), excess_now, float('nan'), False,
-                         error=str(error), explanation=f'not testable on this data: {error}')
-    return assess(prep, base, augmented, name)
-
-
 def _interchangeable(prep: PreparedRecord, model: tuple[str, ...], best: Candidate, rival: Candidate,
                      fixed: Mapping[str, float]) -> bool:
     """True when adding either one makes the other insignificant (on this data they explain the same thing)."""
@@ -522,7 +323,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
              candidates: Sequence[str] | None = None,
              progress: Callable[[str], None] | None = None,
              fixed: Mapping[str, Mapping[str, float] | float] | None = None,
-             drift: bool = True, fixed_from: Mapping[str, str] | None = None) -> Diagnosis:
+             drift: bool = True, fixed_from: Mapping[str, str] | None = None, discovery: bool = True) -> Diagnosis:
     """Diagnose which effects are missing from nominal + `effects`, using only Va, Ia and the angle.
 
     Parameters
@@ -543,6 +344,9 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     fixed_from : mapping of str -> str, optional [-]
         Where each fixed effect's values came from (``{effect: 'calibration file PATH'}``), reported next to the
         numbers; default ``'--fix'``.
+    discovery : bool [-]
+        Run the discovery stage (:mod:`aeropend_core.diagnosis.discovery`) when the best catalog set leaves error
+        beyond the noise or is suspect: a term outside the catalog, proven by the same evidence.
 
     Returns
     -------
@@ -575,6 +379,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         before = compare(search, ())
     noise = prep.noise_rms
     pool = [name for name in (candidates if candidates is not None else CATALOG) if name not in effects
+            and (candidates is not None or not name.startswith('term_'))     # discovered terms: the discovery's
             and not (prep.reduced and get_effect(name).kind == THRUST_LAG)]   # the motor map's lag carries it
     for name in pool:
         get_effect(name)
@@ -696,6 +501,16 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     reference = max(noise, 0.5 * prep.angle_step)
     remainder = final.rms_error ** 2 - noise ** 2 - quantisation > (UNEXPLAINED_NOISE * reference) ** 2
     structure: list[dict] = []
+    found_terms = None
+    # ---- discovery: a term outside the catalog, when the best set leaves error beyond the noise or is suspect
+    suspect = any(f.confounded_with for f in found) or any(n for c, _ in steps for n in c.confounded_with)
+    if discovery and (excess_final > DISCOVERY_NOISE * reference or suspect):
+        from aeropend_core.diagnosis.discovery import discover
+        catalog_set = tuple(f.effect for f in found)
+        found_terms = discover(prep, final, model, held, catalog_set, current if catalog_set else None, say)
+    proven = found_terms.proven if found_terms is not None else []
+    # a proven term is the verdict only when it explains the error (what it leaves is within the noise's reach)
+    proven = [t for t in proven if t.excess_after <= UNEXPLAINED_NOISE * reference]
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]
     missing = pinned[0].effect if pinned else None
@@ -705,6 +520,9 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         message = drift_message(drifting, final)
         if found:
             message += f' The effect search also selected {sizes}; a drifting parameter can mimic effects.'
+    elif proven and (remainder or not found or proven[0].replaces):
+        verdict = 'term_discovered'
+        message = (f'{sizes} {"explain" if len(found) > 1 else "explains"} part of the error. ' if found else '')
     elif found and remainder:
         verdict = 'unexplained'
         structure = residual_structure(prep, final)
@@ -759,6 +577,12 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                        f'residual correlates most with: {structure[0]["signature"]} (r = '
                        f'{structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
                        f'(aeropend_core.model.effects.register_effect).')
+    if found_terms is not None and verdict == 'effect_found' and any(t.status == 'confounded'
+                                                                   for t in found_terms.terms):
+        verdict = 'confounded'      # a term outside the catalog explains the data as well as the set chosen
+    if found_terms is not None:
+        from aeropend_core.present.discovery_text import discovery_sentence
+        message = (message + ' ' + discovery_sentence(found_terms, noise, UNEXPLAINED_NOISE * reference)).strip()
     if found and verdict in ('effect_found', 'confounded'):
         for f in found:
             step = next(c for c, _ in steps if c.effect == f.effect)
@@ -786,7 +610,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
         message=message, notes=notes, before=before, residual_structure=structure, prepared=prep,
         seconds=time.perf_counter() - started, found=found, selected=selected, drift=drift_rows, fixed=held,
-        fixed_from=held_from))
+        fixed_from=held_from, discovery=found_terms))
 
 
 def size_text(found: Found) -> str:

@@ -33,8 +33,9 @@ from aeropend_core.diagnosis.evidence import (effective_samples, hac_covariance,
                                               input_covariance)
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import (FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, find_parameter, get_effect,
-                                         kernel_parameter)
+                                         kernel_parameter, wants_thrust)
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.diagnosis.term_kernel import term_value
 from aeropend_core.model.sensor_filter import filter_angle
 
 #: Column of each nominal parameter, then of each kernel kind, in the kernel's parameter row.
@@ -55,11 +56,12 @@ FRICTION_STABILITY = 2.5
 
 @numba.njit(cache=True, nogil=True)
 def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, initial, sample_time, lag_on, gate_on,
-                     out):
+                     out, term_code=-1, term_column=0):
     """RK4 free-run of every parameter row over every segment; writes predicted measured angle into `out`.
 
     Row columns: the nominal parameters, then the kernel kinds in ``KERNEL_KINDS`` order (rate_sign, rate_square,
-    angle_linear, measured_offset, thrust_lag_time, thrust_threshold)."""
+    angle_linear, measured_offset, thrust_lag_time, thrust_threshold); a discovered term `term_code`
+    (:mod:`aeropend_core.diagnosis.term_kernel`, -1: none) enters with the coefficient in column `term_column`."""
     h = STRIDE * sample_time
     n_rows = theta.shape[0]
     for row in range(n_rows):
@@ -74,6 +76,7 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
         tau = max(theta[row, 8], MIN_TIME_CONSTANT)
         vth = theta[row, 9]
         smooth = max(FRICTION_SMOOTHING, fc * h / FRICTION_STABILITY)
+        c = theta[row, term_column] if term_code >= 0 else 0.0
         for s in range(seg_start.shape[0]):
             start = seg_start[s]
             stop = seg_stop[s]
@@ -116,6 +119,7 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 t1 = f if lag_on else u0
                 dy1 = w
                 dw1 = -a * math.sin(y) - b * w + t1 - fc * math.tanh(w / smooth) - cd * w * abs(w) - kc * y
+                dw1 += c * term_value(term_code, y, w, t1)
                 df1 = (u0 - f) / tau
                 y2 = y + 0.5 * h * dy1
                 w2 = w + 0.5 * h * dw1
@@ -123,6 +127,7 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 t2 = f2 if lag_on else u1
                 dy2 = w2
                 dw2 = -a * math.sin(y2) - b * w2 + t2 - fc * math.tanh(w2 / smooth) - cd * w2 * abs(w2) - kc * y2
+                dw2 += c * term_value(term_code, y2, w2, t2)
                 df2 = (u1 - f2) / tau
                 y3 = y + 0.5 * h * dy2
                 w3 = w + 0.5 * h * dw2
@@ -130,6 +135,7 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 t3 = f3 if lag_on else u1
                 dy3 = w3
                 dw3 = -a * math.sin(y3) - b * w3 + t3 - fc * math.tanh(w3 / smooth) - cd * w3 * abs(w3) - kc * y3
+                dw3 += c * term_value(term_code, y3, w3, t3)
                 df3 = (u1 - f3) / tau
                 y4 = y + h * dy3
                 w4 = w + h * dw3
@@ -137,6 +143,7 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 t4 = f4 if lag_on else u2
                 dy4 = w4
                 dw4 = -a * math.sin(y4) - b * w4 + t4 - fc * math.tanh(w4 / smooth) - cd * w4 * abs(w4) - kc * y4
+                dw4 += c * term_value(term_code, y4, w4, t4)
                 df4 = (u2 - f4) / tau
                 y = y + h / 6.0 * (dy1 + 2.0 * dy2 + 2.0 * dy3 + dy4)
                 w = w + h / 6.0 * (dw1 + 2.0 * dw2 + 2.0 * dw3 + dw4)
@@ -149,7 +156,8 @@ def _simulate_numpy(theta, voltage, current, gate_signal, seg_start, seg_stop, i
                     out, user_terms):
     """The kernel's scheme in numpy, vectorised over parameter rows; also runs users' pendulum effects.
 
-    `user_terms` is a list of ``(function, {parameter name: column})``.
+    `user_terms` is a list of ``(function, {parameter name: column})``; a function with a ``thrust`` keyword also gets
+    the thrust's angular acceleration [rad/s^2] (:func:`aeropend_core.model.effects.wants_thrust`).
     """
     h = STRIDE * sample_time
     a, b, k, r, fc, cd, kc, offset = (theta[:, c] for c in range(8))
@@ -165,7 +173,8 @@ def _simulate_numpy(theta, voltage, current, gate_signal, seg_start, seg_stop, i
     def accel(y, w, t):
         value = -a * np.sin(y) - b * w + t - fc * np.tanh(w / smooth) - cd * w * np.abs(w) - kc * y
         for function, columns in user_terms:
-            value = value + function(y, w, **{name: theta[:, c] for name, c in columns.items()})
+            values = {name: theta[:, c] for name, c in columns.items()}
+            value = value + (function(y, w, **values, thrust=t) if wants_thrust(function) else function(y, w, **values))
         return value
 
     for s in range(len(seg_start)):
@@ -354,7 +363,12 @@ class SegmentedData:
         initial = np.asarray(initial, dtype=float).reshape(len(rows), len(self.segments), 2)
         out = np.full((len(rows), len(self.angle)), np.nan)
         terms = structure.user_terms()
-        if terms:
+        code = getattr(terms[0][0], 'term_code', -1) if len(terms) == 1 else -1
+        if code >= 0:       # a discovered term: compiled too (aeropend_core.diagnosis.term_kernel)
+            _simulate_kernel(rows, voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
+                             self.sample_time, structure.lag_on, structure.gate_on, out, code,
+                             next(iter(terms[0][1].values())))
+        elif terms:
             _simulate_numpy(rows, voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
                             self.sample_time, structure.lag_on, structure.gate_on, out, terms)
         else:

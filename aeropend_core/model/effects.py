@@ -31,6 +31,9 @@ adds an effect with one small function (it runs in the numpy/LSODA paths)::
                      parameters=[EffectParameter('stiffness', '1/(s^2 rad^2)', 'cubic spring per inertia', 5.0)])
     def cubic_spring(angle, angular_rate, stiffness):
         return -stiffness * angle ** 3
+
+A pendulum effect whose function also takes a ``thrust`` keyword is given the thrust's angular acceleration
+L f / J [rad/s^2] too (simulator and output-error fit), e.g. ``def inflow(angle, angular_rate, loss, thrust)``.
 """
 from __future__ import annotations
 
@@ -256,6 +259,34 @@ def register_effect(name: str, description: str, *, parameters: list[EffectParam
         return function
 
     return decorator
+
+
+def wants_thrust(function: Callable) -> bool:
+    """True when a pendulum effect's function takes a ``thrust`` keyword: it is then also given the thrust's angular
+    acceleration L f / J [rad/s^2] (a term such as thrust x rate, the propeller's inflow).
+
+    Parameters
+    ----------
+    function : callable [-]
+        The effect's function ``function(angle, angular_rate, **parameters)``.
+
+    Returns
+    -------
+    bool
+        Whether it takes ``thrust``.
+    """
+    cached = _WANTS_THRUST.get(function)
+    if cached is None:
+        import inspect
+        try:
+            cached = 'thrust' in inspect.signature(function).parameters
+        except (TypeError, ValueError):
+            cached = False
+        _WANTS_THRUST[function] = cached
+    return cached
+
+
+_WANTS_THRUST: dict = {}
 
 
 def get_effect(name: str) -> Effect:

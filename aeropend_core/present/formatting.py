@@ -49,13 +49,14 @@ VERDICT_TITLES = {
     'nothing_missing': 'Nothing significant is missing',
     'confounded': 'Confounded: the data cannot tell which effect is missing',
     'unexplained': 'Unexplained error: no catalog effect explains it',
+    'term_discovered': 'A term outside the catalog explains the error',
     'drift': 'Parameter drift',
     'model_does_not_fit': 'The model does not fit this data: a parameter fails a physical check',
 }
 
 
 VERDICT_CLASSES = {'effect_found': 'found', 'nothing_missing': 'ok', 'confounded': 'warn',
-                   'unexplained': 'bad', 'drift': 'warn', 'model_does_not_fit': 'bad'}
+                   'unexplained': 'bad', 'term_discovered': 'found', 'drift': 'warn', 'model_does_not_fit': 'bad'}
 
 
 def _esc(value: object) -> str:

@@ -203,6 +203,7 @@ class RigSimulator:
         (ra, la, kw, kt, jm, friction, kd, gear, kq, gravity, damping, lever) = self._constants
         gate = self._thrust_gate(armature_voltage)
         terms = self._pendulum_terms
+        from aeropend_core.model.effects import wants_thrust
         has_lag = self._has_lag
         tau = self._lag_time_constant
         sin = math.sin
@@ -216,7 +217,8 @@ class RigSimulator:
             thrust = x[4] if has_lag else thrust_now
             accel = -gravity * sin(angle) - damping * rate + lever * thrust
             for function, values in terms:
-                accel += function(angle, rate, **values)
+                accel += function(angle, rate, **values, thrust=lever * thrust) if wants_thrust(function) \
+                    else function(angle, rate, **values)
             derivative = [(armature_voltage - ra * current - kw * motor_speed) / la, motor_accel, rate, accel]
             if has_lag:
                 derivative.append((thrust_now - x[4]) / tau)

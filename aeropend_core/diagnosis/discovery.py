@@ -1,0 +1,569 @@
+"""Discovery: the missing term when no catalog effect explains the error, found by sparse regression and proven.
+
+A stage of the diagnosis (:mod:`aeropend_core.diagnosis.diagnose`), run when the best catalog set leaves error
+beyond the noise or when its set is suspect. Steps:
+
+1. **States from the model.** The output-error fit of the current best model gives the angle and its rate
+   (the model's own smooth trajectory, sampled on the fit's integration grid) and the thrust's angular
+   acceleration ``thrust_gain e|e|`` on every training segment. No derivative of noisy data is taken.
+2. **Sparse regression of the discrepancy.** The output residual ``r = measured angle - model angle`` obeys,
+   to first order, ``d^2r/dt^2 = -a cos(angle) r - b dr/dt + Σ (nominal sensitivities) + Σ c_k θ_k(states)``:
+   the pendulum equation's discrepancy. It is regressed in weak form (the project's own WSINDy with its GLS noise
+   model and MSTLS, :func:`aeropend_core.wsindy.weak_form.fit_weak_sindy`) with the sensitivities kept and a library
+   of physically typed candidate terms θ_k (:data:`VOCABULARY`): angle harmonics and powers, rate sign and
+   powers, Stribeck exp(-(W/v)^2) sign W, thrust x rate, thrust x angle, propeller speed x rate, the thrust
+   through lags, slow functions of time and of the dissipated power. Each term has units, a readable expression
+   and a physical reading.
+3. **Proof.** Every surviving term that the simulator can carry is added to the model as a one-parameter effect
+   (``dW/dt += c θ``), refitted by output error and judged by the same evidence as a catalog effect
+   (:func:`aeropend_core.diagnosis.candidates.assess`: HAC t, BIC with the effective sample count, held-out
+   Diebold--Mariano, materiality). A term that a catalog effect spans (its columns correlate beyond
+   :data:`SPAN_CORRELATION` on these states) is reported as that catalog effect; a term that explains the data
+   as well as the catalog set the search chose is reported as confounded with it. Terms of time, lags or heating
+   are not simulated by the output-error model: they are reported as candidates, never as proven.
+
+The discovered term is kept as ``--term EXPRESSION`` (:func:`term_effect` registers it on demand) or written as an
+effects module (:func:`effect_module_text`).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.signal import lfilter
+
+from aeropend_core.diagnosis.candidates import Candidate, assess
+from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error
+from aeropend_core.diagnosis.output_error import STRIDE
+from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.model.effects import (CATALOG, FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, Effect, EffectParameter,
+                                         add_effect)
+
+#: A term and a catalog effect whose columns correlate beyond this on the model's states are the same term here.
+SPAN_CORRELATION = 0.95
+#: A term's evidence is compared with a catalog effect's held-out error with this factor (as the catalog's
+#: confounding test, :data:`aeropend_core.diagnosis.diagnose.CONFOUNDING_FACTOR`).
+CONFOUNDING_FACTOR = 1.3
+#: At most this many surviving terms are refitted by output error (strongest weak-form evidence first).
+MAX_REFITS = 3
+#: Family-wise significance of the weak-form selection (Bonferroni over the free candidate terms).
+SIGNIFICANCE = 0.01
+#: Half-width of the weak-form test functions [s]: about a quarter of the pendulum's period (~0.55 s here).
+TEST_HALF_WIDTH = 0.15
+#: Prefix of the effect names that carry discovered terms.
+PREFIX = 'term_'
+#: Time constants [s] of the thrust lags and of the winding's heating in the library.
+LAG_TIMES = (0.05, 0.15, 0.4)
+HEATING_TIME = 30.0
+
+
+@dataclass(frozen=True)
+class Term:
+    """One candidate term of the pendulum equation's discrepancy: ``dW/dt += coefficient * value``.
+
+    Attributes
+    ----------
+    expression : str
+        The term in the vocabulary's names (``angle`` [rad], ``angular_rate`` [rad/s], ``thrust`` [rad/s^2], the
+        thrust's angular acceleration L f / J, ``time`` [s], ``heat`` [A^2]); it is also the ``--term`` argument.
+    slug : str
+        A short identifier (letters, digits, underscores) for effect and parameter names.
+    unit : str
+        SI unit of the coefficient.
+    reading : str
+        Its physical reading, for the verdict.
+    function : callable
+        ``function(angle, angular_rate, thrust, signals) -> ndarray`` with ``signals`` holding ``time``, ``heat``
+        and the thrust lags (shape (n,) each).
+    simulated : bool
+        True when the output-error model can carry it (a function of angle, rate and thrust): it can be proven.
+    catalog_kind : str or None
+        The kernel kind (:data:`aeropend_core.model.effects.KERNEL_KINDS`) of the catalog effect it is.
+    """
+
+    expression: str
+    slug: str
+    unit: str
+    reading: str
+    function: Callable = field(repr=False, compare=False)
+    simulated: bool = True
+    catalog_kind: str | None = None
+
+
+def _sign(rate):
+    return np.tanh(rate / FRICTION_SMOOTHING)
+
+
+def _state(expression, slug, unit, reading, f, catalog_kind=None):
+    return Term(expression, slug, unit, reading, lambda y, w, u, s: f(y, w), True, catalog_kind)
+
+
+def _vocabulary() -> tuple[Term, ...]:
+    terms = [
+        _state('1', 'constant', 'rad/s^2', 'a constant torque (a preloaded cable, a draught, a tilted pivot)',
+               lambda y, w: np.ones_like(y)),
+        _state('cos(angle)', 'cos_angle', 'rad/s^2', 'a zero offset of the angle sensor, or gravity tilted',
+               lambda y, w: np.cos(y), 'measured_offset'),
+        _state('angle', 'angle', '1/s^2', 'a linear spring at the pivot (cable)', lambda y, w: y, 'angle_linear'),
+        _state('angle^2', 'angle_square', '1/(s^2 rad)', 'a spring stiffer on one side (asymmetric cable)',
+               lambda y, w: y ** 2),
+        _state('angle^3', 'angle_cube', '1/(s^2 rad^2)', 'a hardening spring (cable stiffening with twist)',
+               lambda y, w: y ** 3),
+        _state('sin(2*angle)', 'sin_2angle', 'rad/s^2', 'a torque periodic twice per turn (an eccentric magnet, '
+               'the encoder\'s second-harmonic nonlinearity, an unbalanced pod)', lambda y, w: np.sin(2 * y)),
+        _state('cos(2*angle)', 'cos_2angle', 'rad/s^2', 'a torque periodic twice per turn, phase-shifted',
+               lambda y, w: np.cos(2 * y)),
+        _state('sin(3*angle)', 'sin_3angle', 'rad/s^2', 'a torque periodic three times per turn',
+               lambda y, w: np.sin(3 * y)),
+        _state('sign(angular_rate)', 'rate_sign', 'rad/s^2', 'dry (Coulomb) friction', lambda y, w: _sign(w),
+               'rate_sign'),
+        _state('angular_rate*abs(angular_rate)', 'rate_square', '1/rad', 'aerodynamic drag',
+               lambda y, w: w * np.abs(w), 'rate_square'),
+    ]
+    for power, unit, reading in (
+            (0.5, 'rad^0.5/s^1.5', 'damping that grows with the square root of the speed (mixed dry/viscous)'),
+            (1.5, '1/(rad^0.5 s^0.5)', 'damping between viscous and quadratic (a transitional air flow)'),
+            (3.0, 's/rad^2', 'damping that grows with the cube of the speed')):
+        terms.append(_state(f'abs(angular_rate)^{power:g}*sign(angular_rate)', f'rate_power_{power:g}'.replace(
+            '.', 'p'), unit, reading, lambda y, w, p=power: np.abs(w) ** p * np.sign(w)))
+    for speed in (0.05, 0.1, 0.2, 0.4):
+        terms.append(_state(f'exp(-(angular_rate/{speed:g})^2)*sign(angular_rate)',
+                            f'stribeck_{speed:g}'.replace('.', 'p'), 'rad/s^2',
+                            f'breakaway friction above the Coulomb level that fades above {speed:g} rad/s '
+                            '(Stribeck stiction)', lambda y, w, v=speed: np.exp(-(w / v) ** 2) * _sign(w)))
+    terms += [
+        Term('thrust*angular_rate', 'thrust_rate', 's/rad', 'thrust falls with the rod\'s speed through the air '
+             '(propeller inflow)', lambda y, w, u, s: u * w),
+        Term('sqrt(abs(thrust))*angular_rate', 'speed_rate', 'rad^0.5/s', 'thrust falls with the propeller speed '
+             'times the rod\'s speed (inflow, momentum theory)', lambda y, w, u, s: np.sqrt(np.abs(u)) * w),
+        Term('thrust*angle', 'thrust_angle', '1/rad', 'thrust changes with the rod\'s angle (ground or wall '
+             'effect, a cable pulling on the pod)', lambda y, w, u, s: u * y),
+        Term('thrust*cos(angle)', 'thrust_cos', '1', 'the thrust is not perpendicular to the rod',
+             lambda y, w, u, s: u * np.cos(y)),
+        Term('thrust^2', 'thrust_square', 's^2/rad', 'the thrust law is not quadratic in the motor speed',
+             lambda y, w, u, s: u ** 2),
+    ]
+    for lag in LAG_TIMES:
+        terms.append(Term(f'lag(thrust,{lag:g})-thrust', f'thrust_lag_{lag:g}'.replace('.', 'p'), '1',
+                          f'the thrust follows the motor through a lag of about {lag:g} s', lambda y, w, u, s,
+                          k=lag: s[f'lag_{k:g}'] - u, False, 'thrust_lag_time'))
+    terms += [
+        Term('time*thrust', 'time_thrust', '1/s', 'the thrust gain drifts (supply sag, battery)',
+             lambda y, w, u, s: s['time'] * u, False),
+        Term('time', 'time', 'rad/s^3', 'a torque that drifts with time', lambda y, w, u, s: s['time'], False),
+        Term('heat*thrust', 'heat_thrust', '1/A^2', 'the thrust falls as the winding heats (resistance rising with '
+             'the dissipated power)', lambda y, w, u, s: s['heat'] * u, False),
+    ]
+    return tuple(terms)
+
+
+#: The library of candidate terms (module docstring).
+VOCABULARY: tuple[Term, ...] = _vocabulary()
+
+
+def find_term(text: str) -> Term:
+    """The vocabulary term written `text` (its expression or slug, spaces ignored).
+
+    Parameters
+    ----------
+    text : str [-]
+        E.g. ``'thrust*angular_rate'`` or ``'thrust_rate'``.
+
+    Returns
+    -------
+    Term
+        The term.
+
+    Raises
+    ------
+    AeropendError
+        Not a term of the vocabulary (the message lists them).
+    """
+    key = text.replace(' ', '')
+    for term in VOCABULARY:
+        if key in (term.expression, term.slug, PREFIX + term.slug):
+            if not term.simulated:
+                raise AeropendError(f'term {text!r} cannot be simulated by the model (it needs time, a lag or '
+                                    'heating); only terms of angle, angular_rate and thrust can be added')
+            return term
+    known = ', '.join(t.expression for t in VOCABULARY if t.simulated)
+    raise AeropendError(f'unknown term {text!r}; the terms are: {known}')
+
+
+def term_effect(term: Term | str) -> str:
+    """Register `term` as a one-parameter pendulum effect ``dW/dt += coefficient * term`` and return its name.
+
+    Parameters
+    ----------
+    term : Term or str [-]
+        A vocabulary term, or its expression (:func:`find_term`).
+
+    Returns
+    -------
+    str
+        The effect's name, ``term_<slug>``; its parameter is ``term_<slug>_coefficient`` [the term's unit].
+    """
+    term = find_term(term) if isinstance(term, str) else term
+    name = PREFIX + term.slug
+    if name in CATALOG:
+        return name
+    base = term.function
+    if 'thrust' in term.expression:
+        def function(angle, angular_rate, thrust, **values):
+            return next(iter(values.values())) * base(angle, angular_rate, thrust, None)
+    else:
+        def function(angle, angular_rate, **values):
+            return next(iter(values.values())) * base(angle, angular_rate, 0.0, None)
+    from aeropend_core.diagnosis.term_kernel import TERM_CODES
+    function.term_code = TERM_CODES[term.slug]      # the compiled kernel runs it (same values as term.function)
+    parameter = EffectParameter(f'{name}_coefficient', term.unit, f'coefficient of {term.expression}', 0.0,
+                                -1e6, 1e6, start=0.0)
+    add_effect(Effect(name, term.reading, f'residual ~ {term.expression}', PENDULUM, (parameter,), function,
+                      f'eq (6): dW/dt = ... + c {term.expression}'))
+    return name
+
+
+def model_states(prep: PreparedRecord, comparison: Comparison) -> list[dict[str, np.ndarray]]:
+    """The model's trajectory on each training segment, on the fit's integration grid (every STRIDE-th sample).
+
+    Returns
+    -------
+    list of dict
+        Per segment: ``time`` [s], ``residual`` (measured minus model angle) [rad], ``angle`` [rad] (the model's,
+        without a sensor offset), ``angular_rate`` [rad/s] (the model's), ``thrust`` [rad/s^2] (the model's thrust
+        acceleration), ``heat`` [A^2] (the armature current squared through a 30 s lag) and the thrust lags.
+    """
+    fit = comparison.fit
+    values = fit.parameters
+    structure = fit.structure
+    simulated = comparison.evaluation.simulated
+    e = prep.voltage - values.get('armature_resistance', 0.0) * prep.current
+    thrust = values['thrust_gain'] * e * np.abs(e)
+    if structure.gate_on:
+        thrust = np.where(prep.gate_voltage < values[structure.gate_parameter], 0.0, thrust)
+    from aeropend_core.model.effects import kernel_parameter
+    lag = kernel_parameter(structure.effects, 'thrust_lag_time')
+    if lag is not None and values[lag] > 0:
+        thrust = _lagged(thrust, values[lag], prep.sample_time)
+    offset = values.get(structure.offset_parameter, 0.0) if structure.offset_parameter else 0.0
+    heat = _lagged(prep.armature_current ** 2, HEATING_TIME, prep.sample_time)
+    lags = {f'lag_{k:g}': _lagged(thrust, k, prep.sample_time) for k in LAG_TIMES}
+    middle = 0.5 * (prep.time[0] + prep.time[-1])
+    segments = []
+    step = STRIDE * prep.sample_time
+    for start, stop in prep.train.segments:
+        index = np.arange(start, stop, STRIDE)
+        model = simulated[index]
+        if index.size < 16 or not np.all(np.isfinite(model)):
+            continue
+        segment = {'time': prep.time[index] - middle, 'residual': prep.angle[index] - model,
+                   'angle': model - offset, 'angular_rate': np.gradient(model, step), 'thrust': thrust[index],
+                   'heat': heat[index]}
+        segment.update({k: v[index] for k, v in lags.items()})
+        segments.append(segment)
+    return segments
+
+
+def _lagged(signal: np.ndarray, time_constant: float, sample_time: float) -> np.ndarray:
+    decay = math.exp(-sample_time / time_constant)
+    return lfilter([1.0 - decay], [1.0, -decay], signal, zi=[decay * signal[0]])[0]
+
+
+def _columns(term: Term, segment: Mapping[str, np.ndarray]) -> np.ndarray:
+    return np.asarray(term.function(segment['angle'], segment['angular_rate'], segment['thrust'], segment), float)
+
+
+def weak_discrepancy(segments: list[dict[str, np.ndarray]], terms: tuple[Term, ...], noise_rms: float,
+                     sample_time: float):
+    """Weak-form sparse regression of the discrepancy on `terms` (module docstring, step 2).
+
+    Returns
+    -------
+    aeropend_core.wsindy.weak_form.EquationFit
+        Selected terms by expression with coefficients [term units] and 1σ.
+    """
+    from aeropend_core.wsindy import library
+    from aeropend_core.wsindy.weak_form import Equation, fit_weak_sindy
+    kept = [library.Term('sin(angle)', ('angle',), lambda s: np.sin(s['angle']),
+                         partial=lambda s, n: np.cos(s['angle'])),
+            library.variable('angular_rate'), library.variable('thrust'),
+            library.Term('residual*cos(angle)', ('residual', 'angle'), lambda s: s['residual'] * np.cos(s['angle']),
+                         partial=lambda s, n: np.cos(s['angle']) if n == 'residual' else
+                         -s['residual'] * np.sin(s['angle'])),
+            library.derivative('residual')]
+    free = [library.Term(t.expression, (t.slug,), lambda s, k=t.slug: s[k], partial=library._ones) for t in terms]
+    signals = []
+    for segment in segments:
+        entry = {k: segment[k] for k in ('residual', 'angle', 'angular_rate', 'thrust')}
+        entry.update({t.slug: _columns(t, segment) for t in terms})
+        signals.append(entry)
+    noise = {name: 0.0 for name in signals[0]}
+    noise['residual'] = float(noise_rms)
+    step = STRIDE * sample_time
+    equation = Equation('residual', tuple(kept + free), order=2, keep=tuple(t.name for t in kept))
+    result = fit_weak_sindy([s['time'] for s in segments], signals, [equation],
+                            half_width=max(8, int(round(TEST_HALF_WIDTH / step))), noise_std=noise,
+                            significance=SIGNIFICANCE, exhaustive_terms=2)
+    return result.equations[0], {t.name for t in kept}
+
+
+@dataclass
+class DiscoveredTerm:
+    """One term the discovery stage proposes or reports, with its evidence. Angles in rad; parameters SI.
+
+    ``status``: ``'proven'`` (significant by the catalog's evidence), ``'catalog'`` (a catalog effect spans it:
+    ``catalog_effect``), ``'confounded'`` (it explains the data as well as the catalog set ``confounded_with``),
+    ``'not_proven'`` (``why_not`` says why). A proven term may make the catalog set redundant (``replaces``).
+    """
+
+    term: Term
+    status: str
+    weak_coefficient: float
+    weak_sigma: float
+    value: float = math.nan
+    sigma: float = math.nan
+    excess_before: float = math.nan
+    excess_after: float = math.nan
+    share_removed: float = math.nan
+    t_statistic: float = math.nan
+    delta_bic: float = math.nan
+    dm_statistic: float = math.nan
+    catalog_effect: str | None = None
+    confounded_with: list[str] = field(default_factory=list)
+    why_not: str = ''
+    #: Catalog effects the search chose that add nothing significant once the term is in the model (it explains
+    #: more than they do: they were its shadow).
+    replaces: list[str] = field(default_factory=list)
+    #: Other proven terms that explain about as much on this data (within the confounding factor): lookalikes.
+    alternatives: list[str] = field(default_factory=list)
+
+    @property
+    def effect(self) -> str:
+        return PREFIX + self.term.slug
+
+    @property
+    def add(self) -> list[str]:
+        """Command-line arguments that put the term (or its catalog effect) in the model."""
+        if self.catalog_effect:
+            return ['--add', self.catalog_effect]
+        return ['--term', self.term.expression] if self.term.simulated else []
+
+    def to_dict(self) -> dict:
+        def finite(x):
+            return float(x) if x is not None and math.isfinite(x) else None
+        value, sigma = (self.value, self.sigma) if math.isfinite(self.value) else (self.weak_coefficient,
+                                                                                   self.weak_sigma)
+        return {'expression': self.term.expression, 'status': self.status, 'reading': self.term.reading,
+                'equation': f'dW/dt = ... + c * {self.term.expression}',
+                'parameters': {f'{self.effect}_coefficient': {'value': finite(value), 'sigma': finite(sigma),
+                                                              'unit': self.term.unit}},
+                'estimator': 'output_error' if math.isfinite(self.value) else 'weak_sindy',
+                'error_beyond_noise_before': finite(self.excess_before),
+                'error_beyond_noise_after': finite(self.excess_after),
+                'share_of_error_removed': finite(self.share_removed), 't_statistic': finite(self.t_statistic),
+                'delta_bic': finite(self.delta_bic), 'dm_statistic': finite(self.dm_statistic),
+                'catalog_effect': self.catalog_effect, 'confounded_with': self.confounded_with,
+                'replaces': self.replaces, 'alternatives': self.alternatives,
+                'why_not_proven': self.why_not, 'add': self.add}
+
+
+@dataclass
+class Discovery:
+    """Outcome of :func:`discover`: the terms tried (best first) and the ones proven."""
+
+    terms: list[DiscoveredTerm]
+    selected: tuple[str, ...] = ()
+    note: str = ''
+
+    @property
+    def proven(self) -> list[DiscoveredTerm]:
+        return [t for t in self.terms if t.status == 'proven']
+
+    def to_dict(self) -> dict:
+        return {'weak_form_selected': list(self.selected), 'note': self.note,
+                'terms': [t.to_dict() for t in self.terms]}
+
+
+def _span(term: Term, segments, model_effects: tuple[str, ...]) -> str | None:
+    """The catalog effect (not in the model) whose term this one is, by kind or by correlation on the states."""
+    kinds = {kind: name for name, effect in CATALOG.items() if effect.builtin and name not in model_effects
+             for kind, _ in effect.kernel_terms}
+    if term.catalog_kind:
+        return kinds.get(term.catalog_kind)
+    column = np.concatenate([_columns(term, s) for s in segments])
+    if not np.std(column) > 0:           # a constant: no correlation to speak of
+        return None
+    for other in VOCABULARY:
+        if other.catalog_kind in kinds and other is not term:
+            reference = np.concatenate([_columns(other, s) for s in segments])
+            if np.std(reference) > 0 and abs(np.corrcoef(column, reference)[0, 1]) > SPAN_CORRELATION:
+                return kinds[other.catalog_kind]
+    return None
+
+
+def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fixed: Mapping[str, float],
+             catalog_set: tuple[str, ...] = (), without_set: Comparison | None = None,
+             say: Callable[[str], None] = lambda message: None) -> Discovery:
+    """Find, refit and judge terms outside the catalog that explain what `base` misses (module docstring).
+
+    Parameters
+    ----------
+    prep : PreparedRecord [-]
+        The record (the search's training and held-out parts).
+    base : Comparison [-]
+        The current best model (nominal + `model`), fitted by output error.
+    model : tuple of str [-]
+        Its effects.
+    fixed : mapping of str -> float [SI]
+        Parameters held at given values.
+    catalog_set : tuple of str [-]
+        The effects the catalog search added (part of `model`); a term that explains as much without them is
+        reported as confounded with them.
+    without_set : Comparison, optional [-]
+        The model without `catalog_set` (needed to test confounding).
+    say : callable [-]
+        Progress messages.
+
+    Returns
+    -------
+    Discovery
+        The terms, best first, each with its status and evidence.
+    """
+    segments = model_states(prep, base)
+    if not segments:
+        return Discovery([], note='no training segment with a finite model trajectory')
+    in_model = {kind for name in model for kind, _ in CATALOG[name].kernel_terms}
+    terms = tuple(t for t in VOCABULARY if not (t.catalog_kind and t.catalog_kind in in_model))
+    say('discovery: sparse regression of the pendulum equation\'s discrepancy (weak form)')
+    try:
+        fit, kept = weak_discrepancy(segments, terms, prep.noise_rms, prep.sample_time)
+    except (InsufficientDataError, AeropendError, np.linalg.LinAlgError) as error:
+        return Discovery([], note=f'the weak-form regression failed: {error}')
+    chosen = [(name, value, fit.standard_errors.get(name, math.nan)) for name, value in fit.coefficients.items()
+              if name not in kept]
+    # Each term alone (with the sensitivities kept): nearly collinear terms split the evidence in the joint
+    # selection, so a true term can lose there to a combination of lookalikes; alone it shows its own strength.
+    screened = {}
+    for term in terms:
+        if term.simulated and not term.catalog_kind:
+            alone, _ = weak_discrepancy(segments, (term,), prep.noise_rms, prep.sample_time)
+            if term.expression in alone.coefficients:
+                value, sigma = alone.coefficients[term.expression], alone.standard_errors[term.expression]
+                screened[term.expression] = (value, sigma)
+    order = {name: (value, sigma) for name, value, sigma in chosen}
+    for name, (value, sigma) in screened.items():
+        order.setdefault(name, (value, sigma))
+    # terms that stand out alone first (by their own t), then the joint selection's others (artefacts of collinearity
+    # more often than not)
+    ranked = sorted(order.items(), key=lambda kv: (kv[0] not in screened, -_strength(*screened.get(kv[0], kv[1]))))
+    by_expression = {t.expression: t for t in terms}
+    found: list[DiscoveredTerm] = []
+    excess_now = excess_error(base.rms_error, prep.noise_rms)
+    refits = 0
+    for name, (value, sigma) in ranked:
+        term = by_expression[name]
+        entry = DiscoveredTerm(term, 'not_proven', float(value), float(sigma), excess_before=excess_now)
+        found.append(entry)
+        if term.catalog_kind:
+            entry.catalog_effect = _span(term, segments, model)
+            entry.status = 'catalog'
+            entry.why_not = f'it is the catalog effect {entry.catalog_effect}\'s own term'
+            continue
+        if not term.simulated:
+            entry.why_not = ('a term of time, a lag or heating: the output-error model cannot simulate it, so it is '
+                             'not proven; see the drift test and the thrust_lag effect')
+            continue
+        if refits >= MAX_REFITS:
+            entry.why_not = f'not refitted: weaker weak-form evidence than the {MAX_REFITS} terms refitted before it'
+            continue
+        refits += 1
+        say(f'discovery: refitting {term.expression} by output error')
+        _prove(prep, base, model, fixed, entry, catalog_set, without_set)
+        lookalike = _span(term, segments, model) if entry.status == 'proven' else None
+        if lookalike:
+            _against_catalog(prep, base, model, fixed, entry, lookalike)
+    found.sort(key=lambda f: (f.status != 'proven', f.excess_after if math.isfinite(f.excess_after) else math.inf))
+    if found and found[0].status == 'proven':
+        # other proven terms that explain about as much: the data cannot tell them from the best (a quasi-static rig
+        # ties the thrust to sin(angle), so thrust and angle terms can be lookalikes) -- said, not hidden
+        best = found[0]
+        floor = max(best.excess_after, 0.2 * prep.noise_rms)
+        best.alternatives = [f.term.expression for f in found[1:] if f.status == 'proven'
+                             and f.excess_after <= CONFOUNDING_FACTOR * floor]
+    return Discovery(found, selected=tuple(name for name, _, _ in chosen))
+
+
+def _strength(value: float, sigma: float) -> float:
+    return abs(value) / sigma if sigma > 0 and math.isfinite(sigma) else 0.0
+
+
+def _against_catalog(prep, base, model, fixed, entry: DiscoveredTerm, effect: str) -> None:
+    """A proven term that correlates with a catalog effect's term: the catalog effect, if it explains as much."""
+    try:
+        rival = compare(prep, model + (effect,), start=base.parameters, fixed=dict(fixed),
+                        initial_states=base.fit.initial_states)
+    except InsufficientDataError:
+        return
+    after = excess_error(rival.rms_error, prep.noise_rms)
+    if after <= CONFOUNDING_FACTOR * max(entry.excess_after, 0.2 * prep.noise_rms):
+        entry.status = 'catalog'
+        entry.catalog_effect = effect
+        entry.why_not = (f'the catalog effect {effect} explains as much ({after * 1e3:.2f} mrad beyond the noise '
+                         f'against {entry.excess_after * 1e3:.2f}): their terms correlate beyond {SPAN_CORRELATION} '
+                         'on these states')
+
+
+def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without_set) -> None:
+    name = term_effect(entry.term)
+    parameter = f'{name}_coefficient'
+    start = {**base.parameters, parameter: entry.weak_coefficient}
+    try:
+        augmented = compare(prep, model + (name,), start=start, fixed=dict(fixed),
+                            initial_states=base.fit.initial_states)
+    except InsufficientDataError as error:
+        entry.why_not = f'not testable on this data: {error}'
+        return
+    candidate: Candidate = assess(prep, base, augmented, name)
+    entry.value = candidate.parameters.get(parameter, math.nan)
+    entry.sigma = candidate.standard_errors.get(parameter, math.nan)
+    entry.excess_after, entry.share_removed = candidate.excess_after, candidate.share_removed
+    entry.t_statistic, entry.delta_bic = candidate.t_statistic, candidate.delta_bic
+    entry.dm_statistic = candidate.dm_statistic
+    if not candidate.significant:
+        reasons = []
+        from aeropend_core.diagnosis.candidates import BIC_MARGIN, T_MIN
+        if not candidate.t_statistic >= T_MIN:
+            reasons.append(f'its coefficient is only {candidate.t_statistic:.1f} HAC standard errors from zero '
+                           f'(needs {T_MIN:g})')
+        if not candidate.delta_bic < -BIC_MARGIN:
+            reasons.append(f'the training BIC changes by {candidate.delta_bic:+.1f} (needs < -{BIC_MARGIN:g})')
+        if not reasons:
+            reasons.append(f'the held-out prediction does not improve enough (Diebold-Mariano '
+                           f'{candidate.dm_statistic:+.1f}, {candidate.share_removed * 100:.0f} % of the error '
+                           'beyond the noise removed)')
+        entry.why_not = '; '.join(reasons)
+        return
+    entry.status = 'proven'
+    if catalog_set and without_set is not None:
+        # the term in place of the catalog set: does the set still add anything significant on top of the term?
+        kept = tuple(n for n in model if n not in catalog_set)
+        try:
+            swapped = compare(prep, kept + (name,), start=start, fixed=dict(fixed))
+        except InsufficientDataError:
+            return
+        if assess(prep, swapped, augmented, catalog_set[0]).significant:
+            return                      # both are needed: the term is proven alongside the set
+        noise = prep.noise_rms
+        alone, chosen = excess_error(swapped.rms_error, noise), excess_error(base.rms_error, noise)
+        floor = 0.2 * noise
+        if alone <= CONFOUNDING_FACTOR * max(chosen, floor) and chosen <= CONFOUNDING_FACTOR * max(alone, floor):
+            entry.status = 'confounded'         # they explain the data equally
+            entry.confounded_with = list(catalog_set)
+        else:
+            entry.replaces = list(catalog_set)  # the term explains more, and with it the set adds nothing
+
+
+__all__ = ['VOCABULARY', 'Term', 'DiscoveredTerm', 'Discovery', 'discover', 'find_term', 'term_effect',
+           'model_states', 'weak_discrepancy', 'KERNEL_KINDS']

@@ -1,0 +1,126 @@
+"""The discovery stage on effects outside the catalog and on clean records, and what it costs in time.
+
+Records: 60 s, rod below 80 deg, 10-bit quantisation.
+* Outside the catalog (bench/discovery_effects.py, loaded as --effects-module loads a file): Stribeck breakaway,
+  |W|^1.5 damping, thrust falling with the rod's speed (inflow), a second-harmonic torque, a cubic spring, and a
+  friction saturating as tanh(W/0.5) (not in the vocabulary: the nearest term must do, or nothing). Latin-hypercube
+  steps up to duty 0.7, PSNR 40 dB, nominal parameters. Found = a proven term that brings the held-out error
+  beyond the noise below half the noise RMS.
+* Clean: bench/false_alarms.py's records (parameters +-25 %, LHC and staircase, PSNR 30-60 dB), seeds 9000+. A
+  false proposal = any discovered term.
+* Time: one 60 s record diagnosed with and without the discovery stage in the same run (ratio).
+
+Run:  nice -n 10 .venv/bin/python bench/discovery.py [--clean 20] [--part all|outside|clean] [--out FOLDER]
+      (CPU seconds are measured with time.process_time, so a loaded machine changes the wall time, not them)
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+OUTSIDE = {
+    'stribeck': {'test_stribeck': {'test_stribeck_level': 5.0, 'test_stribeck_speed': 0.15}},
+    'power_damping_1.5': {'test_power_damping': 1.5},
+    'inflow': {'test_inflow': 0.05},
+    'second_harmonic': {'test_second_harmonic': 6.0},
+    'cubic_spring': {'test_cubic_spring': 30.0},
+    'saturating_friction': {'test_saturating_friction': 4.0},
+}
+
+
+def outside_record(name: str, seed: int = 11):
+    from aeropend_core.io.recording import from_columns
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.sim.simulate import simulate
+    from aeropend_core.model.effects import CATALOG, load_effects_module
+    builtin = set(CATALOG)
+    load_effects_module(str(ROOT / 'discovery_effects.py'))
+    try:        # the simulator has them; the diagnosis must not (they would be catalog candidates)
+        schedule = lhc_schedule(60.0, duty_range=(0.0, 0.7), duty_cap=0.7, seed=seed)
+        trajectory = simulate(schedule.duty(duration=60.0), effects=OUTSIDE[name],
+                              noise=MeasurementNoise(psnr_db=40.0, quantise=True), seed=seed + 1)
+    finally:
+        for extra in set(CATALOG) - builtin:
+            CATALOG.pop(extra)
+    return from_columns(trajectory.columns(with_truth=False), source=name)
+
+
+def row_of(found, seconds: float) -> dict:
+    from aeropend_core.diagnosis.compare import excess_error
+    noise = found.noise_rms
+    proven = found.discovery.proven if found.discovery is not None else []
+    best = proven[0] if proven else None
+    tried = found.discovery.terms[0] if found.discovery is not None and found.discovery.terms else None
+    return {'verdict': found.verdict, 'catalog_set': found.missing_effects, 'noise_mrad': round(noise * 1e3, 3),
+            'beyond_noise_before_mrad': round(excess_error(found.final.rms_error, noise) * 1e3, 3),
+            'discovery_ran': found.discovery is not None,
+            'term': best.term.expression if best else None, 'status': best.status if best else
+            (tried.status if tried else None), 'best_candidate': tried.term.expression if tried else None,
+            'beyond_noise_after_mrad': round(best.excess_after * 1e3, 3) if best else None,
+            'below_half_noise': bool(best and best.excess_after < 0.5 * noise), 'seconds': round(seconds, 1)}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split('\n')[0], allow_abbrev=False)
+    parser.add_argument('--clean', type=int, default=20, help='clean records (default 20)')
+    parser.add_argument('--part', choices=('all', 'outside', 'clean'), default='all',
+                        help='run only the timing + outside-catalog part or only the clean records (two processes '
+                             'write discovery-outside.json and discovery-clean.json)')
+    parser.add_argument('--out', default=str(ROOT / 'results' / '2026-11-27-discovery'))
+    args = parser.parse_args()
+    from threadpoolctl import threadpool_limits
+
+    from aeropend_core.diagnosis.diagnose import diagnose
+    from false_alarms import SEED_BASE, record
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results: dict = {'outside': {}, 'clean': [], 'timing': {}}
+    target = out / ('discovery.json' if args.part == 'all' else f'discovery-{args.part}.json')
+
+    def save() -> None:         # after every record: a run cut short keeps what it measured
+        found_count = sum(r['below_half_noise'] for r in results['outside'].values())
+        false = sum(1 for r in results['clean'] if r['term'])
+        results['summary'] = {'outside_found_below_half_noise': f'{found_count} of {len(results["outside"])}',
+                              'clean_false_proposals': f'{false} of {len(results["clean"])}'}
+        target.write_text(json.dumps(results, indent=1))
+
+    with threadpool_limits(1):
+        if args.part in ('all', 'outside'):
+            recording = outside_record('inflow')
+            for label, flag in (('without_discovery', False), ('with_discovery', True)):
+                started = time.process_time()
+                diagnose(recording, drift=True, discovery=flag)
+                results['timing'][label + '_cpu_s'] = round(time.process_time() - started, 2)
+            timing = results['timing']
+            timing['ratio'] = round(timing['with_discovery_cpu_s'] / timing['without_discovery_cpu_s'], 2)
+            print('timing', timing, flush=True)
+            save()
+            for name in OUTSIDE:
+                started = time.process_time()
+                found = diagnose(outside_record(name), drift=False)
+                results['outside'][name] = row = row_of(found, time.process_time() - started)
+                print(name, row, flush=True)
+                save()
+        if args.part in ('all', 'clean'):
+            for index in range(args.clean):
+                recording, meta = record(SEED_BASE + index)
+                started = time.process_time()
+                found = diagnose(recording, drift=False)
+                row = {**meta, **row_of(found, time.process_time() - started)}
+                results['clean'].append(row)
+                print('clean', row, flush=True)
+                save()
+    print(json.dumps(results['summary']))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,180 @@
+"""The discovery stage: a term outside the catalog, found in the discrepancy, proven and kept.
+
+Data: 60 s of Latin-hypercube duty steps (duty <= 0.7: the rod stays below 70 deg) simulated with the full model,
+PSNR 40 dB on Va, Ia and the angle plus 10-bit quantisation. The out-of-catalog effects live in a test-local effects
+module (tests/discovery_effects.py, loaded as ``--effects-module`` loads one): the simulator has them, the catalog
+does not. Tolerances stated once:
+
+* an out-of-catalog effect: a term is proven, its expression is one of the vocabulary's (readable, SI unit stated),
+  and the error beyond the noise with it falls below HALF the noise RMS;
+* a clean record proposes nothing; a catalog effect is still reported as the catalog effect (no discovered term).
+"""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from aeropend_core.cli import main as cli_main
+from aeropend_core.diagnosis.diagnose import diagnose
+from aeropend_core.diagnosis.discovery import VOCABULARY, find_term, term_effect
+from aeropend_core.errors import AeropendError
+from aeropend_core.io.recording import from_columns
+from aeropend_core.model.effects import CATALOG, load_effects_module
+from aeropend_core.present.discovery_text import effect_module_text
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.sim.noise import MeasurementNoise
+from aeropend_core.sim.simulate import simulate
+
+HALF = 0.5
+EFFECTS_MODULE = str(__import__('pathlib').Path(__file__).with_name('discovery_effects.py'))
+
+
+@pytest.fixture(autouse=True)
+def catalog_restored():
+    """Effects registered here (the test-local module, discovered terms) leave the catalog after each test: other
+    test files' diagnoses must not try them as candidates."""
+    before = dict(CATALOG)
+    yield
+    CATALOG.clear()
+    CATALOG.update(before)
+
+
+def measured_columns(effects=None, seed=11, duration=60.0):
+    """Only the measured columns (t, duty, Va, Ia, angle) of a simulated, noisy, quantised record; the test-local
+    effects are in the catalog only while simulating (the diagnosis must not have them as candidates)."""
+    builtin = set(CATALOG)
+    load_effects_module(EFFECTS_MODULE)
+    try:
+        schedule = lhc_schedule(duration, duty_range=(0.0, 0.7), duty_cap=0.7, seed=seed)
+        trajectory = simulate(schedule.duty(duration=duration), effects=effects,
+                              noise=MeasurementNoise(psnr_db=40.0, quantise=True), seed=seed + 1)
+    finally:
+        for name in set(CATALOG) - builtin:
+            CATALOG.pop(name)
+    return trajectory.columns(with_truth=False)
+
+
+def recording(effects=None, seed=11, duration=60.0):
+    return from_columns(measured_columns(effects, seed, duration), source=f'simulated seed {seed}')
+
+
+# ---------------------------------------------------------------------------------------------------- fast checks
+def test_every_term_has_a_readable_expression_a_unit_and_a_reading():
+    names = set()
+    for term in VOCABULARY:
+        assert term.expression and term.unit and len(term.reading) > 10, term
+        assert term.slug.replace('_', '').isalnum(), term.slug
+        names.add(term.slug)
+        signals = {'time': np.zeros(3), 'heat': np.ones(3), **{f'lag_{k:g}': np.ones(3) for k in (0.05, 0.15, 0.4)}}
+        value = term.function(np.array([0.1, 0.5, 1.0]), np.array([-1.0, 0.0, 2.0]), np.array([10.0, 20, 30]),
+                              signals)
+        assert np.shape(value) == (3,) and np.all(np.isfinite(value)), term.expression
+    assert len(names) == len(VOCABULARY)
+
+
+def test_a_term_becomes_an_effect_and_a_module_that_loads(tmp_path):
+    term = find_term('thrust*angular_rate')
+    name = term_effect(term)
+    assert name in CATALOG and CATALOG[name].parameters[0].unit == 's/rad'
+    assert find_term(' thrust * angular_rate ') is term
+    path = tmp_path / 'kept.py'
+    path.write_text(effect_module_text([term, find_term('abs(angular_rate)^1.5*sign(angular_rate)')]))
+    load_effects_module(str(path))
+    kept = CATALOG['discovered_thrust_rate']
+    assert kept.function(0.2, 1.5, discovered_thrust_rate_coefficient=-0.1, thrust=40.0) == pytest.approx(-6.0)
+    power = CATALOG['discovered_rate_power_1p5']
+    assert power.function(0.0, -4.0, discovered_rate_power_1p5_coefficient=2.0) == pytest.approx(-16.0, rel=1e-6)
+    assert 'propeller inflow' in kept.description
+
+
+def test_unknown_or_unsimulable_terms_are_refused_with_the_list():
+    with pytest.raises(AeropendError, match='the terms are'):
+        find_term('angle^7')
+    with pytest.raises(AeropendError, match='cannot be simulated'):
+        find_term('time*thrust')
+
+
+def test_cli_writes_the_module_and_refuses_bad_input(tmp_path, capsys):
+    out = tmp_path / 'found.py'
+    assert cli_main(['effects', '--write-discovered', str(out), '--term', 'sin(2*angle)']) == 0
+    load_effects_module(str(out))
+    assert 'discovered_sin_2angle' in CATALOG
+    assert cli_main(['effects', '--write-discovered', str(out), '--term', 'angle^9']) == 2
+    assert 'unknown term' in capsys.readouterr().err
+    assert cli_main(['effects', '--write-discovered', str(tmp_path / 'x.txt'), '--term', 'angle^3']) == 2
+    assert cli_main(['effects', '--write-discovered', str(out)]) == 2
+    bad = tmp_path / 'bad.json'
+    bad.write_text('{"verdict": "nothing"}')
+    assert cli_main(['effects', '--write-discovered', str(out), '--from-json', str(bad)]) == 2
+
+
+# ---------------------------------------------------------------------------------------------- slow: the physics
+OUTSIDE = {
+    'test_stribeck': ({'test_stribeck': {'test_stribeck_level': 5.0, 'test_stribeck_speed': 0.15}},
+                      'exp(-(angular_rate/0.2)^2)*sign(angular_rate)'),
+    'test_inflow': ({'test_inflow': 0.05}, 'thrust*angular_rate'),
+    'test_second_harmonic': ({'test_second_harmonic': 6.0}, 'sin(2*angle)'),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('effect', sorted(OUTSIDE))
+def test_an_effect_outside_the_catalog_is_discovered_and_the_error_falls_below_half_the_noise(effect):
+    truth, _expected = OUTSIDE[effect]
+    found = diagnose(recording(truth), drift=False)
+    assert not any(c.effect.startswith('test_') for c in found.candidates)      # outside the catalog indeed
+    proven = found.discovery.proven if found.discovery is not None else []
+    assert proven, (found.verdict, found.message)
+    best = proven[0]
+    assert best.term.expression in {t.expression for t in VOCABULARY}
+    assert best.excess_after < HALF * found.noise_rms, (best.term.expression, best.excess_after, found.noise_rms)
+    assert math.isfinite(best.value) and best.sigma > 0
+    entry = found.to_dict()['discovered_terms'][0]
+    assert entry['expression'] == best.term.expression and entry['add'][0] == '--term'
+    (value,) = entry['parameters'].values()
+    assert value['unit'] == best.term.unit and value['sigma'] > 0
+    assert best.term.expression in found.message and 'mrad' in found.message
+
+
+@pytest.mark.slow
+def test_a_clean_record_proposes_nothing():
+    found = diagnose(recording(None, seed=5), drift=False)
+    assert found.to_dict()['discovered_terms'] == [], found.message
+    assert found.verdict == 'nothing_missing', found.message
+
+
+@pytest.mark.slow
+def test_a_catalog_effect_is_still_reported_as_the_catalog_effect():
+    found = diagnose(recording({'coulomb_friction': 4.0}, seed=7), drift=False)
+    assert found.verdict == 'effect_found' and found.missing_effect == 'coulomb_friction', found.message
+    assert found.to_dict()['discovered_terms'] == []
+
+
+@pytest.mark.slow
+def test_the_cli_add_reproduces_the_fall(tmp_path, capsys):
+    truth, _ = OUTSIDE['test_inflow']
+    columns = measured_columns(truth, seed=11)
+    path = tmp_path / 'inflow.csv'
+    np.savetxt(path, np.column_stack(list(columns.values())), delimiter=',', header=','.join(columns), comments='')
+    out = tmp_path / 'd.json'
+    assert cli_main(['diagnose', str(path), '--no-drift', '--quiet', '--json', str(out)]) == 0
+    first = json.loads(out.read_text())
+    assert first['discovered_terms'], first['message']
+    term = first['discovered_terms'][0]
+    again = tmp_path / 'e.json'
+    assert cli_main(['diagnose', str(path), '--no-drift', '--quiet', '--json', str(again), *term['add']]) == 0
+    second = json.loads(again.read_text())
+    assert second['error_beyond_noise'] == pytest.approx(term['error_beyond_noise_after'], rel=0.2, abs=2e-4)
+
+
+def test_the_compiled_kernel_evaluates_every_simulated_term_as_the_vocabulary_does():
+    from aeropend_core.diagnosis.term_kernel import TERM_CODES, term_value
+    simulated = [t for t in VOCABULARY if t.simulated]
+    assert {t.slug for t in simulated} == set(TERM_CODES)
+    rng = np.random.default_rng(3)
+    y, w, u = rng.uniform(-1.4, 1.4, 50), rng.uniform(-3, 3, 50), rng.uniform(0, 120, 50)
+    for term in simulated:
+        expected = term.function(y, w, u, None)
+        got = np.array([term_value(TERM_CODES[term.slug], a, b, c) for a, b, c in zip(y, w, u)])
+        np.testing.assert_allclose(got, expected, rtol=1e-9, atol=1e-12, err_msg=term.expression)
