@@ -604,6 +604,10 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                              f'{separating_experiment(candidate.effect, nominal)}.')
     notes += doubt_notes(results, found, current, prep, model)     # near misses, an unstated measurement chain
     notes += rate_notes(found, prep.sample_time)                  # what this sample rate cannot resolve
+    if verdict == 'unexplained' and rate_doubts(prep.sample_time, True) and getattr(prep, 'reduced', False):
+        message += (f' At {1.0 / prep.sample_time:.4g} Hz the reduced model\'s own error has not been measured: part '
+                    'or all of this remainder can be that model\'s limit at this rate, not a missing effect (a record '
+                    'at a higher rate, or with the period-average current, decides).')
     if getattr(prep, 'gaps', None) is not None and prep.gaps.count:
         notes.append(prep.gaps.describe())
     return check_diagnosis(Diagnosis(
