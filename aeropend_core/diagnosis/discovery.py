@@ -441,7 +441,9 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         fit, kept = weak_discrepancy(segments, terms, prep.noise_rms, prep.sample_time)
     except (InsufficientDataError, AeropendError, np.linalg.LinAlgError) as error:
         return Discovery([], note=f'the weak-form regression failed: {error}')
-    chosen = [(name, value, fit.standard_errors.get(name, math.nan)) for name, value in fit.coefficients.items()
+    # ranked by the model-based sigma, as the weak form's own significance guard selects terms: the reported
+    # (sandwich) sigma of a discrepancy regression is dominated by its structured residual and ranks erratically
+    chosen = [(name, value, fit.model_standard_errors.get(name, math.nan)) for name, value in fit.coefficients.items()
               if name not in kept]
     # Each term alone (with the sensitivities kept): nearly collinear terms split the evidence in the joint
     # selection, so a true term can lose there to a combination of lookalikes; alone it shows its own strength.
@@ -450,7 +452,7 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         if term.simulated and not term.catalog_kind:
             alone, _ = weak_discrepancy(segments, (term,), prep.noise_rms, prep.sample_time)
             if term.expression in alone.coefficients:
-                value, sigma = alone.coefficients[term.expression], alone.standard_errors[term.expression]
+                value, sigma = alone.coefficients[term.expression], alone.model_standard_errors[term.expression]
                 screened[term.expression] = (value, sigma)
     order = {name: (value, sigma) for name, value, sigma in chosen}
     for name, (value, sigma) in screened.items():

@@ -150,6 +150,9 @@ class EquationFit:
         Relative whitened residual ‖G̃w − b̃‖/‖b̃‖ (0 = perfect fit).
     half_width, power, n_test_functions : int
         Test-function half-width m (samples), power p, and number of weak equations (rows) used.
+    model_standard_errors : dict
+        The model-based σ (white whitened residual) that the significance guard uses, for a caller that ranks or
+        selects terms the same way (units as ``standard_errors``); ``standard_errors`` is the one to report.
     """
 
     name: str
@@ -162,6 +165,7 @@ class EquationFit:
     half_width: int
     power: int
     n_test_functions: int
+    model_standard_errors: dict[str, float] = field(default_factory=dict)
 
     @property
     def selected(self) -> tuple[str, ...]:
@@ -496,6 +500,7 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
                 w[sel] = linalg.solve(gram_c[np.ix_(sel, sel)] / np.outer(cs, cs), rhs_c[sel] / cs,
                                       assume_a='sym', check_finite=False) / cs
             cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata)
+    model_cov = cov
     if sel.size:     # the reported sigma: honest under correlated whitened residuals (the guard above keeps its own)
         cov = _sandwich_covariance(a, resid_vec, sel, cov, groups)
     names = [eq.terms[j].name for j in sel]
@@ -507,4 +512,5 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
         covariance=cov,
         threshold=lam,
         residual=float(np.linalg.norm(resid_vec) / (np.linalg.norm(bw) or 1.0)),
-        half_width=m, power=p, n_test_functions=n_rows)
+        half_width=m, power=p, n_test_functions=n_rows,
+        model_standard_errors={nm: float(math.sqrt(max(model_cov[i, i], 0.0))) for i, nm in enumerate(names)})
