@@ -475,7 +475,7 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
             continue
         if not term.simulated:
             entry.why_not = ('a term of time, a lag or heating: the output-error model cannot simulate it, so it is '
-                             'not proven; see the drift test and the thrust_lag effect')
+                             'not proven; see the drift test and the catalog\'s thrust-lag effect')
             continue
         if refits >= MAX_REFITS:
             entry.why_not = f'not refitted: weaker weak-form evidence than the {MAX_REFITS} terms refitted before it'

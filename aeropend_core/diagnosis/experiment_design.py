@@ -635,7 +635,7 @@ def competing_models(prepared, effect_sets: Sequence[Sequence[str]], fixed: Mapp
     prepared : PreparedRecord [-]
         The record (:func:`aeropend_core.diagnosis.compare.prepare`).
     effect_sets : sequence of sequences of str [-]
-        The effects of each model, e.g. ``[('thrust_lag',), ('angle_filter',)]``.
+        The effects of each model (catalog names), one tuple per competing model, e.g. a lag in either of two places.
     fixed : mapping of str -> float, optional [SI]
         Parameters held at known values.
     start : mapping of str -> float, optional [SI]
