@@ -50,10 +50,13 @@ def _nominal_bands() -> dict[str, str]:
 
 
 def _effect_bands() -> dict[str, str]:
-    """Every catalog effect's parameters (published when the model has that effect), with their unit."""
+    """Every built-in catalog effect's parameters (published when the model has that effect), with their unit: the
+    shipped layouts do not depend on the user or discovered effects a process happens to have registered."""
     from aeropend_core.model.effects import CATALOG
     bands = {}
     for effect in CATALOG.values():
+        if not effect.builtin:
+            continue
         for parameter in effect.parameters:
             bands[parameter.name] = f'{effect.name}: {parameter.name} [{parameter.unit}]'
     return bands

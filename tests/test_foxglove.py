@@ -166,6 +166,14 @@ def test_shipped_layouts_are_the_generated_ones():
     from aeropend_ros import layouts
     assert (ROOT / 'config' / layouts.FOXGLOVE_FILE).read_text() == layouts.foxglove_layout_json()
     assert (ROOT / 'config' / layouts.PLOTJUGGLER_FILE).read_text() == layouts.plotjuggler_layout_xml()
+    # an effect registered in this process (a user module, a discovered term) does not change the shipped layouts
+    from aeropend_core.model.effects import CATALOG, EffectParameter, register_effect
+    probe = [EffectParameter('layout_probe_k', '1/s^2', 'k', 1.0, 0.0, 2.0)]
+    register_effect('layout_probe', 'a probe', parameters=probe)(lambda angle, angular_rate, layout_probe_k: 0.0)
+    try:
+        assert 'layout_probe_k' not in layouts.band_parameters()
+    finally:
+        CATALOG.pop('layout_probe', None)
 
 
 def test_layout_names_are_the_published_ones():
@@ -175,7 +183,7 @@ def test_layout_names_are_the_published_ones():
     from aeropend_core.diagnosis.output_error import NOMINAL_PARAMETERS
     from aeropend_core.model.effects import CATALOG
     from aeropend_ros import layouts
-    expected = set(NOMINAL_PARAMETERS) | {'thrust_coefficient'} | {p.name for e in CATALOG.values()
+    expected = set(NOMINAL_PARAMETERS) | {'thrust_coefficient'} | {p.name for e in CATALOG.values() if e.builtin
                                                                      for p in e.parameters}
     assert set(layouts.BAND_PARAMETERS) == expected
     # the fit message's names, in order, as identification_node builds it (fit = {...})
