@@ -59,6 +59,7 @@ from aeropend_ros._ros_env import ament_prefixes, ensure_ros_environment
 ensure_ros_environment()
 
 import rclpy
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
@@ -534,6 +535,10 @@ def main(args=None) -> int:
             node._diagnostics_pub.wait_for_all_acked(Duration(seconds=10.0))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except _rclpy.RCLError:
+        # a Ctrl-C shut the context down between rclpy.ok() and the executor's wait set: an interrupt, not a fault
+        if rclpy.ok():
+            raise
     finally:
         _ignore_further_interrupts()
         node.finish()
