@@ -1,4 +1,5 @@
-"""Effects outside the catalog for bench/discovery.py: the simulator runs them, the catalog lacks them.
+"""Effects outside the catalog for bench/discovery.py and tests/test_discovery.py: the simulator runs them, the catalog
+lacks them.
 
 Loaded with :func:`aeropend_core.model.effects.load_effects_module` (as ``--effects-module`` does); each is a
 pendulum-kind effect in SI units per unit inertia.

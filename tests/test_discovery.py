@@ -1,9 +1,9 @@
 """The discovery stage: a term outside the catalog, found in the discrepancy, proven and kept.
 
 Data: 60 s of Latin-hypercube duty steps (duty <= 0.7: the rod stays below 70 deg) simulated with the full model,
-PSNR 40 dB on Va, Ia and the angle plus 10-bit quantisation. The out-of-catalog effects live in a test-local effects
-module (tests/discovery_effects.py, loaded as ``--effects-module`` loads one): the simulator has them, the catalog
-does not. Tolerances stated once:
+PSNR 40 dB on Va, Ia and the angle plus 10-bit quantisation. The out-of-catalog effects live in an effects module
+shared with the bench (bench/discovery_effects.py, loaded as ``--effects-module`` loads one): the simulator has
+them, the catalog does not. Tolerances stated once:
 
 * an out-of-catalog effect: a term is proven, its expression is one of the vocabulary's (readable, SI unit stated),
   and the error beyond the noise with it falls below HALF the noise RMS;
@@ -27,7 +27,7 @@ from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import simulate
 
 HALF = 0.5
-EFFECTS_MODULE = str(__import__('pathlib').Path(__file__).with_name('discovery_effects.py'))
+EFFECTS_MODULE = str(__import__('pathlib').Path(__file__).parents[1] / 'bench' / 'discovery_effects.py')
 
 
 @pytest.fixture(autouse=True)
