@@ -35,7 +35,6 @@ _ROS_MODULE = re.compile(r'^(from|import) (rclpy|sensor_msgs|std_msgs|diagnostic
 #: a module that uses ROS already at import: it cannot even be collected without ROS
 _ROS_AT_IMPORT = re.compile(_ROS_MODULE.pattern + r'|^\w+ = private_domain_id\(\)', re.M)
 _seen: dict[object, bool] = {}
-_not_collected: list[str] = []
 
 
 def _ros_available() -> bool:
@@ -53,7 +52,6 @@ def pytest_ignore_collect(collection_path: Path, config):
     if _ROS_AVAILABLE or collection_path.suffix != '.py' or not collection_path.name.startswith('test_'):
         return None
     if _ROS_AT_IMPORT.search(collection_path.read_text(errors='replace')):
-        _not_collected.append(collection_path.name)
         return True
     return None
 
@@ -65,8 +63,11 @@ def pytest_report_header(config):
 
 
 def pytest_terminal_summary(terminalreporter):
-    if _not_collected:
-        terminalreporter.write_line(f'not collected without ROS 2: {", ".join(sorted(_not_collected))}')
+    # worked out from the files: under pytest-xdist the workers collect, not this process
+    if not _ROS_AVAILABLE:
+        names = sorted(p.name for p in Path(__file__).parent.glob('test_*.py')
+                       if _ROS_AT_IMPORT.search(p.read_text(errors='replace')))
+        terminalreporter.write_line(f'not collected without ROS 2: {", ".join(names)}')
 
 
 def _source_matches(obj, pattern: re.Pattern) -> bool:

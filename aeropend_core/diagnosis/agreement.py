@@ -125,10 +125,16 @@ class CrossCheck:
 
     def lines(self) -> list[str]:
         """The text for a user: the score on the diagnosis's scale, then the agreement sentences."""
-        return [f'Held-out free-run fit of the weak-form model (refitted on the first {TRAIN_SHARE:.0%}, simulated '
-                f'on the rest, as diagnose scores): fit {self.fit_percent:.2f} %, error beyond the noise '
-                f'{self.error_beyond_noise * 1e3:.2f} mrad (rms {self.rms_error * 1e3:.2f} mrad, noise '
-                f'{self.noise_rms * 1e3:.2f} mrad)',
+        if math.isinf(self.rms_error):
+            weak = (f'Held-out free run of the weak-form model (refitted on the first {TRAIN_SHARE:.0%}, simulated '
+                    f'on the rest, as diagnose scores): it diverges, so it has no fit score; its numbers do not make '
+                    f'a model that runs on this record (noise {self.noise_rms * 1e3:.2f} mrad)')
+        else:
+            weak = (f'Held-out free-run fit of the weak-form model (refitted on the first {TRAIN_SHARE:.0%}, '
+                    f'simulated on the rest, as diagnose scores): fit {self.fit_percent:.2f} %, error beyond the '
+                    f'noise {self.error_beyond_noise * 1e3:.2f} mrad (rms {self.rms_error * 1e3:.2f} mrad, noise '
+                    f'{self.noise_rms * 1e3:.2f} mrad)')
+        return [weak,
                 f'Output-error fit of the same model (diagnose\'s estimator): held-out fit '
                 f'{self.output_fit_percent:.2f} %, error beyond the noise {self.output_error_beyond_noise * 1e3:.2f} '
                 f'mrad', *self.agreement.lines]
@@ -146,6 +152,8 @@ class CrossCheck:
 
 #: Share of the record the weak form is refitted on for its held-out score (the diagnosis's training share).
 TRAIN_SHARE = 0.75
+#: A free-run error beyond this (rad, many turns of the rod) means the simulated model has diverged.
+DIVERGED_RAD = 1e3
 
 
 def cross_check(recording, weak_fit, effects: Sequence[str] = (), data: str = 'FILE',
@@ -189,8 +197,12 @@ def cross_check(recording, weak_fit, effects: Sequence[str] = (), data: str = 'F
     simulated = _heldout_simulation(plain, model)
     index = plain.heldout.residual_index
     measured = plain.angle[index]
-    rms = float(np.sqrt(np.nanmean((measured - simulated[index]) ** 2)))
-    score = fit_percent(measured, simulated[index]) if np.all(np.isfinite(simulated[index])) else float('nan')
+    heldout = simulated[index]
+    # a weak-form model can be unstable as a running model (e.g. badly biased at a low sample rate): its free run
+    # then grows without bound; that is said (rms inf, fit undefined), not squared into an overflow
+    diverged = not np.all(np.isfinite(heldout)) or float(np.max(np.abs(heldout - measured))) > DIVERGED_RAD
+    rms = math.inf if diverged else float(np.sqrt(np.mean((measured - heldout) ** 2)))
+    score = float('nan') if diverged else fit_percent(measured, heldout)
     prep = prepare(recording)
     comparison = compare(prep, effects, fixed=dict(fixed or {}))
     output_values, output_errors = dict(comparison.parameters), dict(comparison.fit.standard_errors)
@@ -203,5 +215,5 @@ def cross_check(recording, weak_fit, effects: Sequence[str] = (), data: str = 'F
                       agreement, comparison.fit_percent, excess_error(comparison.rms_error, comparison.noise_rms))
 
 
-__all__ = ['AGREEMENT_SIGMA', 'COMPARED', 'TRAIN_SHARE', 'Agreement', 'CrossCheck', 'compare_estimators',
+__all__ = ['AGREEMENT_SIGMA', 'COMPARED', 'DIVERGED_RAD', 'TRAIN_SHARE', 'Agreement', 'CrossCheck', 'compare_estimators',
            'cross_check']
