@@ -215,5 +215,5 @@ def cross_check(recording, weak_fit, effects: Sequence[str] = (), data: str = 'F
                       agreement, comparison.fit_percent, excess_error(comparison.rms_error, comparison.noise_rms))
 
 
-__all__ = ['AGREEMENT_SIGMA', 'COMPARED', 'DIVERGED_RAD', 'TRAIN_SHARE', 'Agreement', 'CrossCheck', 'compare_estimators',
-           'cross_check']
+__all__ = ['AGREEMENT_SIGMA', 'COMPARED', 'DIVERGED_RAD', 'TRAIN_SHARE', 'Agreement', 'CrossCheck',
+           'compare_estimators', 'cross_check']
