@@ -8,15 +8,23 @@ Records: 60 s, rod below 80 deg, 10-bit quantisation.
   beyond the noise below half the noise RMS.
 * Clean: bench/false_alarms.py's records (parameters +-25 %, LHC and staircase, PSNR 30-60 dB), seeds 9000+. A
   false proposal = any discovered term.
+  ``--seed-base`` draws a fresh set (records BASE .. BASE + clean - 1); the diagnosis runs as ``aeropend diagnose``
+  does by default (drift test on, discovery on).
+* Catalog: bench/diagnosis_table.py's records (each catalog effect hidden in turn, LHC, 40 dB, seeds 1-3) with
+  the discovery stage on: a correct catalog verdict replaced (a discovered term or a confounded verdict where the
+  table names the hidden effect) is counted.
 * Time: one 60 s record diagnosed with and without the discovery stage in the same run (ratio).
+* ``--force-discovery``: the stage runs on every record (its gate off), to see what the stage alone would propose.
 
-Run:  nice -n 10 .venv/bin/python bench/discovery.py [--clean 20] [--part all|outside|clean] [--out FOLDER]
+Run:  nice -n 10 .venv/bin/python bench/discovery.py [--clean 20] [--seed-base 9000]
+          [--part all|outside|clean|catalog] [--out FOLDER]
       (CPU seconds are measured with time.process_time, so a loaded machine changes the wall time, not them)
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -53,6 +61,22 @@ def outside_record(name: str, seed: int = 11):
     return from_columns(trajectory.columns(with_truth=False), source=name)
 
 
+def catalog_record(effect: str, value, seed: int):
+    """bench/diagnosis_table.py's record with `effect` hidden at `value` (None: nothing hidden)."""
+    from diagnosis_table import MAX_DUTY
+
+    from aeropend_core.io.recording import from_columns
+    from aeropend_core.model.parameters import DEFAULT_PARAMETERS
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.sim.simulate import simulate
+    max_duty = MAX_DUTY.get(effect, 0.7)
+    duty = lhc_schedule(60, duty_range=(0, max_duty), duty_cap=max_duty, seed=seed).duty(duration=60)
+    trajectory = simulate(duty, DEFAULT_PARAMETERS, None if value is None else {effect: value},
+                          noise=MeasurementNoise(40.0, True), seed=seed + 100)
+    return from_columns(trajectory.columns(with_truth=False), source=f'{effect} seed {seed}')
+
+
 def row_of(found, seconds: float) -> dict:
     from aeropend_core.diagnosis.compare import excess_error
     noise = found.noise_rms
@@ -71,9 +95,16 @@ def row_of(found, seconds: float) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0], allow_abbrev=False)
     parser.add_argument('--clean', type=int, default=20, help='clean records (default 20)')
-    parser.add_argument('--part', choices=('all', 'outside', 'clean'), default='all',
+    parser.add_argument('--seed-base', type=int, default=None,
+                        help='first clean seed (default: false_alarms.SEED_BASE, 9000)')
+    parser.add_argument('--seeds', type=int, nargs='+', default=[1, 2, 3], help='catalog part: seeds (default 1 2 3)')
+    parser.add_argument('--part', choices=('all', 'outside', 'clean', 'catalog'), default='all',
                         help='run only the timing + outside-catalog part or only the clean records (two processes '
                              'write discovery-outside.json and discovery-clean.json)')
+    parser.add_argument('--force-discovery', action='store_true',
+                        help='run the discovery stage on every record (its gate, error beyond 0.25 x the noise, set '
+                             'off): does the stage itself propose terms where nothing is missing? Writes '
+                             'discovery-PART-forced.json')
     parser.add_argument('--out', default=str(ROOT / 'results' / '2026-11-27-discovery'))
     args = parser.parse_args()
     from threadpoolctl import threadpool_limits
@@ -82,13 +113,24 @@ def main() -> int:
     from false_alarms import SEED_BASE, record
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    results: dict = {'outside': {}, 'clean': [], 'timing': {}}
-    target = out / ('discovery.json' if args.part == 'all' else f'discovery-{args.part}.json')
+    results: dict = {'outside': {}, 'clean': [], 'catalog': [], 'timing': {}}
+    base_seed = SEED_BASE if args.seed_base is None else args.seed_base
+    target = out / ('discovery' + ('' if args.part == 'all' else f'-{args.part}')
+                    + ('-forced' if args.force_discovery else '') + '.json')
+    if args.force_discovery:
+        import aeropend_core.diagnosis.diagnose as stages
+        stages.DISCOVERY_NOISE = -1.0       # read at call time: the stage runs whatever the catalog leaves
 
     def save() -> None:         # after every record: a run cut short keeps what it measured
         found_count = sum(r['below_half_noise'] for r in results['outside'].values())
         false = sum(1 for r in results['clean'] if r['term'])
-        results['summary'] = {'outside_found_below_half_noise': f'{found_count} of {len(results["outside"])}',
+        replaced = sum(1 for r in results['catalog'] if r['replaced'])
+        alarms = sum(r['verdict'] != 'nothing_missing' for r in results['clean'])
+        results['summary'] = {'catalog_verdicts_replaced': f'{replaced} of {len(results["catalog"])}',
+                              'clean_discovery_ran': f'{sum(r["discovery_ran"] for r in results["clean"])} of '
+                                                     f'{len(results["clean"])}',
+                              'clean_not_nothing_missing': f'{alarms} of {len(results["clean"])}',
+                              'outside_found_below_half_noise': f'{found_count} of {len(results["outside"])}',
                               'clean_false_proposals': f'{false} of {len(results["clean"])}'}
         target.write_text(json.dumps(results, indent=1))
 
@@ -96,9 +138,12 @@ def main() -> int:
         if args.part in ('all', 'outside'):
             recording = outside_record('inflow')
             for label, flag in (('without_discovery', False), ('with_discovery', True)):
-                started = time.process_time()
-                diagnose(recording, drift=True, discovery=flag)
+                started, wall = time.process_time(), time.perf_counter()
+                found = diagnose(recording, drift=True, discovery=flag)
                 results['timing'][label + '_cpu_s'] = round(time.process_time() - started, 2)
+                results['timing'][label + '_wall_s'] = round(time.perf_counter() - wall, 2)
+                results['timing'][label + '_discovery_ran'] = found.discovery is not None
+                results['timing']['load_average_1min'] = round(os.getloadavg()[0], 2)
             timing = results['timing']
             timing['ratio'] = round(timing['with_discovery_cpu_s'] / timing['without_discovery_cpu_s'], 2)
             print('timing', timing, flush=True)
@@ -111,13 +156,34 @@ def main() -> int:
                 save()
         if args.part in ('all', 'clean'):
             for index in range(args.clean):
-                recording, meta = record(SEED_BASE + index)
+                recording, meta = record(base_seed + index)
                 started = time.process_time()
-                found = diagnose(recording, drift=False)
+                found = diagnose(recording, drift=True)
                 row = {**meta, **row_of(found, time.process_time() - started)}
                 results['clean'].append(row)
                 print('clean', row, flush=True)
                 save()
+        if args.part in ('all', 'catalog'):
+            from diagnosis_table import CASES
+            for effect, value in CASES.items():
+                for seed in args.seeds:
+                    recording = catalog_record(effect, value, seed)
+                    started = time.process_time()
+                    found = diagnose(recording, drift=True)
+                    row = {'hidden': effect, 'seed': seed, **row_of(found, time.process_time() - started)}
+                    # the table's correct call: the hidden effect named (or nothing when nothing is hidden)
+                    named = found.missing_effect
+                    row['named'] = named
+                    row['catalog_correct'] = named == (effect if value is not None else None)
+                    # replaced: a term proven or confounded by the discovery stage, and the verdict is not the
+                    # table's plain 'effect_found' naming the hidden effect
+                    terms = found.discovery.terms if found.discovery is not None else []
+                    touched = any(t.status in ('proven', 'confounded') for t in terms)
+                    row['replaced'] = bool(value is not None and touched and not (
+                        found.verdict == 'effect_found' and row['catalog_correct']))
+                    results['catalog'].append(row)
+                    print('catalog', row, flush=True)
+                    save()
     print(json.dumps(results['summary']))
     return 0
 

@@ -139,3 +139,44 @@ def test_public_api_is_importable_and_listed():
         assert getattr(aeropend_core, name) is not None
     with pytest.raises(AttributeError):
         aeropend_core.no_such_name  # noqa: B018
+
+
+def core_import_graph() -> dict[str, set[str]]:
+    """aeropend_core module -> the aeropend_core modules it imports (statements anywhere, lazy ones included)."""
+    modules = {rel(p)[:-3].replace('/', '.').removesuffix('.__init__'): p for p in python_files('aeropend_core')}
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        edges = graph.setdefault(name, set())
+        for node in ast.walk(ast.parse(path.read_text(encoding='utf-8'))):
+            targets = []
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                targets = [node.module] + [f'{node.module}.{a.name}' for a in node.names]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            edges.update(t for t in targets if t in modules and t != name)
+    return graph
+
+
+def test_the_diagnosis_and_its_wording_import_no_circle():
+    """The verdict's wording lives in present/ and the diagnosis returns typed results: a present module the diagnosis
+    uses for its words must not lead back into the diagnosis (diagnose.py <-> summary.py was such a circle)."""
+    graph = core_import_graph()
+
+    def reachable(start: str) -> set[str]:
+        seen, stack = set(), [start]
+        while stack:
+            for nxt in graph.get(stack.pop(), ()):
+                if nxt not in seen:
+                    seen.add(nxt)
+                    stack.append(nxt)
+        return seen
+
+    circles = []
+    for module in sorted(m for m in graph if m.startswith('aeropend_core.diagnosis.')):
+        for used in sorted(m for m in graph[module] if m.startswith('aeropend_core.present.')):
+            back = sorted(m for m in reachable(used) if m.startswith('aeropend_core.diagnosis.'))
+            if back:
+                circles.append(f'{module} -> {used} -> ... -> {", ".join(back)}')
+    assert not circles, 'import circles between the diagnosis and present/:\n' + '\n'.join(circles)
+    summary = graph['aeropend_core.present.summary']
+    assert 'aeropend_core.diagnosis.diagnose' in summary       # the check sees imports (present -> diagnosis is fine)

@@ -33,6 +33,7 @@ from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.io.recording import from_columns
 from aeropend_core.sim.simulate import simulate
+from aeropend_core.present.summary import format_summary
 
 PARAMETER_TOLERANCE = 0.15
 ERROR_FALL = 2.0
@@ -129,7 +130,7 @@ def test_cable_at_small_angles_is_reported_as_confounded_with_gravity():
     found = diagnose(recording)
     assert found.missing_effect != 'angle_offset'       # no confident wrong answer
     text = ' '.join(found.notes)
-    assert 'cable_torque' in text and 'gravity_stiffness' in text and 'larger angles' in text, found.summary()
+    assert 'cable_torque' in text and 'gravity_stiffness' in text and 'larger angles' in text, format_summary(found)
 
 
 @pytest.mark.slow
@@ -155,7 +156,7 @@ def test_user_registered_effect_is_a_candidate_and_can_be_found():
     try:
         recording = measured_recording({'test_cubic_spring': 60.0}, seed=7, max_duty=0.9, duration=40.0)
         found = diagnose(recording, candidates=['test_cubic_spring', 'cable_torque', 'coulomb_friction'])
-        assert found.candidates[0].effect == 'test_cubic_spring', found.summary()
+        assert found.candidates[0].effect == 'test_cubic_spring', format_summary(found)
         assert found.candidates[0].parameters['cubic_stiffness'] == pytest.approx(60.0, rel=0.3)
     finally:
         CATALOG.pop('test_cubic_spring')
@@ -256,7 +257,7 @@ def test_large_dead_zone_is_found_and_adding_it_leaves_nothing_missing():
     truth = 1.2
     recording = measured_recording({'dead_zone': truth}, seed=281)
     found = diagnose(recording)
-    assert found.missing_effect == 'dead_zone', found.summary()
+    assert found.missing_effect == 'dead_zone', format_summary(found)
     low, high = found.candidates[0].comparison.fit.extra['threshold_interval']
     assert low <= truth <= high
     after = diagnose(recording, effects=('dead_zone',))
@@ -278,6 +279,6 @@ def test_effect_seen_only_in_the_heldout_part_is_named_but_not_recommended():
     duty = schedule.duty(duration=training.duration + 17.5)
     trajectory = simulate(duty, effects={'dead_zone': 0.6}, noise=MeasurementNoise(40.0, True), seed=62)
     found = diagnose(from_columns(trajectory.columns(with_truth=False)))
-    assert found.missing_effect is None and found.verdict == 'unexplained', found.summary()
+    assert found.missing_effect is None and found.verdict == 'unexplained', format_summary(found)
     assert 'dead_zone would explain it' in found.message and 'small duty' in found.message, found.message
     assert next(c for c in found.candidates if c.effect == 'dead_zone').heldout_only

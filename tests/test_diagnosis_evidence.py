@@ -23,6 +23,7 @@ from aeropend_core.sim.excitation import lhc_schedule, staircase_schedule
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import simulate
 from aeropend_core.testing.rigs import simulate_drifting, simulate_thrust_power
+from aeropend_core.present.summary import format_summary
 
 SIZE_TOLERANCE = 0.15
 pytestmark = pytest.mark.slow
@@ -40,11 +41,11 @@ def lhc_record(effects, seed, duration=60.0, psnr=40.0, parameters=DEFAULT_PARAM
 def assert_found(found, truth):
     """Every true effect is in the selected set (pinned, not confounded) with its size within tolerance."""
     named = {f.effect: f for f in found.found}
-    assert set(named) == set(truth), found.summary()
+    assert set(named) == set(truth), format_summary(found)
     for effect, value in truth.items():
-        assert not named[effect].confounded_with, found.summary()
+        assert not named[effect].confounded_with, format_summary(found)
         parameter = CATALOG[effect].parameter_names[0]
-        assert named[effect].parameters[parameter] == pytest.approx(value, rel=SIZE_TOLERANCE), found.summary()
+        assert named[effect].parameters[parameter] == pytest.approx(value, rel=SIZE_TOLERANCE), format_summary(found)
 
 
 # ------------------------------------------------------------------------------------------- evidence tools
@@ -84,7 +85,7 @@ def test_three_effects_at_once_with_nominal_parameters_off():
                                            lever_per_inertia=1.1, armature_resistance=0.9)
     truth = {'coulomb_friction': 3.5, 'angle_offset': 0.04, 'thrust_lag': 0.12}
     found = diagnose(measured(lhc_record(truth, seed=1101, parameters=parameters, max_duty=0.6)))
-    assert found.verdict == 'effect_found', found.summary()
+    assert found.verdict == 'effect_found', format_summary(found)
     assert_found(found, truth)
     assert '--add' in found.message and found.to_dict()['add']
 
@@ -142,7 +143,7 @@ def test_angle_filter_is_named_or_confounded_with_thrust_lag_never_a_confident_l
     found = diagnose(measured(lhc_record({'angle_filter': delay}, seed=1109 + int(cutoff_hz))))
     named = {f.effect: f for f in found.found}
     assert 'angle_filter' in named or ('thrust_lag' in named and 'angle_filter' in named['thrust_lag'].confounded_with
-                                       ), found.summary()
+                                       ), format_summary(found)
     assert found.missing_effect != 'thrust_lag'
     if found.missing_effect == 'angle_filter':
         assert named['angle_filter'].parameters['filter_delay'] == pytest.approx(delay, rel=SIZE_TOLERANCE)
@@ -163,7 +164,7 @@ def test_fixed_hardware_filter_value_is_held_in_the_model(tmp_path, capsys):
 def test_thrust_power_law_is_flagged_not_named_with_confidence():
     duty = lhc_schedule(60.0, seed=1111).duty(duration=60.0)
     found = diagnose(measured(simulate_thrust_power(duty, 1.8, noise=MeasurementNoise(40.0, True), seed=1112)))
-    assert found.verdict in ('unexplained', 'confounded'), found.summary()
+    assert found.verdict in ('unexplained', 'confounded'), format_summary(found)
     assert found.missing_effect is None
     assert 'beyond the noise' in found.message
 
@@ -174,7 +175,7 @@ def test_drifting_thrust_gain_is_named_as_drift():
     sagging = lambda t: DEFAULT_PARAMETERS.scaled(thrust_coefficient=1 - 0.15 * t / duration)  # noqa: E731
     trajectory = simulate_drifting(duty, sagging, noise=MeasurementNoise(40.0, True), seed=1114)
     found = diagnose(measured(trajectory))
-    assert found.verdict == 'drift', found.summary()
+    assert found.verdict == 'drift', format_summary(found)
     row = next(r for r in found.drift if r['parameter'] == 'thrust_gain')
     assert row['drifting'] and row['change'] == pytest.approx(-0.15, abs=0.05)
     assert 'thrust gain' in found.message and 'supply' in found.message
@@ -185,7 +186,7 @@ def test_clean_records_raise_no_alarm_across_excitations_and_noise():
         duty = (staircase_schedule() if staircase else lhc_schedule(60.0, seed=seed)).duty(duration=60.0)
         trajectory = simulate(duty, effects=None, noise=MeasurementNoise(psnr, True), seed=seed)
         found = diagnose(measured(trajectory))
-        assert found.verdict == 'nothing_missing', found.summary()
+        assert found.verdict == 'nothing_missing', format_summary(found)
 
 
 def test_noise_estimate_spread_used_for_the_measurable_error():

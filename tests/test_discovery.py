@@ -157,11 +157,23 @@ def test_the_cli_add_reproduces_the_fall(tmp_path, capsys):
     columns = measured_columns(truth, seed=11)
     path = tmp_path / 'inflow.csv'
     np.savetxt(path, np.column_stack(list(columns.values())), delimiter=',', header=','.join(columns), comments='')
-    out = tmp_path / 'd.json'
-    assert cli_main(['diagnose', str(path), '--no-drift', '--quiet', '--json', str(out)]) == 0
+    out, page = tmp_path / 'd.json', tmp_path / 'd.html'
+    assert cli_main(['diagnose', str(path), '--no-drift', '--quiet', '--json', str(out), '--report', str(page)]) == 0
     first = json.loads(out.read_text())
     assert first['discovered_terms'], first['message']
     term = first['discovered_terms'][0]
+    # the HTML report shows the term: expression, c +- sigma with its unit, the fall, the share, the add arguments
+    html = page.read_text()
+    section = html[html.index('<h2 id="discovery">'):]
+    section = section[:section.index('<h2', 5)]
+    (coefficient,) = term['parameters'].values()
+    proven = section[section.index('PROVEN'):]
+    assert term['expression'] in proven and f'{coefficient["value"]:.4g} &plusmn; {coefficient["sigma"]:.2g}' in proven
+    assert coefficient['unit'] in proven and term['reading'].split(' (')[0].replace("'", '&#x27;') in proven
+    assert (f'{term["error_beyond_noise_before"] * 1e3:.2f} &rarr; <b>{term["error_beyond_noise_after"] * 1e3:.2f}'
+            in proven)
+    assert f'{term["share_of_error_removed"] * 100:.0f}&nbsp;%' in proven
+    assert f'{term["add"][0]} &#x27;{term["add"][1]}&#x27;' in proven and 'href="#discovery"' in html
     again = tmp_path / 'e.json'
     assert cli_main(['diagnose', str(path), '--no-drift', '--quiet', '--json', str(again), *term['add']]) == 0
     second = json.loads(again.read_text())

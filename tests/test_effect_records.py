@@ -15,6 +15,7 @@ import pytest
 
 from aeropend_core.model.effects import CATALOG, EffectParameter, register_effect
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.present.summary import format_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORD = 'aeropend_core/model/effects.py'
@@ -79,7 +80,7 @@ def test_an_effect_declared_in_a_few_lines_runs_compiled_and_is_diagnosed():
         noisy = simulate(duty, effects={'test_pivot_drag': 4.0}, noise=MeasurementNoise(40.0, True), seed=10)
         found = diagnose(from_columns(noisy.columns(with_truth=False)),
                          candidates=['test_pivot_drag', 'coulomb_friction'])
-        assert found.candidates[0].effect == 'test_pivot_drag', found.summary()
+        assert found.candidates[0].effect == 'test_pivot_drag', format_summary(found)
         assert found.candidates[0].parameters['pivot_drag'] == pytest.approx(4.0, rel=0.15)
     finally:
         CATALOG.pop('test_pivot_drag')

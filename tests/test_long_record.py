@@ -17,6 +17,7 @@ from aeropend_core.io.recording import from_columns, load_csv, write_csv
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import simulate
+from aeropend_core.present.summary import format_summary
 
 
 def _record(effects: dict, seed: int, duration: float = 60.0):
@@ -28,7 +29,7 @@ def _record(effects: dict, seed: int, duration: float = 60.0):
 def _assert_same_friction_verdict(reference, long) -> None:
     """Both name coulomb_friction alone, and `long`'s size is within 1 % and 3 of `reference`'s standard errors."""
     assert (long.verdict, long.missing_effects) == (reference.verdict, reference.missing_effects) == \
-        ('effect_found', ['coulomb_friction']), long.summary()
+        ('effect_found', ['coulomb_friction']), format_summary(long)
     sd = reference.found[0].standard_errors['friction_acceleration']
     a, b = reference.found[0].parameters['friction_acceleration'], long.found[0].parameters['friction_acceleration']
     assert b == pytest.approx(a, rel=0.01) and abs(b - a) < 3 * sd, (a, b, sd)

@@ -23,6 +23,7 @@ from aeropend_core.sim.excitation import lhc_schedule, staircase_schedule
 from aeropend_core.sim.noise import ANGLE_LSB, MeasurementNoise, quantise
 from aeropend_core.sim.simulate import simulate
 from aeropend_core.signals.preprocess import quantisation_bias_rms
+from aeropend_core.present.summary import format_summary
 
 SIZE_TOLERANCE = 0.15
 
@@ -89,9 +90,9 @@ def _lhc(parameters, seed, psnr, effects=None, cap=0.7):
 @pytest.mark.parametrize('seed', [1152, 1154])
 def test_a_3_mrad_offset_at_40_db_is_named_within_15_percent(seed):
     found = diagnose(_lhc(DEFAULT_PARAMETERS, seed, 40.0, {'angle_offset': 0.003}))
-    assert found.verdict == 'effect_found' and found.missing_effects == ['angle_offset'], found.summary()
+    assert found.verdict == 'effect_found' and found.missing_effects == ['angle_offset'], format_summary(found)
     estimate = found.found[0].parameters['angle_offset']
-    assert estimate == pytest.approx(0.003, rel=SIZE_TOLERANCE), found.summary()
+    assert estimate == pytest.approx(0.003, rel=SIZE_TOLERANCE), format_summary(found)
     assert 'removes' in found.message and '%' in found.message      # its share is reported next to its size
 
 
@@ -107,7 +108,7 @@ def test_clean_record_with_moved_parameters_is_clean():
     """The record that raised a 1.4 +- 0.16 mrad "angle offset" (t = 9): the observer had fallen back to its
     quasi-static model (biased by ~1-4 %) and the offset's standard error ignored the observer's doubt."""
     found = diagnose(_lhc(DEFAULT_PARAMETERS.scaled(**MOVED_9006), 9006, 42.77))
-    assert found.verdict == 'nothing_missing', found.summary()
+    assert found.verdict == 'nothing_missing', format_summary(found)
     offset = next(c for c in found.candidates if c.effect == 'angle_offset')
     assert offset.t_statistic < 4.0
     # the standard error now carries the observer's doubt: over 16 noise draws of this record the offset estimate
@@ -129,4 +130,4 @@ def test_clean_staircase_at_59_db_is_clean():
     duty = staircase_schedule(step=0.65 / 14, top=0.65).duty(duration=60.0)
     trajectory = simulate(duty, parameters=parameters, noise=MeasurementNoise(psnr, True), seed=22004)
     found = diagnose(from_columns(trajectory.columns(with_truth=False), source='clean staircase 59 dB'))
-    assert found.verdict == 'nothing_missing', found.summary()
+    assert found.verdict == 'nothing_missing', format_summary(found)

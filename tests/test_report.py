@@ -165,6 +165,8 @@ def test_no_before_after_section_without_added_effects(page, diagnosis):
     _, text = page
     assert diagnosis.before is None
     assert 'id="before-after"' not in text
+    # the discovery section is there exactly when the stage ran (test_discovery checks its content)
+    assert ('id="discovery"' in text) == (diagnosis.discovery is not None) == ('href="#discovery"' in text)
 
 
 @pytest.mark.slow

@@ -145,7 +145,8 @@ def main(args: argparse.Namespace) -> int:
         if time_range:
             print(f'time range: samples from {time_range["samples_start_s"]:g} s to {time_range["samples_stop_s"]:g} s '
                   f'of {" + ".join(args.data)} (--start/--stop)')
-        print(diagnosis.summary())
+        from aeropend_core.present.summary import format_summary
+        print(format_summary(diagnosis))
         if validation is not None:
             model = ' + '.join(('nominal', *validation.effects))
             print(f'validation on {args.validate} ({validation.duration:.1f} s, model {model}, unchanged): fit '

@@ -56,6 +56,7 @@ from aeropend_core.io.recording import Recording
 from aeropend_core.model.effects import CATALOG, THRUST_LAG, get_effect
 from aeropend_core.model.effects import separating_experiment as record_experiment
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.present.verdict_text import verdict_message
 
 #: "Unexplained" (the best set leaves error no catalog effect explains) is claimed beyond this multiple of the
 #: noise RMS: a smaller excess can come from the noise estimate itself (quantisation that does not dither is partly
@@ -258,11 +259,6 @@ class Diagnosis:
                 'regimes': self.before.evaluation.regimes,
             }
         return result
-
-    def summary(self) -> str:
-        """A person-readable report of the diagnosis (units stated)."""
-        from aeropend_core.present.summary import format_summary
-        return format_summary(self)
 
 
 def _not_identifiable(prep) -> dict[str, str]:
@@ -514,75 +510,44 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]
     missing = pinned[0].effect if pinned else None
-    sizes = '; '.join(size_text(f) for f in found)
+    heldout_only: list[Candidate] = []
+    # the decision; its wording is aeropend_core.present.verdict_text's
     if drifting:
         verdict = 'drift'
-        message = drift_message(drifting, final)
-        if found:
-            message += f' The effect search also selected {sizes}; a drifting parameter can mimic effects.'
     elif proven and (remainder or not found or proven[0].replaces):
         verdict = 'term_discovered'
-        message = (f'{sizes} {"explain" if len(found) > 1 else "explains"} part of the error. ' if found else '')
     elif found and remainder:
         verdict = 'unexplained'
         structure = residual_structure(prep, final)
-        message = (f'{sizes} {"explain" if len(found) > 1 else "explains"} part of the error, but '
-                   f'{excess_final * 1e3:.2f} mrad beyond the noise ({noise * 1e3:.2f} mrad) remain that no catalog '
-                   f'effect explains (outside the catalog). The residual correlates most with '
-                   f'{structure[0]["signature"]} (r = {structure[0]["correlation"]:+.2f}); consider writing an effect '
-                   f'with that signature (aeropend_core.model.effects.register_effect).')
         missing = None
     elif unsure:
         verdict = 'confounded'
-        parts = []
         for f in unsure:
-            names = [f.effect] + f.confounded_with
-            parts.append(f'one of {", ".join(names)}')
             for other in f.confounded_with:
                 notes.append(f'{f.effect} and {other} are interchangeable on this data (adding either makes the other '
                              f'insignificant); {separating_experiment(f.effect, other)}.')
-        message = (f'{" and ".join(parts)} is missing, but this data cannot tell which; see notes.'
-                   + (f' Also missing, with confidence: {"; ".join(size_text(f) for f in pinned)}. Add them '
-                      f'({" ".join("--add " + f.effect for f in pinned)}).' if pinned else ''))
     elif found:
         verdict = 'effect_found'
-        within = excess_error(current.rms_error, noise) <= UNEXPLAINED_NOISE * noise
-        label = 'missing effect' if len(found) == 1 else 'missing effects'
-        message = (f'{label}: {sizes}. Add {"it" if len(found) == 1 else "them"} '
-                   f'({" ".join("--add " + f.effect for f in found)}): the held-out error beyond the noise falls '
-                   f'from {excess_error(current.rms_error, noise) * 1e3:.2f} to {excess_final * 1e3:.2f} mrad.'
-                   + (' Significant, within the noise: small, but the data support it strongly.' if within else ''))
     elif not remainder:
         verdict = 'nothing_missing'
-        message = (f'nothing significant is missing: the model error beyond the measurement noise is '
-                   f'{excess_final * 1e3:.2f} mrad against {noise * 1e3:.2f} mrad of noise, and no catalog effect '
-                   f'improves the fit significantly.')
     else:
         verdict = 'unexplained'
         structure = residual_structure(prep, current)
         heldout_only = [c for c in results if c.heldout_only]
-        if heldout_only:
-            lead = heldout_only[0]
-            message = (f'the model misses the held-out data by {excess_final * 1e3:.2f} mrad beyond the noise '
-                       f'({noise * 1e3:.2f} mrad). {lead.effect} would explain it ({lead.excess_before * 1e3:.2f} '
-                       f'-> {lead.excess_after * 1e3:.2f} mrad) but the training part shows no evidence for it '
-                       f'(its BIC does not fall), so it is not recommended: the held-out part holds conditions '
-                       f'the training part lacks; {excitation_advice(lead.effect)}.')
-            for other in heldout_only[1:]:
-                notes.append(f'{other.effect} would also explain the held-out error ({other.excess_after * 1e3:.2f} '
-                             f'mrad beyond the noise) without training evidence.')
-        else:
-            message = (f'the model misses the data by {excess_final * 1e3:.2f} mrad beyond the noise '
-                       f'({noise * 1e3:.2f} mrad), and no catalog effect explains it (outside the catalog). The '
-                       f'residual correlates most with: {structure[0]["signature"]} (r = '
-                       f'{structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
-                       f'(aeropend_core.model.effects.register_effect).')
+        for other in heldout_only[1:]:
+            notes.append(f'{other.effect} would also explain the held-out error ({other.excess_after * 1e3:.2f} '
+                         f'mrad beyond the noise) without training evidence.')
     if found_terms is not None and verdict == 'effect_found' and any(t.status == 'confounded'
                                                                    for t in found_terms.terms):
         verdict = 'confounded'      # a term outside the catalog explains the data as well as the set chosen
-    if found_terms is not None:
-        from aeropend_core.present.discovery_text import discovery_sentence
-        message = (message + ' ' + discovery_sentence(found_terms, noise, UNEXPLAINED_NOISE * reference)).strip()
+    reduced_rate = (1.0 / prep.sample_time if verdict == 'unexplained' and getattr(prep, 'reduced', False)
+                    and rate_doubts(prep.sample_time, True) else None)
+    message = verdict_message(
+        verdict, found=found, noise_rms=noise, excess_current=excess_error(current.rms_error, noise),
+        excess_final=excess_final, within_noise=UNEXPLAINED_NOISE * noise, structure=structure,
+        drift_text=drift_message(drifting, final) if drifting else '', heldout_only=heldout_only,
+        heldout_advice=excitation_advice(heldout_only[0].effect) if heldout_only else '', discovery=found_terms,
+        explained_below=UNEXPLAINED_NOISE * reference, reduced_rate_hz=reduced_rate)
     if found and verdict in ('effect_found', 'confounded'):
         for f in found:
             step = next(c for c, _ in steps if c.effect == f.effect)
@@ -604,10 +569,6 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
                              f'{separating_experiment(candidate.effect, nominal)}.')
     notes += doubt_notes(results, found, current, prep, model)     # near misses, an unstated measurement chain
     notes += rate_notes(found, prep.sample_time)                  # what this sample rate cannot resolve
-    if verdict == 'unexplained' and rate_doubts(prep.sample_time, True) and getattr(prep, 'reduced', False):
-        message += (f' At {1.0 / prep.sample_time:.4g} Hz the reduced model\'s own error has not been measured: part '
-                    'or all of this remainder can be that model\'s limit at this rate, not a missing effect (a record '
-                    'at a higher rate, or with the period-average current, decides).')
     if getattr(prep, 'gaps', None) is not None and prep.gaps.count:
         notes.append(prep.gaps.describe())
     return check_diagnosis(Diagnosis(
@@ -616,13 +577,3 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         seconds=time.perf_counter() - started, found=found, selected=selected, drift=drift_rows, fixed=held,
         fixed_from=held_from, discovery=found_terms))
 
-
-def size_text(found: Found) -> str:
-    entry = get_effect(found.effect)
-    units = {p.name: p.unit for p in entry.parameters}
-    values = ', '.join(f'{name} = {value:.4g} +- {found.standard_errors.get(name, float("nan")):.2g} {units[name]}'
-                       for name, value in found.parameters.items())
-    measurable = (f', {found.share_measurable * 100:.0f} % of the part beyond the noise estimate\'s uncertainty'
-                  if found.share_measurable > found.share_removed + 0.05 else '')
-    return (f'{found.effect} ({values}; removes {found.share_removed * 100:.0f} % of the error beyond the '
-            f'noise{measurable})')

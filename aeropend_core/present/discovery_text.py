@@ -1,10 +1,13 @@
-"""The words of the discovery stage: the verdict's sentence, the summary's lines and the effects module it writes.
+"""The words of the discovery stage: the verdict's sentence, the summary's lines, the report's section and the effects
+module it writes.
 
 The numbers come from :mod:`aeropend_core.diagnosis.discovery`; only their wording lives here.
 """
 from __future__ import annotations
 
+import html
 import math
+import shlex
 
 
 def term_text(term) -> str:
@@ -88,6 +91,89 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
     return ' '.join(parts)
 
 
+def _html_number(value: float, digits: int = 2, scale: float = 1.0, suffix: str = '') -> str:
+    return f'{value * scale:.{digits}f}{suffix}' if value is not None and math.isfinite(value) else '&mdash;'
+
+
+def _coefficient_html(term) -> str:
+    value, sigma = (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient,
+                                                                               term.weak_sigma)
+    estimator = '' if math.isfinite(term.value) else ' <small>(weak form only)</small>'
+    sigma_text = f' &plusmn; {sigma:.2g}' if math.isfinite(sigma) else ' &plusmn; unknown'
+    return f'{value:.4g}{sigma_text} {html.escape(term.term.unit)}{estimator}'
+
+
+def discovery_html(discovery, noise_rms: float, source: str | None = None) -> str:
+    """The HTML report's section on the discovery stage ('' when it did not run).
+
+    Parameters
+    ----------
+    discovery : Discovery or None [-]
+        The stage's result (:class:`aeropend_core.diagnosis.discovery.Discovery`).
+    noise_rms : float [rad]
+        The angle's measurement noise.
+    source : str, optional [-]
+        The recording's file name, for the command that adds the term.
+
+    Returns
+    -------
+    str
+        A ``<h2 id="discovery">`` section: each proven term as an equation with its coefficient +- 1 sigma and unit,
+        the error beyond the noise before -> after (mrad) and the share it removes, the evidence, the physical
+        reading and the command-line arguments that add it; then the terms tried and why they were not proven.
+    """
+    if discovery is None:
+        return ''
+    esc = html.escape
+    data = shlex.quote(source) if source else 'DATA'
+    parts = ['<h2 id="discovery">Discovery: a term outside the catalog</h2>',
+             '<p class="caption">The catalog left error beyond the noise (or its choice was suspect), so the '
+             'pendulum equation&rsquo;s discrepancy was regressed sparsely (weak form) over a vocabulary of '
+             'physically typed terms; the strongest were each added as <code>dW/dt += c &middot; term</code>, '
+             'refitted by output error and judged by the same evidence as a catalog effect (HAC t, training BIC, '
+             f'held-out Diebold-Mariano, materiality). Measurement noise {_html_number(noise_rms, 2, 1e3)}'
+             '&nbsp;mrad. A proven term is a hypothesis that removes the error, not a measured mechanism: '
+             'lookalikes are named.</p>']
+    if discovery.note:
+        parts.append(f'<p>{esc(discovery.note)}</p>')
+    for term in [t for t in discovery.terms if t.status == 'proven']:
+        fall = (f'{_html_number(term.excess_before, 2, 1e3)} &rarr; <b>{_html_number(term.excess_after, 2, 1e3)}'
+                f'</b>&nbsp;mrad')
+        command = ' '.join(shlex.quote(a) for a in term.add)
+        rows = [('equation', f'<span class="equation" style="display:inline-block;padding:2px 10px">dW/dt = '
+                             f'&hellip; + c &middot; <code>{esc(term.term.expression)}</code></span>'),
+                ('coefficient c &plusmn; 1&sigma;', _coefficient_html(term)),
+                ('held-out error beyond the noise', f'<span class="down">{fall}</span> (removes '
+                 f'{_html_number(term.share_removed, 0, 100)}&nbsp;% of it)'),
+                ('evidence', f'HAC t = {_html_number(term.t_statistic, 1)}, training &Delta;BIC '
+                             f'{_html_number(term.delta_bic, 1)}, held-out Diebold-Mariano '
+                             f'{_html_number(term.dm_statistic, 1)}'),
+                ('physical reading', esc(term.term.reading)),
+                ('add it', f'<span class="next">aeropend diagnose {esc(data)} {esc(command)}</span>'),
+                ('keep it', f'<span class="next">aeropend effects --write-discovered kept.py --term '
+                            f'{esc(shlex.quote(term.term.expression))}</span>')]
+        if term.replaces:
+            rows.append(('replaces', f'{esc(" + ".join(term.replaces))}: with the term in the model the catalog '
+                                     'set adds nothing significant (it was the term&rsquo;s shadow)'))
+        if term.alternatives:
+            rows.append(('lookalikes', f'{esc(", ".join(term.alternatives))} explain about as much on this data: '
+                                       'excite larger angles and free decays to separate them'))
+        parts.append(f'<h3>PROVEN: <code>{esc(term.term.expression)}</code></h3><table style="width:auto">'
+                     + ''.join(f'<tr><th style="text-align:left">{label}</th><td>{value}</td></tr>'
+                               for label, value in rows) + '</table>')
+    others = [t for t in discovery.terms if t.status != 'proven']
+    if others:
+        rows = ''.join(
+            f'<tr><td><code>{esc(t.term.expression)}</code></td><td>{esc(t.status.replace("_", " "))}</td>'
+            f'<td class="num">{_coefficient_html(t)}</td><td class="num">{_html_number(t.excess_after, 2, 1e3)}</td>'
+            f'<td>{esc(t.why_not or t.term.reading)}</td></tr>' for t in others)
+        parts.append('<h3>Other terms tried</h3><table><tr><th>term</th><th>status</th><th>c &plusmn; 1&sigma;</th>'
+                     '<th>beyond noise after [mrad]</th><th>why not proven / reading</th></tr>' + rows + '</table>')
+    if not discovery.terms:
+        parts.append('<p>No term of the vocabulary stands out from the noise in the discrepancy.</p>')
+    return ''.join(parts)
+
+
 def _quoted(arguments: list[str]) -> list[str]:
     return [f"'{a}'" if any(c in a for c in '*()^ ,') else a for a in arguments]
 
@@ -165,4 +251,4 @@ def _numpy_expression(expression: str) -> str:
     return code if code != '1' else 'np.ones_like(angle)'
 
 
-__all__ = ['term_text', 'discovery_sentence', 'discovery_lines', 'effect_module_text']
+__all__ = ['term_text', 'discovery_sentence', 'discovery_lines', 'discovery_html', 'effect_module_text']

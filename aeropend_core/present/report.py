@@ -49,6 +49,7 @@ from aeropend_core.present.formatting import (
 )
 from aeropend_core.present.model_checks import (band_section, correlation_section, scatter_section,
                                                 validation_section)
+from aeropend_core.present.discovery_text import discovery_html
 from aeropend_core.present.model_sections import model_sections
 from aeropend_core.present.plots import (
     _plot_candidates,
@@ -133,6 +134,15 @@ def _verdict_html(diagnosis: Diagnosis, source: str | None = None) -> str:
         data = shlex.quote(source) if source else 'DATA'
         parts.append(f'<div style="margin-top:6px">Next: <span class="next">aeropend diagnose {_esc(data)}{_esc(added)}'
                      f' --report after.html</span> and check that the error falls.</div>')
+    proven = diagnosis.discovery.proven if getattr(diagnosis, 'discovery', None) is not None else []
+    if diagnosis.verdict == 'term_discovered' and proven:
+        data = shlex.quote(source) if source else 'DATA'
+        kept = [*diagnosis.effects, *(f.effect for f in diagnosis.found if not f.confounded_with
+                                      and f.effect not in proven[0].replaces)]
+        added = ''.join(f' --add {e}' for e in kept) + ' ' + ' '.join(shlex.quote(a) for a in proven[0].add)
+        parts.append(f'<div style="margin-top:6px">Next: <span class="next">aeropend diagnose {_esc(data)}'
+                     f'{_esc(added)} --report after.html</span> and check that the error falls; the term, its '
+                     '&plusmn; and its lookalikes: <a href="#discovery">see below</a>.</div>')
     if diagnosis.notes:
         parts.append(f'<div style="margin-top:6px">{len(diagnosis.notes)} note(s) on confounding and experiments: '
                      f'<a href="#notes">see below</a>.</div>')
@@ -434,6 +444,8 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
            '<a href="#candidates">5 candidates</a>']
     if diagnosis.before is not None:
         nav.append('<a href="#before-after">6 before &rarr; after</a>')
+    if getattr(diagnosis, 'discovery', None) is not None:
+        nav.append('<a href="#discovery">discovery</a>')
     if validation is not None:
         nav.append('<a href="#validation">validation record</a>')
     nav.append('<a href="#parameters">parameters</a>')
@@ -511,6 +523,8 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
                         f'{_esc(", ".join(e for e in diagnosis.effects if e not in diagnosis.before.effects))}</h2>'
                         + _before_after_html(diagnosis))
 
+    if getattr(diagnosis, 'discovery', None) is not None:
+        sections.append(discovery_html(diagnosis.discovery, diagnosis.noise_rms, source))
     if validation is not None:
         sections.append(validation_section(diagnosis, validation))
     sections.append(f'<h2 id="parameters">Parameters of the model as given ({_esc(model)})</h2>'

@@ -2,7 +2,8 @@
 from __future__ import annotations
 
 from aeropend_core.diagnosis.compare import excess_error
-from aeropend_core.diagnosis.diagnose import Diagnosis, size_text
+from aeropend_core.diagnosis.diagnose import Diagnosis
+from aeropend_core.present.verdict_text import size_text
 from aeropend_core.model.effects import find_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.signals.reduced import MAP_PARAMETERS

@@ -697,7 +697,8 @@ def _diagnose(bag_folder, memory, args, interrupted: bool) -> int:
     except InsufficientDataError as error:
         print(f'aeropend run: cannot diagnose: {error}', file=sys.stderr)
         return 130 if interrupted else 1
-    print(diagnosis.summary())
+    from aeropend_core.present.summary import format_summary
+    print(format_summary(diagnosis))
     if args.report:
         from aeropend_core.present.report import write_report
         print(f'report: {write_report(diagnosis, args.report, source=str(bag_folder or "samples in memory"))}')

@@ -1,0 +1,135 @@
+"""The words of the diagnosis's verdict: the sentence that says what is missing, from the typed results.
+
+The diagnosis (:func:`aeropend_core.diagnosis.diagnose.diagnose`) decides the verdict and hands its typed results
+here; only the wording lives in this module. It imports nothing from :mod:`aeropend_core.diagnosis` (its inputs are
+duck-typed: :class:`~aeropend_core.diagnosis.diagnose.Found`, the residual-structure rows, the discovery's result),
+so the diagnosis can call it without an import circle (tests/test_architecture.py checks that).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from aeropend_core.model.effects import get_effect
+from aeropend_core.present.discovery_text import discovery_sentence
+
+
+def size_text(found) -> str:
+    """'EFFECT (parameter = value +- sigma UNIT; removes N % of the error beyond the noise)' for one selected effect.
+
+    Parameters
+    ----------
+    found : Found [-]
+        An effect of the selected set (:class:`aeropend_core.diagnosis.diagnose.Found`), parameters SI.
+
+    Returns
+    -------
+    str
+        The effect with its parameters +- 1 sigma in SI units and the share of the error it removes.
+    """
+    entry = get_effect(found.effect)
+    units = {p.name: p.unit for p in entry.parameters}
+    values = ', '.join(f'{name} = {value:.4g} +- {found.standard_errors.get(name, float("nan")):.2g} {units[name]}'
+                       for name, value in found.parameters.items())
+    measurable = (f', {found.share_measurable * 100:.0f} % of the part beyond the noise estimate\'s uncertainty'
+                  if found.share_measurable > found.share_removed + 0.05 else '')
+    return (f'{found.effect} ({values}; removes {found.share_removed * 100:.0f} % of the error beyond the '
+            f'noise{measurable})')
+
+
+def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_current: float, excess_final: float,
+                    within_noise: float, structure: Sequence[dict] = (), drift_text: str = '',
+                    heldout_only: Sequence = (), heldout_advice: str = '', discovery=None,
+                    explained_below: float = math.inf, reduced_rate_hz: float | None = None) -> str:
+    """The verdict's message for `verdict` (the diagnosis's decision), numbers in mrad and SI units.
+
+    Parameters
+    ----------
+    verdict : str [-]
+        ``'drift'``, ``'term_discovered'``, ``'unexplained'``, ``'confounded'``, ``'effect_found'`` or
+        ``'nothing_missing'``.
+    found : sequence of Found [-]
+        The selected set of catalog effects, in the order the search added them (confounded ones included).
+    noise_rms : float [rad]
+        The angle's measurement noise.
+    excess_current : float [rad]
+        Held-out error beyond the noise of the model as given.
+    excess_final : float [rad]
+        Held-out error beyond the noise with the selected set.
+    within_noise : float [rad]
+        An error beyond the noise below this is "within the noise" (the diagnosis's threshold x its reference).
+    structure : sequence of dict [-]
+        The residual's strongest signatures (``signature``, ``correlation`` [-]), strongest first.
+    drift_text : str [-]
+        The drift test's sentence (verdict ``'drift'``).
+    heldout_only : sequence of Candidate [-]
+        Candidates that explain the held-out part without training evidence (verdict ``'unexplained'``).
+    heldout_advice : str [-]
+        The experiment that shows the first of them.
+    discovery : Discovery, optional [-]
+        The discovery stage's result; its sentence is appended when it ran.
+    explained_below : float [rad]
+        A proven term that leaves more than this explains only part of the error.
+    reduced_rate_hz : float, optional [Hz]
+        The sample rate of a reduced-model record whose own error at that rate is unmeasured (``'unexplained'``).
+
+    Returns
+    -------
+    str
+        The message (``Diagnosis.message``).
+    """
+    pinned = [f for f in found if not f.confounded_with]
+    unsure = [f for f in found if f.confounded_with]
+    sizes = '; '.join(size_text(f) for f in found)
+    verb = 'explain' if len(found) > 1 else 'explains'
+    noise_text = f'{noise_rms * 1e3:.2f} mrad'
+    if verdict == 'drift':
+        message = drift_text + (f' The effect search also selected {sizes}; a drifting parameter can mimic effects.'
+                                if found else '')
+    elif verdict == 'term_discovered':
+        message = f'{sizes} {verb} part of the error. ' if found else ''
+    elif verdict == 'unexplained' and found:
+        message = (f'{sizes} {verb} part of the error, but {excess_final * 1e3:.2f} mrad beyond the noise '
+                   f'({noise_text}) remain that no catalog effect explains (outside the catalog). The residual '
+                   f'correlates most with {structure[0]["signature"]} (r = {structure[0]["correlation"]:+.2f}); '
+                   'consider writing an effect with that signature (aeropend_core.model.effects.register_effect).')
+    elif verdict == 'confounded' and unsure:
+        parts = [f'one of {", ".join([f.effect] + list(f.confounded_with))}' for f in unsure]
+        message = (f'{" and ".join(parts)} is missing, but this data cannot tell which; see notes.'
+                   + (f' Also missing, with confidence: {"; ".join(size_text(f) for f in pinned)}. Add them '
+                      f'({" ".join("--add " + f.effect for f in pinned)}).' if pinned else ''))
+    elif verdict in ('effect_found', 'confounded'):
+        # 'confounded' without an unsure catalog effect: a discovered term explains the data as well as the set
+        label = 'missing effect' if len(found) == 1 else 'missing effects'
+        message = (f'{label}: {sizes}. Add {"it" if len(found) == 1 else "them"} '
+                   f'({" ".join("--add " + f.effect for f in found)}): the held-out error beyond the noise falls '
+                   f'from {excess_current * 1e3:.2f} to {excess_final * 1e3:.2f} mrad.'
+                   + (' Significant, within the noise: small, but the data support it strongly.'
+                      if excess_current <= within_noise else ''))
+    elif verdict == 'nothing_missing':
+        message = (f'nothing significant is missing: the model error beyond the measurement noise is '
+                   f'{excess_final * 1e3:.2f} mrad against {noise_text} of noise, and no catalog effect improves '
+                   'the fit significantly.')
+    elif heldout_only:
+        lead = heldout_only[0]
+        message = (f'the model misses the held-out data by {excess_final * 1e3:.2f} mrad beyond the noise '
+                   f'({noise_text}). {lead.effect} would explain it ({lead.excess_before * 1e3:.2f} '
+                   f'-> {lead.excess_after * 1e3:.2f} mrad) but the training part shows no evidence for it '
+                   f'(its BIC does not fall), so it is not recommended: the held-out part holds conditions '
+                   f'the training part lacks; {heldout_advice}.')
+    else:
+        message = (f'the model misses the data by {excess_final * 1e3:.2f} mrad beyond the noise '
+                   f'({noise_text}), and no catalog effect explains it (outside the catalog). The '
+                   f'residual correlates most with: {structure[0]["signature"]} (r = '
+                   f'{structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
+                   f'(aeropend_core.model.effects.register_effect).')
+    if discovery is not None:
+        message = (message + ' ' + discovery_sentence(discovery, noise_rms, explained_below)).strip()
+    if verdict == 'unexplained' and reduced_rate_hz is not None:
+        message += (f' At {reduced_rate_hz:.4g} Hz the reduced model\'s own error has not been measured: part '
+                    'or all of this remainder can be that model\'s limit at this rate, not a missing effect (a record '
+                    'at a higher rate, or with the period-average current, decides).')
+    return message
+
+
+__all__ = ['size_text', 'verdict_message']
