@@ -259,13 +259,12 @@ class Axes:
             grid += [f'M0 {float(sy(t)):.1f}H{width:.1f}' for t, _ in yticks]
         # the data, clipped to the plotting area by a nested svg
         out.append(f'<svg width="{width:.1f}" height="{height:.1f}" overflow="hidden">')
-        body = [self._item_svg(item, sx, sy, width, height) for item in self._items if item[0] not in ('text',)]
-        spans = [b for b, item in zip(body, [i for i in self._items if i[0] != 'text']) if item[0] == 'span']
-        rest = [b for b, item in zip(body, [i for i in self._items if i[0] != 'text']) if item[0] != 'span']
-        out += spans
+        # shaded spans under the grid, the data over it, the labels last (outside the clipping)
+        out += [self._item_svg(item, sx, sy, width, height) for item in self._items if item[0] == 'span']
         if grid:
             out.append(f'<path d="{"".join(grid)}" stroke="#000" stroke-opacity="0.12" stroke-width="1"/>')
-        out += rest
+        out += [self._item_svg(item, sx, sy, width, height) for item in self._items
+                if item[0] not in ('span', 'text')]
         out.append('</svg>')
         out.append(f'<rect width="{width:.1f}" height="{height:.1f}" fill="none" stroke="#888" stroke-width="1"/>')
         font = f'font-size="{TICK_FONT}" fill="#333"'
