@@ -12,7 +12,9 @@ Two baselines measured in the same run:
 Each write is timed in a fresh process after one warm-up write (imports, caches), ``--repeats`` times; the minimum
 and the median process CPU time are reported (on a shared machine CPU time is the steadier figure; the load average
 is printed and stored). The 600 s record is diagnosed with two candidates only (the report's size and write time
-depend on the record's length, not on the number of candidates beyond a table row and a chart row each).
+depend on the record's length, not on the number of candidates beyond a table row and a chart row each) and
+without the discovery stage (its terms hold functions that cannot be pickled for the other process; it adds a
+paragraph of text to the page, no plot).
 
 Run:  nice -n 10 .venv/bin/python bench/bench_report.py [--durations 60 600] [--json PATH] [--keep DIR]   (~4-8 min)
 """
@@ -112,7 +114,8 @@ def main() -> None:
         run = simulate(duty, effects={'coulomb_friction': 4.0}, noise=MeasurementNoise(40.0, True), seed=4)
         recording = from_columns(run.columns(with_truth=False), source=f'bench_{duration:g}s.csv')
         candidates = None if duration <= 120 else LONG_CANDIDATES
-        diagnosis, diagnosis_wall, diagnosis_cpu = timed(lambda: diagnose(recording, candidates=candidates))
+        diagnosis, diagnosis_wall, diagnosis_cpu = timed(lambda: diagnose(recording, candidates=candidates,
+                                                                          discovery=duration <= 120))
         pickled = folder / f'diagnosis_{duration:g}s.pkl'
         pickled.write_bytes(pickle.dumps((diagnosis, recording.source)))
         results = {name: write_in_process(tree, pickled, folder / f'report_{duration:g}s_{name}.html', args.repeats)
