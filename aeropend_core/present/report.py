@@ -1,7 +1,7 @@
 """A self-contained HTML report of a diagnosis: one file, no script library and no external resource; every plot
 is inline SVG (:mod:`aeropend_core.present.svgplot`) whose lines are decimated to what its pixels can show (a min/max
 envelope per pixel column, :func:`aeropend_core.present.formatting.envelope`); the browser lays out its text and
-ticks. A 60 s record gives a page of about 1.5 MB written in well under a second of CPU. Every sample is in the
+ticks. A 60 s record gives a page of about 1.2 MB written in about half a second of CPU. Every sample is in the
 page's CSV export (gzip-compressed).
 
 The page answers, top to bottom: what is missing (the verdict and the key numbers with units), where the model
