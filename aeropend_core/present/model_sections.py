@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import base64
 import gzip
-import io
 import math
-import re
 
 import numpy as np
 
@@ -233,11 +231,12 @@ def traces_csv(diagnosis: Diagnosis, best: Candidate | None) -> str:
         columns['observer_current_A'] = (traces['model_current'], '%.6g')
     columns['thrust_back_emf_V'] = (traces['thrust_voltage'], '%.6g')
     data = np.column_stack([np.asarray(values, dtype=float) for values, _ in columns.values()])
-    buffer = io.StringIO()
-    np.savetxt(buffer, data, fmt=[fmt for _, fmt in columns.values()], delimiter=',',
-               header=','.join(columns), comments='')
-    # a sample that was not simulated is an empty field (savetxt writes nan)
-    return re.sub(r'(?<![A-Za-z_])nan(?![A-Za-z_])', '', buffer.getvalue())
+    # one %-format over all the values (a C loop; np.savetxt formats row by row in Python, 2x slower)
+    row = ','.join(fmt for _, fmt in columns.values()) + '\n'
+    body = (row * data.shape[0]) % tuple(data.ravel()) if data.size else ''
+    # a sample that was not simulated is an empty field ('%g' writes nan, with no sign)
+    body = ('\n' + body).replace(',nan', ',').replace('\nnan,', '\n,')[1:]
+    return ','.join(columns) + '\n' + body
 
 
 def compressed_csv(text: str) -> str:
