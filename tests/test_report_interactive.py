@@ -117,6 +117,14 @@ def test_svg_axes_put_data_on_the_right_pixels_and_ticks_on_round_numbers():
     drawn = re.search(r'<path d="([^"]+)" fill="none" stroke="#123456"', axes.svg()).group(1)
     # plotting area 1070 x 150 px; y grows downwards; the NaN starts a new piece
     assert drawn == 'M0 150l535-75M642 37.5l428-37.5'
+    # far outside the limits (hidden by the clipping): exact steps, so the points after it are not moved
+    far = Figure(200)
+    axes, = far.grid(left=50, right=10, top=10, bottom=40)
+    axes.line([0.0, 1.0, 2.0, 10.0], [0.0, 1e9, 0.0, 1.0], '#123456')
+    axes.xlim, axes.ylim = (0.0, 10.0), (-1.0, 1.0)
+    steps = re.search(r'<path d="M0 75l([^"]+)" fill="none" stroke="#123456"', axes.svg()).group(1)
+    numbers = [float(v) for v in re.findall(r'-?(?:\d+\.?\d*|\.\d+)', steps)]
+    assert sum(numbers[0::2]) == 1070.0 and 75 + sum(numbers[1::2]) == 0.0      # ends at (1070, 0) px
     ticks, step = svgplot.nice_ticks(-1.1, 1.1, 5)
     assert step == 0.5 and ticks.tolist() == [-1.0, -0.5, 0.0, 0.5, 1.0]
     assert svgplot.tick_labels(ticks, step) == ['\u22121.0', '\u22120.5', '0.0', '0.5', '1.0']

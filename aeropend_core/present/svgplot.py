@@ -73,10 +73,24 @@ def tick_labels(ticks: np.ndarray, step: float) -> list[str]:
     return labels
 
 
+#: Coordinates are clamped to this many pixels from the view box (far outside, hidden by the clipping; keeps the
+#: integer arithmetic of :func:`_relative` exact).
+FAR = 1e6
+
+
 def _tenths(values: np.ndarray) -> list[str]:
-    """Integers in tenths of a pixel as the shortest decimal text (15 -> '1.5', -3 -> '-.3', 20 -> '2')."""
-    text = ('%g ' * values.size % tuple(values / 10.0)).split()
-    return [t.replace('0.', '.', 1) if t.startswith(('0.', '-0.')) else t for t in text]
+    """Integers in tenths of a pixel as the shortest exact decimal text (15 -> '1.5', -3 -> '-.3', 20 -> '2')."""
+    out = []
+    for k in np.asarray(values).tolist():
+        whole, tenth = divmod(abs(k), 10)
+        text = (str(whole) if whole else '') + (f'.{tenth}' if tenth else '') or '0'
+        out.append('-' + text if k < 0 else text)
+    return out
+
+
+def _pixels_in_tenths(values: np.ndarray) -> np.ndarray:
+    """Pixel coordinates [px] as integers in tenths of a pixel (clamped to +-:data:`FAR`)."""
+    return np.rint(np.clip(values, -FAR, FAR) * 10).astype(np.int64)
 
 
 def _runs(px: np.ndarray, py: np.ndarray) -> list[np.ndarray]:
@@ -93,8 +107,7 @@ def _relative(px: np.ndarray, py: np.ndarray) -> str:
     piece. About 8 characters a point, against 11 for absolute coordinates."""
     pieces = []
     for run in _runs(px, py):
-        x = np.rint(px[run] * 10).astype(np.int64)
-        y = np.rint(py[run] * 10).astype(np.int64)
+        x, y = _pixels_in_tenths(px[run]), _pixels_in_tenths(py[run])
         steps = np.column_stack([np.diff(x), np.diff(y)]).ravel()
         first = ' '.join(_tenths(np.array([x[0], y[0]])))
         pieces.append(f'M{first}' + (('l' + ' '.join(_tenths(steps))) if steps.size else ''))
@@ -309,8 +322,7 @@ class Axes:
             if not keep.any():
                 return ''
             # each dot a zero-length segment with round caps, reached by a relative move from the previous dot
-            px = np.rint(px[keep] * 10).astype(np.int64)
-            py = np.rint(py[keep] * 10).astype(np.int64)
+            px, py = _pixels_in_tenths(px[keep]), _pixels_in_tenths(py[keep])
             steps = _tenths(np.column_stack([np.diff(px), np.diff(py)]).ravel())
             moves = ''.join(f'm{dx} {dy}h0' for dx, dy in zip(steps[::2], steps[1::2]))
             first = ' '.join(_tenths(np.array([px[0], py[0]])))
