@@ -103,7 +103,7 @@ def test_version(capsys):
 
 
 @pytest.mark.parametrize('verb', ['simulate', 'identify', 'diagnose', 'effects', 'bag-recover', 'calibrate',
-                                  'emulate', 'run', 'monitor'])
+                                  'emulate', 'import', 'run', 'monitor'])
 def test_every_help_shows_its_defaults_and_its_own_usage(capsys, verb):
     status, out, _ = call(capsys, verb, '--help')
     assert status == 0
@@ -160,7 +160,7 @@ def test_quiet_long_verbs_write_nothing_to_stderr_and_progress_never_goes_to_std
     assert status == 0 and out == '' and err.startswith('wrote ')        # progress: standard error
     status, out, err = call(capsys, 'simulate', '-o', str(csv), '--duration', '1', '--quiet')
     assert status == 0 and out == '' and err == ''
-    for verb in ('simulate', 'identify', 'diagnose', 'run'):
+    for verb in ('simulate', 'identify', 'diagnose', 'import', 'run'):
         _, out, _ = call(capsys, verb, '--help')
         assert '--quiet' in out, verb
 

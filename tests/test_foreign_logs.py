@@ -129,6 +129,12 @@ def test_import_writes_our_record_with_profile_and_hash(tmp_path, capsys):
     out = tmp_path / 'run.csv'
     status, stdout, err = run_cli(['import', str(log_path), '--profile', str(profile_path), '-o', str(out)], capsys)
     assert status == 0, err
+    assert stdout == '' and 'wrote ' in err                 # progress on standard error, as in every verb
+    # '-o -': the same record on standard output (no file named '-'); --quiet: nothing but warnings on stderr
+    status, piped, quiet_err = run_cli(['import', str(log_path), '--profile', str(profile_path), '-o', '-',
+                                        '--quiet'], capsys)
+    assert status == 0 and piped == out.read_text() and not (tmp_path / '-').exists()
+    assert 'wrote ' not in quiet_err and all('warning' in line for line in quiet_err.splitlines())
     metadata = read_import_metadata(out)
     assert metadata['source_sha256'] == hashlib.sha256(log_path.read_bytes()).hexdigest()
     assert metadata['profile'] == log.profile

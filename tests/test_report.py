@@ -1,20 +1,18 @@
-"""The HTML diagnosis report: one self-contained file with the verdict, the key numbers, decodable PNG plots and
-every candidate; and `aeropend diagnose --report` writing the before -> after comparison.
+"""The HTML diagnosis report: one self-contained file with the verdict, the key numbers, well-formed inline SVG plots
+and every candidate; and `aeropend diagnose --report` writing the before -> after comparison.
 
 Two diagnoses in all (about 5-10 s each) on a 30 s simulated record with dry friction hidden, PSNR 40 dB and
 10-bit angle quantisation, only Va/Ia/angle given.
 """
-import base64
 import dataclasses
 import html
-import io
 import json
 import re
+import xml.etree.ElementTree as ElementTree
 from html.parser import HTMLParser
 
 import numpy as np
 import pytest
-from PIL import Image
 
 from aeropend_core.cli import main as aeropend
 from aeropend_core.io.recording import write_csv
@@ -30,7 +28,6 @@ from aeropend_core.sim.simulate import simulate
 DURATION = 30.0
 SEED = 3
 HIDDEN = {'coulomb_friction': 4.0}     # rad/s^2, the catalog's typical dry friction
-PNG_MAGIC = b'\x89PNG\r\n\x1a\n'
 #: The whole page: plots, text and the compressed CSV of every sample (issue #24: at most 2 MB for 60 s; this is 30 s).
 MAX_BYTES = 2 * 1000 * 1000
 INLINE_SCRIPT = re.compile(r'<script( type="application/gzip" id="traces-csv")?>.*?</script>', re.DOTALL)
@@ -85,8 +82,22 @@ class TagBalance(HTMLParser):
             self.mismatched.append((tag, self.getpos()))
 
 
-def embedded_pngs(text):
-    return re.findall(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"', text)
+def inline_svgs(text):
+    """Every plot of the page: an inline ``<svg class="plot">`` element, as text."""
+    return re.findall(r'<svg class="plot".*?</svg>(?=</figure>)', text, re.DOTALL)
+
+
+def check_svg(text: str) -> ElementTree.Element:
+    """A plot parses as XML, says what it shows, and draws data inside its view box."""
+    root = ElementTree.fromstring(text.replace('&nbsp;', '&#160;'))
+    width, height = (float(v) for v in root.get('viewBox').split()[2:])
+    assert width >= 600 and height >= 100
+    assert root.find('title') is not None and root.find('title').text and root.get('aria-label')
+    drawn = [p.get('d') for p in root.iter('path') if p.get('d')]
+    assert drawn, 'a plot without any line'
+    numbers = np.array([float(v) for d in drawn for v in re.findall(r'-?\d+(?:\.\d+)?', d)])
+    assert np.all(np.isfinite(numbers)) and np.all(np.abs(numbers) < 2 * width)
+    return root
 
 
 def section(text, element_id, tag):
@@ -104,26 +115,22 @@ def test_report_is_one_self_contained_file(page):
     assert len(INLINE_SCRIPT.findall(text)) == 2
     markup = INLINE_SCRIPT.sub('', text)
     for value in re.findall(r'\b(?:src|href)\s*=\s*["\']?([^"\'\s>]+)', markup, re.IGNORECASE):
-        assert value.startswith(('#', 'data:image/png;base64,')), value
+        assert value.startswith('#'), value
     assert not re.search(r'https?://|@import|url\(|<script|<link\b', markup, re.IGNORECASE)
     balance = TagBalance()
     balance.feed(markup)
     assert balance.mismatched == [] and balance.open == []
 
 
-def test_embedded_images_decode_as_png(page):
+def test_plots_are_inline_svg(page):
     _, text = page
-    images = embedded_pngs(text)
+    plots = inline_svgs(text)
     # overlay, held-out band and k-step, error vs time, regimes, residual scatter, correlations and spectrum,
     # candidate chart, motor observer
-    assert len(images) == 8
-    assert len(images) == text.count('<img ')
-    for data in images:
-        raw = base64.b64decode(data, validate=True)
-        assert raw.startswith(PNG_MAGIC)
-        image = Image.open(io.BytesIO(raw))
-        image.verify()
-        assert image.format == 'PNG' and image.size[0] >= 600
+    assert len(plots) == 8 == text.count('<svg class="plot"')
+    assert '<img ' not in text and 'data:image/png' not in text
+    for plot in plots:
+        check_svg(plot)
 
 
 def test_header_states_verdict_and_key_numbers_with_units(page, diagnosis):
@@ -181,8 +188,8 @@ def test_text_from_the_diagnosis_is_escaped_and_untestable_candidates_listed(dia
     table = section(text, 'candidate-table', 'table')
     assert '<b>user&lt;effect&gt;</b>' in table and 'not testable' in table
     assert 'needs steps at small duty &amp; none are in the data' in table
-    assert len(embedded_pngs(text)) == len(embedded_pngs(write_report(diagnosis, tmp_path / 'plain.html')
-                                                         .read_text(encoding='utf-8')))
+    assert len(inline_svgs(text)) == len(inline_svgs(write_report(diagnosis, tmp_path / 'plain.html')
+                                                       .read_text(encoding='utf-8')))
 
 
 def test_missing_folder_is_a_clear_error(diagnosis, tmp_path):
@@ -231,8 +238,10 @@ def test_cli_report_shows_before_and_after(trajectory, second_trajectory, tmp_pa
     table = section(text, 'candidate-table', 'table')
     assert [c['effect'] for c in result['candidates']] == ['thrust_lag']
     assert '<b>thrust_lag</b>' in table
-    for data_uri in embedded_pngs(text):
-        assert base64.b64decode(data_uri, validate=True).startswith(PNG_MAGIC)
+    plots = inline_svgs(text)
+    assert len(plots) == 9                     # the 8 of a plain report and the validation record's
+    for plot in plots:
+        check_svg(plot)
     # the validation record: in the JSON and in the report, the same numbers
     validation = result['validation']
     assert validation['source'] == str(second) and validation['model_effects'] == ['coulomb_friction']

@@ -1,5 +1,5 @@
-"""The report's plots (PNG, decimated to a min/max envelope per pixel column), the candidate chart, the model checks
-(residual scatter, long-lag correlations, spectrum, +-2 sigma band, k-step points), the model sections (motor
+"""The report's plots (inline SVG, decimated to a min/max envelope per pixel column), the candidate chart, the model
+checks (residual scatter, long-lag correlations, spectrum, +-2 sigma band, k-step points), the model sections (motor
 observer, identified equation, parameter correlation) and the compressed CSV export; the page rendered in headless
 Chromium (no JavaScript error, nothing fetched), screenshots kept as test artefacts in ``out/test-artifacts/report``
 (or ``$AEROPEND_TEST_ARTIFACTS``).
@@ -30,9 +30,10 @@ import pytest
 from aeropend_core.diagnosis.diagnose import diagnose
 from aeropend_core.io.recording import from_columns
 from aeropend_core.model.parameters import SAMPLE_TIME
-from aeropend_core.present import model_sections, plots
+from aeropend_core.present import model_sections, plots, svgplot
 from aeropend_core.present.formatting import PIXEL_COLUMNS, _excess, envelope
 from aeropend_core.present.report import write_report
+from aeropend_core.present.svgplot import Figure
 from aeropend_core.signals.preprocess import STEP_SETTLING_SAMPLES
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
@@ -108,6 +109,30 @@ def test_envelope_keeps_every_extreme_in_few_points():
     assert np.array_equal(envelope(short, short)[1], short)         # nothing to decimate
 
 
+def test_svg_axes_put_data_on_the_right_pixels_and_ticks_on_round_numbers():
+    figure = Figure(200)
+    axes, = figure.grid(left=50, right=10, top=10, bottom=40)
+    axes.line([0.0, 5.0, np.nan, 6.0, 10.0], [-1.0, 0.0, np.nan, 0.5, 1.0], '#123456')
+    axes.xlim, axes.ylim = (0.0, 10.0), (-1.0, 1.0)
+    drawn = re.search(r'<path d="([^"]+)" fill="none" stroke="#123456"', axes.svg()).group(1)
+    # plotting area 1070 x 150 px; y grows downwards; the NaN starts a new piece
+    assert drawn == 'M0 150l535-75M642 37.5l428-37.5'
+    # far outside the limits (hidden by the clipping): exact steps, so the points after it are not moved
+    far = Figure(200)
+    axes, = far.grid(left=50, right=10, top=10, bottom=40)
+    axes.line([0.0, 1.0, 2.0, 10.0], [0.0, 1e9, 0.0, 1.0], '#123456')
+    axes.xlim, axes.ylim = (0.0, 10.0), (-1.0, 1.0)
+    steps = re.search(r'<path d="M0 75l([^"]+)" fill="none" stroke="#123456"', axes.svg()).group(1)
+    numbers = [float(v) for v in re.findall(r'-?(?:\d+\.?\d*|\.\d+)', steps)]
+    assert sum(numbers[0::2]) == 1070.0 and 75 + sum(numbers[1::2]) == 0.0      # ends at (1070, 0) px
+    ticks, step = svgplot.nice_ticks(-1.1, 1.1, 5)
+    assert step == 0.5 and ticks.tolist() == [-1.0, -0.5, 0.0, 0.5, 1.0]
+    assert svgplot.tick_labels(ticks, step) == ['\u22121.0', '\u22120.5', '0.0', '0.5', '1.0']
+    assert svgplot.tick_labels(*svgplot.nice_ticks(0.0, 60.0, 6))[-1] == '60'
+    html_text = figure.html('a <test>')
+    assert 'aria-label="a &lt;test&gt;"' in html_text and html_text.count('<svg class="plot"') == 1
+
+
 def test_candidate_chart_highlights_the_selected_set(diagnosis):
     rows = plots.candidate_chart_rows(diagnosis)
     selected = [r for r in rows if r['tag'] == 'SELECTED']
@@ -127,7 +152,7 @@ def test_candidate_chart_after_add_shows_before_and_after(added, tmp_path):
     assert rows[1]['end'] == pytest.approx(_excess(added.current) * 1e3)
     assert rows[1]['end'] < 0.5 * rows[0]['end']                  # the friction removed most of the error
     text = write_report(added, tmp_path / 'after.html', source='friction.csv').read_text(encoding='utf-8')
-    chart = re.search(r'<h2 id="candidates">.*?<img src="data:image/png;base64,', text, re.DOTALL)
+    chart = re.search(r'<h2 id="candidates">.*?<svg class="plot"', text, re.DOTALL)
     assert chart, 'no candidate chart after --add'
     visible = re.sub(r'<[^>]+>', ' ', re.sub(r'<script.*?</script>', '', text, flags=re.DOTALL))
     assert not re.search(r'\binf\b', visible)                 # a profiled threshold's t statistic said in words

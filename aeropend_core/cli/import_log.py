@@ -22,8 +22,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='the log as it was recorded (CSV, or an MCAP bag with a bag profile)')
     parser.add_argument('--profile', required=True, metavar='PROFILE.yaml', help='the log profile (columns, units, '
                         'clock)')
-    parser.add_argument('-o', '--output', required=True, metavar='RECORD.csv', help='the recording to write (CSV)')
+    parser.add_argument('-o', '--output', required=True, metavar='RECORD.csv',
+                        help="the recording to write (CSV; '-' for standard output)")
     parser.add_argument('--no-check', action='store_true', help='write without passing the data-quality gate')
+    parser.add_argument('--quiet', action='store_true', help='no notes and no "wrote N samples" line on standard '
+                        'error (the data-quality warnings are still printed)')
 
 
 def main(args: argparse.Namespace) -> int:
@@ -31,11 +34,12 @@ def main(args: argparse.Namespace) -> int:
     from aeropend_core.io.log_profile import import_log, load_profile, write_imported
     if not args.output.lower().endswith('.csv') and args.output != '-':
         raise AeropendError(f'-o {args.output}: the imported record is written as CSV; give a name ending in .csv')
-    from aeropend_core.io.paths import output_target
-    output_target(args.output, '--output')
+    if args.output != '-':
+        from aeropend_core.io.paths import output_target
+        output_target(args.output, '--output')
     profile = load_profile(args.profile)
     columns, metadata = import_log(args.log, profile, args.profile)
-    for note in metadata['notes']:
+    for note in metadata['notes'] if not args.quiet else []:
         print(f'aeropend import: {note}', file=sys.stderr)
     if not args.no_check:
         from aeropend_core.io.recording import Recording
@@ -48,6 +52,9 @@ def main(args: argparse.Namespace) -> int:
     write_imported(args.output, columns, metadata)
     n = len(columns['t'])
     rate = metadata['sample_rate_hz']
-    print(f'wrote {n} samples ({columns["t"][-1]:.3g} s at {rate:.6g} Hz; columns '
-          f'{", ".join(k for k in columns if k != "t")}) to {args.output}; source SHA-256 {metadata["source_sha256"]}')
+    if not args.quiet:                                   # progress on standard error, as every verb
+        target = 'standard output' if args.output == '-' else args.output
+        print(f'wrote {n} samples ({columns["t"][-1]:.3g} s at {rate:.6g} Hz; columns '
+              f'{", ".join(k for k in columns if k != "t")}) to {target}; source SHA-256 {metadata["source_sha256"]}',
+              file=sys.stderr)
     return 0

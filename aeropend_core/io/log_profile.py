@@ -31,6 +31,7 @@ import difflib
 import hashlib
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -333,14 +334,19 @@ def import_log(path: str | Path, profile: dict, profile_source: str = '') -> tup
 
 
 def write_imported(target: str, columns: dict[str, np.ndarray], metadata: dict) -> None:
-    """Write an imported log in our CSV format, its metadata as a first comment line (``# aeropend-import: {json}``,
-    which :func:`aeropend_core.io.recording.load_csv` skips and :func:`read_import_metadata` reads)."""
+    """Write an imported log in our CSV format (`target` a path, or '-' for standard output), its metadata as a first
+    comment line (``# aeropend-import: {json}``, which :func:`aeropend_core.io.recording.load_csv` skips and
+    :func:`read_import_metadata` reads)."""
     from aeropend_core.io.paths import write_atomically
     order = ['t'] + [k for k in ('duty', 'armature_voltage', 'armature_current', 'angle') if k in columns]
     lines = ['# aeropend-import: ' + json.dumps(metadata, sort_keys=True, default=str), ','.join(order)]
     table = np.column_stack([columns[k] for k in order])
     lines += [','.join(f'{v:.10g}' if np.isfinite(v) else '' for v in row) for row in table]
     text = '\n'.join(lines) + '\n'
+    if target == '-':                                   # standard output
+        sys.stdout.write(text)
+        sys.stdout.flush()
+        return
     write_atomically(target, lambda handle: handle.write(text))
 
 

@@ -1,11 +1,9 @@
-"""Shared pieces of the diagnosis report: number formatting with units, colours, PNG embedding of matplotlib
-figures (object API on an Agg canvas), decimation and smoothing of traces.
+"""Shared pieces of the diagnosis report: number formatting with units, colours, decimation of traces to a plot's
+pixel columns and smoothing (the plots themselves: :mod:`aeropend_core.present.svgplot`).
 """
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
 from collections.abc import Iterable, Sequence
 
@@ -18,15 +16,8 @@ from aeropend_core.model.effects import find_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 
 
-#: Resolution of the embedded PNGs [dots per inch]; with the figure sizes below a page stays well under 2 MB.
-DPI = 90
-
-
-#: Colours of an embedded PNG's palette (:func:`_png`).
-PALETTE_COLOURS = 128
-
-
-#: Pixel columns of a full-width plot (12.5 in at DPI): a line keeps its min and max per column (:func:`envelope`).
+#: Pixel columns of a full-width plot (about the SVG's plotting width, :mod:`aeropend_core.present.svgplot`): a line
+#: keeps its min and max per column (:func:`envelope`).
 PIXEL_COLUMNS = 1000
 
 
@@ -93,47 +84,6 @@ def _unit_and_meaning(parameter: str) -> tuple[str, str]:
 
 def _excess(comparison: Comparison) -> float:
     return excess_error(comparison.rms_error, comparison.noise_rms)
-
-
-def _png(figure) -> str:
-    """Render a matplotlib Figure to a base64 PNG data URI with a palette of :data:`PALETTE_COLOURS` colours.
-
-    A plot has few colours: a palette PNG is about a third of a true-colour one and looks the same (no dithering;
-    anti-aliased edges take the nearest palette colour).
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from PIL import Image
-
-    canvas = FigureCanvasAgg(figure)
-    figure.set_dpi(DPI)
-    canvas.draw()
-    image = Image.fromarray(np.asarray(canvas.buffer_rgba())[..., :3])
-    image = image.quantize(colors=PALETTE_COLOURS, method=Image.Quantize.FASTOCTREE, dither=Image.Dither.NONE)
-    buffer = io.BytesIO()
-    image.save(buffer, format='PNG', compress_level=6)
-    return 'data:image/png;base64,' + base64.b64encode(buffer.getvalue()).decode('ascii')
-
-
-def _fixed_figure(width: float, height: float, *, left: float = 0.85, right: float = 0.2, top: float = 0.3,
-                  bottom: float = 0.55, hspace: float = 0.12, wspace: float = 0.22):
-    """A Figure with fixed margins [in] instead of the constrained layout (which costs a second text-layout pass,
-    about a third of a plot's rendering time); for plots whose labels have a known size."""
-    from matplotlib.figure import Figure
-
-    figure = Figure(figsize=(width, height), dpi=DPI)
-    figure.subplots_adjust(left=left / width, right=1 - right / width, top=1 - top / height, bottom=bottom / height,
-                           hspace=hspace, wspace=wspace)
-    return figure
-
-
-def _top_legend(figure, axes, ncol: int) -> None:
-    """The legend of `axes` centred in the figure's top margin (see :func:`_fixed_figure`'s ``top``)."""
-    figure.legend(*axes.get_legend_handles_labels(), loc='upper center', bbox_to_anchor=(0.5, 1.0), ncol=ncol,
-                  fontsize=8.5, frameon=False)
-
-
-def _img(uri: str, alt: str) -> str:
-    return f'<img src="{uri}" alt="{_esc(alt)}">'
 
 
 def envelope(time: np.ndarray, values: np.ndarray, breaks: Iterable[int] = (),

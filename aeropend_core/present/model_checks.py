@@ -7,7 +7,7 @@
   spectrum against the white-noise floor;
 - the validation record (``diagnose --validate FILE``): the same model simulated on data it never saw.
 
-Each function returns an HTML fragment; figures are PNGs drawn with matplotlib's object API (no pyplot).
+Each function returns an HTML fragment; figures are inline SVG (:mod:`aeropend_core.present.svgplot`).
 """
 from __future__ import annotations
 
@@ -18,10 +18,11 @@ from aeropend_core.diagnosis.output_error import STRIDE
 from aeropend_core.diagnosis.validation import (Validation, prediction_points, residual_correlations,
                                                 simulation_band)
 from aeropend_core.present.formatting import (CANDIDATE, CURRENT, HELDOUT_SHADE, MEASURED, NOISE_SHADE, _esc,
-                                              _fixed_figure, _finite_trace, _img, _model_name, _mrad, _num, _png)
+                                              _finite_trace, _model_name, _mrad, _num, envelope)
+from aeropend_core.present.svgplot import Figure
 
 #: Points of a residual scatter drawn at most (strided); the binned mean uses every sample.
-SCATTER_POINTS = 2500
+SCATTER_POINTS = 1500
 
 #: Bins of the binned mean residual in a scatter.
 SCATTER_BINS = 40
@@ -36,47 +37,44 @@ def _band_figure(diagnosis: Diagnosis) -> tuple[str, str]:
     predicted_index, predicted = prediction_points(prep, diagnosis.current)
     part = slice(prep.split, len(prep.time))
     time = prep.time[part]
-    figure = _fixed_figure(12.5, 5.4, top=0.15, hspace=0.1)
-    top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[2.3, 1])
+    figure = Figure(430)
+    top, bottom = figure.grid(2, 1, height_ratios=[2.3, 1])
     t, y = _finite_trace(time, np.degrees(prep.angle[part]))
-    top.plot(t, y, color=MEASURED, lw=0.6, alpha=0.7, label='measured')
+    top.line(t, y, MEASURED, width=0.7, opacity=0.7, label='measured')
     finite = np.isfinite(band.low[part])
-    step = max(1, int(finite.sum() // 1500))
+    step = max(1, int(finite.sum() // 500))              # the band is smooth: 500 points draw it
     keep = np.flatnonzero(finite)[::step]
-    top.fill_between(time[keep], np.degrees(band.low[part][keep]), np.degrees(band.high[part][keep]), color=CURRENT,
-                     alpha=0.25, lw=0, label='\u00b12\u03c3 band (parameter uncertainty)')
+    top.fill(time[keep], np.degrees(band.low[part][keep]), np.degrees(band.high[part][keep]), CURRENT,
+             opacity=0.25, label='\u00b12\u03c3 band (parameter uncertainty)')
     t, y = _finite_trace(time, np.degrees(band.simulated[part]))
-    top.plot(t, y, color=CURRENT, lw=1.2, label=f'free-run simulation: {_model_name(diagnosis.effects)}')
+    top.line(t, y, CURRENT, width=1.3, label=f'free-run simulation: {_model_name(diagnosis.effects)}')
     horizon = diagnosis.current.evaluation.prediction_horizon
     if predicted.size:
-        top.plot(prep.time[predicted_index], np.degrees(predicted), 'o', ms=2.8, color=CANDIDATE,
-                 label=f'{horizon:g} s-ahead prediction (restarted from the measured state)')
+        top.points(prep.time[predicted_index], np.degrees(predicted), CANDIDATE, size=4,
+                   label=f'{horizon:g} s-ahead prediction (restarted from the measured state)')
         error = (prep.angle[predicted_index] - predicted) * 1e3
-        bottom.plot(prep.time[predicted_index], error, 'o', ms=2.8, color=CANDIDATE,
-                    label=f'{horizon:g} s-ahead prediction error')
+        bottom.points(prep.time[predicted_index], error, CANDIDATE, size=4,
+                      label=f'{horizon:g} s-ahead prediction error')
     residual = (prep.angle[part] - band.simulated[part]) * 1e3
     t, r = _finite_trace(time, residual)
-    bottom.plot(t, r, color=CURRENT, lw=0.5, alpha=0.5, label='free-run simulation error')
+    bottom.line(t, r, CURRENT, width=0.6, opacity=0.5, label='free-run simulation error')
     noise = diagnosis.noise_rms * 1e3
-    bottom.axhspan(-noise, noise, color=NOISE_SHADE, alpha=0.6, zorder=0, label=f'\u00b1 noise RMS ({noise:.1f} mrad)')
+    bottom.span(y0=-noise, y1=noise, colour=NOISE_SHADE, opacity=0.6, label=f'\u00b1 noise RMS ({noise:.1f} mrad)')
     width = (band.high[part] - band.low[part]) / 2 * 1e3
     t, w = _finite_trace(time, width)
-    bottom.plot(t, w, color=CURRENT, lw=0.8, ls='--', label='2\u03c3 half-width of the band [mrad]')
-    top.set_ylabel('angle [deg]')
-    top.set_xlim(time[0], time[-1])
-    bottom.set_ylabel('error [mrad]')
-    bottom.set_xlabel('time [s] (held-out part)')
+    bottom.line(t, w, CURRENT, width=0.9, style='--', label='2\u03c3 half-width of the band [mrad]')
+    top.ylabel = 'angle [deg]'
+    bottom.xlim = (time[0], time[-1])
+    bottom.ylabel = 'error [mrad]'
+    bottom.xlabel = 'time [s] (held-out part)'
     for axes in (top, bottom):
-        axes.grid(alpha=0.3)
-        axes.set_facecolor(HELDOUT_SHADE + '40')
-    top.legend(fontsize=8, loc='upper left', ncol=2, framealpha=0.85)
-    bottom.legend(fontsize=8, loc='upper left', ncol=4, framealpha=0.85)
-    return _png(figure), band.method
+        axes.background = HELDOUT_SHADE + '40'
+    return figure.html('held-out simulation with a 2 sigma band and k-step predictions'), band.method
 
 
 def band_section(diagnosis: Diagnosis) -> str:
     """The held-out simulation with its +-2 sigma band and the k-step predictions as points."""
-    uri, method = _band_figure(diagnosis)
+    plot, method = _band_figure(diagnosis)
     evaluation = diagnosis.current.evaluation
     return ('<h3 id="band">Held-out part, enlarged: the simulation with its &plusmn;2&sigma; band, and the k-step '
             'prediction</h3>'
@@ -86,7 +84,7 @@ def band_section(diagnosis: Diagnosis) -> str:
             f'the measured state and run {evaluation.prediction_horizon:g} s ahead (MATLAB <code>compare</code> '
             f'with a finite horizon); their RMS error is {_mrad(evaluation.prediction_rms)}. Bottom: both errors in '
             'mrad. A free-run error far outside the band means the model structure, not its parameters, is '
-            'wrong.</p>' + _img(uri, 'held-out simulation with a 2 sigma band and k-step predictions'))
+            'wrong.</p>' + plot)
 
 
 # -- residual against the state and the input ---------------------------------------------------------------------
@@ -115,24 +113,25 @@ def scatter_section(diagnosis: Diagnosis) -> str:
     axes_data = [('rate of the rod &Omega; [rad/s]', 'rate \u03a9 [rad/s]', prep.smoothed_rate[index]),
                  ('angle y [deg]', 'angle y [deg]', np.degrees(prep.smoothed_angle[index])),
                  ('thrust input e|e| [V&sup2;]', 'thrust input e|e| [V\u00b2]', (e * np.abs(e))[index])]
-    figure = _fixed_figure(12.5, 3.7, top=0.15, wspace=0.06)
-    panels = figure.subplots(1, 3, sharey=True)
+    figure = Figure(300)
+    panels = figure.grid(1, 3, column_gap=22)
     shown = index[::max(1, index.size // SCATTER_POINTS)]
     pick = np.searchsorted(index, shown)
     noise = diagnosis.noise_rms * 1e3
+    spread = max(np.percentile(np.abs(residual), 99.5), noise) * 1.15
     for axes, (_, label, x) in zip(panels, axes_data):
-        axes.axhspan(-noise, noise, color=NOISE_SHADE, alpha=0.6, zorder=0)
-        axes.plot(x[pick], residual[pick], '.', ms=1.6, color=MEASURED, alpha=0.35, rasterized=True)
+        axes.span(y0=-noise, y1=noise, colour=NOISE_SHADE, opacity=0.6)
+        axes.points(x[pick], residual[pick], MEASURED, size=2, opacity=0.35)
         centres, means = _binned_mean(x, residual)
-        axes.plot(centres, means, '-o', ms=3, lw=1.6, color=CURRENT, label='binned mean')
-        axes.axhline(0, color='black', lw=0.6)
-        axes.set_xlabel(label)
-        axes.grid(alpha=0.3)
-        spread = np.percentile(np.abs(residual), 99.5)
-        axes.set_ylim(-1.15 * max(spread, noise), 1.15 * max(spread, noise))
-    panels[0].axvline(0, color='#b2182b', lw=0.8, ls=':')
-    panels[0].set_ylabel('measured \u2212 simulated [mrad]')
-    panels[0].legend(fontsize=8, loc='upper left')
+        axes.line(centres, means, CURRENT, width=1.8, label='binned mean')
+        axes.points(centres, means, CURRENT, size=5)
+        axes.rule(y=0, colour='black', width=0.7)
+        axes.xlabel = label
+        axes.ylim = (-spread, spread)
+    for axes in panels[1:]:
+        axes.yticks = ([], [])
+    panels[0].rule(x=0, colour='#b2182b', width=0.9, style=':')
+    panels[0].ylabel = 'measured \u2212 simulated [mrad]'
     return ('<h3 id="scatter">Residual against rate, angle and thrust</h3><p class="caption">Measured minus '
             'simulated angle (model as given, training segments and held-out part; grey points: every '
             f'{max(1, index.size // SCATTER_POINTS)}th sample; blue: mean in {SCATTER_BINS} bins; grey band: '
@@ -140,10 +139,15 @@ def scatter_section(diagnosis: Diagnosis) -> str:
             'nothing leaves a flat mean. Signatures: a step at zero rate (dotted red line) is dry friction '
             '(sign &Omega;); a slope against the rate, damping; an S against the angle, a cable or an offset; a bend '
             'at low thrust, a dead zone.</p>'
-            + _img(_png(figure), 'residual against rate, angle and thrust input'))
+            + figure.html('residual against rate, angle and thrust input'))
 
 
 # -- residual correlations and spectrum -------------------------------------------------------------------------------
+
+def _decimated(lags: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A correlation against lag [s] reduced to a third-width panel's pixel columns (min/max envelope)."""
+    return envelope(lags, values, columns=350)
+
 
 def correlation_section(diagnosis: Diagnosis, best) -> str:
     """Residual autocorrelation and cross-correlation with the thrust input to 5 s, and the residual spectrum."""
@@ -153,19 +157,20 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
     models = [('model as given', diagnosis.current, CURRENT)]
     if best is not None and best.comparison is not None:
         models.append((f'+ {best.effect}', best.comparison, CANDIDATE))
-    figure = _fixed_figure(12.5, 3.9, top=0.35, left=0.75, bottom=0.6, wspace=0.3)
-    auto_axes, cross_axes, spectrum_axes = figure.subplots(1, 3)
+    figure = Figure(330)
+    auto_axes, cross_axes, spectrum_axes = figure.grid(1, 3, top=24, left=62, column_gap=66)
     texts = []
     rate = 1.0 / (STRIDE * prep.sample_time)
     for label, comparison, colour in models:
         c = residual_correlations(prep, comparison)
-        auto_axes.plot(c.lag_seconds, c.autocorrelation, color=colour, lw=1.1, label=label)
-        cross_axes.plot(c.cross_lag_seconds, c.cross_correlation, color=colour, lw=1.1, label=label)
+        auto_axes.line(*_decimated(c.lag_seconds, c.autocorrelation), colour, width=1.2, label=label)
+        cross_axes.line(*_decimated(c.cross_lag_seconds, c.cross_correlation), colour, width=1.2)
         if comparison is diagnosis.current:
-            auto_axes.axhspan(-c.auto_band, c.auto_band, color='#c6dbef', alpha=0.8, zorder=0,
-                              label=f'99 % band \u00b12.58/\u221aN, N = {c.samples}')
-            cross_axes.axhspan(-c.cross_band, c.cross_band, color='#c6dbef', alpha=0.8, zorder=0,
-                               label=f'99 % band \u00b12.58/\u221aN_eff, N_eff = {c.effective_samples:.0f}')
+            auto_axes.span(y0=-c.auto_band, y1=c.auto_band, colour='#c6dbef', opacity=0.8,
+                           label=f'autocorrelation 99 % band \u00b12.58/\u221aN, N = {c.samples}')
+            cross_axes.span(y0=-c.cross_band, y1=c.cross_band, colour='#c6dbef', opacity=0.8,
+                            label=f'cross-correlation 99 % band \u00b12.58/\u221aN_eff, N_eff = '
+                                  f'{c.effective_samples:.0f}')
         outside_auto = int(np.sum(np.abs(c.autocorrelation[1:]) > c.auto_band))
         outside_cross = int(np.sum(np.abs(c.cross_correlation) > c.cross_band))
         first_zero = np.flatnonzero(c.autocorrelation <= 0)
@@ -178,24 +183,20 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
         residual = prep.angle[index] - comparison.evaluation.simulated[index]
         frequency, density = welch(residual, fs=rate, nperseg=min(residual.size, 2048))
         shown = (frequency > 0) & (frequency <= SPECTRUM_MAX_HZ)
-        spectrum_axes.plot(frequency[shown], 10 * np.log10(np.maximum(density[shown], 1e-30)), color=colour,
-                           lw=1.1, label=label)
+        spectrum_axes.line(frequency[shown], 10 * np.log10(np.maximum(density[shown], 1e-30)), colour, width=1.2)
     noise_floor = 2 * diagnosis.noise_rms ** 2 / rate
-    spectrum_axes.axhline(10 * np.log10(noise_floor), color='black', ls='--', lw=1,
-                          label=f'white noise of {diagnosis.noise_rms * 1e3:.1f} mrad RMS')
-    auto_axes.set_title('residual autocorrelation (whiteness)', fontsize=10)
-    cross_axes.set_title('residual vs thrust e|e| (independence)', fontsize=10)
-    spectrum_axes.set_title('residual spectrum (Welch)', fontsize=10)
-    auto_axes.set_xlabel('lag [s]')
-    cross_axes.set_xlabel('lag [s]  (> 0: the input leads)')
-    spectrum_axes.set_xlabel('frequency [Hz]')
-    spectrum_axes.set_ylabel('power spectral density [dB re 1 rad\u00b2/Hz]')
-    spectrum_axes.set_xlim(0, min(SPECTRUM_MAX_HZ, rate / 2))
-    for axes in (auto_axes, cross_axes, spectrum_axes):
-        axes.grid(alpha=0.3)
-        axes.legend(fontsize=8, loc='upper right', framealpha=0.9)
+    spectrum_axes.rule(y=10 * np.log10(noise_floor), colour='black', style='--', width=1,
+                       label=f'white noise of {diagnosis.noise_rms * 1e3:.1f} mrad RMS (spectrum)')
+    auto_axes.title = 'residual autocorrelation (whiteness)'
+    cross_axes.title = 'residual vs thrust e|e| (independence)'
+    spectrum_axes.title = 'residual spectrum (Welch)'
+    auto_axes.xlabel = 'lag [s]'
+    cross_axes.xlabel = 'lag [s]  (> 0: the input leads)'
+    spectrum_axes.xlabel = 'frequency [Hz]'
+    spectrum_axes.ylabel = 'PSD [dB re 1 rad\u00b2/Hz]'
+    spectrum_axes.xlim = (0, min(SPECTRUM_MAX_HZ, rate / 2))
     for axes in (auto_axes, cross_axes):
-        axes.axhline(0, color='black', lw=0.6)
+        axes.rule(y=0, colour='black', width=0.7)
     return ('<h3 id="long-residuals">Residual correlations to 5 s and spectrum</h3><p class="caption">The '
             'held-out simulation residual (every second sample, where the simulation lands) as MATLAB '
             '<code>resid</code> shows it, but to 5 s of lag (the rod swings at about 1 Hz, so 0.1 s is too short). '
@@ -207,30 +208,27 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
             'explains part of the error (a lag, a missing input path); residual power above the dashed white-noise '
             'floor, at the rod\'s swing frequency, is model error. '
             + '</p><ul class="notes">' + ''.join(f'<li>{t}</li>' for t in texts) + '</ul>'
-            + _img(_png(figure), 'residual autocorrelation, cross-correlation and spectrum to long lags'))
+            + figure.html('residual autocorrelation, cross-correlation and spectrum to long lags'))
 
 
 # -- validation record --------------------------------------------------------------------------------------------
 
 def validation_section(diagnosis: Diagnosis, validation: Validation) -> str:
     """The fitted model on the validation record: numbers and the measured vs simulated angle."""
-    figure = _fixed_figure(12.5, 4.6, top=0.15, hspace=0.1)
-    top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[2.2, 1])
+    figure = Figure(370)
+    top, bottom = figure.grid(2, 1, height_ratios=[2.2, 1])
     t, y = _finite_trace(validation.time, np.degrees(validation.angle))
-    top.plot(t, y, color=MEASURED, lw=0.6, alpha=0.75, label='measured (validation record)')
+    top.line(t, y, MEASURED, width=0.7, opacity=0.75, label='measured (validation record)')
     t, y = _finite_trace(validation.time, np.degrees(validation.simulated))
-    top.plot(t, y, color=CURRENT, lw=1.2, label=f'simulated: {_model_name(validation.effects)}')
+    top.line(t, y, CURRENT, width=1.3, label=f'simulated: {_model_name(validation.effects)}')
     t, r = _finite_trace(validation.time, (validation.angle - validation.simulated) * 1e3)
-    bottom.plot(t, r, color=CURRENT, lw=0.5)
+    bottom.line(t, r, CURRENT, width=0.6, label='measured \u2212 simulated')
     noise = validation.noise_rms * 1e3
-    bottom.axhspan(-noise, noise, color=NOISE_SHADE, alpha=0.6, zorder=0)
-    top.set_ylabel('angle [deg]')
-    bottom.set_ylabel('error [mrad]')
-    bottom.set_xlabel('time [s] (validation record)')
-    top.set_xlim(validation.time[0], validation.time[-1])
-    for axes in (top, bottom):
-        axes.grid(alpha=0.3)
-    top.legend(fontsize=8, loc='upper left', ncol=2)
+    bottom.span(y0=-noise, y1=noise, colour=NOISE_SHADE, opacity=0.6, label=f'\u00b1 noise RMS ({noise:.1f} mrad)')
+    top.ylabel = 'angle [deg]'
+    bottom.ylabel = 'error [mrad]'
+    bottom.xlabel = 'time [s] (validation record)'
+    bottom.xlim = (validation.time[0], validation.time[-1])
     current = diagnosis.current
     rows = [('fit % (NRMSE, free run, MATLAB compare)', _num(current.fit_percent, 2, suffix='&nbsp;%'),
              _num(validation.fit_percent, 2, suffix='&nbsp;%')),
@@ -252,7 +250,7 @@ def validation_section(diagnosis: Diagnosis, validation: Validation) -> str:
             'initial state estimated on that record\'s first second, as MATLAB <code>compare</code> with validation '
             'data. A fit much lower here than on the held-out part means the model fits the first record only.</p>'
             + table + (f'<ul class="notes">{notes}</ul>' if notes else '')
-            + _img(_png(figure), 'measured and simulated angle on the validation record') + '</section>')
+            + figure.html('measured and simulated angle on the validation record') + '</section>')
 
 
 __all__ = ['band_section', 'correlation_section', 'scatter_section', 'validation_section',

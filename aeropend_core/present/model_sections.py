@@ -3,15 +3,13 @@ equation written out with numbers and units, the parameter correlation matrix of
 export of every trace.
 
 Each function returns an HTML fragment (a ``<section>`` with its own ``id``); :func:`model_sections` returns all of
-them for :func:`aeropend_core.present.report.render_report`. Figures are PNGs.
+them for :func:`aeropend_core.present.report.render_report`. Figures are inline SVG.
 """
 from __future__ import annotations
 
 import base64
 import gzip
-import io
 import math
-import re
 
 import numpy as np
 
@@ -90,32 +88,32 @@ def observer_section(diagnosis: Diagnosis) -> str:
                 f'(grey). Fitted: {values}. Current RMS error {motor.current_rms_error * 1e3:.2f} mA against a noise '
                 f'of {motor.current_noise_rms * 1e3:.2f} mA ({ratio:.2f}&times;; the observer is used below '
                 '1.5&times;).</p>')
-    figure = _observer_png(diagnosis, traces)
+    figure = _observer_plot(diagnosis, traces)
     return ('<section id="observer"><h2>Motor observer: armature current and back-EMF</h2>' + text + figure
             + '</section>')
 
 
-def _observer_png(diagnosis: Diagnosis, traces: dict) -> str:
-    from aeropend_core.present.formatting import HELDOUT_SHADE, MEASURED, _finite_trace, _fixed_figure, _img, _png
+def _observer_plot(diagnosis: Diagnosis, traces: dict) -> str:
+    from aeropend_core.present.formatting import HELDOUT_SHADE, MEASURED, _finite_trace
+    from aeropend_core.present.svgplot import Figure
     prep = diagnosis.prepared
-    figure = _fixed_figure(12.5, 5.0, top=0.15, hspace=0.08)
-    top, bottom = figure.subplots(2, 1, sharex=True)
+    figure = Figure(400)
+    top, bottom = figure.grid(2, 1)
     for axes in (top, bottom):
-        axes.axvspan(prep.time[prep.split], prep.time[-1], color=HELDOUT_SHADE, zorder=0)
-        axes.grid(alpha=0.3)
-    top.plot(*_finite_trace(prep.time, prep.armature_current), color=MEASURED, lw=0.6, label='measured Ia')
+        axes.span(x0=prep.time[prep.split], x1=prep.time[-1], colour=HELDOUT_SHADE)
+    top.line(*_finite_trace(prep.time, prep.armature_current), MEASURED, width=0.7, label='measured Ia')
     if traces['model_current'] is not None:
-        top.plot(*_finite_trace(prep.time, traces['model_current']), color='#e66101', lw=1.2,
+        top.line(*_finite_trace(prep.time, traces['model_current']), '#e66101', width=1.3,
                  label='observer model current')
-    bottom.plot(*_finite_trace(prep.time, traces['measured_emf']), color=MEASURED, lw=0.6, label='Va - R Ia measured')
-    bottom.plot(*_finite_trace(prep.time, traces['thrust_voltage']), color='#1f63b4', lw=1.2,
+    bottom.line(*_finite_trace(prep.time, traces['measured_emf']), MEASURED, width=0.7,
+                label='Va - R Ia measured')
+    bottom.line(*_finite_trace(prep.time, traces['thrust_voltage']), '#1f63b4', width=1.3,
                 label='back-EMF used for the thrust')
-    top.set_ylabel('Ia [A]')
-    bottom.set_ylabel('back-EMF [V]')
-    bottom.set_xlabel('time [s]')
-    top.legend(fontsize=8, loc='upper right')
-    bottom.legend(fontsize=8, loc='upper right')
-    return _img(_png(figure), 'measured armature current against the motor observer, and the back-EMF')
+    top.ylabel = 'Ia [A]'
+    bottom.ylabel = 'back-EMF [V]'
+    bottom.xlabel = 'time [s]'
+    bottom.xlim = (prep.time[0], prep.time[-1])
+    return figure.html('measured armature current against the motor observer, and the back-EMF')
 
 
 # -- the identified equation ----------------------------------------------------------------------------------------
@@ -233,11 +231,12 @@ def traces_csv(diagnosis: Diagnosis, best: Candidate | None) -> str:
         columns['observer_current_A'] = (traces['model_current'], '%.6g')
     columns['thrust_back_emf_V'] = (traces['thrust_voltage'], '%.6g')
     data = np.column_stack([np.asarray(values, dtype=float) for values, _ in columns.values()])
-    buffer = io.StringIO()
-    np.savetxt(buffer, data, fmt=[fmt for _, fmt in columns.values()], delimiter=',',
-               header=','.join(columns), comments='')
-    # a sample that was not simulated is an empty field (savetxt writes nan)
-    return re.sub(r'(?<![A-Za-z_])nan(?![A-Za-z_])', '', buffer.getvalue())
+    # one %-format over all the values (a C loop; np.savetxt formats row by row in Python, 2x slower)
+    row = ','.join(fmt for _, fmt in columns.values()) + '\n'
+    body = (row * data.shape[0]) % tuple(data.ravel()) if data.size else ''
+    # a sample that was not simulated is an empty field ('%g' writes nan, with no sign)
+    body = ('\n' + body).replace(',nan', ',').replace('\nnan,', '\n,')[1:]
+    return ','.join(columns) + '\n' + body
 
 
 def compressed_csv(text: str) -> str:

@@ -1,5 +1,5 @@
-"""The diagnosis report's figures: measured vs simulated angle, the held-out zoom, error vs time with the worst
-windows, error by regime, residual tests (MATLAB ``resid`` style) and the candidate ranking.
+"""The diagnosis report's figures: measured vs simulated angle, error vs time with the worst windows, error by
+regime and the candidate ranking, each as inline SVG (:mod:`aeropend_core.present.svgplot`) returned as HTML.
 """
 from __future__ import annotations
 
@@ -19,13 +19,11 @@ from aeropend_core.present.formatting import (
     WORST_SHADE,
     SMOOTHING_SECONDS,
     _excess,
-    _fixed_figure,
-    _top_legend,
     _finite_trace,
     _model_name,
-    _png,
     _running_mean,
 )
+from aeropend_core.present.svgplot import TICK_FONT, Figure
 
 
 def _segment_starts(diagnosis: Diagnosis) -> list[int]:
@@ -53,36 +51,28 @@ def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
     prep = diagnosis.prepared
     time = prep.time
     breaks = _segment_starts(diagnosis)
-    figure = _fixed_figure(12.5, 5.8, top=0.75, hspace=0.08)
-    grid = figure.add_gridspec(2, 1, height_ratios=[3.2, 1])
-    angle_axes = figure.add_subplot(grid[0])
-    input_axes = figure.add_subplot(grid[1], sharex=angle_axes)
+    figure = Figure(440)
+    angle_axes, input_axes = figure.grid(2, 1, top=22, height_ratios=[3.2, 1])
     t_split = time[prep.split]
     for axes in (angle_axes, input_axes):
-        axes.axvspan(t_split, time[-1], color=HELDOUT_SHADE, zorder=0)
+        axes.span(x0=t_split, x1=time[-1], colour=HELDOUT_SHADE)
         for start in breaks[1:-1]:
-            axes.axvline(time[start], color='#999999', lw=0.6, ls=(0, (2, 3)), zorder=1)
+            axes.rule(x=time[start], colour='#999999', width=0.8, style=':')
     t, y = _finite_trace(time, prep.angle)
-    angle_axes.plot(t, np.degrees(y), color=MEASURED, lw=0.6, alpha=0.8, label='measured')
+    angle_axes.line(t, np.degrees(y), MEASURED, width=0.7, opacity=0.8, label='measured')
     for label, simulated, colour, style, width in _overlay_traces(diagnosis, best):
         t, y = _finite_trace(time, simulated, breaks)
-        angle_axes.plot(t, np.degrees(y), color=colour, ls=style, lw=width, label=label)
-    angle_axes.set_ylabel('angle [deg]')
-    angle_axes.text(t_split, 1.0, ' held-out part: fit % computed here', transform=angle_axes.get_xaxis_transform(),
-                    va='bottom', ha='left', fontsize=9, color='#8a6d00')
+        angle_axes.line(t, np.degrees(y), colour, width=width, style=style, label=label)
+    angle_axes.ylabel = 'angle [deg]'
+    angle_axes.text(t_split, 1.0, ' held-out part: fit % computed here', colour='#8a6d00', dy=-5, y_fraction=True)
     angle_axes.text(time[0], 1.0, 'training part (fitted in ~10 s segments, each restarted from a fitted state)',
-                    transform=angle_axes.get_xaxis_transform(), va='bottom', ha='left', fontsize=9,
-                    color='#666666')
-    _top_legend(figure, angle_axes, 4)
-    angle_axes.grid(alpha=0.3)
-    angle_axes.tick_params(labelbottom=False)
+                    colour='#666666', dy=-5, y_fraction=True)
     t, v = _finite_trace(time, prep.armature_voltage)
-    input_axes.plot(t, v, color='#7b3294', lw=0.8)
-    input_axes.set_ylabel('Va [V]')
-    input_axes.set_xlabel('time [s]')
-    input_axes.grid(alpha=0.3)
-    input_axes.set_xlim(time[0], time[-1])
-    return _png(figure)
+    input_axes.line(t, v, '#7b3294', width=0.9)
+    input_axes.ylabel = 'Va [V]'
+    input_axes.xlabel = 'time [s]'
+    input_axes.xlim = (time[0], time[-1])
+    return figure.html('measured and simulated angle over the whole record')
 
 
 def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
@@ -91,43 +81,40 @@ def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
     breaks = _segment_starts(diagnosis)
     noise = diagnosis.noise_rms
     width = max(1, round(SMOOTHING_SECONDS / prep.sample_time / 2))   # simulated every 2nd sample
-    figure = _fixed_figure(12.5, 4.6, top=0.75)
-    axes = figure.add_subplot()
-    axes.axvspan(time[prep.split], time[-1], color=HELDOUT_SHADE, zorder=0)
+    figure = Figure(330)
+    axes, = figure.grid()
+    axes.span(x0=time[prep.split], x1=time[-1], colour=HELDOUT_SHADE)
     windows = diagnosis.current.evaluation.worst_windows
     for rank, window in enumerate(windows, 1):
-        axes.axvspan(window['start'], window['stop'], color=WORST_SHADE, alpha=0.55, zorder=0.5)
-        axes.text(0.5 * (window['start'] + window['stop']), 0.98, f'#{rank}', transform=axes.get_xaxis_transform(),
-                  ha='center', va='top', fontsize=9, color='#b2182b', fontweight='bold')
-    axes.axhspan(-noise * 1e3, noise * 1e3, color=NOISE_SHADE, alpha=0.6, zorder=0.6,
-                 label=f'\u00b1 measurement noise RMS ({noise * 1e3:.1f} mrad)')
+        axes.span(x0=window['start'], x1=window['stop'], colour=WORST_SHADE, opacity=0.55)
+        axes.text(0.5 * (window['start'] + window['stop']), 1.0, f'#{rank}', colour='#b2182b', anchor='middle',
+                  dy=13, bold=True, y_fraction=True)
+    axes.span(y0=-noise * 1e3, y1=noise * 1e3, colour=NOISE_SHADE, opacity=0.6,
+              label=f'\u00b1 measurement noise RMS ({noise * 1e3:.1f} mrad)')
     error = prep.angle - diagnosis.current.evaluation.simulated
     t, e = _finite_trace(time, error, breaks)
-    axes.plot(t, e * 1e3, color=CURRENT, lw=0.4, alpha=0.35, label='error, model as given (raw)')
+    axes.line(t, e * 1e3, CURRENT, width=0.5, opacity=0.35, label='error, model as given (raw)')
     t, e = _finite_trace(time, _running_mean(error, width), breaks)
-    axes.plot(t, e * 1e3, color=CURRENT, lw=1.5,
-              label=f'error, model as given ({SMOOTHING_SECONDS:g} s running mean)')
+    axes.line(t, e * 1e3, CURRENT, width=1.6, label=f'error, model as given ({SMOOTHING_SECONDS:g} s running mean)')
     if diagnosis.before is not None:
         before = _running_mean(prep.angle - diagnosis.before.evaluation.simulated, width)
         t, e = _finite_trace(time, before, breaks)
-        axes.plot(t, e * 1e3, color=BEFORE, lw=1.2, ls=':', label='error, before (running mean)')
+        axes.line(t, e * 1e3, BEFORE, width=1.3, style=':', label='error, before (running mean)')
     if best is not None:
         candidate = _running_mean(prep.angle - best.comparison.evaluation.simulated, width)
         t, e = _finite_trace(time, candidate, breaks)
-        axes.plot(t, e * 1e3, color=CANDIDATE, lw=1.2, ls='--', label=f'error, + {best.effect} (running mean)')
-    axes.axhline(0, color='black', lw=0.6)
-    axes.set_xlim(time[0], time[-1])
-    axes.set_xlabel('time [s]')
-    axes.set_ylabel('measured \u2212 simulated angle [mrad]')
-    _top_legend(figure, axes, 3)
-    axes.grid(alpha=0.3)
-    return _png(figure)
+        axes.line(t, e * 1e3, CANDIDATE, width=1.3, style='--', label=f'error, + {best.effect} (running mean)')
+    axes.rule(y=0, colour='black', width=0.7)
+    axes.xlim = (time[0], time[-1])
+    axes.xlabel = 'time [s]'
+    axes.ylabel = 'measured \u2212 simulated angle [mrad]'
+    return figure.html('simulation error against time with the worst windows marked')
 
 
-def _label_inches(labels: list[str], fontsize: float) -> float:
-    """Left margin [in] for y tick labels of this length (DejaVu Sans: about 0.6 em per character)."""
+def _label_pixels(labels: list[str], fontsize: float = TICK_FONT) -> float:
+    """Left margin [px] for y tick labels of this length (DejaVu Sans: about 0.6 em per character)."""
     longest = max((len(label) for label in labels), default=10)
-    return 0.35 + longest * 0.6 * fontsize / 72
+    return 14 + longest * 0.6 * fontsize
 
 
 def _regime_excess(regimes: dict, name: str, noise: float) -> float:
@@ -149,9 +136,8 @@ def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
         series.append((f'+ {best.effect} (best candidate)', best.comparison.evaluation.regimes, CANDIDATE))
     height = 0.8 / len(series)
     labels = [f'{name}  [{current[name]["fraction_of_samples"] * 100:.0f} % of samples]' for name in names]
-    figure_height = 1.3 + 0.42 * len(names) * (0.6 + 0.4 * len(series))
-    figure = _fixed_figure(12.5, figure_height, left=_label_inches(labels, 8.5), top=0.45, bottom=0.6)
-    axes = figure.add_subplot()
+    figure = Figure(60 + 30 * len(names) * (0.6 + 0.4 * len(series)))
+    axes, = figure.grid(left=_label_pixels(labels))
     positions = np.arange(len(names), dtype=float)
     largest = 0.0
     for k, (label, regimes, colour) in enumerate(series):
@@ -159,18 +145,17 @@ def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
         offset = (len(series) - 1 - 2 * k) * height / 2
         values = np.array([_regime_excess(regimes, name, noise) for name in names]) * 1e3
         largest = max(largest, np.nanmax(values) if np.isfinite(values).any() else 0.0)
-        bars = axes.barh(positions + offset, values, height=height * 0.92, color=colour, label=label)
-        for bar, value in zip(bars, values):
+        axes.bars(positions + offset, np.zeros_like(values), values, height * 0.92, colour, label=label)
+        for position, value in zip(positions + offset, values):
             if np.isfinite(value):
-                axes.text(bar.get_width(), bar.get_y() + bar.get_height() / 2, f' {value:.1f}', va='center',
-                          fontsize=7.5, color=colour)
-    axes.set_yticks(positions, labels, fontsize=8.5)
-    axes.set_xlim(0, max(largest, 0.1 * noise * 1e3) * 1.12)
-    axes.set_xlabel(f'model error beyond the noise in the regime, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]'
-                    f'   (noise RMS {noise * 1e3:.1f} mrad)')
-    _top_legend(figure, axes, 4)
-    axes.grid(axis='x', alpha=0.3)
-    return _png(figure)
+                axes.text(value, position, f' {value:.1f}', colour=colour, size=10, dy=3.5)
+    axes.yticks = (positions, labels)
+    axes.grid = 'x'
+    axes.xlim = (0, max(largest, 0.1 * noise * 1e3) * 1.12)
+    axes.ylim = (-0.6, len(names) - 0.4)
+    axes.xlabel = (f'model error beyond the noise in the regime, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]'
+                   f'   (noise RMS {noise * 1e3:.1f} mrad)')
+    return figure.html('RMS error by regime')
 
 
 #: Colour of the selected set (the verdict's missing effects), as the MISSING badge of the table.
@@ -231,43 +216,40 @@ def _plot_candidates(diagnosis: Diagnosis) -> str | None:
         return None
     noise = diagnosis.noise_rms * 1e3
     now = _excess(diagnosis.current) * 1e3
-    figure = _fixed_figure(12.5, 1.5 + 0.36 * len(rows), left=_label_inches([row['label'] for row in rows], 9),
-                           top=0.45, bottom=0.6)
-    axes = figure.add_subplot()
+    figure = Figure(64 + 27 * len(rows))
+    axes, = figure.grid(left=_label_pixels([row['label'] for row in rows], 12))
     positions = list(range(len(rows)))[::-1]
     references = 0
     for position, row in zip(positions, rows):
         start, end, colour = row['start'], row['end'], row['colour']
         if row['effect'] is None:
             references += 1
-            axes.barh(position, end, color=colour, height=0.62, alpha=0.85)
-            axes.annotate(f'{end:.2f} mrad', (end, position), xytext=(6, 0), textcoords='offset points',
-                          va='center', fontsize=8, color=colour, fontweight='bold')
+            axes.bars([position], [0.0], [end], 0.62, colour, opacity=0.85)
+            axes.text(end, position, f'{end:.2f} mrad', colour=colour, size=10.5, dx=6, dy=4, bold=True)
             continue
-        axes.plot([start, end], [position, position], color=colour, lw=2.2, solid_capstyle='butt')
-        axes.plot([end], [position], marker='<' if end < start else '>', color=colour, ms=8, zorder=3,
-                  clip_on=False)
+        axes.line([start, end], [position, position], colour, width=3, scale=False)
+        axes.marker(end, position, '<' if end < start else '>', colour)
         removed = start - end
         change = ('no error beyond the noise to remove' if start <= 0 else
                   f'{end:.2f} mrad, unchanged' if abs(removed) < 0.005 * start else
                   f'{end:.2f} mrad, {removed:.2f} removed' if removed > 0 else f'{end:.2f} mrad, worse')
         selected = row['tag'] == 'SELECTED'
-        axes.annotate(f'{change}  \u2014 {row["tag"]}', (max(start, end), position), xytext=(8, 0),
-                      textcoords='offset points', va='center', fontsize=8, color=SELECTED if selected else '#333333',
-                      fontweight='bold' if selected else 'normal')
+        axes.text(max(start, end), position, f'{change}  \u2014 {row["tag"]}', colour=SELECTED if selected else
+                  '#333333', size=10.5, dx=10, dy=4, bold=selected)
     if references < len(rows):
-        axes.axhline(positions[references - 1] - 0.5, color='#999999', lw=0.8)
-    axes.axvline(noise, color='black', ls='--', lw=1, label=f'measurement noise RMS ({noise:.2f} mrad), for scale')
+        axes.rule(y=positions[references - 1] - 0.5, colour='#999999', width=0.8)
+    axes.rule(x=noise, colour='black', style='--', width=1,
+              label=f'measurement noise RMS ({noise:.2f} mrad), for scale')
     needed = math.sqrt(max(now ** 2 - (MATERIAL * noise) ** 2, 0.0))
     if now - needed > 0.01 * max(now, 1e-9):
-        axes.axvline(needed, color=CURRENT, lw=1, ls=':',
-                     label=f'a candidate must reach left of this ({needed:.2f} mrad; also \u0394BIC < '
-                           f'\u2212{BIC_MARGIN:g}, parameter > 3\u03c3)')
-    axes.set_yticks(positions, [row['label'] for row in rows], fontsize=9)
+        axes.rule(x=needed, colour=CURRENT, width=1, style=':',
+                  label=f'a candidate must reach left of this ({needed:.2f} mrad; also \u0394BIC < '
+                        f'\u2212{BIC_MARGIN:g}, parameter > 3\u03c3)')
+    axes.yticks = (positions, [row['label'] for row in rows])
+    axes.grid = 'x'
     largest = max([max(row['start'], row['end']) for row in rows] + [noise])
-    axes.set_xlim(0, largest * 1.75)
-    axes.set_xlabel('held-out model error beyond the noise, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]  '
-                    '(shorter is better; arrow: model as given \u2192 with the candidate)')
-    _top_legend(figure, axes, 2)
-    axes.grid(axis='x', alpha=0.3)
-    return _png(figure)
+    axes.xlim = (0, largest * 1.75)
+    axes.ylim = (-0.6, len(rows) - 0.4)
+    axes.xlabel = ('held-out model error beyond the noise, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]  '
+                   '(shorter is better; arrow: model as given \u2192 with the candidate)')
+    return figure.html('held-out error beyond the noise per candidate')

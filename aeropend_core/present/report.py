@@ -1,7 +1,8 @@
 """A self-contained HTML report of a diagnosis: one file, no script library and no external resource; every plot
-is an embedded PNG whose lines are decimated to what its pixels can show (a min/max envelope per pixel column,
-:func:`aeropend_core.present.formatting.envelope`), so a 60 s record gives a page of about 1 MB written in about a
-second. Every sample is in the page's CSV export (gzip-compressed).
+is inline SVG (:mod:`aeropend_core.present.svgplot`) whose lines are decimated to what its pixels can show (a min/max
+envelope per pixel column, :func:`aeropend_core.present.formatting.envelope`); the browser lays out its text and
+ticks. A 60 s record gives a page of about 1.2 MB written in about half a second of CPU. Every sample is in the
+page's CSV export (gzip-compressed).
 
 The page answers, top to bottom: what is missing (the verdict and the key numbers with units), where the model
 fails (measured vs simulated angle, error vs time with the worst windows, error by regime, residual correlation
@@ -10,8 +11,8 @@ what adding it changed (before -> after); then the model itself (:mod:`aeropend_
 the motor observer, the identified equation, the parameter correlation matrix and a CSV export of every trace.
 Angles on the plots are in degrees; numbers in the text are in mrad.
 
-Plots are drawn with matplotlib's object API on an Agg canvas (no pyplot, no global backend state), so
-:func:`write_report` is safe to call from a library, a CLI or a thread.
+Plots are plain strings built from NumPy arrays (no plotting library, no global state), so :func:`write_report` is
+safe to call from a library, a CLI or a thread.
 """
 from __future__ import annotations
 
@@ -40,7 +41,6 @@ from aeropend_core.present.formatting import (
     _best_candidate,
     _esc,
     _excess,
-    _img,
     _model_name,
     _mrad,
     _num,
@@ -83,6 +83,11 @@ p, li { line-height: 1.45; font-size: 14.5px; }
 .card .hint { font-size: 12px; color: #555; line-height: 1.35; }
 .card .was { font-size: 13px; color: #444; }
 img { max-width: 100%; display: block; margin: 6px 0; }
+figure.plot { margin: 6px 0 10px; }
+svg.plot { width: 100%; height: auto; display: block; overflow: visible; }
+.legend { font-size: 12.5px; color: #333; margin: 2px 0 0 60px; line-height: 1.6; }
+.legend .key { display: inline-block; margin-right: 16px; white-space: nowrap; }
+.legend .key svg { vertical-align: middle; margin-right: 5px; }
 .caption { font-size: 13px; color: #444; margin: 2px 0 10px; }
 table { border-collapse: collapse; margin: 8px 0; font-size: 13.5px; width: 100%; }
 th, td { border-bottom: 1px solid #e3e6ea; padding: 5px 8px; text-align: left; vertical-align: top; }
@@ -477,7 +482,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
         'On the training part each ~10 s segment (dotted lines) restarts from a fitted initial state. Bottom: the '
         'armature voltage driving the rig. Each line keeps the smallest and largest sample of every pixel column '
         '(all samples are in the CSV export below).</p>'
-        + _img(_plot_overlay(diagnosis, best), 'measured and simulated angle over the whole record')
+        + _plot_overlay(diagnosis, best)
         + band_section(diagnosis))
 
     sections.append(
@@ -486,7 +491,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
         f'{SMOOTHING_SECONDS:g} s running mean (bold) that shows the model error under the noise. Grey band: '
         '&plusmn; the measurement noise RMS; an error that stays inside it is noise. Salmon spans #1&ndash;#5: the '
         'one-second windows with the largest RMS error (table below). Yellow: held-out part.</p>'
-        + _img(_plot_error(diagnosis, best), 'simulation error against time with the worst windows marked')
+        + _plot_error(diagnosis, best)
         + _worst_windows_html(diagnosis))
 
     sections.append(
@@ -496,7 +501,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
         'differences; the table gives the raw RMS errors). A regime much above the others points at the missing '
         'physics: e.g. direction reversals for dry friction, large angles for a cable spring, just after steps for '
         'a thrust lag, low thrust for a dead zone.</p>'
-        + _img(_plot_regimes(diagnosis, best), 'RMS error by regime') + _regime_table(diagnosis, best))
+        + _plot_regimes(diagnosis, best) + _regime_table(diagnosis, best))
 
     sections.append(
         '<h2 id="residuals">4. Residual tests (as MATLAB <code>resid</code>, to long lags)</h2>'
@@ -515,7 +520,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
         f'not selected (the selected set already explains what it would); grey is not significant. The chart '
         f'starts with the reference models (before &rarr; after when the model was given <code>--add</code>); each '
         f'candidate is an arrow from the model as given to the error with that candidate added.</p>'
-        + (_img(chart, 'held-out error beyond the noise per candidate') if chart else '')
+        + (chart or '')
         + _candidates_table(diagnosis))
 
     if diagnosis.before is not None:
@@ -544,7 +549,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
     sections.append(f'<footer>Generated by <code>aeropend diagnose</code> on {stamp}; the diagnosis took '
                     f'{diagnosis.seconds:.1f} s. Angles in rad/mrad in the text, degrees on the plots; parameters in '
                     'SI. Self-contained: no external resources'
-                    + ' (plots are PNG images; the CSV export is decompressed by the browser itself).</footer>')
+                    + ' (plots are inline SVG; the CSV export is decompressed by the browser itself).</footer>')
     return ('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             '<meta name="viewport" content="width=device-width, initial-scale=1">'
             f'<title>{_esc(title)}</title><style>{CSS}</style>'
