@@ -6,6 +6,8 @@
   On a machine without ROS 2 (rclpy not importable) the modules that need it already at import (a top-level ROS
   import or a private ROS domain) are not collected, and the header says which: the fast tier
   ``pytest -m "not slow and not ros"`` then runs there too instead of stopping at collection errors.
+- Under pytest-xdist (``pytest.ini``: one worker per core) the ROS and other real-time tests share one group, so
+  they run one at a time on one worker while the other workers run the numerical tests (``--dist loadgroup``).
 - Numerical libraries run one thread per process (``OPENBLAS_NUM_THREADS`` etc., unless already set, so the
   subprocesses the tests start inherit it too): the suite's matrices are small, and on a 2-core machine that runs a
   test process, ROS nodes and CLI subprocesses at once, OpenBLAS's second thread mostly spins. One diagnosis of a
@@ -30,6 +32,9 @@ for _threads in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', '
 #: what marks a test (or one of its fixtures) as using ROS: rclpy, the nodes, the ROS test helpers, `aeropend run`
 _ROS_USE = re.compile(r'rclpy|aeropend_ros|NodeProcess|private_domain_id|own_context|use_domain|ros2|'
                       r'run_bridge|start_bridge|bridge_process|Listener|[\'"]run[\'"]|ros_env')
+#: what marks a test as real time besides ROS: the pty device emulator, the firmware in simavr, `aeropend emulate`
+_REAL_TIME = re.compile(r'DeviceEmulator|EmulateProcess|Harness\(|simavr|build_firmware|openpty|[\'"]emulate[\'"]|'
+                        r'[\'"]calibrate[\'"]')
 #: a module that imports these at its top needs ROS for every test in it
 _ROS_MODULE = re.compile(r'^(from|import) (rclpy|sensor_msgs|std_msgs|diagnostic_msgs|rcl_interfaces)\b', re.M)
 #: a module that uses ROS already at import: it cannot even be collected without ROS
@@ -87,9 +92,14 @@ def pytest_collection_modifyitems(config, items):
         fixtures = getattr(getattr(item, '_fixtureinfo', None), 'name2fixturedefs', {})
         functions = [function] + [d.func for defs in fixtures.values() for d in defs]
         module = getattr(item, 'module', None)
-        if (module is not None and _source_matches(module, _ROS_MODULE)) or any(
-                f is not None and _source_matches(f, _ROS_USE) for f in functions):
+        ros = (module is not None and _source_matches(module, _ROS_MODULE)) or any(
+            f is not None and _source_matches(f, _ROS_USE) for f in functions)
+        if ros:
             item.add_marker(pytest.mark.ros)
+        if ros or any(f is not None and _source_matches(f, _REAL_TIME) for f in functions):
+            # under pytest-xdist the real-time tests (nodes at 490 Hz, pty devices, simavr) run one at a time on
+            # one worker, beside at most one worker of numerical tests: never two graphs competing for the cores
+            item.add_marker(pytest.mark.xdist_group('real_time'))
 
 
 @pytest.fixture(scope='session')
