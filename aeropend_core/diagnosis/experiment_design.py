@@ -61,6 +61,9 @@ DEFAULT_REFINEMENTS = 30
 DECISIVE_EVIDENCE = 25.0
 #: Relative step of the finite-difference sensitivities.
 SENSITIVITY_STEP = 1e-3
+#: Longest experiment [s] counted as practical (the longest --design-seconds): a pair that needs more cannot be
+#: decided within the limits at this noise.
+PRACTICAL_SECONDS = 600.0
 
 
 class DesignRefused(AeropendError):
@@ -195,12 +198,32 @@ class ExperimentDesign:
                 f'{self.baseline_separation:.2g} x ({self.gain:.1f} times less). Largest predicted angle '
                 f'{math.degrees(self.max_angle):.0f} deg (limit {math.degrees(self.angle_limit):.0f}), duty at most '
                 f'{highest_duty:.3f} (limit {self.duty_limit:.3f}). '
-                + (f'Enough to decide: the difference adds up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 in '
-                   f'{self.seconds_to_decide:.0f} s if the noise is white.' if self.seconds_to_decide <=
-                   self.schedule.duration else
-                   f'Likely too small to decide: the difference adds up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 only '
-                   f'after about {self.seconds_to_decide:.3g} s of such experiments (white noise; more if not); lower '
-                   f'noise or a hardware value (--fix) decides sooner.'))
+                + self.decidability())
+
+    def physical_reason(self) -> str:
+        """Why the two models are hard to separate, one sentence ('' for a pair without a known reason)."""
+        from aeropend_core.model.effects import why_alike
+        a, b = (set(m.effects) for m in self.models)
+        differ = sorted(a ^ b)
+        return why_alike(*differ) if len(differ) == 2 else ''
+
+    def decidability(self) -> str:
+        """Whether this schedule decides, how long it (repeated) would take, and why not when it cannot."""
+        seconds = self.seconds_to_decide
+        if seconds <= self.schedule.duration:
+            return (f'Enough to decide: the difference adds up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 in '
+                    f'{seconds:.0f} s if the noise is white.')
+        reason = self.physical_reason()
+        reason = f' Why: {reason}.' if reason else ''
+        if seconds <= PRACTICAL_SECONDS:
+            return (f'Not enough in {self.schedule.duration:.0f} s: this schedule, repeated, needs about {seconds:.0f} '
+                    f's for the difference to add up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 (white noise; more if '
+                    f'not): give a longer budget (--design-seconds, --max-runs).{reason}')
+        return (f'Cannot be decided within the limits at this noise: the most separating schedule found (duty at '
+                f'most {self.duty_limit:.3g}, angles below {math.degrees(self.angle_limit):.0f} deg) would have to '
+                f'run about {seconds:.3g} s for the difference to add up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 '
+                f'(white noise; more if not).{reason} Lower noise (the time falls with the noise variance: 10 dB '
+                f'less noise, 10 times shorter) or a hardware value (--fix) decides it.')
 
     def to_dict(self) -> dict:
         """Machine-readable form (SI units), as written into the schedule file's ``experiment`` section."""
@@ -215,6 +238,7 @@ class ExperimentDesign:
                 'duty_limit': float(self.duty_limit), 'angle_limit_rad': float(self.angle_limit),
                 'schedules_tried': int(self.tried), 'seconds_to_decide': float(self.seconds_to_decide),
                 'blocks': [b.text() for b in self.schedule.blocks],
+                'decidable_within_limits': bool(self.seconds_to_decide <= PRACTICAL_SECONDS),
                 'description': self.describe(), 'doubts': list(self.doubts)}
 
     def write(self, path: str | Path) -> Path:
