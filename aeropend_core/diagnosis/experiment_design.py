@@ -3,9 +3,9 @@
 When a diagnosis reports two effects as confounded (interchangeable on the data it had), each explanation is a
 fitted model: nominal + its effects, parameters ± 1σ from the output-error fit
 (:mod:`aeropend_core.diagnosis.output_error`). This module searches duty schedules -- duty steps, rests at duty 0
-(free decays) and short sine sweeps -- for the one whose predicted angle differs most between the two models,
-relative to the angle's measurement noise, and writes it as a step file the excitation node plays
-(``aeropend run --experiment FILE``).
+(free decays), sine sweeps and square waves, starting from full-range square waves and steps with rests -- for
+the one whose predicted angle differs most between the two models, relative to the angle's measurement noise, and
+writes it as a step file the excitation node plays (``aeropend run --experiment FILE``).
 
 The score is conservative in two ways (Box--Hill / Buzzi-Ferraris model discrimination, linearised):
 
@@ -471,6 +471,20 @@ def _random_block(rng: np.random.Generator, seconds: float, duty_limit: float) -
     return Block(str(kind), seconds, level=mean, amplitude=amplitude, start_hz=float(low), stop_hz=float(high))
 
 
+def _structured_blocks(duration: float, duty_limit: float) -> list[tuple[Block, ...]]:
+    """Schedules every search starts with: square waves over the whole duty range (the largest, fastest swings: what
+    separates effects that differ only through the nonlinearities, bench/results/2026-11-27-s8-loop2), and steps
+    up to the limit with rests at duty 0 between them (the offset is read at rest; large angles)."""
+    available = duration - LEAD_REST
+    half = 0.5 * duty_limit
+    squares = [(Block('rest', LEAD_REST), Block('square', available, half, half, hz, hz)) for hz in (0.5, 1.0)]
+    dwell = available / 6
+    stairs = (Block('rest', LEAD_REST),) + tuple(
+        block for level in (0.4, 0.7, 1.0) for block in (Block('step', dwell, level=level * duty_limit),
+                                                         Block('rest', dwell)))
+    return [_fit_duration(blocks, duration) for blocks in squares + [stairs]]
+
+
 def _fit_duration(blocks: tuple[Block, ...], duration: float) -> tuple[Block, ...]:
     """Stretch or cut the last block so that the blocks last exactly `duration` [s]."""
     total = sum(b.seconds for b in blocks)
@@ -587,6 +601,8 @@ def design_experiment(models: Sequence[CompetingModel], noise_rms: float, durati
             best = (blocks, score)
         return score
 
+    for blocks in _structured_blocks(duration, duty_limit):
+        evaluate(blocks)
     for _ in range(candidates):
         evaluate(_random_blocks(rng, duration, duty_limit))
     if best is None or not math.isfinite(best[1].separation):
