@@ -183,11 +183,11 @@ FIRST_DUTY_OF = {'lag': (0.0, 0.7)}
 
 def loop(args, names) -> dict:
     rows = []
-    path = OUT / (f'loop_{"_".join(names)}.json' if args.first_seed == 26000 else
-                  f'loop_{"_".join(names)}_{args.first_seed}.json')
+    path = OUT / (f'loop_{"_".join(names)}.json' if args.size is None else f'loop_{"_".join(names)}_{args.size:g}.json')
     for k in range(args.seeds):
         for name in names:
-            row = loop_case(TRUTHS[name], args.first_seed + k, args, FIRST_DUTY_OF.get(name, FIRST_DUTY))
+            truth = {effect: (args.size if args.size is not None else value) for effect, value in TRUTHS[name].items()}
+            row = loop_case(truth, args.first_seed + k, args, FIRST_DUTY_OF.get(name, FIRST_DUTY))
             row['case'] = name
             rows.append(row)
             print(json.dumps({key: row[key] for key in ('case', 'seed', 'first_verdict', 'final_verdict', 'result',
@@ -226,11 +226,42 @@ def joint(args) -> dict:
     return {'rows': rows, 'truth': truth}
 
 
+def summary() -> str:
+    """Markdown tables of the JSON files written so far."""
+    lines = ['| case | seeds | first record confounded | of those: decided correctly | decided wrongly | still '
+             'confounded | runs (mean) | excitation s (mean) | CPU s per case (mean) | first record not confounded |',
+             '|' + '---|' * 10]
+    for path in sorted(OUT.glob('loop_*.json')):
+        rows = json.loads(path.read_text())['rows']
+        truth = rows[0]['truth']
+        confounded = [r for r in rows if r['first_verdict'] == 'confounded']
+        count = {k: sum(r['result'] == k for r in confounded) for k in ('correct', 'wrong', 'still confounded')}
+        others = ', '.join(f'{v}: {sum(r["first_verdict"] == v and r["result"] == "correct" for r in rows)} right '
+                           f'of {sum(r["first_verdict"] == v for r in rows)}'
+                           for v in sorted({r['first_verdict'] for r in rows} - {'confounded'}))
+
+        def mean(key, confounded=confounded):
+            return float(np.mean([r[key] for r in confounded])) if confounded else math.nan
+        lines.append(f'| {truth or "clean"} | {len(rows)} | {len(confounded)} | {count["correct"]} | {count["wrong"]} '
+                     f'| {count["still confounded"]} | {mean("runs"):.2f} | {mean("excitation_seconds"):.0f} | '
+                     f'{mean("cpu_seconds"):.0f} | {others} |')
+    path = OUT / 'joint.json'
+    if path.exists():
+        lines += ['', '| PSNR dB | seed | one 60 s record | two 30 s records jointly | Fc one [rad/s^2] | Fc joint | '
+                  'difference / sigma |', '|' + '---|' * 7]
+        for r in json.loads(path.read_text())['rows']:
+            lines.append(f'| {r["psnr_db"]:g} | {r["seed"]} | {r["single_verdict"]} | {r["joint_verdict"]} | '
+                         f'{r["single"][0]:.3f} +- {r["single"][1]:.3f} | {r["joint"][0]:.3f} +- {r["joint"][1]:.3f} | '
+                         f'{r["difference_in_sigma"]:.2f} |')
+    return '\n'.join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument('--part', choices=['loop', 'clean', 'lagfilter', 'joint'], required=True)
+    parser.add_argument('--part', choices=['loop', 'clean', 'lagfilter', 'joint', 'summary'], required=True)
     parser.add_argument('--cases', default='offset,cable', help='loop: which truths (offset, cable, lag)')
     parser.add_argument('--seeds', type=int, default=8)
+    parser.add_argument('--size', type=float, default=None, help='loop: hidden effect size (SI)')
     parser.add_argument('--first-seed', type=int, default=26000)
     parser.add_argument('--psnr', type=float, default=40.0)
     parser.add_argument('--candidates', type=int, default=30)
@@ -239,7 +270,9 @@ def main() -> None:
     parser.add_argument('--max-runs', type=int, default=3)
     args = parser.parse_args()
     OUT.mkdir(parents=True, exist_ok=True)
-    if args.part == 'lagfilter':
+    if args.part == 'summary':
+        print(summary())
+    elif args.part == 'lagfilter':
         result = lagfilter(args)
         (OUT / 'lagfilter.json').write_text(json.dumps(finite_json({**result, 'settings': vars(args)}),
                                                        indent=2) + '\n')

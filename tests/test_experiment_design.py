@@ -126,7 +126,10 @@ def test_the_loop_stops_when_decided_on_its_budget_or_on_a_refused_design(monkey
 
         def diagnose_records(records, options):
             seen.append(len(records))
-            return SimpleNamespace(verdict=verdicts[len(records) - 1], noise_rms=0.004)
+            verdict = verdicts[len(records) - 1]
+            found = [SimpleNamespace(effect='cable_torque', confounded_with=['angle_offset'])] \
+                if verdict == 'confounded' else []
+            return SimpleNamespace(verdict=verdict, noise_rms=0.004, found=found)
 
         def design_experiment_(models, noise_rms, **options):
             if refuse:
@@ -145,7 +148,10 @@ def test_the_loop_stops_when_decided_on_its_budget_or_on_a_refused_design(monkey
     assert played == [(None, None), (design, 'round2.yaml')]
     assert outcome.rounds[0].design is design and outcome.rounds[0].next_schedule == 'round2.yaml'
     assert outcome.rounds[1].design is None and outcome.excitation_seconds == 42.0
-    assert outcome.ending.startswith('decided after 2 run(s)')
+    assert outcome.ending.startswith('decided after 2 run(s)') and 'not confirmed' not in outcome.ending
+    outcome, _, _ = run(['confounded', 'nothing_missing'], budget)     # decided, but the first evidence is gone
+    assert outcome.decided and 'round 1 found one of cable_torque, angle_offset missing' in outcome.ending
+    assert 'the earlier evidence is not confirmed' in outcome.ending
     outcome, played, _ = run(['confounded'] * 5, budget)
     assert len(played) == 3 and not outcome.decided and outcome.ending.startswith('budget spent (3 of 3 runs')
     seconds = LoopBudget(max_runs=5, max_seconds=60.0, design_seconds=20.0)     # 21 + 21 + 20 > 60

@@ -225,7 +225,7 @@ def until_decided(play: Callable, budget: LoopBudget = LoopBudget(), diagnose_op
             on_round(current)
         if diagnosis.verdict != CONFOUNDED:
             outcome.ending = (f'decided after {len(records)} run(s) ({outcome.excitation_seconds:.0f} s of '
-                              f'excitation)')
+                              f'excitation)' + _unconfirmed(outcome.rounds))
             break
         next_length = budget.design_seconds + budget.overhead_seconds
         if len(records) >= budget.max_runs or outcome.excitation_seconds + next_length > budget.max_seconds:
@@ -249,6 +249,19 @@ def until_decided(play: Callable, budget: LoopBudget = LoopBudget(), diagnose_op
         if on_round:
             on_round(current)
     return outcome
+
+
+def _unconfirmed(rounds: list[LoopRound]) -> str:
+    """A warning when the records together find nothing that an earlier round found (confounded) missing."""
+    if len(rounds) < 2 or rounds[-1].diagnosis.verdict != 'nothing_missing':
+        return ''
+    earlier = next(((r, f) for r in rounds[:-1] for f in r.diagnosis.found if f.confounded_with), None)
+    if earlier is None:
+        return ''
+    number, names = earlier[0].number, ', '.join([earlier[1].effect, *earlier[1].confounded_with])
+    return (f'; but round {number} found one of {names} missing and the records together find nothing significant: '
+            'the earlier evidence is not confirmed (a weak effect, or chance in that record); a longer experiment '
+            'would tell')
 
 
 __all__ = ['LoopBudget', 'LoopOutcome', 'LoopRound', 'Played', 'RoundFailed', 'diagnose_records', 'until_decided']
