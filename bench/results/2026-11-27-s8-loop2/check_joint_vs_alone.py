@@ -1,7 +1,7 @@
 """Is the joint diagnosis the loop's weak link? Offset bench seed 26002: the first record (duty 0.35-0.7, 40 dB) and a
 record of the schedule the loop designed after it (its blocks as steps), diagnosed alone and jointly.
 
-    nice -n 10 python bench/results/2026-11-27-s8-loop2/check_joint_vs_alone.py second|joint [GAP_SECONDS]
+    nice -n 10 python bench/results/2026-11-27-s8-loop2/check_joint_vs_alone.py second|joint [GAP_SECONDS [no-observer]]
 """
 import sys
 
@@ -29,5 +29,10 @@ second = record(steps_to_duty(np.array([[0, 1.0], [0.315, 4.9], [0, 10.6], [0.53
 which = sys.argv[1]
 if len(sys.argv) > 2:
     joint.GAP_SECONDS = float(sys.argv[2])
+if len(sys.argv) > 3 and sys.argv[3] == 'no-observer':
+    import functools
+
+    import aeropend_core.diagnosis.compare as compare
+    compare.prepare = functools.partial(compare.prepare, use_motor_observer=False)
 result = diagnose(second, drift=False) if which == 'second' else joint.diagnose_joint([first, second], drift=False)
 print(which, result.verdict, result.message[:500], flush=True)
