@@ -263,3 +263,34 @@ def test_run_plays_the_experiment_file_and_the_bag_says_so(tmp_path):
     assert samples['time'][-1] - samples['time'][0] == pytest.approx(20.0 + 3.0, abs=0.5)
     levels = {round(float(d), 3) for d in np.unique(samples['duty'])}
     assert levels == {0.0, 0.55, 0.3}, levels
+
+
+@pytest.mark.slow
+def test_the_loop_decides_a_confounded_first_record():
+    """A cable spring hidden in a record without rests at the bottom (duty 0.35-0.7, 40 dB with the stream's
+    absolute noise, as the simulator node): the first record alone says 'one of cable_torque, angle_offset'; the
+    core loop of --until-decided designs the separating experiment, plays it and the joint diagnosis names the
+    cable alone (bench/results/2026-11-27-s8-loop2, seed 26000 of bench/experiment_decide.py --part loop)."""
+    from aeropend_core.diagnosis.experiment_loop import LoopBudget, Played, until_decided
+    from aeropend_core.io.recording import from_columns
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.sim.simulate import RigSimulator
+    truth, seed = {'cable_torque': 30.0}, 26000
+
+    def play(design, schedule):
+        duty = (lhc_schedule(40.0, duty_range=(0.35, 0.7), duty_cap=0.7, seed=seed).duty(duration=40.0)
+                if design is None else design.schedule.duty())
+        noise_seed = seed + (100 if design is None else 200)
+        run = RigSimulator(effects=truth, noise=MeasurementNoise(40.0, True), seed=noise_seed)
+        return Played(from_columns(run.run(duty).columns(with_truth=False)), 'sim', 'x', len(duty) * 0.00204)
+
+    outcome = until_decided(play, LoopBudget(max_runs=3, design_seconds=30.0), {'drift': False}, seed=seed,
+                            design_options=dict(candidates=30, refinements=15, original_duty_limit=0.7))
+    first, last = outcome.rounds[0].diagnosis, outcome.decision
+    assert first.verdict == 'confounded', first.message
+    assert {first.found[0].effect, *first.found[0].confounded_with} == {'cable_torque', 'angle_offset'}
+    assert outcome.rounds[0].design.schedule.steps[:, 0].max() <= 0.7
+    assert last.verdict == 'effect_found' and [f.effect for f in last.found] == ['cable_torque'], last.message
+    found = last.found[0]
+    assert abs(found.parameters['cable_stiffness'] - 30.0) < 3 * found.standard_errors['cable_stiffness']
