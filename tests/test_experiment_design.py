@@ -91,7 +91,7 @@ def test_schedule_file_round_trip_is_what_the_excitation_node_reads(tmp_path):
     (['--until-decided', '--no-record'], 'drop --no-record'),
     (['--until-decided', '--design-seconds', '5'], '--design-seconds must be in [20, 600]'),
     (['--experiment', 'missing.yaml'], 'cannot read the experiment file missing.yaml'),
-    (['--experiment', 'x.yaml', '--until-decided'], 'use one'),
+    (['--experiment', 'missing.yaml', '--until-decided'], 'cannot read the experiment file missing.yaml'),
 ])
 def test_run_refuses_bad_experiment_options_in_one_line(arguments, message, tmp_path):
     result = subprocess.run(AEROPEND + ['run', *arguments], cwd=tmp_path, capture_output=True, text=True,
@@ -106,6 +106,72 @@ def test_run_refuses_a_schedule_above_the_duty_cap(tmp_path):
     result = subprocess.run(AEROPEND + ['run', '--experiment', 'hot.yaml'], cwd=tmp_path, capture_output=True,
                             text=True, timeout=120)
     assert result.returncode == 2 and 'above the duty cap 0.7' in result.stderr, result.stderr
+
+
+def test_the_loop_stops_when_decided_on_its_budget_or_on_a_refused_design(monkeypatch):
+    """The core loop of --until-decided (verdicts scripted): it designs after each confounded round, plays the
+    design, stops when decided, when the next run would go over the budget, and ends on a refusal with its reason."""
+    from types import SimpleNamespace
+
+    from aeropend_core.diagnosis import experiment_design, experiment_loop
+    from aeropend_core.diagnosis.experiment_loop import LoopBudget, Played, until_decided
+    design = design_experiment([LAG, FILTER], 0.004, duration=20.0, seed=3, **QUICK)
+
+    def run(verdicts, budget, refuse=False):
+        played, seen = [], []
+
+        def play(chosen, schedule):
+            played.append((chosen, schedule))
+            return Played(object(), f'bag {len(played)}', 'x', 21.0)
+
+        def diagnose_records(records, options):
+            seen.append(len(records))
+            verdict = verdicts[len(records) - 1]
+            found = [SimpleNamespace(effect='cable_torque', confounded_with=['angle_offset'])] \
+                if verdict == 'confounded' else []
+            return SimpleNamespace(verdict=verdict, noise_rms=0.004, found=found)
+
+        def design_experiment_(models, noise_rms, **options):
+            if refuse:
+                raise DesignRefused('no schedule keeps every model below the angle limit')
+            assert options['duty_limit'] == budget.duty_limit and options['duration'] == budget.design_seconds
+            return design
+        monkeypatch.setattr(experiment_loop, 'diagnose_records', diagnose_records)
+        monkeypatch.setattr(experiment_design, 'confounded_models', lambda d: [LAG, FILTER])
+        monkeypatch.setattr(experiment_design, 'design_experiment', design_experiment_)
+        outcome = until_decided(play, budget, write_schedule=lambda n, d: f'round{n}.yaml')
+        return outcome, played, seen
+
+    budget = LoopBudget(max_runs=3, max_seconds=300.0, design_seconds=20.0, duty_limit=0.5, overhead_seconds=1.0)
+    outcome, played, seen = run(['confounded', 'effect_found'], budget)
+    assert outcome.decided and outcome.decision.verdict == 'effect_found' and seen == [1, 2]
+    assert played == [(None, None), (design, 'round2.yaml')]
+    assert outcome.rounds[0].design is design and outcome.rounds[0].next_schedule == 'round2.yaml'
+    assert outcome.rounds[1].design is None and outcome.excitation_seconds == 42.0
+    assert outcome.ending.startswith('decided after 2 run(s)') and 'not confirmed' not in outcome.ending
+    outcome, _, _ = run(['confounded', 'nothing_missing'], budget)     # decided, but the first evidence is gone
+    assert outcome.decided and 'round 1 found one of cable_torque, angle_offset missing' in outcome.ending
+    assert 'the earlier evidence is not confirmed' in outcome.ending
+    outcome, played, _ = run(['confounded'] * 5, budget)
+    assert len(played) == 3 and not outcome.decided and outcome.ending.startswith('budget spent (3 of 3 runs')
+    seconds = LoopBudget(max_runs=5, max_seconds=60.0, design_seconds=20.0)     # 21 + 21 + 20 > 60
+    outcome, played, _ = run(['confounded'] * 5, seconds)
+    assert len(played) == 2 and 'budget spent' in outcome.ending
+    outcome, played, _ = run(['confounded'] * 5, budget, refuse=True)
+    assert len(played) == 1 and outcome.refused == outcome.ending
+    assert 'no experiment designed: no schedule keeps every model below the angle limit' in outcome.refused
+
+
+def test_a_weak_design_says_how_long_it_would_take_and_why():
+    """Lag vs filter at 9 ms at 40 dB (bench/results/2026-11-27-s8-loop2: ~6,000 s needed): the design says it
+    cannot decide within the limits, how long the best schedule would need, and the physical reason (the two
+    commute in a linear system)."""
+    models = [true_model('thrust_lag', {'time_constant': 0.009}), true_model('angle_filter', {'filter_delay': 0.009})]
+    design = design_experiment(models, 0.0157, duration=20.0, seed=3, **QUICK)
+    text = design.describe()
+    assert design.seconds_to_decide > 600 and 'Cannot be decided within the limits at this noise' in text
+    assert f'{design.seconds_to_decide:.3g} s' in text and 'commute in a linear system' in text
+    assert design.to_dict()['decidable_within_limits'] is False
 
 
 # ------------------------------------------------------------------------------------------- slow: fitted models
@@ -197,3 +263,34 @@ def test_run_plays_the_experiment_file_and_the_bag_says_so(tmp_path):
     assert samples['time'][-1] - samples['time'][0] == pytest.approx(20.0 + 3.0, abs=0.5)
     levels = {round(float(d), 3) for d in np.unique(samples['duty'])}
     assert levels == {0.0, 0.55, 0.3}, levels
+
+
+@pytest.mark.slow
+def test_the_loop_decides_a_confounded_first_record():
+    """A cable spring hidden in a record without rests at the bottom (duty 0.35-0.7, 40 dB with the stream's
+    absolute noise, as the simulator node): the first record alone says 'one of cable_torque, angle_offset'; the
+    core loop of --until-decided designs the separating experiment, plays it and the joint diagnosis names the
+    cable alone (bench/results/2026-11-27-s8-loop2, seed 26000 of bench/experiment_decide.py --part loop)."""
+    from aeropend_core.diagnosis.experiment_loop import LoopBudget, Played, until_decided
+    from aeropend_core.io.recording import from_columns
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.sim.simulate import RigSimulator
+    truth, seed = {'cable_torque': 30.0}, 26000
+
+    def play(design, schedule):
+        duty = (lhc_schedule(40.0, duty_range=(0.35, 0.7), duty_cap=0.7, seed=seed).duty(duration=40.0)
+                if design is None else design.schedule.duty())
+        noise_seed = seed + (100 if design is None else 200)
+        run = RigSimulator(effects=truth, noise=MeasurementNoise(40.0, True), seed=noise_seed)
+        return Played(from_columns(run.run(duty).columns(with_truth=False)), 'sim', 'x', len(duty) * 0.00204)
+
+    outcome = until_decided(play, LoopBudget(max_runs=3, design_seconds=30.0), {'drift': False}, seed=seed,
+                            design_options=dict(candidates=30, refinements=15, original_duty_limit=0.7))
+    first, last = outcome.rounds[0].diagnosis, outcome.decision
+    assert first.verdict == 'confounded', first.message
+    assert {first.found[0].effect, *first.found[0].confounded_with} == {'cable_torque', 'angle_offset'}
+    assert outcome.rounds[0].design.schedule.steps[:, 0].max() <= 0.7
+    assert last.verdict == 'effect_found' and [f.effect for f in last.found] == ['cable_torque'], last.message
+    found = last.found[0]
+    assert abs(found.parameters['cable_stiffness'] - 30.0) < 3 * found.standard_errors['cable_stiffness']

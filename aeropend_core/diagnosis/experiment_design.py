@@ -3,9 +3,9 @@
 When a diagnosis reports two effects as confounded (interchangeable on the data it had), each explanation is a
 fitted model: nominal + its effects, parameters ± 1σ from the output-error fit
 (:mod:`aeropend_core.diagnosis.output_error`). This module searches duty schedules -- duty steps, rests at duty 0
-(free decays) and short sine sweeps -- for the one whose predicted angle differs most between the two models,
-relative to the angle's measurement noise, and writes it as a step file the excitation node plays
-(``aeropend run --experiment FILE``).
+(free decays), sine sweeps and square waves, starting from full-range square waves and steps with rests -- for
+the one whose predicted angle differs most between the two models, relative to the angle's measurement noise, and
+writes it as a step file the excitation node plays (``aeropend run --experiment FILE``).
 
 The score is conservative in two ways (Box--Hill / Buzzi-Ferraris model discrimination, linearised):
 
@@ -61,6 +61,9 @@ DEFAULT_REFINEMENTS = 30
 DECISIVE_EVIDENCE = 25.0
 #: Relative step of the finite-difference sensitivities.
 SENSITIVITY_STEP = 1e-3
+#: Longest experiment [s] counted as practical (the longest --design-seconds): a pair that needs more cannot be
+#: decided within the limits at this noise.
+PRACTICAL_SECONDS = 600.0
 
 
 class DesignRefused(AeropendError):
@@ -195,12 +198,32 @@ class ExperimentDesign:
                 f'{self.baseline_separation:.2g} x ({self.gain:.1f} times less). Largest predicted angle '
                 f'{math.degrees(self.max_angle):.0f} deg (limit {math.degrees(self.angle_limit):.0f}), duty at most '
                 f'{highest_duty:.3f} (limit {self.duty_limit:.3f}). '
-                + (f'Enough to decide: the difference adds up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 in '
-                   f'{self.seconds_to_decide:.0f} s if the noise is white.' if self.seconds_to_decide <=
-                   self.schedule.duration else
-                   f'Likely too small to decide: the difference adds up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 only '
-                   f'after about {self.seconds_to_decide:.3g} s of such experiments (white noise; more if not); lower '
-                   f'noise or a hardware value (--fix) decides sooner.'))
+                + self.decidability())
+
+    def physical_reason(self) -> str:
+        """Why the two models are hard to separate, one sentence ('' for a pair without a known reason)."""
+        from aeropend_core.model.effects import why_alike
+        a, b = (set(m.effects) for m in self.models)
+        differ = sorted(a ^ b)
+        return why_alike(*differ) if len(differ) == 2 else ''
+
+    def decidability(self) -> str:
+        """Whether this schedule decides, how long it (repeated) would take, and why not when it cannot."""
+        seconds = self.seconds_to_decide
+        if seconds <= self.schedule.duration:
+            return (f'Enough to decide: the difference adds up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 in '
+                    f'{seconds:.0f} s if the noise is white.')
+        reason = self.physical_reason()
+        reason = f' Why: {reason}.' if reason else ''
+        if seconds <= PRACTICAL_SECONDS:
+            return (f'Not enough in {self.schedule.duration:.0f} s: this schedule, repeated, needs about {seconds:.0f} '
+                    f's for the difference to add up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 (white noise; more if '
+                    f'not): give a longer budget (--design-seconds, --max-runs).{reason}')
+        return (f'Cannot be decided within the limits at this noise: the most separating schedule found (duty at '
+                f'most {self.duty_limit:.3g}, angles below {math.degrees(self.angle_limit):.0f} deg) would have to '
+                f'run about {seconds:.3g} s for the difference to add up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 '
+                f'(white noise; more if not).{reason} Lower noise (the time falls with the noise variance: 10 dB '
+                f'less noise, 10 times shorter) or a hardware value (--fix) decides it.')
 
     def to_dict(self) -> dict:
         """Machine-readable form (SI units), as written into the schedule file's ``experiment`` section."""
@@ -215,6 +238,7 @@ class ExperimentDesign:
                 'duty_limit': float(self.duty_limit), 'angle_limit_rad': float(self.angle_limit),
                 'schedules_tried': int(self.tried), 'seconds_to_decide': float(self.seconds_to_decide),
                 'blocks': [b.text() for b in self.schedule.blocks],
+                'decidable_within_limits': bool(self.seconds_to_decide <= PRACTICAL_SECONDS),
                 'description': self.describe(), 'doubts': list(self.doubts)}
 
     def write(self, path: str | Path) -> Path:
@@ -447,6 +471,20 @@ def _random_block(rng: np.random.Generator, seconds: float, duty_limit: float) -
     return Block(str(kind), seconds, level=mean, amplitude=amplitude, start_hz=float(low), stop_hz=float(high))
 
 
+def _structured_blocks(duration: float, duty_limit: float) -> list[tuple[Block, ...]]:
+    """Schedules every search starts with: square waves over the whole duty range (the largest, fastest swings: what
+    separates effects that differ only through the nonlinearities, bench/results/2026-11-27-s8-loop2), and steps
+    up to the limit with rests at duty 0 between them (the offset is read at rest; large angles)."""
+    available = duration - LEAD_REST
+    half = 0.5 * duty_limit
+    squares = [(Block('rest', LEAD_REST), Block('square', available, half, half, hz, hz)) for hz in (0.5, 1.0)]
+    dwell = available / 6
+    stairs = (Block('rest', LEAD_REST),) + tuple(
+        block for level in (0.4, 0.7, 1.0) for block in (Block('step', dwell, level=level * duty_limit),
+                                                         Block('rest', dwell)))
+    return [_fit_duration(blocks, duration) for blocks in squares + [stairs]]
+
+
 def _fit_duration(blocks: tuple[Block, ...], duration: float) -> tuple[Block, ...]:
     """Stretch or cut the last block so that the blocks last exactly `duration` [s]."""
     total = sum(b.seconds for b in blocks)
@@ -563,6 +601,8 @@ def design_experiment(models: Sequence[CompetingModel], noise_rms: float, durati
             best = (blocks, score)
         return score
 
+    for blocks in _structured_blocks(duration, duty_limit):
+        evaluate(blocks)
     for _ in range(candidates):
         evaluate(_random_blocks(rng, duration, duty_limit))
     if best is None or not math.isfinite(best[1].separation):

@@ -88,6 +88,13 @@ def joint_recording(recordings: Sequence, train_fraction: float | None = None):
 def prepare_joint(recordings: Sequence, train_fraction: float | None = None):
     """A :class:`~aeropend_core.diagnosis.compare.PreparedRecord` of several records (module docstring).
 
+    Each record is prepared alone first (input conditioning, noise, the motor observer: the observer's back-EMF,
+    the thrust voltage, starts from each record's own beginning and runs through it without a break), then the
+    prepared signals are joined in the order ``A-train, B-train, ..., A-held, B-held, ...`` with gaps between the
+    pieces. Run over the joined record instead, the observer carried one piece's motor state across a 0.2 s gap
+    into the next (its time constant is ~0.4 s): a designed record whose offset it named alone lost it in the
+    joint diagnosis, and a record cut in two gave friction 3 % off (6 sigma, bench/results/2026-11-27-s8-loop2).
+
     Parameters
     ----------
     recordings : sequence of Recording [-]
@@ -101,6 +108,63 @@ def prepare_joint(recordings: Sequence, train_fraction: float | None = None):
         Ready for :func:`aeropend_core.diagnosis.diagnose.diagnose`; its training part holds the first part of
         every record, its held-out part the rest of every record.
     """
+    from aeropend_core.diagnosis.compare import TRAIN_FRACTION, Gaps, PreparedRecord, prepare
+    joint_recording(recordings, train_fraction)         # the same checks (rate, current in all or none)
+    fraction = TRAIN_FRACTION if train_fraction is None else float(train_fraction)
+    preps = [prepare(recording) for recording in recordings]
+    observers = {p.motor is not None for p in preps}
+    members = {None if p.voltage_ensemble is None else p.voltage_ensemble.shape[0] for p in preps}
+    if any(p.reduced for p in preps) or len(observers) > 1 or len(members) > 1 or any(
+            p.gaps is not None and p.gaps.count for p in preps):
+        return _prepare_joined(recordings, train_fraction)      # mixed kinds or lost samples: one preparation
+    sample_time = preps[0].sample_time
+    gap = max(1, int(round(GAP_SECONDS / sample_time)))
+    names = ('armature_voltage', 'armature_current', 'angle', 'voltage', 'current', 'gate_voltage')
+    pieces = []
+    for prep in preps:
+        cut = int(round(fraction * len(prep.time)))
+        pieces.append((prep, 0, cut))
+    for prep in preps:
+        cut = int(round(fraction * len(prep.time)))
+        pieces.append((prep, cut, len(prep.time)))
+    parts = {name: [] for name in names}
+    ensemble, valid, steps = [], [], []
+    position, split = 0, 0
+    for order, (prep, start, stop) in enumerate(pieces):
+        if order == len(preps):
+            split = position
+        if order:
+            for name in names:          # lost samples between pieces: linear, never used as data
+                before, after = parts[name][-1][-1], getattr(prep, name)[start]
+                parts[name].append(np.linspace(before, after, gap + 2)[1:-1])
+            if prep.voltage_ensemble is not None:
+                ensemble.append(np.zeros((prep.voltage_ensemble.shape[0], gap)))
+            valid.append(np.zeros(gap, dtype=bool))
+            position += gap
+        for name in names:
+            parts[name].append(np.asarray(getattr(prep, name), dtype=float)[start:stop])
+        if prep.voltage_ensemble is not None:
+            ensemble.append(prep.voltage_ensemble[:, start:stop])
+        valid.append(np.ones(stop - start, dtype=bool))
+        inside = prep.step_indices[(prep.step_indices >= start) & (prep.step_indices < stop)]
+        steps.append(inside - start + position)
+        position += stop - start
+    columns = {name: np.concatenate(parts[name]) for name in names}
+    counts = np.array([len(p.time) for p in preps], dtype=float)
+    noise = float(np.sqrt(np.sum(counts * np.array([p.noise_rms for p in preps]) ** 2) / counts.sum()))
+    findings = tuple(f for p in preps for f in p.findings)
+    return PreparedRecord(
+        time=np.arange(position) * sample_time, armature_voltage=columns['armature_voltage'],
+        armature_current=columns['armature_current'], angle=columns['angle'], sample_time=sample_time,
+        voltage=columns['voltage'], current=columns['current'], step_indices=np.concatenate(steps).astype(int),
+        noise_rms=noise, split=int(split), motor=preps[0].motor, gate_voltage=columns['gate_voltage'],
+        findings=findings, gaps=Gaps(np.concatenate(valid), sample_time, 'joint records'),
+        angle_step=max(p.angle_step for p in preps),
+        voltage_ensemble=np.concatenate(ensemble, axis=1) if ensemble else None)
+
+
+def _prepare_joined(recordings: Sequence, train_fraction: float | None = None):
+    """The joined record prepared as one (records with lost samples, or of different kinds)."""
     from aeropend_core.diagnosis.compare import prepare
     recording, split = joint_recording(recordings, train_fraction)
     prepared = prepare(recording)

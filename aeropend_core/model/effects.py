@@ -325,6 +325,36 @@ def separating_experiment(a: str, b: str) -> str | None:
     return None
 
 
+#: Why two effects are hard to tell apart, one physical sentence per pair (said when an experiment designed to
+#: separate them is too weak to decide).
+WHY_ALIKE = {
+    frozenset({'thrust_lag', 'angle_filter'}):
+        'a lag of the thrust and a low-pass filter of the measured angle commute in a linear system, so they differ '
+        'only through the nonlinearities (sin of the angle, the quadratic thrust, friction), in second order of '
+        'the delay: only large, fast swings show the difference',
+    frozenset({'angle_offset', 'cable_torque'}):
+        'an angle offset and a cable spring both reshape the static thrust-to-angle curve; rests at duty 0 (the '
+        'offset is the angle read there) and large angles (the spring is linear, gravity goes as sin) separate '
+        'them',
+}
+
+
+def why_alike(a: str, b: str) -> str:
+    """Why effects `a` and `b` are hard to tell apart, one sentence ('' when the catalog does not say).
+
+    Parameters
+    ----------
+    a, b : str [-]
+        Effect names.
+
+    Returns
+    -------
+    str
+        The physical reason, without a final full stop.
+    """
+    return WHY_ALIKE.get(frozenset({a, b}), '')
+
+
 def find_parameter(parameter: str) -> tuple[Effect, EffectParameter] | None:
     """The catalog effect that has a parameter of this name, and that parameter (None if no effect has it)."""
     for effect in CATALOG.values():

@@ -3,12 +3,13 @@
 ``--experiment FILE`` plays a schedule file (``steps: [[duty, dwell_s], ...]``, as written by the design,
 :mod:`aeropend_core.diagnosis.experiment_design`) through the excitation node instead of the Latin hypercube; the
 bag's ``metadata.yaml`` names the file and its SHA-256 (``custom_data``: ``aeropend.experiment``,
-``aeropend.experiment_sha256``). ``--until-decided`` loops: run (the Latin hypercube first) -> diagnose every
-record so far together -> if two effects are confounded, design the experiment that separates them -> run it ->
-diagnose again, until the verdict is no longer "confounded" or the budget (``--max-runs``, ``--max-seconds``) is
-spent. Every round's verdict, schedule and bag are listed at the end; ``--json`` holds every round's diagnosis in
-order, the last one being the decision. A design that cannot be made within the limits ends the loop with its
-reason as the one-line error (exit 2), after the rounds so far are listed.
+``aeropend.experiment_sha256``). ``--until-decided`` loops (:mod:`aeropend_core.diagnosis.experiment_loop`): run
+(the Latin hypercube first, or ``--experiment FILE``) -> diagnose every record so far together -> if two effects
+are confounded, design the experiment that separates them -> run it -> diagnose again, until the verdict is no
+longer "confounded" or the budget (``--max-runs``, ``--max-seconds``) is spent. Every round's verdict, schedule and
+bag are listed at the end; ``--json`` holds every round's diagnosis in order, the last one being the decision. A
+design that cannot be made within the limits ends the loop with its reason as the one-line error (exit 2), after
+the rounds so far are listed.
 """
 from __future__ import annotations
 
@@ -32,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--experiment', metavar='FILE.yaml', default=None,
                         help='play this schedule file (steps: [[duty, dwell_s], ...], e.g. written by --until-decided) '
                              'instead of the Latin hypercube; the run lasts the schedule (+3 s) and the bag\'s '
-                             'metadata names the file (default: none)')
+                             'metadata names the file; with --until-decided it is the first round (default: none)')
     parser.add_argument('--until-decided', action='store_true',
                         help='loop: run, diagnose all records so far together, and while two effects are confounded '
                              'design the experiment that separates them and run it (needs recording)')
@@ -49,8 +50,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def check_arguments(args) -> None:
     """Refuse inconsistent experiment options before any node starts (AeropendError: one line, exit 2)."""
-    if args.experiment and args.until_decided:
-        raise AeropendError('--experiment plays one given schedule and --until-decided designs its own; use one')
     if args.experiment:
         from aeropend_core.diagnosis.experiment_design import read_schedule
         steps, _ = read_schedule(args.experiment, duty_limit=args.duty_cap)
@@ -92,82 +91,62 @@ def excitation_overrides(args) -> dict:
     return {'schedule': 'steps', 'steps_file': str(args.experiment)}
 
 
-def _diagnose(bags: list[Path], args, say):
+def _diagnose_options(args, say) -> dict:
     from aeropend_core.cli._checks import calibration_fixed, fixed_effects
-    from aeropend_core.diagnosis.diagnose import diagnose
-    from aeropend_core.io.recording import load_recording
     fixed, fixed_from, _ = calibration_fixed(args.calibration, fixed_effects(args.fix, args.model_effect))
-    options = dict(effects=tuple(args.model_effect), fixed=fixed, fixed_from=fixed_from, progress=say, drift=False)
-    records = [load_recording(bag) for bag in bags]
-    if len(records) == 1:
-        return diagnose(records[0], **options)
-    from aeropend_core.diagnosis.joint import diagnose_joint
-    return diagnose_joint(records, **options)
+    return dict(effects=tuple(args.model_effect), fixed=fixed, fixed_from=fixed_from, progress=say, drift=False)
 
 
 def run_until_decided(args, run_once) -> int:
-    """The loop of ``--until-decided`` (module docstring); `run_once(args)` runs the graph once and returns
-    ``(exit code, bag folder)``."""
-    from aeropend_core.diagnosis.experiment_design import DesignRefused, confounded_models, design_experiment
-    from aeropend_core.errors import InsufficientDataError
+    """The loop of ``--until-decided`` (module docstring) through the core's
+    :func:`aeropend_core.diagnosis.experiment_loop.until_decided`; `run_once(args)` runs the graph once and returns
+    ``(exit code, bag folder)``. With ``--experiment FILE`` the first round plays FILE instead of the hypercube."""
+    from aeropend_core.diagnosis.experiment_loop import LoopBudget, Played, RoundFailed, until_decided
+    from aeropend_core.io.recording import load_recording
 
     def say(message: str) -> None:
         if not args.quiet:
             print(f'  ... {message}', file=sys.stderr, flush=True)
 
-    rounds: list[dict] = []
+    first = args.experiment
     bags: list[Path] = []
-    spent = 0.0
-    schedule = None
-    ending = ''
-    refused = ''
-    diagnosis = None
-    while True:
-        args.experiment = str(schedule) if schedule else None
+
+    def play(design, schedule) -> Played:
+        args.experiment = str(schedule) if schedule else first
+        if design is not None:
+            args.duration = design.schedule.duration + START_DELAY + END_MARGIN
         code, bag = run_once(args)
         if code != 0 or bag is None:
-            ending = f'round {len(bags) + 1} did not complete (exit {code}); the loop stops'
-            break
+            raise RoundFailed(f'exit {code}')
         bags.append(Path(bag))
-        spent += args.duration
         print(f'\nRound {len(bags)}: diagnosing {" + ".join(str(b) for b in bags)}', file=sys.stderr, flush=True)
-        try:
-            diagnosis = _diagnose(bags, args, say)
-        except InsufficientDataError as error:
-            ending = f'cannot diagnose: {error}'
-            break
-        entry = {'round': len(bags), 'bag': str(bag), 'schedule': args.experiment or experiment_metadata(args)[
-            'aeropend.experiment'], 'verdict': diagnosis.verdict, 'message': diagnosis.message,
-            'diagnosis': diagnosis.to_dict()}
-        rounds.append(entry)
-        print(f'round {len(bags)}: {diagnosis.verdict}: {diagnosis.message}', flush=True)
-        if diagnosis.verdict != 'confounded':
-            ending = f'decided after {len(bags)} run(s) ({spent:.0f} s of excitation)'
-            break
-        next_length = args.design_seconds + START_DELAY + END_MARGIN
-        if len(bags) >= args.max_runs or spent + next_length > args.max_seconds:
-            ending = (f'budget spent ({len(bags)} of --max-runs {args.max_runs}, {spent:.0f} s of --max-seconds '
-                      f'{args.max_seconds:g}): still confounded; the records so far are listed below')
-            break
-        say('designing the experiment that separates the confounded effects')
-        try:
-            models = confounded_models(diagnosis)
-            design = design_experiment(models, diagnosis.noise_rms, duration=args.design_seconds,
-                                       duty_limit=min(0.7, args.duty_cap), angle_limit=math.radians(args.max_angle),
-                                       seed=args.seed + len(bags))
-        except DesignRefused as error:
-            refused = ending = f'no experiment designed: {error}'
-            break
-        schedule = Path(args.record) / f'experiment_round{len(bags) + 1}_{time.strftime("%Y%m%d_%H%M%S")}.yaml'
-        design.write(schedule)
-        entry['design'] = design.to_dict()
-        entry['next_schedule'] = str(schedule)
-        print(f'designed {schedule}: {design.describe()}', flush=True)
-        args.duration = design.schedule.duration + START_DELAY + END_MARGIN
+        played = args.experiment or experiment_metadata(args)['aeropend.experiment']
+        return Played(load_recording(bag), str(bag), played, float(args.duration))
+
+    def write(number: int, design) -> str:
+        return str(design.write(Path(args.record) / f'experiment_round{number}_{time.strftime("%Y%m%d_%H%M%S")}.yaml'))
+
+    def report(entry) -> None:
+        if entry.design is None:
+            print(f'round {entry.number}: {entry.diagnosis.verdict}: {entry.diagnosis.message}', flush=True)
+        else:
+            print(f'designed {entry.next_schedule}: {entry.design.describe()}', flush=True)
+
+    budget = LoopBudget(max_runs=args.max_runs, max_seconds=args.max_seconds, design_seconds=args.design_seconds,
+                        duty_limit=min(0.7, args.duty_cap), angle_limit=math.radians(args.max_angle),
+                        overhead_seconds=START_DELAY + END_MARGIN)
+    outcome = until_decided(play, budget, _diagnose_options(args, say), seed=args.seed, write_schedule=write,
+                            on_round=report, say=say)
+    rounds = [{'round': r.number, 'bag': r.played.source, 'schedule': r.played.played,
+               'verdict': r.diagnosis.verdict, 'message': r.diagnosis.message, 'diagnosis': r.diagnosis.to_dict(),
+               **({'design': r.design.to_dict(), 'next_schedule': r.next_schedule} if r.design is not None else {})}
+              for r in outcome.rounds]
+    ending = outcome.ending
     print(f'\n--until-decided: {ending}', flush=True)
     for entry in rounds:
         print(f'  round {entry["round"]}: {entry["verdict"]:<16} schedule {entry["schedule"]}  bag {entry["bag"]}',
               flush=True)
+    diagnosis = outcome.decision
     if args.report and diagnosis is not None:
         from aeropend_core.present.report import write_report
         print(f'report: {write_report(diagnosis, args.report, source=" + ".join(map(str, bags)))}')
@@ -175,8 +154,8 @@ def run_until_decided(args, run_once) -> int:
         from aeropend_ros.cli.run import _write_json
         _write_json(args.json, {'rounds': rounds, 'ending': ending, 'bags': [str(b) for b in bags],
                                 'decision': rounds[-1]['diagnosis'] if rounds else None})
-    if refused:         # the rounds so far are listed (and in --json); the refusal is the one-line error, exit 2
-        raise AeropendError(refused)
+    if outcome.refused:     # the rounds so far are listed (and in --json); the refusal is the one-line error, exit 2
+        raise AeropendError(outcome.refused)
     if not rounds:
         print(f'aeropend run: {ending}', file=sys.stderr)
         return 1

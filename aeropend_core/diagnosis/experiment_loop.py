@@ -1,0 +1,267 @@
+"""The experiment loop: diagnose -> design -> play -> diagnose every record together, until decided.
+
+One function, :func:`until_decided`, drives the loop for any source of records: ``aeropend run --until-decided``
+plays each round through the ROS graph (simulator or rig) and hands back the bag's recording; the benchmark and the
+tests play it on the in-process simulator. The loop itself is the same:
+
+1. play the first excitation (the caller's: a Latin hypercube, or a given schedule) and diagnose it;
+2. while the verdict is ``confounded``: design the experiment that separates the two confounded models
+   (:func:`aeropend_core.diagnosis.experiment_design.design_experiment`, within the duty and angle limits), play
+   it, and diagnose *all* records so far together (:func:`aeropend_core.diagnosis.joint.diagnose_joint`);
+3. stop when the verdict is no longer ``confounded`` (decided), when the next experiment would go over the budget
+   (runs, seconds of excitation), when no design is possible within the limits (refused, with the reason), or when
+   a round could not be played.
+
+Every round keeps its diagnosis, what it played and the design made after it, so the caller can list them.
+"""
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+
+from aeropend_core.errors import AeropendError, InsufficientDataError
+
+#: Verdict that keeps the loop going.
+CONFOUNDED = 'confounded'
+
+
+class RoundFailed(AeropendError):
+    """A round could not be played or recorded (the message says why); the loop stops after the rounds so far."""
+
+
+@dataclass(frozen=True)
+class LoopBudget:
+    """Limits of the loop.
+
+    Attributes
+    ----------
+    max_runs : int [-]
+        Runs at most, the first included.
+    max_seconds : float [s]
+        Excitation over all runs at most (each designed run counts its schedule plus `overhead_seconds`).
+    design_seconds : float [s]
+        Length of each designed experiment (at least the design's minimum, 20 s).
+    duty_limit : float, dimensionless
+        Highest duty fraction a designed step may ask for.
+    angle_limit : float [rad]
+        Every competing model's predicted angle stays below it.
+    overhead_seconds : float [s]
+        Time a played schedule adds to its run (a rest before the first step, a margin for the recorder).
+    """
+
+    max_runs: int = 3
+    max_seconds: float = 300.0
+    design_seconds: float = 30.0
+    duty_limit: float = 0.7
+    angle_limit: float = math.radians(80.0)
+    overhead_seconds: float = 0.0
+
+
+@dataclass
+class Played:
+    """What one round played and recorded.
+
+    Attributes
+    ----------
+    recording : Recording
+        The recorded samples (Va [V], Ia [A], angle [rad]).
+    source : str
+        Where it is kept (bag folder, file or a label).
+    played : str
+        What was played (the schedule file, or the Latin hypercube and its seed).
+    seconds : float [s]
+        Excitation time the round used (counted against the budget).
+    """
+
+    recording: object
+    source: str
+    played: str
+    seconds: float
+
+
+@dataclass
+class LoopRound:
+    """One round: what it played, the diagnosis of every record so far, and the design made after it.
+
+    Attributes
+    ----------
+    number : int [-]
+        1 for the first run.
+    played : Played
+        The round's record.
+    diagnosis : Diagnosis
+        Of all records up to this one, together.
+    design : ExperimentDesign or None
+        The experiment designed after this round (None when the loop stopped here).
+    next_schedule : str
+        Where the design was written for the next round ('' if not written).
+    diagnosis_seconds, design_seconds : float [s]
+        Wall-clock time of this round's diagnosis and design.
+    """
+
+    number: int
+    played: Played
+    diagnosis: object
+    design: object = None
+    next_schedule: str = ''
+    diagnosis_seconds: float = 0.0
+    design_seconds: float = 0.0
+
+
+@dataclass
+class LoopOutcome:
+    """The rounds in order and why the loop ended.
+
+    Attributes
+    ----------
+    rounds : list of LoopRound
+        Every round, the last one holding the decision.
+    ending : str
+        Why the loop stopped, in words.
+    refused : str
+        The design's refusal ('' unless the loop ended because no experiment could be designed).
+    excitation_seconds : float [s]
+        Excitation played over all rounds.
+    """
+
+    rounds: list[LoopRound] = field(default_factory=list)
+    ending: str = ''
+    refused: str = ''
+    excitation_seconds: float = 0.0
+
+    @property
+    def decision(self):
+        """The last round's diagnosis (None if no round completed)."""
+        return self.rounds[-1].diagnosis if self.rounds else None
+
+    @property
+    def decided(self) -> bool:
+        """True when the last diagnosis is no longer confounded."""
+        return self.decision is not None and self.decision.verdict != CONFOUNDED
+
+
+def diagnose_records(recordings: Sequence, options: Mapping | None = None):
+    """Diagnose one record alone, or several together (shared parameters, per-record initial states).
+
+    Parameters
+    ----------
+    recordings : sequence of Recording [-]
+        The records so far, in the order played.
+    options : mapping, optional [-]
+        Passed to the diagnosis (``effects``, ``fixed``, ``progress``, ``drift``, ...).
+
+    Returns
+    -------
+    Diagnosis
+        Of the records together.
+    """
+    options = dict(options or {})
+    if len(recordings) == 1:
+        from aeropend_core.diagnosis.diagnose import diagnose
+        return diagnose(recordings[0], **options)
+    from aeropend_core.diagnosis.joint import diagnose_joint
+    return diagnose_joint(list(recordings), **options)
+
+
+def until_decided(play: Callable, budget: LoopBudget = LoopBudget(), diagnose_options: Mapping | None = None,
+                  seed: int = 0, write_schedule: Callable | None = None, on_round: Callable | None = None,
+                  say: Callable | None = None, design_options: Mapping | None = None) -> LoopOutcome:
+    """Run the loop (module docstring) until the verdict is decided or the budget is spent.
+
+    Parameters
+    ----------
+    play : callable [-]
+        ``play(design, schedule) -> Played``: plays the first excitation when `design` is None, otherwise the
+        designed experiment (`schedule` is the file `write_schedule` returned, or None); raises
+        :class:`RoundFailed` when the round could not be played.
+    budget : LoopBudget [-]
+        Runs, seconds and the design's limits.
+    diagnose_options : mapping, optional [-]
+        Options of every diagnosis (:func:`diagnose_records`).
+    seed : int [-]
+        Seed of the designs (round k uses ``seed + k``: reproducible).
+    write_schedule : callable, optional [-]
+        ``write_schedule(round_number, design) -> str``: where the design of the next round is kept (the file the
+        excitation node plays); default: not written.
+    on_round : callable, optional [-]
+        Called with each :class:`LoopRound` when its diagnosis is done, and again (``design`` set) after the design.
+    say : callable, optional [-]
+        Progress messages (one line each).
+    design_options : mapping, optional [-]
+        Extra options of :func:`~aeropend_core.diagnosis.experiment_design.design_experiment` (``candidates``,
+        ``refinements``, ``draws``, ``original_duty_limit``).
+
+    Returns
+    -------
+    LoopOutcome
+        Every round and why the loop stopped.
+    """
+    from aeropend_core.diagnosis.experiment_design import DesignRefused, confounded_models, design_experiment
+    say = say or (lambda message: None)
+    outcome = LoopOutcome()
+    records: list = []
+    design = None
+    schedule = None
+    while True:
+        try:
+            played = play(design, schedule)
+        except RoundFailed as error:
+            outcome.ending = f'round {len(records) + 1} did not complete ({error}); the loop stops'
+            break
+        records.append(played.recording)
+        outcome.excitation_seconds += played.seconds
+        say(f'round {len(records)}: diagnosing {len(records)} record(s) together')
+        started = time.perf_counter()
+        try:
+            diagnosis = diagnose_records(records, diagnose_options)
+        except InsufficientDataError as error:
+            outcome.ending = f'cannot diagnose: {error}'
+            break
+        current = LoopRound(len(records), played, diagnosis, diagnosis_seconds=time.perf_counter() - started)
+        outcome.rounds.append(current)
+        if on_round:
+            on_round(current)
+        if diagnosis.verdict != CONFOUNDED:
+            outcome.ending = (f'decided after {len(records)} run(s) ({outcome.excitation_seconds:.0f} s of '
+                              f'excitation)' + _unconfirmed(outcome.rounds))
+            break
+        next_length = budget.design_seconds + budget.overhead_seconds
+        if len(records) >= budget.max_runs or outcome.excitation_seconds + next_length > budget.max_seconds:
+            outcome.ending = (f'budget spent ({len(records)} of {budget.max_runs} runs, '
+                              f'{outcome.excitation_seconds:.0f} s of {budget.max_seconds:g} s): still confounded')
+            break
+        say('designing the experiment that separates the confounded effects')
+        started = time.perf_counter()
+        try:
+            models = confounded_models(diagnosis)
+            design = design_experiment(models, diagnosis.noise_rms, duration=budget.design_seconds,
+                                       duty_limit=budget.duty_limit, angle_limit=budget.angle_limit,
+                                       seed=seed + len(records), **dict(design_options or {}))
+        except DesignRefused as error:
+            outcome.refused = outcome.ending = f'no experiment designed: {error}'
+            break
+        current.design = design
+        current.design_seconds = time.perf_counter() - started
+        schedule = write_schedule(len(records) + 1, design) if write_schedule else None
+        current.next_schedule = str(schedule or '')
+        if on_round:
+            on_round(current)
+    return outcome
+
+
+def _unconfirmed(rounds: list[LoopRound]) -> str:
+    """A warning when the records together find nothing that an earlier round found (confounded) missing."""
+    if len(rounds) < 2 or rounds[-1].diagnosis.verdict != 'nothing_missing':
+        return ''
+    earlier = next(((r, f) for r in rounds[:-1] for f in r.diagnosis.found if f.confounded_with), None)
+    if earlier is None:
+        return ''
+    number, names = earlier[0].number, ', '.join([earlier[1].effect, *earlier[1].confounded_with])
+    return (f'; but round {number} found one of {names} missing and the records together find nothing significant: '
+            'the earlier evidence is not confirmed (a weak effect, or chance in that record); a longer experiment '
+            'would tell')
+
+
+__all__ = ['LoopBudget', 'LoopOutcome', 'LoopRound', 'Played', 'RoundFailed', 'diagnose_records', 'until_decided']
