@@ -86,6 +86,41 @@ def test_a_run_refuses_a_rig_whose_topics_are_already_published():
         assert other.returncode == 0, (out, err)
 
 
+
+def test_a_graph_that_appears_while_a_run_lasts_stops_it_with_the_same_refusal(tmp_path):
+    """The start-up check waits for discovery only so long (a busy host can show a node later): the run keeps
+    looking while it lasts. A sim started by hand after the run's own graph is up (even with the same node name)
+    stops the run with the one-line refusal (exit 2), and the bag recorded so far is finalised and readable."""
+    import threading
+
+    from aeropend_core.io.bag import read_samples
+    domain_id = private_domain_id()
+    run = subprocess.Popen(AEROPEND + ['run', '--no-diagnose', '--duration', '120', '--record', str(tmp_path)],
+                           env=local_ros_environment(domain_id=domain_id), cwd=ROOT, stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(iter(run.stderr.readline, '')), daemon=True)
+    reader.start()
+    try:
+        assert wait_for(lambda: any(line.startswith('aeropend run: simulator') for line in lines)
+                        or run.poll() is not None, 180.0), lines
+        assert run.poll() is None, lines
+        with NodeProcess('aeropend_ros.sim_node', ['-p', 'psnr_db:=0.0'], domain_id):
+            assert wait_for(lambda: run.poll() is not None, 120.0), lines
+    finally:
+        if run.poll() is None:
+            run.kill()
+        run.wait(timeout=60)
+        reader.join(timeout=10)
+    errors = [line for line in lines if 'already in use' in line]
+    assert run.returncode == 2, lines
+    assert len(errors) == 1 and '/sim_node publish on /aeropend/samples' in errors[0] and '--rig NAME' in errors[0]
+    assert not any('Traceback' in line for line in lines), lines
+    bags = sorted(tmp_path.glob('aeropend_*'))
+    assert len(bags) == 1, bags
+    assert len(read_samples(bags[0])['sequence']) > 0          # finalised: read back
+
+
 def test_sim_refuses_two_duty_sources_and_says_so(caplog):
     """The sim as `aeropend run` builds it (guard_duty_sources=True, SingleThreadedExecutor), in this process; the
     sources and the listener are other nodes of the same process, over DDS."""

@@ -18,7 +18,8 @@ Examples:
 
 One graph per rig: before any node starts, a run takes a lock for its rig (namespace) and ROS domain on this host
 and looks at the ROS graph for another graph's nodes on the rig's topics; either refuses the run, naming the running
-one and the --rig / ROS_DOMAIN_ID to use (two graphs on one rig would each drive the other's motor).
+one and the --rig / ROS_DOMAIN_ID to use (two graphs on one rig would each drive the other's motor). While the run
+lasts it keeps looking, every second: another graph that discovery shows later stops it with the same refusal.
 
 ROS_AUTOMATIC_DISCOVERY_RANGE is set to LOCALHOST for this demo unless you set it yourself (SUBNET to reach the
 other machines of a lab; README "Many rigs on one network").
@@ -230,9 +231,7 @@ def check_graph_is_free(node, namespace: str) -> None:
     """
     import rclpy
 
-    from aeropend_ros import topics
-    prefix = namespace.rstrip('/')
-    watched = (f'{prefix}/{topics.SAMPLES}', f'{prefix}/{topics.DUTY_COMMAND}')
+    watched = _watched_topics(namespace)
     start = time.monotonic()
     seen, changed = None, start
     while True:
@@ -244,12 +243,7 @@ def check_graph_is_free(node, namespace: str) -> None:
         named = {name for name in found if '_UNKNOWN_' not in name}
         if found and (named or now - start >= GRAPH_WAIT):
             # Discovery may show an endpoint before its node's name: wait for the name, not past the deadline.
-            found = named or {'a node whose name discovery has not told yet'}
-            raise AeropendError(
-                f'{_rig_words(namespace)} on ROS domain {_domain_id()} is already in use: '
-                f'{", ".join(sorted(found))} publish on {" / ".join(watched)} (another aeropend run or launch, here '
-                'or on the network); a second graph would drive the same motor; stop it, or give this run its own '
-                '--rig NAME (or another ROS_DOMAIN_ID)')
+            raise _graph_in_use(namespace, named or {'a node whose name discovery has not told yet'}, watched)
         names = frozenset(node.get_node_names_and_namespaces())
         if names != seen:
             seen, changed = names, now
@@ -257,6 +251,49 @@ def check_graph_is_free(node, namespace: str) -> None:
                                                           now - changed >= GRAPH_SETTLE)):
             return
         rclpy.spin_once(node, timeout_sec=0.1)
+
+
+def _watched_topics(namespace: str) -> tuple[str, str]:
+    """The topics only one graph per rig may publish on: the samples and the duty commands."""
+    from aeropend_ros import topics
+    prefix = namespace.rstrip('/')
+    return f'{prefix}/{topics.SAMPLES}', f'{prefix}/{topics.DUTY_COMMAND}'
+
+
+def _graph_in_use(namespace: str, found, watched) -> AeropendError:
+    return AeropendError(
+        f'{_rig_words(namespace)} on ROS domain {_domain_id()} is already in use: '
+        f'{", ".join(sorted(found))} publish on {" / ".join(watched)} (another aeropend run or launch, here '
+        'or on the network); a second graph would drive the same motor; stop it, or give this run its own '
+        '--rig NAME (or another ROS_DOMAIN_ID)')
+
+
+def foreign_publishers(nodes, namespace: str) -> set[str]:
+    """Nodes publishing on this rig's samples or duty topics besides this run's own `nodes` (empty: none).
+
+    The start-up check (:func:`check_graph_is_free`) can only wait so long for discovery; a graph that discovery
+    shows later is found here, while the run lasts. A foreign node may have the same name as one of ours (a sim
+    started by hand), so publishers are counted against our own, not matched by name.
+
+    Parameters
+    ----------
+    nodes : sequence of rclpy.node.Node
+        This run's nodes (the first one asks the graph).
+    namespace : str [-]
+        The rig's namespace.
+
+    Returns
+    -------
+    set of str
+        The fully qualified names of the publishers on a topic that has more publishers than ours.
+    """
+    found: set[str] = set()
+    for topic in _watched_topics(namespace):
+        infos = nodes[0].get_publishers_info_by_topic(topic)
+        ours = sum(1 for node in nodes for publisher in node.publishers if publisher.topic_name == topic)
+        if len(infos) > ours:
+            found.update(f'{info.node_namespace.rstrip("/")}/{info.node_name}' for info in infos)
+    return found
 
 
 def main(args) -> int:
@@ -399,7 +436,8 @@ def _run(args) -> int:
             spinner = threading.Thread(target=_spin, args=(executor,), name=node.get_name(), daemon=True)
             spinner.start()
             spinners.append(spinner)
-        interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME, recorder)
+        interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME, recorder,
+                                       lambda: foreign_publishers(nodes, namespace), _watched_topics(namespace))
         if excitation.started and not excitation.done:
             excitation.finish()          # duty back to 0 before the graph goes away
         if recorder is not None:
@@ -576,15 +614,24 @@ def _say_samples_received(identification, published: int) -> None:
 
 
 def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float,
-                     recorder=None) -> bool:
+                     recorder=None, foreign=None, watched=()) -> bool:
     """Print the live windows (one line each) until the experiment is over; True when interrupted (Ctrl-C).
 
-    Stops early when the recorder cannot write the bag (disk full): the run then ends with that error."""
+    Stops early when the recorder cannot write the bag (disk full): the run then ends with that error. `foreign`
+    (a callable giving the names of other graphs' publishers on the rig's topics) is asked every
+    FOREIGN_CHECK_PERIOD_S: another graph found while the run lasts stops it with the start-up check's refusal."""
     started = time.monotonic()
+    checked = started
     printer = _WindowPrinter(identification, args.window, quiet=getattr(args, 'quiet', False))
     try:
         while True:
             printer.update()
+            if foreign is not None and time.monotonic() - checked >= FOREIGN_CHECK_PERIOD_S:
+                checked = time.monotonic()
+                found = foreign()
+                if found:
+                    printer._end_progress()
+                    raise _graph_in_use(args.namespace, found, watched)
             if (use_sim and source.finished) or (not use_sim and time.monotonic() - started > args.duration):
                 break
             if recorder is not None and recorder.failed:
@@ -614,6 +661,8 @@ def _wait_until_done(args, source, excitation, identification, use_sim: bool, sa
         return True
 
 
+#: How often [s] a running graph looks for another graph's publishers on its rig's topics.
+FOREIGN_CHECK_PERIOD_S = 1.0
 #: Longest wait [s] for the recorder to take the samples still in flight at the end (a condition: it has every
 #: sample the source published, counted or lost; or its counts stop growing for DRAIN_QUIET_S).
 DRAIN_DEADLINE_S = 30.0
