@@ -13,7 +13,9 @@ first-order lag; a dead zone gates it by Va.
 The angle is simulated free-running from the measured inputs (no angle feedback) over segments of ~10 s, each with
 its own fitted initial angle and rate; parameters come from :func:`scipy.optimize.least_squares` (trust region)
 with a Jacobian by forward differences computed as one batched simulation. Built-in effects run in a compiled
-(numba) kernel; a user's own pendulum effect runs in a vectorised numpy loop that implements the same scheme.
+(numba) kernel, and so do discovered terms and a user's own pendulum effect that numba compiles
+(:mod:`aeropend_core.diagnosis.user_kernel`); one it cannot compile runs in a vectorised numpy loop that implements
+the same scheme.
 
 Integration: classical RK4 with step 2 Ts, so the input at the half step is an actual sample.
 """
