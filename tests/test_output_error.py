@@ -157,10 +157,13 @@ _SOFT_TABLE = {'gain': 30.0}
 
 def test_a_users_effect_numba_cannot_compile_runs_in_python_and_says_so_once():
     """A function reading a Python dict cannot be compiled: it runs in the numpy path (same free run as that path
-    gives) and the user is told once which effect runs in Python and what to do."""
+    gives) and the user is told once which effect runs in Python and what to do. One that compiles to other values
+    (int64 overflows where Python's integers do not) is caught by the check against Python, also with a
+    coefficient whose typical and start values are 0 (as in a written module)."""
     import warnings
 
     import numpy as np
+    from aeropend_core.diagnosis.user_kernel import compiled_user_terms
     from aeropend_core.model.effects import CATALOG, EffectParameter, register_effect
 
     @register_effect('test_user_table', 'a spring from a table', replace=True,
@@ -184,5 +187,17 @@ def test_a_users_effect_numba_cannot_compile_runs_in_python_and_says_so_once():
                                      data.seg_stop, initial, data.sample_time, False, False, python,
                                      structure.user_terms())
         assert np.array_equal(first, python, equal_nan=True) and np.array_equal(first, second, equal_nan=True)
+
+        @register_effect('test_user_overflow', 'a spring in exact integers', replace=True,
+                         parameters=[EffectParameter('test_user_overflow_scale', '1/s^2', 'scale', 0.0, -1.0, 1.0)])
+        def overflow(angle, angular_rate, test_user_overflow_scale):    # Python's integers do not overflow; int64
+            return -test_user_overflow_scale * float(int(angle * 1e7) ** 3) * 1e-21
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter('always')
+            assert compiled_user_terms(output_error.Structure(('test_user_overflow',)).user_terms()) is None
+        said = [str(w.message) for w in caught if 'test_user_overflow' in str(w.message)]
+        assert len(said) == 1 and 'where Python gives' in said[0], said     # checked at a non-zero scale
     finally:
         CATALOG.pop('test_user_table', None)
+        CATALOG.pop('test_user_overflow', None)
