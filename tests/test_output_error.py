@@ -137,6 +137,19 @@ def test_a_users_effect_runs_compiled_with_the_python_paths_values(clean_record)
         index = data.residual_index
         assert np.ptp(compiled[:, index]) > 0.2 and np.ptp(compiled[0, index] - compiled[1, index]) > 1e-3
         assert np.allclose(compiled[:, index], python[:, index], rtol=0, atol=1e-12)
+        # beside a discovered term (the discovery stage on a model with the user's effect): both compiled
+        from aeropend_core.diagnosis.discovery import find_term, term_effect
+        both = output_error.Structure(('test_user_inflow', term_effect(find_term('sin(2*angle)'))))
+        assert compiled_user_terms(both.user_terms()) is not None
+        rows = np.array([both.row({**values, 'test_user_loss': 0.05, both.parameter_names[-1]: c})
+                         for c in (0.0, 3.0)])
+        compiled = data.simulate(both, rows, initial)
+        python = np.full_like(compiled, np.nan)
+        output_error._simulate_numpy(rows, data.voltage, data.current, data.gate_signal, data.seg_start,
+                                     data.seg_stop, initial, data.sample_time, False, False, python,
+                                     both.user_terms())
+        assert np.ptp(compiled[0, index] - compiled[1, index]) > 1e-3
+        assert np.allclose(compiled[:, index], python[:, index], rtol=0, atol=1e-12)
 
         record = simulate(clean_record.duty[:int(25.0 / clean_record.sample_time)], effects={'quadratic_drag': 4.0},
                           noise=MeasurementNoise(psnr_db=40, quantise=True), seed=7)

@@ -28,6 +28,8 @@ import numpy as np
 from numba import types
 from numba.core.dispatcher import Dispatcher
 
+from aeropend_core.diagnosis.term_kernel import term_value
+
 #: The kernel's type of the users' term: ``extra(angle, angular_rate, thrust, row) -> float``.
 EXTRA_SIGNATURE = types.float64(types.float64, types.float64, types.float64, types.float64[::1])
 #: The first-class function type the kernel takes it as.
@@ -68,8 +70,13 @@ def compiled_user_terms(terms: list[tuple]) -> object | None:
 
 
 def _compile(terms: list[tuple]):
-    namespace, calls, single = {}, [], None
+    namespace, calls, single = {'term_value': term_value}, [], None
     for k, (function, columns) in enumerate(terms):
+        code = getattr(function, 'term_code', -1)
+        if code >= 0:       # a discovered term beside a user's effect: the term kernel's own compiled value
+            calls.append(f'row[{int(next(iter(columns.values())))}] * term_value({int(code)}, angle, angular_rate, '
+                         'thrust)')
+            continue
         try:
             arguments = _arguments(function, columns)
             compiled = function if isinstance(function, Dispatcher) else numba.njit(nogil=True)(function)
@@ -82,7 +89,7 @@ def _compile(terms: list[tuple]):
         if problem:
             _say(function, problem)
             return None
-    return single if len(terms) == 1 else _build(namespace, calls)
+    return single if len(terms) == 1 and single is not None else _build(namespace, calls)
 
 
 def _arguments(function, columns: dict[str, int]) -> list[str]:
