@@ -7,6 +7,9 @@ run) and as the module ``aeropend effects --write-discovered`` writes, ``--effec
 discovered_thrust_rate``. Times are the child's CPU (user + system; the wall time on a shared machine is also
 printed) and the two diagnoses' numbers must be the same.
 
+Also the output-error kernel alone: the built-in quadratic_drag against the same law written as a user's effect
+(called through a function pointer, not inlined).
+
 Run:  .venv/bin/python bench/bench_user_effect.py [--duration 60] [--json PATH]   (~1 min of CPU)
 """
 import argparse
@@ -42,6 +45,41 @@ def aeropend(*argv: str, cwd: Path) -> tuple[str, float, float]:
     return done.stdout, cpu, wall
 
 
+def kernel_times(repeats: int = 7) -> tuple[float, float]:
+    """Process CPU [s] of one output-error simulation (best of `repeats`; 16 parameter rows x 30,000 samples in 10
+    segments) with the built-in quadratic_drag and with the same law written as a user's effect."""
+    import numpy as np
+
+    from aeropend_core.diagnosis import output_error
+    from aeropend_core.model.effects import EffectParameter, register_effect
+
+    @register_effect('bench_user_drag', 'drag written by a user', replace=True,
+                     parameters=[EffectParameter('bench_user_drag_coefficient', '1/rad', 'Cd', 4.0, 0.0, 100.0)])
+    def drag(angle, angular_rate, bench_user_drag_coefficient):
+        return -bench_user_drag_coefficient * angular_rate * np.abs(angular_rate)
+
+    rng = np.random.default_rng(1)
+    n = 30000
+    voltage = np.repeat(rng.uniform(0.5, 2.0, n // 300), 300)
+    data = output_error.SegmentedData(voltage, 0.2 * voltage, np.zeros(n), [(i, i + 3000) for i in range(0, n, 3000)],
+                                      1 / 490)
+    nominal = {'gravity_stiffness': 130.0, 'damping': 1.5, 'thrust_gain': 20.0, 'armature_resistance': 1.0}
+    times = []
+    for effect, parameter in (('quadratic_drag', 'drag_coefficient'),
+                              ('bench_user_drag', 'bench_user_drag_coefficient')):
+        structure = output_error.Structure((effect,))
+        rows = np.array([structure.row({**nominal, parameter: 4.0}) * (1 + 0.001 * k) for k in range(16)])
+        initial = np.zeros((16, 10, 2))
+        data.simulate(structure, rows, initial)                 # compile / load the cache
+        best = float('inf')
+        for _ in range(repeats):
+            start = time.process_time()
+            data.simulate(structure, rows, initial)
+            best = min(best, time.process_time() - start)
+        times.append(best)
+    return times[0], times[1]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument('--duration', type=float, default=60.0)
@@ -67,7 +105,12 @@ def main() -> None:
     print(f"  --term 'thrust*angular_rate' (baseline)           {term_cpu:6.1f} s CPU ({term_wall:.1f} s wall)")
     print(f'  --effects-module kept.py --add discovered_...     {module_cpu:6.1f} s CPU ({module_wall:.1f} s wall)')
     print(f'  ratio {ratio:.2f} (target <= 2: {"met" if ratio <= 2 else "NOT met"}); same numbers: {same}')
+    builtin, user = kernel_times()
+    print(f'kernel, 16 rows x 30000 samples: built-in quadratic_drag {builtin:.4f} s, the same law as a user effect '
+          f'{user:.4f} s CPU (ratio {user / builtin:.2f})')
     write_json(args.json, 'bench_user_effect', [
+        figure('output-error simulation CPU time, drag as a user effect', user, 's', baseline=builtin,
+               baseline_name='the built-in quadratic_drag, same rows and data', ratio_meaning='user / built-in'),
         figure(f'diagnosis CPU time with a written effect module, {args.duration:g} s record', module_cpu, 's',
                baseline=term_cpu, baseline_name="the same term as --term 'thrust*angular_rate'", ratio=ratio,
                ratio_meaning='module / --term', target='ratio <= 2', met=ratio <= 2),

@@ -27,6 +27,7 @@ import numba
 import numpy as np
 from numba import types
 from numba.core.dispatcher import Dispatcher
+from numba.core.errors import NumbaWarning
 
 from aeropend_core.diagnosis.term_kernel import term_value
 
@@ -82,14 +83,20 @@ def _compile(terms: list[tuple]):
             compiled = function if isinstance(function, Dispatcher) else numba.njit(nogil=True)(function)
             namespace[f'f{k}'] = compiled
             calls.append(f'f{k}({", ".join(arguments)})')
-            single = _build({f'f{k}': compiled}, [calls[-1]])
+            with warnings.catch_warnings():     # numba's own notes on the user's code are not the user's business
+                warnings.simplefilter('ignore', NumbaWarning)
+                single = _build({f'f{k}': compiled}, [calls[-1]])
             problem = _disagreement(function, columns, single)
         except Exception as error:    # a user's function: numba's many error types all mean "not compiled"
             problem = f'numba cannot compile it ({_first_line(error)})'
         if problem:
             _say(function, problem)
             return None
-    return single if len(terms) == 1 and single is not None else _build(namespace, calls)
+    if len(terms) == 1 and single is not None:
+        return single
+    with warnings.catch_warnings():
+        warnings.simplefilter('ignore', NumbaWarning)
+        return _build(namespace, calls)
 
 
 def _arguments(function, columns: dict[str, int]) -> list[str]:
