@@ -12,7 +12,8 @@ measured in the same run, ratio, units, target) to ``<name>.json``. This script 
 * ``noise_sweep.png`` (and the other files the benchmarks write).
 
 Benchmarks, in order: noise_sweep (WSINDy vs pysindy weak vs strong-form SINDy over PSNR), bench_wsindy (one 40 dB
-window in detail), bench_simulate (simulator × real time), bench_diagnose (diagnosis time for 60 s),
+window in detail), bench_simulate (simulator × real time), bench_diagnose (diagnosis time for 60 s), bench_user_effect
+(a user effect module against the same term built in),
 bench_long_record (diagnose 60/600/3600 s records, each in its own process: wall time and peak memory; --quick
 stops at 600 s), bench_first_window (the first window after a fresh set-up, fresh numba caches), bench_decoder
 (bridge frame decoding), bench_recorder (recorder throughput and loss), bench_sim_node (sim node rate and jitter),
@@ -71,6 +72,8 @@ BENCHES = [
     Bench('bench_wsindy', 'WSINDy vs pysindy weak, one 40 dB window in detail', [], ['--repeats', '5']),
     Bench('bench_simulate', 'simulator speed (x real time)', [], ['--repeat', '2']),
     Bench('bench_diagnose', 'diagnosis time for a 60 s recording', [], []),
+    Bench('bench_user_effect', 'a user effect module against the same term built in (diagnosis CPU)', [],
+          ['--duration', '30']),
     Bench('bench_long_record', 'diagnosis of long records: wall time and peak memory (60/600/3600 s)', [],
           ['--durations', '60', '600'], timeout_s=3600.0),
     Bench('bench_first_window', 'first identification window after a fresh set-up (numba cache)', [], []),

@@ -88,6 +88,31 @@ def test_a_term_becomes_an_effect_and_a_module_that_loads(tmp_path):
     assert 'propeller inflow' in kept.description
 
 
+def test_a_written_module_runs_compiled_and_equals_the_terms_kernel(tmp_path):
+    """Vocabulary terms written by --write-discovered (one of each form the writer translates) compile with numba
+    (the diagnosis runs them as fast as --term, not in Python) and give the term kernel's value times the
+    coefficient: a kept term is the term that was proven (the power laws' true sign, the friction's smooth one)."""
+    import warnings
+
+    from aeropend_core.diagnosis.term_kernel import TERM_CODES, term_value
+    from aeropend_core.diagnosis.user_kernel import compiled_user_terms
+    terms = [find_term(text) for text in (
+        '1', 'cos(2*angle)', 'angle^3', 'sign(angular_rate)', 'abs(angular_rate)^0.5*sign(angular_rate)',
+        'exp(-(angular_rate/0.1)^2)*sign(angular_rate)', 'sqrt(abs(thrust))*angular_rate', 'thrust^2')]
+    path = tmp_path / 'kept_terms.py'
+    path.write_text(effect_module_text(terms))
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')          # a term that fell back to Python would say so: fail
+        load_effects_module(str(path))
+        for term in terms:
+            name = f'discovered_{term.slug}'
+            extra = compiled_user_terms([(CATALOG[name].function, {f'{name}_coefficient': 0})])
+            assert extra is not None, term.expression
+            for y, w, u in ((0.3, -0.7, 12.0), (-1.1, 2.5, 0.4), (0.0, 0.002, 30.0), (0.5, -0.004, 3.0)):
+                assert extra(y, w, u, np.array([-0.3])) == pytest.approx(
+                    -0.3 * term_value(TERM_CODES[term.slug], y, w, u), rel=1e-12, abs=1e-15), term.expression
+
+
 def test_unknown_or_unsimulable_terms_are_refused_with_the_list():
     with pytest.raises(AeropendError, match='the terms are'):
         find_term('angle^7')

@@ -13,7 +13,9 @@ first-order lag; a dead zone gates it by Va.
 The angle is simulated free-running from the measured inputs (no angle feedback) over segments of ~10 s, each with
 its own fitted initial angle and rate; parameters come from :func:`scipy.optimize.least_squares` (trust region)
 with a Jacobian by forward differences computed as one batched simulation. Built-in effects run in a compiled
-(numba) kernel; a user's own pendulum effect runs in a vectorised numpy loop that implements the same scheme.
+(numba) kernel, and so do discovered terms and a user's own pendulum effect that numba compiles
+(:mod:`aeropend_core.diagnosis.user_kernel`); one it cannot compile runs in a vectorised numpy loop that implements
+the same scheme.
 
 Integration: classical RK4 with step 2 Ts, so the input at the half step is an actual sample.
 """
@@ -36,6 +38,7 @@ from aeropend_core.model.effects import (FRICTION_SMOOTHING, KERNEL_KINDS, PENDU
                                          kernel_parameter, wants_thrust)
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.diagnosis.term_kernel import term_value
+from aeropend_core.diagnosis.user_kernel import EXTRA_TYPE, compiled_user_terms, no_extra
 from aeropend_core.model.sensor_filter import filter_angle
 
 #: Column of each nominal parameter, then of each kernel kind, in the kernel's parameter row.
@@ -60,14 +63,22 @@ FRICTION_STABILITY = 2.5
 # t_i, t_i + Ts, t_i + 2 Ts (as the continuous back-EMF is read) switched the thrust half a sample early on
 # average, a lead the fit absorbed by shrinking every per-inertia parameter: -0.75 % on gravity_stiffness and
 # thrust_gain of 300 s dead-zone records (z -5 to -16).
-@numba.njit(cache=True, nogil=True)
+_F1, _F2, _F3, _I1 = numba.float64[::1], numba.float64[:, ::1], numba.float64[:, :, ::1], numba.int64[::1]
+
+
+# One explicit signature (C-contiguous arrays; :func:`_run_kernel` converts): the users' term comes in as a
+# first-class function of one fixed type, so this kernel is compiled once and cached for every user effect.
+@numba.njit(numba.void(_F2, _F1, _F1, _F1, _I1, _I1, _F3, numba.float64, numba.boolean, numba.boolean, _F2,
+                       numba.int64, numba.int64, EXTRA_TYPE, numba.boolean), cache=True, nogil=True)
 def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, initial, sample_time, lag_on, gate_on,
-                     out, term_code=-1, term_column=0):
+                     out, term_code, term_column, extra, extra_on):
     """RK4 free-run of every parameter row over every segment; writes predicted measured angle into `out`.
 
     Row columns: the nominal parameters, then the kernel kinds in ``KERNEL_KINDS`` order (rate_sign, rate_square,
     angle_linear, measured_offset, thrust_lag_time, thrust_threshold); a discovered term `term_code`
-    (:mod:`aeropend_core.diagnosis.term_kernel`, -1: none) enters with the coefficient in column `term_column`."""
+    (:mod:`aeropend_core.diagnosis.term_kernel`, -1: none) enters with the coefficient in column `term_column`;
+    with `extra_on`, the users' effects enter as ``extra(angle, rate, thrust, row)``
+    (:mod:`aeropend_core.diagnosis.user_kernel`)."""
     h = STRIDE * sample_time
     n_rows = theta.shape[0]
     for row in range(n_rows):
@@ -135,6 +146,8 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 dy1 = w
                 dw1 = -a * math.sin(y) - b * w + t1 - fc * math.tanh(w / smooth) - cd * w * abs(w) - kc * y
                 dw1 += c * term_value(term_code, y, w, t1)
+                if extra_on:
+                    dw1 += extra(y, w, t1, theta[row])
                 df1 = (u0 - f) / tau
                 y2 = y + 0.5 * h * dy1
                 w2 = w + 0.5 * h * dw1
@@ -143,6 +156,8 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 dy2 = w2
                 dw2 = -a * math.sin(y2) - b * w2 + t2 - fc * math.tanh(w2 / smooth) - cd * w2 * abs(w2) - kc * y2
                 dw2 += c * term_value(term_code, y2, w2, t2)
+                if extra_on:
+                    dw2 += extra(y2, w2, t2, theta[row])
                 df2 = (u1 - f2) / tau
                 y3 = y + 0.5 * h * dy2
                 w3 = w + 0.5 * h * dw2
@@ -151,6 +166,8 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 dy3 = w3
                 dw3 = -a * math.sin(y3) - b * w3 + t3 - fc * math.tanh(w3 / smooth) - cd * w3 * abs(w3) - kc * y3
                 dw3 += c * term_value(term_code, y3, w3, t3)
+                if extra_on:
+                    dw3 += extra(y3, w3, t3, theta[row])
                 df3 = (u1 - f3) / tau
                 y4 = y + h * dy3
                 w4 = w + h * dw3
@@ -159,6 +176,8 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 dy4 = w4
                 dw4 = -a * math.sin(y4) - b * w4 + t4 - fc * math.tanh(w4 / smooth) - cd * w4 * abs(w4) - kc * y4
                 dw4 += c * term_value(term_code, y4, w4, t4)
+                if extra_on:
+                    dw4 += extra(y4, w4, t4, theta[row])
                 df4 = (u2 - f4) / tau
                 y = y + h / 6.0 * (dy1 + 2.0 * dy2 + 2.0 * dy3 + dy4)
                 w = w + h / 6.0 * (dw1 + 2.0 * dw2 + 2.0 * dw3 + dw4)
@@ -384,15 +403,14 @@ class SegmentedData:
         terms = structure.user_terms()
         code = getattr(terms[0][0], 'term_code', -1) if len(terms) == 1 else -1
         if code >= 0:       # a discovered term: compiled too (aeropend_core.diagnosis.term_kernel)
-            _simulate_kernel(rows, voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
-                             self.sample_time, structure.lag_on, structure.gate_on, out, code,
-                             next(iter(terms[0][1].values())))
-        elif terms:
+            _run_kernel(self, structure, rows, voltage, initial, out, code, next(iter(terms[0][1].values())))
+        elif terms and (extra := compiled_user_terms(terms)) is not None:     # users' effects, compiled by numba
+            _run_kernel(self, structure, rows, voltage, initial, out, extra=extra)
+        elif terms:         # a user's effect numba cannot compile (said once, aeropend_core.diagnosis.user_kernel)
             _simulate_numpy(rows, voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
                             self.sample_time, structure.lag_on, structure.gate_on, out, terms)
         else:
-            _simulate_kernel(rows, voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
-                             self.sample_time, structure.lag_on, structure.gate_on, out)
+            _run_kernel(self, structure, rows, voltage, initial, out)
         if structure.filter_on:
             # the sensor's low-pass acts on the simulated measured angle (linear: after the offset is the same)
             column = KIND_COLUMNS['measured_lowpass']
@@ -406,6 +424,21 @@ class SegmentedData:
                     out[row, index] = filter_angle(out[row, index], delay, STRIDE * self.sample_time,
                                                    initial[row, s, 1])
         return out
+
+
+def _run_kernel(data: SegmentedData, structure: Structure, rows: np.ndarray, voltage: np.ndarray,
+                initial: np.ndarray, out: np.ndarray, term_code: int = -1, term_column: int = 0,
+                extra=None) -> None:
+    """:func:`_simulate_kernel` with its arguments in the types of its one signature (C-contiguous float64 and
+    int64 arrays); writes into `out` [rad], which must be C-contiguous float64."""
+    def f(values):
+        return np.ascontiguousarray(values, dtype=np.float64)
+
+    _simulate_kernel(f(rows), f(voltage), f(data.current), f(data.gate_signal),
+                     np.ascontiguousarray(data.seg_start, dtype=np.int64),
+                     np.ascontiguousarray(data.seg_stop, dtype=np.int64), f(initial), float(data.sample_time),
+                     bool(structure.lag_on), bool(structure.gate_on), out, int(term_code), int(term_column),
+                     no_extra if extra is None else extra, extra is not None)
 
 
 @dataclass

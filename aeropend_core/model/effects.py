@@ -23,7 +23,8 @@ with bounds and start values, its term in the pendulum equation as *kernel terms
 compiled simulator and the output-error kernel both implement, each parameterised by one of the effect's
 parameters: :data:`KERNEL_KINDS`), its weak-form terms if the angle-only weak form can carry it, and the
 experiment that separates it from each confusable neighbour.  No other module names a built-in effect.  A user
-adds an effect with one small function (it runs in the numpy/LSODA paths)::
+adds an effect with one small function (the diagnosis compiles it with numba when it is written with math or
+numpy functions of scalars, :mod:`aeropend_core.diagnosis.user_kernel`; the simulator runs it in LSODA)::
 
     from aeropend_core.model.effects import register_effect, EffectParameter
 

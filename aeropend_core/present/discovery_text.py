@@ -247,8 +247,11 @@ def _numpy_expression(expression: str) -> str:
     code = expression.replace('^', '**')
     for name in ('sin', 'cos', 'exp', 'sqrt', 'abs'):
         code = code.replace(f'{name}(', f'np.{name}(')
-    code = code.replace('sign(angular_rate)', 'np.tanh(angular_rate / 0.01)')
-    return code if code != '1' else 'np.ones_like(angle)'
+    # the vocabulary's (and the kernel's) sign: a true sign in the power laws |W|^P sign W, smoothed as the catalog's
+    # friction, tanh(W / 0.01 rad/s), alone and in Stribeck's terms (a written module is the term it was proven as)
+    code = code.replace('*sign(angular_rate)', '*SIGN') if code.startswith('np.abs(angular_rate)**') else code
+    code = code.replace('sign(angular_rate)', 'np.tanh(angular_rate / 0.01)').replace('SIGN', 'np.sign(angular_rate)')
+    return code if code != '1' else '1.0 + 0.0 * angle'      # a float for a float (numba compiles it)
 
 
 __all__ = ['term_text', 'discovery_sentence', 'discovery_lines', 'discovery_html', 'effect_module_text']
