@@ -147,6 +147,9 @@ class Diagnosis:
     independent: object = None      #: the free-oscillation estimate (aeropend_core.identify.plausibility)
     #: The discovery stage's result (:class:`aeropend_core.diagnosis.discovery.Discovery`; None when it did not run).
     discovery: object = None
+    #: The motor equation's discovery (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscovery`; None when the
+    #: discovery stage was off).
+    motor_discovery: object = None
 
     @property
     def missing_effects(self) -> list[str]:
@@ -226,6 +229,9 @@ class Diagnosis:
             'remaining_error_beyond_noise': _finite(excess_error(self.final.rms_error, self.final.noise_rms)),
             'discovered_terms': [t.to_dict() for t in self.discovery.proven] if self.discovery is not None else [],
             'discovery': self.discovery.to_dict() if self.discovery is not None else None,
+            'discovered_motor_terms': ([t.to_dict() for t in self.motor_discovery.proven]
+                                       if self.motor_discovery is not None else []),
+            'motor_discovery': self.motor_discovery.to_dict() if self.motor_discovery is not None else None,
             'drift': self.drift,
             'gaps': self.prepared.gaps.to_dict() if self.prepared is not None and self.prepared.gaps is not None
             else None,
@@ -504,6 +510,15 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         from aeropend_core.diagnosis.discovery import discover
         catalog_set = tuple(f.effect for f in found)
         found_terms = discover(prep, final, model, held, catalog_set, current if catalog_set else None, say)
+    # ---- discovery in the motor equation, where the armature current is measured (records without it: said so)
+    motor_terms = None
+    if discovery:
+        from aeropend_core.diagnosis.motor_discovery import discover_motor
+        motor_terms = discover_motor(prep, say)
+        if motor_terms.proven:
+            from aeropend_core.diagnosis.motor_discovery import pendulum_with_term
+            say('discovery: refitting the pendulum with the thrust input of the corrected motor observer')
+            pendulum_with_term(prep, motor_terms.proven[0], model, held, excess_final)
     proven = found_terms.proven if found_terms is not None else []
     # a proven term is the verdict only when it explains the error (what it leaves is within the noise's reach)
     proven = [t for t in proven if t.excess_after <= UNEXPLAINED_NOISE * reference]
@@ -537,6 +552,11 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         for other in heldout_only[1:]:
             notes.append(f'{other.effect} would also explain the held-out error ({other.excess_after * 1e3:.2f} '
                          f'mrad beyond the noise) without training evidence.')
+    motor_best = motor_terms.proven[0] if motor_terms is not None and motor_terms.proven else None
+    if motor_best is not None and (verdict == 'nothing_missing' or (
+            verdict == 'unexplained' and motor_best.pendulum_excess_after <= UNEXPLAINED_NOISE * reference)):
+        # the motor equation misses a term, and with it the pendulum is within the noise (or was already)
+        verdict, missing = 'term_discovered', None
     if found_terms is not None and verdict == 'effect_found' and any(t.status == 'confounded'
                                                                    for t in found_terms.terms):
         verdict = 'confounded'      # a term outside the catalog explains the data as well as the set chosen
@@ -547,7 +567,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         excess_final=excess_final, within_noise=UNEXPLAINED_NOISE * noise, structure=structure,
         drift_text=drift_message(drifting, final) if drifting else '', heldout_only=heldout_only,
         heldout_advice=excitation_advice(heldout_only[0].effect) if heldout_only else '', discovery=found_terms,
-        explained_below=UNEXPLAINED_NOISE * reference, reduced_rate_hz=reduced_rate)
+        explained_below=UNEXPLAINED_NOISE * reference, reduced_rate_hz=reduced_rate, motor=motor_terms)
     if found and verdict in ('effect_found', 'confounded'):
         for f in found:
             step = next(c for c, _ in steps if c.effect == f.effect)
@@ -575,5 +595,5 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
         message=message, notes=notes, before=before, residual_structure=structure, prepared=prep,
         seconds=time.perf_counter() - started, found=found, selected=selected, drift=drift_rows, fixed=held,
-        fixed_from=held_from, discovery=found_terms))
+        fixed_from=held_from, discovery=found_terms, motor_discovery=motor_terms))
 

@@ -200,6 +200,13 @@ class MotorDiscoveredTerm:
     dm_statistic: float = math.nan
     why_not: str = ''
     equation_of: str = 'motor'
+    #: The pendulum's held-out angle error beyond the noise [rad] with the observer as fitted, and with the thrust
+    #: input rebuilt from the observer corrected by this term (:func:`pendulum_with_term`; nan: not refitted).
+    pendulum_excess_before: float = math.nan
+    pendulum_excess_after: float = math.nan
+    #: The corrected observer's back-EMF [V] (n,) and state vector (R, tau_e, q1, p2, p3, Ia0, e0, c).
+    back_emf: np.ndarray | None = field(default=None, repr=False)
+    solution: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def add(self) -> list[str]:
@@ -221,6 +228,8 @@ class MotorDiscoveredTerm:
                 'error_beyond_noise_after': finite(self.excess_after),
                 'share_of_error_removed': finite(self.share_removed), 't_statistic': finite(self.t_statistic),
                 'delta_bic': finite(self.delta_bic), 'dm_statistic': finite(self.dm_statistic),
+                'pendulum_error_beyond_noise_before': finite(self.pendulum_excess_before),
+                'pendulum_error_beyond_noise_after': finite(self.pendulum_excess_after),
                 'why_not_proven': self.why_not, 'add': self.add}
 
 
@@ -415,6 +424,7 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
 def _judge(entry: MotorDiscoveredTerm, base: MotorFitResult, augmented: MotorFitResult, noise: float,
            beyond: float) -> None:
     """The catalog's evidence (candidates.assess's thresholds) on the current's output-error fits."""
+    entry.back_emf, entry.solution = augmented.back_emf, augmented.solution
     entry.value = float(augmented.solution[7])
     entry.sigma = float(math.sqrt(max(augmented.covariance[7, 7], 0.0)))
     entry.t_statistic = abs(entry.value) / entry.sigma if entry.sigma > 0 else 0.0
@@ -440,4 +450,42 @@ def _judge(entry: MotorDiscoveredTerm, base: MotorFitResult, augmented: MotorFit
     entry.why_not = '; '.join(reasons)
 
 
-__all__ = ['MOTOR_VOCABULARY', 'MotorTerm', 'MotorDiscoveredTerm', 'MotorDiscovery', 'discover_motor']
+def pendulum_with_term(prep: PreparedRecord, entry: MotorDiscoveredTerm, model: tuple[str, ...],
+                       fixed: dict[str, float], excess_before: float) -> PreparedRecord | None:
+    """Refit the pendulum (nominal + `model`) with its thrust input rebuilt from the observer corrected by `entry`.
+
+    Sets ``entry.pendulum_excess_before`` (`excess_before` [rad]) and ``entry.pendulum_excess_after`` [rad].
+
+    Returns
+    -------
+    PreparedRecord or None
+        The record with the corrected back-EMF as its thrust voltage (None when it could not be refitted).
+    """
+    from dataclasses import replace
+
+    from aeropend_core.diagnosis.compare import compare
+    from aeropend_core.diagnosis.long_record import search_record
+    from aeropend_core.signals.motor import MotorFit
+    entry.pendulum_excess_before = excess_before
+    if entry.back_emf is None or not np.all(np.isfinite(entry.back_emf)):
+        return None
+    x = entry.solution
+    observer = MotorFit(parameters={'motor_drive_rate': float(x[2] / x[0]), 'motor_friction_rate': float(x[3]),
+                                    'motor_drag_rate': float(x[4]), 'motor_resistance': float(x[0]),
+                                    'electrical_time_constant': float(x[1])},
+                        back_emf=entry.back_emf, current_rms_error=math.nan, current_noise_rms=math.nan,
+                        solution=tuple(float(v) for v in x[:7]), kind='inductance',
+                        standard_errors=dict(prep.motor.standard_errors) if prep.motor is not None else {})
+    corrected = replace(prep, voltage=np.asarray(entry.back_emf, dtype=float), current=np.zeros(len(prep.time)),
+                        motor=observer, voltage_ensemble=prep.voltage_ensemble if prep.motor is not None else None)
+    try:
+        search, _ = search_record(corrected)
+        refit = compare(search, model, fixed=dict(fixed))
+    except (InsufficientDataError, AeropendError):
+        return None
+    entry.pendulum_excess_after = excess_error(refit.rms_error, refit.noise_rms)
+    return corrected
+
+
+__all__ = ['pendulum_with_term', 'MOTOR_VOCABULARY', 'MotorTerm', 'MotorDiscoveredTerm', 'MotorDiscovery',
+           'discover_motor']

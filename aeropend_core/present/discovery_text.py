@@ -91,6 +91,86 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
     return ' '.join(parts)
 
 
+def motor_term_text(term) -> str:
+    """'La dIa/dt = Va - R Ia - e + c * EXPRESSION with c = value +- sigma UNIT' for a motor-equation term.
+
+    Parameters
+    ----------
+    term : MotorDiscoveredTerm [-]
+        The term (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscoveredTerm`), coefficient SI.
+
+    Returns
+    -------
+    str
+        The term as the armature circuit reads it, SI units.
+    """
+    value, sigma = (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient,
+                                                                               term.weak_sigma)
+    return (f'La dIa/dt = Va - R Ia - e + c * {term.term.expression} with c = {value:.4g} +- {sigma:.2g} '
+            f'{term.term.unit}')
+
+
+def motor_sentence(motor) -> str:
+    """The verdict's sentence about a term proven in the motor equation ('' when none was).
+
+    Parameters
+    ----------
+    motor : MotorDiscovery [-]
+        The motor equation's discovery (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscovery`).
+
+    Returns
+    -------
+    str
+        One sentence, currents in mA and SI units.
+    """
+    proven = motor.proven if motor is not None else []
+    if not proven:
+        return ''
+    best = proven[0]
+    return (f'In the motor equation (the armature current is measured), the data support the term '
+            f'{motor_term_text(best)} ({best.term.reading}): it removes {best.share_removed * 100:.0f} % of the '
+            f'held-out current error beyond the noise, {best.excess_before * 1e3:.2f} -> '
+            f'{best.excess_after * 1e3:.2f} mA (noise '
+            f'{motor.noise_rms * 1e3:.2f} mA); HAC t = {best.t_statistic:.1f}, training BIC {best.delta_bic:+.1f}, '
+            f'held-out Diebold-Mariano {best.dm_statistic:+.1f}.'
+            + (f' With the thrust input rebuilt from the corrected motor observer the pendulum\'s held-out error '
+               f'beyond the noise goes {best.pendulum_excess_before * 1e3:.2f} -> '
+               f'{best.pendulum_excess_after * 1e3:.2f} mrad.'
+               if math.isfinite(best.pendulum_excess_after) else '')
+            + ' Not yet addable from the command line: the pendulum\'s parameters above were fitted with the '
+            'uncorrected observer.')
+
+
+def motor_lines(motor) -> list[str]:
+    """The summary's lines about the motor equation's discovery (empty when it did not run).
+
+    Parameters
+    ----------
+    motor : MotorDiscovery or None [-]
+        The motor equation's discovery.
+
+    Returns
+    -------
+    list of str
+        A heading, the note when it did not search, then one line per term tried, best first.
+    """
+    if motor is None:
+        return []
+    lines = ['Discovery in the motor equation (armature current; weak-form screening, terms refitted in the observer):']
+    if motor.note:
+        lines.append(f'  {motor.note}')
+    for term in motor.terms:
+        after = (f', current beyond noise {term.excess_before * 1e3:.2f} -> {term.excess_after * 1e3:.2f} mA, t = '
+                 f'{term.t_statistic:.1f}, dBIC {term.delta_bic:+.1f}, DM {term.dm_statistic:+.1f}'
+                 if math.isfinite(term.excess_after) else '')
+        why = f' ({term.why_not})' if term.why_not and term.status != 'proven' else ''
+        lines.append(f'  {term.status.upper():10s} {motor_term_text(term)}{after}{why}')
+        if math.isfinite(term.pendulum_excess_after):
+            lines.append(f'             with it as the thrust input, the pendulum\'s angle beyond noise '
+                         f'{term.pendulum_excess_before * 1e3:.2f} -> {term.pendulum_excess_after * 1e3:.2f} mrad')
+    return lines
+
+
 def _html_number(value: float, digits: int = 2, scale: float = 1.0, suffix: str = '') -> str:
     return f'{value * scale:.{digits}f}{suffix}' if value is not None and math.isfinite(value) else '&mdash;'
 
@@ -251,4 +331,5 @@ def _numpy_expression(expression: str) -> str:
     return code if code != '1' else 'np.ones_like(angle)'
 
 
-__all__ = ['term_text', 'discovery_sentence', 'discovery_lines', 'discovery_html', 'effect_module_text']
+__all__ = ['term_text', 'discovery_sentence', 'motor_term_text', 'motor_sentence', 'motor_lines',
+           'discovery_lines', 'discovery_html', 'effect_module_text']

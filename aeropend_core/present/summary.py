@@ -106,8 +106,9 @@ def format_summary(diagnosis: Diagnosis) -> str:
             lines.append(f'  {row["parameter"]:18s} change {row["change"] * 100:+6.1f} % over {row["span"]:.0f} s, '
                          f't = {row["t_statistic"]:+.1f}, p = {row["p_value"]:.2g} '
                          f'({row["stretches"]} stretches){"  DRIFT" if row["drifting"] else ""}')
-    from aeropend_core.present.discovery_text import discovery_lines
+    from aeropend_core.present.discovery_text import discovery_lines, motor_lines
     lines += discovery_lines(getattr(diagnosis, 'discovery', None))
+    lines += motor_lines(getattr(diagnosis, 'motor_discovery', None))
     lines.append('Verdict: ' + diagnosis.message)
     for note in diagnosis.notes:
         lines.append('Note: ' + note)

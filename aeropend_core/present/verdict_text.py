@@ -11,7 +11,7 @@ import math
 from collections.abc import Sequence
 
 from aeropend_core.model.effects import get_effect
-from aeropend_core.present.discovery_text import discovery_sentence
+from aeropend_core.present.discovery_text import discovery_sentence, motor_sentence
 
 
 def size_text(found) -> str:
@@ -40,7 +40,7 @@ def size_text(found) -> str:
 def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_current: float, excess_final: float,
                     within_noise: float, structure: Sequence[dict] = (), drift_text: str = '',
                     heldout_only: Sequence = (), heldout_advice: str = '', discovery=None,
-                    explained_below: float = math.inf, reduced_rate_hz: float | None = None) -> str:
+                    explained_below: float = math.inf, reduced_rate_hz: float | None = None, motor=None) -> str:
     """The verdict's message for `verdict` (the diagnosis's decision), numbers in mrad and SI units.
 
     Parameters
@@ -72,6 +72,8 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
         A proven term that leaves more than this explains only part of the error.
     reduced_rate_hz : float, optional [Hz]
         The sample rate of a reduced-model record whose own error at that rate is unmeasured (``'unexplained'``).
+    motor : MotorDiscovery, optional [-]
+        The motor equation's discovery; its sentence is appended when it proved a term.
 
     Returns
     -------
@@ -123,8 +125,14 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
                    f'residual correlates most with: {structure[0]["signature"]} (r = '
                    f'{structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
                    f'(aeropend_core.model.effects.register_effect).')
-    if discovery is not None:
+    motor_led = (verdict == 'term_discovered' and motor is not None and bool(motor.proven)
+                 and not (discovery is not None and discovery.proven))
+    if motor_led:       # the motor equation's term is the verdict: the pendulum's own search is not the news
+        message = (message + ' ' + motor_sentence(motor)).strip()
+    elif discovery is not None:
         message = (message + ' ' + discovery_sentence(discovery, noise_rms, explained_below)).strip()
+    if motor is not None and motor.proven and not motor_led:
+        message = (message + ' ' + motor_sentence(motor)).strip()
     if verdict == 'unexplained' and reduced_rate_hz is not None:
         message += (f' At {reduced_rate_hz:.4g} Hz the reduced model\'s own error has not been measured: part '
                     'or all of this remainder can be that model\'s limit at this rate, not a missing effect (a record '
