@@ -74,7 +74,7 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
         best = confounded[0]
         return (f'The term {term_text(best)} ({best.term.reading}) explains the data as well as '
                 f'{" + ".join(best.confounded_with)} ({best.excess_after * 1e3:.2f} mrad beyond the noise): this '
-                f'data cannot tell them apart; vary the step amplitudes and add free decays and rests at duty 0.')
+                f'data cannot tell them apart; {separating_experiment(best.term.expression)}.')
     catalog = [t for t in discovery.terms if t.status == 'catalog']
     tried = [t for t in discovery.terms if t.status == 'not_proven']
     parts = []
@@ -169,6 +169,30 @@ def motor_lines(motor) -> list[str]:
             lines.append(f'             with it as the thrust input, the pendulum\'s angle beyond noise '
                          f'{term.pendulum_excess_before * 1e3:.2f} -> {term.pendulum_excess_after * 1e3:.2f} mrad')
     return lines
+
+
+def separating_experiment(expression: str) -> str:
+    """The experiment that separates a discovered term from the catalog set it is confounded with, by what the term
+    is a function of.
+
+    Parameters
+    ----------
+    expression : str [-]
+        The term's expression (vocabulary names).
+
+    Returns
+    -------
+    str
+        One clause, e.g. 'add free decays from several angles ...'.
+    """
+    if 'thrust' in expression:
+        return ('vary the step amplitudes (several thrust levels, each held until the rod rests) and add free decays '
+                'from rest at duty 0: the thrust and the angle then stop moving together')
+    if 'angular_rate' in expression:
+        return ('add free decays from several starting angles (a wide range of rod speeds, from the largest to rest): '
+                'the speed\'s law (its power, a breakaway) shows in how the swing dies out')
+    return ('add rests at several angles, at the bottom and in large excursions (70-85 deg): the angle\'s law (a '
+            'harmonic, a spring, an offset) shows in the static thrust-to-angle curve')
 
 
 def _html_number(value: float, digits: int = 2, scale: float = 1.0, suffix: str = '') -> str:
@@ -331,5 +355,5 @@ def _numpy_expression(expression: str) -> str:
     return code if code != '1' else 'np.ones_like(angle)'
 
 
-__all__ = ['term_text', 'discovery_sentence', 'motor_term_text', 'motor_sentence', 'motor_lines',
-           'discovery_lines', 'discovery_html', 'effect_module_text']
+__all__ = ['separating_experiment', 'term_text', 'discovery_sentence', 'motor_term_text', 'motor_sentence',
+           'motor_lines', 'discovery_lines', 'discovery_html', 'effect_module_text']
