@@ -25,6 +25,7 @@ from aeropend_core.present.discovery_text import effect_module_text
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import simulate
+from aeropend_core.present.verdict_text import verdict_of
 
 HALF = 0.5
 EFFECTS_MODULE = str(__import__('pathlib').Path(__file__).parents[1] / 'bench' / 'discovery_effects.py')
@@ -125,7 +126,7 @@ def test_an_effect_outside_the_catalog_is_discovered_and_the_error_falls_below_h
     found = diagnose(recording(truth), drift=False)
     assert not any(c.effect.startswith('test_') for c in found.candidates)      # outside the catalog indeed
     proven = found.discovery.proven if found.discovery is not None else []
-    assert proven, (found.verdict, found.message)
+    assert proven, (found.verdict, verdict_of(found))
     best = proven[0]
     assert best.term.expression in {t.expression for t in VOCABULARY}
     assert best.excess_after < HALF * found.noise_rms, (best.term.expression, best.excess_after, found.noise_rms)
@@ -134,20 +135,20 @@ def test_an_effect_outside_the_catalog_is_discovered_and_the_error_falls_below_h
     assert entry['expression'] == best.term.expression and entry['add'][0] == '--term'
     (value,) = entry['parameters'].values()
     assert value['unit'] == best.term.unit and value['sigma'] > 0
-    assert best.term.expression in found.message and 'mrad' in found.message
+    assert best.term.expression in verdict_of(found) and 'mrad' in verdict_of(found)
 
 
 @pytest.mark.slow
 def test_a_clean_record_proposes_nothing():
     found = diagnose(recording(None, seed=5), drift=False)
-    assert found.to_dict()['discovered_terms'] == [], found.message
-    assert found.verdict == 'nothing_missing', found.message
+    assert found.to_dict()['discovered_terms'] == [], verdict_of(found)
+    assert found.verdict == 'nothing_missing', verdict_of(found)
 
 
 @pytest.mark.slow
 def test_a_catalog_effect_is_still_reported_as_the_catalog_effect():
     found = diagnose(recording({'coulomb_friction': 4.0}, seed=7), drift=False)
-    assert found.verdict == 'effect_found' and found.missing_effect == 'coulomb_friction', found.message
+    assert found.verdict == 'effect_found' and found.missing_effect == 'coulomb_friction', verdict_of(found)
     assert found.to_dict()['discovered_terms'] == []
 
 

@@ -50,6 +50,7 @@ from aeropend_core.present.formatting import (
 from aeropend_core.present.model_checks import (band_section, correlation_section, scatter_section,
                                                 validation_section)
 from aeropend_core.present.discovery_text import discovery_html
+from aeropend_core.present.verdict_text import verdict_of
 from aeropend_core.present.model_sections import model_sections
 from aeropend_core.present.plots import (
     _plot_candidates,
@@ -133,7 +134,7 @@ def _verdict_html(diagnosis: Diagnosis, source: str | None = None) -> str:
         missing=', '.join(diagnosis.missing_effects) or diagnosis.missing_effect)
     css = VERDICT_CLASSES.get(diagnosis.verdict, 'warn')
     parts = [f'<section class="verdict {css}" id="verdict"><div class="title">{_esc(title)}</div>',
-             f'<div>{_esc(_plain(_without_title(diagnosis.message)))}</div>']
+             f'<div>{_esc(_plain(_without_title(verdict_of(diagnosis))))}</div>']
     if diagnosis.verdict == 'effect_found':
         added = ''.join(f' --add {e}' for e in (*diagnosis.effects, diagnosis.missing_effect))
         data = shlex.quote(source) if source else 'DATA'

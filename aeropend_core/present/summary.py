@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from aeropend_core.diagnosis.compare import excess_error
 from aeropend_core.diagnosis.diagnose import Diagnosis
-from aeropend_core.present.verdict_text import size_text
+from aeropend_core.present.verdict_text import size_text, verdict_of
 from aeropend_core.model.effects import find_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.signals.reduced import MAP_PARAMETERS
@@ -109,7 +109,7 @@ def format_summary(diagnosis: Diagnosis) -> str:
     from aeropend_core.present.discovery_text import discovery_lines, motor_lines
     lines += discovery_lines(getattr(diagnosis, 'discovery', None))
     lines += motor_lines(getattr(diagnosis, 'motor_discovery', None))
-    lines.append('Verdict: ' + diagnosis.message)
+    lines.append('Verdict: ' + verdict_of(diagnosis))
     for note in diagnosis.notes:
         lines.append('Note: ' + note)
     for row in diagnosis.residual_structure:
