@@ -278,6 +278,46 @@ def discovery_html(discovery, noise_rms: float, source: str | None = None) -> st
     return ''.join(parts)
 
 
+def motor_html(motor) -> str:
+    """The HTML report's section on the motor equation's discovery ('' when no term was tried).
+
+    Parameters
+    ----------
+    motor : MotorDiscovery or None [-]
+        The motor equation's discovery (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscovery`).
+
+    Returns
+    -------
+    str
+        A ``<h2 id="motor-discovery">`` section: one row per term tried, with its equation, c +- 1 sigma and unit,
+        the current's held-out error beyond its noise before -> after [mA], the evidence and the status.
+    """
+    if motor is None or not motor.terms:
+        return ''
+    esc = html.escape
+    rows = []
+    for term in motor.terms:
+        value, sigma = (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient,
+                                                                                   term.weak_sigma)
+        pendulum = (f'; pendulum {_html_number(term.pendulum_excess_before, 2, 1e3)} &rarr; '
+                    f'{_html_number(term.pendulum_excess_after, 2, 1e3)}&nbsp;mrad'
+                    if math.isfinite(term.pendulum_excess_after) else '')
+        rows.append(f'<tr><td><code>{esc(term.term.expression)}</code></td><td>{esc(term.status.replace("_", " "))}'
+                    f'</td><td class="num">{value:.4g} &plusmn; {sigma:.2g} {esc(term.term.unit)}</td>'
+                    f'<td class="num">{_html_number(term.excess_before, 2, 1e3)} &rarr; '
+                    f'{_html_number(term.excess_after, 2, 1e3)}{pendulum}</td>'
+                    f'<td>t = {_html_number(term.t_statistic, 1)}, &Delta;BIC {_html_number(term.delta_bic, 1)}, '
+                    f'DM {_html_number(term.dm_statistic, 1)}</td><td>{esc(term.why_not or term.term.reading)}</td>'
+                    '</tr>')
+    return ('<h2 id="motor-discovery">Discovery in the motor equation</h2>'
+            '<p class="caption">The armature current is measured: its equation <code>La dIa/dt = Va - R Ia - e + c '
+            '&middot; term</code> was screened in weak form and the strongest terms refitted in the motor observer by '
+            f'output error, judged on the held-out current (noise {_html_number(motor.noise_rms, 2, 1e3)}&nbsp;mA). '
+            'The pendulum&rsquo;s error is given with its thrust input rebuilt from the corrected observer.</p>'
+            '<table><tr><th>term</th><th>status</th><th>c &plusmn; 1&sigma;</th><th>current beyond noise [mA]</th>'
+            '<th>evidence</th><th>why not proven / reading</th></tr>' + ''.join(rows) + '</table>')
+
+
 def _quoted(arguments: list[str]) -> list[str]:
     return [f"'{a}'" if any(c in a for c in '*()^ ,') else a for a in arguments]
 
@@ -356,4 +396,4 @@ def _numpy_expression(expression: str) -> str:
 
 
 __all__ = ['separating_experiment', 'term_text', 'discovery_sentence', 'motor_term_text', 'motor_sentence',
-           'motor_lines', 'discovery_lines', 'discovery_html', 'effect_module_text']
+           'motor_lines', 'motor_html', 'discovery_lines', 'discovery_html', 'effect_module_text']
