@@ -5,10 +5,9 @@ BASE + COUNT - 1. Each is prepared as the diagnosis prepares it (motor observer)
 :func:`aeropend_core.diagnosis.motor_discovery.discover_motor` exactly as ``aeropend diagnose`` runs it (the weak-form
 screen as the gate, then the output-error proof). A false proposal = a proven motor term. The pendulum's part of the
 diagnosis is not run here (bench/discovery.py --part clean runs the whole diagnosis; this is the cheaper check of the
-motor search on more records). ``--force`` refits the strongest terms even when the screen passes none.
+motor search on more records).
 
-Run:  nice -n 10 .venv/bin/python bench/discovery_motor_clean.py [--count 40] [--seed-base 64000] [--force]
-          [--out FOLDER]
+Run:  nice -n 10 .venv/bin/python bench/discovery_motor_clean.py [--count 40] [--seed-base 64000] [--out FOLDER]
 """
 from __future__ import annotations
 
@@ -27,8 +26,6 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split('\n')[0], allow_abbrev=False)
     parser.add_argument('--count', type=int, default=40, help='clean records (default 40)')
     parser.add_argument('--seed-base', type=int, default=64000, help='first seed (default 64000)')
-    parser.add_argument('--force', action='store_true', help='refit the strongest terms even when none passes the '
-                                                             'screen')
     parser.add_argument('--out', default=str(ROOT / 'results' / '2026-11-27-s9-discover3'))
     args = parser.parse_args()
     from threadpoolctl import threadpool_limits
@@ -38,14 +35,14 @@ def main() -> int:
     from false_alarms import record
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    target = out / f'motor-clean{"-forced" if args.force else ""}.json'
+    target = out / 'motor-clean.json'
     rows = []
     with threadpool_limits(1):
         for seed in range(args.seed_base, args.seed_base + args.count):
             recording, meta = record(seed)
             started = time.process_time()
             prep = prepare(recording)
-            found = discover_motor(prep, force=args.force)
+            found = discover_motor(prep)
             best = found.terms[0] if found.terms else None
             row = {**meta, 'observer': prep.motor.kind if prep.motor is not None else 'inadequate',
                    'current_noise_mA': round(found.noise_rms * 1e3, 3), 'note': found.note,

@@ -356,8 +356,7 @@ def _weak_screen(prep, x, voltage, switch, terms, noise) -> dict[str, tuple[floa
     return screened
 
 
-def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda message: None,
-                   force: bool = False) -> MotorDiscovery:
+def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda message: None) -> MotorDiscovery:
     """Search the motor equation's discrepancy for a term outside the observer's model (module docstring).
 
     Parameters
@@ -366,8 +365,6 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
         The record (its armature current, stepped Va, training / held-out split).
     say : callable [-]
         Progress messages.
-    force : bool [-]
-        Search even when the observer explains the current within its noise (benchmarks).
 
     Returns
     -------
@@ -393,7 +390,7 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
     screened = _weak_screen(prep, x0, voltage, switch, MOTOR_VOCABULARY, noise)
     # the weak form's own significance guard is the gate: the output-error refits run only for terms that stand out
     ranked = sorted(screened.items(), key=lambda kv: -(abs(kv[1][0]) / kv[1][1] if kv[1][1] > 0 else 0.0))
-    if not ranked and not force:
+    if not ranked:
         return MotorDiscovery(note='no term of the motor vocabulary stands out from the current\'s noise',
                               noise_rms=float(noise))
     say('discovery: refitting the motor observer on the training part (base of the motor equation\'s search)')
