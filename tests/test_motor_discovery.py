@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from aeropend_core.diagnosis import motor_discovery
 from aeropend_core.diagnosis.compare import prepare
 from aeropend_core.diagnosis.motor_discovery import MOTOR_VOCABULARY, _simulate, discover_motor
 from aeropend_core.io.recording import from_columns
@@ -60,8 +61,9 @@ def test_every_motor_term_has_a_unit_and_a_reading():
 
 
 @pytest.mark.slow
-def test_a_brush_drop_is_found_in_the_motor_equation_and_a_clean_motor_proposes_nothing():
-    found = discover_motor(prepare(record('brush_drop', BRUSH_DROP)))
+def test_a_brush_drop_is_found_in_the_motor_equation_and_a_clean_motor_proposes_nothing(monkeypatch):
+    prep = prepare(record('brush_drop', BRUSH_DROP))
+    found = discover_motor(prep)
     assert found.proven, [(t.term.expression, t.why_not) for t in found.terms]
     best = found.proven[0]
     assert best.term.expression == 'sign(current)'
@@ -71,3 +73,8 @@ def test_a_brush_drop_is_found_in_the_motor_equation_and_a_clean_motor_proposes_
     assert entry['equation_of'] == 'motor' and entry['parameters']['motor_current_sign_coefficient']['unit'] == 'V'
     clean = discover_motor(prepare(record()))
     assert not clean.proven, [(t.term.expression, t.status) for t in clean.terms]
+    # a long record is searched on a window around its split (here 40 s of the 60 s), and says so
+    monkeypatch.setattr(motor_discovery, 'WINDOW_SECONDS', 40.0)
+    windowed = discover_motor(prep)
+    assert [t.term.expression for t in windowed.proven][:1] == ['sign(current)'] and 'searched on 40 s' in windowed.note
+    assert windowed.proven[0].value == pytest.approx(-BRUSH_DROP, rel=0.1)

@@ -278,6 +278,30 @@ def _starting_observer(prep: PreparedRecord):
     return x, voltage, np.asarray(switch, dtype=float), motor.current_noise_rms
 
 
+#: A longer record is searched on a window of this length [s] around its split (80 % before it): the observer is
+#: simulated from the window's start, its state there taken from the observer's run over the whole record.
+WINDOW_SECONDS = 300.0
+
+
+def _window(prep, voltage, switch, valid, x0):
+    """The record (or its window around the split, see :data:`WINDOW_SECONDS`) as the search uses it: a view with
+    ``armature_current``, ``time``, ``split``, ``sample_time``, and the sliced Va, switch positions, valid mask and
+    the observer's state vector at the window's start."""
+    from types import SimpleNamespace
+    n = voltage.size
+    length = int(round(WINDOW_SECONDS / prep.sample_time))
+    if n <= length:
+        return prep, voltage, switch, valid, x0
+    start = int(min(max(prep.split - int(0.8 * length), 0), n - length))
+    current, emf = _simulate(np.append(x0[:7], 0.0), -1, voltage, np.zeros(n), switch, prep.sample_time)
+    x0 = np.array(x0, dtype=float)
+    x0[5], x0[6] = current[start], emf[start]
+    window = slice(start, start + length)
+    view = SimpleNamespace(armature_current=np.asarray(prep.armature_current)[window], time=prep.time[window],
+                           split=prep.split - start, sample_time=prep.sample_time, motor=prep.motor, window=window)
+    return view, voltage[window], switch[window], valid[window], x0
+
+
 def _simulate(x, code, voltage, slow, switch, sample_time):
     current, emf = np.empty(voltage.size), np.empty(voltage.size)
     _observer_kernel(np.asarray(x, dtype=float), int(code), voltage, slow, switch, sample_time, SUBSTEPS, current,
@@ -378,8 +402,10 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
     if started is None:
         return MotorDiscovery(note='the motor observer could not be fitted: the motor equation was not searched')
     x0, voltage, switch, noise = started
+    valid = prep.gaps.valid if prep.gaps is not None else np.ones(voltage.size, dtype=bool)
+    full_length = voltage.size
+    prep, voltage, switch, valid, x0 = _window(prep, voltage, switch, valid, x0)
     n = voltage.size
-    valid = prep.gaps.valid if prep.gaps is not None else np.ones(n, dtype=bool)
     index = np.arange(n)
     train = (index >= 2) & (index < prep.split) & valid
     heldout = (index >= prep.split) & valid
@@ -398,6 +424,9 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
     base_rms = float(np.sqrt(np.mean(base.heldout_error ** 2)))
     excess_now = excess_error(base_rms, noise)
     outcome = MotorDiscovery(noise_rms=float(noise), excess_before=excess_now)
+    if n < full_length:
+        outcome.note = (f'searched on {n * prep.sample_time:.0f} s around the split of a '
+                        f'{full_length * prep.sample_time:.0f} s record (training before it, held-out after)')
     by_expression = {t.expression: t for t in MOTOR_VOCABULARY}
     heat = _lagged(base.current ** 2, HEATING_TIME, prep.sample_time)
     time = prep.time - 0.5 * (prep.time[0] + prep.time[-1])
@@ -464,8 +493,9 @@ def pendulum_with_term(prep: PreparedRecord, entry: MotorDiscoveredTerm, model: 
     from aeropend_core.diagnosis.long_record import search_record
     from aeropend_core.signals.motor import MotorFit
     entry.pendulum_excess_before = excess_before
-    if entry.back_emf is None or not np.all(np.isfinite(entry.back_emf)):
-        return None
+    if (entry.back_emf is None or len(entry.back_emf) != len(prep.time)
+            or not np.all(np.isfinite(entry.back_emf))):
+        return None         # searched on a window of a long record: the pendulum is not refitted on it
     x = entry.solution
     observer = MotorFit(parameters={'motor_drive_rate': float(x[2] / x[0]), 'motor_friction_rate': float(x[3]),
                                     'motor_drag_rate': float(x[4]), 'motor_resistance': float(x[0]),
