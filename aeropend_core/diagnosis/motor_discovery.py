@@ -1,18 +1,19 @@
 """Discovery in the motor equation: a term outside the model of the armature circuit, found where the current is
 measured, and proven like a catalog effect.
 
-A part of the discovery stage (:mod:`aeropend_core.diagnosis.discovery`), run by the diagnosis when the armature
-current is recorded and the motor observer (:mod:`aeropend_core.signals.motor`: ``tau_e dIa/dt = (Va - e)/R - Ia``,
-``de/dt = q1 Ia - p2 e - p3 e|e|``) leaves error beyond the current's noise, or could not explain the current at all.
-Records without the current (the reduced model) skip it and say so. Steps:
+A part of the discovery stage (:mod:`aeropend_core.diagnosis.discovery`), run by the diagnosis whenever the armature
+current is recorded: the motor observer (:mod:`aeropend_core.signals.motor`: ``tau_e dIa/dt = (Va - e)/R - Ia``,
+``de/dt = q1 Ia - p2 e - p3 e|e|``) may miss a voltage in the armature circuit, and then biases the thrust the
+pendulum sees. Records without the current (the reduced model) skip it and say so. Steps:
 
 1. **States from the observer.** Its simulated current ``current`` [A] and back-EMF ``back_emf`` [V] (the motor
    speed times Kw), the dissipated-power proxy ``heat`` [A^2] (the modelled current squared through a
    :data:`HEATING_TIME` lag) and the time ``time`` [s] from the record's middle. No derivative of noisy data.
 2. **Sparse regression.** The armature equation ``dIa/dt = (Va - R Ia - e)/La + (1/La) Σ c_k θ_k`` is regressed in
    weak form (the project's WSINDy: test functions, GLS noise model with the current's noise, MSTLS) with Va, Ia and
-   e kept and the typed terms θ_k of :data:`MOTOR_VOCABULARY` free; each term is also screened alone (nearly
-   collinear terms split the evidence jointly), strongest own t first.
+   e kept and each typed term θ_k of :data:`MOTOR_VOCABULARY` alone (nearly collinear terms split the evidence
+   jointly); a term must pass the weak form's significance test (:data:`SIGNIFICANCE`, Bonferroni over the terms).
+   This screen is the gate: when no term passes, nothing is refitted (a clean motor costs about 2 s for 60 s).
 3. **Proof.** The strongest (at most :data:`MAX_REFITS`) are each added to the observer as a voltage in the armature
    circuit, ``La dIa/dt = Va - R Ia - e + c θ``, and the observer is refitted by output error on the training part
    (before the diagnosis's split) with and without it; judged by the catalog's evidence
@@ -21,8 +22,10 @@ Records without the current (the reduced model) skip it and say so. Steps:
    mean-square error falls by more than (``MATERIAL`` x the current's noise)^2).
 
 The proven term is reported with ``c ± σ`` [SI], the current's held-out error beyond its noise before -> after and a
-physical reading. It corrects the motor observer only: the pendulum's thrust input is not rebuilt from the corrected
-observer here (a stated limit), so it has no ``--term`` arguments yet.
+physical reading; :func:`pendulum_with_term` rebuilds the pendulum's thrust input from the corrected observer and
+refits the pendulum, so the verdict can say how much of the angle's error the motor term explains. It has no
+command-line arguments yet (``add`` is empty), and a record longer than :data:`WINDOW_SECONDS` is searched on a
+window around its split (the pendulum is then not refitted).
 """
 from __future__ import annotations
 
