@@ -47,13 +47,21 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
     """
     if discovery is None:
         return ''
+    confounded = [t for t in discovery.terms if t.status == 'confounded']
+    lookalike = ''
+    if confounded:
+        best = confounded[0]
+        lookalike = (f'The term {term_text(best)} ({best.term.reading}) explains the data as well as '
+                     f'{" + ".join(best.confounded_with)} ({best.excess_after * 1e3:.2f} mrad beyond the noise): this '
+                     f'data cannot tell them apart; {separating_experiment(best.term.expression)}.')
     proven = [t for t in discovery.terms if t.status == 'proven']
     if proven and proven[0].excess_after > explained_below:
         best = proven[0]
         return (f'Outside the catalog, the term {term_text(best)} ({best.term.reading}) is significant but explains '
                 f'only part of the error: {best.excess_before * 1e3:.2f} -> {best.excess_after * 1e3:.2f} mrad beyond '
                 f'the noise ({best.share_removed * 100:.0f} %); the rest is unexplained, so it is a hint, not the '
-                f'missing physics (try it with {" ".join(_quoted(best.add))}).')
+                f'missing physics (try it with {" ".join(_quoted(best.add))}).' + (' ' + lookalike if lookalike
+                                                                                   else ''))
     if proven:
         best = proven[0]
         return (f'Outside the catalog, the data support the term {term_text(best)} ({best.term.reading}): it removes '
@@ -68,13 +76,10 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
                    'these; excite larger angles and free decays to separate them.' if best.alternatives else '')
                 + ' Add it with '
                 f'{" ".join(_quoted(best.add))}, or keep it as an effect module (aeropend effects '
-                f'--write-discovered FILE.py --term \'{best.term.expression}\').')
-    confounded = [t for t in discovery.terms if t.status == 'confounded']
-    if confounded:
-        best = confounded[0]
-        return (f'The term {term_text(best)} ({best.term.reading}) explains the data as well as '
-                f'{" + ".join(best.confounded_with)} ({best.excess_after * 1e3:.2f} mrad beyond the noise): this '
-                f'data cannot tell them apart; {separating_experiment(best.term.expression)}.')
+                f'--write-discovered FILE.py --term \'{best.term.expression}\').' + (' ' + lookalike if lookalike
+                                                                                     else ''))
+    if lookalike:
+        return lookalike
     catalog = [t for t in discovery.terms if t.status == 'catalog']
     tried = [t for t in discovery.terms if t.status == 'not_proven']
     parts = []
