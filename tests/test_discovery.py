@@ -139,6 +139,33 @@ def test_an_effect_outside_the_catalog_is_discovered_and_the_error_falls_below_h
 
 
 @pytest.mark.slow
+def test_a_lookalike_the_catalog_set_absorbs_is_reported_as_confounded_with_the_experiment():
+    """An encoder's second-harmonic nonlinearity (measured = angle + 0.04 sin(2 angle)) is absorbed by a catalog set
+    (cable_torque + angle_offset); the term sin(2*angle) explains the data as well in its place: confounded, with the
+    experiment that separates them (issue #25: a discovered term and a catalog set that explain the data equally)."""
+    from aeropend_core.model.effects import MEASUREMENT, EffectParameter, register_effect
+
+    builtin = set(CATALOG)
+    register_effect('test_encoder_harmonic', 'encoder second-harmonic nonlinearity', kind=MEASUREMENT, replace=True,
+                    parameters=[EffectParameter('test_encoder_amplitude', 'rad', 'amplitude', 0.04, -1.0, 1.0)])(
+        lambda angle, test_encoder_amplitude: angle + test_encoder_amplitude * np.sin(2.0 * angle))
+    try:
+        schedule = lhc_schedule(60.0, duty_range=(0.0, 0.7), duty_cap=0.7, seed=11)
+        trajectory = simulate(schedule.duty(duration=60.0), effects={'test_encoder_harmonic': 0.04},
+                              noise=MeasurementNoise(psnr_db=40.0, quantise=True), seed=12)
+    finally:
+        for name in set(CATALOG) - builtin:
+            CATALOG.pop(name)
+    found = diagnose(from_columns(trajectory.columns(with_truth=False)), drift=False)
+    confounded = [t for t in found.discovery.terms if t.status == 'confounded'] if found.discovery else []
+    assert confounded, (found.verdict, verdict_of(found))
+    assert confounded[0].term.expression == 'sin(2*angle)' and confounded[0].confounded_with == found.missing_effects
+    assert found.verdict == 'confounded'
+    message = verdict_of(found)
+    assert 'cannot tell them apart' in message and 'rests at several angles' in message, message
+
+
+@pytest.mark.slow
 def test_a_clean_record_proposes_nothing():
     found = diagnose(recording(None, seed=5), drift=False)
     assert found.to_dict()['discovered_terms'] == [], verdict_of(found)
