@@ -140,7 +140,10 @@ def motor_sentence(motor) -> str:
             f'held-out Diebold-Mariano {best.dm_statistic:+.1f}.'
             + (f' With the thrust input rebuilt from the corrected motor observer the pendulum\'s held-out error '
                f'beyond the noise goes {best.pendulum_excess_before * 1e3:.2f} -> '
-               f'{best.pendulum_excess_after * 1e3:.2f} mrad.'
+               f'{best.pendulum_excess_after * 1e3:.2f} mrad'
+               + ('.' if best.pendulum_excess_after <= best.pendulum_excess_before else
+                  ': worse, so the term explains the current but not the motor\'s speed (the torque side of the '
+                  'same effect may be missing too); the pendulum keeps the uncorrected observer\'s thrust input.')
                if math.isfinite(best.pendulum_excess_after) else '')
             + ' Not yet addable from the command line: the pendulum\'s parameters above were fitted with the '
             'uncorrected observer.')
