@@ -15,6 +15,7 @@ from _common import add_json_argument, figure, write_json
 
 from aeropend_core.diagnosis.compare import compare, prepare
 from aeropend_core.diagnosis.diagnose import diagnose
+from aeropend_core.present.verdict_text import verdict_of
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.io.recording import from_columns
@@ -40,14 +41,15 @@ def main() -> None:
     print(f'{args.duration:g} s recording, {len(result.candidates)} candidates: diagnosis {total:.2f} s '
           f'(target < 5 s: {"met" if total < 5 else "NOT met"})')
     print(f'baseline, prepare + one nominal fit and evaluation: {one_fit:.2f} s; ratio {total / one_fit:.1f}')
-    print(f'verdict: {result.message}')
+    print(f'verdict: {verdict_of(result)}')
     write_json(args.json, 'bench_diagnose', [
         figure(f'diagnosis time, {args.duration:g} s recording, {len(result.candidates)} candidates', total, 's',
                baseline=one_fit, baseline_name='prepare + one nominal output-error fit and evaluation',
                ratio=total / one_fit, ratio_meaning='diagnosis / one nominal fit (cost in fits)',
                target='< 5 s', met=total < 5),
     ], duration_s=args.duration, verdict=result.verdict, missing_effect=result.missing_effect,
-        hidden_effect='coulomb_friction', correct=result.missing_effect == 'coulomb_friction', message=result.message)
+        hidden_effect='coulomb_friction', correct=result.missing_effect == 'coulomb_friction',
+        message=verdict_of(result))
 
 
 if __name__ == '__main__':

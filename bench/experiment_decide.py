@@ -40,6 +40,7 @@ from aeropend_core.diagnosis.experiment_loop import LoopBudget, Played, until_de
 from aeropend_core.io.recording import from_columns
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P
 from aeropend_core.model.parameters import SAMPLE_TIME
+from aeropend_core.present.verdict_text import verdict_of
 from aeropend_core.present.json_output import finite_json
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import FULL_SCALE, MeasurementNoise, sigma_for_psnr
@@ -146,7 +147,7 @@ def loop_case(truth: dict, seed: int, args, first_duty=FIRST_DUTY) -> dict:
     rounds = []
     for r in outcome.rounds:
         entry = {'round': r.number, 'played': r.played.played, 'verdict': r.diagnosis.verdict,
-                 'message': r.diagnosis.message, 'pinned': [f.effect for f in r.diagnosis.found
+                 'message': verdict_of(r.diagnosis), 'pinned': [f.effect for f in r.diagnosis.found
                                                             if not f.confounded_with],
                  'confounded': [[f.effect, *f.confounded_with] for f in r.diagnosis.found if f.confounded_with],
                  'sizes': {f.effect: {k: [v, f.standard_errors.get(k)] for k, v in f.parameters.items()}

@@ -30,6 +30,7 @@ from aeropend_core.diagnosis.experiment_design import (competing_models, design_
 from aeropend_core.diagnosis.joint import diagnose_joint
 from aeropend_core.io.recording import from_columns
 from aeropend_core.present.json_output import finite_json
+from aeropend_core.present.verdict_text import verdict_of
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import simulate
@@ -64,12 +65,12 @@ def one_case(name, truth, right, wrong, cap, seed, args) -> dict:
     joint = diagnose_joint([first, second], drift=False)
     pinned = [f.effect for f in joint.found if not f.confounded_with]
     decided = joint.verdict == 'effect_found' and right[0] in pinned and wrong[0] not in pinned
-    return {'pair': name, 'seed': seed, 'first_verdict': alone.verdict, 'first_message': alone.message,
+    return {'pair': name, 'seed': seed, 'first_verdict': alone.verdict, 'first_message': verdict_of(alone),
             'predicted_separation': design.separation, 'predicted_at_fitted': design.separation_fitted,
             'baseline_separation': design.baseline_separation, 'gain': design.gain,
             'measured_separation_40dB': measured['separation'], 'measured_separation_noise_free': clean['separation'],
             'measured_better_model': [right, wrong][measured['better']][0], 'joint_verdict': joint.verdict,
-            'joint_message': joint.message, 'decided_correctly': decided, 'blocks': [b.text() for b in
+            'joint_message': verdict_of(joint), 'decided_correctly': decided, 'blocks': [b.text() for b in
                                                                                    design.schedule.blocks],
             'max_angle_deg': math.degrees(design.max_angle), 'cpu_seconds': time.process_time() - started}
 

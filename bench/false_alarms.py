@@ -71,12 +71,13 @@ def run(seed: int) -> dict:
     from threadpoolctl import threadpool_limits
 
     from aeropend_core.diagnosis.diagnose import diagnose
+    from aeropend_core.present.verdict_text import verdict_of
     recording, row = record(seed)
     started = time.perf_counter()
     with threadpool_limits(1):
         found = diagnose(recording)
     row.update(verdict=found.verdict, named=found.missing_effects, seconds=round(time.perf_counter() - started, 2),
-               message=found.message[:200])
+               message=verdict_of(found)[:200])
     return row
 
 

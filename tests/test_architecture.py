@@ -5,6 +5,7 @@
 - Library code (``aeropend_core`` outside ``cli``, ``aeropend_ros`` nodes) never imports the command line.
 - ``bench/`` and ``tests/`` do not import each other.
 - No library module is over 800 lines; every core folder is a package with a docstring.
+- The diagnosis imports nothing from ``present`` (typed results there, words here).
 - Nothing in the repository points at files outside it.
 """
 from __future__ import annotations
@@ -180,3 +181,14 @@ def test_the_diagnosis_and_its_wording_import_no_circle():
     assert not circles, 'import circles between the diagnosis and present/:\n' + '\n'.join(circles)
     summary = graph['aeropend_core.present.summary']
     assert 'aeropend_core.diagnosis.diagnose' in summary       # the check sees imports (present -> diagnosis is fine)
+
+
+def test_the_diagnosis_imports_nothing_from_present():
+    """The diagnosis returns typed results (``Diagnosis.facts``); the verdict's words, the summary, the JSON's message
+    and the report are made in present/ only (``verdict_text.verdict_of``), so the diagnosis imports none of it."""
+    graph = core_import_graph()
+    offences = sorted(f'{module} imports {used}' for module, edges in graph.items()
+                      if module == 'aeropend_core.diagnosis' or module.startswith('aeropend_core.diagnosis.')
+                      for used in edges if used == 'aeropend_core.present' or used.startswith('aeropend_core.present.'))
+    assert not offences, 'the diagnosis imports present/:\n' + '\n'.join(offences)
+    assert 'aeropend_core.present.verdict_text' in graph['aeropend_core.present.summary']     # the check sees imports

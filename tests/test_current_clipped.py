@@ -18,6 +18,7 @@ from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import simulate
 from aeropend_core.testing.foreign_logs import PWM_RATE, ForeignLogSpec, _duty_schedule
+from aeropend_core.present.verdict_text import verdict_of
 
 
 def _shuffled_levels(duration: float, seed: int) -> np.ndarray:
@@ -97,7 +98,7 @@ def test_a_clean_low_rate_log_is_not_said_to_miss_an_effect_with_confidence(tmp_
     columns, _ = import_log(tmp_path / 'log.csv', load_profile(tmp_path / 'profile.yaml'))
     result = diagnose(from_columns(columns, source='log.csv'), candidates=['cable_torque', 'coulomb_friction'])
     assert any(f.code == 'current_clipped' for f in result.findings)
-    assert not result.found, result.message
-    assert result.verdict in ('nothing_missing', 'unexplained'), result.message
+    assert not result.found, verdict_of(result)
+    assert result.verdict in ('nothing_missing', 'unexplained'), verdict_of(result)
     if result.verdict == 'unexplained':
-        assert "that model's limit at this rate, not a missing effect" in result.message
+        assert "that model's limit at this rate, not a missing effect" in verdict_of(result)

@@ -35,6 +35,7 @@ from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.io.recording import from_columns
 from aeropend_core.sim.simulate import simulate
 from aeropend_core.present.summary import format_summary
+from aeropend_core.present.verdict_text import verdict_of
 
 PARAMETER_TOLERANCE = 0.15
 ERROR_FALL = 2.0
@@ -71,7 +72,7 @@ def check_effect_is_found(effect, value, parameters):
     recording = measured_recording({effect: value}, parameters, max_duty=MAX_DUTY.get(effect, 0.7))
     found = diagnose(recording)
     ranking = [c.effect for c in found.candidates]
-    assert found.missing_effect == effect, (found.message, ranking)
+    assert found.missing_effect == effect, (verdict_of(found), ranking)
     assert ranking[0] == effect
     best = found.candidates[0]
     estimate = next(iter(best.parameters.values()))
@@ -80,7 +81,7 @@ def check_effect_is_found(effect, value, parameters):
     after = diagnose(recording, effects=(effect,))
     before_excess, after_excess = excess(after.before), excess(after.current)
     assert before_excess >= ERROR_FALL * after_excess, (before_excess, after_excess)
-    assert after.missing_effect is None, after.message
+    assert after.missing_effect is None, verdict_of(after)
     assert after.before.effects == () and after.current.effects == (effect,)
 
 
@@ -104,7 +105,7 @@ def test_same_with_every_nominal_parameter_moved_20_percent(effect):
 @pytest.mark.parametrize('parameters', [DEFAULT_PARAMETERS, VARIED_PARAMETERS], ids=['default', 'varied'])
 def test_clean_data_raises_no_false_alarm(parameters):
     found = diagnose(measured_recording(None, parameters, seed=23))
-    assert found.missing_effect is None, found.message
+    assert found.missing_effect is None, verdict_of(found)
     assert found.verdict == 'nothing_missing'
     assert excess(found.current) < 0.3 * found.noise_rms
 
@@ -114,11 +115,11 @@ def test_two_hidden_effects_are_found_in_two_rounds():
     truth = {'coulomb_friction': 4.0, 'thrust_lag': 0.15}
     recording = measured_recording(truth, seed=31)
     first = diagnose(recording)
-    assert first.missing_effect in truth, first.message
+    assert first.missing_effect in truth, verdict_of(first)
     second = diagnose(recording, effects=(first.missing_effect,))
-    assert second.missing_effect in truth and second.missing_effect != first.missing_effect, second.message
+    assert second.missing_effect in truth and second.missing_effect != first.missing_effect, verdict_of(second)
     both = diagnose(recording, effects=(first.missing_effect, second.missing_effect))
-    assert both.missing_effect is None, both.message
+    assert both.missing_effect is None, verdict_of(both)
     assert excess(second.before) >= ERROR_FALL * excess(both.current)
     for effect, value in truth.items():
         assert both.current.parameters[next(iter(CATALOG[effect].parameter_names))] == pytest.approx(
@@ -237,8 +238,8 @@ def test_error_no_catalog_effect_explains_is_reported_with_the_residual_structur
     finally:
         CATALOG.pop('test_cogging')
     found = diagnose(recording)
-    assert found.verdict == 'unexplained' and found.missing_effect is None, found.message
-    assert found.residual_structure and 'register_effect' in found.message
+    assert found.verdict == 'unexplained' and found.missing_effect is None, verdict_of(found)
+    assert found.residual_structure and 'register_effect' in verdict_of(found)
     assert excess(found.current) > 3 * found.noise_rms
 
 
@@ -250,7 +251,7 @@ def test_other_sample_rates_work(rate_hz):
     trajectory = simulate(duty, effects={'thrust_lag': 0.15}, sample_time=sample_time,
                           noise=MeasurementNoise(40.0, True), seed=6)
     found = diagnose(from_columns(trajectory.columns(with_truth=False)))
-    assert found.missing_effect == 'thrust_lag', found.message
+    assert found.missing_effect == 'thrust_lag', verdict_of(found)
     assert found.candidates[0].parameters['time_constant'] == pytest.approx(0.15, rel=PARAMETER_TOLERANCE)
 
 
@@ -266,7 +267,7 @@ def test_large_dead_zone_is_found_and_adding_it_leaves_nothing_missing():
     low, high = found.candidates[0].comparison.fit.extra['threshold_interval']
     assert low <= truth <= high
     after = diagnose(recording, effects=('dead_zone',))
-    assert after.missing_effect is None, after.message
+    assert after.missing_effect is None, verdict_of(after)
     assert excess(after.before) >= ERROR_FALL * excess(after.current)
     low, high = after.current.fit.extra['threshold_interval']
     assert low <= truth <= high
@@ -285,5 +286,5 @@ def test_effect_seen_only_in_the_heldout_part_is_named_but_not_recommended():
     trajectory = simulate(duty, effects={'dead_zone': 0.6}, noise=MeasurementNoise(40.0, True), seed=62)
     found = diagnose(from_columns(trajectory.columns(with_truth=False)))
     assert found.missing_effect is None and found.verdict == 'unexplained', format_summary(found)
-    assert 'dead_zone would explain it' in found.message and 'small duty' in found.message, found.message
+    assert 'dead_zone would explain it' in verdict_of(found) and 'small duty' in verdict_of(found), verdict_of(found)
     assert next(c for c in found.candidates if c.effect == 'dead_zone').heldout_only

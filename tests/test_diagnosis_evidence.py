@@ -24,6 +24,7 @@ from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import simulate
 from aeropend_core.testing.rigs import simulate_drifting, simulate_thrust_power
 from aeropend_core.present.summary import format_summary
+from aeropend_core.present.verdict_text import verdict_of
 
 SIZE_TOLERANCE = 0.15
 pytestmark = pytest.mark.slow
@@ -87,7 +88,7 @@ def test_three_effects_at_once_with_nominal_parameters_off():
     found = diagnose(measured(lhc_record(truth, seed=1101, parameters=parameters, max_duty=0.6)))
     assert found.verdict == 'effect_found', format_summary(found)
     assert_found(found, truth)
-    assert '--add' in found.message and found.to_dict()['add']
+    assert '--add' in verdict_of(found) and found.to_dict()['add']
 
 
 def test_friction_and_cable_under_the_default_excitation():
@@ -166,7 +167,7 @@ def test_thrust_power_law_is_flagged_not_named_with_confidence():
     found = diagnose(measured(simulate_thrust_power(duty, 1.8, noise=MeasurementNoise(40.0, True), seed=1112)))
     assert found.verdict in ('unexplained', 'confounded'), format_summary(found)
     assert found.missing_effect is None
-    assert 'beyond the noise' in found.message
+    assert 'beyond the noise' in verdict_of(found)
 
 
 def test_drifting_thrust_gain_is_named_as_drift():
@@ -178,7 +179,7 @@ def test_drifting_thrust_gain_is_named_as_drift():
     assert found.verdict == 'drift', format_summary(found)
     row = next(r for r in found.drift if r['parameter'] == 'thrust_gain')
     assert row['drifting'] and row['change'] == pytest.approx(-0.15, abs=0.05)
-    assert 'thrust gain' in found.message and 'supply' in found.message
+    assert 'thrust gain' in verdict_of(found) and 'supply' in verdict_of(found)
 
 
 def test_clean_records_raise_no_alarm_across_excitations_and_noise():

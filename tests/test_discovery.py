@@ -25,6 +25,7 @@ from aeropend_core.present.discovery_text import effect_module_text
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import simulate
+from aeropend_core.present.verdict_text import verdict_of
 
 HALF = 0.5
 EFFECTS_MODULE = str(__import__('pathlib').Path(__file__).parents[1] / 'bench' / 'discovery_effects.py')
@@ -150,7 +151,7 @@ def test_an_effect_outside_the_catalog_is_discovered_and_the_error_falls_below_h
     found = diagnose(recording(truth), drift=False)
     assert not any(c.effect.startswith('test_') for c in found.candidates)      # outside the catalog indeed
     proven = found.discovery.proven if found.discovery is not None else []
-    assert proven, (found.verdict, found.message)
+    assert proven, (found.verdict, verdict_of(found))
     best = proven[0]
     assert best.term.expression in {t.expression for t in VOCABULARY}
     assert best.excess_after < HALF * found.noise_rms, (best.term.expression, best.excess_after, found.noise_rms)
@@ -159,20 +160,47 @@ def test_an_effect_outside_the_catalog_is_discovered_and_the_error_falls_below_h
     assert entry['expression'] == best.term.expression and entry['add'][0] == '--term'
     (value,) = entry['parameters'].values()
     assert value['unit'] == best.term.unit and value['sigma'] > 0
-    assert best.term.expression in found.message and 'mrad' in found.message
+    assert best.term.expression in verdict_of(found) and 'mrad' in verdict_of(found)
+
+
+@pytest.mark.slow
+def test_a_lookalike_the_catalog_set_absorbs_is_reported_as_confounded_with_the_experiment():
+    """An encoder's second-harmonic nonlinearity (measured = angle + 0.04 sin(2 angle)) is absorbed by a catalog set
+    (cable_torque + angle_offset); the term sin(2*angle) explains the data as well in its place: confounded, with the
+    experiment that separates them (issue #25: a discovered term and a catalog set that explain the data equally)."""
+    from aeropend_core.model.effects import MEASUREMENT, EffectParameter, register_effect
+
+    builtin = set(CATALOG)
+    register_effect('test_encoder_harmonic', 'encoder second-harmonic nonlinearity', kind=MEASUREMENT, replace=True,
+                    parameters=[EffectParameter('test_encoder_amplitude', 'rad', 'amplitude', 0.04, -1.0, 1.0)])(
+        lambda angle, test_encoder_amplitude: angle + test_encoder_amplitude * np.sin(2.0 * angle))
+    try:
+        schedule = lhc_schedule(60.0, duty_range=(0.0, 0.7), duty_cap=0.7, seed=11)
+        trajectory = simulate(schedule.duty(duration=60.0), effects={'test_encoder_harmonic': 0.04},
+                              noise=MeasurementNoise(psnr_db=40.0, quantise=True), seed=12)
+    finally:
+        for name in set(CATALOG) - builtin:
+            CATALOG.pop(name)
+    found = diagnose(from_columns(trajectory.columns(with_truth=False)), drift=False)
+    confounded = [t for t in found.discovery.terms if t.status == 'confounded'] if found.discovery else []
+    assert confounded, (found.verdict, verdict_of(found))
+    assert confounded[0].term.expression == 'sin(2*angle)' and confounded[0].confounded_with == found.missing_effects
+    assert found.verdict == 'confounded'
+    message = verdict_of(found)
+    assert 'cannot tell them apart' in message and 'rests at several angles' in message, message
 
 
 @pytest.mark.slow
 def test_a_clean_record_proposes_nothing():
     found = diagnose(recording(None, seed=5), drift=False)
-    assert found.to_dict()['discovered_terms'] == [], found.message
-    assert found.verdict == 'nothing_missing', found.message
+    assert found.to_dict()['discovered_terms'] == [], verdict_of(found)
+    assert found.verdict == 'nothing_missing', verdict_of(found)
 
 
 @pytest.mark.slow
 def test_a_catalog_effect_is_still_reported_as_the_catalog_effect():
     found = diagnose(recording({'coulomb_friction': 4.0}, seed=7), drift=False)
-    assert found.verdict == 'effect_found' and found.missing_effect == 'coulomb_friction', found.message
+    assert found.verdict == 'effect_found' and found.missing_effect == 'coulomb_friction', verdict_of(found)
     assert found.to_dict()['discovered_terms'] == []
 
 

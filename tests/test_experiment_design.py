@@ -22,6 +22,7 @@ from aeropend_core.diagnosis.experiment_design import (CompetingModel, DesignRef
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P
 from aeropend_core.sim.simulate import simulate
+from aeropend_core.present.verdict_text import verdict_of
 
 AEROPEND = [sys.executable, '-c', 'import sys; from aeropend_core.cli import main; sys.exit(main())']
 #: A small, quick search for the fast tests (the default is 60 + 30 schedules).
@@ -229,7 +230,7 @@ def test_joint_diagnosis_of_two_records_matches_one_record_of_their_length():
     halves = [whole.window(0.0, 30.0), whole.window(30.0, 61.0)]
     joint = diagnose_joint(halves, drift=False)
     single = diagnose(whole, drift=False)
-    assert joint.verdict == single.verdict == 'effect_found', joint.message + single.message
+    assert joint.verdict == single.verdict == 'effect_found', verdict_of(joint) + verdict_of(single)
     a, b = joint.found[0], single.found[0]
     assert a.effect == b.effect == 'coulomb_friction'
     name = 'friction_acceleration'
@@ -288,9 +289,9 @@ def test_the_loop_decides_a_confounded_first_record():
     outcome = until_decided(play, LoopBudget(max_runs=3, design_seconds=30.0), {'drift': False}, seed=seed,
                             design_options=dict(candidates=30, refinements=15, original_duty_limit=0.7))
     first, last = outcome.rounds[0].diagnosis, outcome.decision
-    assert first.verdict == 'confounded', first.message
+    assert first.verdict == 'confounded', verdict_of(first)
     assert {first.found[0].effect, *first.found[0].confounded_with} == {'cable_torque', 'angle_offset'}
     assert outcome.rounds[0].design.schedule.steps[:, 0].max() <= 0.7
-    assert last.verdict == 'effect_found' and [f.effect for f in last.found] == ['cable_torque'], last.message
+    assert last.verdict == 'effect_found' and [f.effect for f in last.found] == ['cable_torque'], verdict_of(last)
     found = last.found[0]
     assert abs(found.parameters['cable_stiffness'] - 30.0) < 3 * found.standard_errors['cable_stiffness']

@@ -19,6 +19,7 @@ from aeropend_core.signals.quality_checks import NOT_PERIOD_AVERAGE
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import simulate
+from aeropend_core.present.verdict_text import verdict_of
 
 TRUTH = {'gravity_stiffness': DEFAULT_PARAMETERS.gravity_stiffness, 'damping': DEFAULT_PARAMETERS.damping}
 
@@ -164,7 +165,7 @@ def test_hidden_friction_is_named_from_duty_and_angle():
                                 sample_time=SAMPLE_TIME).recording
     result = diagnose(recording, drift=False)
     assert result.prepared.reduced
-    assert 'coulomb_friction' in result.missing_effects, result.message
+    assert 'coulomb_friction' in result.missing_effects, verdict_of(result)
     assert result.parameter_warnings == {}
     summary = result.to_dict()
     assert 'armature_resistance' not in summary['parameters'] and 'armature_resistance' in summary['not_identifiable']
@@ -186,7 +187,7 @@ def test_hidden_angle_offset_is_named_from_duty_and_angle():
     recording = check_recording(Recording(columns['t'], {'duty': columns['duty'], 'angle': columns['angle']}, 'o'),
                                 sample_time=SAMPLE_TIME).recording
     result = diagnose(recording, drift=False, candidates=('angle_offset', 'cable_torque', 'coulomb_friction'))
-    assert 'angle_offset' in result.missing_effects, result.message
+    assert 'angle_offset' in result.missing_effects, verdict_of(result)
     final = result.reported_parameters(result.final)
     assert final['angle_offset'] == pytest.approx(0.05, abs=0.01)
     for name, truth in TRUTH.items():

@@ -24,6 +24,7 @@ from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.io.recording import from_columns
 from aeropend_core.present.report import VERDICT_TITLES, write_report
 from aeropend_core.sim.simulate import simulate
+from aeropend_core.present.verdict_text import verdict_of
 
 DURATION = 30.0
 SEED = 3
@@ -140,7 +141,7 @@ def test_header_states_verdict_and_key_numbers_with_units(page, diagnosis):
     assert html.escape(title) in banner
     # the message follows without repeating the title's words (issue #24)
     message = re.search(r'<div class="title">.*?</div><div>(.*?)</div>', banner).group(1)
-    assert html.unescape(message).lower() in diagnosis.message.lower()
+    assert html.unescape(message).lower() in verdict_of(diagnosis).lower()
     assert not message.lower().startswith(('missing effect', 'nothing significant is missing'))
     if diagnosis.missing_effect is not None:
         assert f'--add {diagnosis.missing_effect}' in banner
@@ -180,7 +181,8 @@ def test_no_before_after_section_without_added_effects(page, diagnosis):
 def test_text_from_the_diagnosis_is_escaped_and_untestable_candidates_listed(diagnosis, tmp_path):
     untestable = Candidate('user<effect>', None, {}, {}, float('nan'), diagnosis.candidates[0].excess_before,
                            float('nan'), False, error='needs steps at small duty & none are in the data')
-    tricky = dataclasses.replace(diagnosis, message='a <b>bold</b> & "quoted" claim',
+    claim = dataclasses.replace(diagnosis.facts, prefix='a <b>bold</b> & "quoted" claim. ')
+    tricky = dataclasses.replace(diagnosis, facts=claim,
                                  notes=['<script>alert(1)</script>'], candidates=[*diagnosis.candidates, untestable])
     text = write_report(tricky, tmp_path / 'tricky.html').read_text(encoding='utf-8')
     assert 'a &lt;b&gt;bold&lt;/b&gt; &amp; &quot;quoted&quot; claim' in text

@@ -135,7 +135,8 @@ def main(args: argparse.Namespace) -> int:
                       'samples_start_s': float(records[0].time[0]), 'samples_stop_s': float(records[0].time[-1])}
     if args.json:
         from aeropend_core.present.json_output import write_json
-        out = diagnosis.to_dict()
+        from aeropend_core.present.verdict_text import diagnosis_dict
+        out = diagnosis_dict(diagnosis)
         if time_range:
             out['time_range'] = time_range
         if validation is not None:

@@ -3,6 +3,8 @@ reduced model cannot tell, written into the diagnosis itself (warnings next to t
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 #: Verdict of a diagnosis whose identified parameters fail a physical check.
@@ -76,7 +78,7 @@ def check_diagnosis(diagnosis):
     if warnings:
         diagnosis.verdict = DOES_NOT_FIT
         diagnosis.missing_effect = None
-        diagnosis.message = verdict_line(warnings) + '. ' + diagnosis.message
+        diagnosis.facts = replace(diagnosis.facts, prefix=verdict_line(warnings) + '. ' + diagnosis.facts.prefix)
     if prep is not None and prep.reduced:
         diagnosis.notes.insert(0, 'reduced model (no period-average armature current): the thrust comes from Va '
                                'through the motor map; not identifiable from this record: '

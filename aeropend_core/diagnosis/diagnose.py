@@ -56,7 +56,6 @@ from aeropend_core.io.recording import Recording
 from aeropend_core.model.effects import CATALOG, THRUST_LAG, get_effect
 from aeropend_core.model.effects import separating_experiment as record_experiment
 from aeropend_core.model.names import NOMINAL_PARAMETERS
-from aeropend_core.present.verdict_text import verdict_message
 
 #: "Unexplained" (the best set leaves error no catalog effect explains) is claimed beyond this multiple of the
 #: noise RMS: a smaller excess can come from the noise estimate itself (quantisation that does not dither is partly
@@ -117,16 +116,65 @@ class Found:
                 'share_of_measurable_error_removed': _finite(self.share_measurable)}
 
 
+@dataclass(frozen=True)
+class VerdictFacts:
+    """What the verdict says, as typed numbers: the diagnosis decides, :mod:`aeropend_core.present.verdict_text`
+    words it (``verdict_of(diagnosis)``). Angles in rad.
+
+    Attributes
+    ----------
+    verdict : str
+        The decision (as :attr:`Diagnosis.verdict` before a failed physical check overrides it).
+    found : tuple of Found
+        The selected set of catalog effects, in the order the search added them.
+    noise_rms, excess_current, excess_final, within_noise, explained_below : float [rad]
+        The angle's noise; the held-out error beyond it of the model as given and with the set; an error beyond the
+        noise below `within_noise` is "within the noise"; a proven term that leaves more than `explained_below`
+        explains only part of the error.
+    structure : tuple of dict
+        The residual's strongest signatures (``signature``, ``correlation`` [-]).
+    drift_text : str
+        The drift test's sentence (:func:`aeropend_core.diagnosis.drift.drift_message`), verdict ``'drift'``.
+    heldout_only : tuple of Candidate
+        Candidates that explain the held-out part without training evidence.
+    heldout_advice : str
+        The experiment that shows the first of them (the catalog's record).
+    discovery, motor : Discovery, MotorDiscovery or None
+        The discovery stage's results (pendulum and motor equations).
+    reduced_rate_hz : float or None [Hz]
+        The rate of a reduced-model record whose own error at that rate is unmeasured.
+    prefix : str
+        Put before the words: a failed physical check's line (:mod:`aeropend_core.diagnosis.checks`).
+    """
+
+    verdict: str
+    found: tuple = ()
+    noise_rms: float = math.nan
+    excess_current: float = math.nan
+    excess_final: float = math.nan
+    within_noise: float = math.nan
+    structure: tuple = ()
+    drift_text: str = ''
+    heldout_only: tuple = ()
+    heldout_advice: str = ''
+    discovery: object = None
+    explained_below: float = math.inf
+    reduced_rate_hz: float | None = None
+    motor: object = None
+    prefix: str = ''
+
+
 @dataclass
 class Diagnosis:
-    """Outcome of :func:`diagnose`. Angles in rad; parameters SI."""
+    """Outcome of :func:`diagnose`. Angles in rad; parameters SI. Its verdict's words:
+    :func:`aeropend_core.present.verdict_text.verdict_of` (from :attr:`facts`)."""
 
     effects: tuple[str, ...]
     current: Comparison
     candidates: list[Candidate]
     missing_effect: str | None
-    verdict: str                     # 'nothing_missing' | 'effect_found' | 'confounded' | 'unexplained'
-    message: str
+    verdict: str                     # 'nothing_missing' | 'effect_found' | 'confounded' | 'unexplained' | ...
+    facts: VerdictFacts
     notes: list[str]
     before: Comparison | None = None
     residual_structure: list[dict[str, float | str]] = field(default_factory=list)
@@ -147,6 +195,16 @@ class Diagnosis:
     independent: object = None      #: the free-oscillation estimate (aeropend_core.identify.plausibility)
     #: The discovery stage's result (:class:`aeropend_core.diagnosis.discovery.Discovery`; None when it did not run).
     discovery: object = None
+    #: The motor equation's discovery (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscovery`; None when the
+    #: discovery stage was off).
+    motor_discovery: object = None
+
+    @property
+    def message(self) -> str:
+        """Not here: the diagnosis returns typed results (:attr:`facts`); the words are
+        ``aeropend_core.present.verdict_text.verdict_of(diagnosis)``."""
+        raise AttributeError('Diagnosis.message: the verdict\'s words are made in present/: use '
+                             'aeropend_core.present.verdict_text.verdict_of(diagnosis) (the JSON form: diagnosis_dict)')
 
     @property
     def missing_effects(self) -> list[str]:
@@ -197,7 +255,8 @@ class Diagnosis:
         return estimators
 
     def to_dict(self) -> dict:
-        """The machine-readable form printed by ``aeropend diagnose --json``."""
+        """The machine-readable numbers of ``aeropend diagnose --json`` (the verdict's words are added by
+        :func:`aeropend_core.present.verdict_text.diagnosis_dict`)."""
         current = self.current
         result = {
             'model_effects': list(self.effects),
@@ -219,13 +278,15 @@ class Diagnosis:
                                                  getattr(self.prepared, 'reduced', False)),
             'missing_effect': self.missing_effect,
             'verdict': self.verdict,
-            'message': self.message,
             'notes': self.notes,
             'missing_effects': [f.to_dict() for f in self.found],
             'add': [f.effect for f in self.found if not f.confounded_with],
             'remaining_error_beyond_noise': _finite(excess_error(self.final.rms_error, self.final.noise_rms)),
             'discovered_terms': [t.to_dict() for t in self.discovery.proven] if self.discovery is not None else [],
             'discovery': self.discovery.to_dict() if self.discovery is not None else None,
+            'discovered_motor_terms': ([t.to_dict() for t in self.motor_discovery.proven]
+                                       if self.motor_discovery is not None else []),
+            'motor_discovery': self.motor_discovery.to_dict() if self.motor_discovery is not None else None,
             'drift': self.drift,
             'gaps': self.prepared.gaps.to_dict() if self.prepared is not None and self.prepared.gaps is not None
             else None,
@@ -348,7 +409,8 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     -------
     Diagnosis
         The current model's comparison, every candidate (best first) and the verdict: ``missing_effects`` (the
-        set to add), ``verdict``, ``message`` and ``notes``; angles in rad, parameters SI.
+        set to add), ``verdict``, ``facts`` (the verdict's numbers, worded by
+        :func:`aeropend_core.present.verdict_text.verdict_of`) and ``notes``; angles in rad, parameters SI.
     """
     from aeropend_core.diagnosis.drift import drift_message, drift_test
     from aeropend_core.diagnosis.long_record import fit_on_all, search_record
@@ -504,6 +566,15 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         from aeropend_core.diagnosis.discovery import discover
         catalog_set = tuple(f.effect for f in found)
         found_terms = discover(prep, final, model, held, catalog_set, current if catalog_set else None, say)
+    # ---- discovery in the motor equation, where the armature current is measured (records without it: said so)
+    motor_terms = None
+    if discovery:
+        from aeropend_core.diagnosis.motor_discovery import discover_motor
+        motor_terms = discover_motor(prep, say)
+        if motor_terms.proven:
+            from aeropend_core.diagnosis.motor_discovery import pendulum_with_term
+            say('discovery: refitting the pendulum with the thrust input of the corrected motor observer')
+            pendulum_with_term(prep, motor_terms.proven[0], model, held, excess_final)
     proven = found_terms.proven if found_terms is not None else []
     # a proven term is the verdict only when it explains the error (what it leaves is within the noise's reach)
     proven = [t for t in proven if t.excess_after <= UNEXPLAINED_NOISE * reference]
@@ -537,17 +608,22 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         for other in heldout_only[1:]:
             notes.append(f'{other.effect} would also explain the held-out error ({other.excess_after * 1e3:.2f} '
                          f'mrad beyond the noise) without training evidence.')
+    motor_best = motor_terms.proven[0] if motor_terms is not None and motor_terms.proven else None
+    if motor_best is not None and (verdict == 'nothing_missing' or (
+            verdict == 'unexplained' and motor_best.pendulum_excess_after <= UNEXPLAINED_NOISE * reference)):
+        # the motor equation misses a term, and with it the pendulum is within the noise (or was already)
+        verdict, missing = 'term_discovered', None
     if found_terms is not None and verdict == 'effect_found' and any(t.status == 'confounded'
                                                                    for t in found_terms.terms):
         verdict = 'confounded'      # a term outside the catalog explains the data as well as the set chosen
     reduced_rate = (1.0 / prep.sample_time if verdict == 'unexplained' and getattr(prep, 'reduced', False)
                     and rate_doubts(prep.sample_time, True) else None)
-    message = verdict_message(
-        verdict, found=found, noise_rms=noise, excess_current=excess_error(current.rms_error, noise),
-        excess_final=excess_final, within_noise=UNEXPLAINED_NOISE * noise, structure=structure,
-        drift_text=drift_message(drifting, final) if drifting else '', heldout_only=heldout_only,
+    facts = VerdictFacts(
+        verdict, found=tuple(found), noise_rms=noise, excess_current=excess_error(current.rms_error, noise),
+        excess_final=excess_final, within_noise=UNEXPLAINED_NOISE * noise, structure=tuple(structure),
+        drift_text=drift_message(drifting, final) if drifting else '', heldout_only=tuple(heldout_only),
         heldout_advice=excitation_advice(heldout_only[0].effect) if heldout_only else '', discovery=found_terms,
-        explained_below=UNEXPLAINED_NOISE * reference, reduced_rate_hz=reduced_rate)
+        explained_below=UNEXPLAINED_NOISE * reference, reduced_rate_hz=reduced_rate, motor=motor_terms)
     if found and verdict in ('effect_found', 'confounded'):
         for f in found:
             step = next(c for c, _ in steps if c.effect == f.effect)
@@ -573,7 +649,7 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         notes.append(prep.gaps.describe())
     return check_diagnosis(Diagnosis(
         effects=effects, current=current, candidates=results, missing_effect=missing, verdict=verdict,
-        message=message, notes=notes, before=before, residual_structure=structure, prepared=prep,
+        facts=facts, notes=notes, before=before, residual_structure=structure, prepared=prep,
         seconds=time.perf_counter() - started, found=found, selected=selected, drift=drift_rows, fixed=held,
-        fixed_from=held_from, discovery=found_terms))
+        fixed_from=held_from, discovery=found_terms, motor_discovery=motor_terms))
 

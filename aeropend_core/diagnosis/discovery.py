@@ -482,10 +482,20 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
             continue
         refits += 1
         say(f'discovery: refitting {term.expression} by output error')
-        _prove(prep, base, model, fixed, entry, catalog_set, without_set)
+        augmented = _prove(prep, base, model, fixed, entry, catalog_set, without_set)
+        if (entry.status == 'not_proven' and refits == 1 and augmented is not None and catalog_set
+                and without_set is not None):
+            # adds nothing on top of the catalog set: does it explain as much *instead of* the set? (a lookalike
+            # the set absorbs: an encoder's harmonic passing as an offset, |W|^1.5 damping as quadratic drag)
+            say(f'discovery: {term.expression} in place of {" + ".join(catalog_set)}')
+            _instead_of_set(prep, base, model, fixed, entry, catalog_set, without_set, augmented)
         lookalike = _span(term, segments, model) if entry.status == 'proven' else None
         if lookalike:
             _against_catalog(prep, base, model, fixed, entry, lookalike)
+    if catalog_set and without_set is not None and not any(f.status in ('proven', 'confounded') for f in found):
+        lookalike = _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say)
+        if lookalike is not None:
+            found.insert(0, lookalike)
     found.sort(key=lambda f: (f.status != 'proven', f.excess_after if math.isfinite(f.excess_after) else math.inf))
     if found and found[0].status == 'proven':
         # other proven terms that explain about as much: the data cannot tell them from the best (a quasi-static rig
@@ -517,7 +527,95 @@ def _against_catalog(prep, base, model, fixed, entry: DiscoveredTerm, effect: st
                          'on these states')
 
 
-def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without_set) -> None:
+def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say) -> DiscoveredTerm | None:
+    """A term outside the catalog that explains the data as well as the catalog set the search chose.
+
+    The discrepancy of the model *without* the set is screened (each term alone, weak form); the strongest term that
+    is not the set's own (nor correlated beyond SPAN_CORRELATION with it on these states) is fitted in place of the
+    set. It is returned as 'confounded' with the set when it is significant there, explains as much (within
+    CONFOUNDING_FACTOR), and neither adds anything significant on top of the other; else None.
+    """
+    segments = model_states(prep, without_set)
+    if not segments:
+        return None
+    own = {kind for name in catalog_set for kind, _ in CATALOG[name].kernel_terms}
+    columns = [np.concatenate([_columns(t, s) for s in segments]) for t in VOCABULARY if t.catalog_kind in own]
+    screened = []
+    for term in VOCABULARY:
+        if not term.simulated or term.catalog_kind:
+            continue
+        column = np.concatenate([_columns(term, s) for s in segments])
+        if np.std(column) > 0 and any(np.std(c) > 0 and abs(np.corrcoef(column, c)[0, 1]) > SPAN_CORRELATION
+                                      for c in columns):
+            continue                    # the set's own term here: the catalog effect, not a lookalike
+        try:
+            alone, _ = weak_discrepancy(segments, (term,), prep.noise_rms, prep.sample_time)
+        except (InsufficientDataError, AeropendError, np.linalg.LinAlgError):
+            continue
+        if term.expression in alone.coefficients:
+            value, sigma = alone.coefficients[term.expression], alone.model_standard_errors[term.expression]
+            screened.append((_strength(value, sigma), term, value, sigma))
+    if not screened:
+        return None
+    _, term, value, sigma = max(screened, key=lambda row: row[0])
+    say(f'discovery: {term.expression} in place of {" + ".join(catalog_set)}')
+    name = term_effect(term)
+    parameter = f'{name}_coefficient'
+    kept = tuple(n for n in model if n not in catalog_set)
+    try:
+        swapped = compare(prep, kept + (name,), start={**without_set.parameters, parameter: value}, fixed=dict(fixed))
+        both = compare(prep, model + (name,), start={**base.parameters, **swapped.parameters}, fixed=dict(fixed))
+    except InsufficientDataError:
+        return None
+    alone = assess(prep, without_set, swapped, name)
+    if (not alone.significant or assess(prep, swapped, both, catalog_set[0]).significant
+            or assess(prep, base, both, name).significant):
+        return None
+    noise = prep.noise_rms
+    term_error, set_error = excess_error(swapped.rms_error, noise), excess_error(base.rms_error, noise)
+    floor = 0.2 * noise
+    if not (term_error <= CONFOUNDING_FACTOR * max(set_error, floor)
+            and set_error <= CONFOUNDING_FACTOR * max(term_error, floor)):
+        return None
+    return DiscoveredTerm(term, 'confounded', float(value), float(sigma),
+                          value=alone.parameters.get(parameter, math.nan),
+                          sigma=alone.standard_errors.get(parameter, math.nan), excess_before=alone.excess_before,
+                          excess_after=term_error, share_removed=alone.share_removed, t_statistic=alone.t_statistic,
+                          delta_bic=alone.delta_bic, dm_statistic=alone.dm_statistic,
+                          confounded_with=list(catalog_set))
+
+
+def _instead_of_set(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without_set,
+                    augmented: Comparison) -> None:
+    """`entry` (not significant on top of `catalog_set`) is 'confounded' with the set when, in place of it, the term
+    is significant against the model without the set, explains as much as the set (within CONFOUNDING_FACTOR), and
+    the set adds nothing significant on top of it: the data cannot tell the two apart."""
+    name = term_effect(entry.term)
+    parameter = f'{name}_coefficient'
+    kept = tuple(n for n in model if n not in catalog_set)
+    try:
+        swapped = compare(prep, kept + (name,), start={**without_set.parameters, parameter: entry.weak_coefficient},
+                          fixed=dict(fixed))
+    except InsufficientDataError:
+        return
+    alone = assess(prep, without_set, swapped, name)
+    if not alone.significant or assess(prep, swapped, augmented, catalog_set[0]).significant:
+        return
+    noise = prep.noise_rms
+    term_error, set_error = excess_error(swapped.rms_error, noise), excess_error(base.rms_error, noise)
+    floor = 0.2 * noise
+    if term_error <= CONFOUNDING_FACTOR * max(set_error, floor) and set_error <= CONFOUNDING_FACTOR * max(term_error,
+                                                                                                        floor):
+        entry.status, entry.confounded_with, entry.why_not = 'confounded', list(catalog_set), ''
+        entry.value = alone.parameters.get(parameter, math.nan)
+        entry.sigma = alone.standard_errors.get(parameter, math.nan)
+        entry.excess_before, entry.excess_after = alone.excess_before, term_error
+        entry.share_removed, entry.t_statistic = alone.share_removed, alone.t_statistic
+        entry.delta_bic, entry.dm_statistic = alone.delta_bic, alone.dm_statistic
+
+
+def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without_set) -> Comparison | None:
+    """Refit with the term and judge it (sets `entry`); returns the refitted model (None: not testable)."""
     name = term_effect(entry.term)
     parameter = f'{name}_coefficient'
     start = {**base.parameters, parameter: entry.weak_coefficient}
@@ -526,7 +624,7 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
                             initial_states=base.fit.initial_states)
     except InsufficientDataError as error:
         entry.why_not = f'not testable on this data: {error}'
-        return
+        return None
     candidate: Candidate = assess(prep, base, augmented, name)
     entry.value = candidate.parameters.get(parameter, math.nan)
     entry.sigma = candidate.standard_errors.get(parameter, math.nan)
@@ -546,7 +644,7 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
                            f'{candidate.dm_statistic:+.1f}, {candidate.share_removed * 100:.0f} % of the error '
                            'beyond the noise removed)')
         entry.why_not = '; '.join(reasons)
-        return
+        return augmented
     entry.status = 'proven'
     if catalog_set and without_set is not None:
         # the term in place of the catalog set: does the set still add anything significant on top of the term?
@@ -554,9 +652,9 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
         try:
             swapped = compare(prep, kept + (name,), start=start, fixed=dict(fixed))
         except InsufficientDataError:
-            return
+            return augmented
         if assess(prep, swapped, augmented, catalog_set[0]).significant:
-            return                      # both are needed: the term is proven alongside the set
+            return augmented            # both are needed: the term is proven alongside the set
         noise = prep.noise_rms
         alone, chosen = excess_error(swapped.rms_error, noise), excess_error(base.rms_error, noise)
         floor = 0.2 * noise
@@ -565,6 +663,7 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
             entry.confounded_with = list(catalog_set)
         else:
             entry.replaces = list(catalog_set)  # the term explains more, and with it the set adds nothing
+    return augmented
 
 
 __all__ = ['VOCABULARY', 'Term', 'DiscoveredTerm', 'Discovery', 'discover', 'find_term', 'term_effect',

@@ -47,13 +47,21 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
     """
     if discovery is None:
         return ''
+    confounded = [t for t in discovery.terms if t.status == 'confounded']
+    lookalike = ''
+    if confounded:
+        best = confounded[0]
+        lookalike = (f'The term {term_text(best)} ({best.term.reading}) explains the data as well as '
+                     f'{" + ".join(best.confounded_with)} ({best.excess_after * 1e3:.2f} mrad beyond the noise): this '
+                     f'data cannot tell them apart; {separating_experiment(best.term.expression)}.')
     proven = [t for t in discovery.terms if t.status == 'proven']
     if proven and proven[0].excess_after > explained_below:
         best = proven[0]
         return (f'Outside the catalog, the term {term_text(best)} ({best.term.reading}) is significant but explains '
                 f'only part of the error: {best.excess_before * 1e3:.2f} -> {best.excess_after * 1e3:.2f} mrad beyond '
                 f'the noise ({best.share_removed * 100:.0f} %); the rest is unexplained, so it is a hint, not the '
-                f'missing physics (try it with {" ".join(_quoted(best.add))}).')
+                f'missing physics (try it with {" ".join(_quoted(best.add))}).' + (' ' + lookalike if lookalike
+                                                                                   else ''))
     if proven:
         best = proven[0]
         return (f'Outside the catalog, the data support the term {term_text(best)} ({best.term.reading}): it removes '
@@ -68,13 +76,10 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
                    'these; excite larger angles and free decays to separate them.' if best.alternatives else '')
                 + ' Add it with '
                 f'{" ".join(_quoted(best.add))}, or keep it as an effect module (aeropend effects '
-                f'--write-discovered FILE.py --term \'{best.term.expression}\').')
-    confounded = [t for t in discovery.terms if t.status == 'confounded']
-    if confounded:
-        best = confounded[0]
-        return (f'The term {term_text(best)} ({best.term.reading}) explains the data as well as '
-                f'{" + ".join(best.confounded_with)} ({best.excess_after * 1e3:.2f} mrad beyond the noise): this '
-                f'data cannot tell them apart; vary the step amplitudes and add free decays and rests at duty 0.')
+                f'--write-discovered FILE.py --term \'{best.term.expression}\').' + (' ' + lookalike if lookalike
+                                                                                     else ''))
+    if lookalike:
+        return lookalike
     catalog = [t for t in discovery.terms if t.status == 'catalog']
     tried = [t for t in discovery.terms if t.status == 'not_proven']
     parts = []
@@ -89,6 +94,113 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
         parts.append('The sparse regression of the discrepancy found no term of the vocabulary that stands out '
                      'from the noise.')
     return ' '.join(parts)
+
+
+def motor_term_text(term) -> str:
+    """'La dIa/dt = Va - R Ia - e + c * EXPRESSION with c = value +- sigma UNIT' for a motor-equation term.
+
+    Parameters
+    ----------
+    term : MotorDiscoveredTerm [-]
+        The term (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscoveredTerm`), coefficient SI.
+
+    Returns
+    -------
+    str
+        The term as the armature circuit reads it, SI units.
+    """
+    value, sigma = (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient,
+                                                                               term.weak_sigma)
+    return (f'La dIa/dt = Va - R Ia - e + c * {term.term.expression} with c = {value:.4g} +- {sigma:.2g} '
+            f'{term.term.unit}')
+
+
+def motor_sentence(motor) -> str:
+    """The verdict's sentence about a term proven in the motor equation ('' when none was).
+
+    Parameters
+    ----------
+    motor : MotorDiscovery [-]
+        The motor equation's discovery (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscovery`).
+
+    Returns
+    -------
+    str
+        One sentence, currents in mA and SI units.
+    """
+    proven = motor.proven if motor is not None else []
+    if not proven:
+        return ''
+    best = proven[0]
+    return (f'In the motor equation (the armature current is measured), the data support the term '
+            f'{motor_term_text(best)} ({best.term.reading}): it removes {best.share_removed * 100:.0f} % of the '
+            f'held-out current error beyond the noise, {best.excess_before * 1e3:.2f} -> '
+            f'{best.excess_after * 1e3:.2f} mA (noise '
+            f'{motor.noise_rms * 1e3:.2f} mA); HAC t = {best.t_statistic:.1f}, training BIC {best.delta_bic:+.1f}, '
+            f'held-out Diebold-Mariano {best.dm_statistic:+.1f}.'
+            + (f' With the thrust input rebuilt from the corrected motor observer the pendulum\'s held-out error '
+               f'beyond the noise goes {best.pendulum_excess_before * 1e3:.2f} -> '
+               f'{best.pendulum_excess_after * 1e3:.2f} mrad'
+               + ('.' if best.pendulum_excess_after <= best.pendulum_excess_before else
+                  ': worse, so the term explains the current but not the motor\'s speed (the torque side of the '
+                  'same effect may be missing too); the pendulum keeps the uncorrected observer\'s thrust input.')
+               if math.isfinite(best.pendulum_excess_after) else '')
+            + ' Not yet addable from the command line: the pendulum\'s parameters above were fitted with the '
+            'uncorrected observer.')
+
+
+def motor_lines(motor) -> list[str]:
+    """The summary's lines about the motor equation's discovery (empty when it did not run).
+
+    Parameters
+    ----------
+    motor : MotorDiscovery or None [-]
+        The motor equation's discovery.
+
+    Returns
+    -------
+    list of str
+        A heading, the note when it did not search, then one line per term tried, best first.
+    """
+    if motor is None:
+        return []
+    lines = ['Discovery in the motor equation (armature current; weak-form screening, terms refitted in the observer):']
+    if motor.note:
+        lines.append(f'  {motor.note}')
+    for term in motor.terms:
+        after = (f', current beyond noise {term.excess_before * 1e3:.2f} -> {term.excess_after * 1e3:.2f} mA, t = '
+                 f'{term.t_statistic:.1f}, dBIC {term.delta_bic:+.1f}, DM {term.dm_statistic:+.1f}'
+                 if math.isfinite(term.excess_after) else '')
+        why = f' ({term.why_not})' if term.why_not and term.status != 'proven' else ''
+        lines.append(f'  {term.status.upper():10s} {motor_term_text(term)}{after}{why}')
+        if math.isfinite(term.pendulum_excess_after):
+            lines.append(f'             with it as the thrust input, the pendulum\'s angle beyond noise '
+                         f'{term.pendulum_excess_before * 1e3:.2f} -> {term.pendulum_excess_after * 1e3:.2f} mrad')
+    return lines
+
+
+def separating_experiment(expression: str) -> str:
+    """The experiment that separates a discovered term from the catalog set it is confounded with, by what the term
+    is a function of.
+
+    Parameters
+    ----------
+    expression : str [-]
+        The term's expression (vocabulary names).
+
+    Returns
+    -------
+    str
+        One clause, e.g. 'add free decays from several angles ...'.
+    """
+    if 'thrust' in expression:
+        return ('vary the step amplitudes (several thrust levels, each held until the rod rests) and add free decays '
+                'from rest at duty 0: the thrust and the angle then stop moving together')
+    if 'angular_rate' in expression:
+        return ('add free decays from several starting angles (a wide range of rod speeds, from the largest to rest): '
+                'the speed\'s law (its power, a breakaway) shows in how the swing dies out')
+    return ('add rests at several angles, at the bottom and in large excursions (70-85 deg): the angle\'s law (a '
+            'harmonic, a spring, an offset) shows in the static thrust-to-angle curve')
 
 
 def _html_number(value: float, digits: int = 2, scale: float = 1.0, suffix: str = '') -> str:
@@ -174,6 +286,46 @@ def discovery_html(discovery, noise_rms: float, source: str | None = None) -> st
     return ''.join(parts)
 
 
+def motor_html(motor) -> str:
+    """The HTML report's section on the motor equation's discovery ('' when no term was tried).
+
+    Parameters
+    ----------
+    motor : MotorDiscovery or None [-]
+        The motor equation's discovery (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscovery`).
+
+    Returns
+    -------
+    str
+        A ``<h2 id="motor-discovery">`` section: one row per term tried, with its equation, c +- 1 sigma and unit,
+        the current's held-out error beyond its noise before -> after [mA], the evidence and the status.
+    """
+    if motor is None or not motor.terms:
+        return ''
+    esc = html.escape
+    rows = []
+    for term in motor.terms:
+        value, sigma = (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient,
+                                                                                   term.weak_sigma)
+        pendulum = (f'; pendulum {_html_number(term.pendulum_excess_before, 2, 1e3)} &rarr; '
+                    f'{_html_number(term.pendulum_excess_after, 2, 1e3)}&nbsp;mrad'
+                    if math.isfinite(term.pendulum_excess_after) else '')
+        rows.append(f'<tr><td><code>{esc(term.term.expression)}</code></td><td>{esc(term.status.replace("_", " "))}'
+                    f'</td><td class="num">{value:.4g} &plusmn; {sigma:.2g} {esc(term.term.unit)}</td>'
+                    f'<td class="num">{_html_number(term.excess_before, 2, 1e3)} &rarr; '
+                    f'{_html_number(term.excess_after, 2, 1e3)}{pendulum}</td>'
+                    f'<td>t = {_html_number(term.t_statistic, 1)}, &Delta;BIC {_html_number(term.delta_bic, 1)}, '
+                    f'DM {_html_number(term.dm_statistic, 1)}</td><td>{esc(term.why_not or term.term.reading)}</td>'
+                    '</tr>')
+    return ('<h2 id="motor-discovery">Discovery in the motor equation</h2>'
+            '<p class="caption">The armature current is measured: its equation <code>La dIa/dt = Va - R Ia - e + c '
+            '&middot; term</code> was screened in weak form and the strongest terms refitted in the motor observer by '
+            f'output error, judged on the held-out current (noise {_html_number(motor.noise_rms, 2, 1e3)}&nbsp;mA). '
+            'The pendulum&rsquo;s error is given with its thrust input rebuilt from the corrected observer.</p>'
+            '<table><tr><th>term</th><th>status</th><th>c &plusmn; 1&sigma;</th><th>current beyond noise [mA]</th>'
+            '<th>evidence</th><th>why not proven / reading</th></tr>' + ''.join(rows) + '</table>')
+
+
 def _quoted(arguments: list[str]) -> list[str]:
     return [f"'{a}'" if any(c in a for c in '*()^ ,') else a for a in arguments]
 
@@ -254,4 +406,5 @@ def _numpy_expression(expression: str) -> str:
     return code if code != '1' else '1.0 + 0.0 * angle'      # a float for a float (numba compiles it)
 
 
-__all__ = ['term_text', 'discovery_sentence', 'discovery_lines', 'discovery_html', 'effect_module_text']
+__all__ = ['separating_experiment', 'term_text', 'discovery_sentence', 'motor_term_text', 'motor_sentence',
+           'motor_lines', 'motor_html', 'discovery_lines', 'discovery_html', 'effect_module_text']

@@ -49,7 +49,8 @@ from aeropend_core.present.formatting import (
 )
 from aeropend_core.present.model_checks import (band_section, correlation_section, scatter_section,
                                                 validation_section)
-from aeropend_core.present.discovery_text import discovery_html
+from aeropend_core.present.discovery_text import discovery_html, motor_html
+from aeropend_core.present.verdict_text import verdict_of
 from aeropend_core.present.model_sections import model_sections
 from aeropend_core.present.plots import (
     _plot_candidates,
@@ -133,7 +134,7 @@ def _verdict_html(diagnosis: Diagnosis, source: str | None = None) -> str:
         missing=', '.join(diagnosis.missing_effects) or diagnosis.missing_effect)
     css = VERDICT_CLASSES.get(diagnosis.verdict, 'warn')
     parts = [f'<section class="verdict {css}" id="verdict"><div class="title">{_esc(title)}</div>',
-             f'<div>{_esc(_plain(_without_title(diagnosis.message)))}</div>']
+             f'<div>{_esc(_plain(_without_title(verdict_of(diagnosis))))}</div>']
     if diagnosis.verdict == 'effect_found':
         added = ''.join(f' --add {e}' for e in (*diagnosis.effects, diagnosis.missing_effect))
         data = shlex.quote(source) if source else 'DATA'
@@ -451,6 +452,8 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
         nav.append('<a href="#before-after">6 before &rarr; after</a>')
     if getattr(diagnosis, 'discovery', None) is not None:
         nav.append('<a href="#discovery">discovery</a>')
+    if getattr(diagnosis, 'motor_discovery', None) is not None and diagnosis.motor_discovery.terms:
+        nav.append('<a href="#motor-discovery">motor discovery</a>')
     if validation is not None:
         nav.append('<a href="#validation">validation record</a>')
     nav.append('<a href="#parameters">parameters</a>')
@@ -530,6 +533,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
 
     if getattr(diagnosis, 'discovery', None) is not None:
         sections.append(discovery_html(diagnosis.discovery, diagnosis.noise_rms, source))
+    sections.append(motor_html(getattr(diagnosis, 'motor_discovery', None)))
     if validation is not None:
         sections.append(validation_section(diagnosis, validation))
     sections.append(f'<h2 id="parameters">Parameters of the model as given ({_esc(model)})</h2>'

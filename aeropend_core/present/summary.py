@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from aeropend_core.diagnosis.compare import excess_error
 from aeropend_core.diagnosis.diagnose import Diagnosis
-from aeropend_core.present.verdict_text import size_text
+from aeropend_core.present.verdict_text import size_text, verdict_of
 from aeropend_core.model.effects import find_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.signals.reduced import MAP_PARAMETERS
@@ -106,9 +106,10 @@ def format_summary(diagnosis: Diagnosis) -> str:
             lines.append(f'  {row["parameter"]:18s} change {row["change"] * 100:+6.1f} % over {row["span"]:.0f} s, '
                          f't = {row["t_statistic"]:+.1f}, p = {row["p_value"]:.2g} '
                          f'({row["stretches"]} stretches){"  DRIFT" if row["drifting"] else ""}')
-    from aeropend_core.present.discovery_text import discovery_lines
+    from aeropend_core.present.discovery_text import discovery_lines, motor_lines
     lines += discovery_lines(getattr(diagnosis, 'discovery', None))
-    lines.append('Verdict: ' + diagnosis.message)
+    lines += motor_lines(getattr(diagnosis, 'motor_discovery', None))
+    lines.append('Verdict: ' + verdict_of(diagnosis))
     for note in diagnosis.notes:
         lines.append('Note: ' + note)
     for row in diagnosis.residual_structure:

@@ -1,9 +1,10 @@
 """The words of the diagnosis's verdict: the sentence that says what is missing, from the typed results.
 
-The diagnosis (:func:`aeropend_core.diagnosis.diagnose.diagnose`) decides the verdict and hands its typed results
-here; only the wording lives in this module. It imports nothing from :mod:`aeropend_core.diagnosis` (its inputs are
-duck-typed: :class:`~aeropend_core.diagnosis.diagnose.Found`, the residual-structure rows, the discovery's result),
-so the diagnosis can call it without an import circle (tests/test_architecture.py checks that).
+The diagnosis (:func:`aeropend_core.diagnosis.diagnose.diagnose`) decides the verdict and returns its typed results
+(:class:`~aeropend_core.diagnosis.diagnose.VerdictFacts` in ``Diagnosis.facts``); the words are made here only:
+:func:`verdict_of` (the message) and :func:`diagnosis_dict` (the ``--json`` form with the message). The diagnosis
+imports nothing from :mod:`aeropend_core.present` (tests/test_architecture.py checks that); this module's inputs are
+duck-typed, so it imports nothing from the diagnosis either.
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import math
 from collections.abc import Sequence
 
 from aeropend_core.model.effects import get_effect
-from aeropend_core.present.discovery_text import discovery_sentence
+from aeropend_core.present.discovery_text import discovery_sentence, motor_sentence
 
 
 def size_text(found) -> str:
@@ -40,7 +41,7 @@ def size_text(found) -> str:
 def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_current: float, excess_final: float,
                     within_noise: float, structure: Sequence[dict] = (), drift_text: str = '',
                     heldout_only: Sequence = (), heldout_advice: str = '', discovery=None,
-                    explained_below: float = math.inf, reduced_rate_hz: float | None = None) -> str:
+                    explained_below: float = math.inf, reduced_rate_hz: float | None = None, motor=None) -> str:
     """The verdict's message for `verdict` (the diagnosis's decision), numbers in mrad and SI units.
 
     Parameters
@@ -72,11 +73,13 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
         A proven term that leaves more than this explains only part of the error.
     reduced_rate_hz : float, optional [Hz]
         The sample rate of a reduced-model record whose own error at that rate is unmeasured (``'unexplained'``).
+    motor : MotorDiscovery, optional [-]
+        The motor equation's discovery; its sentence is appended when it proved a term.
 
     Returns
     -------
     str
-        The message (``Diagnosis.message``).
+        The message (what :func:`verdict_of` returns for a diagnosis).
     """
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]
@@ -123,8 +126,14 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
                    f'residual correlates most with: {structure[0]["signature"]} (r = '
                    f'{structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
                    f'(aeropend_core.model.effects.register_effect).')
-    if discovery is not None:
+    motor_led = (verdict == 'term_discovered' and motor is not None and bool(motor.proven)
+                 and not (discovery is not None and discovery.proven))
+    if motor_led:       # the motor equation's term is the verdict: the pendulum's own search is not the news
+        message = (message + ' ' + motor_sentence(motor)).strip()
+    elif discovery is not None:
         message = (message + ' ' + discovery_sentence(discovery, noise_rms, explained_below)).strip()
+    if motor is not None and motor.proven and not motor_led:
+        message = (message + ' ' + motor_sentence(motor)).strip()
     if verdict == 'unexplained' and reduced_rate_hz is not None:
         message += (f' At {reduced_rate_hz:.4g} Hz the reduced model\'s own error has not been measured: part '
                     'or all of this remainder can be that model\'s limit at this rate, not a missing effect (a record '
@@ -132,4 +141,47 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
     return message
 
 
-__all__ = ['size_text', 'verdict_message']
+def verdict_of(diagnosis) -> str:
+    """The verdict's message of a diagnosis (what ``aeropend diagnose`` prints after "Verdict:").
+
+    Parameters
+    ----------
+    diagnosis : Diagnosis [-]
+        A finished diagnosis (:class:`aeropend_core.diagnosis.diagnose.Diagnosis`): its ``facts`` are worded.
+
+    Returns
+    -------
+    str
+        The message, numbers in mrad and SI units; a failed physical check's line first.
+    """
+    facts = diagnosis.facts
+    return facts.prefix + verdict_message(
+        facts.verdict, found=facts.found, noise_rms=facts.noise_rms, excess_current=facts.excess_current,
+        excess_final=facts.excess_final, within_noise=facts.within_noise, structure=facts.structure,
+        drift_text=facts.drift_text, heldout_only=facts.heldout_only, heldout_advice=facts.heldout_advice,
+        discovery=facts.discovery, explained_below=facts.explained_below, reduced_rate_hz=facts.reduced_rate_hz,
+        motor=facts.motor)
+
+
+def diagnosis_dict(diagnosis) -> dict:
+    """The ``aeropend diagnose --json`` form: the diagnosis's numbers with the verdict's ``message`` after ``verdict``.
+
+    Parameters
+    ----------
+    diagnosis : Diagnosis [-]
+        A finished diagnosis.
+
+    Returns
+    -------
+    dict
+        ``diagnosis.to_dict()`` with ``message`` (:func:`verdict_of`) inserted after ``verdict``.
+    """
+    out = {}
+    for key, value in diagnosis.to_dict().items():
+        out[key] = value
+        if key == 'verdict':
+            out['message'] = verdict_of(diagnosis)
+    return out
+
+
+__all__ = ['size_text', 'verdict_message', 'verdict_of', 'diagnosis_dict']

@@ -103,6 +103,7 @@ def run_until_decided(args, run_once) -> int:
     ``(exit code, bag folder)``. With ``--experiment FILE`` the first round plays FILE instead of the hypercube."""
     from aeropend_core.diagnosis.experiment_loop import LoopBudget, Played, RoundFailed, until_decided
     from aeropend_core.io.recording import load_recording
+    from aeropend_core.present.verdict_text import diagnosis_dict, verdict_of
 
     def say(message: str) -> None:
         if not args.quiet:
@@ -128,7 +129,7 @@ def run_until_decided(args, run_once) -> int:
 
     def report(entry) -> None:
         if entry.design is None:
-            print(f'round {entry.number}: {entry.diagnosis.verdict}: {entry.diagnosis.message}', flush=True)
+            print(f'round {entry.number}: {entry.diagnosis.verdict}: {verdict_of(entry.diagnosis)}', flush=True)
         else:
             print(f'designed {entry.next_schedule}: {entry.design.describe()}', flush=True)
 
@@ -138,7 +139,8 @@ def run_until_decided(args, run_once) -> int:
     outcome = until_decided(play, budget, _diagnose_options(args, say), seed=args.seed, write_schedule=write,
                             on_round=report, say=say)
     rounds = [{'round': r.number, 'bag': r.played.source, 'schedule': r.played.played,
-               'verdict': r.diagnosis.verdict, 'message': r.diagnosis.message, 'diagnosis': r.diagnosis.to_dict(),
+               'verdict': r.diagnosis.verdict, 'message': verdict_of(r.diagnosis),
+               'diagnosis': diagnosis_dict(r.diagnosis),
                **({'design': r.design.to_dict(), 'next_schedule': r.next_schedule} if r.design is not None else {})}
               for r in outcome.rounds]
     ending = outcome.ending
