@@ -9,6 +9,7 @@ import numpy as np
 
 import aeropend_core.diagnosis.joint as joint
 from aeropend_core.diagnosis.diagnose import diagnose
+from aeropend_core.present.verdict_text import verdict_of
 from aeropend_core.diagnosis.experiment_design import steps_to_duty
 from aeropend_core.io.recording import from_columns
 from aeropend_core.sim.excitation import lhc_schedule
@@ -35,4 +36,4 @@ if len(sys.argv) > 3 and sys.argv[3] == 'no-observer':
     import aeropend_core.diagnosis.compare as compare
     compare.prepare = functools.partial(compare.prepare, use_motor_observer=False)
 result = diagnose(second, drift=False) if which == 'second' else joint.diagnose_joint([first, second], drift=False)
-print(which, result.verdict, result.message[:500], flush=True)
+print(which, result.verdict, verdict_of(result)[:500], flush=True)
