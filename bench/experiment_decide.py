@@ -183,7 +183,8 @@ FIRST_DUTY_OF = {'lag': (0.0, 0.7)}
 
 def loop(args, names) -> dict:
     rows = []
-    path = OUT / (f'loop_{"_".join(names)}.json' if args.size is None else f'loop_{"_".join(names)}_{args.size:g}.json')
+    stem = f'loop_{"_".join(names)}' if args.size is None else f'loop_{"_".join(names)}_{args.size:g}'
+    path = OUT / f'{stem}{args.tag}.json'
     for k in range(args.seeds):
         for name in names:
             truth = {effect: (args.size if args.size is not None else value) for effect, value in TRUTHS[name].items()}
@@ -268,7 +269,13 @@ def main() -> None:
     parser.add_argument('--refinements', type=int, default=15)
     parser.add_argument('--design-seconds', type=float, default=30.0)
     parser.add_argument('--max-runs', type=int, default=3)
+    parser.add_argument('--out', default=None,
+                        help='folder of the JSON results (default bench/results/2026-11-27-s8-loop2)')
+    parser.add_argument('--tag', default='', help='loop: suffix of the JSON file name (e.g. _before)')
     args = parser.parse_args()
+    global OUT
+    if args.out is not None:
+        OUT = Path(args.out)
     OUT.mkdir(parents=True, exist_ok=True)
     if args.part == 'summary':
         print(summary())
