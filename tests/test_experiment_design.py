@@ -64,6 +64,23 @@ def test_design_keeps_every_step_below_the_duty_limit_and_every_model_below_the_
     assert 'x the noise RMS' in design.describe() and design.separation > 0
 
 
+def test_the_design_puts_separating_excitation_in_the_held_out_part_too():
+    """The diagnosis fits on the first 75 % of a record and judges on the last 25 %: the design maximises the smaller
+    of the two parts' separations, so an offset/cable design rests at duty 0 in the held-out part as well (the
+    designs of bench/results/2026-11-27-s8-loop2 that decided wrongly had their rests in the training part only)."""
+    offset = true_model('angle_offset', {'angle_offset': 0.01})
+    cable = true_model('cable_torque', {'cable_stiffness': 30.0})
+    design = design_experiment([offset, cable], 0.0157, duration=24.0, seed=4, **QUICK)
+    assert design.separation_heldout >= 0.5 * design.separation_train > 0, design.describe()
+    duty = design.schedule.duty()
+    held = duty[int(round(0.75 * len(duty))):]
+    assert held.min() == 0.0 and held.max() >= 0.3, design.schedule.steps
+    again = predict_separation([offset, cable], duty, 0.0157, draws=2, seed=5)
+    assert again['separation_heldout'] == pytest.approx(design.separation_heldout)
+    assert 'over the held-out last 25 %' in design.describe()
+    assert design.to_dict()['predicted_separation_heldout_part_noise_rms'] == design.separation_heldout
+
+
 def test_impossible_designs_are_refused_with_the_reason():
     with pytest.raises(DesignRefused, match='duration budget 10 s is below the 20 s'):
         design_experiment([LAG, FILTER], 0.004, duration=10.0, **QUICK)
