@@ -201,10 +201,12 @@ def loop(args, names) -> dict:
     rows = []
     stem = f'loop_{"_".join(names)}' if args.size is None else f'loop_{"_".join(names)}_{args.size:g}'
     path = OUT / f'{stem}{args.tag}.json'
-    for k in range(args.seeds):
+    seeds = ([int(v) for v in args.seed_list.split(',')] if args.seed_list
+             else [args.first_seed + k for k in range(args.seeds)])
+    for seed in seeds:
         for name in names:
             truth = {effect: (args.size if args.size is not None else value) for effect, value in TRUTHS[name].items()}
-            row = loop_case(truth, args.first_seed + k, args, FIRST_DUTY_OF.get(name, FIRST_DUTY))
+            row = loop_case(truth, seed, args, FIRST_DUTY_OF.get(name, FIRST_DUTY))
             row['case'] = name
             rows.append(row)
             print(json.dumps({key: row[key] for key in ('case', 'seed', 'first_verdict', 'final_verdict', 'result',
@@ -280,6 +282,7 @@ def main() -> None:
     parser.add_argument('--seeds', type=int, default=8)
     parser.add_argument('--size', type=float, default=None, help='loop: hidden effect size (SI)')
     parser.add_argument('--first-seed', type=int, default=26000)
+    parser.add_argument('--seed-list', default='', help='loop: these seeds (comma-separated) instead of --seeds')
     parser.add_argument('--psnr', type=float, default=40.0)
     parser.add_argument('--candidates', type=int, default=30)
     parser.add_argument('--refinements', type=int, default=15)
