@@ -319,10 +319,11 @@ def test_the_loop_decides_a_confounded_first_record():
 def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
     """`aeropend run --until-decided` on the simulator, through the real graph (sim, excitation, recorder nodes): a
     20 ms thrust lag at 58 dB after a 40 s first schedule (Latin hypercube 0-0.7, seed 26000, then 3 s at duty 0) is
-    confounded with an angle filter by the diagnosis's own rule; the loop designs the separating experiment (10 + 5
-    schedules searched), plays it through the excitation node, and the joint diagnosis of both bags names the lag
-    alone, its size within 3 sigma (the core loop, emulating the run's rests, decides the same case the same way:
-    bench/results/2026-11-27-s9-loop3). An angle offset vs a cable spring is never confounded in a run's record: the
+    confounded with an angle filter by the diagnosis's own rule; the loop designs a 60 s separating experiment (10 +
+    5 schedules searched), plays it through the excitation node, and the joint diagnosis of both bags names the lag
+    alone, its size within 3 sigma (measured: 19.91 +- 0.09 ms, 2.6 min on a loaded host). A 30 s design decided
+    this first bag with one of two noise seeds of the second record (bench/results/2026-11-27-s9-loop3): 60 s
+    doubles the evidence. An angle offset vs a cable spring is never confounded in a run's record: the
     run's 1 s rest at duty 0 before the schedule pins the offset. Every wait is the run's own (discovery, the
     schedule's end, the bag's finalisation), none a fixed window."""
     import json
@@ -338,7 +339,7 @@ def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
     env = local_ros_environment(domain_id=private_domain_id())
     result = subprocess.run(AEROPEND + ['run', '--until-decided', '--experiment', str(path), '--effect',
                                         'thrust_lag=0.02', '--psnr', '58', '--seed', '26000', '--realtime-factor', '4',
-                                        '--window', '120', '--max-runs', '2', '--design-seconds', '30',
+                                        '--window', '120', '--max-runs', '2', '--design-seconds', '60',
                                         '--design-candidates', '10', '--record', str(tmp_path / 'bags'),
                                         '--json', str(tmp_path / 'loop.json'), '--quiet'],
                             env=env, cwd=ROOT, capture_output=True, text=True, timeout=560)
