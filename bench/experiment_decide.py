@@ -140,11 +140,22 @@ def loop_case(truth: dict, seed: int, args, first_duty=FIRST_DUTY) -> dict:
         record = stream_record(duty, truth, args.psnr, seed + 100 * number, f'round {number}')
         return Played(record, f'round {number}', played, len(duty) * SAMPLE_TIME)
 
-    budget = LoopBudget(max_runs=args.max_runs, max_seconds=300.0, design_seconds=args.design_seconds)
+    budget = LoopBudget(max_runs=args.max_runs, max_seconds=args.max_seconds, design_seconds=args.design_seconds)
     outcome = until_decided(play, budget, {'drift': False}, seed=seed,
                             design_options={'candidates': args.candidates, 'refinements': args.refinements,
                                             'original_duty_limit': first_duty[1]})
     rounds = []
+    measured = {}
+    if getattr(args, 'measure', False):     # the separation measured on each played designed record
+        from aeropend_core.diagnosis.experiment_design import measured_separation
+        for before, after in zip(outcome.rounds[:-1], outcome.rounds[1:]):
+            design = before.design
+            sets = [m.effects for m in design.models]
+            measured[after.number] = {
+                'noisy': measured_separation(after.played.recording, sets, design.noise_rms),
+                'noise_free': measured_separation(from_columns(RigSimulator(effects=truth).run(
+                    design.schedule.duty()).columns(with_truth=False), source='noise-free'), sets, design.noise_rms),
+                'models': [list(e) for e in sets]}
     for r in outcome.rounds:
         entry = {'round': r.number, 'played': r.played.played, 'verdict': r.diagnosis.verdict,
                  'message': verdict_of(r.diagnosis), 'pinned': [f.effect for f in r.diagnosis.found
@@ -154,8 +165,13 @@ def loop_case(truth: dict, seed: int, args, first_duty=FIRST_DUTY) -> dict:
                            for f in r.diagnosis.found},
                  'max_angle_deg': math.degrees(float(np.max(np.abs(r.played.recording.signals['angle'])))),
                  'diagnosis_seconds': r.diagnosis_seconds}
+        if r.number in measured:
+            entry['measured_separation'] = measured[r.number]
         if r.design is not None:
             entry.update(predicted_separation=r.design.separation, original_separation=r.design.baseline_separation,
+                         predicted_separation_heldout=r.design.separation_heldout,
+                         predicted_separation_train=r.design.separation_train,
+                         predicted_separation_fitted=r.design.separation_fitted,
                          seconds_to_decide=r.design.seconds_to_decide, design_seconds=r.design_seconds,
                          predicted_max_angle_deg=math.degrees(r.design.max_angle))
         rounds.append(entry)
@@ -184,11 +200,14 @@ FIRST_DUTY_OF = {'lag': (0.0, 0.7)}
 
 def loop(args, names) -> dict:
     rows = []
-    path = OUT / (f'loop_{"_".join(names)}.json' if args.size is None else f'loop_{"_".join(names)}_{args.size:g}.json')
-    for k in range(args.seeds):
+    stem = f'loop_{"_".join(names)}' if args.size is None else f'loop_{"_".join(names)}_{args.size:g}'
+    path = OUT / f'{stem}{args.tag}.json'
+    seeds = ([int(v) for v in args.seed_list.split(',')] if args.seed_list
+             else [args.first_seed + k for k in range(args.seeds)])
+    for seed in seeds:
         for name in names:
             truth = {effect: (args.size if args.size is not None else value) for effect, value in TRUTHS[name].items()}
-            row = loop_case(truth, args.first_seed + k, args, FIRST_DUTY_OF.get(name, FIRST_DUTY))
+            row = loop_case(truth, seed, args, FIRST_DUTY_OF.get(name, FIRST_DUTY))
             row['case'] = name
             rows.append(row)
             print(json.dumps({key: row[key] for key in ('case', 'seed', 'first_verdict', 'final_verdict', 'result',
@@ -264,12 +283,22 @@ def main() -> None:
     parser.add_argument('--seeds', type=int, default=8)
     parser.add_argument('--size', type=float, default=None, help='loop: hidden effect size (SI)')
     parser.add_argument('--first-seed', type=int, default=26000)
+    parser.add_argument('--seed-list', default='', help='loop: these seeds (comma-separated) instead of --seeds')
     parser.add_argument('--psnr', type=float, default=40.0)
     parser.add_argument('--candidates', type=int, default=30)
     parser.add_argument('--refinements', type=int, default=15)
     parser.add_argument('--design-seconds', type=float, default=30.0)
     parser.add_argument('--max-runs', type=int, default=3)
+    parser.add_argument('--max-seconds', type=float, default=300.0, help='loop: excitation budget over all runs [s]')
+    parser.add_argument('--measure', action='store_true',
+                        help='loop: also measure the separation on each played designed record (both models refitted)')
+    parser.add_argument('--out', default=None,
+                        help='folder of the JSON results (default bench/results/2026-11-27-s8-loop2)')
+    parser.add_argument('--tag', default='', help='loop: suffix of the JSON file name (e.g. _before)')
     args = parser.parse_args()
+    global OUT
+    if args.out is not None:
+        OUT = Path(args.out)
     OUT.mkdir(parents=True, exist_ok=True)
     if args.part == 'summary':
         print(summary())

@@ -28,6 +28,7 @@ from scipy.signal import savgol_filter
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.diagnosis.basins import PROFILED, search_lag_basins
+from aeropend_core.diagnosis.gaps import MAX_LOST_FRACTION, SHORTEST_PIECE, Gaps, split_at_gaps  # noqa: F401
 from aeropend_core.model.effects import kernel_parameter
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
                                         initial_states_from_data)
@@ -119,8 +120,9 @@ class PreparedRecord:
 
     @property
     def valid(self) -> np.ndarray | None:
-        """Measured samples (False where a gap of lost samples was filled), or None without gaps."""
-        return self.gaps.valid if self.gaps is not None and self.gaps.count else None
+        """Measured samples (False where a gap of lost samples or a join between records was filled), or None when
+        every sample was measured."""
+        return self.gaps.valid if self.gaps is not None and not self.gaps.complete else None
 
     @property
     def smoothing_window(self) -> int:
@@ -167,111 +169,6 @@ def segment_at_steps(start: int, stop: int, steps: np.ndarray, sample_time: floa
         cuts.append(cut)
     cuts.append(stop)
     return [(a, b) for a, b in zip(cuts[:-1], cuts[1:]) if b - a > 4 * STRIDE]
-
-
-#: A piece between gaps shorter than this [s] is not used for fitting (too short for its own initial state).
-SHORTEST_PIECE = 0.5
-#: More than this fraction of the record lost: refused.
-MAX_LOST_FRACTION = 0.3
-
-
-@dataclass
-class Gaps:
-    """Lost samples (dropped frames) of a record put on the uniform sample grid.
-
-    ``valid`` (n,) is False where a sample was lost and filled by linear interpolation; filled samples give no
-    residuals, and the multiple-shooting segments and the held-out part restart after each gap.
-    """
-
-    valid: np.ndarray
-    sample_time: float
-    source: str = 'time stamps'
-
-    @property
-    def starts(self) -> np.ndarray:
-        """First lost sample of each gap."""
-        edges = np.diff(np.concatenate(([1], self.valid.astype(int), [1])))
-        return np.flatnonzero(edges == -1)
-
-    @property
-    def lengths(self) -> np.ndarray:
-        """Lost samples per gap."""
-        edges = np.diff(np.concatenate(([1], self.valid.astype(int), [1])))
-        return np.flatnonzero(edges == 1) - np.flatnonzero(edges == -1)
-
-    @property
-    def count(self) -> int:
-        return int(self.starts.size)
-
-    @property
-    def lost(self) -> int:
-        return int(np.count_nonzero(~self.valid))
-
-    @property
-    def longest_seconds(self) -> float:
-        return float(self.lengths.max() * self.sample_time) if self.count else 0.0
-
-    @property
-    def measured_seconds(self) -> float:
-        return float(np.count_nonzero(self.valid) * self.sample_time)
-
-    @property
-    def lost_text(self) -> str:
-        return f' of measured samples ({self.lost} lost in {self.count} gap(s))' if self.count else ''
-
-    def pieces(self, start: int, stop: int) -> list[tuple[int, int]]:
-        """[start, stop) without the gaps, as runs of measured samples at least SHORTEST_PIECE long."""
-        shortest = max(4 * STRIDE + 1, int(round(SHORTEST_PIECE / self.sample_time)))
-        valid = self.valid[start:stop]
-        edges = np.diff(np.concatenate(([0], valid.astype(int), [0])))
-        runs = zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1))
-        return [(start + int(a), start + int(b)) for a, b in runs if b - a >= shortest]
-
-    def to_dict(self) -> dict:
-        return {'count': self.count, 'lost_samples': self.lost, 'longest_seconds': self.longest_seconds,
-                'detected_from': self.source}
-
-    def describe(self) -> str:
-        return (f'the record has {self.count} gap(s) of lost samples ({self.lost} samples, the longest '
-                f'{self.longest_seconds * 1e3:.0f} ms, detected from the {self.source}): they were filled by '
-                f'interpolation only to keep the sample grid; no residual is taken there and the fitted segments '
-                f'restart after each gap.')
-
-
-def split_at_gaps(time: np.ndarray, columns: dict[str, np.ndarray], sample_time: float, source: str,
-                  sequence: np.ndarray | None = None) -> tuple[np.ndarray, dict[str, np.ndarray], Gaps]:
-    """Put samples with lost ones (gaps in the time stamps or the sequence counter) on the uniform grid.
-
-    Returns the grid times [s], the columns on the grid (lost samples linearly interpolated, never used as data)
-    and the :class:`Gaps`. Raises :class:`AeropendError` for spacing that is not a whole number of samples and
-    :class:`InsufficientDataError` when more than MAX_LOST_FRACTION of the record is lost.
-    """
-    if sequence is not None and np.all(np.isfinite(sequence)) and np.all(np.diff(sequence) > 0):
-        index = np.rint(np.asarray(sequence, dtype=float) - float(sequence[0])).astype(np.int64)
-        detected = 'sequence counter'
-    else:
-        offsets = (time - time[0]) / sample_time
-        index = np.rint(offsets).astype(np.int64)
-        if np.max(np.abs(offsets - index)) > 0.25 or np.any(np.diff(index) <= 0):
-            steps = np.diff(time)
-            k = int(np.argmax(np.abs(steps - sample_time * np.maximum(np.rint(steps / sample_time), 1))))
-            raise AeropendError(f'{source}: samples are not evenly spaced (step of {steps[k]:.4f} s at t = '
-                                f'{time[k]:.3f} s, not a whole number of {sample_time:.4f} s samples); the time '
-                                f'stamps must be the acquisition clock (sample counter x Ts)')
-        detected = 'time stamps'
-    n = int(index[-1]) + 1
-    valid = np.zeros(n, dtype=bool)
-    valid[index] = True
-    gaps = Gaps(valid, sample_time, detected)
-    if gaps.lost == 0:
-        return time, columns, gaps
-    if gaps.lost > MAX_LOST_FRACTION * n:
-        raise InsufficientDataError(f'{source}: {gaps.lost} of {n} samples are lost ({gaps.count} gaps, the '
-                                    f'longest {gaps.longest_seconds:.3f} s); too little remains to diagnose: '
-                                    f'record again with a reliable link')
-    grid = np.arange(n)
-    filled = {name: np.interp(grid, index, values) for name, values in columns.items()}
-    return time[0] + grid * sample_time, filled, gaps
 
 
 def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,

@@ -16,6 +16,11 @@ The score is conservative in two ways (Box--Hill / Buzzi-Ferraris model discrimi
 * **parameter uncertainty**: the two models are also run with a few parameter draws from their fitted covariance
   (paired draws), and the smallest separation over the draws is the score.
 
+The search maximises the smaller of the separations over the first 75 % of the schedule and over its last 25 %:
+the diagnosis fits on the first 75 % of every record and judges the models on the held-out rest (Diebold--Mariano
+on the held-out errors), so a schedule whose separating parts (rests at duty 0, large steps) all fall in the
+training part decides nothing (bench/results/2026-11-27-s9-loop3).
+
 The separation is reported as the RMS of that remainder over the schedule, in units of the noise RMS ("after 30 s
 of this schedule the two models differ by 2.1 x the noise RMS"), next to the same number for the original
 excitation (a Latin hypercube of the same length). Both models are driven by the armature voltage, current and
@@ -174,6 +179,10 @@ class ExperimentDesign:
     doubts: list[str] = field(default_factory=list)
     #: Samples compared over the schedule (every integration step) [-].
     samples: int = 0
+    #: The separation over the first 75 % of the schedule (where the diagnosis fits) and over the last 25 % (where
+    #: it judges the models on held-out data) [-]; the search maximises the smaller of the two.
+    separation_train: float = math.nan
+    separation_heldout: float = math.nan
 
     @property
     def seconds_to_decide(self) -> float:
@@ -194,7 +203,9 @@ class ExperimentDesign:
                 f'{self.separation:.2g} x the noise RMS ({self.noise_rms * 1e3:.2f} mrad): the RMS of the difference '
                 f'that neither model can absorb by refitting its parameters and initial states, the smallest over '
                 f'{DEFAULT_DRAWS} parameter draws ({self.separation_fitted:.2g} x at the fitted values, peak '
-                f'difference {self.peak_separation:.2g} x). The original excitation of the same length: '
+                f'difference {self.peak_separation:.2g} x; {self.separation_train:.2g} x over the first 75 % '
+                f'that the diagnosis fits on, {self.separation_heldout:.2g} x over the held-out last 25 %). '
+                f'The original excitation of the same length: '
                 f'{self.baseline_separation:.2g} x ({self.gain:.1f} times less). Largest predicted angle '
                 f'{math.degrees(self.max_angle):.0f} deg (limit {math.degrees(self.angle_limit):.0f}), duty at most '
                 f'{highest_duty:.3f} (limit {self.duty_limit:.3f}). '
@@ -233,6 +244,8 @@ class ExperimentDesign:
                 'predicted_separation_noise_rms': float(self.separation),
                 'predicted_separation_at_fitted_noise_rms': float(self.separation_fitted),
                 'predicted_peak_difference_noise_rms': float(self.peak_separation),
+                'predicted_separation_training_part_noise_rms': float(self.separation_train),
+                'predicted_separation_heldout_part_noise_rms': float(self.separation_heldout),
                 'original_excitation_separation_noise_rms': float(self.baseline_separation),
                 'noise_rms_rad': float(self.noise_rms), 'max_predicted_angle_rad': float(self.max_angle),
                 'duty_limit': float(self.duty_limit), 'angle_limit_rad': float(self.angle_limit),
@@ -386,6 +399,14 @@ class _Score:
     peak: float
     max_angle: float
     samples: int = 0
+    #: The separation over the training part and over the held-out part of the played record [-] (each the
+    #: smallest over the draws); the search maximises the smaller of the two (``objective``).
+    train: float = -math.inf
+    heldout: float = -math.inf
+
+    @property
+    def objective(self) -> float:
+        return min(self.train, self.heldout)
 
 
 def predict_separation(models: Sequence[CompetingModel], duty: np.ndarray, noise_rms: float,
@@ -413,12 +434,13 @@ def predict_separation(models: Sequence[CompetingModel], duty: np.ndarray, noise
     Returns
     -------
     dict
-        ``separation`` (min over draws), ``separation_fitted``, ``peak`` (noise RMS units) and ``max_angle`` [rad].
+        ``separation`` (min over draws), ``separation_fitted``, ``peak`` (noise RMS units), ``max_angle`` [rad],
+        ``separation_train`` and ``separation_heldout`` (over the first 75 % and the last 25 % of `duty`).
     """
     score = _score(models, np.asarray(duty, dtype=float), noise_rms, parameters, sample_time, draws,
                    np.random.default_rng(seed), math.inf)
     return {'separation': score.separation, 'separation_fitted': score.separation_fitted, 'peak': score.peak,
-            'max_angle': score.max_angle}
+            'max_angle': score.max_angle, 'separation_train': score.train, 'separation_heldout': score.heldout}
 
 
 def _score(models, duty, noise_rms, parameters, sample_time, draws, rng, angle_limit) -> _Score:
@@ -435,15 +457,21 @@ def _score(models, duty, noise_rms, parameters, sample_time, draws, rng, angle_l
     if max_angle > angle_limit:
         return _Score(-math.inf, -math.inf, 0.0, max_angle)
     columns = [_basis(p.sensitivities(r[0])) for p, r in zip(predictors, runs)]
-    separations = []
+    from aeropend_core.diagnosis.compare import TRAIN_FRACTION
+    heldout = predictors[0].index >= int(round(TRAIN_FRACTION * len(duty)))
+    parts = {'whole': slice(None), 'train': ~heldout, 'heldout': heldout}
+    separations = {part: [] for part in parts}
     for k in range(len(draw_values[0])):
         difference = runs[0][k] - runs[1][k]
         # model 0 true -> model 1 refits (remove what model 1's sensitivities absorb), and the other way round
         left = _remainder(columns[1], difference)
         right = _remainder(columns[0], -difference)
-        separations.append(min(float(np.sqrt(np.mean(left ** 2))), float(np.sqrt(np.mean(right ** 2)))) / noise_rms)
+        for part, where in parts.items():
+            rms = [float(np.sqrt(np.mean(r[where] ** 2))) if r[where].size else 0.0 for r in (left, right)]
+            separations[part].append(min(rms) / noise_rms)
     peak = float(np.max(np.abs(runs[0][0] - runs[1][0]))) / noise_rms
-    return _Score(float(min(separations)), float(separations[0]), peak, max_angle, int(len(runs[0][0])))
+    return _Score(float(min(separations['whole'])), float(separations['whole'][0]), peak, max_angle,
+                  int(len(runs[0][0])), float(min(separations['train'])), float(min(separations['heldout'])))
 
 
 # ------------------------------------------------------------------------------------------------ the search
@@ -597,7 +625,9 @@ def design_experiment(models: Sequence[CompetingModel], noise_rms: float, durati
         score = _score(models, schedule.duty(sample_time), noise_rms, parameters, sample_time, draws,
                        np.random.default_rng(seed + 1), angle_limit)
         lowest_angle = min(lowest_angle, score.max_angle)
-        if best is None or score.separation > best[1].separation:
+        # both parts of the played record must see the separation: the diagnosis fits on the first 75 % and judges
+        # on the held-out rest (a schedule whose rests all fall in the training part gave no held-out evidence)
+        if best is None or score.objective > best[1].objective:
             best = (blocks, score)
         return score
 
@@ -627,7 +657,7 @@ def design_experiment(models: Sequence[CompetingModel], noise_rms: float, durati
               'an estimate, checked by the diagnosis of the played record']
     return ExperimentDesign(schedule, (models[0], models[1]), score.separation, score.separation_fitted, score.peak,
                             max(baseline.separation, 0.0), noise_rms, score.max_angle, duty_limit, angle_limit,
-                            tried, doubts, score.samples)
+                            tried, doubts, score.samples, score.train, score.heldout)
 
 
 def measured_separation(recording, effect_sets: Sequence[Sequence[str]], noise_rms: float,

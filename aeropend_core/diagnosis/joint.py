@@ -1,8 +1,10 @@
 """Diagnose several recordings of the same rig together: shared parameters, per-record initial states.
 
-The records are put on one sample grid separated by gaps of lost samples (:class:`aeropend_core.diagnosis.compare.
-Gaps`), so the existing diagnosis treats them as one record with gaps: no multiple-shooting segment spans two
-records (each piece has its own fitted initial angle and rate), every model's parameters are shared, and the noise
+The records are put on one sample grid separated by a few filler samples, marked as *record joins*
+(:class:`aeropend_core.diagnosis.gaps.Gaps` ``joins``), so the existing diagnosis treats them as one record whose
+pieces restart: no multiple-shooting segment spans two records (each piece has its own fitted initial angle and
+rate); a join is a new record with its own initial state, never counted or described as lost samples (a record's
+own lost samples stay gaps inside it), every model's parameters are shared, and the noise
 is estimated over all of them. The training / held-out split is taken *within each record*: the first 75 % of
 every record goes to the training part and the last 25 % to the held-out part (the pieces are ordered
 ``A-train, B-train, ..., A-held, B-held, ...``), so a separating experiment's evidence enters both the fit and the
@@ -24,7 +26,7 @@ SAMPLE_TIME_TOLERANCE = 0.01
 
 
 def joint_recording(recordings: Sequence, train_fraction: float | None = None):
-    """One recording from several of the same rig, pieces separated by gaps, and the index of the split.
+    """One recording from several of the same rig, pieces separated by record joins, and the index of the split.
 
     Parameters
     ----------
@@ -37,7 +39,8 @@ def joint_recording(recordings: Sequence, train_fraction: float | None = None):
     Returns
     -------
     recording : Recording
-        The pieces on one grid (time [s] from 0, lost samples between pieces).
+        The pieces on one grid (time [s] from 0; no samples at the joins between pieces, and each record's own lost
+        samples stay missing where they were).
     split : int
         The grid index where the held-out pieces start.
 
@@ -46,8 +49,17 @@ def joint_recording(recordings: Sequence, train_fraction: float | None = None):
     AeropendError
         Fewer than two records, different sample times, or the current in some records only.
     """
+    recording, split, _, _ = _joined(recordings, train_fraction)
+    return recording, split
+
+
+def _joined(recordings: Sequence, train_fraction: float | None):
+    """:func:`joint_recording`, plus the record joins on the grid (bool, True between pieces) and the records' own
+    lost-sample findings."""
     from aeropend_core.diagnosis.compare import TRAIN_FRACTION
+    from aeropend_core.diagnosis.gaps import split_at_gaps
     from aeropend_core.io.recording import from_columns
+    from aeropend_core.signals.quality import check_recording
     fraction = TRAIN_FRACTION if train_fraction is None else float(train_fraction)
     if len(recordings) < 2:
         raise AeropendError('a joint diagnosis needs at least two recordings')
@@ -62,27 +74,44 @@ def joint_recording(recordings: Sequence, train_fraction: float | None = None):
         raise AeropendError('some recordings have the armature current and some do not; diagnose records of the same '
                             'kind together')
     names = ['armature_voltage', 'angle'] + (['armature_current'] if all(has_current) else [])
-    training, heldout = [], []
-    for recording in recordings:
-        cut = int(round(fraction * len(recording.time)))
-        columns = {name: np.asarray(recording.signals[name], dtype=float) for name in names}
-        training.append({name: values[:cut] for name, values in columns.items()})
-        heldout.append({name: values[cut:] for name, values in columns.items()})
+    spans, findings = [], []            # (record's measured grid index, columns, grid start, grid stop)
+    for number, recording in enumerate(recordings):
+        checked = check_recording(recording)
+        findings += [f for f in checked.findings if f.code == 'lost_samples']
+        record = checked.recording
+        time = np.asarray(record.time, dtype=float)
+        source = record.source or f'record {number + 1}'
+        # each record on its own grid: a sample it lost stays a gap inside it (never closed up)
+        _, _, own = split_at_gaps(time, {}, reference, source, record.signals.get('sequence'))
+        index = np.flatnonzero(own.valid)
+        columns = {name: np.asarray(record.signals[name], dtype=float) for name in names}
+        spans.append((index, columns, fraction))
     gap = max(1, int(round(GAP_SECONDS / reference)))
-    index, parts, split = [], {name: [] for name in names}, 0
-    position = 0
-    for order, piece in enumerate(training + heldout):
-        count = len(piece['angle'])
-        if order == len(training):
+    pieces = []
+    for index, columns, _ in spans:
+        cut = int(round(fraction * (index[-1] + 1)))
+        pieces.append((index, columns, 0, cut))
+    for index, columns, _ in spans:
+        cut = int(round(fraction * (index[-1] + 1)))
+        pieces.append((index, columns, cut, int(index[-1]) + 1))
+    grid, parts, position, split = [], {name: [] for name in names}, 0, 0
+    joins = []
+    for order, (index, columns, start, stop) in enumerate(pieces):
+        if order:
+            joins.append(np.arange(position, position + gap))
+            position += gap
+        if order == len(spans):
             split = position
-        index.append(position + np.arange(count))
+        inside = (index >= start) & (index < stop)
+        grid.append(position + index[inside] - start)
         for name in names:
-            parts[name].append(piece[name])
-        position += count + gap
-    grid = np.concatenate(index)
-    columns = {'t': grid * reference, **{name: np.concatenate(parts[name]) for name in names}}
+            parts[name].append(columns[name][inside])
+        position += stop - start
+    mask = np.zeros(position, dtype=bool)
+    mask[np.concatenate(joins)] = True
+    columns = {'t': np.concatenate(grid) * reference, **{name: np.concatenate(parts[name]) for name in names}}
     sources = ' + '.join(r.source or f'record {i + 1}' for i, r in enumerate(recordings))
-    return from_columns(columns, source=f'{sources} (joint)'), split
+    return from_columns(columns, source=f'{sources} (joint)'), split, mask, tuple(findings)
 
 
 def prepare_joint(recordings: Sequence, train_fraction: float | None = None):
@@ -158,21 +187,24 @@ def prepare_joint(recordings: Sequence, train_fraction: float | None = None):
         armature_current=columns['armature_current'], angle=columns['angle'], sample_time=sample_time,
         voltage=columns['voltage'], current=columns['current'], step_indices=np.concatenate(steps).astype(int),
         noise_rms=noise, split=int(split), motor=preps[0].motor, gate_voltage=columns['gate_voltage'],
-        findings=findings, gaps=Gaps(np.concatenate(valid), sample_time, 'joint records'),
+        findings=findings, gaps=Gaps(np.concatenate(valid), sample_time, joins=~np.concatenate(valid)),
         angle_step=max(p.angle_step for p in preps),
         voltage_ensemble=np.concatenate(ensemble, axis=1) if ensemble else None)
 
 
 def _prepare_joined(recordings: Sequence, train_fraction: float | None = None):
-    """The joined record prepared as one (records with lost samples, or of different kinds)."""
+    """The joined record prepared as one (records with lost samples, or of different kinds): the joins between the
+    records are marked as such (not lost samples), each record's own lost samples stay gaps."""
     from aeropend_core.diagnosis.compare import prepare
-    recording, split = joint_recording(recordings, train_fraction)
+    recording, split, joins, own_findings = _joined(recordings, train_fraction)
     prepared = prepare(recording)
-    # the gaps put between the records are no lost data: their finding is not reported
-    inserted = (2 * len(recordings) - 1) * max(1, int(round(GAP_SECONDS / prepared.sample_time)))
-    findings = tuple(f for f in prepared.findings if not (f.code == 'lost_samples' and f.count == inserted))
-    # the split between the records' training and held-out pieces, exactly at the gap (prepare placed it by share)
-    return dataclasses.replace(prepared, split=int(split), findings=findings)
+    if len(joins) != len(prepared.time):        # never: the grid is built from the same sample time
+        raise AeropendError('internal check: the grid of the joint record does not match its joins')
+    gaps = dataclasses.replace(prepared.gaps, joins=joins)
+    # the joined record's lost-sample finding counts the joins: the records' own findings say what was lost
+    findings = tuple(f for f in prepared.findings if f.code != 'lost_samples') + own_findings
+    # the split between the records' training and held-out pieces, exactly at the join (prepare placed it by share)
+    return dataclasses.replace(prepared, split=int(split), findings=findings, gaps=gaps)
 
 
 def diagnose_joint(recordings: Sequence, **options):

@@ -43,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='with --until-decided: at most S seconds of excitation over all runs (default 300)')
     parser.add_argument('--design-seconds', type=float, default=30.0, metavar='S',
                         help='with --until-decided: length of each designed experiment [s] (default 30, at least 20)')
+    parser.add_argument('--design-candidates', type=int, default=60, metavar='N',
+                        help='with --until-decided: random schedules each design tries before refining the best '
+                             '(half as many refinements); fewer is faster and may separate less (default 60)')
     parser.add_argument('--max-angle', type=float, default=80.0, metavar='DEG',
                         help='with --until-decided: every competing model\'s predicted angle stays below this '
                              '[deg] (default 80)')
@@ -68,6 +71,8 @@ def check_arguments(args) -> None:
     if not MIN_DURATION <= args.design_seconds <= 600:
         raise AeropendError(f'--design-seconds must be in [{MIN_DURATION:g}, 600] s (a record shorter than '
                             f'{MIN_DURATION:g} s cannot be diagnosed), got {args.design_seconds}')
+    if not 5 <= args.design_candidates <= 1000:
+        raise AeropendError(f'--design-candidates must be a whole number in [5, 1000], got {args.design_candidates}')
     if not 5 <= args.max_angle <= 90:
         raise AeropendError(f'--max-angle must be in [5, 90] deg, got {args.max_angle}')
     if args.duration > args.max_seconds:
@@ -109,11 +114,13 @@ def run_until_decided(args, run_once) -> int:
         if not args.quiet:
             print(f'  ... {message}', file=sys.stderr, flush=True)
 
-    first = args.experiment
+    first, seed = args.experiment, args.seed
     bags: list[Path] = []
 
     def play(design, schedule) -> Played:
         args.experiment = str(schedule) if schedule else first
+        # each round's simulated noise its own: with one seed every record carried the same noise sequence
+        args.seed = seed + len(bags)
         if design is not None:
             args.duration = design.schedule.duration + START_DELAY + END_MARGIN
         code, bag = run_once(args)
@@ -136,8 +143,10 @@ def run_until_decided(args, run_once) -> int:
     budget = LoopBudget(max_runs=args.max_runs, max_seconds=args.max_seconds, design_seconds=args.design_seconds,
                         duty_limit=min(0.7, args.duty_cap), angle_limit=math.radians(args.max_angle),
                         overhead_seconds=START_DELAY + END_MARGIN)
-    outcome = until_decided(play, budget, _diagnose_options(args, say), seed=args.seed, write_schedule=write,
-                            on_round=report, say=say)
+    search = {'candidates': args.design_candidates, 'refinements': max(1, args.design_candidates // 2)}
+    outcome = until_decided(play, budget, _diagnose_options(args, say), seed=seed, write_schedule=write,
+                            on_round=report, say=say, design_options=search)
+    args.seed = seed
     rounds = [{'round': r.number, 'bag': r.played.source, 'schedule': r.played.played,
                'verdict': r.diagnosis.verdict, 'message': verdict_of(r.diagnosis),
                'diagnosis': diagnosis_dict(r.diagnosis),
