@@ -3,6 +3,7 @@
 from aeropend_core.diagnosis.experiment_design import steps_to_duty
 from aeropend_core.diagnosis.joint import diagnose_joint
 from aeropend_core.io.recording import from_columns
+from aeropend_core.present.verdict_text import verdict_of
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import RigSimulator
@@ -25,4 +26,4 @@ def stream(d, s):   # the same absolute noise in both records (fixed full-scale 
     return from_columns(sim.run(d).columns(with_truth=False))
 a, b = stream(duty, seed + 1), stream(played, seed + 2)
 j = diagnose_joint([a, b], drift=False)
-print('equal absolute noise:', j.verdict, j.message, flush=True)
+print('equal absolute noise:', j.verdict, verdict_of(j), flush=True)
