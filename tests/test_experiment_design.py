@@ -348,16 +348,21 @@ def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
     assert result.returncode == 0, result.stderr[-3000:] + result.stdout[-3000:]
     loop = json.loads((tmp_path / 'loop.json').read_text())
     rounds = loop['rounds']
-    assert rounds[0]['verdict'] == 'confounded', rounds[0]['message']
-    pair = next(f for f in rounds[0]['diagnosis']['missing_effects'] if f.get('confounded_with'))
-    assert {pair['effect'], *pair['confounded_with']} == {'thrust_lag', 'angle_filter'}, pair
-    # decided by the first designed experiment when measured; a third run is allowed for an unlucky timing of the
-    # duty steps (the noise is seeded, the moment the graph applies each step is not)
-    assert len(rounds) in (2, 3) and len(loop['bags']) == len(rounds), loop['ending']
-    schedule = rounds[0]['next_schedule']
-    custom = yaml.safe_load((Path(loop['bags'][1]) / 'metadata.yaml').read_text())
-    assert custom['rosbag2_bagfile_information']['custom_data']['aeropend.experiment'] == str(Path(schedule).resolve())
-    assert read_schedule(schedule, duty_limit=0.7)[0][:, 0].max() <= 0.7
+    assert len(loop['bags']) == len(rounds), loop['ending']
+    # The noise is seeded, the moment the graph applies each duty step is not: the first record was confounded in
+    # 5 of 6 runs measured (the sixth named the lag at once); a confounded first record must lead to a designed
+    # experiment played through the graph, decided by the first design when measured (a third run allowed).
+    if rounds[0]['verdict'] == 'confounded':
+        pair = next(f for f in rounds[0]['diagnosis']['missing_effects'] if f.get('confounded_with'))
+        assert {pair['effect'], *pair['confounded_with']} == {'thrust_lag', 'angle_filter'}, pair
+        assert len(rounds) in (2, 3), loop['ending']
+        schedule = rounds[0]['next_schedule']
+        custom = yaml.safe_load((Path(loop['bags'][1]) / 'metadata.yaml').read_text())
+        assert custom['rosbag2_bagfile_information']['custom_data']['aeropend.experiment'] == \
+            str(Path(schedule).resolve())
+        assert read_schedule(schedule, duty_limit=0.7)[0][:, 0].max() <= 0.7
+    else:
+        assert len(rounds) == 1, loop['ending']
     decision = loop['decision']
     assert decision['verdict'] == 'effect_found' and decision['add'] == ['thrust_lag'], decision['message']
     found = decision['missing_effects'][0]

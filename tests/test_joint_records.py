@@ -47,3 +47,20 @@ def test_record_joins_are_not_lost_samples_and_a_real_gap_stays_one():
     joined, split = joint_recording([first, lossy])
     steps = np.rint(np.diff(joined.time) / np.median(np.diff(joined.time))).astype(int)
     assert sorted(steps[steps > 1] - 1)[0] == 25
+
+
+def test_the_motor_search_is_not_run_across_record_joins():
+    """The motor equation's search simulates one observer state through the record; across a join it would run the
+    first record's motor fit over the second record (its switch positions one record long: the compiled observer
+    read past their end and `aeropend run --until-decided` died of a segmentation fault in round 2)."""
+    from aeropend_core.diagnosis.motor_discovery import _simulate, discover_motor
+    prepared = prepare_joint([record(1), record(2)])
+    found = discover_motor(prepared)
+    assert found.terms == [] and 'one record at a time' in found.note, found.note
+    n = 50
+    try:
+        _simulate(np.zeros(8), -1, np.zeros(n), np.zeros(n), np.zeros(n - 1), 1 / 490)
+    except ValueError as error:
+        assert 'differ in length' in str(error)
+    else:
+        raise AssertionError('a switch array shorter than Va must be refused, not read past its end')

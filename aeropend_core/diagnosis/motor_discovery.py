@@ -306,6 +306,9 @@ def _window(prep, voltage, switch, valid, x0):
 
 
 def _simulate(x, code, voltage, slow, switch, sample_time):
+    if not voltage.size == np.size(slow) == np.size(switch):     # the compiled kernel does not check its indices
+        raise ValueError(f'motor observer: Va, slow signal and switch positions differ in length '
+                         f'({voltage.size}, {np.size(slow)}, {np.size(switch)})')
     current, emf = np.empty(voltage.size), np.empty(voltage.size)
     _observer_kernel(np.asarray(x, dtype=float), int(code), voltage, slow, switch, sample_time, SUBSTEPS, current,
                      emf)
@@ -401,6 +404,10 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
     if prep.reduced:
         return MotorDiscovery(note='the armature current is not recorded (reduced model): the motor equation was not '
                                    'searched')
+    if prep.gaps is not None and prep.gaps.joins is not None and np.any(prep.gaps.joins):
+        # one observer state runs through the whole search, and each record's motor starts afresh
+        return MotorDiscovery(note='several records diagnosed together: the motor equation is searched on one record '
+                                   'at a time (diagnose each record alone for it)')
     started = _starting_observer(prep)
     if started is None:
         return MotorDiscovery(note='the motor observer could not be fitted: the motor equation was not searched')
