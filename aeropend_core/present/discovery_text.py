@@ -10,6 +10,11 @@ import math
 import shlex
 
 
+
+def _coefficient(term) -> tuple[float, float]:
+    """The term's output-error coefficient and σ [its unit], or the weak form's when it was not refitted."""
+    return (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient, term.weak_sigma)
+
 def term_text(term) -> str:
     """'c * EXPRESSION with c = value +- sigma UNIT' for a :class:`~aeropend_core.diagnosis.discovery.DiscoveredTerm`.
 
@@ -23,8 +28,7 @@ def term_text(term) -> str:
     str
         The term as the pendulum equation reads it, SI units.
     """
-    value, sigma = (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient,
-                                                                               term.weak_sigma)
+    value, sigma = _coefficient(term)
     return f'dW/dt += c * {term.term.expression} with c = {value:.4g} +- {sigma:.2g} {term.term.unit}'
 
 
@@ -109,8 +113,7 @@ def motor_term_text(term) -> str:
     str
         The term as the armature circuit reads it, SI units.
     """
-    value, sigma = (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient,
-                                                                               term.weak_sigma)
+    value, sigma = _coefficient(term)
     return (f'La dIa/dt = Va - R Ia - e + c * {term.term.expression} with c = {value:.4g} +- {sigma:.2g} '
             f'{term.term.unit}')
 
@@ -208,8 +211,7 @@ def _html_number(value: float, digits: int = 2, scale: float = 1.0, suffix: str 
 
 
 def _coefficient_html(term) -> str:
-    value, sigma = (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient,
-                                                                               term.weak_sigma)
+    value, sigma = _coefficient(term)
     estimator = '' if math.isfinite(term.value) else ' <small>(weak form only)</small>'
     sigma_text = f' &plusmn; {sigma:.2g}' if math.isfinite(sigma) else ' &plusmn; unknown'
     return f'{value:.4g}{sigma_text} {html.escape(term.term.unit)}{estimator}'
@@ -305,8 +307,7 @@ def motor_html(motor) -> str:
     esc = html.escape
     rows = []
     for term in motor.terms:
-        value, sigma = (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient,
-                                                                                   term.weak_sigma)
+        value, sigma = _coefficient(term)
         pendulum = (f'; pendulum {_html_number(term.pendulum_excess_before, 2, 1e3)} &rarr; '
                     f'{_html_number(term.pendulum_excess_after, 2, 1e3)}&nbsp;mrad'
                     if math.isfinite(term.pendulum_excess_after) else '')
