@@ -45,7 +45,8 @@ DISCOVERY_TIMEOUT = 30.0
 WORKER_START_TIMEOUT = 300.0
 SAMPLES = '/drift_test/samples'
 WINDOW_S = 20.0
-HOP_S = 5.0
+#: A window every 10 s: the drift test uses windows that do not overlap, so a denser hop adds run time, not power.
+HOP_S = 10.0
 #: Publishing speed against real time (lost samples would be filled and flagged, which the test also checks).
 SPEED = 5.0
 DRIFT_SECONDS, DRIFT = 240.0, 0.20
@@ -173,7 +174,7 @@ def test_node_reports_a_sagging_thrust_gain_as_drift_and_a_clean_record_as_none(
 
     # ---- the sagging gain: named as drift, sized within 5 points of the truth over the tested span
     gain = [drift_estimates['thrust_gain'][s] for s in sorted(drift_estimates['thrust_gain'])]
-    assert len(gain) >= 40, output                      # 45 windows due; a refused one (lost samples) is said
+    assert len(gain) >= 21, output                      # 23 windows due; a refused one (lost samples) is said
     flagged = [e for e in gain if e.drifting]
     assert flagged, [(e.trend_change, e.drifting) for e in gain]
     warned = [(m, v) for m, level, v in drift_statuses if v.get('drift', 'none') != 'none']
@@ -192,7 +193,7 @@ def test_node_reports_a_sagging_thrust_gain_as_drift_and_a_clean_record_as_none(
     # ---- the clean record: the trend is tested, no drift on any parameter in any window
     clean_estimates = {name: [e for s, e in table.items() if s >= clean_origin]
                        for name, table in feeder.estimates.items()}
-    assert len(clean_estimates['thrust_gain']) >= 25, output        # 29 windows due
+    assert len(clean_estimates['thrust_gain']) >= 13, output        # 15 windows due
     for name, estimates in clean_estimates.items():
         assert not any(e.drifting for e in estimates), (name, [e.trend_change for e in estimates])
     tested = [e for e in clean_estimates['thrust_gain'] if math.isfinite(e.trend_change)]
