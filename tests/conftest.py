@@ -93,7 +93,8 @@ def pytest_collection_modifyitems(config, items):
         functions = [function] + [d.func for defs in fixtures.values() for d in defs]
         module = getattr(item, 'module', None)
         ros = (module is not None and _source_matches(module, _ROS_MODULE)) or any(
-            f is not None and _source_matches(f, _ROS_USE) for f in functions)
+            f is not None and _source_matches(f, _ROS_USE) for f in functions) \
+            or item.get_closest_marker('ros') is not None          # marked per case (a docs block that runs a graph)
         if ros:
             item.add_marker(pytest.mark.ros)
         if ros or any(f is not None and _source_matches(f, _REAL_TIME) for f in functions):

@@ -184,6 +184,15 @@ def block_marks(script: str) -> list:
     return marks
 
 
+def docs_environment() -> dict[str, str]:
+    """The environment of a docs block: this host's ROS settings on a private domain (a block that runs the graph
+    meets no other test's nodes). Kept out of the test's own source, so that tests/conftest.py puts only the blocks
+    marked `ros` above (a graph, a node) in the real-time group, not every block."""
+    from aeropend_ros._ros_env import local_ros_environment
+    from tests.ros_helpers import private_domain_id
+    return local_ros_environment(domain_id=private_domain_id())
+
+
 def test_not_run_blocks_are_few_and_say_why():
     skipped = [(rel(page), line, reason) for page, line, _, _, reason in ALL_BLOCKS if reason is not None]
     assert all(len(reason) > 15 for _, _, reason in skipped), skipped
@@ -193,9 +202,7 @@ def test_not_run_blocks_are_few_and_say_why():
 @pytest.mark.parametrize('script, where', [pytest.param(script, where, id=where, marks=block_marks(script))
                                            for script, where in RUN_BLOCKS.items()])
 def test_every_command_in_the_docs_runs(tmp_path, script, where):
-    from aeropend_ros._ros_env import local_ros_environment
-    from tests.ros_helpers import private_domain_id
-    env = local_ros_environment(domain_id=private_domain_id())
+    env = docs_environment()
     venv_bin = Path(sys.executable).parent
     env['PATH'] = os.pathsep.join([str(venv_bin), env.get('PATH', '')])       # as after source .venv/bin/activate
     env['PYTHONPATH'] = os.pathsep.join([str(ROOT), env.get('PYTHONPATH', '')])
