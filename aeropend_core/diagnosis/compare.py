@@ -331,10 +331,12 @@ def gate_thresholds(prep: PreparedRecord) -> np.ndarray:
 
 def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str, float] | None = None,
               data: SegmentedData | None = None, fixed: dict[str, float] | None = None,
-              initial_states: np.ndarray | None = None) -> OutputErrorFit:
+              initial_states: np.ndarray | None = None, search_basins: bool = True) -> OutputErrorFit:
     """Output-error fit of nominal + `effects` on the training segments (or `data`).
 
     A thrust gate's threshold is profiled over the input levels present (the residual is flat between them).
+    A lag's time constant or an offset is searched over its other basins unless `search_basins` is false (a fit
+    warm-started from a neighbouring fit's values, whose basin is already chosen).
     `fixed` holds parameters at known values (SI; e.g. a hardware filter's delay). `initial_states` [rad, rad/s]
     start the segments' states on long records (see :func:`fit_output_error`).
     """
@@ -351,7 +353,7 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     if gate is None:
         fit_from = partial(fit_output_error, data, structure, fixed=fixed_base, initial_states=initial_states)
         fit = fit_from(values)
-        for kind in PROFILED:        # a nonlinear time constant or offset: search its whole range
+        for kind in PROFILED if search_basins else ():   # a nonlinear time constant or offset: its whole range
             name = kernel_parameter(structure.effects, kind)
             if name is not None and name not in fixed_base:
                 return search_lag_basins(prep, fit_from, values, name, fit, kind)

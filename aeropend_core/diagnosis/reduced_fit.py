@@ -88,7 +88,7 @@ def profile_motor_map(prep, effects=(), start=None, fixed=None):
         trial = with_map(prep, time_constant, curvature)
         data = _subset(trial.train, PROFILE_SECONDS)
         try:
-            fit = fit_model(trial, model, start=start, data=data, fixed=fixed)
+            fit = fit_model(trial, model, start=warm or start, data=data, fixed=fixed, search_basins=not warm)
         except (InsufficientDataError, ValueError, FloatingPointError, np.linalg.LinAlgError):
             return math.inf
         cache[tuple(np.round(x, 12))] = fit
@@ -96,11 +96,17 @@ def profile_motor_map(prep, effects=(), start=None, fixed=None):
 
     model = tuple(effects) + tuple(n for n in PROFILE_NUISANCE if n not in effects and n not in (fixed or {}))
     cache: dict = {}
+    warm: dict[str, float] = {}
     grid = [np.array([math.log(t), q]) for t in TIME_CONSTANT_GRID for q in CURVATURE_GRID]
     if prep.motor_map:
         grid = [np.array([math.log(prep.motor_map['motor_time_constant']), prep.motor_map['voltage_map_curvature']])]
     scores = [rss(x) for x in grid]
     best = grid[int(np.argmin(scores))]
+    # The grid's fits search every basin of an offset or a lag; the local search around the best grid point moves
+    # the map a little, so each of its fits starts from that point's fit, in its basin (a basin search per
+    # evaluation was three quarters of a reduced diagnosis' time).
+    best_fit = cache.get(tuple(np.round(best, 12)))
+    warm = dict(best_fit.parameters) if best_fit is not None else {}
     result = minimize(rss, best, method='Nelder-Mead',
                       options={'maxfev': SEARCH_EVALUATIONS, 'xatol': SEARCH_RESOLUTION, 'fatol': 1e-6 * min(scores)})
     x = result.x if result.fun <= min(scores) else best
