@@ -25,6 +25,12 @@ from pathlib import Path
 
 import pytest
 
+from aeropend_core.blas import single_blas_thread
+
+# One BLAS thread in the test processes, as in the CLI: two test workers with OpenBLAS's two threads each, beside the
+# real-time graphs, made a 2 ms product wait half a second for descheduled threads (aeropend_core/blas.py).
+_ONE_BLAS_THREAD = single_blas_thread().__enter__()
+
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 for _threads in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'NUMBA_NUM_THREADS'):
     os.environ.setdefault(_threads, '1')            # before numpy is first imported (test modules import it later)

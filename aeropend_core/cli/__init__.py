@@ -216,6 +216,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     prefix = f'aeropend {args.verb}'
+    from aeropend_core.blas import single_blas_thread
+    with single_blas_thread():
+        return _run_verb(args, prefix)
+
+
+def _run_verb(args, prefix: str) -> int:
+    """Run the parsed verb; a user's mistake becomes one line and an exit status, never a traceback."""
     if debug_enabled():
         return int(args._main(args) or 0)
     with warnings.catch_warnings():
