@@ -37,7 +37,9 @@ catalog). Nominal parameters are also fitted per segment and tested for a trend 
 :mod:`aeropend_core.diagnosis.drift`).
 
 :func:`diagnose` composes the stages of :mod:`aeropend_core.diagnosis.stages` (prepare -> compare -> catalog search ->
-discovery -> drift -> verdict), each a function with a typed result.
+discovery -> drift -> verdict), each a function with a typed result (docs/pipeline.md). When the motor equation's
+discovery proves a term, the compare, catalog-search and pendulum-discovery stages run again on the thrust input
+rebuilt with it: a set chosen on the uncorrected input is the motor term's shadow.
 """
 from __future__ import annotations
 
@@ -55,7 +57,7 @@ from aeropend_core.diagnosis.doubts import rate_doubts, unresolvable
 from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the search's constants and Found)
     CONFOUNDING_FACTOR, DEFAULT_EXPERIMENT, DISCOVERY_NOISE, MAX_EFFECTS, RETRY_NOISE, UNEXPLAINED_NOISE,
     UPRIGHT_WARNING, Found, VerdictFacts, _finite, catalog_stage, compare_stage, discovery_stage, drift_stage,
-    excitation_advice, prepare_stage, separating_experiment, verdict_stage)
+    excitation_advice, prepare_stage, rerun_on_corrected_input, separating_experiment, verdict_stage)
 from aeropend_core.io.recording import Recording
 
 
@@ -264,7 +266,8 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     discovery : bool [-]
         Run the discovery stage (:mod:`aeropend_core.diagnosis.discovery`) when the best catalog set leaves error
         beyond the noise or is suspect: a term outside the catalog, proven by the same evidence; and the motor
-        equation's (:mod:`aeropend_core.diagnosis.motor_discovery`).
+        equation's (:mod:`aeropend_core.diagnosis.motor_discovery`), whose proven term rebuilds the thrust input
+        the rest of the diagnosis is run on again.
 
     Returns
     -------
@@ -279,12 +282,15 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     compared = compare_stage(prepared, say)
     catalog = catalog_stage(prepared, compared, say)
     discovered = discovery_stage(prepared, catalog, discovery, say)
+    rerun = rerun_on_corrected_input(prepared, catalog, discovered, say)
+    if rerun is not None:       # a proven motor term: the stages again on the thrust input rebuilt with it
+        prepared, compared, catalog, discovered = rerun.prepared, rerun.compared, rerun.catalog, rerun.discovered
     drifted = drift_stage(catalog, drift, say)
-    decided = verdict_stage(catalog, discovered, drifted)
+    decided = verdict_stage(catalog, discovered, drifted, input_corrected=rerun is not None)
     return check_diagnosis(Diagnosis(
         effects=prepared.effects, current=catalog.current, candidates=catalog.results,
         missing_effect=decided.missing, verdict=decided.verdict, facts=decided.facts,
-        notes=list(decided.notes),
+        notes=([rerun.note] if rerun is not None else []) + list(decided.notes),
         before=compared.before, residual_structure=list(decided.structure), prepared=catalog.prep,
         seconds=time.perf_counter() - started, found=list(catalog.found), selected=catalog.selected,
         drift=list(drifted.rows), fixed=prepared.held, fixed_from=prepared.held_from, discovery=discovered.pendulum,

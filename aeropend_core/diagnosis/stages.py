@@ -446,10 +446,13 @@ class Rerun:
 def rerun_on_corrected_input(prepared: Prepared, catalog: CatalogResult, discovered: Discovered,
                              say: Say) -> Rerun | None:
     """Run the compare, catalog and pendulum-discovery stages again on ``discovered.corrected`` (None: nothing to
-    run again on). The corrected observer's current error is the motor term's refit's."""
+    run again on, or the rebuilt input leaves the pendulum further from the data). The corrected observer's current
+    error is the motor term's refit's."""
     if discovered.corrected is None or discovered.motor is None or not discovered.motor.proven:
         return None
     term = discovered.motor.proven[0]
+    if not term.pendulum_excess_after <= term.pendulum_excess_before:
+        return None         # the term explains the current but not the speed: the pendulum keeps the first input
     corrected = discovered.corrected
     noise = discovered.motor.noise_rms
     if corrected.motor is not None and math.isfinite(noise) and math.isfinite(term.excess_after):
@@ -521,6 +524,9 @@ class VerdictFacts:
         The experiment that shows the first of them (the catalog's record).
     discovery, motor : Discovery, MotorDiscovery or None
         The discovery stage's results (pendulum and motor equations).
+    motor_input_corrected : bool
+        The model was fitted and searched on the thrust input rebuilt with the motor's proven term
+        (:func:`rerun_on_corrected_input`).
     reduced_rate_hz : float or None [Hz]
         The rate of a reduced-model record whose own error at that rate is unmeasured.
     prefix : str
@@ -542,6 +548,7 @@ class VerdictFacts:
     reduced_rate_hz: float | None = None
     motor: object = None
     prefix: str = ''
+    motor_input_corrected: bool = False
 
 
 @dataclass(frozen=True)
@@ -556,8 +563,10 @@ class Decided:
     structure: tuple
 
 
-def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drifted) -> Decided:
-    """Decide the verdict from the stages' results (the words: :mod:`aeropend_core.present.verdict_text`)."""
+def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drifted,
+                  input_corrected: bool = False) -> Decided:
+    """Decide the verdict from the stages' results (the words: :mod:`aeropend_core.present.verdict_text`);
+    `input_corrected`: they were run on the thrust input rebuilt with the motor's proven term."""
     from aeropend_core.diagnosis.drift import drift_message
     prep, final, current, found, steps = catalog.prep, catalog.final, catalog.current, catalog.found, catalog.steps
     model, results, reference, remainder = catalog.model, catalog.results, catalog.reference, catalog.remainder
@@ -614,7 +623,8 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
         excess_final=catalog.excess_final, within_noise=UNEXPLAINED_NOISE * noise, structure=tuple(structure),
         drift_text=drift_message(drifting, final) if drifting else '', heldout_only=tuple(heldout_only),
         heldout_advice=excitation_advice(heldout_only[0].effect) if heldout_only else '', discovery=found_terms,
-        explained_below=UNEXPLAINED_NOISE * reference, reduced_rate_hz=reduced_rate, motor=motor_terms)
+        explained_below=UNEXPLAINED_NOISE * reference, reduced_rate_hz=reduced_rate, motor=motor_terms,
+        motor_input_corrected=input_corrected)
     if found and verdict in ('effect_found', 'confounded'):
         for f in found:
             step = next(c for c, _ in steps if c.effect == f.effect)
