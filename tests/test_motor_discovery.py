@@ -5,7 +5,8 @@ Data: 60 s of Latin-hypercube duty steps (duty <= 0.7), PSNR 40 dB on Va, Ia and
 from the rig simulator with one motor effect outside the catalog (aeropend_core.testing.motor_rigs). Tolerances
 stated once: the proven term is the physics' own (a brush drop is ``sign(current)``), its coefficient within 10 % of
 the simulated drop, and the current's held-out error beyond its noise falls below HALF the noise; the same record
-without the effect proves nothing.
+without the effect proves nothing. The whole diagnosis of the brush-drop record, run again on the thrust input rebuilt
+with the term, selects no catalog effect and leaves the angle's error beyond its noise below HALF the noise.
 """
 from types import SimpleNamespace
 
@@ -13,7 +14,8 @@ import numpy as np
 import pytest
 
 from aeropend_core.diagnosis import motor_discovery
-from aeropend_core.diagnosis.compare import prepare
+from aeropend_core.diagnosis.compare import excess_error, prepare
+from aeropend_core.diagnosis.diagnose import diagnose
 from aeropend_core.diagnosis.motor_discovery import MOTOR_VOCABULARY, _simulate, discover_motor
 from aeropend_core.io.recording import from_columns
 from aeropend_core.sim.excitation import lhc_schedule
@@ -71,6 +73,14 @@ def test_a_brush_drop_is_found_in_the_motor_equation_and_a_clean_motor_proposes_
     assert best.excess_after < HALF * found.noise_rms < best.excess_before
     entry = best.to_dict()
     assert entry['equation_of'] == 'motor' and entry['parameters']['motor_current_sign_coefficient']['unit'] == 'V'
+    # the diagnosis runs the catalog search again on the thrust input rebuilt with the term: a record with only a brush
+    # drop misses nothing else (on the uncorrected input the search chose catalog effects: the term's shadow)
+    diagnosis = diagnose(prep, drift=False)
+    assert diagnosis.verdict == 'term_discovered' and diagnosis.found == [], (diagnosis.verdict, diagnosis.notes)
+    assert diagnosis.facts.motor_input_corrected
+    assert diagnosis.motor_discovery.proven[0].term.expression == 'sign(current)'
+    assert any('rebuilt with the motor term sign(current)' in note for note in diagnosis.notes), diagnosis.notes
+    assert excess_error(diagnosis.final.rms_error, diagnosis.noise_rms) < HALF * diagnosis.noise_rms
     clean = discover_motor(prepare(record()))
     assert not clean.proven, [(t.term.expression, t.status) for t in clean.terms]
     # a long record is searched on a window around its split (here 40 s of the 60 s), and says so

@@ -118,13 +118,15 @@ def motor_term_text(term) -> str:
             f'{term.term.unit}')
 
 
-def motor_sentence(motor) -> str:
+def motor_sentence(motor, input_corrected: bool = False) -> str:
     """The verdict's sentence about a term proven in the motor equation ('' when none was).
 
     Parameters
     ----------
     motor : MotorDiscovery [-]
         The motor equation's discovery (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscovery`).
+    input_corrected : bool [-]
+        The pendulum's model was fitted and searched again on the thrust input rebuilt with the term.
 
     Returns
     -------
@@ -148,8 +150,10 @@ def motor_sentence(motor) -> str:
                   ': worse, so the term explains the current but not the motor\'s speed (the torque side of the '
                   'same effect may be missing too); the pendulum keeps the uncorrected observer\'s thrust input.')
                if math.isfinite(best.pendulum_excess_after) else '')
-            + ' Not yet addable from the command line: the pendulum\'s parameters above were fitted with the '
-            'uncorrected observer.')
+            + (' The pendulum\'s parameters and the catalog search above are those on that rebuilt input. Not yet '
+               'addable from the command line.' if input_corrected else
+               ' Not yet addable from the command line: the pendulum\'s parameters above were fitted with the '
+               'uncorrected observer.'))
 
 
 def motor_lines(motor) -> list[str]:

@@ -41,7 +41,8 @@ def size_text(found) -> str:
 def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_current: float, excess_final: float,
                     within_noise: float, structure: Sequence[dict] = (), drift_text: str = '',
                     heldout_only: Sequence = (), heldout_advice: str = '', discovery=None,
-                    explained_below: float = math.inf, reduced_rate_hz: float | None = None, motor=None) -> str:
+                    explained_below: float = math.inf, reduced_rate_hz: float | None = None, motor=None,
+                    motor_input_corrected: bool = False) -> str:
     """The verdict's message for `verdict` (the diagnosis's decision), numbers in mrad and SI units.
 
     Parameters
@@ -75,6 +76,8 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
         The sample rate of a reduced-model record whose own error at that rate is unmeasured (``'unexplained'``).
     motor : MotorDiscovery, optional [-]
         The motor equation's discovery; its sentence is appended when it proved a term.
+    motor_input_corrected : bool [-]
+        The model was fitted and searched again on the thrust input rebuilt with the motor's proven term.
 
     Returns
     -------
@@ -129,11 +132,11 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
     motor_led = (verdict == 'term_discovered' and motor is not None and bool(motor.proven)
                  and not (discovery is not None and discovery.proven))
     if motor_led:       # the motor equation's term is the verdict: the pendulum's own search is not the news
-        message = (message + ' ' + motor_sentence(motor)).strip()
+        message = (message + ' ' + motor_sentence(motor, motor_input_corrected)).strip()
     elif discovery is not None:
         message = (message + ' ' + discovery_sentence(discovery, noise_rms, explained_below)).strip()
     if motor is not None and motor.proven and not motor_led:
-        message = (message + ' ' + motor_sentence(motor)).strip()
+        message = (message + ' ' + motor_sentence(motor, motor_input_corrected)).strip()
     if verdict == 'unexplained' and reduced_rate_hz is not None:
         message += (f' At {reduced_rate_hz:.4g} Hz the reduced model\'s own error has not been measured: part '
                     'or all of this remainder can be that model\'s limit at this rate, not a missing effect (a record '
@@ -160,7 +163,7 @@ def verdict_of(diagnosis) -> str:
         excess_final=facts.excess_final, within_noise=facts.within_noise, structure=facts.structure,
         drift_text=facts.drift_text, heldout_only=facts.heldout_only, heldout_advice=facts.heldout_advice,
         discovery=facts.discovery, explained_below=facts.explained_below, reduced_rate_hz=facts.reduced_rate_hz,
-        motor=facts.motor)
+        motor=facts.motor, motor_input_corrected=facts.motor_input_corrected)
 
 
 def diagnosis_dict(diagnosis) -> dict:
