@@ -48,6 +48,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
+from aeropend_core.blas import single_blas_thread
 from aeropend_core.diagnosis.candidates import (  # noqa: F401  (re-exported: the evidence's thresholds)
     BIC_MARGIN, CORRELATION_LIMIT, DM_MIN, DM_WEAK, MAJOR_SHARE, MATERIAL, NOISE_ESTIMATE_VARIANCE, T_MIN, Candidate,
     assess, beyond_spread)
@@ -276,6 +277,12 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         set to add), ``verdict``, ``facts`` (the verdict's numbers, worded by
         :func:`aeropend_core.present.verdict_text.verdict_of`) and ``notes``; angles in rad, parameters SI.
     """
+    with single_blas_thread():          # small matrices: BLAS's own threads only wait on a busy machine
+        return _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from, discovery)
+
+
+def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from, discovery) -> Diagnosis:
+    """The stages of :func:`diagnose` (same arguments), run in order."""
     started = time.perf_counter()
     say = progress or (lambda message: None)
     prepared = prepare_stage(recording, effects, candidates, fixed, fixed_from, say)
