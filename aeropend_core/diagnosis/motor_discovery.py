@@ -41,7 +41,7 @@ from threadpoolctl import threadpool_limits
 
 from aeropend_core.diagnosis.candidates import BIC_MARGIN, DM_MIN, DM_WEAK, MAJOR_SHARE, MATERIAL, T_MIN
 from aeropend_core.diagnosis.compare import PreparedRecord, excess_error
-from aeropend_core.diagnosis.evidence import diebold_mariano, effective_samples, hac_covariance
+from aeropend_core.diagnosis.evidence import diebold_mariano, effective_samples, hac_covariance, input_covariance
 from aeropend_core.errors import AeropendError, InsufficientDataError
 
 #: Time constant [s] of the dissipated-power proxy (the winding's thermal lag; tens of seconds for a small motor).
@@ -315,8 +315,48 @@ def _simulate(x, code, voltage, slow, switch, sample_time):
     return current, emf
 
 
-def _fit(prep, x0, code, coefficient, voltage, slow, switch, train, heldout) -> MotorFitResult:
-    """Output-error fit of the observer (+ term `code` when >= 0) on the `train` samples."""
+#: A change of one Va level is followed for this long [s] after its interval ends (the motor's speed settles within
+#: a fraction of a second; beyond it the change of the current is below the simulation's rounding).
+LEVEL_HORIZON = 5.0
+
+
+def _intervals(voltage: np.ndarray) -> np.ndarray:
+    """Boundaries [samples] of the stepped Va's intervals of one level: 0, each change, n."""
+    return np.concatenate(([0], np.flatnonzero(np.diff(voltage) != 0) + 1, [voltage.size]))
+
+
+def _level_changes(x, code, voltage, slow, switch, sample_time, level_sigma, bounds):
+    """d current / d level of each Va interval times its level's standard error [A], shape (levels, n).
+
+    Each interval's level is moved by `level_sigma` [V] alone and the observer simulated from its start (state of
+    the unmoved run there) for the interval plus :data:`LEVEL_HORIZON`; zero elsewhere."""
+    current, emf = _simulate(x, code, voltage, slow, switch, sample_time)
+    horizon = int(round(LEVEL_HORIZON / sample_time))
+    changes = np.zeros((len(bounds) - 1, voltage.size))
+    for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+        if not level_sigma[j] > 0:
+            continue
+        stop = min(int(b) + horizon, voltage.size)
+        moved = voltage[a:stop].copy()
+        moved[:b - a] += level_sigma[j]
+        if a > 0:       # the switch into this level sits in the previous sample: start there, on the old level
+            a -= 1
+            moved = np.concatenate(([voltage[a]], moved))
+        start = np.array(x, dtype=float)
+        start[5], start[6] = current[a], emf[a]
+        shifted, _ = _simulate(start, code, moved, slow[a:stop], switch[a:stop], sample_time)
+        changes[j, a:stop] = shifted - current[a:stop]
+    return changes
+
+
+def _fit(prep, x0, code, coefficient, voltage, slow, switch, train, heldout, level_sigma=None) -> MotorFitResult:
+    """Output-error fit of the observer (+ term `code` when >= 0) on the `train` samples.
+
+    The parameters' covariance is a sandwich with the scores summed over each interval of one Va level (the
+    current's noise held at a level -- an ADC that does not dither -- or slow, as in the observer's own standard
+    errors, :func:`aeropend_core.signals.motor.back_emf_ensemble`) plus, with `level_sigma` [V] (one per interval of
+    :func:`_intervals`), the spread the error of each stepped Va level causes: the fit treats the levels as exact,
+    and a voltage term (a constant, a brush drop) is nearly an offset of every level."""
     free = 8 if code >= 0 else 7
     start = np.append(np.asarray(x0, dtype=float)[:7], coefficient)
     scale = np.maximum(np.abs(start), np.array([0.1, 1e-4, 1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3]))
@@ -341,7 +381,12 @@ def _fit(prep, x0, code, coefficient, voltage, slow, switch, train, heldout) -> 
     x = full(result.x)
     current, emf = _simulate(x, code, voltage, slow, switch, prep.sample_time)
     r = result.fun
-    covariance_z = hac_covariance(result.jac, r)
+    bounds = _intervals(voltage)
+    labels = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))[train]
+    covariance_z = hac_covariance(result.jac, r, groups=labels, width=r.size)
+    if level_sigma is not None:
+        changes = _level_changes(x, code, voltage, slow, switch, prep.sample_time, level_sigma, bounds)[:, train]
+        covariance_z = covariance_z + input_covariance(result.jac, changes) * changes.shape[0]
     covariance = covariance_z * np.outer(scale[:free], scale[:free])
     return MotorFitResult(x, current, emf, float(np.sqrt(np.mean(r ** 2))),
                           prep.armature_current[heldout] - current[heldout], effective_samples(r), covariance)
@@ -412,6 +457,8 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
     if started is None:
         return MotorDiscovery(note='the motor observer could not be fitted: the motor equation was not searched')
     x0, voltage, switch, noise = started
+    from aeropend_core.signals.preprocess import noise_rms
+    voltage_noise = noise_rms(np.asarray(prep.armature_voltage, dtype=float))     # the measured Va's [V]
     valid = prep.gaps.valid if prep.gaps is not None else np.ones(voltage.size, dtype=bool)
     full_length = voltage.size
     prep, voltage, switch, valid, x0 = _window(prep, voltage, switch, valid, x0)
@@ -422,6 +469,8 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
     if train.sum() < 100 or heldout.sum() < 100:
         return MotorDiscovery(note='too little data on either side of the split to search the motor equation')
     zero = np.zeros(n)
+    # each stepped Va level is the median of its interval's samples: standard error 1.2533 sigma / sqrt(length)
+    level_sigma = 1.2533 * voltage_noise / np.sqrt(np.maximum(np.diff(_intervals(voltage)), 1))
     say('discovery: sparse regression of the motor equation\'s discrepancy (weak form)')
     screened = _weak_screen(prep, x0, voltage, switch, MOTOR_VOCABULARY, noise)
     # the weak form's own significance guard is the gate: the output-error refits run only for terms that stand out
@@ -450,7 +499,8 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
             continue
         say(f'discovery: refitting the motor observer with {term.expression}')
         slow = heat if term.code == 5 else (time if term.code == 6 else zero)
-        augmented = _fit(prep, base.solution, term.code, value, voltage, slow, switch, train, heldout)
+        augmented = _fit(prep, base.solution, term.code, value, voltage, slow, switch, train, heldout,
+                         level_sigma)
         _judge(entry, base, augmented, noise, beyond)
     outcome.terms.sort(key=lambda t: (t.status != 'proven', t.excess_after if math.isfinite(t.excess_after)
                                       else math.inf))
