@@ -14,7 +14,8 @@ import pytest
 
 from aeropend_core.diagnosis import motor_discovery
 from aeropend_core.diagnosis.compare import prepare
-from aeropend_core.diagnosis.motor_discovery import MOTOR_VOCABULARY, _simulate, discover_motor
+from aeropend_core.diagnosis.motor_discovery import MOTOR_VOCABULARY, _simulate, discover_motor, with_motor_term
+from aeropend_core.errors import AeropendError
 from aeropend_core.io.recording import from_columns
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
@@ -71,6 +72,19 @@ def test_a_brush_drop_is_found_in_the_motor_equation_and_a_clean_motor_proposes_
     assert best.excess_after < HALF * found.noise_rms < best.excess_before
     entry = best.to_dict()
     assert entry['equation_of'] == 'motor' and entry['parameters']['motor_current_sign_coefficient']['unit'] == 'V'
+    # its add (aeropend diagnose FILE --motor-term 'sign(current)') puts it in the observer: the current's error
+    # beyond the noise falls as the search said, and the term is reported as given, not proposed again
+    assert entry['add'] == ['--motor-term', 'sign(current)']
+    added = with_motor_term(prep, entry['add'][1])
+    kept = added.motor_term
+    assert kept.current_excess_after < HALF * found.noise_rms < kept.current_excess_before
+    assert kept.value == pytest.approx(best.value, rel=0.02) and kept.sigma == pytest.approx(best.sigma, rel=0.2)
+    assert added.motor is not None and added.motor.adequate and added.motor_term is kept
+    again = discover_motor(added)
+    assert not again.terms and again.added is kept and '--motor-term' in again.note
+    assert again.to_dict()['added_term']['error_beyond_noise_after'] == pytest.approx(kept.current_excess_after)
+    with pytest.raises(AeropendError, match="'sign\\(current\\)'"):
+        with_motor_term(prep, 'sign(curent)')
     clean = discover_motor(prepare(record()))
     assert not clean.proven, [(t.term.expression, t.status) for t in clean.terms]
     # a long record is searched on a window around its split (here 40 s of the 60 s), and says so

@@ -23,9 +23,14 @@ pendulum sees. Records without the current (the reduced model) skip it and say s
 
 The proven term is reported with ``c ± σ`` [SI], the current's held-out error beyond its noise before -> after and a
 physical reading; :func:`pendulum_with_term` rebuilds the pendulum's thrust input from the corrected observer and
-refits the pendulum, so the verdict can say how much of the angle's error the motor term explains. It has no
-command-line arguments yet (``add`` is empty), and a record longer than :data:`WINDOW_SECONDS` is searched on a
-window around its split (the pendulum is then not refitted).
+refits the pendulum, so the verdict can say how much of the angle's error the motor term explains. Its ``add``
+(``--motor-term EXPRESSION``) puts it in the observer for the whole diagnosis (:func:`with_motor_term`: the pendulum
+is then fitted with the corrected back-EMF as its thrust input, and the search reports the term instead of searching
+a second one). A record longer than :data:`WINDOW_SECONDS` is searched on a window around its split (the pendulum is
+then not refitted).
+
+The coefficient's σ is a sandwich with the scores summed over each interval of one Va level, plus the spread the
+stepped Va levels' own errors cause (:func:`_fit`); bench/bench_motor_coverage.py checks it against known truth.
 """
 from __future__ import annotations
 
@@ -213,8 +218,8 @@ class MotorDiscoveredTerm:
 
     @property
     def add(self) -> list[str]:
-        """Command-line arguments that add it (none yet: the motor term is not carried into the pendulum fit)."""
-        return []
+        """Command-line arguments that put it in the motor observer (``aeropend diagnose FILE --motor-term ...``)."""
+        return ['--motor-term', self.term.expression]
 
     def to_dict(self) -> dict:
         def finite(x):
@@ -244,15 +249,72 @@ class MotorDiscovery:
     note: str = ''
     noise_rms: float = math.nan
     excess_before: float = math.nan
+    #: The term given with ``--motor-term`` (:class:`AddedMotorTerm`), in the observer before the search.
+    added: AddedMotorTerm | None = None
 
     @property
     def proven(self) -> list[MotorDiscoveredTerm]:
         return [t for t in self.terms if t.status == 'proven']
 
     def to_dict(self) -> dict:
-        return {'note': self.note, 'current_noise_rms': self.noise_rms if math.isfinite(self.noise_rms) else None,
-                'current_error_beyond_noise': self.excess_before if math.isfinite(self.excess_before) else None,
-                'terms': [t.to_dict() for t in self.terms]}
+        out = {'note': self.note, 'current_noise_rms': self.noise_rms if math.isfinite(self.noise_rms) else None,
+               'current_error_beyond_noise': self.excess_before if math.isfinite(self.excess_before) else None,
+               'terms': [t.to_dict() for t in self.terms]}
+        if self.added is not None:
+            out['added_term'] = self.added.to_dict()
+        return out
+
+
+@dataclass(frozen=True)
+class AddedMotorTerm:
+    """A motor term put in the observer from the command line (``--motor-term``), refitted on the training part.
+
+    Attributes
+    ----------
+    term : MotorTerm
+        The term.
+    value, sigma : float [unit of the term]
+        Its coefficient ``c`` and 1-sigma (output error on the current, sandwich by Va level plus the levels' error).
+    current_excess_before, current_excess_after : float [A]
+        The current's held-out error beyond its noise with the observer without and with the term.
+    """
+
+    term: MotorTerm
+    value: float
+    sigma: float
+    current_excess_before: float
+    current_excess_after: float
+
+    def to_dict(self) -> dict:
+        def finite(x):
+            return float(x) if math.isfinite(x) else None
+        return {'expression': self.term.expression, 'equation': self.term.equation,
+                'parameters': {f'motor_{self.term.slug}_coefficient': {
+                    'value': finite(self.value), 'sigma': finite(self.sigma), 'unit': self.term.unit}},
+                'estimator': 'output_error_on_current', 'error_unit': 'A',
+                'error_beyond_noise_before': finite(self.current_excess_before),
+                'error_beyond_noise_after': finite(self.current_excess_after)}
+
+
+def motor_term_of(text: str) -> MotorTerm:
+    """The vocabulary's term written `text` (spaces ignored); AeropendError naming the accepted terms otherwise.
+
+    Parameters
+    ----------
+    text : str [-]
+        An expression of :data:`MOTOR_VOCABULARY`, e.g. ``'sign(current)'``.
+
+    Returns
+    -------
+    MotorTerm
+    """
+    wanted = ''.join(str(text).split())
+    for term in MOTOR_VOCABULARY:
+        if term.expression == wanted:
+            return term
+    raise AeropendError(f'--motor-term {text!r} is not a motor term; give one of '
+                        f'{", ".join(repr(t.expression) for t in MOTOR_VOCABULARY)} (the expressions of '
+                        f'"discovered_motor_terms" in aeropend diagnose --json)')
 
 
 def _lagged(signal: np.ndarray, time_constant: float, sample_time: float) -> np.ndarray:
@@ -453,6 +515,13 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
         # one observer state runs through the whole search, and each record's motor starts afresh
         return MotorDiscovery(note='several records diagnosed together: the motor equation is searched on one record '
                                    'at a time (diagnose each record alone for it)')
+    added = getattr(prep, 'motor_term', None)
+    if added is not None:       # the observer carries one extra voltage: the term given, no second one is searched
+        return MotorDiscovery(note=f'the motor term {added.term.expression} given with --motor-term is in the '
+                                   f'observer (c = {added.value:.4g} +- {added.sigma:.2g} {added.term.unit}); a '
+                                   f'second motor term is not searched (the observer carries one extra voltage)',
+                              noise_rms=float(prep.motor.current_noise_rms), excess_before=added.current_excess_after,
+                              added=added)
     started = _starting_observer(prep)
     if started is None:
         return MotorDiscovery(note='the motor observer could not be fitted: the motor equation was not searched')
@@ -536,6 +605,88 @@ def _judge(entry: MotorDiscoveredTerm, base: MotorFitResult, augmented: MotorFit
     entry.why_not = '; '.join(reasons)
 
 
+def _corrected_record(prep: PreparedRecord, x: np.ndarray, back_emf: np.ndarray, current_rms: float, noise: float,
+                      errors: dict[str, float], switch: np.ndarray | None) -> PreparedRecord:
+    """`prep` with the thrust input rebuilt from the observer `x` (R, tau_e, q1, p2, p3, Ia0, e0, c) and its
+    back-EMF [V] (n,): the pendulum then sees the corrected motor's speed."""
+    from dataclasses import replace
+
+    from aeropend_core.signals.motor import MotorFit
+    observer = MotorFit(parameters={'motor_drive_rate': float(x[2] / x[0]), 'motor_friction_rate': float(x[3]),
+                                    'motor_drag_rate': float(x[4]), 'motor_resistance': float(x[0]),
+                                    'electrical_time_constant': float(x[1])},
+                        back_emf=np.asarray(back_emf, dtype=float), current_rms_error=current_rms,
+                        current_noise_rms=noise, solution=tuple(float(v) for v in x[:7]), kind='inductance',
+                        standard_errors=errors, switch=switch)
+    return replace(prep, voltage=np.asarray(back_emf, dtype=float), current=np.zeros(len(prep.time)),
+                   motor=observer, voltage_ensemble=prep.voltage_ensemble if prep.motor is not None else None)
+
+
+def with_motor_term(prep: PreparedRecord, expression: str | MotorTerm,
+                    say: Callable[[str], None] = lambda message: None) -> PreparedRecord:
+    """`prep` with a motor term in the observer (``aeropend diagnose FILE --motor-term EXPRESSION``).
+
+    The observer is refitted by output error on the training part without and with the term (as the search's proof,
+    module docstring step 3, on the whole record), and the pendulum's thrust input is rebuilt from the corrected
+    observer's back-EMF. The returned record carries the term (``motor_term``, an :class:`AddedMotorTerm`):
+    :func:`discover_motor` reports it and searches no second term.
+
+    Parameters
+    ----------
+    prep : PreparedRecord [-]
+        The record as :func:`aeropend_core.diagnosis.compare.prepare` returns it (armature current recorded).
+    expression : str or MotorTerm [-]
+        A term of :data:`MOTOR_VOCABULARY` (AeropendError naming them otherwise).
+    say : callable [-]
+        Progress messages.
+
+    Returns
+    -------
+    PreparedRecord
+        The record with the corrected observer (``motor``, ``voltage``) and ``motor_term`` set.
+    """
+    term = expression if isinstance(expression, MotorTerm) else motor_term_of(expression)
+    if prep.reduced:
+        raise AeropendError(f'--motor-term {term.expression!r} needs the armature current (the motor equation), and '
+                            f'this record has none (the reduced model); drop --motor-term')
+    if prep.gaps is not None and prep.gaps.joins is not None and np.any(prep.gaps.joins):
+        raise AeropendError('--motor-term works on one record at a time; diagnose each record alone with it')
+    started = _starting_observer(prep)
+    if started is None:
+        raise AeropendError(f'--motor-term {term.expression!r}: the motor observer could not be fitted on this '
+                            f'record; diagnose it without --motor-term')
+    x0, voltage, switch, noise = started
+    from aeropend_core.signals.preprocess import noise_rms
+    n = voltage.size
+    index = np.arange(n)
+    valid = prep.gaps.valid if prep.gaps is not None else np.ones(n, dtype=bool)
+    train = (index >= 2) & (index < prep.split) & valid
+    heldout = (index >= prep.split) & valid
+    if train.sum() < 100 or heldout.sum() < 100:
+        raise AeropendError(f'--motor-term {term.expression!r}: too little data on either side of the split to fit '
+                            f'the term; record longer')
+    level_sigma = (1.2533 * noise_rms(np.asarray(prep.armature_voltage, dtype=float))
+                   / np.sqrt(np.maximum(np.diff(_intervals(voltage)), 1)))
+    say(f'fitting the motor observer with {term.expression} (--motor-term)')
+    zero = np.zeros(n)
+    base = _fit(prep, x0, -1, 0.0, voltage, zero, switch, train, heldout)
+    time = prep.time - 0.5 * (prep.time[0] + prep.time[-1])
+    slow = (_lagged(base.current ** 2, HEATING_TIME, prep.sample_time) if term.code == 5 else
+            time if term.code == 6 else zero)
+    start = _weak_screen(prep, x0, voltage, switch, [term], noise).get(term.expression, (0.0, 0.0))[0]
+    fit = _fit(prep, base.solution, term.code, start, voltage, slow, switch, train, heldout, level_sigma)
+    measured = np.asarray(prep.armature_current, dtype=float)
+    added = AddedMotorTerm(term, float(fit.solution[7]), float(math.sqrt(max(fit.covariance[7, 7], 0.0))),
+                           excess_error(float(np.sqrt(np.mean(base.heldout_error ** 2))), noise),
+                           excess_error(float(np.sqrt(np.mean(fit.heldout_error ** 2))), noise))
+    errors = {'motor_resistance': float(math.sqrt(max(fit.covariance[0, 0], 0.0))),
+              'electrical_time_constant': float(math.sqrt(max(fit.covariance[1, 1], 0.0)))}
+    current_rms = float(np.sqrt(np.mean((measured - fit.current)[valid & (index >= 2)] ** 2)))
+    from dataclasses import replace
+    corrected = _corrected_record(prep, fit.solution, fit.back_emf, current_rms, noise, errors, switch)
+    return replace(corrected, motor_term=added)
+
+
 def pendulum_with_term(prep: PreparedRecord, entry: MotorDiscoveredTerm, model: tuple[str, ...],
                        fixed: dict[str, float], excess_before: float) -> PreparedRecord | None:
     """Refit the pendulum (nominal + `model`) with its thrust input rebuilt from the observer corrected by `entry`.
@@ -547,24 +698,14 @@ def pendulum_with_term(prep: PreparedRecord, entry: MotorDiscoveredTerm, model: 
     PreparedRecord or None
         The record with the corrected back-EMF as its thrust voltage (None when it could not be refitted).
     """
-    from dataclasses import replace
-
     from aeropend_core.diagnosis.compare import compare
     from aeropend_core.diagnosis.long_record import search_record
-    from aeropend_core.signals.motor import MotorFit
     entry.pendulum_excess_before = excess_before
     if (entry.back_emf is None or len(entry.back_emf) != len(prep.time)
             or not np.all(np.isfinite(entry.back_emf))):
         return None         # searched on a window of a long record: the pendulum is not refitted on it
-    x = entry.solution
-    observer = MotorFit(parameters={'motor_drive_rate': float(x[2] / x[0]), 'motor_friction_rate': float(x[3]),
-                                    'motor_drag_rate': float(x[4]), 'motor_resistance': float(x[0]),
-                                    'electrical_time_constant': float(x[1])},
-                        back_emf=entry.back_emf, current_rms_error=math.nan, current_noise_rms=math.nan,
-                        solution=tuple(float(v) for v in x[:7]), kind='inductance',
-                        standard_errors=dict(prep.motor.standard_errors) if prep.motor is not None else {})
-    corrected = replace(prep, voltage=np.asarray(entry.back_emf, dtype=float), current=np.zeros(len(prep.time)),
-                        motor=observer, voltage_ensemble=prep.voltage_ensemble if prep.motor is not None else None)
+    errors = dict(prep.motor.standard_errors) if prep.motor is not None else {}
+    corrected = _corrected_record(prep, entry.solution, entry.back_emf, math.nan, math.nan, errors, None)
     try:
         search, _ = search_record(corrected)
         refit = compare(search, model, fixed=dict(fixed))
@@ -575,4 +716,4 @@ def pendulum_with_term(prep: PreparedRecord, entry: MotorDiscoveredTerm, model: 
 
 
 __all__ = ['pendulum_with_term', 'MOTOR_VOCABULARY', 'MotorTerm', 'MotorDiscoveredTerm', 'MotorDiscovery',
-           'discover_motor']
+           'discover_motor', 'with_motor_term', 'motor_term_of', 'AddedMotorTerm']
