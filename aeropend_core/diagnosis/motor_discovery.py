@@ -46,7 +46,8 @@ from threadpoolctl import threadpool_limits
 
 from aeropend_core.diagnosis.candidates import BIC_MARGIN, DM_MIN, DM_WEAK, MAJOR_SHARE, MATERIAL, T_MIN
 from aeropend_core.diagnosis.compare import PreparedRecord, excess_error
-from aeropend_core.diagnosis.evidence import diebold_mariano, effective_samples, hac_covariance, input_covariance
+from aeropend_core.diagnosis.evidence import (TermEvidence, diebold_mariano, effective_samples, finite_or_none,
+                                              hac_covariance, input_covariance)
 from aeropend_core.errors import AeropendError, InsufficientDataError
 
 #: Time constant [s] of the dissipated-power proxy (the winding's thermal lag; tens of seconds for a small motor).
@@ -187,26 +188,15 @@ class MotorFitResult:
     covariance: np.ndarray
 
 
-@dataclass
-class MotorDiscoveredTerm:
-    """A motor-equation term the search reports, with its evidence (currents in A, coefficients SI).
+@dataclass(kw_only=True)
+class MotorDiscoveredTerm(TermEvidence):
+    """A motor-equation term the search reports, with its evidence (:class:`TermEvidence`, currents in A;
+    coefficients SI).
 
     ``status``: ``'proven'`` (the catalog's evidence holds) or ``'not_proven'`` (``why_not`` says why).
     """
 
     term: MotorTerm
-    status: str
-    weak_coefficient: float
-    weak_sigma: float
-    value: float = math.nan
-    sigma: float = math.nan
-    excess_before: float = math.nan
-    excess_after: float = math.nan
-    share_removed: float = math.nan
-    t_statistic: float = math.nan
-    delta_bic: float = math.nan
-    dm_statistic: float = math.nan
-    why_not: str = ''
     equation_of: str = 'motor'
     #: The pendulum's held-out angle error beyond the noise [rad] with the observer as fitted, and with the thrust
     #: input rebuilt from the observer corrected by this term (:func:`pendulum_with_term`; nan: not refitted).
@@ -222,22 +212,16 @@ class MotorDiscoveredTerm:
         return ['--motor-term', self.term.expression]
 
     def to_dict(self) -> dict:
-        def finite(x):
-            return float(x) if x is not None and math.isfinite(x) else None
-        refitted = math.isfinite(self.value)
+        value, sigma = self.coefficient()
         return {'expression': self.term.expression, 'status': self.status, 'reading': self.term.reading,
                 'equation_of': 'motor', 'equation': self.term.equation,
                 'parameters': {f'motor_{self.term.slug}_coefficient': {
-                    'value': finite(self.value if refitted else self.weak_coefficient),
-                    'sigma': finite(self.sigma if refitted else self.weak_sigma), 'unit': self.term.unit}},
-                'estimator': 'output_error_on_current' if refitted else 'weak_sindy',
+                    'value': finite_or_none(value), 'sigma': finite_or_none(sigma), 'unit': self.term.unit}},
+                'estimator': 'output_error_on_current' if self.refitted else 'weak_sindy',
                 'signal': 'armature_current', 'error_unit': 'A',
-                'error_beyond_noise_before': finite(self.excess_before),
-                'error_beyond_noise_after': finite(self.excess_after),
-                'share_of_error_removed': finite(self.share_removed), 't_statistic': finite(self.t_statistic),
-                'delta_bic': finite(self.delta_bic), 'dm_statistic': finite(self.dm_statistic),
-                'pendulum_error_beyond_noise_before': finite(self.pendulum_excess_before),
-                'pendulum_error_beyond_noise_after': finite(self.pendulum_excess_after),
+                **self.evidence_dict(),
+                'pendulum_error_beyond_noise_before': finite_or_none(self.pendulum_excess_before),
+                'pendulum_error_beyond_noise_after': finite_or_none(self.pendulum_excess_after),
                 'why_not_proven': self.why_not, 'add': self.add}
 
 
@@ -286,14 +270,13 @@ class AddedMotorTerm:
     current_excess_after: float
 
     def to_dict(self) -> dict:
-        def finite(x):
-            return float(x) if math.isfinite(x) else None
         return {'expression': self.term.expression, 'equation': self.term.equation,
                 'parameters': {f'motor_{self.term.slug}_coefficient': {
-                    'value': finite(self.value), 'sigma': finite(self.sigma), 'unit': self.term.unit}},
+                    'value': finite_or_none(self.value), 'sigma': finite_or_none(self.sigma),
+                    'unit': self.term.unit}},
                 'estimator': 'output_error_on_current', 'error_unit': 'A',
-                'error_beyond_noise_before': finite(self.current_excess_before),
-                'error_beyond_noise_after': finite(self.current_excess_after)}
+                'error_beyond_noise_before': finite_or_none(self.current_excess_before),
+                'error_beyond_noise_after': finite_or_none(self.current_excess_after)}
 
 
 def motor_term_of(text: str) -> MotorTerm:
@@ -561,7 +544,8 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
     beyond = max(base_rms ** 2 - noise ** 2, 0.0)
     for rank, (expression, (value, sigma)) in enumerate(ranked):
         term = by_expression[expression]
-        entry = MotorDiscoveredTerm(term, 'not_proven', value, sigma, excess_before=excess_now)
+        entry = MotorDiscoveredTerm(term=term, status='not_proven', weak_coefficient=value, weak_sigma=sigma,
+                                    excess_before=excess_now)
         outcome.terms.append(entry)
         if rank >= MAX_REFITS:
             entry.why_not = f'not refitted: weaker weak-form evidence than the {MAX_REFITS} terms refitted before it'

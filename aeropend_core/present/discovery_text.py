@@ -13,7 +13,7 @@ import shlex
 
 def _coefficient(term) -> tuple[float, float]:
     """The term's output-error coefficient and σ [its unit], or the weak form's when it was not refitted."""
-    return (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient, term.weak_sigma)
+    return term.coefficient()
 
 def term_text(term) -> str:
     """'c * EXPRESSION with c = value +- sigma UNIT' for a :class:`~aeropend_core.diagnosis.discovery.DiscoveredTerm`.
