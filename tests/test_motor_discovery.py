@@ -92,3 +92,27 @@ def test_a_brush_drop_is_found_in_the_motor_equation_and_a_clean_motor_proposes_
     windowed = discover_motor(prep)
     assert [t.term.expression for t in windowed.proven][:1] == ['sign(current)'] and 'searched on 40 s' in windowed.note
     assert windowed.proven[0].value == pytest.approx(-BRUSH_DROP, rel=0.1)
+
+
+def test_both_equations_terms_share_one_keyword_only_evidence_record():
+    from aeropend_core.diagnosis.discovery import VOCABULARY, DiscoveredTerm
+    from aeropend_core.diagnosis.evidence import TermEvidence
+    evidence = dict(status='proven', weak_coefficient=1.0, weak_sigma=0.5, value=2.0, sigma=0.1, excess_before=3.0,
+                    excess_after=float('nan'), share_removed=0.5, t_statistic=20.0, delta_bic=-12.0,
+                    dm_statistic=3.0)
+    pendulum = DiscoveredTerm(term=VOCABULARY[0], **evidence)
+    motor = motor_discovery.MotorDiscoveredTerm(term=MOTOR_VOCABULARY[1], **evidence)
+    assert isinstance(pendulum, TermEvidence) and isinstance(motor, TermEvidence)
+    with pytest.raises(TypeError):
+        motor_discovery.MotorDiscoveredTerm(MOTOR_VOCABULARY[1], 'proven', 1.0, 0.5)
+    block = pendulum.evidence_dict()
+    assert block == motor.evidence_dict() and block['error_beyond_noise_after'] is None
+    for entry in (pendulum.to_dict(), motor.to_dict()):       # the shared keys in the same place in both JSONs
+        keys = list(entry)
+        start = keys.index('error_beyond_noise_before')
+        assert keys[start:start + len(block)] == list(block) and entry['t_statistic'] == 20.0
+    (parameter,) = motor.to_dict()['parameters'].values()
+    assert (parameter['value'], parameter['sigma']) == (2.0, 0.1) == motor.coefficient()
+    weak = motor_discovery.MotorDiscoveredTerm(term=MOTOR_VOCABULARY[1], status='not_proven', weak_coefficient=1.0,
+                                               weak_sigma=0.5)
+    assert weak.coefficient() == (1.0, 0.5) and weak.to_dict()['estimator'] == 'weak_sindy'
