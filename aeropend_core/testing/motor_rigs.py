@@ -11,7 +11,9 @@ armature circuit, eq (1): ``La dIa/dt = Va - Ra Ia - Kw w1 - drop``:
   `brush_smoothing`, 0.02 A by default: not the discovery library's 0.01 A, so the search meets a shape it does not
   have exactly);
 * ``'armature_reaction'`` -- the field weakens with the armature current (armature reaction): the back-EMF and the
-  torque constants fall to ``K (1 - beta Ia)`` (`size` is beta [1/A]).
+  torque constants fall to ``K (1 - beta Ia)`` (`size` is beta [1/A]); with ``reaction_on_torque=False`` only the
+  back-EMF does, which is exactly the discovery library's ``current*back_emf`` with c = beta (the torque's share has
+  no term in the observer's speed equation, so with it the fitted c is not beta).
 
 Returns a :class:`aeropend_core.sim.simulate.Trajectory` with noise applied like :func:`~aeropend_core.sim.simulate
 .simulate`.
@@ -37,8 +39,9 @@ class _MotorEffectSimulator(RigSimulator):
 
     def __init__(self, effect: str, size: float, time_constant: float, parameters: RigParameters,
                  noise: MeasurementNoise | None, seed: int | None, sample_time: float,
-                 brush_smoothing: float = BRUSH_SMOOTHING) -> None:
+                 brush_smoothing: float = BRUSH_SMOOTHING, reaction_on_torque: bool = True) -> None:
         super().__init__(parameters, None, sample_time, noise, seed, 0.0, 'lsoda')
+        self.reaction_on_torque = bool(reaction_on_torque)
         self.effect, self.size, self.time_constant = effect, float(size), float(time_constant)
         self.brush_smoothing = float(brush_smoothing)
         if effect == 'heating':       # one more state: the winding's temperature rise [K]
@@ -51,6 +54,7 @@ class _MotorEffectSimulator(RigSimulator):
         la, ra, kw, kt, jm = (p.armature_inductance, p.armature_resistance, p.back_emf_constant, p.torque_constant,
                               p.motor_inertia)
         effect, size, tau, smoothing = self.effect, self.size, self.time_constant, self.brush_smoothing
+        torque_share = 1.0 if self.reaction_on_torque else 0.0
 
         def rhs(t, x):
             derivative = base(t, x[:4])
@@ -62,7 +66,7 @@ class _MotorEffectSimulator(RigSimulator):
                 derivative[0] -= size * np.tanh(current / smoothing) / la
             else:       # armature reaction: Kw and Kt fall to K (1 - beta Ia)
                 derivative[0] += size * current * kw * speed / la
-                derivative[1] -= size * current * kt * current / jm
+                derivative[1] -= torque_share * size * current * kt * current / jm
             return derivative
 
         return rhs
@@ -71,7 +75,7 @@ class _MotorEffectSimulator(RigSimulator):
 def simulate_motor_effect(duty: np.ndarray, effect: str, size: float, time_constant: float = 20.0,
                           parameters: RigParameters = DEFAULT_PARAMETERS, noise: MeasurementNoise | None = None,
                           seed: int | None = None, sample_time: float = SAMPLE_TIME,
-                          brush_smoothing: float = BRUSH_SMOOTHING) -> Trajectory:
+                          brush_smoothing: float = BRUSH_SMOOTHING, reaction_on_torque: bool = True) -> Trajectory:
     """Simulate the rig with one motor effect outside the catalog (module docstring).
 
     Parameters
@@ -94,6 +98,8 @@ def simulate_motor_effect(duty: np.ndarray, effect: str, size: float, time_const
         Ts.
     brush_smoothing : float [A]
         Current scale of the brush drop's smooth sign (brush_drop only).
+    reaction_on_torque : bool [-]
+        Armature reaction weakens the torque as well as the back-EMF (armature_reaction only; the physics).
 
     Returns
     -------
@@ -103,7 +109,7 @@ def simulate_motor_effect(duty: np.ndarray, effect: str, size: float, time_const
     if effect not in MOTOR_EFFECTS:
         raise AeropendError(f'unknown motor effect {effect!r}; one of {", ".join(MOTOR_EFFECTS)}')
     simulator = _MotorEffectSimulator(effect, size, time_constant, parameters, noise, seed, sample_time,
-                                      brush_smoothing)
+                                      brush_smoothing, reaction_on_torque)
     return simulator.run(np.asarray(duty, dtype=float))
 
 
