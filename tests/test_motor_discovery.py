@@ -116,3 +116,13 @@ def test_both_equations_terms_share_one_keyword_only_evidence_record():
     weak = motor_discovery.MotorDiscoveredTerm(term=MOTOR_VOCABULARY[1], status='not_proven', weak_coefficient=1.0,
                                                weak_sigma=0.5)
     assert weak.coefficient() == (1.0, 0.5) and weak.to_dict()['estimator'] == 'weak_sindy'
+
+
+def test_a_bad_motor_term_is_one_line_naming_the_accepted_terms_before_any_file_is_read(tmp_path, capsys):
+    from aeropend_core.cli import main as cli_main
+    missing = str(tmp_path / 'not-there.csv')      # refused on the term, before the file is looked at
+    assert cli_main(['diagnose', missing, '--motor-term', 'sign(curent)']) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "'sign(curent)'" in line and all(repr(t.expression) in line for t in MOTOR_VOCABULARY)
+    assert cli_main(['diagnose', missing, '--motor-term', '1', '--motor-term', 'current^2']) == 2
+    assert 'one --motor-term' in capsys.readouterr().err
