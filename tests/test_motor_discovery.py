@@ -16,7 +16,8 @@ import pytest
 from aeropend_core.diagnosis import motor_discovery
 from aeropend_core.diagnosis.compare import excess_error, prepare
 from aeropend_core.diagnosis.diagnose import diagnose
-from aeropend_core.diagnosis.motor_discovery import MOTOR_VOCABULARY, _simulate, discover_motor
+from aeropend_core.diagnosis.motor_discovery import MOTOR_VOCABULARY, _simulate, discover_motor, with_motor_term
+from aeropend_core.errors import AeropendError
 from aeropend_core.io.recording import from_columns
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
@@ -81,6 +82,19 @@ def test_a_brush_drop_is_found_in_the_motor_equation_and_a_clean_motor_proposes_
     assert diagnosis.motor_discovery.proven[0].term.expression == 'sign(current)'
     assert any('rebuilt with the motor term sign(current)' in note for note in diagnosis.notes), diagnosis.notes
     assert excess_error(diagnosis.final.rms_error, diagnosis.noise_rms) < HALF * diagnosis.noise_rms
+    # its add (aeropend diagnose FILE --motor-term 'sign(current)') puts it in the observer: the current's error
+    # beyond the noise falls as the search said, and the term is reported as given, not proposed again
+    assert entry['add'] == ['--motor-term', 'sign(current)']
+    added = with_motor_term(prep, entry['add'][1])
+    kept = added.motor_term
+    assert kept.current_excess_after < HALF * found.noise_rms < kept.current_excess_before
+    assert kept.value == pytest.approx(best.value, rel=0.02) and kept.sigma == pytest.approx(best.sigma, rel=0.2)
+    assert added.motor is not None and added.motor.adequate and added.motor_term is kept
+    again = discover_motor(added)
+    assert not again.terms and again.added is kept and '--motor-term' in again.note
+    assert again.to_dict()['added_term']['error_beyond_noise_after'] == pytest.approx(kept.current_excess_after)
+    with pytest.raises(AeropendError, match="'sign\\(current\\)'"):
+        with_motor_term(prep, 'sign(curent)')
     clean = discover_motor(prepare(record()))
     assert not clean.proven, [(t.term.expression, t.status) for t in clean.terms]
     # a long record is searched on a window around its split (here 40 s of the 60 s), and says so
@@ -88,3 +102,37 @@ def test_a_brush_drop_is_found_in_the_motor_equation_and_a_clean_motor_proposes_
     windowed = discover_motor(prep)
     assert [t.term.expression for t in windowed.proven][:1] == ['sign(current)'] and 'searched on 40 s' in windowed.note
     assert windowed.proven[0].value == pytest.approx(-BRUSH_DROP, rel=0.1)
+
+
+def test_both_equations_terms_share_one_keyword_only_evidence_record():
+    from aeropend_core.diagnosis.discovery import VOCABULARY, DiscoveredTerm
+    from aeropend_core.diagnosis.evidence import TermEvidence
+    evidence = dict(status='proven', weak_coefficient=1.0, weak_sigma=0.5, value=2.0, sigma=0.1, excess_before=3.0,
+                    excess_after=float('nan'), share_removed=0.5, t_statistic=20.0, delta_bic=-12.0,
+                    dm_statistic=3.0)
+    pendulum = DiscoveredTerm(term=VOCABULARY[0], **evidence)
+    motor = motor_discovery.MotorDiscoveredTerm(term=MOTOR_VOCABULARY[1], **evidence)
+    assert isinstance(pendulum, TermEvidence) and isinstance(motor, TermEvidence)
+    with pytest.raises(TypeError):
+        motor_discovery.MotorDiscoveredTerm(MOTOR_VOCABULARY[1], 'proven', 1.0, 0.5)
+    block = pendulum.evidence_dict()
+    assert block == motor.evidence_dict() and block['error_beyond_noise_after'] is None
+    for entry in (pendulum.to_dict(), motor.to_dict()):       # the shared keys in the same place in both JSONs
+        keys = list(entry)
+        start = keys.index('error_beyond_noise_before')
+        assert keys[start:start + len(block)] == list(block) and entry['t_statistic'] == 20.0
+    (parameter,) = motor.to_dict()['parameters'].values()
+    assert (parameter['value'], parameter['sigma']) == (2.0, 0.1) == motor.coefficient()
+    weak = motor_discovery.MotorDiscoveredTerm(term=MOTOR_VOCABULARY[1], status='not_proven', weak_coefficient=1.0,
+                                               weak_sigma=0.5)
+    assert weak.coefficient() == (1.0, 0.5) and weak.to_dict()['estimator'] == 'weak_sindy'
+
+
+def test_a_bad_motor_term_is_one_line_naming_the_accepted_terms_before_any_file_is_read(tmp_path, capsys):
+    from aeropend_core.cli import main as cli_main
+    missing = str(tmp_path / 'not-there.csv')      # refused on the term, before the file is looked at
+    assert cli_main(['diagnose', missing, '--motor-term', 'sign(curent)']) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "'sign(curent)'" in line and all(repr(t.expression) in line for t in MOTOR_VOCABULARY)
+    assert cli_main(['diagnose', missing, '--motor-term', '1', '--motor-term', 'current^2']) == 2
+    assert 'one --motor-term' in capsys.readouterr().err

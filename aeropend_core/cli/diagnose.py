@@ -18,6 +18,7 @@ Examples:
   aeropend diagnose run.csv --effects-module my_effects.py     # your own registered effects become candidates
   aeropend diagnose first.mcap experiment.mcap     # several records of one rig judged together (joint)
   aeropend diagnose run.csv --term 'thrust*angular_rate'       # a term the discovery stage proposed
+  aeropend diagnose run.csv --motor-term 'sign(current)'       # a motor term it proposed (a brush drop)
 """
 from __future__ import annotations
 
@@ -41,6 +42,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='a term outside the catalog to include in the model, dW/dt += c * EXPRESSION with c '
                              'fitted (repeatable; the expressions the discovery stage proposes, e.g. '
                              "'thrust*angular_rate'; docs/discovery.md lists them)")
+    parser.add_argument('--motor-term', action='append', default=[], metavar='EXPRESSION',
+                        help='a voltage term to include in the motor observer, La dIa/dt = Va - R Ia - e + c * '
+                             "EXPRESSION with c fitted (one; the expressions of \"discovered_motor_terms\", e.g. "
+                             "'sign(current)'; docs/discovery.md lists them); needs the armature current")
     parser.add_argument('--no-discovery', action='store_true',
                         help='skip the discovery stage (sparse regression for a term outside the catalog, run when '
                              'the catalog leaves error beyond the noise)')
@@ -71,6 +76,15 @@ def main(args: argparse.Namespace) -> int:
     if args.term:                   # a discovered term becomes a one-parameter effect named term_<slug>
         from aeropend_core.diagnosis.discovery import term_effect
         args.add = list(args.add) + [term_effect(text) for text in args.term]
+    motor_term = None
+    if args.motor_term:             # checked before minutes of fitting
+        from aeropend_core.diagnosis.motor_discovery import motor_term_of
+        if len(args.motor_term) > 1:
+            raise AeropendError(f'--motor-term given {len(args.motor_term)} times; the motor observer carries one '
+                                f'extra voltage: give one --motor-term')
+        if len(args.data) > 1:
+            raise AeropendError('--motor-term works on one record at a time; diagnose each record alone with it')
+        motor_term = motor_term_of(args.motor_term[0])
     check_effect_names(args.add, '--add')
     check_effect_names(args.only or [], '--only')
     from aeropend_core.cli._checks import fixed_effects
@@ -115,6 +129,11 @@ def main(args: argparse.Namespace) -> int:
 
     if calibration_message:
         print(f'aeropend diagnose: {calibration_message}', file=sys.stderr, flush=True)
+    if motor_term is not None:      # the observer refitted with the term; the pendulum sees its back-EMF
+        from aeropend_core.diagnosis.compare import prepare
+        from aeropend_core.diagnosis.motor_discovery import with_motor_term
+        progress('preparing the data (input conditioning, motor observer)')
+        recording = with_motor_term(prepare(recording), motor_term, progress)
     diagnosis = diagnose(recording, effects=args.add, candidates=args.only, progress=progress, fixed=fixed,
                          drift=not args.no_drift, fixed_from=fixed_from, discovery=not args.no_discovery)
     validation = None

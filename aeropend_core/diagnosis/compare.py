@@ -102,6 +102,9 @@ class PreparedRecord:
     #: :mod:`aeropend_core.signals.reduced`); ``motor_map`` then holds its profiled parameters (SI) and doubts.
     reduced: bool = False
     motor_map: dict | None = None
+    #: A motor term given with ``--motor-term``, already in the observer whose back-EMF is `voltage`
+    #: (:class:`aeropend_core.diagnosis.motor_discovery.AddedMotorTerm`; None: none).
+    motor_term: object = None
     train: SegmentedData = field(init=False)
     heldout: SegmentedData = field(init=False)
 

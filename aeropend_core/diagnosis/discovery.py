@@ -36,6 +36,7 @@ from scipy.signal import lfilter
 
 from aeropend_core.diagnosis.candidates import Candidate, assess
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error
+from aeropend_core.diagnosis.evidence import TermEvidence, finite_or_none
 from aeropend_core.diagnosis.output_error import STRIDE
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import (CATALOG, FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, Effect, EffectParameter,
@@ -309,9 +310,10 @@ def weak_discrepancy(segments: list[dict[str, np.ndarray]], terms: tuple[Term, .
     return result.equations[0], {t.name for t in kept}
 
 
-@dataclass
-class DiscoveredTerm:
-    """One term the discovery stage proposes or reports, with its evidence. Angles in rad; parameters SI.
+@dataclass(kw_only=True)
+class DiscoveredTerm(TermEvidence):
+    """One term the discovery stage proposes or reports, with its evidence (:class:`TermEvidence`, errors in rad).
+    Parameters SI.
 
     ``status``: ``'proven'`` (significant by the catalog's evidence), ``'catalog'`` (a catalog effect spans it:
     ``catalog_effect``), ``'confounded'`` (it explains the data as well as the catalog set ``confounded_with``),
@@ -319,20 +321,8 @@ class DiscoveredTerm:
     """
 
     term: Term
-    status: str
-    weak_coefficient: float
-    weak_sigma: float
-    value: float = math.nan
-    sigma: float = math.nan
-    excess_before: float = math.nan
-    excess_after: float = math.nan
-    share_removed: float = math.nan
-    t_statistic: float = math.nan
-    delta_bic: float = math.nan
-    dm_statistic: float = math.nan
     catalog_effect: str | None = None
     confounded_with: list[str] = field(default_factory=list)
-    why_not: str = ''
     #: Catalog effects the search chose that add nothing significant once the term is in the model (it explains
     #: more than they do: they were its shadow).
     replaces: list[str] = field(default_factory=list)
@@ -351,19 +341,14 @@ class DiscoveredTerm:
         return ['--term', self.term.expression] if self.term.simulated else []
 
     def to_dict(self) -> dict:
-        def finite(x):
-            return float(x) if x is not None and math.isfinite(x) else None
-        value, sigma = (self.value, self.sigma) if math.isfinite(self.value) else (self.weak_coefficient,
-                                                                                   self.weak_sigma)
+        value, sigma = self.coefficient()
         return {'expression': self.term.expression, 'status': self.status, 'reading': self.term.reading,
                 'equation': f'dW/dt = ... + c * {self.term.expression}',
-                'parameters': {f'{self.effect}_coefficient': {'value': finite(value), 'sigma': finite(sigma),
+                'parameters': {f'{self.effect}_coefficient': {'value': finite_or_none(value),
+                                                              'sigma': finite_or_none(sigma),
                                                               'unit': self.term.unit}},
-                'estimator': 'output_error' if math.isfinite(self.value) else 'weak_sindy',
-                'error_beyond_noise_before': finite(self.excess_before),
-                'error_beyond_noise_after': finite(self.excess_after),
-                'share_of_error_removed': finite(self.share_removed), 't_statistic': finite(self.t_statistic),
-                'delta_bic': finite(self.delta_bic), 'dm_statistic': finite(self.dm_statistic),
+                'estimator': 'output_error' if self.refitted else 'weak_sindy',
+                **self.evidence_dict(),
                 'catalog_effect': self.catalog_effect, 'confounded_with': self.confounded_with,
                 'replaces': self.replaces, 'alternatives': self.alternatives,
                 'why_not_proven': self.why_not, 'add': self.add}
@@ -466,7 +451,8 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
     refits = 0
     for name, (value, sigma) in ranked:
         term = by_expression[name]
-        entry = DiscoveredTerm(term, 'not_proven', float(value), float(sigma), excess_before=excess_now)
+        entry = DiscoveredTerm(term=term, status='not_proven', weak_coefficient=float(value),
+                               weak_sigma=float(sigma), excess_before=excess_now)
         found.append(entry)
         if term.catalog_kind:
             entry.catalog_effect = _span(term, segments, model)
@@ -577,7 +563,7 @@ def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say) -> D
     if not (term_error <= CONFOUNDING_FACTOR * max(set_error, floor)
             and set_error <= CONFOUNDING_FACTOR * max(term_error, floor)):
         return None
-    return DiscoveredTerm(term, 'confounded', float(value), float(sigma),
+    return DiscoveredTerm(term=term, status='confounded', weak_coefficient=float(value), weak_sigma=float(sigma),
                           value=alone.parameters.get(parameter, math.nan),
                           sigma=alone.standard_errors.get(parameter, math.nan), excess_before=alone.excess_before,
                           excess_after=term_error, share_removed=alone.share_removed, t_statistic=alone.t_statistic,

@@ -23,6 +23,7 @@ variance (n var(x) / LRV), used in the information criterion.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -222,9 +223,70 @@ def diebold_mariano(error_reference: np.ndarray, error_candidate: np.ndarray) ->
     return float(mean / math.sqrt(lrv / d.size)), mean
 
 
-__all__ = ['bandwidth', 'long_run_variance', 'effective_samples', 'hac_covariance', 'input_covariance',
-           'held_bias_covariance',
-           'diebold_mariano']
+def finite_or_none(x: float | None) -> float | None:
+    """`x` as a float, or None when it is missing or not finite (JSON has no nan)."""
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
+@dataclass(kw_only=True)
+class TermEvidence:
+    """The evidence for one discovered term (pendulum or motor equation), as the catalog's effects are judged.
+
+    Attributes
+    ----------
+    status : str
+        ``'proven'``, ``'not_proven'`` (``why_not`` says why), or an equation's own (``'catalog'``, ``'confounded'``).
+    weak_coefficient, weak_sigma : float [unit of the term]
+        The weak-form screening's coefficient and 1-sigma.
+    value, sigma : float [unit of the term]
+        The output-error refit's coefficient and 1-sigma (nan: not refitted).
+    excess_before, excess_after : float [unit of the judged signal: rad or A]
+        The held-out error beyond the noise without and with the term.
+    share_removed : float [-]
+        Share of the error beyond the noise (mean square) the term removes.
+    t_statistic : float [-]
+        |value| / sigma (sigma a sandwich: HAC or by input interval).
+    delta_bic : float [-]
+        Change of the training BIC (effective sample count) when the term is added.
+    dm_statistic : float [-]
+        Held-out Diebold--Mariano statistic (positive: the term predicts better).
+    why_not : str
+        Why it is not proven ('' when it is).
+    """
+
+    status: str
+    weak_coefficient: float
+    weak_sigma: float
+    value: float = math.nan
+    sigma: float = math.nan
+    excess_before: float = math.nan
+    excess_after: float = math.nan
+    share_removed: float = math.nan
+    t_statistic: float = math.nan
+    delta_bic: float = math.nan
+    dm_statistic: float = math.nan
+    why_not: str = ''
+
+    @property
+    def refitted(self) -> bool:
+        """True when the output-error refit gave the coefficient (else only the weak form did)."""
+        return math.isfinite(self.value)
+
+    def coefficient(self) -> tuple[float, float]:
+        """(coefficient, 1-sigma) [unit of the term]: the output-error refit's, or the weak form's when not refitted."""
+        return (self.value, self.sigma) if self.refitted else (self.weak_coefficient, self.weak_sigma)
+
+    def evidence_dict(self) -> dict:
+        """The JSON keys of the held-out error and the tests, in the order both equations' terms write them."""
+        return {'error_beyond_noise_before': finite_or_none(self.excess_before),
+                'error_beyond_noise_after': finite_or_none(self.excess_after),
+                'share_of_error_removed': finite_or_none(self.share_removed),
+                't_statistic': finite_or_none(self.t_statistic), 'delta_bic': finite_or_none(self.delta_bic),
+                'dm_statistic': finite_or_none(self.dm_statistic)}
+
+
+__all__ = ['TermEvidence', 'finite_or_none', 'bandwidth', 'long_run_variance', 'effective_samples', 'hac_covariance',
+           'input_covariance', 'held_bias_covariance', 'diebold_mariano']
 
 
 def t_statistic_words(t_statistic: float) -> str:

@@ -23,9 +23,14 @@ pendulum sees. Records without the current (the reduced model) skip it and say s
 
 The proven term is reported with ``c ± σ`` [SI], the current's held-out error beyond its noise before -> after and a
 physical reading; :func:`pendulum_with_term` rebuilds the pendulum's thrust input from the corrected observer and
-refits the pendulum, so the verdict can say how much of the angle's error the motor term explains. It has no
-command-line arguments yet (``add`` is empty), and a record longer than :data:`WINDOW_SECONDS` is searched on a
-window around its split (the pendulum is then not refitted).
+refits the pendulum, so the verdict can say how much of the angle's error the motor term explains. Its ``add``
+(``--motor-term EXPRESSION``) puts it in the observer for the whole diagnosis (:func:`with_motor_term`: the pendulum
+is then fitted with the corrected back-EMF as its thrust input, and the search reports the term instead of searching
+a second one). A record longer than :data:`WINDOW_SECONDS` is searched on a window around its split (the pendulum is
+then not refitted).
+
+The coefficient's σ is a sandwich with the scores summed over each interval of one Va level, plus the spread the
+stepped Va levels' own errors cause (:func:`_fit`); bench/bench_motor_coverage.py checks it against known truth.
 """
 from __future__ import annotations
 
@@ -41,7 +46,8 @@ from threadpoolctl import threadpool_limits
 
 from aeropend_core.diagnosis.candidates import BIC_MARGIN, DM_MIN, DM_WEAK, MAJOR_SHARE, MATERIAL, T_MIN
 from aeropend_core.diagnosis.compare import PreparedRecord, excess_error
-from aeropend_core.diagnosis.evidence import diebold_mariano, effective_samples, hac_covariance
+from aeropend_core.diagnosis.evidence import (TermEvidence, diebold_mariano, effective_samples, finite_or_none,
+                                              hac_covariance, input_covariance)
 from aeropend_core.errors import AeropendError, InsufficientDataError
 
 #: Time constant [s] of the dissipated-power proxy (the winding's thermal lag; tens of seconds for a small motor).
@@ -182,26 +188,15 @@ class MotorFitResult:
     covariance: np.ndarray
 
 
-@dataclass
-class MotorDiscoveredTerm:
-    """A motor-equation term the search reports, with its evidence (currents in A, coefficients SI).
+@dataclass(kw_only=True)
+class MotorDiscoveredTerm(TermEvidence):
+    """A motor-equation term the search reports, with its evidence (:class:`TermEvidence`, currents in A;
+    coefficients SI).
 
     ``status``: ``'proven'`` (the catalog's evidence holds) or ``'not_proven'`` (``why_not`` says why).
     """
 
     term: MotorTerm
-    status: str
-    weak_coefficient: float
-    weak_sigma: float
-    value: float = math.nan
-    sigma: float = math.nan
-    excess_before: float = math.nan
-    excess_after: float = math.nan
-    share_removed: float = math.nan
-    t_statistic: float = math.nan
-    delta_bic: float = math.nan
-    dm_statistic: float = math.nan
-    why_not: str = ''
     equation_of: str = 'motor'
     #: The pendulum's held-out angle error beyond the noise [rad] with the observer as fitted, and with the thrust
     #: input rebuilt from the observer corrected by this term (:func:`pendulum_with_term`; nan: not refitted).
@@ -213,26 +208,20 @@ class MotorDiscoveredTerm:
 
     @property
     def add(self) -> list[str]:
-        """Command-line arguments that add it (none yet: the motor term is not carried into the pendulum fit)."""
-        return []
+        """Command-line arguments that put it in the motor observer (``aeropend diagnose FILE --motor-term ...``)."""
+        return ['--motor-term', self.term.expression]
 
     def to_dict(self) -> dict:
-        def finite(x):
-            return float(x) if x is not None and math.isfinite(x) else None
-        refitted = math.isfinite(self.value)
+        value, sigma = self.coefficient()
         return {'expression': self.term.expression, 'status': self.status, 'reading': self.term.reading,
                 'equation_of': 'motor', 'equation': self.term.equation,
                 'parameters': {f'motor_{self.term.slug}_coefficient': {
-                    'value': finite(self.value if refitted else self.weak_coefficient),
-                    'sigma': finite(self.sigma if refitted else self.weak_sigma), 'unit': self.term.unit}},
-                'estimator': 'output_error_on_current' if refitted else 'weak_sindy',
+                    'value': finite_or_none(value), 'sigma': finite_or_none(sigma), 'unit': self.term.unit}},
+                'estimator': 'output_error_on_current' if self.refitted else 'weak_sindy',
                 'signal': 'armature_current', 'error_unit': 'A',
-                'error_beyond_noise_before': finite(self.excess_before),
-                'error_beyond_noise_after': finite(self.excess_after),
-                'share_of_error_removed': finite(self.share_removed), 't_statistic': finite(self.t_statistic),
-                'delta_bic': finite(self.delta_bic), 'dm_statistic': finite(self.dm_statistic),
-                'pendulum_error_beyond_noise_before': finite(self.pendulum_excess_before),
-                'pendulum_error_beyond_noise_after': finite(self.pendulum_excess_after),
+                **self.evidence_dict(),
+                'pendulum_error_beyond_noise_before': finite_or_none(self.pendulum_excess_before),
+                'pendulum_error_beyond_noise_after': finite_or_none(self.pendulum_excess_after),
                 'why_not_proven': self.why_not, 'add': self.add}
 
 
@@ -244,15 +233,71 @@ class MotorDiscovery:
     note: str = ''
     noise_rms: float = math.nan
     excess_before: float = math.nan
+    #: The term given with ``--motor-term`` (:class:`AddedMotorTerm`), in the observer before the search.
+    added: AddedMotorTerm | None = None
 
     @property
     def proven(self) -> list[MotorDiscoveredTerm]:
         return [t for t in self.terms if t.status == 'proven']
 
     def to_dict(self) -> dict:
-        return {'note': self.note, 'current_noise_rms': self.noise_rms if math.isfinite(self.noise_rms) else None,
-                'current_error_beyond_noise': self.excess_before if math.isfinite(self.excess_before) else None,
-                'terms': [t.to_dict() for t in self.terms]}
+        out = {'note': self.note, 'current_noise_rms': self.noise_rms if math.isfinite(self.noise_rms) else None,
+               'current_error_beyond_noise': self.excess_before if math.isfinite(self.excess_before) else None,
+               'terms': [t.to_dict() for t in self.terms]}
+        if self.added is not None:
+            out['added_term'] = self.added.to_dict()
+        return out
+
+
+@dataclass(frozen=True)
+class AddedMotorTerm:
+    """A motor term put in the observer from the command line (``--motor-term``), refitted on the training part.
+
+    Attributes
+    ----------
+    term : MotorTerm
+        The term.
+    value, sigma : float [unit of the term]
+        Its coefficient ``c`` and 1-sigma (output error on the current, sandwich by Va level plus the levels' error).
+    current_excess_before, current_excess_after : float [A]
+        The current's held-out error beyond its noise with the observer without and with the term.
+    """
+
+    term: MotorTerm
+    value: float
+    sigma: float
+    current_excess_before: float
+    current_excess_after: float
+
+    def to_dict(self) -> dict:
+        return {'expression': self.term.expression, 'equation': self.term.equation,
+                'parameters': {f'motor_{self.term.slug}_coefficient': {
+                    'value': finite_or_none(self.value), 'sigma': finite_or_none(self.sigma),
+                    'unit': self.term.unit}},
+                'estimator': 'output_error_on_current', 'error_unit': 'A',
+                'error_beyond_noise_before': finite_or_none(self.current_excess_before),
+                'error_beyond_noise_after': finite_or_none(self.current_excess_after)}
+
+
+def motor_term_of(text: str) -> MotorTerm:
+    """The vocabulary's term written `text` (spaces ignored); AeropendError naming the accepted terms otherwise.
+
+    Parameters
+    ----------
+    text : str [-]
+        An expression of :data:`MOTOR_VOCABULARY`, e.g. ``'sign(current)'``.
+
+    Returns
+    -------
+    MotorTerm
+    """
+    wanted = ''.join(str(text).split())
+    for term in MOTOR_VOCABULARY:
+        if term.expression == wanted:
+            return term
+    raise AeropendError(f'--motor-term {text!r} is not a motor term; give one of '
+                        f'{", ".join(repr(t.expression) for t in MOTOR_VOCABULARY)} (the expressions of '
+                        f'"discovered_motor_terms" in aeropend diagnose --json)')
 
 
 def _lagged(signal: np.ndarray, time_constant: float, sample_time: float) -> np.ndarray:
@@ -315,8 +360,48 @@ def _simulate(x, code, voltage, slow, switch, sample_time):
     return current, emf
 
 
-def _fit(prep, x0, code, coefficient, voltage, slow, switch, train, heldout) -> MotorFitResult:
-    """Output-error fit of the observer (+ term `code` when >= 0) on the `train` samples."""
+#: A change of one Va level is followed for this long [s] after its interval ends (the motor's speed settles within
+#: a fraction of a second; beyond it the change of the current is below the simulation's rounding).
+LEVEL_HORIZON = 5.0
+
+
+def _intervals(voltage: np.ndarray) -> np.ndarray:
+    """Boundaries [samples] of the stepped Va's intervals of one level: 0, each change, n."""
+    return np.concatenate(([0], np.flatnonzero(np.diff(voltage) != 0) + 1, [voltage.size]))
+
+
+def _level_changes(x, code, voltage, slow, switch, sample_time, level_sigma, bounds):
+    """d current / d level of each Va interval times its level's standard error [A], shape (levels, n).
+
+    Each interval's level is moved by `level_sigma` [V] alone and the observer simulated from its start (state of
+    the unmoved run there) for the interval plus :data:`LEVEL_HORIZON`; zero elsewhere."""
+    current, emf = _simulate(x, code, voltage, slow, switch, sample_time)
+    horizon = int(round(LEVEL_HORIZON / sample_time))
+    changes = np.zeros((len(bounds) - 1, voltage.size))
+    for j, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+        if not level_sigma[j] > 0:
+            continue
+        stop = min(int(b) + horizon, voltage.size)
+        moved = voltage[a:stop].copy()
+        moved[:b - a] += level_sigma[j]
+        if a > 0:       # the switch into this level sits in the previous sample: start there, on the old level
+            a -= 1
+            moved = np.concatenate(([voltage[a]], moved))
+        start = np.array(x, dtype=float)
+        start[5], start[6] = current[a], emf[a]
+        shifted, _ = _simulate(start, code, moved, slow[a:stop], switch[a:stop], sample_time)
+        changes[j, a:stop] = shifted - current[a:stop]
+    return changes
+
+
+def _fit(prep, x0, code, coefficient, voltage, slow, switch, train, heldout, level_sigma=None) -> MotorFitResult:
+    """Output-error fit of the observer (+ term `code` when >= 0) on the `train` samples.
+
+    The parameters' covariance is a sandwich with the scores summed over each interval of one Va level (the
+    current's noise held at a level -- an ADC that does not dither -- or slow, as in the observer's own standard
+    errors, :func:`aeropend_core.signals.motor.back_emf_ensemble`) plus, with `level_sigma` [V] (one per interval of
+    :func:`_intervals`), the spread the error of each stepped Va level causes: the fit treats the levels as exact,
+    and a voltage term (a constant, a brush drop) is nearly an offset of every level."""
     free = 8 if code >= 0 else 7
     start = np.append(np.asarray(x0, dtype=float)[:7], coefficient)
     scale = np.maximum(np.abs(start), np.array([0.1, 1e-4, 1e-3, 1e-3, 1e-3, 0.01, 0.01, 1e-3]))
@@ -341,7 +426,12 @@ def _fit(prep, x0, code, coefficient, voltage, slow, switch, train, heldout) -> 
     x = full(result.x)
     current, emf = _simulate(x, code, voltage, slow, switch, prep.sample_time)
     r = result.fun
-    covariance_z = hac_covariance(result.jac, r)
+    bounds = _intervals(voltage)
+    labels = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))[train]
+    covariance_z = hac_covariance(result.jac, r, groups=labels, width=r.size)
+    if level_sigma is not None:
+        changes = _level_changes(x, code, voltage, slow, switch, prep.sample_time, level_sigma, bounds)[:, train]
+        covariance_z = covariance_z + input_covariance(result.jac, changes) * changes.shape[0]
     covariance = covariance_z * np.outer(scale[:free], scale[:free])
     return MotorFitResult(x, current, emf, float(np.sqrt(np.mean(r ** 2))),
                           prep.armature_current[heldout] - current[heldout], effective_samples(r), covariance)
@@ -408,10 +498,19 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
         # one observer state runs through the whole search, and each record's motor starts afresh
         return MotorDiscovery(note='several records diagnosed together: the motor equation is searched on one record '
                                    'at a time (diagnose each record alone for it)')
+    added = getattr(prep, 'motor_term', None)
+    if added is not None:       # the observer carries one extra voltage: the term given, no second one is searched
+        return MotorDiscovery(note=f'the motor term {added.term.expression} given with --motor-term is in the '
+                                   f'observer (c = {added.value:.4g} +- {added.sigma:.2g} {added.term.unit}); a '
+                                   f'second motor term is not searched (the observer carries one extra voltage)',
+                              noise_rms=float(prep.motor.current_noise_rms), excess_before=added.current_excess_after,
+                              added=added)
     started = _starting_observer(prep)
     if started is None:
         return MotorDiscovery(note='the motor observer could not be fitted: the motor equation was not searched')
     x0, voltage, switch, noise = started
+    from aeropend_core.signals.preprocess import noise_rms
+    voltage_noise = noise_rms(np.asarray(prep.armature_voltage, dtype=float))     # the measured Va's [V]
     valid = prep.gaps.valid if prep.gaps is not None else np.ones(voltage.size, dtype=bool)
     full_length = voltage.size
     prep, voltage, switch, valid, x0 = _window(prep, voltage, switch, valid, x0)
@@ -422,6 +521,8 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
     if train.sum() < 100 or heldout.sum() < 100:
         return MotorDiscovery(note='too little data on either side of the split to search the motor equation')
     zero = np.zeros(n)
+    # each stepped Va level is the median of its interval's samples: standard error 1.2533 sigma / sqrt(length)
+    level_sigma = 1.2533 * voltage_noise / np.sqrt(np.maximum(np.diff(_intervals(voltage)), 1))
     say('discovery: sparse regression of the motor equation\'s discrepancy (weak form)')
     screened = _weak_screen(prep, x0, voltage, switch, MOTOR_VOCABULARY, noise)
     # the weak form's own significance guard is the gate: the output-error refits run only for terms that stand out
@@ -443,14 +544,16 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
     beyond = max(base_rms ** 2 - noise ** 2, 0.0)
     for rank, (expression, (value, sigma)) in enumerate(ranked):
         term = by_expression[expression]
-        entry = MotorDiscoveredTerm(term, 'not_proven', value, sigma, excess_before=excess_now)
+        entry = MotorDiscoveredTerm(term=term, status='not_proven', weak_coefficient=value, weak_sigma=sigma,
+                                    excess_before=excess_now)
         outcome.terms.append(entry)
         if rank >= MAX_REFITS:
             entry.why_not = f'not refitted: weaker weak-form evidence than the {MAX_REFITS} terms refitted before it'
             continue
         say(f'discovery: refitting the motor observer with {term.expression}')
         slow = heat if term.code == 5 else (time if term.code == 6 else zero)
-        augmented = _fit(prep, base.solution, term.code, value, voltage, slow, switch, train, heldout)
+        augmented = _fit(prep, base.solution, term.code, value, voltage, slow, switch, train, heldout,
+                         level_sigma)
         _judge(entry, base, augmented, noise, beyond)
     outcome.terms.sort(key=lambda t: (t.status != 'proven', t.excess_after if math.isfinite(t.excess_after)
                                       else math.inf))
@@ -486,6 +589,88 @@ def _judge(entry: MotorDiscoveredTerm, base: MotorFitResult, augmented: MotorFit
     entry.why_not = '; '.join(reasons)
 
 
+def _corrected_record(prep: PreparedRecord, x: np.ndarray, back_emf: np.ndarray, current_rms: float, noise: float,
+                      errors: dict[str, float], switch: np.ndarray | None) -> PreparedRecord:
+    """`prep` with the thrust input rebuilt from the observer `x` (R, tau_e, q1, p2, p3, Ia0, e0, c) and its
+    back-EMF [V] (n,): the pendulum then sees the corrected motor's speed."""
+    from dataclasses import replace
+
+    from aeropend_core.signals.motor import MotorFit
+    observer = MotorFit(parameters={'motor_drive_rate': float(x[2] / x[0]), 'motor_friction_rate': float(x[3]),
+                                    'motor_drag_rate': float(x[4]), 'motor_resistance': float(x[0]),
+                                    'electrical_time_constant': float(x[1])},
+                        back_emf=np.asarray(back_emf, dtype=float), current_rms_error=current_rms,
+                        current_noise_rms=noise, solution=tuple(float(v) for v in x[:7]), kind='inductance',
+                        standard_errors=errors, switch=switch)
+    return replace(prep, voltage=np.asarray(back_emf, dtype=float), current=np.zeros(len(prep.time)),
+                   motor=observer, voltage_ensemble=prep.voltage_ensemble if prep.motor is not None else None)
+
+
+def with_motor_term(prep: PreparedRecord, expression: str | MotorTerm,
+                    say: Callable[[str], None] = lambda message: None) -> PreparedRecord:
+    """`prep` with a motor term in the observer (``aeropend diagnose FILE --motor-term EXPRESSION``).
+
+    The observer is refitted by output error on the training part without and with the term (as the search's proof,
+    module docstring step 3, on the whole record), and the pendulum's thrust input is rebuilt from the corrected
+    observer's back-EMF. The returned record carries the term (``motor_term``, an :class:`AddedMotorTerm`):
+    :func:`discover_motor` reports it and searches no second term.
+
+    Parameters
+    ----------
+    prep : PreparedRecord [-]
+        The record as :func:`aeropend_core.diagnosis.compare.prepare` returns it (armature current recorded).
+    expression : str or MotorTerm [-]
+        A term of :data:`MOTOR_VOCABULARY` (AeropendError naming them otherwise).
+    say : callable [-]
+        Progress messages.
+
+    Returns
+    -------
+    PreparedRecord
+        The record with the corrected observer (``motor``, ``voltage``) and ``motor_term`` set.
+    """
+    term = expression if isinstance(expression, MotorTerm) else motor_term_of(expression)
+    if prep.reduced:
+        raise AeropendError(f'--motor-term {term.expression!r} needs the armature current (the motor equation), and '
+                            f'this record has none (the reduced model); drop --motor-term')
+    if prep.gaps is not None and prep.gaps.joins is not None and np.any(prep.gaps.joins):
+        raise AeropendError('--motor-term works on one record at a time; diagnose each record alone with it')
+    started = _starting_observer(prep)
+    if started is None:
+        raise AeropendError(f'--motor-term {term.expression!r}: the motor observer could not be fitted on this '
+                            f'record; diagnose it without --motor-term')
+    x0, voltage, switch, noise = started
+    from aeropend_core.signals.preprocess import noise_rms
+    n = voltage.size
+    index = np.arange(n)
+    valid = prep.gaps.valid if prep.gaps is not None else np.ones(n, dtype=bool)
+    train = (index >= 2) & (index < prep.split) & valid
+    heldout = (index >= prep.split) & valid
+    if train.sum() < 100 or heldout.sum() < 100:
+        raise AeropendError(f'--motor-term {term.expression!r}: too little data on either side of the split to fit '
+                            f'the term; record longer')
+    level_sigma = (1.2533 * noise_rms(np.asarray(prep.armature_voltage, dtype=float))
+                   / np.sqrt(np.maximum(np.diff(_intervals(voltage)), 1)))
+    say(f'fitting the motor observer with {term.expression} (--motor-term)')
+    zero = np.zeros(n)
+    base = _fit(prep, x0, -1, 0.0, voltage, zero, switch, train, heldout)
+    time = prep.time - 0.5 * (prep.time[0] + prep.time[-1])
+    slow = (_lagged(base.current ** 2, HEATING_TIME, prep.sample_time) if term.code == 5 else
+            time if term.code == 6 else zero)
+    start = _weak_screen(prep, x0, voltage, switch, [term], noise).get(term.expression, (0.0, 0.0))[0]
+    fit = _fit(prep, base.solution, term.code, start, voltage, slow, switch, train, heldout, level_sigma)
+    measured = np.asarray(prep.armature_current, dtype=float)
+    added = AddedMotorTerm(term, float(fit.solution[7]), float(math.sqrt(max(fit.covariance[7, 7], 0.0))),
+                           excess_error(float(np.sqrt(np.mean(base.heldout_error ** 2))), noise),
+                           excess_error(float(np.sqrt(np.mean(fit.heldout_error ** 2))), noise))
+    errors = {'motor_resistance': float(math.sqrt(max(fit.covariance[0, 0], 0.0))),
+              'electrical_time_constant': float(math.sqrt(max(fit.covariance[1, 1], 0.0)))}
+    current_rms = float(np.sqrt(np.mean((measured - fit.current)[valid & (index >= 2)] ** 2)))
+    from dataclasses import replace
+    corrected = _corrected_record(prep, fit.solution, fit.back_emf, current_rms, noise, errors, switch)
+    return replace(corrected, motor_term=added)
+
+
 def pendulum_with_term(prep: PreparedRecord, entry: MotorDiscoveredTerm, model: tuple[str, ...],
                        fixed: dict[str, float], excess_before: float) -> PreparedRecord | None:
     """Refit the pendulum (nominal + `model`) with its thrust input rebuilt from the observer corrected by `entry`.
@@ -497,24 +682,14 @@ def pendulum_with_term(prep: PreparedRecord, entry: MotorDiscoveredTerm, model: 
     PreparedRecord or None
         The record with the corrected back-EMF as its thrust voltage (None when it could not be refitted).
     """
-    from dataclasses import replace
-
     from aeropend_core.diagnosis.compare import compare
     from aeropend_core.diagnosis.long_record import search_record
-    from aeropend_core.signals.motor import MotorFit
     entry.pendulum_excess_before = excess_before
     if (entry.back_emf is None or len(entry.back_emf) != len(prep.time)
             or not np.all(np.isfinite(entry.back_emf))):
         return None         # searched on a window of a long record: the pendulum is not refitted on it
-    x = entry.solution
-    observer = MotorFit(parameters={'motor_drive_rate': float(x[2] / x[0]), 'motor_friction_rate': float(x[3]),
-                                    'motor_drag_rate': float(x[4]), 'motor_resistance': float(x[0]),
-                                    'electrical_time_constant': float(x[1])},
-                        back_emf=entry.back_emf, current_rms_error=math.nan, current_noise_rms=math.nan,
-                        solution=tuple(float(v) for v in x[:7]), kind='inductance',
-                        standard_errors=dict(prep.motor.standard_errors) if prep.motor is not None else {})
-    corrected = replace(prep, voltage=np.asarray(entry.back_emf, dtype=float), current=np.zeros(len(prep.time)),
-                        motor=observer, voltage_ensemble=prep.voltage_ensemble if prep.motor is not None else None)
+    errors = dict(prep.motor.standard_errors) if prep.motor is not None else {}
+    corrected = _corrected_record(prep, entry.solution, entry.back_emf, math.nan, math.nan, errors, None)
     try:
         search, _ = search_record(corrected)
         refit = compare(search, model, fixed=dict(fixed))
@@ -525,4 +700,4 @@ def pendulum_with_term(prep: PreparedRecord, entry: MotorDiscoveredTerm, model: 
 
 
 __all__ = ['pendulum_with_term', 'MOTOR_VOCABULARY', 'MotorTerm', 'MotorDiscoveredTerm', 'MotorDiscovery',
-           'discover_motor']
+           'discover_motor', 'with_motor_term', 'motor_term_of', 'AddedMotorTerm']

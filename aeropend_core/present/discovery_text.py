@@ -13,7 +13,7 @@ import shlex
 
 def _coefficient(term) -> tuple[float, float]:
     """The term's output-error coefficient and σ [its unit], or the weak form's when it was not refitted."""
-    return (term.value, term.sigma) if math.isfinite(term.value) else (term.weak_coefficient, term.weak_sigma)
+    return term.coefficient()
 
 def term_text(term) -> str:
     """'c * EXPRESSION with c = value +- sigma UNIT' for a :class:`~aeropend_core.diagnosis.discovery.DiscoveredTerm`.
@@ -150,10 +150,10 @@ def motor_sentence(motor, input_corrected: bool = False) -> str:
                   ': worse, so the term explains the current but not the motor\'s speed (the torque side of the '
                   'same effect may be missing too); the pendulum keeps the uncorrected observer\'s thrust input.')
                if math.isfinite(best.pendulum_excess_after) else '')
-            + (' The pendulum\'s parameters and the catalog search above are those on that rebuilt input. Not yet '
-               'addable from the command line.' if input_corrected else
-               ' Not yet addable from the command line: the pendulum\'s parameters above were fitted with the '
-               'uncorrected observer.'))
+            + f' Put it in the motor observer with {" ".join(_quoted(best.add))}'
+            + (' (the pendulum\'s parameters and the catalog search above are already those on the input rebuilt '
+               'with it).' if input_corrected else
+               ' (the pendulum\'s parameters above were fitted with the uncorrected observer).'))
 
 
 def motor_lines(motor) -> list[str]:
@@ -174,6 +174,12 @@ def motor_lines(motor) -> list[str]:
     lines = ['Discovery in the motor equation (armature current; weak-form screening, terms refitted in the observer):']
     if motor.note:
         lines.append(f'  {motor.note}')
+    added = getattr(motor, 'added', None)
+    if added is not None:
+        lines.append(f'  ADDED      La dIa/dt = Va - R Ia - e + c * {added.term.expression} with c = {added.value:.4g} '
+                     f'+- {added.sigma:.2g} {added.term.unit}: the current\'s held-out error beyond the noise '
+                     f'{added.current_excess_before * 1e3:.2f} -> {added.current_excess_after * 1e3:.2f} mA (noise '
+                     f'{motor.noise_rms * 1e3:.2f} mA)')
     for term in motor.terms:
         after = (f', current beyond noise {term.excess_before * 1e3:.2f} -> {term.excess_after * 1e3:.2f} mA, t = '
                  f'{term.t_statistic:.1f}, dBIC {term.delta_bic:+.1f}, DM {term.dm_statistic:+.1f}'
