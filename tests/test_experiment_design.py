@@ -133,10 +133,16 @@ def test_the_loop_stops_when_decided_on_its_budget_or_on_a_refused_design(monkey
     from types import SimpleNamespace
 
     from aeropend_core.diagnosis import experiment_design, experiment_loop
-    from aeropend_core.diagnosis.experiment_loop import LoopBudget, Played, until_decided
-    design = design_experiment([LAG, FILTER], 0.004, duration=20.0, seed=3, **QUICK)
+    from dataclasses import replace
 
-    def run(verdicts, budget, refuse=False):
+    from aeropend_core.diagnosis.experiment_loop import LoopBudget, Played, until_decided
+    searched = design_experiment([LAG, FILTER], 0.004, duration=20.0, seed=3, **QUICK)
+    # separations set by hand (the need scales with 1 / separation^2): 0.2 x the noise decides in ~10 s, 0.09 x
+    # needs ~2.5 schedules of 20 s, 0.04 x is below the diagnosis's materiality floor (no duration decides)
+    design = replace(searched, separation=0.2)
+    assert design.seconds_to_decide < 20.0
+
+    def run(verdicts, budget, refuse=False, design=design):
         played, seen = [], []
 
         def play(chosen, schedule):
@@ -177,8 +183,26 @@ def test_the_loop_stops_when_decided_on_its_budget_or_on_a_refused_design(monkey
     outcome, played, _ = run(['confounded'] * 5, seconds)
     assert len(played) == 2 and 'budget spent' in outcome.ending
     outcome, played, _ = run(['confounded'] * 5, budget, refuse=True)
-    assert len(played) == 1 and outcome.refused == outcome.ending
+    assert len(played) == 1 and outcome.refused == outcome.ending and outcome.verdict == 'refused'
     assert 'no experiment designed: no schedule keeps every model below the angle limit' in outcome.refused
+    # the design's own need: played as many times as it says (one record), or an honest end at once
+    longer = replace(searched, separation=0.09)
+    assert 40.0 < longer.seconds_to_decide <= 60.0
+    outcome, played, _ = run(['confounded', 'effect_found'], budget, design=longer)
+    schedule = played[1][0].schedule
+    assert outcome.verdict == 'decided' and played[1][0].repeats == 3 and schedule.duration == pytest.approx(60.0)
+    assert np.array_equal(schedule.steps[:len(longer.schedule.steps)], longer.schedule.steps)
+    short = LoopBudget(max_runs=3, max_seconds=60.0, design_seconds=20.0, overhead_seconds=1.0)     # 38 s left
+    outcome, played, _ = run(['confounded'] * 3, short, design=longer)
+    assert len(played) == 1 and outcome.verdict == 'cannot_decide_within_budget', outcome.ending
+    assert outcome.needed_seconds == pytest.approx(longer.seconds_to_decide) and outcome.needed_noise_rms < 0.004
+    assert outcome.ending.startswith(f'cannot decide within the budget: the design needs about '
+                                     f'{longer.seconds_to_decide:.0f} s of this schedule at this noise (4.00 mrad')
+    assert 'raise --max-seconds to 90 s' in outcome.ending and 'dB less)' in outcome.ending     # 21 + 1 + 3 x 20
+    hopeless = replace(searched, separation=0.04)
+    outcome, played, _ = run(['confounded'] * 3, budget, design=hopeless)
+    assert len(played) == 1 and outcome.verdict == 'cannot_decide_within_budget' and outcome.needed_seconds == math.inf
+    assert 'no duration decides' in outcome.ending and 'below the 0.05 x the diagnosis needs' in outcome.ending
 
 
 def test_a_weak_design_says_how_long_it_would_take_and_why():
@@ -188,9 +212,18 @@ def test_a_weak_design_says_how_long_it_would_take_and_why():
     models = [true_model('thrust_lag', {'time_constant': 0.009}), true_model('angle_filter', {'filter_delay': 0.009})]
     design = design_experiment(models, 0.0157, duration=20.0, seed=3, **QUICK)
     text = design.describe()
-    assert design.seconds_to_decide > 600 and 'Cannot be decided within the limits at this noise' in text
-    assert f'{design.seconds_to_decide:.3g} s' in text and 'commute in a linear system' in text
+    assert design.seconds_to_decide == math.inf and 'Cannot be decided at this noise, however long' in text
+    assert f'{design.separation:.2g} x the noise RMS, below the 0.05 x' in text and 'commute in a linear system' in text
+    quieter = design.noise_to_decide(600.0)
+    assert 0 < quieter < 0.0157 * design.separation / 0.05 * 1.0001 and f'{quieter * 1e3:.2f} mrad RMS' in text
     assert design.to_dict()['decidable_within_limits'] is False
+
+
+def test_the_designs_decision_rule_is_the_diagnosiss():
+    """The design's materiality floor and held-out share are the diagnosis's own (copied to keep imports light)."""
+    from aeropend_core.diagnosis import candidates, compare, experiment_design
+    assert experiment_design.MATERIAL == candidates.MATERIAL
+    assert experiment_design.TRAIN_FRACTION == compare.TRAIN_FRACTION
 
 
 # ------------------------------------------------------------------------------------------- slow: fitted models

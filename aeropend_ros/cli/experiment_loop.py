@@ -6,7 +6,10 @@ bag's ``metadata.yaml`` names the file and its SHA-256 (``custom_data``: ``aerop
 ``aeropend.experiment_sha256``). ``--until-decided`` loops (:mod:`aeropend_core.diagnosis.experiment_loop`): run
 (the Latin hypercube first, or ``--experiment FILE``) -> diagnose every record so far together -> if two effects
 are confounded, design the experiment that separates them -> run it -> diagnose again, until the verdict is no
-longer "confounded" or the budget (``--max-runs``, ``--max-seconds``) is spent. Every round's verdict, schedule and
+longer "confounded" or the budget (``--max-runs``, ``--max-seconds``) is spent. Each designed schedule is played
+as many times in a row as the design says deciding needs at the record's noise; when that does not fit the budget
+left, the loop ends at once with the verdict ``cannot_decide_within_budget`` and the need (seconds, or how much less
+noise). Every round's verdict, schedule and
 bag are listed at the end; ``--json`` holds every round's diagnosis in order, the last one being the decision. A
 design that cannot be made within the limits ends the loop with its reason as the one-line error (exit 2), after
 the rounds so far are listed.
@@ -40,9 +43,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--max-runs', type=int, default=3, metavar='N',
                         help='with --until-decided: at most N runs, the first included (default 3)')
     parser.add_argument('--max-seconds', type=float, default=300.0, metavar='S',
-                        help='with --until-decided: at most S seconds of excitation over all runs (default 300)')
+                        help='with --until-decided: at most S seconds of excitation over all runs; when the design '
+                             'says deciding needs more than is left, the loop ends at once with the verdict '
+                             '"cannot decide within the budget" and the seconds (or the lower noise) it would '
+                             'need (default 300)')
     parser.add_argument('--design-seconds', type=float, default=30.0, metavar='S',
-                        help='with --until-decided: length of each designed experiment [s] (default 30, at least 20)')
+                        help='with --until-decided: length of each designed schedule [s]; a round plays it as many '
+                             'times in a row as the design says deciding needs (default 30, at least 20)')
     parser.add_argument('--design-candidates', type=int, default=60, metavar='N',
                         help='with --until-decided: random schedules each design tries before refining the best '
                              '(half as many refinements); fewer is faster and may separate less (default 60)')
@@ -137,8 +144,10 @@ def run_until_decided(args, run_once) -> int:
     def report(entry) -> None:
         if entry.design is None:
             print(f'round {entry.number}: {entry.diagnosis.verdict}: {verdict_of(entry.diagnosis)}', flush=True)
-        else:
+        elif entry.next_schedule:
             print(f'designed {entry.next_schedule}: {entry.design.describe()}', flush=True)
+        else:
+            print(f'designed (not played): {entry.design.describe()}', flush=True)
 
     budget = LoopBudget(max_runs=args.max_runs, max_seconds=args.max_seconds, design_seconds=args.design_seconds,
                         duty_limit=min(0.7, args.duty_cap), angle_limit=math.radians(args.max_angle),
@@ -153,7 +162,7 @@ def run_until_decided(args, run_once) -> int:
                **({'design': r.design.to_dict(), 'next_schedule': r.next_schedule} if r.design is not None else {})}
               for r in outcome.rounds]
     ending = outcome.ending
-    print(f'\n--until-decided: {ending}', flush=True)
+    print(f'\n--until-decided: {outcome.verdict}: {ending}', flush=True)
     for entry in rounds:
         print(f'  round {entry["round"]}: {entry["verdict"]:<16} schedule {entry["schedule"]}  bag {entry["bag"]}',
               flush=True)
@@ -164,6 +173,9 @@ def run_until_decided(args, run_once) -> int:
     if args.json:
         from aeropend_ros.cli.run import _write_json
         _write_json(args.json, {'rounds': rounds, 'ending': ending, 'bags': [str(b) for b in bags],
+                                'loop_verdict': outcome.verdict, 'excitation_seconds': outcome.excitation_seconds,
+                                'needed_seconds': outcome.needed_seconds,
+                                'needed_noise_rms_rad': outcome.needed_noise_rms,
                                 'decision': rounds[-1]['diagnosis'] if rounds else None})
     if outcome.refused:     # the rounds so far are listed (and in --json); the refusal is the one-line error, exit 2
         raise AeropendError(outcome.refused)
