@@ -96,6 +96,78 @@ def experiment_metadata(args) -> dict[str, str]:
     return {'aeropend.experiment': str(path.resolve()), 'aeropend.experiment_sha256': digest}
 
 
+#: Longest a schedule may start late [s of the source's time] before a run ends without it (no duty subscriber).
+LATE_START_LIMIT = 60.0
+
+
+class ScheduleClock:
+    """Ends a run once the excitation's whole schedule and the rest after it are recorded, however late it starts.
+
+    The excitation node starts its schedule when it has found the duty subscriber (discovery: seconds on a loaded
+    host), while the simulator counted a fixed length from its own start, so a run lost the schedule's end. Now the
+    run ends when the node reports its schedule done, plus END_MARGIN: on the simulator END_MARGIN seconds of
+    *simulated* time after the samples published by then (the simulator is told where to stop; the excitation
+    plays on the simulator's sample clock, :meth:`ExcitationNode.follow`), on the rig END_MARGIN wall seconds.
+    Either way the run gives up LATE_START_LIMIT seconds after its planned length if the schedule never ends. Where
+    the schedule starts goes into the bag's metadata (:meth:`metadata`).
+
+    Parameters
+    ----------
+    excitation : ExcitationNode [-]
+        The graph's excitation node (``started``, ``done``, ``total_time`` [s], ``_start_ns`` [ns]).
+    source : SimNode or SerialBridgeNode [-]
+        The samples' source (the simulator: ``start_ns`` [ns], ``stop_after`` [s], ``finished``).
+    use_sim : bool [-]
+        Whether the source is the simulator.
+    duration : float [s]
+        The run's planned length (schedule + START_DELAY + END_MARGIN).
+    """
+
+    def __init__(self, excitation, source, use_sim: bool, duration: float) -> None:
+        self.excitation, self.source, self.use_sim, self.duration = excitation, source, use_sim, duration
+        self.started = time.monotonic()
+        self._done_at = None
+        self._stop_set = False
+
+    def offset(self) -> float:
+        """Simulated seconds [s] from the simulator's first sample to the excitation's start (its start delay
+        follows); NaN before the start or on the rig."""
+        if not self.use_sim or not self.excitation.started:
+            return math.nan
+        return self.excitation._start_ns * 1e-9        # the excitation follows the simulator's sample clock
+
+    def over(self) -> bool:
+        """True when the run can end: the schedule and END_MARGIN after it recorded, or it never started."""
+        if self.use_sim:
+            # once the simulator holds the final duty 0: the whole rest after the schedule is recorded
+            if self.excitation.done and not self._stop_set and self.source.commanded_duty == 0.0:
+                self._stop_set = True
+                self.source.stop_after = self.source.sequence * self.source.sample_time + END_MARGIN
+            if self.source.finished:
+                return True
+        elif self.excitation.done:
+            self._done_at = self._done_at if self._done_at is not None else time.monotonic()
+            return time.monotonic() - self._done_at >= END_MARGIN
+        # never started or never done (no duty subscriber, no samples): give up, at least real time assumed
+        return not self.excitation.done and time.monotonic() - self.started > self.duration + LATE_START_LIMIT
+
+    def metadata(self) -> dict[str, str]:
+        """For the bag's metadata.yaml ``custom_data``: where the schedule starts and whether it was played whole."""
+        excitation = self.excitation
+        whole = bool(excitation.done) and (self.use_sim and self._stop_set or self._done_at is not None)
+        data = {'aeropend.schedule_seconds': f'{excitation.total_time:.6f}',
+                'aeropend.schedule_complete': 'true' if whole else 'false'}
+        if excitation.started:
+            # the excitation's start in the clock of the samples' header stamps (ns since the epoch); its first
+            # step follows after its start delay
+            start = self.source.start_ns + round(self.offset() * 1e9) if self.use_sim else excitation._start_ns
+            data['aeropend.schedule_start_stamp_ns'] = str(int(start))
+            if self.use_sim:    # from the simulator's sample 0 (counter position[4]; a bag may start later)
+                data['aeropend.schedule_offset_s'] = f'{self.offset():.6f}'
+                data['aeropend.schedule_start_sample'] = str(round(self.offset() / self.source.sample_time))
+        return data
+
+
 def excitation_overrides(args) -> dict:
     """Excitation-node parameters that play ``--experiment`` (its steps file; empty without the option)."""
     if not getattr(args, 'experiment', None):
@@ -185,4 +257,5 @@ def run_until_decided(args, run_once) -> int:
     return 0
 
 
-__all__ = ['add_arguments', 'check_arguments', 'experiment_metadata', 'excitation_overrides', 'run_until_decided']
+__all__ = ['ScheduleClock', 'add_arguments', 'check_arguments', 'experiment_metadata', 'excitation_overrides',
+           'run_until_decided']
