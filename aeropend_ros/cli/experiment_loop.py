@@ -121,10 +121,14 @@ class ScheduleClock:
         Whether the source is the simulator.
     duration : float [s]
         The run's planned length (schedule + START_DELAY + END_MARGIN).
+    whole : bool [-]
+        True for a schedule file (``--experiment``): the run lasts until it is played whole. False for the Latin
+        hypercube, which is cut at `duration` as before (the simulator stops there; the rig after `duration` s).
     """
 
-    def __init__(self, excitation, source, use_sim: bool, duration: float) -> None:
+    def __init__(self, excitation, source, use_sim: bool, duration: float, whole: bool = True) -> None:
         self.excitation, self.source, self.use_sim, self.duration = excitation, source, use_sim, duration
+        self.whole = whole
         self.started = time.monotonic()
         self._done_at = None
         self._stop_set = False
@@ -140,21 +144,24 @@ class ScheduleClock:
         """True when the run can end: the schedule and END_MARGIN after it recorded, or it never started."""
         if self.use_sim:
             # once the simulator holds the final duty 0: the whole rest after the schedule is recorded
-            if self.excitation.done and not self._stop_set and self.source.commanded_duty == 0.0:
+            if self.whole and self.excitation.done and not self._stop_set and self.source.commanded_duty == 0.0:
                 self._stop_set = True
                 self.source.stop_after = self.source.sequence * self.source.sample_time + END_MARGIN
             if self.source.finished:
                 return True
+        elif not self.whole:
+            return time.monotonic() - self.started > self.duration
         elif self.excitation.done:
             self._done_at = self._done_at if self._done_at is not None else time.monotonic()
             return time.monotonic() - self._done_at >= END_MARGIN
         # never started or never done (no duty subscriber, no samples): give up, at least real time assumed
-        return not self.excitation.done and time.monotonic() - self.started > self.duration + LATE_START_LIMIT
+        return self.whole and not self.excitation.done and \
+            time.monotonic() - self.started > self.duration + LATE_START_LIMIT
 
     def metadata(self) -> dict[str, str]:
         """For the bag's metadata.yaml ``custom_data``: where the schedule starts and whether it was played whole."""
         excitation = self.excitation
-        whole = bool(excitation.done) and (self.use_sim and self._stop_set or self._done_at is not None)
+        whole = bool(excitation.done) and (not self.whole or self._stop_set or self._done_at is not None)
         data = {'aeropend.schedule_seconds': f'{excitation.total_time:.6f}',
                 'aeropend.schedule_complete': 'true' if whole else 'false'}
         if excitation.started:

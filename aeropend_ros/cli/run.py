@@ -374,7 +374,8 @@ def _run(args) -> int:
             source = SimNode(parameter_overrides=overrides(
                 effects=list(hidden) or [''], psnr_db=float(args.psnr), seed=int(args.seed),
                 duty_limit=float(args.duty_cap), realtime_factor=float(args.realtime_factor),
-                stop_after=float(args.duration) + LATE_START_LIMIT, wait_for_subscribers=2),    # recorder, identif.
+                stop_after=float(args.duration) + (LATE_START_LIMIT if args.experiment else 0.0),
+                wait_for_subscribers=2),    # the recorder and the identification: no start-up backlog
                 namespace=namespace, guard_duty_sources=True)
         else:
             from aeropend_ros.serial_bridge_node import SerialBridgeNode
@@ -439,7 +440,7 @@ def _run(args) -> int:
             spinner = threading.Thread(target=_spin, args=(executor,), name=node.get_name(), daemon=True)
             spinner.start()
             spinners.append(spinner)
-        clock = ScheduleClock(excitation, source, use_sim, float(args.duration))
+        clock = ScheduleClock(excitation, source, use_sim, float(args.duration), whole=bool(args.experiment))
         interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME, recorder,
                                        lambda: foreign_publishers(nodes, namespace), _watched_topics(namespace), clock)
         if recorder is not None:        # where the schedule starts in the record, and whether it was played whole
