@@ -268,7 +268,7 @@ def until_decided(play: Callable, budget: LoopBudget = LoopBudget(), diagnose_op
         if not repeats or repeats * design.schedule.duration > left:
             outcome.verdict = 'cannot_decide_within_budget'
             outcome.needed_seconds = needed
-            outcome.needed_noise_rms = design.noise_to_decide(left)
+            outcome.needed_noise_rms = design.noise_to_decide(_whole_schedules(left, design))
             outcome.ending = cannot_decide_text(design, left, budget)
             if on_round:
                 on_round(current)
@@ -304,7 +304,7 @@ def cannot_decide_text(design, left_seconds: float, budget: LoopBudget) -> str:
     from aeropend_core.diagnosis.experiment_design import MATERIAL, _decibels
     needed = design.seconds_to_decide
     noise = design.noise_rms
-    quieter = design.noise_to_decide(left_seconds)
+    quieter = design.noise_to_decide(_whole_schedules(left_seconds, design))
     lower = (f'lower the angle noise to about {quieter * 1e3:.2f} mrad RMS ({_decibels(noise, quieter):.1f} dB less)'
              if quieter > 0 else 'lower the angle noise')
     reason = design.physical_reason()
@@ -322,6 +322,11 @@ def cannot_decide_text(design, left_seconds: float, budget: LoopBudget) -> str:
             f'({noise * 1e3:.2f} mrad RMS, {_psnr(noise):.0f} dB of the pi/2 full scale; {where}), '
             f'{left_seconds:.0f} s are left; raise --max-seconds to {math.ceil(total / 10) * 10:.0f} s, or {lower}'
             f'{reason}')
+
+
+def _whole_schedules(seconds: float, design) -> float:
+    """The part of `seconds` [s] that whole repetitions of the design's schedule fill [s]."""
+    return math.floor(seconds / design.schedule.duration + 1e-9) * design.schedule.duration
 
 
 def _psnr(noise_rms: float) -> float:
