@@ -386,8 +386,8 @@ def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
     path = write_schedule(tmp_path / 'first.yaml', steps)
     env = local_ros_environment(domain_id=private_domain_id())
     result = subprocess.run(AEROPEND + ['run', '--until-decided', '--experiment', str(path), '--effect',
-                                        'thrust_lag=0.02', '--psnr', '58', '--seed', '26000', '--realtime-factor', '4',
-                                        '--window', '120', '--max-runs', '3', '--design-seconds', '60',
+                                        'thrust_lag=0.02', '--psnr', '50', '--seed', '26000', '--realtime-factor', '4',
+                                        '--window', '120', '--max-runs', '3', '--design-seconds', '30',
                                         '--design-candidates', '10', '--record', str(tmp_path / 'bags'),
                                         '--json', str(tmp_path / 'loop.json'), '--quiet'],
                             env=env, cwd=ROOT, capture_output=True, text=True, timeout=560)
@@ -414,5 +414,6 @@ def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
     found = decision['missing_effects'][0]
     assert abs(found['parameters']['time_constant'] - 0.02) < 3 * found['standard_errors']['time_constant'], found
     assert not any('gap(s) of lost samples' in note for note in decision['notes']), decision['notes']
-    assert decision['gaps']['records'] == 2 * len(rounds), decision['gaps']     # each record's train and held part
+    # a joint diagnosis counts each record's train and held-out part, a single record counts one
+    assert decision['gaps']['records'] == (2 * len(rounds) if len(rounds) > 1 else 1), decision['gaps']
     assert loop['ending'].startswith(f'decided after {len(rounds)} run(s)'), loop['ending']
