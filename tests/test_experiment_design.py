@@ -369,12 +369,14 @@ def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
     confounded with an angle filter by the diagnosis's own rule; the loop designs a 30 s separating schedule (10 +
     5 schedules searched), plays it as many times as the design says deciding needs (the budget, 300 s, allows it)
     through the excitation node, and the joint diagnosis of both bags names the lag alone, its size within 3 sigma.
-    Measured on a loaded host: the design said 121 s, the loop played the schedule 5 times (150 s) and decided,
-    19.94 +- 0.10 ms (2 runs, 198 s of excitation, 3.1 min wall). At 58 dB, the earlier setting, the first record
-    now names the lag at once: since the run plays its schedule on the simulator's sample clock and whole, the
-    first record holds more of it (bench/results/2026-11-27-s10-loop4). An angle offset vs a cable spring is never
-    confounded in a run's record: the run's 1 s rest at duty 0 before the schedule pins the offset. Every wait is
-    the run's own (discovery, the schedule's end, the bag's finalisation), none a fixed window."""
+    Measured 3 times on a loaded host: the design said 121 s, the loop played the schedule 5 times and decided,
+    19.94 +- 0.10 ms (2 runs, 198 s of excitation, 3.1 min wall); 98 s, 4 times, still confounded, then 87 s, 3
+    times, decided (3 runs, 261 s, 5.0 min); 92 s, 4 times, decided, 20.04 +- 0.11 ms (2 runs, 168 s, 2.0 min).
+    At 58 dB, the earlier setting, the first record now names the lag at once: since the run plays its schedule on
+    the simulator's sample clock and whole, the first record holds more of it (bench/results/2026-11-27-s10-loop4).
+    An angle offset vs a cable spring is never confounded in a run's record: the run's 1 s rest at duty 0 before
+    the schedule pins the offset. Every wait is the run's own (discovery, the schedule's end, the bag's
+    finalisation), none a fixed window."""
     import json
 
     import yaml
