@@ -176,6 +176,7 @@ class ExcitationNode(Node):
         self.current_duty = 0.0
         self.step_index = -1
         self._start_ns = None
+        self._follow_clock = None
         self._last_sent_ns = 0
         self._republish_ns = int(republish_period * 1e9)
         if self.time_source == 'samples':
@@ -202,9 +203,22 @@ class ExcitationNode(Node):
             self._begin(stamp_ns)
         self._advance((stamp_ns - self._start_ns) * 1e-9)
 
+    def follow(self, clock) -> None:
+        """Play on `clock` instead of the wall clock: a callable giving seconds [s], e.g. the in-process simulator's
+        published samples x Ts (``aeropend run``), so the schedule keeps its dwells in simulated time even when the
+        simulator lags or catches up. The start (``_start_ns``) is then that clock's reading, in ns."""
+        self._follow_clock = clock
+
     def _on_timer(self) -> None:
         now_ns = self.get_clock().now().nanoseconds
-        if self.time_source == 'wall' and not self.done:
+        if self._follow_clock is not None and not self.done:
+            now_clock_ns = round(self._follow_clock() * 1e9)
+            if not self.started:
+                if not self._ready():
+                    return
+                self._begin(now_clock_ns)
+            self._advance((now_clock_ns - self._start_ns) * 1e-9)
+        elif self.time_source == 'wall' and not self.done:
             if not self.started:
                 if not self._ready():
                     return

@@ -142,12 +142,13 @@ def loop_case(truth: dict, seed: int, args, first_duty=FIRST_DUTY) -> dict:
 
     budget = LoopBudget(max_runs=args.max_runs, max_seconds=args.max_seconds, design_seconds=args.design_seconds)
     outcome = until_decided(play, budget, {'drift': False}, seed=seed,
+                            write_schedule=lambda number, design: f'in memory, round {number}',
                             design_options={'candidates': args.candidates, 'refinements': args.refinements,
                                             'original_duty_limit': first_duty[1]})
     rounds = []
     measured = {}
+    from aeropend_core.diagnosis.experiment_design import measured_separation
     if getattr(args, 'measure', False):     # the separation measured on each played designed record
-        from aeropend_core.diagnosis.experiment_design import measured_separation
         for before, after in zip(outcome.rounds[:-1], outcome.rounds[1:]):
             design = before.design
             sets = [m.effects for m in design.models]
@@ -173,13 +174,25 @@ def loop_case(truth: dict, seed: int, args, first_duty=FIRST_DUTY) -> dict:
                          predicted_separation_train=r.design.separation_train,
                          predicted_separation_fitted=r.design.separation_fitted,
                          seconds_to_decide=r.design.seconds_to_decide, design_seconds=r.design_seconds,
+                         repeats=r.design.repeats, played_next=bool(r.next_schedule),
                          predicted_max_angle_deg=math.degrees(r.design.max_angle))
         rounds.append(entry)
+    last_design = outcome.rounds[-1].design if outcome.rounds else None
+    if getattr(args, 'measure', False) and last_design is not None and outcome.verdict != 'decided' \
+            and not outcome.rounds[-1].next_schedule:
+        # the design the loop did not play (cannot decide within the budget): its separation measured noise-free
+        sets = [m.effects for m in last_design.models]
+        rounds[-1]['measured_separation_unplayed'] = {
+            'noise_free': measured_separation(from_columns(RigSimulator(effects=truth).run(
+                last_design.schedule.duty()).columns(with_truth=False), source='noise-free'), sets,
+                last_design.noise_rms), 'models': [list(e) for e in sets]}
     final = outcome.decision
     wanted = set(truth)
     pinned = {f.effect for f in final.found if not f.confounded_with} if final is not None else set()
     if final is None:
         result = 'no decision'
+    elif outcome.verdict == 'cannot_decide_within_budget':
+        result = 'cannot within budget'
     elif final.verdict == 'confounded':
         result = 'still confounded'
     elif not wanted:
@@ -189,13 +202,15 @@ def loop_case(truth: dict, seed: int, args, first_duty=FIRST_DUTY) -> dict:
     return {'truth': truth, 'seed': seed, 'first_verdict': rounds[0]['verdict'] if rounds else None,
             'final_verdict': final.verdict if final is not None else None, 'result': result,
             'runs': len(outcome.rounds), 'excitation_seconds': outcome.excitation_seconds, 'ending': outcome.ending,
+            'loop_verdict': outcome.verdict, 'needed_seconds': outcome.needed_seconds,
+            'needed_noise_rms_rad': outcome.needed_noise_rms, 'budget_seconds': args.max_seconds,
             'rounds': rounds, 'cpu_seconds': time.process_time() - started, 'wall_seconds': time.perf_counter() - wall}
 
 
 TRUTHS = {'offset': {'angle_offset': 0.01}, 'cable': {'cable_torque': 30.0}, 'clean': {},
-          'lag': {'thrust_lag': 0.02}}
+          'lag': {'thrust_lag': 0.02}, 'filter': {'angle_filter': 0.02}}
 #: The lag/filter pair starts from the usual Latin hypercube over duty 0-0.7.
-FIRST_DUTY_OF = {'lag': (0.0, 0.7)}
+FIRST_DUTY_OF = {'lag': (0.0, 0.7), 'filter': (0.0, 0.7)}
 
 
 def loop(args, names) -> dict:

@@ -41,9 +41,11 @@ from pathlib import Path
 
 import numpy as np
 
+from aeropend_core.diagnosis.design_blocks import (_mutate, _random_blocks,
+                                                   _structured_blocks)
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
-from aeropend_core.sim.schedule_file import (SWEEP_HOLD, Block, DutySchedule, read_schedule, steps_to_duty,
+from aeropend_core.sim.schedule_file import (Block, DutySchedule, read_schedule, steps_to_duty,
                                              write_schedule)
 
 #: Default duration budget of a designed experiment [s] (the diagnosis needs at least 20 s of a record).
@@ -54,16 +56,22 @@ MIN_DURATION = 20.0
 DEFAULT_DUTY_LIMIT = 0.7
 #: Default limit on every model's predicted angle [rad] (80 deg: below the horizontal with margin).
 DEFAULT_ANGLE_LIMIT = math.radians(80.0)
-#: Rest at duty 0 at the start of every design [s] (the rod starts hanging still, as the models assume).
-LEAD_REST = 1.0
 #: Parameter draws per model for the uncertainty (the score is the minimum over the paired draws).
 DEFAULT_DRAWS = 4
 #: Random schedules tried, then local changes of the best.
 DEFAULT_CANDIDATES = 60
 DEFAULT_REFINEMENTS = 30
-#: Accumulated evidence, sum of (separation / noise)^2 over the samples compared, taken as decisive (a 5-sigma
-#: difference for white noise; correlated noise needs more): how long a schedule must run to decide.
+#: Accumulated evidence, sum of (separation / noise)^2 over the samples of the played record's held-out last 25 %
+#: (where the diagnosis judges the models), taken as decisive: for white noise the Diebold--Mariano statistic of
+#: that part is about sqrt(evidence) / 2 = 2.5, above the diagnosis's 2.33 (candidates.DM_MIN); correlated noise
+#: needs more. How long a schedule, repeated, must run.
 DECISIVE_EVIDENCE = 25.0
+#: The diagnosis counts a difference between two models only when it lowers the held-out mean-square error by at
+#: least (MATERIAL x the noise RMS)^2 (aeropend_core.diagnosis.candidates.MATERIAL, kept equal by a test; not
+#: imported: the diagnosis modules take seconds to import): a schedule that separates less decides at no length.
+MATERIAL = 0.05
+#: Share of every record the diagnosis fits on (aeropend_core.diagnosis.compare.TRAIN_FRACTION); the rest judges.
+TRAIN_FRACTION = 0.75
 #: Relative step of the finite-difference sensitivities.
 SENSITIVITY_STEP = 1e-3
 #: Longest experiment [s] counted as practical (the longest --design-seconds): a pair that needs more cannot be
@@ -183,12 +191,40 @@ class ExperimentDesign:
     #: it judges the models on held-out data) [-]; the search maximises the smaller of the two.
     separation_train: float = math.nan
     separation_heldout: float = math.nan
+    #: Times the designed schedule is played in a row (:meth:`repeated`) [-].
+    repeats: int = 1
 
     @property
     def seconds_to_decide(self) -> float:
-        """How long [s] this schedule (repeated) must run for its separation to add up to DECISIVE_EVIDENCE."""
-        evidence = self.separation ** 2 * self.samples
-        return self.schedule.duration * DECISIVE_EVIDENCE / evidence if evidence > 0 else math.inf
+        """How long [s] this schedule, repeated, must run to decide: its held-out quarter's evidence reaches
+        DECISIVE_EVIDENCE (inf when the separation is below the diagnosis's materiality floor, MATERIAL x the noise:
+        then no duration decides)."""
+        if not self.separation >= MATERIAL:
+            return math.inf
+        return self._seconds_at(self.separation)
+
+    def _seconds_at(self, separation: float) -> float:
+        evidence = separation ** 2 * self.samples * (1.0 - TRAIN_FRACTION) / max(self.repeats, 1)
+        return self.schedule.duration / max(self.repeats, 1) * DECISIVE_EVIDENCE / evidence if evidence > 0 \
+            else math.inf
+
+    def noise_to_decide(self, seconds: float) -> float:
+        """The largest angle-noise RMS [rad] at which this schedule, repeated, decides within `seconds` [s]: the
+        separation scales with 1 / noise, so it must clear MATERIAL and fill DECISIVE_EVIDENCE in that time."""
+        if not self.separation > 0 or not seconds > 0:
+            return 0.0
+        return self.noise_rms * min(self.separation / MATERIAL,
+                                    math.sqrt(seconds / self._seconds_at(self.separation)))
+
+    def repeated(self, times: int) -> ExperimentDesign:
+        """The same schedule played `times` times in a row (one longer record; the separation per sample is taken
+        as the designed schedule's, each repetition starting with its rest at duty 0)."""
+        from dataclasses import replace
+        times = max(int(times), 1)
+        unit = self.schedule.blocks if self.repeats == 1 else self.schedule.blocks[:len(self.schedule.blocks)
+                                                                                  // self.repeats]
+        return replace(self, schedule=DutySchedule(tuple(unit) * times), samples=self.samples // self.repeats * times,
+                       repeats=times)
 
     @property
     def gain(self) -> float:
@@ -221,20 +257,27 @@ class ExperimentDesign:
     def decidability(self) -> str:
         """Whether this schedule decides, how long it (repeated) would take, and why not when it cannot."""
         seconds = self.seconds_to_decide
+        rule = (f'for the difference in the held-out last 25 % of the record to add up to {DECISIVE_EVIDENCE:g} '
+                f'(noise RMS)^2 (white noise; more if not)')
         if seconds <= self.schedule.duration:
-            return (f'Enough to decide: the difference adds up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 in '
-                    f'{seconds:.0f} s if the noise is white.')
+            return f'Enough to decide: {seconds:.0f} s are needed {rule}.'
         reason = self.physical_reason()
         reason = f' Why: {reason}.' if reason else ''
+        if not math.isfinite(seconds):
+            quieter = self.noise_to_decide(PRACTICAL_SECONDS)
+            return (f'Cannot be decided at this noise, however long: the most separating schedule found (duty at '
+                    f'most {self.duty_limit:.3g}, angles below {math.degrees(self.angle_limit):.0f} deg) separates '
+                    f'the two models by {self.separation:.2g} x the noise RMS, below the {MATERIAL:g} x the '
+                    f'diagnosis needs to count a difference at all.{reason} About '
+                    f'{_decibels(self.noise_rms, quieter):.1f} dB less noise ({quieter * 1e3:.2f} mrad RMS) would '
+                    f'decide it in {PRACTICAL_SECONDS:.0f} s; or a hardware value (--fix) decides it.')
         if seconds <= PRACTICAL_SECONDS:
             return (f'Not enough in {self.schedule.duration:.0f} s: this schedule, repeated, needs about {seconds:.0f} '
-                    f's for the difference to add up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 (white noise; more if '
-                    f'not): give a longer budget (--design-seconds, --max-runs).{reason}')
+                    f's {rule}: give a longer budget (--max-seconds).{reason}')
         return (f'Cannot be decided within the limits at this noise: the most separating schedule found (duty at '
                 f'most {self.duty_limit:.3g}, angles below {math.degrees(self.angle_limit):.0f} deg) would have to '
-                f'run about {seconds:.3g} s for the difference to add up to {DECISIVE_EVIDENCE:g} (noise RMS)^2 '
-                f'(white noise; more if not).{reason} Lower noise (the time falls with the noise variance: 10 dB '
-                f'less noise, 10 times shorter) or a hardware value (--fix) decides it.')
+                f'run about {seconds:.3g} s {rule}.{reason} Lower noise (the time falls with the noise variance: '
+                f'10 dB less noise, 10 times shorter) or a hardware value (--fix) decides it.')
 
     def to_dict(self) -> dict:
         """Machine-readable form (SI units), as written into the schedule file's ``experiment`` section."""
@@ -252,11 +295,17 @@ class ExperimentDesign:
                 'schedules_tried': int(self.tried), 'seconds_to_decide': float(self.seconds_to_decide),
                 'blocks': [b.text() for b in self.schedule.blocks],
                 'decidable_within_limits': bool(self.seconds_to_decide <= PRACTICAL_SECONDS),
+                'material_separation_noise_rms': MATERIAL, 'repeats': int(self.repeats),
                 'description': self.describe(), 'doubts': list(self.doubts)}
 
     def write(self, path: str | Path) -> Path:
         """Write the schedule file (YAML, SI units; see :func:`write_schedule`)."""
         return write_schedule(path, self.schedule.steps, self.to_dict())
+
+
+def _decibels(noise_rms: float, lower_rms: float) -> float:
+    """How many dB `lower_rms` [rad] is below `noise_rms` [rad] (inf when it is 0)."""
+    return 20.0 * math.log10(noise_rms / lower_rms) if lower_rms > 0 else math.inf
 
 
 # ------------------------------------------------------------------------------------------------ predictions
@@ -457,7 +506,6 @@ def _score(models, duty, noise_rms, parameters, sample_time, draws, rng, angle_l
     if max_angle > angle_limit:
         return _Score(-math.inf, -math.inf, 0.0, max_angle)
     columns = [_basis(p.sensitivities(r[0])) for p, r in zip(predictors, runs)]
-    from aeropend_core.diagnosis.compare import TRAIN_FRACTION
     heldout = predictors[0].index >= int(round(TRAIN_FRACTION * len(duty)))
     parts = {'whole': slice(None), 'train': ~heldout, 'heldout': heldout}
     separations = {part: [] for part in parts}
@@ -472,82 +520,6 @@ def _score(models, duty, noise_rms, parameters, sample_time, draws, rng, angle_l
     peak = float(np.max(np.abs(runs[0][0] - runs[1][0]))) / noise_rms
     return _Score(float(min(separations['whole'])), float(separations['whole'][0]), peak, max_angle,
                   int(len(runs[0][0])), float(min(separations['train'])), float(min(separations['heldout'])))
-
-
-# ------------------------------------------------------------------------------------------------ the search
-def _random_blocks(rng: np.random.Generator, duration: float, duty_limit: float) -> tuple[Block, ...]:
-    """A random schedule: 3-7 blocks (steps, rests, sweeps, square waves) filling `duration` [s] after the lead rest."""
-    count = int(rng.integers(3, 8))
-    shares = rng.dirichlet(np.full(count, 2.0))
-    available = duration - LEAD_REST
-    blocks = [Block('rest', LEAD_REST)]
-    for share in shares:
-        seconds = max(0.5, round(float(share * available) / SWEEP_HOLD) * SWEEP_HOLD)
-        blocks.append(_random_block(rng, seconds, duty_limit))
-    return _fit_duration(tuple(blocks), duration)
-
-
-def _random_block(rng: np.random.Generator, seconds: float, duty_limit: float) -> Block:
-    kind = rng.choice(['step', 'rest', 'sweep', 'square'], p=[0.35, 0.2, 0.2, 0.25])
-    if kind == 'rest':
-        return Block('rest', seconds)
-    if kind == 'step':
-        return Block('step', seconds, level=float(rng.uniform(0.1, 1.0) * duty_limit))
-    mean = float(rng.uniform(0.2, 0.8) * duty_limit)
-    amplitude = float(rng.uniform(0.2, 1.0) * min(mean, duty_limit - mean))
-    low, high = sorted(rng.uniform(0.3, 4.0, size=2))
-    return Block(str(kind), seconds, level=mean, amplitude=amplitude, start_hz=float(low), stop_hz=float(high))
-
-
-def _structured_blocks(duration: float, duty_limit: float) -> list[tuple[Block, ...]]:
-    """Schedules every search starts with: square waves over the whole duty range (the largest, fastest swings: what
-    separates effects that differ only through the nonlinearities, bench/results/2026-11-27-s8-loop2), and steps
-    up to the limit with rests at duty 0 between them (the offset is read at rest; large angles)."""
-    available = duration - LEAD_REST
-    half = 0.5 * duty_limit
-    squares = [(Block('rest', LEAD_REST), Block('square', available, half, half, hz, hz)) for hz in (0.5, 1.0)]
-    dwell = available / 6
-    stairs = (Block('rest', LEAD_REST),) + tuple(
-        block for level in (0.4, 0.7, 1.0) for block in (Block('step', dwell, level=level * duty_limit),
-                                                         Block('rest', dwell)))
-    return [_fit_duration(blocks, duration) for blocks in squares + [stairs]]
-
-
-def _fit_duration(blocks: tuple[Block, ...], duration: float) -> tuple[Block, ...]:
-    """Stretch or cut the last block so that the blocks last exactly `duration` [s]."""
-    total = sum(b.seconds for b in blocks)
-    last = blocks[-1]
-    seconds = max(SWEEP_HOLD, last.seconds + duration - total)
-    from dataclasses import replace
-    return blocks[:-1] + (replace(last, seconds=seconds),)
-
-
-def _mutate(blocks: tuple[Block, ...], rng: np.random.Generator, duration: float,
-            duty_limit: float) -> tuple[Block, ...]:
-    """One local change: a block's level, amplitude, frequencies or length, or a block replaced."""
-    from dataclasses import replace
-    index = int(rng.integers(1, len(blocks)))
-    block = blocks[index]
-    choice = int(rng.integers(4))
-    if choice == 0:
-        changed = _random_block(rng, block.seconds, duty_limit)
-    elif choice == 1 and block.kind != 'rest':
-        level = float(np.clip(block.level + rng.normal(0, 0.1 * duty_limit), 0.05, duty_limit))
-        amplitude = min(block.amplitude, level, duty_limit - level)
-        changed = replace(block, level=level, amplitude=amplitude)
-    elif choice == 2 and block.kind in ('sweep', 'square'):
-        low, high = sorted(np.clip([block.start_hz, block.stop_hz] * np.exp(rng.normal(0, 0.3, 2)), 0.2, 5.0))
-        changed = replace(block, start_hz=float(low), stop_hz=float(high))
-    else:
-        seconds = float(np.clip(block.seconds * math.exp(rng.normal(0, 0.3)), 0.5, duration - LEAD_REST))
-        changed = replace(block, seconds=round(seconds / SWEEP_HOLD) * SWEEP_HOLD)
-    result = blocks[:index] + (changed,) + blocks[index + 1:]
-    total = sum(b.seconds for b in result)
-    if total > duration:            # keep the budget: shrink the other blocks in proportion
-        factor = (duration - LEAD_REST - changed.seconds) / max(total - LEAD_REST - changed.seconds, 1e-9)
-        result = tuple(b if i in (0, index) else replace(b, seconds=max(0.5, b.seconds * factor))
-                       for i, b in enumerate(result))
-    return _fit_duration(result, duration)
 
 
 def baseline_duty(duration: float, duty_limit: float, seed: int = 1,

@@ -8,9 +8,14 @@ tests play it on the in-process simulator. The loop itself is the same:
 2. while the verdict is ``confounded``: design the experiment that separates the two confounded models
    (:func:`aeropend_core.diagnosis.experiment_design.design_experiment`, within the duty and angle limits), play
    it, and diagnose *all* records so far together (:func:`aeropend_core.diagnosis.joint.diagnose_joint`);
-3. stop when the verdict is no longer ``confounded`` (decided), when the next experiment would go over the budget
-   (runs, seconds of excitation), when no design is possible within the limits (refused, with the reason), or when
-   a round could not be played.
+3. the design says how long its schedule, repeated, must run to decide at the record's noise
+   (:attr:`~aeropend_core.diagnosis.experiment_design.ExperimentDesign.seconds_to_decide`): the next round plays it
+   as many times as that needs, in one record, when that fits what is left of the budget; when it does not, the
+   loop ends at once with the verdict ``cannot_decide_within_budget`` and the stated need (how many seconds, or how
+   much less noise), instead of playing rounds that cannot decide;
+4. stop when the verdict is no longer ``confounded`` (decided), when the budget (runs, seconds of excitation) is
+   spent, when no design is possible within the limits (refused, with the reason), or when a round could not be
+   played.
 
 Every round keeps its diagnosis, what it played and the design made after it, so the caller can list them.
 """
@@ -42,7 +47,8 @@ class LoopBudget:
     max_seconds : float [s]
         Excitation over all runs at most (each designed run counts its schedule plus `overhead_seconds`).
     design_seconds : float [s]
-        Length of each designed experiment (at least the design's minimum, 20 s).
+        Length of each designed schedule (at least the design's minimum, 20 s); a round plays it as many times in
+        a row as the design says deciding needs.
     duty_limit : float, dimensionless
         Highest duty fraction a designed step may ask for.
     angle_limit : float [rad]
@@ -124,12 +130,22 @@ class LoopOutcome:
         The design's refusal ('' unless the loop ended because no experiment could be designed).
     excitation_seconds : float [s]
         Excitation played over all rounds.
+    needed_seconds : float [s]
+        With the verdict ``cannot_decide_within_budget``: how long the last design's schedule must run to decide
+        (inf when no duration decides at this noise); NaN otherwise.
+    needed_noise_rms : float [rad]
+        With that verdict: the angle-noise RMS at which the design would decide within the budget left.
+    verdict : str
+        ``decided``, ``cannot_decide_within_budget``, ``budget_spent``, ``refused`` or ``not_completed``.
     """
 
     rounds: list[LoopRound] = field(default_factory=list)
     ending: str = ''
     refused: str = ''
     excitation_seconds: float = 0.0
+    needed_seconds: float = math.nan
+    needed_noise_rms: float = math.nan
+    verdict: str = 'not_completed'
 
     @property
     def decision(self):
@@ -224,11 +240,13 @@ def until_decided(play: Callable, budget: LoopBudget = LoopBudget(), diagnose_op
         if on_round:
             on_round(current)
         if diagnosis.verdict != CONFOUNDED:
+            outcome.verdict = 'decided'
             outcome.ending = (f'decided after {len(records)} run(s) ({outcome.excitation_seconds:.0f} s of '
                               f'excitation)' + _unconfirmed(outcome.rounds))
             break
-        next_length = budget.design_seconds + budget.overhead_seconds
-        if len(records) >= budget.max_runs or outcome.excitation_seconds + next_length > budget.max_seconds:
+        left = budget.max_seconds - outcome.excitation_seconds - budget.overhead_seconds
+        if len(records) >= budget.max_runs or left < budget.design_seconds:
+            outcome.verdict = 'budget_spent'
             outcome.ending = (f'budget spent ({len(records)} of {budget.max_runs} runs, '
                               f'{outcome.excitation_seconds:.0f} s of {budget.max_seconds:g} s): still confounded')
             break
@@ -240,15 +258,80 @@ def until_decided(play: Callable, budget: LoopBudget = LoopBudget(), diagnose_op
                                        duty_limit=budget.duty_limit, angle_limit=budget.angle_limit,
                                        seed=seed + len(records), **dict(design_options or {}))
         except DesignRefused as error:
+            outcome.verdict = 'refused'
             outcome.refused = outcome.ending = f'no experiment designed: {error}'
             break
         current.design = design
         current.design_seconds = time.perf_counter() - started
+        needed = design.seconds_to_decide
+        repeats = max(1, math.ceil(needed / design.schedule.duration - 1e-9)) if math.isfinite(needed) else 0
+        if not repeats or repeats * design.schedule.duration > left:
+            outcome.verdict = 'cannot_decide_within_budget'
+            outcome.needed_seconds = needed
+            outcome.needed_noise_rms = design.noise_to_decide(_whole_schedules(left, design))
+            outcome.ending = cannot_decide_text(design, left, budget)
+            if on_round:
+                on_round(current)
+            break
+        if repeats > 1:
+            design = current.design = design.repeated(repeats)
+            say(f'the design needs about {needed:.0f} s to decide: playing its {budget.design_seconds:g} s schedule '
+                f'{repeats} times ({design.schedule.duration:.0f} s)')
         schedule = write_schedule(len(records) + 1, design) if write_schedule else None
         current.next_schedule = str(schedule or '')
         if on_round:
             on_round(current)
     return outcome
+
+
+def cannot_decide_text(design, left_seconds: float, budget: LoopBudget) -> str:
+    """The loop's early end when the design needs more than the budget left, in words.
+
+    Parameters
+    ----------
+    design : ExperimentDesign [-]
+        The last design (its need, noise and separation).
+    left_seconds : float [s]
+        Excitation left in the budget for the next round (its overhead taken off).
+    budget : LoopBudget [-]
+        The loop's budget (the --max-seconds it names).
+
+    Returns
+    -------
+    str
+        'cannot decide within the budget: ...' with the need and what to change.
+    """
+    from aeropend_core.diagnosis.experiment_design import MATERIAL, _decibels
+    needed = design.seconds_to_decide
+    noise = design.noise_rms
+    quieter = design.noise_to_decide(_whole_schedules(left_seconds, design))
+    lower = (f'lower the angle noise to about {quieter * 1e3:.2f} mrad RMS ({_decibels(noise, quieter):.1f} dB less)'
+             if quieter > 0 else 'lower the angle noise')
+    reason = design.physical_reason()
+    reason = f' ({reason})' if reason else ''
+    where = (f'{", ".join(m.label for m in design.models)}: the best schedule found separates them by '
+             f'{design.separation:.2g} x the noise RMS')
+    if not math.isfinite(needed):
+        return (f'cannot decide within the budget: at this noise ({noise * 1e3:.2f} mrad RMS, {_psnr(noise):.0f} dB '
+                f'of the pi/2 full scale) no duration decides ({where}, below the {MATERIAL:g} x the diagnosis needs '
+                f'to count a difference){reason}; {lower} to decide within the {left_seconds:.0f} s left, or fix one '
+                'of the two at its hardware value (--fix)')
+    total = budget.max_seconds - left_seconds + math.ceil(needed / design.schedule.duration - 1e-9) * \
+        design.schedule.duration
+    return (f'cannot decide within the budget: the design needs about {needed:.0f} s of this schedule at this noise '
+            f'({noise * 1e3:.2f} mrad RMS, {_psnr(noise):.0f} dB of the pi/2 full scale; {where}), '
+            f'{left_seconds:.0f} s are left; raise --max-seconds to {math.ceil(total / 10) * 10:.0f} s, or {lower}'
+            f'{reason}')
+
+
+def _whole_schedules(seconds: float, design) -> float:
+    """The part of `seconds` [s] that whole repetitions of the design's schedule fill [s]."""
+    return math.floor(seconds / design.schedule.duration + 1e-9) * design.schedule.duration
+
+
+def _psnr(noise_rms: float) -> float:
+    """The angle noise as a PSNR [dB] of the pi/2 full scale (the simulator's and the stream's convention)."""
+    return 20.0 * math.log10((math.pi / 2) / noise_rms) if noise_rms > 0 else math.inf
 
 
 def _unconfirmed(rounds: list[LoopRound]) -> str:
@@ -264,4 +347,5 @@ def _unconfirmed(rounds: list[LoopRound]) -> str:
             'would tell')
 
 
-__all__ = ['LoopBudget', 'LoopOutcome', 'LoopRound', 'Played', 'RoundFailed', 'diagnose_records', 'until_decided']
+__all__ = ['cannot_decide_text', 'LoopBudget',
+           'LoopOutcome', 'LoopRound', 'Played', 'RoundFailed', 'diagnose_records', 'until_decided']

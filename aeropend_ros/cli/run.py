@@ -336,7 +336,7 @@ def _run(args) -> int:
 
     from aeropend_core.model.parameters import SAMPLE_TIME
     from aeropend_ros.cli.experiment_loop import excitation_overrides as experiment_overrides
-    from aeropend_ros.cli.experiment_loop import experiment_metadata
+    from aeropend_ros.cli.experiment_loop import LATE_START_LIMIT, ScheduleClock, experiment_metadata
     from aeropend_ros.excitation_node import ExcitationNode
     from aeropend_ros.identification_node import IdentificationNode
 
@@ -374,7 +374,9 @@ def _run(args) -> int:
             source = SimNode(parameter_overrides=overrides(
                 effects=list(hidden) or [''], psnr_db=float(args.psnr), seed=int(args.seed),
                 duty_limit=float(args.duty_cap), realtime_factor=float(args.realtime_factor),
-                stop_after=float(args.duration)), namespace=namespace, guard_duty_sources=True)
+                stop_after=float(args.duration) + (LATE_START_LIMIT if args.experiment else 0.0),
+                wait_for_subscribers=2),    # the recorder and the identification: no start-up backlog
+                namespace=namespace, guard_duty_sources=True)
         else:
             from aeropend_ros.serial_bridge_node import SerialBridgeNode
             calibrated = {}
@@ -390,6 +392,8 @@ def _run(args) -> int:
             duty_cap=float(args.duty_cap), duty_max=min(0.7, float(args.duty_cap)), start_delay=start_delay,
             time_source='wall', time_scale=float(args.realtime_factor) if use_sim else 1.0, exit_when_done=False,
             **experiment_overrides(args)), namespace=namespace)
+        if use_sim:     # the schedule plays in simulated time: the simulator's published samples x Ts
+            excitation.follow(lambda: source.sequence * source.sample_time)
         nodes.append(excitation)
         identification = IdentificationNode(parameter_overrides=overrides(
             window_s=float(args.window), hop_s=float(args.hop), effects=list(args.model_effect) or ['']),
@@ -436,8 +440,11 @@ def _run(args) -> int:
             spinner = threading.Thread(target=_spin, args=(executor,), name=node.get_name(), daemon=True)
             spinner.start()
             spinners.append(spinner)
+        clock = ScheduleClock(excitation, source, use_sim, float(args.duration), whole=bool(args.experiment))
         interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME, recorder,
-                                       lambda: foreign_publishers(nodes, namespace), _watched_topics(namespace))
+                                       lambda: foreign_publishers(nodes, namespace), _watched_topics(namespace), clock)
+        if recorder is not None:        # where the schedule starts in the record, and whether it was played whole
+            recorder.writer.custom_data.update(clock.metadata())
         if excitation.started and not excitation.done:
             excitation.finish()          # duty back to 0 before the graph goes away
         if recorder is not None:
@@ -614,7 +621,7 @@ def _say_samples_received(identification, published: int) -> None:
 
 
 def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float,
-                     recorder=None, foreign=None, watched=()) -> bool:
+                     recorder=None, foreign=None, watched=(), clock=None) -> bool:
     """Print the live windows (one line each) until the experiment is over; True when interrupted (Ctrl-C).
 
     Stops early when the recorder cannot write the bag (disk full): the run then ends with that error. `foreign`
@@ -632,7 +639,8 @@ def _wait_until_done(args, source, excitation, identification, use_sim: bool, sa
                 if found:
                     printer._end_progress()
                     raise _graph_in_use(args.namespace, found, watched)
-            if (use_sim and source.finished) or (not use_sim and time.monotonic() - started > args.duration):
+            if clock.over() if clock is not None else (
+                    (use_sim and source.finished) or (not use_sim and time.monotonic() - started > args.duration)):
                 break
             if recorder is not None and recorder.failed:
                 printer._end_progress()
