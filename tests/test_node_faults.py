@@ -547,6 +547,15 @@ def identification(tester, graph):
     """identification_node matched with the test's sample publisher."""
     assert tester.wait_for(lambda: tester.samples_publisher.get_subscription_count() > 0), \
         graph['identification_node'].output()
+    # Its status comes once a second while it waits for data and says while its analysis worker (a spawned process
+    # importing the numerical stack) is still starting, which can take minutes on a loaded machine: a window due
+    # before then is skipped, so the scenarios start only once the worker is up.
+    from aeropend_ros.identification_node import DIAGNOSTIC_NAME
+
+    def worker_up() -> bool:
+        statuses = tester.statuses_named(DIAGNOSTIC_NAME)
+        return bool(statuses) and 'still starting' not in statuses[-1].message
+    assert tester.wait_for(worker_up, 300.0), [s.message for s in tester.statuses_named(DIAGNOSTIC_NAME)[-3:]]
     return graph['identification_node']
 
 
