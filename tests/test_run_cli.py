@@ -19,16 +19,18 @@ def run_cli(arguments, env, timeout=120.0):
     return subprocess.run(AEROPEND + arguments, env=env, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
 
 
-@pytest.mark.timeout(240)
+@pytest.mark.timeout(300)
 def test_run_records_identifies_and_diagnoses(tmp_path):
-    """30 s of the default sim (hidden angle offset) at 2x: bag complete, windows identified, offset diagnosed."""
+    """30 s of the default sim (hidden angle offset) in real time: bag complete, windows identified, offset
+    diagnosed. Real time, not faster: the identification's worker process may take tens of seconds to start on a
+    loaded machine, and windows due before it is up are skipped (said), so a 15 s run could end with none."""
     env = local_ros_environment(domain_id=private_domain_id())
-    run = subprocess.Popen(AEROPEND + ['run', '--duration', '30', '--realtime-factor', '2', '--record',
+    run = subprocess.Popen(AEROPEND + ['run', '--duration', '30', '--realtime-factor', '1', '--record',
                                        str(tmp_path), '--window', '12', '--hop', '3',
                                        '--json', str(tmp_path / 'run.json'), '--report', str(tmp_path / 'r.html')],
                            env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        monitor = run_cli(['monitor', '--once', '--timeout', '60'], env, timeout=90)
+        monitor = run_cli(['monitor', '--once', '--timeout', '120'], env, timeout=150)
         output, _ = run.communicate(timeout=200)
     finally:
         if run.poll() is None:
