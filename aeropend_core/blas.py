@@ -3,9 +3,11 @@
 aeropend's matrices are small (a Jacobian of about ten thousand rows and tens of columns, Gram matrices of tens
 of columns): one thread does each product in microseconds to milliseconds. OpenBLAS's own threads cost far more
 than they save there, and on a machine whose cores are busy (the ROS graph beside the diagnosis, a second test
-worker) a product waits for a descheduled thread: measured on the project's 2-core machine at a load average of
-about 7, ``(11 x 10959) @ (10959 x 16)`` took 0.54 s with OpenBLAS's two threads and 2 ms with one, and a 60 s
-diagnosis 20.5 s of CPU against 11 s (``bench/results/2026-11-27-s10-suite/``).
+worker) a product can wait for a descheduled thread. Measured on the project's 2-core machine: at a load average of
+about 7, ``(11 x 10959) @ (10959 x 16)`` took 0.54 s with OpenBLAS's two threads and 2 ms with one (at a load of 5
+the same product took 0.5 ms and 0.3 ms: the cost comes with the load); ``aeropend diagnose`` of a 60 s record took
+13-15.3 s of CPU with one thread against 21.5-24.4 s with two, at loads of 5-6 (``bench/bench_blas_threads.py``,
+``bench/results/2026-11-27-s10-suite/``).
 """
 from __future__ import annotations
 
