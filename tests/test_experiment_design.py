@@ -137,9 +137,9 @@ def test_the_loop_stops_when_decided_on_its_budget_or_on_a_refused_design(monkey
 
     from aeropend_core.diagnosis.experiment_loop import LoopBudget, Played, until_decided
     searched = design_experiment([LAG, FILTER], 0.004, duration=20.0, seed=3, **QUICK)
-    # separations set by hand (the need scales with 1 / separation^2): 0.2 x the noise decides in ~10 s, 0.09 x
+    # separations set by hand (the need scales with 1 / separation^2): 0.29 x the noise decides in ~10 s, 0.13 x
     # needs ~2.5 schedules of 20 s, 0.04 x is below the diagnosis's materiality floor (no duration decides)
-    design = replace(searched, separation=0.2)
+    design = replace(searched, separation=0.29)
     assert design.seconds_to_decide < 20.0
 
     def run(verdicts, budget, refuse=False, design=design):
@@ -186,7 +186,7 @@ def test_the_loop_stops_when_decided_on_its_budget_or_on_a_refused_design(monkey
     assert len(played) == 1 and outcome.refused == outcome.ending and outcome.verdict == 'refused'
     assert 'no experiment designed: no schedule keeps every model below the angle limit' in outcome.refused
     # the design's own need: played as many times as it says (one record), or an honest end at once
-    longer = replace(searched, separation=0.09)
+    longer = replace(searched, separation=0.13)
     assert 40.0 < longer.seconds_to_decide <= 60.0
     outcome, played, _ = run(['confounded', 'effect_found'], budget, design=longer)
     schedule = played[1][0].schedule
@@ -223,6 +223,7 @@ def test_the_designs_decision_rule_is_the_diagnosiss():
     """The design's materiality floor and held-out share are the diagnosis's own (copied to keep imports light)."""
     from aeropend_core.diagnosis import candidates, compare, experiment_design
     assert experiment_design.MATERIAL == candidates.MATERIAL
+    assert experiment_design.DM_THRESHOLD == candidates.DM_MIN
     assert experiment_design.TRAIN_FRACTION == compare.TRAIN_FRACTION
 
 
@@ -362,16 +363,17 @@ def test_the_loop_decides_a_confounded_first_record():
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(600)
+@pytest.mark.timeout(900)
 def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
     """`aeropend run --until-decided` on the simulator, through the real graph (sim, excitation, recorder nodes): a
     20 ms thrust lag at 50 dB after a 40 s first schedule (Latin hypercube 0-0.7, seed 26000, then 3 s at duty 0) is
     confounded with an angle filter by the diagnosis's own rule; the loop designs a 30 s separating schedule (10 +
-    5 schedules searched), plays it as many times as the design says deciding needs (the budget, 300 s, allows it)
+    5 schedules searched), plays it as many times as the design's 90 % power need says (the budget, 420 s, allows it)
     through the excitation node, and the joint diagnosis of both bags names the lag alone, its size within 3 sigma.
-    Measured 3 times on a loaded host: the design said 121 s, the loop played the schedule 5 times and decided,
-    19.94 +- 0.10 ms (2 runs, 198 s of excitation, 3.1 min wall); 98 s, 4 times, still confounded, then 87 s, 3
-    times, decided (3 runs, 261 s, 5.0 min); 92 s, 4 times, decided, 20.04 +- 0.11 ms (2 runs, 168 s, 2.0 min).
+    Idle, session 11: the design said 201 s, the loop played the schedule 7 times and decided, 20.05 +- 0.08 ms
+    (2 runs, 258 s of excitation, 139 s wall). Under the earlier 50 % rule (evidence 25) the design asked 87-121 s
+    and 1 run in 3 stayed confounded, and once, beside a CPU hog, the loop spent its 3 runs undecided: that rare
+    end is accepted when it is honest (the pair said, 'budget spent').
     At 58 dB, the earlier setting, the first record now names the lag at once: since the run plays its schedule on
     the simulator's sample clock and whole, the first record holds more of it (bench/results/2026-11-27-s10-loop4).
     An angle offset vs a cable spring is never confounded in a run's record: the run's 1 s rest at duty 0 before
@@ -390,17 +392,18 @@ def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
     env = local_ros_environment(domain_id=private_domain_id())
     result = subprocess.run(AEROPEND + ['run', '--until-decided', '--experiment', str(path), '--effect',
                                         'thrust_lag=0.02', '--psnr', '50', '--seed', '26000', '--realtime-factor', '4',
-                                        '--window', '120', '--max-runs', '3', '--design-seconds', '30',
+                                        '--window', '120', '--max-runs', '3', '--max-seconds', '420',
+                                        '--design-seconds', '30',
                                         '--design-candidates', '10', '--record', str(tmp_path / 'bags'),
                                         '--json', str(tmp_path / 'loop.json'), '--quiet'],
-                            env=env, cwd=ROOT, capture_output=True, text=True, timeout=560)
+                            env=env, cwd=ROOT, capture_output=True, text=True, timeout=840)
     assert result.returncode == 0, result.stderr[-3000:] + result.stdout[-3000:]
     loop = json.loads((tmp_path / 'loop.json').read_text())
     rounds = loop['rounds']
     assert len(loop['bags']) == len(rounds), loop['ending']
     # The noise is seeded, the moment the graph applies each duty step is not (a few simulator ticks): a first
     # record that names the lag at once is accepted; a confounded one must lead to a designed experiment played
-    # through the graph, decided by the first design when measured (a third run allowed).
+    # through the graph (the design's need, a 90 % power calculation, fits the 420 s budget).
     if rounds[0]['verdict'] == 'confounded':
         pair = next(f for f in rounds[0]['diagnosis']['missing_effects'] if f.get('confounded_with'))
         assert {pair['effect'], *pair['confounded_with']} == {'thrust_lag', 'angle_filter'}, pair
@@ -413,10 +416,36 @@ def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
     else:
         assert len(rounds) == 1, loop['ending']
     decision = loop['decision']
-    assert decision['verdict'] == 'effect_found' and decision['add'] == ['thrust_lag'], decision['message']
-    found = decision['missing_effects'][0]
-    assert abs(found['parameters']['time_constant'] - 0.02) < 3 * found['standard_errors']['time_constant'], found
     assert not any('gap(s) of lost samples' in note for note in decision['notes']), decision['notes']
     # a joint diagnosis counts each record's train and held-out part, a single record counts one
     assert decision['gaps']['records'] == (2 * len(rounds) if len(rounds) > 1 else 1), decision['gaps']
+    if decision['verdict'] != 'effect_found':
+        # The played design decides 9 times in 10 (test_the_designs_need_decides_nine_times_in_ten_on_white_noise),
+        # a third run is allowed: the rare rest must end honestly, the pair still said, never the filter alone.
+        pair = next(f for f in decision['missing_effects'] if f.get('confounded_with'))
+        assert decision['verdict'] == 'confounded' and decision['add'] == [], decision['message']
+        assert {pair['effect'], *pair['confounded_with']} == {'thrust_lag', 'angle_filter'}, pair
+        assert loop['loop_verdict'] == 'budget_spent' and loop['ending'].startswith('budget spent'), loop['ending']
+        return
+    assert decision['add'] == ['thrust_lag'], decision['message']
+    found = decision['missing_effects'][0]
+    assert abs(found['parameters']['time_constant'] - 0.02) < 3 * found['standard_errors']['time_constant'], found
     assert loop['ending'].startswith(f'decided after {len(rounds)} run(s)'), loop['ending']
+
+
+def test_the_designs_need_decides_nine_times_in_ten_on_white_noise():
+    """seconds_to_decide is a power calculation: held-out evidence DECISIVE_EVIDENCE (sum of (separation / noise)^2)
+    clears the diagnosis's own Diebold--Mariano test (its function and threshold) in DECISION_POWER = 90 % of draws of
+    white noise, whatever the separation's shape and the record's length (300 seeded draws each: binomial 1 sigma is
+    1.7 %)."""
+    from aeropend_core.diagnosis.evidence import diebold_mariano
+    from aeropend_core.diagnosis.experiment_design import DECISION_POWER, DECISIVE_EVIDENCE, DM_THRESHOLD
+    rng = np.random.default_rng(27)
+    for samples in (2450, 9800):
+        time = np.arange(samples) * 0.00204
+        for shape in (np.ones(samples), np.sin(2 * np.pi * 0.3 * time),
+                      np.sign(np.sin(2 * np.pi * 0.2 * time)) * (1 + 0.5 * np.sin(2 * np.pi * 0.05 * time))):
+            separation = shape / np.sqrt(np.mean(shape ** 2)) * np.sqrt(DECISIVE_EVIDENCE / samples)
+            noise = rng.standard_normal((300, samples))
+            decided = np.mean([diebold_mariano(n + separation, n)[0] >= DM_THRESHOLD for n in noise])
+            assert abs(decided - DECISION_POWER) < 0.07, (samples, decided)

@@ -38,6 +38,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from statistics import NormalDist
 
 import numpy as np
 
@@ -61,11 +62,19 @@ DEFAULT_DRAWS = 4
 #: Random schedules tried, then local changes of the best.
 DEFAULT_CANDIDATES = 60
 DEFAULT_REFINEMENTS = 30
+#: The diagnosis's threshold on the held-out Diebold--Mariano statistic (aeropend_core.diagnosis.candidates.DM_MIN,
+#: kept equal by a test; not imported, see MATERIAL).
+DM_THRESHOLD = 2.33
+#: Probability that a schedule played for its ``seconds_to_decide`` decides (white noise): the need is a power
+#: calculation, not the time at which the expected statistic just reaches the threshold (that decides about half
+#: the time, and the loop then spends a second run).
+DECISION_POWER = 0.9
 #: Accumulated evidence, sum of (separation / noise)^2 over the samples of the played record's held-out last 25 %
-#: (where the diagnosis judges the models), taken as decisive: for white noise the Diebold--Mariano statistic of
-#: that part is about sqrt(evidence) / 2 = 2.5, above the diagnosis's 2.33 (candidates.DM_MIN); correlated noise
-#: needs more. How long a schedule, repeated, must run.
-DECISIVE_EVIDENCE = 25.0
+#: (where the diagnosis judges the models), taken as decisive. For white noise the Diebold--Mariano statistic of that
+#: part is about N(sqrt(evidence) / 2, 1), so it clears DM_THRESHOLD with probability DECISION_POWER when
+#: sqrt(evidence) / 2 = 2.33 + 1.28: evidence 52.2. Correlated noise needs more. How long a schedule, repeated, must
+#: run.
+DECISIVE_EVIDENCE = (2.0 * (DM_THRESHOLD + NormalDist().inv_cdf(DECISION_POWER))) ** 2
 #: The diagnosis counts a difference between two models only when it lowers the held-out mean-square error by at
 #: least (MATERIAL x the noise RMS)^2 (aeropend_core.diagnosis.candidates.MATERIAL, kept equal by a test; not
 #: imported: the diagnosis modules take seconds to import): a schedule that separates less decides at no length.
@@ -196,8 +205,8 @@ class ExperimentDesign:
 
     @property
     def seconds_to_decide(self) -> float:
-        """How long [s] this schedule, repeated, must run to decide: its held-out quarter's evidence reaches
-        DECISIVE_EVIDENCE (inf when the separation is below the diagnosis's materiality floor, MATERIAL x the noise:
+        """How long [s] this schedule, repeated, must run to decide DECISION_POWER (90 %) of the time: its held-out
+        quarter's evidence reaches DECISIVE_EVIDENCE (inf when the separation is below the diagnosis's materiality floor, MATERIAL x the noise:
         then no duration decides)."""
         if not self.separation >= MATERIAL:
             return math.inf
@@ -257,8 +266,8 @@ class ExperimentDesign:
     def decidability(self) -> str:
         """Whether this schedule decides, how long it (repeated) would take, and why not when it cannot."""
         seconds = self.seconds_to_decide
-        rule = (f'for the difference in the held-out last 25 % of the record to add up to {DECISIVE_EVIDENCE:g} '
-                f'(noise RMS)^2 (white noise; more if not)')
+        rule = (f'for the difference in the held-out last 25 % of the record to add up to {DECISIVE_EVIDENCE:.0f} '
+                f'(noise RMS)^2, enough to decide {DECISION_POWER:.0%} of the time (white noise; more if not)')
         if seconds <= self.schedule.duration:
             return f'Enough to decide: {seconds:.0f} s are needed {rule}.'
         reason = self.physical_reason()
@@ -293,6 +302,7 @@ class ExperimentDesign:
                 'noise_rms_rad': float(self.noise_rms), 'max_predicted_angle_rad': float(self.max_angle),
                 'duty_limit': float(self.duty_limit), 'angle_limit_rad': float(self.angle_limit),
                 'schedules_tried': int(self.tried), 'seconds_to_decide': float(self.seconds_to_decide),
+                'decision_power': DECISION_POWER,
                 'blocks': [b.text() for b in self.schedule.blocks],
                 'decidable_within_limits': bool(self.seconds_to_decide <= PRACTICAL_SECONDS),
                 'material_separation_noise_rms': MATERIAL, 'repeats': int(self.repeats),
