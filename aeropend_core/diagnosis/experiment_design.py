@@ -206,8 +206,8 @@ class ExperimentDesign:
     @property
     def seconds_to_decide(self) -> float:
         """How long [s] this schedule, repeated, must run to decide DECISION_POWER (90 %) of the time: its held-out
-        quarter's evidence reaches DECISIVE_EVIDENCE (inf when the separation is below the diagnosis's materiality floor, MATERIAL x the noise:
-        then no duration decides)."""
+        quarter's evidence reaches DECISIVE_EVIDENCE (inf when the separation is below the diagnosis's materiality
+        floor, MATERIAL x the noise: then no duration decides)."""
         if not self.separation >= MATERIAL:
             return math.inf
         return self._seconds_at(self.separation)
