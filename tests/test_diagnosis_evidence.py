@@ -15,7 +15,8 @@ import pytest
 from aeropend_core.cli import main as cli_main
 from aeropend_core.io.recording import write_csv
 from aeropend_core.diagnosis.diagnose import diagnose
-from aeropend_core.diagnosis.evidence import diebold_mariano, effective_samples, hac_covariance, long_run_variance
+from aeropend_core.diagnosis.evidence import (bandwidth, diebold_mariano, effective_samples, hac_covariance,
+                                              long_run_variance)
 from aeropend_core.io.recording import from_columns
 from aeropend_core.model.effects import CATALOG
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS
@@ -78,6 +79,24 @@ def test_hac_standard_error_grows_with_residual_correlation_and_dm_detects_a_rea
     better, _ = diebold_mariano(truth + noise, noise)
     same, _ = diebold_mariano(noise, rng.normal(scale=0.01, size=n))
     assert better > 5 and abs(same) < 3
+
+
+def test_dm_of_a_diverging_model_is_a_number_and_scale_free():
+    """A candidate whose held-out simulation diverges (errors growing to 1e80 rad, squares to 1e160: their products
+    overflow) is judged worse, not a crash: a fresh-clone run with OPENBLAS_CORETYPE=Sandybridge hit 'cannot convert
+    float NaN to integer' in the bandwidth of such a series (tests/test_current_clipped.py, session 11). The statistic
+    does not depend on the errors' unit."""
+    rng = np.random.default_rng(11)
+    n = 2_000
+    noise = rng.normal(scale=0.01, size=n)
+    diverging = noise + np.concatenate([np.zeros(n - 40), 10.0 ** np.linspace(-2, 80, 40)])
+    worse, gain = diebold_mariano(noise, diverging)
+    assert np.isfinite(worse) and worse < 0 and gain < -1e150
+    assert 1 <= bandwidth(noise ** 2 - diverging ** 2) <= n // 8
+    truth = np.sin(np.linspace(0, 20, n)) * 0.01
+    for scale in (1e-100, 1.0, 1e100):
+        assert diebold_mariano(scale * (truth + noise), scale * noise)[0] == pytest.approx(
+            diebold_mariano(truth + noise, noise)[0], rel=1e-9)
 
 
 # ------------------------------------------------------------------------------------ several effects at once

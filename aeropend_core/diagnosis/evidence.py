@@ -35,9 +35,12 @@ def bandwidth(x: np.ndarray) -> int:
     if n < 16:
         return 1
     centred = x - x.mean()
-    denominator = float(np.dot(centred, centred))
-    if denominator <= 0:
+    # rho is scale-free: scaled to at most 1, a series of huge values (a diverging model's errors) cannot overflow
+    scale = float(np.max(np.abs(centred)))
+    if not (scale > 0 and math.isfinite(scale)):
         return 1
+    centred = centred / scale
+    denominator = float(np.dot(centred, centred))
     rho = float(np.dot(centred[1:], centred[:-1]) / denominator)
     rho = min(max(rho, 0.0), 0.999)
     alpha = 4.0 * rho ** 2 / ((1.0 - rho) ** 2 * (1.0 + rho) ** 2)
@@ -217,10 +220,14 @@ def diebold_mariano(error_reference: np.ndarray, error_candidate: np.ndarray) ->
     if d.size < 10:
         return float('nan'), float('nan')
     mean = float(np.mean(d))
-    lrv = long_run_variance(d)
+    # The statistic is scale-free: computed on d / max|d|, the squares of a diverging model's errors (1e160 rad^2
+    # and more) cannot overflow into a NaN bandwidth; the gain keeps its unit.
+    scale = float(np.max(np.abs(d)))
+    scaled = d / scale if scale > 0 and math.isfinite(scale) else d
+    lrv = long_run_variance(scaled)
     if not lrv > 0:
         return (math.inf if mean > 0 else -math.inf if mean < 0 else 0.0), mean
-    return float(mean / math.sqrt(lrv / d.size)), mean
+    return float(np.mean(scaled) / math.sqrt(lrv / d.size)), mean
 
 
 def finite_or_none(x: float | None) -> float | None:
