@@ -373,7 +373,8 @@ def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
     Idle, session 11: the design said 201 s, the loop played the schedule 7 times and decided, 20.05 +- 0.08 ms
     (2 runs, 258 s of excitation, 139 s wall). Under the earlier 50 % rule (evidence 25) the design asked 87-121 s
     and 1 run in 3 stayed confounded, and once, beside a CPU hog, the loop spent its 3 runs undecided: that rare
-    end is accepted when it is honest (the pair said, 'budget spent').
+    end is accepted when it is honest (the pair said; 'budget spent', or 'cannot decide within the budget' with the
+    need stated when the redesign after an undecided run does not fit what is left).
     At 58 dB, the earlier setting, the first record now names the lag at once: since the run plays its schedule on
     the simulator's sample clock and whole, the first record holds more of it (bench/results/2026-11-27-s10-loop4).
     An angle offset vs a cable spring is never confounded in a run's record: the run's 1 s rest at duty 0 before
@@ -425,7 +426,11 @@ def test_run_until_decided_decides_through_the_ros_graph(tmp_path):
         pair = next(f for f in decision['missing_effects'] if f.get('confounded_with'))
         assert decision['verdict'] == 'confounded' and decision['add'] == [], decision['message']
         assert {pair['effect'], *pair['confounded_with']} == {'thrust_lag', 'angle_filter'}, pair
-        assert loop['loop_verdict'] == 'budget_spent' and loop['ending'].startswith('budget spent'), loop['ending']
+        # Either honest end: the runs or seconds are spent, or the next design's need does not fit what is left
+        # (CI, stop 33: after one undecided designed run the redesign needed 177 s, 159 s were left).
+        assert (loop['loop_verdict'], loop['ending'].split(' (')[0].split(':')[0]) in {
+            ('budget_spent', 'budget spent'),
+            ('cannot_decide_within_budget', 'cannot decide within the budget')}, loop['ending']
         return
     assert decision['add'] == ['thrust_lag'], decision['message']
     found = decision['missing_effects'][0]

@@ -124,6 +124,24 @@ def test_a_graph_that_appears_while_a_run_lasts_stops_it_with_the_same_refusal(t
     assert len(read_samples(bags[0])['sequence']) > 0          # finalised: read back
 
 
+def test_an_endpoint_seen_before_its_nodes_name_delays_the_refusal_not_past_the_deadline():
+    """rmw shows a foreign endpoint with '_NODE_NAME_UNKNOWN_' until its participant's node info arrives (CI, stop 33:
+    the refusal named '_NODE_NAMESPACE_UNKNOWN_/_NODE_NAME_UNKNOWN_' instead of the sim started by hand). The running
+    check waits for the name, up to GRAPH_WAIT s, then refuses anyway with a readable phrase."""
+    from types import SimpleNamespace
+
+    from aeropend_ros.cli.run import GRAPH_WAIT, UNNAMED_NODE, _publisher_name, refusal_due
+    unknown = SimpleNamespace(node_name='_NODE_NAME_UNKNOWN_', node_namespace='_NODE_NAMESPACE_UNKNOWN_')
+    assert _publisher_name(unknown) == UNNAMED_NODE
+    assert _publisher_name(SimpleNamespace(node_name='sim_node', node_namespace='/')) == '/sim_node'
+    assert _publisher_name(SimpleNamespace(node_name='sim_node', node_namespace='/rig_a')) == '/rig_a/sim_node'
+    assert not refusal_due(set(), 100.0)
+    assert not refusal_due({'/sim_node', UNNAMED_NODE}, 0.0)            # ours and a foreign one not yet named
+    assert not refusal_due({'/sim_node', UNNAMED_NODE}, GRAPH_WAIT - 0.1)
+    assert refusal_due({'/sim_node', UNNAMED_NODE}, GRAPH_WAIT)
+    assert refusal_due({'/sim_node'}, 0.0)                               # named: at once
+
+
 def test_sim_refuses_two_duty_sources_and_says_so(caplog):
     """The sim as `aeropend run` builds it (guard_duty_sources=True, SingleThreadedExecutor), in this process; the
     sources and the listener are other nodes of the same process, over DDS."""

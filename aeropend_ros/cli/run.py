@@ -235,15 +235,11 @@ def check_graph_is_free(node, namespace: str) -> None:
     start = time.monotonic()
     seen, changed = None, start
     while True:
-        found = set()
-        for topic in watched:
-            for info in node.get_publishers_info_by_topic(topic):
-                found.add(f'{info.node_namespace.rstrip("/")}/{info.node_name}')
+        found = {_publisher_name(info) for topic in watched for info in node.get_publishers_info_by_topic(topic)}
         now = time.monotonic()
-        named = {name for name in found if '_UNKNOWN_' not in name}
-        if found and (named or now - start >= GRAPH_WAIT):
+        if found and (found != {UNNAMED_NODE} or now - start >= GRAPH_WAIT):
             # Discovery may show an endpoint before its node's name: wait for the name, not past the deadline.
-            raise _graph_in_use(namespace, named or {'a node whose name discovery has not told yet'}, watched)
+            raise _graph_in_use(namespace, found - {UNNAMED_NODE} or found, watched)
         names = frozenset(node.get_node_names_and_namespaces())
         if names != seen:
             seen, changed = names, now
@@ -251,6 +247,27 @@ def check_graph_is_free(node, namespace: str) -> None:
                                                           now - changed >= GRAPH_SETTLE)):
             return
         rclpy.spin_once(node, timeout_sec=0.1)
+
+
+#: How a publisher is named while discovery has shown its endpoint but not yet its node's name.
+UNNAMED_NODE = 'a node whose name discovery has not told yet'
+
+
+def _publisher_name(info) -> str:
+    """The fully qualified node name of a publisher's endpoint info, or UNNAMED_NODE while discovery has not told it
+    (rmw reports '_NODE_NAME_UNKNOWN_' / '_NODE_NAMESPACE_UNKNOWN_' until the participant's node info arrives)."""
+    if '_UNKNOWN_' in info.node_name or '_UNKNOWN_' in info.node_namespace:
+        return UNNAMED_NODE
+    return f'{info.node_namespace.rstrip("/")}/{info.node_name}'
+
+
+def refusal_due(found: set[str], unnamed_for: float) -> bool:
+    """Whether a running graph stops for the foreign publishers `found` (names from :func:`foreign_publishers`).
+
+    Discovery can show a foreign endpoint a moment before its node's name; as at start-up, the refusal waits for the
+    name (so that it says which node to stop), but not past GRAPH_WAIT s (`unnamed_for` [s]: how long an unnamed
+    endpoint has been seen)."""
+    return bool(found) and (UNNAMED_NODE not in found or unnamed_for >= GRAPH_WAIT)
 
 
 def _watched_topics(namespace: str) -> tuple[str, str]:
@@ -292,7 +309,7 @@ def foreign_publishers(nodes, namespace: str) -> set[str]:
         infos = nodes[0].get_publishers_info_by_topic(topic)
         ours = sum(1 for node in nodes for publisher in node.publishers if publisher.topic_name == topic)
         if len(infos) > ours:
-            found.update(f'{info.node_namespace.rstrip("/")}/{info.node_name}' for info in infos)
+            found.update(_publisher_name(info) for info in infos)
     return found
 
 
@@ -629,6 +646,7 @@ def _wait_until_done(args, source, excitation, identification, use_sim: bool, sa
     FOREIGN_CHECK_PERIOD_S: another graph found while the run lasts stops it with the start-up check's refusal."""
     started = time.monotonic()
     checked = started
+    unnamed_since = None        # when a foreign endpoint was first seen without its node's name
     printer = _WindowPrinter(identification, args.window, quiet=getattr(args, 'quiet', False))
     try:
         while True:
@@ -636,7 +654,8 @@ def _wait_until_done(args, source, excitation, identification, use_sim: bool, sa
             if foreign is not None and time.monotonic() - checked >= FOREIGN_CHECK_PERIOD_S:
                 checked = time.monotonic()
                 found = foreign()
-                if found:
+                unnamed_since = (unnamed_since or checked) if UNNAMED_NODE in found else None
+                if refusal_due(found, checked - (unnamed_since or checked)):
                     printer._end_progress()
                     raise _graph_in_use(args.namespace, found, watched)
             if clock.over() if clock is not None else (
