@@ -30,7 +30,7 @@ pytestmark = pytest.mark.timeout(240)
 
 
 def test_the_rig_lock_admits_one_graph_per_rig_and_domain(tmp_path, monkeypatch):
-    from aeropend_ros.cli.run import claim_rig
+    from aeropend_ros.cli.rig_guard import claim_rig
     monkeypatch.setenv('ROS_DOMAIN_ID', '17')
     first = claim_rig('', tmp_path)
     try:
@@ -130,7 +130,7 @@ def test_an_endpoint_seen_before_its_nodes_name_delays_the_refusal_not_past_the_
     check waits for the name, up to GRAPH_WAIT s, then refuses anyway with a readable phrase."""
     from types import SimpleNamespace
 
-    from aeropend_ros.cli.run import GRAPH_WAIT, UNNAMED_NODE, _publisher_name, refusal_due
+    from aeropend_ros.cli.rig_guard import GRAPH_WAIT, UNNAMED_NODE, _publisher_name, refusal_due
     unknown = SimpleNamespace(node_name='_NODE_NAME_UNKNOWN_', node_namespace='_NODE_NAMESPACE_UNKNOWN_')
     assert _publisher_name(unknown) == UNNAMED_NODE
     assert _publisher_name(SimpleNamespace(node_name='sim_node', node_namespace='/')) == '/sim_node'
