@@ -328,11 +328,8 @@ class DutySourceGuard:
 
     def publishers(self) -> list[str]:
         """Full names of the nodes publishing on the duty topic, as the graph shows them now."""
-        names = []
-        for info in self._node.get_publishers_info_by_topic(self._topic):
-            namespace = info.node_namespace.rstrip('/')
-            names.append(f'{namespace}/{info.node_name}')
-        return sorted(names)
+        from aeropend_ros.topics import publisher_name
+        return sorted(publisher_name(info) for info in self._node.get_publishers_info_by_topic(self._topic))
 
     def accept(self, msg_info) -> bool:
         """Whether the duty command that came with `msg_info` may be applied (False: refused, counted, said)."""

@@ -251,6 +251,19 @@ def relative_topic(topic: str, namespace: str) -> str:
     return topic[len(prefix):] if topic.startswith(prefix) else topic
 
 
+#: How a publisher is named while discovery has shown its endpoint but not yet its node's name.
+UNNAMED_NODE = 'a node whose name discovery has not told yet'
+
+
+def publisher_name(info) -> str:
+    """The fully qualified node name of a publisher's endpoint (``rclpy.topic_endpoint_info.TopicEndpointInfo``):
+    ``'/rig1/sim_node'``, ``'/sim_node'`` in the root namespace; UNNAMED_NODE while discovery has not told it (rmw
+    reports ``_NODE_NAME_UNKNOWN_`` / ``_NODE_NAMESPACE_UNKNOWN_`` until the participant's node info arrives)."""
+    if '_UNKNOWN_' in info.node_name or '_UNKNOWN_' in info.node_namespace:
+        return UNNAMED_NODE
+    return f'{info.node_namespace.rstrip("/")}/{info.node_name}'
+
+
 class Sample(NamedTuple):
     """One acquisition sample as carried by ``/aeropend/samples``.
 

@@ -130,11 +130,12 @@ def test_an_endpoint_seen_before_its_nodes_name_delays_the_refusal_not_past_the_
     check waits for the name, up to GRAPH_WAIT s, then refuses anyway with a readable phrase."""
     from types import SimpleNamespace
 
-    from aeropend_ros.cli.rig_guard import GRAPH_WAIT, UNNAMED_NODE, _publisher_name, refusal_due
+    from aeropend_ros.cli.rig_guard import GRAPH_WAIT, refusal_due
+    from aeropend_ros.topics import UNNAMED_NODE, publisher_name
     unknown = SimpleNamespace(node_name='_NODE_NAME_UNKNOWN_', node_namespace='_NODE_NAMESPACE_UNKNOWN_')
-    assert _publisher_name(unknown) == UNNAMED_NODE
-    assert _publisher_name(SimpleNamespace(node_name='sim_node', node_namespace='/')) == '/sim_node'
-    assert _publisher_name(SimpleNamespace(node_name='sim_node', node_namespace='/rig_a')) == '/rig_a/sim_node'
+    assert publisher_name(unknown) == UNNAMED_NODE
+    assert publisher_name(SimpleNamespace(node_name='sim_node', node_namespace='/')) == '/sim_node'
+    assert publisher_name(SimpleNamespace(node_name='sim_node', node_namespace='/rig_a')) == '/rig_a/sim_node'
     assert not refusal_due(set(), 100.0)
     assert not refusal_due({'/sim_node', UNNAMED_NODE}, 0.0)            # ours and a foreign one not yet named
     assert not refusal_due({'/sim_node', UNNAMED_NODE}, GRAPH_WAIT - 0.1)

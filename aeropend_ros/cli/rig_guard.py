@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from aeropend_core.errors import AeropendError
+from aeropend_ros.topics import UNNAMED_NODE, publisher_name
 
 
 #: Longest wait for the ROS graph to show another graph's nodes before a run starts [s] (the wait ends earlier when
@@ -90,7 +91,7 @@ def check_graph_is_free(node, namespace: str) -> None:
     start = time.monotonic()
     seen, changed = None, start
     while True:
-        found = {_publisher_name(info) for topic in watched for info in node.get_publishers_info_by_topic(topic)}
+        found = {publisher_name(info) for topic in watched for info in node.get_publishers_info_by_topic(topic)}
         now = time.monotonic()
         if found and (found != {UNNAMED_NODE} or now - start >= GRAPH_WAIT):
             # Discovery may show an endpoint before its node's name: wait for the name, not past the deadline.
@@ -102,18 +103,6 @@ def check_graph_is_free(node, namespace: str) -> None:
                                                           now - changed >= GRAPH_SETTLE)):
             return
         rclpy.spin_once(node, timeout_sec=0.1)
-
-
-#: How a publisher is named while discovery has shown its endpoint but not yet its node's name.
-UNNAMED_NODE = 'a node whose name discovery has not told yet'
-
-
-def _publisher_name(info) -> str:
-    """The fully qualified node name of a publisher's endpoint info, or UNNAMED_NODE while discovery has not told it
-    (rmw reports '_NODE_NAME_UNKNOWN_' / '_NODE_NAMESPACE_UNKNOWN_' until the participant's node info arrives)."""
-    if '_UNKNOWN_' in info.node_name or '_UNKNOWN_' in info.node_namespace:
-        return UNNAMED_NODE
-    return f'{info.node_namespace.rstrip("/")}/{info.node_name}'
 
 
 def refusal_due(found: set[str], unnamed_for: float) -> bool:
@@ -164,7 +153,7 @@ def foreign_publishers(nodes, namespace: str) -> set[str]:
         infos = nodes[0].get_publishers_info_by_topic(topic)
         ours = sum(1 for node in nodes for publisher in node.publishers if publisher.topic_name == topic)
         if len(infos) > ours:
-            found.update(_publisher_name(info) for info in infos)
+            found.update(publisher_name(info) for info in infos)
     return found
 
 
