@@ -483,15 +483,21 @@ class SerialBridgeNode(Node):
 
         `first` is the new run's first sequence number received and `newest` the newest one in the same read, which
         arrived at `arrival` [s]. Samples lost: the new device's ``first`` samples before the first one received,
-        plus the sample periods between the last old sample's arrival and the new device's sample 0 (acquired about
+        plus the sample periods between the last old sample and the new device's sample 0 (acquired about
         ``newest`` periods before this read arrived). A read that brings a backlog of the new run is therefore not
         counted as lost; the reset and boot time itself is (its length is unknown): an upper estimate.
+
+        The old run's end is its last sample on the device clock's envelope line (the least delay the link showed),
+        not the arrival of the read that brought it: on a loaded host that read can come a fraction of a second late,
+        which would shorten the gap and break the upper estimate. Any delay of the new run's read only lengthens it.
         """
         self.stats['device_resets'] += 1
         if self._last_arrival is not None:
             period = self.clock_model.period
             restart = arrival - newest * period
-            missing = first + max(0, round((restart - self._last_arrival) / period) - 1)
+            old_end = self.clock_model.envelope_arrival(self._last_sequence)
+            old_end = self._last_arrival if old_end is None else min(old_end, self._last_arrival)
+            missing = first + max(0, round((restart - old_end) / period) - 1)
             self.stats['outage_samples_lost'] += missing
             self.stats['last_outage_lost'] = missing
             self.get_logger().warning(f'device reset detected; about {missing} samples lost (the new run starts at '

@@ -264,6 +264,25 @@ def test_sample_clock_spreads_a_backlog_read_at_once():
     assert np.allclose(np.diff([stamps[-1], *later]), period)
 
 
+def test_envelope_arrival_is_the_least_delayed_line_not_the_last_read():
+    """The bridge measures a device reset's gap from the old run's end on the envelope line: a last read that came
+    0.2 s late (a loaded host) must not move that end, and asking changes nothing."""
+    rng = np.random.default_rng(3)
+    period = P.SAMPLE_PERIOD
+    clock = SampleClock(period)
+    assert clock.envelope_arrival(0) is None
+    sequence = np.arange(490 * 5)
+    arrival = 20.0 + sequence * period + 0.0005 + rng.exponential(0.002, sequence.size)
+    arrival[-10:] += 0.2
+    for chunk in np.array_split(np.arange(sequence.size), sequence.size // 10):
+        clock.stamp_many(sequence[chunk].tolist(), float(arrival[chunk[-1]]))
+    last = int(sequence[-1])
+    end = clock.envelope_arrival(last)
+    assert end == clock.envelope_arrival(last)
+    assert 20.0 + last * period <= end < 20.0 + last * period + 0.003
+    assert arrival[-1] - end > 0.19
+
+
 @pytest.mark.parametrize('error', [+5e-3, -5e-3])
 def test_sample_clock_follows_a_ceramic_resonator(error):
     """The Mega 2560's resonator 0.5 % slow or fast, read in USB-like blocks of ~10 samples with jitter and a

@@ -252,22 +252,25 @@ def test_bridge_survives_unplug_and_device_reset(ros_context):
                 assert time.monotonic() - replugged < 5.0
                 assert emulator.max_duty_q16 == P.duty_to_q16(0.55) and emulator.watchdog_ms == 300
                 assert poll(lambda: listener.last_diagnostics().get('device_resets') == '1', 3.0)
-                # The loss estimate against the truth: the old run's samples after the last one received, plus
-                # the new run's before its first one received (the emulator logs every sample it produced).
-                received = {s.sequence for s in listener.samples}
+                # The loss estimate against the truth (the emulator logs every sample it produced): the old run's
+                # samples after the last one the bridge published (the listener sees it: nothing follows it for the
+                # outage, so its best-effort history keeps it), plus the new run's before the first one written to
+                # the reopened port (the bridge reads every one of those; the listener may drop some of a burst).
+                samples = list(listener.samples)
+                index = max(i for i in range(1, len(samples)) if samples[i].sequence < samples[i - 1].sequence)
                 with emulator._lock:
                     emitted = list(emulator.emitted)
-                old_end = max(i for i, (q, _) in enumerate(emitted) if q == last_before)
-                new_start = next(i for i in range(old_end + 1, len(emitted))
-                                 if emitted[i][0] < last_before and emitted[i][1] == 'intact'
-                                 and emitted[i][0] in received)
+                old_end = max(i for i, (q, _) in enumerate(emitted) if q == samples[index - 1].sequence)
+                restart = next(i for i in range(old_end + 1, len(emitted)) if emitted[i][0] < emitted[i - 1][0])
+                new_start = next(i for i in range(restart, len(emitted)) if emitted[i][1] == 'intact')
                 truth = new_start - old_end - 1
                 estimate = int(listener.last_diagnostics()['outage_samples_lost'])
                 assert truth > 0.5 / P.SAMPLE_PERIOD * 0.9
-                assert estimate == pytest.approx(truth, abs=15), (estimate, truth)
+                # The bridge promises an upper estimate: never below the truth (but for rounding), above it by the
+                # delay of the new run's first read (the reset's own time is counted too; the emulator's is ~0).
+                # A late read of the old run's last frame must not shorten it (it used to, by 0.18 s under load).
+                assert truth - 2 <= estimate <= truth + 0.5 / P.SAMPLE_PERIOD, (estimate, truth)
                 # Stamps re-anchored: increasing after the reset and close to the receive time.
-                samples = list(listener.samples)
-                index = max(i for i in range(1, len(samples)) if samples[i].sequence < samples[i - 1].sequence)
                 recent = samples[index:]
                 stamps = np.array([s.stamp_ns for s in recent])
                 receive = np.array(listener.receive_ns[index:index + len(recent)])

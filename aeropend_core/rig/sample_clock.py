@@ -174,6 +174,16 @@ class SampleClock:
         self.observe(max(sequences), arrival)
         return self.place(sequences)
 
+    def envelope_arrival(self, sequence: int) -> float | None:
+        """Host time [s] at which sample `sequence` arrived, or would have, with the link's least delay seen so far
+        (the lower envelope's line; no state changes). None before the first :meth:`observe`.
+
+        Unlike a read's arrival time it carries no scheduling delay: the end of a run measured with it is not moved
+        later by a late read on a loaded host."""
+        if self._reference is None:
+            return None
+        return self._reference + self._anchor + self._period * sequence
+
     def observe(self, sequence: int, arrival: float) -> None:
         """Update the envelope with one arrival (the newest sample of a read) without stamping anything."""
         if self._reference is None:
