@@ -8,6 +8,9 @@
   ``pytest -m "not slow and not ros"`` then runs there too instead of stopping at collection errors.
 - Under pytest-xdist (``pytest.ini``: one worker per core) the ROS and other real-time tests share one group, so
   they run one at a time on one worker while the other workers run the numerical tests (``--dist loadgroup``).
+  The group is marked *before* xdist reads the marks (``tryfirst``): xdist's own hook, registered after this file,
+  would otherwise run first, see no mark, and spread two graphs over the two workers at once (it did until
+  2026-11-28: ``test_real_time_tests_share_one_worker`` now checks it).
 - Numerical libraries run one thread per process (``OPENBLAS_NUM_THREADS`` etc., unless already set, so the
   subprocesses the tests start inherit it too): the suite's matrices are small, and on a 2-core machine that runs a
   test process, ROS nodes and CLI subprocesses at once, OpenBLAS's second thread mostly spins. One diagnosis of a
@@ -92,6 +95,7 @@ def _source_matches(obj, pattern: re.Pattern) -> bool:
     return _seen[key]
 
 
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     for item in items:
         function = getattr(item, 'function', None)
@@ -103,7 +107,8 @@ def pytest_collection_modifyitems(config, items):
             or item.get_closest_marker('ros') is not None          # marked per case (a docs block that runs a graph)
         if ros:
             item.add_marker(pytest.mark.ros)
-        if ros or any(f is not None and _source_matches(f, _REAL_TIME) for f in functions):
+        real_time = item.get_closest_marker('real_time') is not None
+        if ros or real_time or any(f is not None and _source_matches(f, _REAL_TIME) for f in functions):
             # under pytest-xdist the real-time tests (nodes at 490 Hz, pty devices, simavr) run one at a time on
             # one worker, beside at most one worker of numerical tests: never two graphs competing for the cores
             item.add_marker(pytest.mark.xdist_group('real_time'))

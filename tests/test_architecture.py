@@ -192,3 +192,12 @@ def test_the_diagnosis_imports_nothing_from_present():
                       for used in edges if used == 'aeropend_core.present' or used.startswith('aeropend_core.present.'))
     assert not offences, 'the diagnosis imports present/:\n' + '\n'.join(offences)
     assert 'aeropend_core.present.verdict_text' in graph['aeropend_core.present.summary']     # the check sees imports
+
+
+@pytest.mark.real_time
+def test_real_time_tests_share_one_worker(request):
+    """Under ``--dist loadgroup`` (pytest.ini) the real-time group reaches pytest-xdist: its node ids carry the
+    group's name, so no two ROS graphs or pty devices run at once on the two workers (tests/conftest.py)."""
+    if not getattr(request.config, 'workerinput', None) or not request.config.getvalue('loadgroup'):
+        pytest.skip('not under pytest-xdist with --dist loadgroup: nothing is grouped')
+    assert request.node.nodeid.endswith('@real_time'), request.node.nodeid
