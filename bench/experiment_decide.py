@@ -51,9 +51,10 @@ OUT = Path(__file__).resolve().parent / 'results' / '2026-11-27-s8-loop2'
 NOISE = {db: sigma_for_psnr(FULL_SCALE['angle'], db) for db in (30.0, 40.0, 50.0)}
 
 
-def stream_record(duty: np.ndarray, truth: dict, psnr: float, seed: int, source: str):
-    """A record of `duty` on the simulator with `truth` hidden, the stream's noise (full-scale peaks) and the ADC."""
-    simulator = RigSimulator(effects=truth, noise=MeasurementNoise(psnr, True), seed=seed)
+def stream_record(duty: np.ndarray, truth: dict, psnr: float, seed: int, source: str, quantise: bool = True):
+    """A record of `duty` on the simulator with `truth` hidden, the stream's noise (full-scale peaks) and the ADC
+    (the rig's 10-bit angle and current counts; `quantise` False: a finer sensor, the noise alone)."""
+    simulator = RigSimulator(effects=truth, noise=MeasurementNoise(psnr, quantise), seed=seed)
     return from_columns(simulator.run(np.asarray(duty, dtype=float)).columns(with_truth=False), source=source)
 
 
@@ -137,7 +138,8 @@ def loop_case(truth: dict, seed: int, args, first_duty=FIRST_DUTY) -> dict:
             duty = design.schedule.duty()
             played = '; '.join(b.text() for b in design.schedule.blocks)
         number = play.count = getattr(play, 'count', 0) + 1
-        record = stream_record(duty, truth, args.psnr, seed + 100 * number, f'round {number}')
+        record = stream_record(duty, truth, args.psnr, seed + 100 * number, f'round {number}',
+                               not getattr(args, 'no_quantise', False))
         return Played(record, f'round {number}', played, len(duty) * SAMPLE_TIME)
 
     budget = LoopBudget(max_runs=args.max_runs, max_seconds=args.max_seconds, design_seconds=args.design_seconds)
@@ -303,6 +305,8 @@ def main() -> None:
     parser.add_argument('--candidates', type=int, default=30)
     parser.add_argument('--refinements', type=int, default=15)
     parser.add_argument('--design-seconds', type=float, default=30.0)
+    parser.add_argument('--no-quantise', action='store_true',
+                        help='loop: no 10-bit ADC counts (a finer angle sensor than the rig\'s, the noise alone)')
     parser.add_argument('--max-runs', type=int, default=3)
     parser.add_argument('--max-seconds', type=float, default=300.0, help='loop: excitation budget over all runs [s]')
     parser.add_argument('--measure', action='store_true',
