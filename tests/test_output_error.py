@@ -214,3 +214,28 @@ def test_a_users_effect_numba_cannot_compile_runs_in_python_and_says_so_once():
     finally:
         CATALOG.pop('test_user_table', None)
         CATALOG.pop('test_user_overflow', None)
+
+
+def test_a_fitted_model_that_runs_away_is_flagged_not_squared_into_an_overflow(clean_prep):
+    """A fit whose parameters make the model unstable on this input (here the damping turned to -50 1/s: the rod
+    spins up without bound) is evaluated without a floating-point warning and flagged ``diverged``; judged as a
+    candidate it gives no evidence and no standard errors (before: its squared overflow was averaged into the error
+    statistics and its covariance could give a sigma of 1e-6 on a coefficient of 200)."""
+    import dataclasses
+    import math
+    import warnings
+
+    from aeropend_core.diagnosis.candidates import assess
+    from aeropend_core.diagnosis.compare import Comparison, evaluate
+    base, stable = fit_model(clean_prep), fit_model(clean_prep, ['coulomb_friction'])
+    runaway = dataclasses.replace(stable, parameters={**stable.parameters, 'damping': -50.0})
+    with warnings.catch_warnings():
+        warnings.simplefilter('error')
+        healthy, flagged = evaluate(clean_prep, stable), evaluate(clean_prep, runaway)
+        judged = assess(clean_prep, Comparison((), base, evaluate(clean_prep, base)),
+                        Comparison(('coulomb_friction',), runaway, flagged), 'coulomb_friction')
+    assert not healthy.diverged and math.isfinite(healthy.rms_error)
+    assert flagged.diverged
+    assert not judged.significant and not judged.heldout_only
+    assert all(math.isnan(sigma) for sigma in judged.standard_errors.values()), judged.standard_errors
+    assert 'grows without bound' in judged.explanation, judged.explanation

@@ -152,8 +152,6 @@ class CrossCheck:
 
 #: Share of the record the weak form is refitted on for its held-out score (the diagnosis's training share).
 TRAIN_SHARE = 0.75
-#: A free-run error beyond this (rad, many turns of the rod) means the simulated model has diverged.
-DIVERGED_RAD = 1e3
 
 
 def cross_check(recording, weak_fit, effects: Sequence[str] = (), data: str = 'FILE',
@@ -179,7 +177,8 @@ def cross_check(recording, weak_fit, effects: Sequence[str] = (), data: str = 'F
     """
     import numpy as np
 
-    from aeropend_core.diagnosis.compare import _heldout_simulation, compare, excess_error, fit_percent, prepare
+    from aeropend_core.diagnosis.compare import (DIVERGED_RAD, _heldout_simulation, compare, excess_error,
+                                                 fit_percent, prepare)
     from aeropend_core.diagnosis.output_error import Structure
     from aeropend_core.identify.pendulum import identify_pendulum
     plain = prepare(recording, train_fraction=TRAIN_SHARE, use_motor_observer=False)
@@ -215,5 +214,5 @@ def cross_check(recording, weak_fit, effects: Sequence[str] = (), data: str = 'F
                       agreement, comparison.fit_percent, excess_error(comparison.rms_error, comparison.noise_rms))
 
 
-__all__ = ['AGREEMENT_SIGMA', 'COMPARED', 'DIVERGED_RAD', 'TRAIN_SHARE', 'Agreement', 'CrossCheck',
+__all__ = ['AGREEMENT_SIGMA', 'COMPARED', 'TRAIN_SHARE', 'Agreement', 'CrossCheck',
            'compare_estimators', 'cross_check']

@@ -169,7 +169,10 @@ def assess(prep: PreparedRecord, base: Comparison, augmented: Comparison, name: 
                   for k, v, s in ((k, values[k], errors.get(k, float('nan'))) for k in values)
                   if np.isfinite(s) and s > 0]
         t_statistic = min(ratios) if ratios else 0.0
-    dm, gain = diebold_mariano(_heldout_error(prep, base), _heldout_error(prep, augmented))
+    # its fitted parameters make the model run away on this record: no evidence, no estimate
+    diverged = augmented.evaluation.diverged
+    dm, gain = (math.nan, math.nan) if diverged else diebold_mariano(_heldout_error(prep, base),
+                                                                     _heldout_error(prep, augmented))
     beyond = max(base.rms_error ** 2 - noise ** 2, 0.0)
     share = float(np.clip(gain / beyond, 0.0, 1.0)) if beyond > 0 and np.isfinite(gain) else (
         1.0 if np.isfinite(gain) and gain > 0 else 0.0)
@@ -184,6 +187,8 @@ def assess(prep: PreparedRecord, base: Comparison, augmented: Comparison, name: 
     # so a candidate that removes most of its error beyond the noise needs only a positive DM above DM_WEAK.
     predictive = np.isfinite(dm) and (dm >= DM_MIN or (dm >= DM_WEAK and share >= MAJOR_SHARE))
     material = np.isfinite(gain) and gain >= (MATERIAL * noise) ** 2
+    if diverged:
+        t_statistic, errors = 0.0, {k: math.nan for k in errors}
     supported = bool(t_statistic >= T_MIN and predictive and material)
     significant = bool(supported and delta_bic < -BIC_MARGIN)
     evidence = _regime_evidence(base, augmented)
@@ -195,6 +200,10 @@ def assess(prep: PreparedRecord, base: Comparison, augmented: Comparison, name: 
                           dm_statistic=float(dm), mse_gain=float(gain), share_removed=share,
                           share_measurable=share_measurable)
     candidate.explanation = _explain(name, values, errors, excess_before, excess_after, evidence)
+    if diverged:
+        candidate.explanation = (f'Fitted with {name}, the model\'s simulation of this record grows without bound '
+                                 '(the fitted parameters make it unstable on this input): they are not estimates '
+                                 'and give no evidence. ' + candidate.explanation)
     candidate.explanation += (f' Evidence: {t_statistic_words(t_statistic)}, training BIC {delta_bic:+.1f}, '
                               f'held-out Diebold-Mariano {dm:+.1f}; {share_words(share, excess_before)}'
                               + (f' ({share_measurable * 100:.0f} % of the part beyond the noise estimate\'s '

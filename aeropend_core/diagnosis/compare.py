@@ -47,6 +47,8 @@ MIN_DURATION = 20.0
 HELDOUT_INITIAL_SECONDS = 1.0
 #: Horizon of the k-step prediction [s].
 PREDICTION_HORIZON = 0.1
+#: A simulation further than this from the measured angle [rad, many turns of the rod] has run away (diverged).
+DIVERGED_RAD = 1e3
 #: Lags of the residual tests, in integration steps (STRIDE samples).
 RESIDUAL_LAGS = 25
 #: Dead-zone thresholds refitted after the ranking by one simulation each.
@@ -458,6 +460,9 @@ class Evaluation:
     lag_seconds: np.ndarray
     regimes: dict[str, dict[str, float]]
     worst_windows: list[dict[str, float | str]]
+    #: The fitted model's simulation of the record grows without bound (non-finite, or more than DIVERGED_RAD from
+    #: the measured angle): its parameters make it unstable on this input, so they are not estimates.
+    diverged: bool = False
 
     @property
     def excess_error(self) -> float:
@@ -541,6 +546,7 @@ def regime_masks(prep: PreparedRecord) -> dict[str, np.ndarray]:
     }
 
 
+@np.errstate(over='ignore', invalid='ignore')      # a run-away simulation is flagged (``diverged``), not warned
 def evaluate(prep: PreparedRecord, fit: OutputErrorFit) -> Evaluation:
     """Held-out simulation fit, k-step prediction, residual tests and error localisation for a fitted model."""
     stop = len(prep.time)
@@ -565,9 +571,13 @@ def evaluate(prep: PreparedRecord, fit: OutputErrorFit) -> Evaluation:
     band = 2.58 / math.sqrt(len(residual))
     lags = np.arange(-RESIDUAL_LAGS, RESIDUAL_LAGS + 1) * STRIDE * prep.sample_time
     # Error localisation over the whole record (both parts) where a simulation exists.
-    available = np.isfinite(full)
-    error = np.where(available, prep.angle - np.nan_to_num(full), np.nan)
-    overall = float(np.sqrt(np.nanmean(error ** 2)))
+    simulated_index = np.concatenate([prep.train.residual_index, index])
+    deviation = np.abs(prep.angle[simulated_index] - full[simulated_index])
+    # an unstable fitted model (e.g. a discovered term's refit) runs away: say so rather than square an overflow
+    diverged = bool(not np.all(np.isfinite(deviation)) or deviation.max(initial=0.0) > DIVERGED_RAD)
+    available = np.isfinite(full) & (np.abs(np.nan_to_num(full)) < DIVERGED_RAD)
+    error = np.where(available, prep.angle - np.where(available, full, 0.0), np.nan)
+    overall = float(np.sqrt(np.nanmean(error ** 2))) if available.any() else float('nan')
     regimes = {}
     for name, mask in regime_masks(prep).items():
         selected = mask & available
@@ -580,7 +590,8 @@ def evaluate(prep: PreparedRecord, fit: OutputErrorFit) -> Evaluation:
     return Evaluation(fit_percent=fit_percent(measured, simulated), rms_error=rms, noise_rms=prep.noise_rms,
                       prediction_rms=prediction_rms, prediction_horizon=PREDICTION_HORIZON, simulated=full,
                       residual_autocorrelation=autocorrelation, residual_input_correlation=cross,
-                      correlation_band=band, lag_seconds=lags, regimes=regimes, worst_windows=worst)
+                      correlation_band=band, lag_seconds=lags, regimes=regimes, worst_windows=worst,
+                      diverged=diverged)
 
 
 def _worst_windows(prep: PreparedRecord, error: np.ndarray, width: float = 1.0, count: int = 5) -> list[dict]:
