@@ -177,8 +177,8 @@ def cross_check(recording, weak_fit, effects: Sequence[str] = (), data: str = 'F
     """
     import numpy as np
 
-    from aeropend_core.diagnosis.compare import (DIVERGED_RAD, _heldout_simulation, compare, excess_error,
-                                                 fit_percent, prepare)
+    from aeropend_core.diagnosis.compare import (_heldout_simulation, compare, excess_error, fit_percent, prepare,
+                                                 ran_away)
     from aeropend_core.diagnosis.output_error import Structure
     from aeropend_core.identify.pendulum import identify_pendulum
     plain = prepare(recording, train_fraction=TRAIN_SHARE, use_motor_observer=False)
@@ -199,7 +199,7 @@ def cross_check(recording, weak_fit, effects: Sequence[str] = (), data: str = 'F
     heldout = simulated[index]
     # a weak-form model can be unstable as a running model (e.g. badly biased at a low sample rate): its free run
     # then grows without bound; that is said (rms inf, fit undefined), not squared into an overflow
-    diverged = not np.all(np.isfinite(heldout)) or float(np.max(np.abs(heldout - measured))) > DIVERGED_RAD
+    diverged = ran_away(measured, heldout)
     rms = math.inf if diverged else float(np.sqrt(np.mean((measured - heldout) ** 2)))
     score = float('nan') if diverged else fit_percent(measured, heldout)
     prep = prepare(recording)

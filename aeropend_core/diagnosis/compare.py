@@ -57,6 +57,13 @@ PROFILE_REFITS = 3
 EFFECT_START_FRACTION = 0.3
 
 
+@np.errstate(over='ignore', invalid='ignore')
+def ran_away(measured: np.ndarray, simulated: np.ndarray) -> bool:
+    """True when a free-run simulation [rad] has diverged: non-finite, or more than DIVERGED_RAD from `measured`."""
+    deviation = np.abs(np.asarray(measured, dtype=float) - np.asarray(simulated, dtype=float))
+    return bool(not np.all(np.isfinite(deviation)) or deviation.max(initial=0.0) > DIVERGED_RAD)
+
+
 def fit_percent(measured: np.ndarray, simulated: np.ndarray) -> float:
     """MATLAB ``compare`` NRMSE fit [%]: 100 (1 - ||y - y_sim|| / ||y - mean(y)||)."""
     measured, simulated = np.asarray(measured), np.asarray(simulated)
@@ -571,12 +578,11 @@ def evaluate(prep: PreparedRecord, fit: OutputErrorFit) -> Evaluation:
     band = 2.58 / math.sqrt(len(residual))
     lags = np.arange(-RESIDUAL_LAGS, RESIDUAL_LAGS + 1) * STRIDE * prep.sample_time
     # Error localisation over the whole record (both parts) where a simulation exists.
-    simulated_index = np.concatenate([prep.train.residual_index, index])
-    deviation = np.abs(prep.angle[simulated_index] - full[simulated_index])
     # an unstable fitted model (e.g. a discovered term's refit) runs away: say so rather than square an overflow
-    diverged = bool(not np.all(np.isfinite(deviation)) or deviation.max(initial=0.0) > DIVERGED_RAD)
-    available = np.isfinite(full) & (np.abs(np.nan_to_num(full)) < DIVERGED_RAD)
-    error = np.where(available, prep.angle - np.where(available, full, 0.0), np.nan)
+    simulated_index = np.concatenate([prep.train.residual_index, index])
+    diverged = ran_away(prep.angle[simulated_index], full[simulated_index])
+    available = np.abs(prep.angle - full) <= DIVERGED_RAD       # False where nothing is simulated (NaN) or run away
+    error = np.where(available, prep.angle - full, np.nan)
     overall = float(np.sqrt(np.nanmean(error ** 2))) if available.any() else float('nan')
     regimes = {}
     for name, mask in regime_masks(prep).items():
@@ -710,4 +716,4 @@ def _place_threshold_among_heldout_levels(prep: PreparedRecord, fit: OutputError
 
 
 __all__ = ['PreparedRecord', 'Comparison', 'Evaluation', 'prepare', 'compare', 'fit_model', 'evaluate',
-           'fit_percent', 'excess_error']
+           'fit_percent', 'excess_error', 'ran_away', 'DIVERGED_RAD']

@@ -611,14 +611,14 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
     except InsufficientDataError as error:
         entry.why_not = f'not testable on this data: {error}'
         return None
-    candidate: Candidate = assess(prep, base, augmented, name)
     if augmented.evaluation.diverged:
         # the refit's coefficient makes the model run away: neither it nor its sigma is an estimate (the JSON and the
         # text then show the weak form's coefficient, with the estimator said)
-        entry.why_not = (f'refitted by output error (c = {candidate.parameters.get(parameter, math.nan):.3g}), the '
+        entry.why_not = (f'refitted by output error (c = {augmented.parameters.get(parameter, math.nan):.3g}), the '
                          'model with it does not simulate this record: its angle grows without bound, so the refit '
                          'gives no estimate and no evidence')
         return None
+    candidate: Candidate = assess(prep, base, augmented, name)
     entry.value = candidate.parameters.get(parameter, math.nan)
     entry.sigma = candidate.standard_errors.get(parameter, math.nan)
     entry.excess_after, entry.share_removed = candidate.excess_after, candidate.share_removed
