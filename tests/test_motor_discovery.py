@@ -136,3 +136,34 @@ def test_a_bad_motor_term_is_one_line_naming_the_accepted_terms_before_any_file_
     assert "'sign(curent)'" in line and all(repr(t.expression) in line for t in MOTOR_VOCABULARY)
     assert cli_main(['diagnose', missing, '--motor-term', '1', '--motor-term', 'current^2']) == 2
     assert 'one --motor-term' in capsys.readouterr().err
+
+
+def test_a_screening_value_is_shown_without_a_plus_minus_and_says_why():
+    """A term the weak form listed but no refit estimated has no +- anywhere it leaves the program (JSON, summary,
+    report), the doubt said once beside the terms; a refitted term keeps its output-error +-. (Listed screening
+    values are chosen for their size: on clean records their +- did not cover 0, bench/screening_coverage.py.)"""
+    from aeropend_core.diagnosis.discovery import VOCABULARY, DiscoveredTerm, Discovery
+    from aeropend_core.diagnosis.evidence import screening_doubt
+    from aeropend_core.present.discovery_text import discovery_html, discovery_lines, motor_html, motor_lines
+    missed = screening_doubt(7.06e-3, 2.91e-3, 'mrad', 1e3)
+    assert 'misses the data by 7.06 mrad beyond the noise (2.91 mrad)' in missed
+    assert 'misses' not in screening_doubt(1.0e-3, 2.91e-3, 'mrad', 1e3)       # below the unexplained line
+    screened = DiscoveredTerm(term=VOCABULARY[0], status='not_proven', weak_coefficient=88.8, weak_sigma=11.9,
+                              weak_doubt=missed, why_not='not refitted')
+    refitted = DiscoveredTerm(term=VOCABULARY[1], status='not_proven', weak_coefficient=5.0, weak_sigma=1.0,
+                              weak_doubt=missed, value=0.004, sigma=0.018, why_not='t = 0.2')
+    (parameter,) = screened.to_dict()['parameters'].values()
+    assert parameter == {'value': 88.8, 'sigma': None, 'unit': VOCABULARY[0].unit}
+    assert screened.to_dict()['coefficient_doubt'] == missed and refitted.to_dict()['coefficient_doubt'] == ''
+    assert refitted.coefficient() == (0.004, 0.018)
+    lines = '\n'.join(discovery_lines(Discovery([refitted, screened])))
+    assert 'c = 88.8 ' in lines and '(weak-form screening value, no +-)' in lines and '+- 0.018' in lines
+    assert '+- 12' not in lines and lines.count('misses the data by 7.06 mrad') == 1
+    page = discovery_html(Discovery([refitted, screened]), 2.91e-3)
+    assert '(screening value, no &plusmn;)' in page and '&plusmn; 12' not in page and 'misses the data' in page
+    motor = motor_discovery.MotorDiscoveredTerm(term=MOTOR_VOCABULARY[1], status='not_proven', weak_coefficient=1.0,
+                                                weak_sigma=0.5, weak_doubt=screening_doubt(0.0, 1e-3, 'mA', 1e3))
+    outcome = motor_discovery.MotorDiscovery(terms=[motor], noise_rms=1e-3, excess_before=0.0)
+    assert motor.coefficient()[1] != motor.coefficient()[1] and motor.to_dict()['parameters'][
+        f'motor_{MOTOR_VOCABULARY[1].slug}_coefficient']['sigma'] is None
+    assert 'chosen for their size' in '\n'.join(motor_lines(outcome)) and '&plusmn; 0.5' not in motor_html(outcome)

@@ -36,7 +36,7 @@ from scipy.signal import lfilter
 
 from aeropend_core.diagnosis.candidates import Candidate, assess
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error
-from aeropend_core.diagnosis.evidence import TermEvidence, finite_or_none
+from aeropend_core.diagnosis.evidence import TermEvidence, finite_or_none, screening_doubt
 from aeropend_core.diagnosis.output_error import STRIDE
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import (CATALOG, FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, Effect, EffectParameter,
@@ -428,8 +428,9 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         return Discovery([], note=f'the weak-form regression failed: {error}')
     # ranked by the model-based sigma, as the weak form's own significance guard selects terms: the reported
     # (sandwich) sigma of a discrepancy regression is dominated by its structured residual and ranks erratically
-    chosen = [(name, value, fit.model_standard_errors.get(name, math.nan)) for name, value in fit.coefficients.items()
-              if name not in kept]
+    # ((value, ranking sigma, reported sigma): the sandwich sigma is the one reported, as the weak form says)
+    chosen = [(name, (value, fit.model_standard_errors.get(name, math.nan), fit.standard_errors.get(name, math.nan)))
+              for name, value in fit.coefficients.items() if name not in kept]
     # Each term alone (with the sensitivities kept): nearly collinear terms split the evidence in the joint
     # selection, so a true term can lose there to a combination of lookalikes; alone it shows its own strength.
     screened = {}
@@ -437,22 +438,23 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         if term.simulated and not term.catalog_kind:
             alone, _ = weak_discrepancy(segments, (term,), prep.noise_rms, prep.sample_time)
             if term.expression in alone.coefficients:
-                value, sigma = alone.coefficients[term.expression], alone.model_standard_errors[term.expression]
-                screened[term.expression] = (value, sigma)
-    order = {name: (value, sigma) for name, value, sigma in chosen}
-    for name, (value, sigma) in screened.items():
-        order.setdefault(name, (value, sigma))
+                screened[term.expression] = _screened(alone, term.expression)
+    order = dict(chosen)
+    for name, row in screened.items():
+        order.setdefault(name, row)
     # terms that stand out alone first (by their own t), then the joint selection's others (artefacts of collinearity
     # more often than not)
-    ranked = sorted(order.items(), key=lambda kv: (kv[0] not in screened, -_strength(*screened.get(kv[0], kv[1]))))
+    ranked = sorted(order.items(), key=lambda kv: (kv[0] not in screened,
+                                                   -_strength(*screened.get(kv[0], kv[1])[:2])))
     by_expression = {t.expression: t for t in terms}
     found: list[DiscoveredTerm] = []
     excess_now = excess_error(base.rms_error, prep.noise_rms)
+    doubt = screening_doubt(excess_now, prep.noise_rms, 'mrad', 1e3)
     refits = 0
-    for name, (value, sigma) in ranked:
+    for name, (value, _, sigma) in ranked:
         term = by_expression[name]
         entry = DiscoveredTerm(term=term, status='not_proven', weak_coefficient=float(value),
-                               weak_sigma=float(sigma), excess_before=excess_now)
+                               weak_sigma=float(sigma), weak_doubt=doubt, excess_before=excess_now)
         found.append(entry)
         if term.catalog_kind:
             entry.catalog_effect = _span(term, segments, model)
@@ -490,11 +492,28 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         floor = max(best.excess_after, 0.2 * prep.noise_rms)
         best.alternatives = [f.term.expression for f in found[1:] if f.status == 'proven'
                              and f.excess_after <= CONFOUNDING_FACTOR * floor]
-    return Discovery(found, selected=tuple(name for name, _, _ in chosen))
+    return Discovery(found, selected=tuple(name for name, _ in chosen))
+
+
+#: A refit with one term more whose training residual RMS exceeds the base's by more than this factor has not
+#: converged: with the term at 0 it is the base model, so its least-squares optimum is at least as good.
+NESTED_TOLERANCE = 1.05
+
+
+def _short_of_nested(augmented: Comparison, base: Comparison) -> bool:
+    """True when `augmented` (the base plus a term) fits its training part worse than `base` (NESTED_TOLERANCE)."""
+    return not augmented.fit.residual_rms <= NESTED_TOLERANCE * base.fit.residual_rms
 
 
 def _strength(value: float, sigma: float) -> float:
     return abs(value) / sigma if sigma > 0 and math.isfinite(sigma) else 0.0
+
+
+def _screened(fit, expression: str) -> tuple[float, float, float]:
+    """(coefficient, ranking sigma, reported sigma) [term unit] of `expression` in a weak-form fit: the noise-only
+    sigma ranks terms as the weak form's significance guard selects them; the sandwich sigma is the one reported."""
+    return (float(fit.coefficients[expression]), float(fit.model_standard_errors[expression]),
+            float(fit.standard_errors[expression]))
 
 
 def _against_catalog(prep, base, model, fixed, entry: DiscoveredTerm, effect: str) -> None:
@@ -539,8 +558,8 @@ def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say) -> D
         except (InsufficientDataError, AeropendError, np.linalg.LinAlgError):
             continue
         if term.expression in alone.coefficients:
-            value, sigma = alone.coefficients[term.expression], alone.model_standard_errors[term.expression]
-            screened.append((_strength(value, sigma), term, value, sigma))
+            value, ranking, sigma = _screened(alone, term.expression)
+            screened.append((_strength(value, ranking), term, value, sigma))
     if not screened:
         return None
     _, term, value, sigma = max(screened, key=lambda row: row[0])
@@ -564,6 +583,7 @@ def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say) -> D
             and set_error <= CONFOUNDING_FACTOR * max(term_error, floor)):
         return None
     return DiscoveredTerm(term=term, status='confounded', weak_coefficient=float(value), weak_sigma=float(sigma),
+                          weak_doubt=screening_doubt(excess_error(without_set.rms_error, noise), noise, 'mrad', 1e3),
                           value=alone.parameters.get(parameter, math.nan),
                           sigma=alone.standard_errors.get(parameter, math.nan), excess_before=alone.excess_before,
                           excess_after=term_error, share_removed=alone.share_removed, t_statistic=alone.t_statistic,
@@ -608,8 +628,21 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
     try:
         augmented = compare(prep, model + (name,), start=start, fixed=dict(fixed),
                             initial_states=base.fit.initial_states)
+        if _short_of_nested(augmented, base) and entry.weak_coefficient != 0.0:
+            # the model with the term at c = 0 is the base: a refit that fits the training part worse than the base
+            # stopped in another basin (a screening coefficient of -1244 1/s^2 kept, sigma 7e-5, the angle 3.7 rad
+            # off), so its coefficient and sigma are no estimate; started from the base, it finds the nested optimum
+            start = {**base.parameters, parameter: 0.0}
+            augmented = compare(prep, model + (name,), start=start, fixed=dict(fixed),
+                                initial_states=base.fit.initial_states)
     except InsufficientDataError as error:
         entry.why_not = f'not testable on this data: {error}'
+        return None
+    if _short_of_nested(augmented, base):
+        entry.why_not = (f'refitted by output error (c = {augmented.parameters.get(parameter, math.nan):.3g}), the '
+                         f'model with it fits the training part worse than the model without it (residual '
+                         f'{augmented.fit.residual_rms * 1e3:.3g} against {base.fit.residual_rms * 1e3:.3g} mrad RMS): '
+                         'the refit did not converge, so it gives no estimate and no evidence')
         return None
     if augmented.evaluation.diverged:
         # the refit's coefficient makes the model run away: neither it nor its sigma is an estimate (the JSON and the

@@ -244,7 +244,9 @@ class TermEvidence:
     status : str
         ``'proven'``, ``'not_proven'`` (``why_not`` says why), or an equation's own (``'catalog'``, ``'confounded'``).
     weak_coefficient, weak_sigma : float [unit of the term]
-        The weak-form screening's coefficient and 1-sigma.
+        The weak-form screening's coefficient and its sandwich 1-sigma (benchmarks; reported only without doubt).
+    weak_doubt : str
+        Why the screening coefficient is given without a +- (:func:`screening_doubt`; '' : its sigma is given).
     value, sigma : float [unit of the term]
         The output-error refit's coefficient and 1-sigma (nan: not refitted).
     excess_before, excess_after : float [unit of the judged signal: rad or A]
@@ -264,6 +266,7 @@ class TermEvidence:
     status: str
     weak_coefficient: float
     weak_sigma: float
+    weak_doubt: str = ''
     value: float = math.nan
     sigma: float = math.nan
     excess_before: float = math.nan
@@ -280,8 +283,16 @@ class TermEvidence:
         return math.isfinite(self.value)
 
     def coefficient(self) -> tuple[float, float]:
-        """(coefficient, 1-sigma) [unit of the term]: the output-error refit's, or the weak form's when not refitted."""
-        return (self.value, self.sigma) if self.refitted else (self.weak_coefficient, self.weak_sigma)
+        """(coefficient, 1-sigma) [unit of the term]: the output-error refit's, or the weak form's when not refitted
+        (its sigma nan when ``weak_doubt`` says it has none)."""
+        if self.refitted:
+            return self.value, self.sigma
+        return self.weak_coefficient, (math.nan if self.weak_doubt else self.weak_sigma)
+
+    @property
+    def doubt(self) -> str:
+        """Why the reported coefficient has no +- ('' when it has one)."""
+        return '' if self.refitted else self.weak_doubt
 
     def evidence_dict(self) -> dict:
         """The JSON keys of the held-out error and the tests, in the order both equations' terms write them."""
@@ -289,11 +300,44 @@ class TermEvidence:
                 'error_beyond_noise_after': finite_or_none(self.excess_after),
                 'share_of_error_removed': finite_or_none(self.share_removed),
                 't_statistic': finite_or_none(self.t_statistic), 'delta_bic': finite_or_none(self.delta_bic),
-                'dm_statistic': finite_or_none(self.dm_statistic)}
+                'dm_statistic': finite_or_none(self.dm_statistic), 'coefficient_doubt': self.doubt}
 
 
-__all__ = ['TermEvidence', 'finite_or_none', 'bandwidth', 'long_run_variance', 'effective_samples', 'hac_covariance',
-           'input_covariance', 'held_bias_covariance', 'diebold_mariano']
+def screening_doubt(excess: float, noise: float, unit: str, scale: float) -> str:
+    """Why a weak-form screening coefficient is given without a +-.
+
+    The screening regresses the discrepancy of a model on the vocabulary's terms and keeps those that stand out: a
+    listed coefficient was chosen for its size, so no sigma beside it covers the truth as a +- must (on clean
+    records, where every true coefficient is 0, the weak form's sandwich sigma put 4 of 15 listed ones within 2 sigma
+    at 490 Hz and 6 of 89 on 22.3 Hz foreign logs: bench/screening_coverage.py). When the screened model also misses
+    the data beyond the diagnosis's unexplained line (``UNEXPLAINED_NOISE`` times the noise RMS), every coefficient
+    absorbs part of that miss, which is said too. The output-error refit of a term gives its estimate and an honest +-.
+
+    Parameters
+    ----------
+    excess, noise : float [rad or A]
+        The screened model's held-out error beyond the noise, and the noise RMS.
+    unit : str
+        The unit to show them in (``'mrad'``, ``'mA'``).
+    scale : float [-]
+        SI to `unit` (1e3).
+
+    Returns
+    -------
+    str
+        One sentence without final full stop.
+    """
+    from aeropend_core.diagnosis.stages import UNEXPLAINED_NOISE
+    missed = (f'; the model whose discrepancy was screened misses the data by {excess * scale:.2f} {unit} beyond the '
+              f'noise ({noise * scale:.2f} {unit}), and each coefficient absorbs part of that miss'
+              if excess > UNEXPLAINED_NOISE * noise else '')
+    return ('weak-form screening values have no +-: the terms listed stood out in the screening, so their '
+            f'coefficients were chosen for their size and a sigma beside them would not cover the truth{missed}; they '
+            'rank the terms, and a refit by output error gives a term\'s estimate')
+
+
+__all__ = ['TermEvidence', 'finite_or_none', 'screening_doubt', 'bandwidth', 'long_run_variance',
+           'effective_samples', 'hac_covariance', 'input_covariance', 'held_bias_covariance', 'diebold_mariano']
 
 
 def t_statistic_words(t_statistic: float) -> str:

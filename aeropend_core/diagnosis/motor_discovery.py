@@ -47,7 +47,7 @@ from threadpoolctl import threadpool_limits
 from aeropend_core.diagnosis.candidates import BIC_MARGIN, DM_MIN, DM_WEAK, MAJOR_SHARE, MATERIAL, T_MIN
 from aeropend_core.diagnosis.compare import PreparedRecord, excess_error
 from aeropend_core.diagnosis.evidence import (TermEvidence, diebold_mariano, effective_samples, finite_or_none,
-                                              hac_covariance, input_covariance)
+                                              hac_covariance, input_covariance, screening_doubt)
 from aeropend_core.errors import AeropendError, InsufficientDataError
 
 #: Time constant [s] of the dissipated-power proxy (the winding's thermal lag; tens of seconds for a small motor).
@@ -437,8 +437,10 @@ def _fit(prep, x0, code, coefficient, voltage, slow, switch, train, heldout, lev
                           prep.armature_current[heldout] - current[heldout], effective_samples(r), covariance)
 
 
-def _weak_screen(prep, x, voltage, switch, terms, noise) -> dict[str, tuple[float, float]]:
-    """Each term alone in the weak-form armature equation (Va, Ia, e kept): {expression: (c, σ)} [term units]."""
+def _weak_screen(prep, x, voltage, switch, terms, noise) -> dict[str, tuple[float, float, float]]:
+    """Each term alone in the weak-form armature equation (Va, Ia, e kept): {expression: (c, ranking σ, σ)} [term
+    units]; the noise-only σ ranks the terms as the weak form's significance guard selects them, the sandwich σ is
+    the one reported."""
     from aeropend_core.wsindy import library
     from aeropend_core.wsindy.weak_form import Equation, fit_weak_sindy
     current_model, emf = _simulate(np.append(x[:7], 0.0), -1, voltage, np.zeros(voltage.size), switch,
@@ -470,9 +472,9 @@ def _weak_screen(prep, x, voltage, switch, terms, noise) -> dict[str, tuple[floa
         except (InsufficientDataError, AeropendError, np.linalg.LinAlgError, ValueError):
             continue
         if term.expression in fit.coefficients:      # dIa/dt += (c / La) θ: c = La times the weak coefficient
-            sigma = fit.model_standard_errors.get(term.expression, math.nan)
             screened[term.expression] = (float(fit.coefficients[term.expression]) * inductance,
-                                         float(sigma) * inductance)
+                                         fit.model_standard_errors.get(term.expression, math.nan) * inductance,
+                                         fit.standard_errors.get(term.expression, math.nan) * inductance)
     return screened
 
 
@@ -542,10 +544,11 @@ def discover_motor(prep: PreparedRecord, say: Callable[[str], None] = lambda mes
     heat = _lagged(base.current ** 2, HEATING_TIME, prep.sample_time)
     time = prep.time - 0.5 * (prep.time[0] + prep.time[-1])
     beyond = max(base_rms ** 2 - noise ** 2, 0.0)
-    for rank, (expression, (value, sigma)) in enumerate(ranked):
+    doubt = screening_doubt(excess_now, noise, 'mA', 1e3)
+    for rank, (expression, (value, _, sigma)) in enumerate(ranked):
         term = by_expression[expression]
         entry = MotorDiscoveredTerm(term=term, status='not_proven', weak_coefficient=value, weak_sigma=sigma,
-                                    excess_before=excess_now)
+                                    weak_doubt=doubt, excess_before=excess_now)
         outcome.terms.append(entry)
         if rank >= MAX_REFITS:
             entry.why_not = f'not refitted: weaker weak-form evidence than the {MAX_REFITS} terms refitted before it'

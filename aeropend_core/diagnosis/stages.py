@@ -28,7 +28,8 @@ import numpy as np
 from aeropend_core.diagnosis.candidates import (CORRELATION_LIMIT, BIC_MARGIN, Candidate, _effect_parameters, _try,
                                                 assess)
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
-from aeropend_core.diagnosis.doubts import doubt_notes, rate_doubts, rate_notes, residual_structure
+from aeropend_core.diagnosis.doubts import (RATE_NOTE_TIME, doubt_notes, rate_doubts, rate_notes,
+                                            residual_structure)
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import CATALOG, THRUST_LAG, Effect, get_effect
 from aeropend_core.model.effects import separating_experiment as record_experiment
@@ -529,6 +530,9 @@ class VerdictFacts:
         (:func:`rerun_on_corrected_input`).
     reduced_rate_hz : float or None [Hz]
         The rate of a reduced-model record whose own error at that rate is unmeasured.
+    unchecked_rate_hz : float or None [Hz]
+        The rate of a record below the rig's (``RATE_NOTE_TIME``) on which catalog effects were named: naming was
+        checked against clean records at 490 Hz only.
     prefix : str
         Put before the words: a failed physical check's line (:mod:`aeropend_core.diagnosis.checks`).
     """
@@ -546,6 +550,7 @@ class VerdictFacts:
     discovery: object = None
     explained_below: float = math.inf
     reduced_rate_hz: float | None = None
+    unchecked_rate_hz: float | None = None
     motor: object = None
     prefix: str = ''
     motor_input_corrected: bool = False
@@ -618,12 +623,14 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
         verdict = 'confounded'      # a term outside the catalog explains the data as well as the set chosen
     reduced_rate = (1.0 / prep.sample_time if verdict == 'unexplained' and getattr(prep, 'reduced', False)
                     and rate_doubts(prep.sample_time, True) else None)
+    unchecked_rate = 1.0 / prep.sample_time if found and prep.sample_time > RATE_NOTE_TIME else None
     facts = VerdictFacts(
         verdict, found=tuple(found), noise_rms=noise, excess_current=excess_error(current.rms_error, noise),
         excess_final=catalog.excess_final, within_noise=UNEXPLAINED_NOISE * noise, structure=tuple(structure),
         drift_text=drift_message(drifting, final) if drifting else '', heldout_only=tuple(heldout_only),
         heldout_advice=excitation_advice(heldout_only[0].effect) if heldout_only else '', discovery=found_terms,
-        explained_below=UNEXPLAINED_NOISE * reference, reduced_rate_hz=reduced_rate, motor=motor_terms,
+        explained_below=UNEXPLAINED_NOISE * reference, reduced_rate_hz=reduced_rate,
+        unchecked_rate_hz=unchecked_rate, motor=motor_terms,
         motor_input_corrected=input_corrected)
     if found and verdict in ('effect_found', 'confounded'):
         for f in found:

@@ -15,6 +15,26 @@ def _coefficient(term) -> tuple[float, float]:
     """The term's output-error coefficient and σ [its unit], or the weak form's when it was not refitted."""
     return term.coefficient()
 
+
+def _value_text(term) -> str:
+    """'value +- sigma UNIT', or 'value UNIT (weak-form screening value, no +-)' when it has no sigma."""
+    value, sigma = _coefficient(term)
+    if not math.isfinite(sigma):
+        return f'{value:.4g} {term.term.unit} ({"weak-form screening value, " if term.doubt else ""}no +-)'
+    return f'{value:.4g} +- {sigma:.2g} {term.term.unit}'
+
+
+def _doubt_lines(terms) -> list[str]:
+    """The summary's line saying why screening values have no +- (said once; empty when none lacks one)."""
+    doubt = next((t.doubt for t in terms if t.doubt), '')
+    return [f'  {doubt[:1].upper()}{doubt[1:]}.'] if doubt else []
+
+
+def _doubt_html(terms) -> str:
+    """The report's paragraph saying why screening values have no +- ('' when none lacks one)."""
+    doubt = next((t.doubt for t in terms if t.doubt), '')
+    return f'<p>{html.escape(doubt[:1].upper() + doubt[1:])}.</p>' if doubt else ''
+
 def term_text(term) -> str:
     """'c * EXPRESSION with c = value +- sigma UNIT' for a :class:`~aeropend_core.diagnosis.discovery.DiscoveredTerm`.
 
@@ -28,8 +48,7 @@ def term_text(term) -> str:
     str
         The term as the pendulum equation reads it, SI units.
     """
-    value, sigma = _coefficient(term)
-    return f'dW/dt += c * {term.term.expression} with c = {value:.4g} +- {sigma:.2g} {term.term.unit}'
+    return f'dW/dt += c * {term.term.expression} with c = {_value_text(term)}'
 
 
 def discovery_sentence(discovery, noise_rms: float, explained_below: float = math.inf) -> str:
@@ -113,9 +132,7 @@ def motor_term_text(term) -> str:
     str
         The term as the armature circuit reads it, SI units.
     """
-    value, sigma = _coefficient(term)
-    return (f'La dIa/dt = Va - R Ia - e + c * {term.term.expression} with c = {value:.4g} +- {sigma:.2g} '
-            f'{term.term.unit}')
+    return f'La dIa/dt = Va - R Ia - e + c * {term.term.expression} with c = {_value_text(term)}'
 
 
 def motor_sentence(motor, input_corrected: bool = False) -> str:
@@ -189,7 +206,7 @@ def motor_lines(motor) -> list[str]:
         if math.isfinite(term.pendulum_excess_after):
             lines.append(f'             with it as the thrust input, the pendulum\'s angle beyond noise '
                          f'{term.pendulum_excess_before * 1e3:.2f} -> {term.pendulum_excess_after * 1e3:.2f} mrad')
-    return lines
+    return lines + _doubt_lines(motor.terms)
 
 
 def separating_experiment(expression: str) -> str:
@@ -223,7 +240,8 @@ def _html_number(value: float, digits: int = 2, scale: float = 1.0, suffix: str 
 def _coefficient_html(term) -> str:
     value, sigma = _coefficient(term)
     estimator = '' if math.isfinite(term.value) else ' <small>(weak form only)</small>'
-    sigma_text = f' &plusmn; {sigma:.2g}' if math.isfinite(sigma) else ' &plusmn; unknown'
+    sigma_text = (f' &plusmn; {sigma:.2g}' if math.isfinite(sigma) else
+                  ' <small>(screening value, no &plusmn;)</small>' if term.doubt else ' &plusmn; unknown')
     return f'{value:.4g}{sigma_text} {html.escape(term.term.unit)}{estimator}'
 
 
@@ -293,6 +311,7 @@ def discovery_html(discovery, noise_rms: float, source: str | None = None) -> st
             f'<td>{esc(t.why_not or t.term.reading)}</td></tr>' for t in others)
         parts.append('<h3>Other terms tried</h3><table><tr><th>term</th><th>status</th><th>c &plusmn; 1&sigma;</th>'
                      '<th>beyond noise after [mrad]</th><th>why not proven / reading</th></tr>' + rows + '</table>')
+        parts.append(_doubt_html(others))
     if not discovery.terms:
         parts.append('<p>No term of the vocabulary stands out from the noise in the discrepancy.</p>')
     return ''.join(parts)
@@ -317,12 +336,11 @@ def motor_html(motor) -> str:
     esc = html.escape
     rows = []
     for term in motor.terms:
-        value, sigma = _coefficient(term)
         pendulum = (f'; pendulum {_html_number(term.pendulum_excess_before, 2, 1e3)} &rarr; '
                     f'{_html_number(term.pendulum_excess_after, 2, 1e3)}&nbsp;mrad'
                     if math.isfinite(term.pendulum_excess_after) else '')
         rows.append(f'<tr><td><code>{esc(term.term.expression)}</code></td><td>{esc(term.status.replace("_", " "))}'
-                    f'</td><td class="num">{value:.4g} &plusmn; {sigma:.2g} {esc(term.term.unit)}</td>'
+                    f'</td><td class="num">{_coefficient_html(term)}</td>'
                     f'<td class="num">{_html_number(term.excess_before, 2, 1e3)} &rarr; '
                     f'{_html_number(term.excess_after, 2, 1e3)}{pendulum}</td>'
                     f'<td>t = {_html_number(term.t_statistic, 1)}, &Delta;BIC {_html_number(term.delta_bic, 1)}, '
@@ -334,7 +352,8 @@ def motor_html(motor) -> str:
             f'output error, judged on the held-out current (noise {_html_number(motor.noise_rms, 2, 1e3)}&nbsp;mA). '
             'The pendulum&rsquo;s error is given with its thrust input rebuilt from the corrected observer.</p>'
             '<table><tr><th>term</th><th>status</th><th>c &plusmn; 1&sigma;</th><th>current beyond noise [mA]</th>'
-            '<th>evidence</th><th>why not proven / reading</th></tr>' + ''.join(rows) + '</table>')
+            '<th>evidence</th><th>why not proven / reading</th></tr>' + ''.join(rows) + '</table>'
+            + _doubt_html(motor.terms))
 
 
 def _quoted(arguments: list[str]) -> list[str]:
@@ -367,7 +386,7 @@ def discovery_lines(discovery) -> list[str]:
                  if math.isfinite(term.excess_after) else '')
         why = f' ({term.why_not})' if term.why_not and term.status != 'proven' else ''
         lines.append(f'  {term.status.upper():10s} {term_text(term)}{after}{why}')
-    return lines
+    return lines + _doubt_lines(discovery.terms)
 
 
 def effect_module_text(terms) -> str:
