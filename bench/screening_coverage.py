@@ -35,13 +35,13 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 
-def foreign_recording(seed: int):
+def foreign_recording(seed: int, **spec):
     import yaml
 
     from aeropend_core.io.log_profile import import_log, load_profile
     from aeropend_core.io.recording import from_columns
     from aeropend_core.testing.foreign_logs import ForeignLogSpec, generate
-    log = generate(ForeignLogSpec(seed=seed, duration=72.0, current='average'))
+    log = generate(ForeignLogSpec(**{'seed': seed, 'duration': 72.0, 'current': 'average', **spec}))
     with tempfile.TemporaryDirectory() as folder:
         folder = Path(folder)
         (folder / 'log.csv').write_text(log.text)
@@ -109,6 +109,9 @@ def main() -> int:
     parser.add_argument('--seeds', type=int, default=4)
     parser.add_argument('--seed-base', type=int, default=700)
     parser.add_argument('--out', type=Path, required=True)
+    parser.add_argument('--spec', default='', help="foreign logs: ForeignLogSpec fields, e.g. "
+                        "'current_offset_counts=200,periods_per_line=2' (numbers)")
+    parser.add_argument('--tag', default='', help='added to the JSON file name')
     args = parser.parse_args()
     from threadpoolctl import threadpool_limits
 
@@ -117,12 +120,13 @@ def main() -> int:
     if args.part == 'sim':
         stages.DISCOVERY_NOISE = -1.0       # read at call time: the stage runs whatever the catalog leaves
     args.out.mkdir(parents=True, exist_ok=True)
-    target = args.out / f'screening-{args.part}-{args.seed_base}.json'
+    spec = {k: float(v) if '.' in v else int(v) for k, v in (item.split('=') for item in args.spec.split(',') if item)}
+    target = args.out / f'screening-{args.part}-{args.seed_base}{args.tag}.json'
     rows, runs = [], []
     noise_only: dict = {}
     noise_only_sigmas(noise_only)
     for seed in range(args.seed_base, args.seed_base + args.seeds):
-        recording = foreign_recording(seed) if args.part == 'foreign' else sim_recording(seed)
+        recording = foreign_recording(seed, **spec) if args.part == 'foreign' else sim_recording(seed)
         noise_only.clear()
         started = time.process_time()
         with threadpool_limits(1):
@@ -137,7 +141,7 @@ def main() -> int:
         print(f'{args.part} seed {seed}: {found.verdict}, named {runs[-1]["named"]}, motor {runs[-1]["motor_proven"]}, '
               f'{len(new)} terms, {runs[-1]["cpu_seconds"]} CPU s',
               flush=True)
-        target.write_text(json.dumps({'runs': runs, 'summary': summary(rows), 'rows': rows}, indent=1))
+        target.write_text(json.dumps({'spec': spec, 'runs': runs, 'summary': summary(rows), 'rows': rows}, indent=1))
     print(json.dumps(summary(rows), indent=1))
     return 0
 

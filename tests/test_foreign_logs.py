@@ -208,23 +208,64 @@ def test_stalls_in_a_row_are_not_taken_for_lost_lines(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_a_discovered_terms_refit_that_stops_short_of_the_model_without_it_is_restarted(tmp_path):
-    """Clean 22.3 Hz log (no hidden effect: every discovered term's truth is 0). The weak form screened cos(2*angle)
-    at c = -1244 1/s^2 on it; the output-error refit started there stayed (the angle 3.7 rad RMS off, the training
-    residual far above the model without the term, which is the same model at c = 0) and reported -1244 +- 0.00007,
-    17 million sigma from 0. A refit that fits worse than the nested model is started again from c = 0; every refitted
-    term that is not a confounded lookalike must then cover 0 within 3 sigma and fit at least as well as the base."""
+def test_a_discovered_terms_refit_that_stops_short_of_the_model_without_it_is_restarted(tmp_path, monkeypatch):
+    """Clean 22.3 Hz log (no hidden effect: every discovered term's truth is 0; the current readable, so the full
+    model). A refit started at the weak form's screening coefficient can stop in another basin: on such a log
+    cos(2*angle) started at c = -1244 1/s^2 stayed there (the angle 3.7 rad RMS off, the training residual far above
+    the model without the term, which is the same model at c = 0) and reported -1244 +- 0.00007, 17 million sigma
+    from 0. A refit that fits worse than the nested model is started again from c = 0 (here twice); every refitted
+    term that is not a confounded lookalike must then cover 0 within 3 sigma."""
+    from aeropend_core.diagnosis import discovery
     from aeropend_core.diagnosis.diagnose import diagnose
     from aeropend_core.io.log_profile import import_log, load_profile
-    log = generate(ForeignLogSpec(seed=707, duration=72.0, current='average'))
+    restarts = []
+    short = discovery._short_of_nested
+
+    def counted(augmented, base):
+        if short(augmented, base):
+            restarts.append(augmented.fit.residual_rms)
+            return True
+        return False
+    monkeypatch.setattr(discovery, '_short_of_nested', counted)
+    log = generate(ForeignLogSpec(seed=708, duration=72.0, current='average', current_offset_counts=200.0))
     (tmp_path / 'log.csv').write_text(log.text)
     (tmp_path / 'profile.yaml').write_text(yaml.safe_dump(log.profile))
     columns, _ = import_log(tmp_path / 'log.csv', load_profile(tmp_path / 'profile.yaml'))
     result = diagnose(from_columns(columns, source='log.csv'))
+    assert restarts, 'no refit fell short of the nested model on this log: the test does not test the restart'
     refitted = [t for t in result.discovery.terms if t.refitted and t.status == 'not_proven']
-    assert 'cos(2*angle)' in [t.term.expression for t in refitted], [t.to_dict() for t in result.discovery.terms]
+    assert refitted, [t.to_dict() for t in result.discovery.terms]
     for term in refitted:
         assert abs(term.value) <= 3 * term.sigma, term.to_dict()
-    from aeropend_core.present.verdict_text import verdict_of
-    if result.found:        # a catalog effect named at 22.3 Hz (cable_torque, on this log): said to be unchecked
-        assert 'At 22.27 Hz the naming of effects has not been checked on clean records' in verdict_of(result)
+    assert not result.found
+
+
+@pytest.mark.slow
+def test_a_named_effect_and_a_remainder_below_the_rigs_rate_say_what_the_rate_does(tmp_path, capsys):
+    """An effect named on a record below the rig's rate carries the rate's doubt (false alarms were measured at
+    490 Hz: a clean 245 Hz log got a coulomb_friction); at 490 Hz the same record's verdict does not. A remainder
+    left by the full model at a low rate is said to be possibly the model's own limit there (clean 22.3 Hz logs kept
+    one in 11 of 16). Both words are checked through the command line, on a 0.05 rad angle offset."""
+    from aeropend_core.present.verdict_text import verdict_message
+    duty = lhc_schedule(22.0, seed=5).duty(duration=22.0)
+    run = simulate(duty, effects={'angle_offset': {'angle_offset': 0.05}}, noise=MeasurementNoise(40.0, True), seed=5)
+    columns = {k: np.asarray(v, dtype=float) for k, v in run.columns(with_truth=False).items() if k in COLUMNS}
+    messages = {}
+    for every in (1, 5):
+        path = tmp_path / f'every{every}.csv'
+        write_csv(str(path), {k: v[::every] for k, v in columns.items()})
+        status, _, err = run_cli(['diagnose', str(path), '--sample-rate', f'{490.0 / every:.10g}', '--quiet',
+                                  '--no-drift', '--only', 'angle_offset', '--json', str(tmp_path / 'd.json')], capsys)
+        assert status == 0, err
+        diagnosis = json.loads((tmp_path / 'd.json').read_text())
+        assert 'angle_offset' in [f['effect'] for f in diagnosis['missing_effects']], diagnosis['message']
+        messages[every] = diagnosis['message']
+    assert 'At 98 Hz a named effect is less sure than at the rig\'s 490 Hz' in messages[5], messages[5]
+    assert 'a named effect is less sure' not in messages[1], messages[1]
+    words = verdict_message('unexplained', found=(), noise_rms=3e-3, excess_current=9e-3, excess_final=9e-3,
+                            within_noise=1.5e-3, structure=({'signature': 'angle', 'correlation': 0.3},),
+                            low_rate_hz=22.27)
+    assert 'At 22.27 Hz part or all of this remainder can be the model\'s own limit at this rate' in words
+    assert 'can be the model' not in verdict_message('unexplained', found=(), noise_rms=3e-3, excess_current=9e-3,
+                                                     excess_final=9e-3, within_noise=1.5e-3,
+                                                     structure=({'signature': 'angle', 'correlation': 0.3},))

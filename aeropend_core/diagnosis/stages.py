@@ -530,9 +530,9 @@ class VerdictFacts:
         (:func:`rerun_on_corrected_input`).
     reduced_rate_hz : float or None [Hz]
         The rate of a reduced-model record whose own error at that rate is unmeasured.
-    unchecked_rate_hz : float or None [Hz]
-        The rate of a record below the rig's (``RATE_NOTE_TIME``) on which catalog effects were named: naming was
-        checked against clean records at 490 Hz only.
+    low_rate_hz : float or None [Hz]
+        The rate of a record below the rig's (``RATE_NOTE_TIME``): what the model's own limit there can do to a
+        remainder or a named effect is said.
     prefix : str
         Put before the words: a failed physical check's line (:mod:`aeropend_core.diagnosis.checks`).
     """
@@ -550,7 +550,7 @@ class VerdictFacts:
     discovery: object = None
     explained_below: float = math.inf
     reduced_rate_hz: float | None = None
-    unchecked_rate_hz: float | None = None
+    low_rate_hz: float | None = None
     motor: object = None
     prefix: str = ''
     motor_input_corrected: bool = False
@@ -623,14 +623,14 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
         verdict = 'confounded'      # a term outside the catalog explains the data as well as the set chosen
     reduced_rate = (1.0 / prep.sample_time if verdict == 'unexplained' and getattr(prep, 'reduced', False)
                     and rate_doubts(prep.sample_time, True) else None)
-    unchecked_rate = 1.0 / prep.sample_time if found and prep.sample_time > RATE_NOTE_TIME else None
+    low_rate = 1.0 / prep.sample_time if prep.sample_time > RATE_NOTE_TIME else None
     facts = VerdictFacts(
         verdict, found=tuple(found), noise_rms=noise, excess_current=excess_error(current.rms_error, noise),
         excess_final=catalog.excess_final, within_noise=UNEXPLAINED_NOISE * noise, structure=tuple(structure),
         drift_text=drift_message(drifting, final) if drifting else '', heldout_only=tuple(heldout_only),
         heldout_advice=excitation_advice(heldout_only[0].effect) if heldout_only else '', discovery=found_terms,
         explained_below=UNEXPLAINED_NOISE * reference, reduced_rate_hz=reduced_rate,
-        unchecked_rate_hz=unchecked_rate, motor=motor_terms,
+        low_rate_hz=low_rate, motor=motor_terms,
         motor_input_corrected=input_corrected)
     if found and verdict in ('effect_found', 'confounded'):
         for f in found:

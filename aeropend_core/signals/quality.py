@@ -46,8 +46,9 @@ code                        severity     when
                                          Va at the steps: not the period-average current (read inside the PWM
                                          pulse?); dropped, the reduced model is used (a window: said only)
 ``current_clipped``         warning      the current holds its lowest value without noise in runs starting where
-                                         Va falls (a braking current a one-sided sensor cannot read): dropped,
-                                         the reduced model is used (a window: said only)
+                                         Va falls (after most falls, or after every fall to 0: a braking current
+                                         a one-sided sensor cannot read): dropped, the reduced model is used (a
+                                         window: said only)
 ``voltage_from_duty``       warning      no armature voltage column: Va from the duty by eq (8)
 ``angle_sign``              repaired     the angle falls as the thrust rises: negated (a node window: warning)
 ``column_names``            repaired     CSV header spellings and units (``Angle [deg]``): read as SI, said
