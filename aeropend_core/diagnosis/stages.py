@@ -31,7 +31,7 @@ from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare,
 from aeropend_core.diagnosis.doubts import (RATE_NOTE_TIME, doubt_notes, rate_doubts, rate_notes,
                                             residual_structure)
 from aeropend_core.errors import AeropendError, InsufficientDataError
-from aeropend_core.model.effects import CATALOG, THRUST_LAG, Effect, get_effect
+from aeropend_core.model.effects import CATALOG, REDUCED_TWINS, THRUST_LAG, Effect, get_effect
 from aeropend_core.model.effects import separating_experiment as record_experiment
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 
@@ -568,6 +568,21 @@ class Decided:
     structure: tuple
 
 
+def _series_twins(found) -> list[str]:
+    """Mark each found effect of a reduced-model record that has a twin there
+    (:data:`aeropend_core.model.effects.REDUCED_TWINS`) as confounded with it (in place); the notes that say so."""
+    notes = []
+    for f in found:
+        twin = REDUCED_TWINS.get(f.effect)
+        if twin and twin not in f.confounded_with:
+            f.confounded_with.append(twin)
+            notes.append(f'{f.effect} can as well be a {twin.replace("_", " ")} in series with the motor\'s own lag: '
+                         'without a usable armature current (the reduced model) the motor\'s lag carries a thrust lag '
+                         'and cannot be fitted apart from it, and a lag on the angle acts on the data as a lag on the '
+                         'thrust does; a record with the period-average armature current decides')
+    return notes
+
+
 def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drifted,
                   input_corrected: bool = False) -> Decided:
     """Decide the verdict from the stages' results (the words: :mod:`aeropend_core.present.verdict_text`);
@@ -583,6 +598,8 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
     proven = found_terms.proven if found_terms is not None else []
     # a proven term is the verdict only when it explains the error (what it leaves is within the noise's reach)
     proven = [t for t in proven if t.excess_after <= UNEXPLAINED_NOISE * reference]
+    if getattr(prep, 'reduced', False):
+        notes += _series_twins(found)
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]
     missing = pinned[0].effect if pinned else None
@@ -600,6 +617,8 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
         verdict = 'confounded'
         for f in unsure:
             for other in f.confounded_with:
+                if getattr(prep, 'reduced', False) and REDUCED_TWINS.get(f.effect) == other:
+                    continue            # said by _series_twins
                 notes.append(f'{f.effect} and {other} are interchangeable on this data (adding either makes the other '
                              f'insignificant); {separating_experiment(f.effect, other)}.')
     elif found:

@@ -326,6 +326,13 @@ def separating_experiment(a: str, b: str) -> str | None:
     return None
 
 
+#: On a record without a usable armature current (the reduced model, aeropend_core.signals.reduced) an effect found
+#: that the data cannot tell from its twin here: a lag on the angle acts as a lag on the thrust in series with the
+#: motor's own lag, which the reduced model carries in one profiled time constant and does not fit apart. A random
+#: 28.8 Hz log with an 80 ms thrust lag hidden was told "missing effect: angle_filter (50 +- 12 ms)"
+#: (bench/foreign_naming.py).
+REDUCED_TWINS = {'angle_filter': 'thrust_lag'}
+
 #: Why two effects are hard to tell apart, one physical sentence per pair (said when an experiment designed to
 #: separate them is too weak to decide).
 WHY_ALIKE = {
