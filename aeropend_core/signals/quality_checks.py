@@ -563,7 +563,11 @@ def _check_current_floor(gate: _Gate) -> None:
     falls = [k for k in detect_steps(voltage, sample_time) if 3 <= k <= n - 3
              and float(np.median(voltage[k:k + 3]) - np.median(voltage[k - 3:k])) < -0.1 * span]
     window = max(int(round(0.5 / sample_time)), 2)
-    after_fall = [(a, b) for a, b in runs if any(0 <= a - k <= window for k in falls)]
+    enough = max(10, 0.005 * n)
+
+    def following(steps):          # the floor runs that start within `window` samples after one of `steps`
+        return [(a, b) for a, b in runs if any(0 <= a - k <= window for k in steps)]
+    after_fall = following(falls)
     held = sum(b - a + 1 for a, b in after_fall)
     # a fall of Va to 0 leaves the motor spinning: a braking drive's current is negative until it stops, so a floor
     # held after every such fall (one is enough) is the clipped braking current, whatever the smaller falls show (at
@@ -572,11 +576,9 @@ def _check_current_floor(gate: _Gate) -> None:
     # clipped, and got a false cable_torque). A bidirectional sensor's braking current is negative there, and its
     # noise never holds one value for three samples.
     to_rest = [k for k in falls if float(np.median(voltage[k:k + 3])) <= 0.05 * span]
-    after_rest = [(a, b) for a, b in runs if any(0 <= a - k <= window for k in to_rest)]
-    held_rest = sum(b - a + 1 for a, b in after_rest)
-    after_falls = len(after_fall) >= 3 and held >= max(10, 0.005 * n) and len(after_fall) >= 0.5 * len(falls)
-    after_every_rest = (len(to_rest) >= 1 and held_rest >= max(10, 0.005 * n)
-                        and all(any(0 <= a - k <= window for a, _ in runs) for k in to_rest))
+    held_rest = sum(b - a + 1 for a, b in following(to_rest))
+    after_falls = len(after_fall) >= 3 and held >= enough and len(after_fall) >= 0.5 * len(falls)
+    after_every_rest = len(to_rest) >= 1 and held_rest >= enough and all(following([k]) for k in to_rest)
     if not (after_falls or after_every_rest):
         return
     if after_falls:
