@@ -142,7 +142,7 @@ def test_the_loop_stops_when_decided_on_its_budget_or_on_a_refused_design(monkey
     design = replace(searched, separation=0.29)
     assert design.seconds_to_decide < 20.0
 
-    def run(verdicts, budget, refuse=False, design=design):
+    def run(verdicts, budget, refuse=False, design=design, angle_step=0.0):
         played, seen = [], []
 
         def play(chosen, schedule):
@@ -154,7 +154,8 @@ def test_the_loop_stops_when_decided_on_its_budget_or_on_a_refused_design(monkey
             verdict = verdicts[len(records) - 1]
             found = [SimpleNamespace(effect='cable_torque', confounded_with=['angle_offset'])] \
                 if verdict == 'confounded' else []
-            return SimpleNamespace(verdict=verdict, noise_rms=0.004, found=found)
+            return SimpleNamespace(verdict=verdict, noise_rms=0.004, found=found,
+                                   prepared=SimpleNamespace(angle_step=angle_step))
 
         def design_experiment_(models, noise_rms, **options):
             if refuse:
@@ -203,6 +204,19 @@ def test_the_loop_stops_when_decided_on_its_budget_or_on_a_refused_design(monkey
     outcome, played, _ = run(['confounded'] * 3, budget, design=hopeless)
     assert len(played) == 1 and outcome.verdict == 'cannot_decide_within_budget' and outcome.needed_seconds == math.inf
     assert 'no duration decides' in outcome.ending and 'below the 0.05 x the diagnosis needs' in outcome.ending
+    assert 'lower the angle noise to about' in outcome.ending and math.isnan(outcome.angle_quantisation_rms)
+    # the rig's 10-bit count of a turn leaves 1.77 mrad RMS, less than the noise that would decide (2.8 mrad within
+    # the budget): less noise would do; a 256-count sensor leaves 7.09 mrad RMS: no noise level of it decides
+    outcome, _, _ = run(['confounded'] * 3, budget, design=hopeless, angle_step=2 * math.pi / 1024)
+    quieter = outcome.needed_noise_rms
+    assert 1.77e-3 < quieter < 7.09e-3 and 'no noise level' not in outcome.ending
+    assert f'lower the angle noise to about {quieter * 1e3:.2f} mrad RMS' in outcome.ending
+    outcome, _, _ = run(['confounded'] * 3, budget, design=hopeless, angle_step=2 * math.pi / 256)
+    assert outcome.angle_quantisation_rms == pytest.approx(2 * math.pi / 256 / math.sqrt(12))
+    finer = 2 * math.pi / 256 / (quieter * math.sqrt(12))
+    assert (f'no noise level of this angle sensor gets there (its counts alone, 24.54 mrad each, leave 7.09 mrad '
+            f'RMS, more than the {quieter * 1e3:.2f} mrad RMS that would decide): it takes an angle sensor at least '
+            f'{finer:.1f} times finer (2 more bits), with noise to match, to decide within the') in outcome.ending
 
 
 def test_a_weak_design_says_how_long_it_would_take_and_why():

@@ -135,6 +135,9 @@ class LoopOutcome:
         (inf when no duration decides at this noise); NaN otherwise.
     needed_noise_rms : float [rad]
         With that verdict: the angle-noise RMS at which the design would decide within the budget left.
+    angle_quantisation_rms : float [rad]
+        With that verdict: the RMS error of the records' angle counts alone (step / sqrt(12)); when it exceeds
+        `needed_noise_rms`, no noise level of this angle sensor decides (NaN when the angle has no counts).
     verdict : str
         ``decided``, ``cannot_decide_within_budget``, ``budget_spent``, ``refused`` or ``not_completed``.
     """
@@ -145,6 +148,7 @@ class LoopOutcome:
     excitation_seconds: float = 0.0
     needed_seconds: float = math.nan
     needed_noise_rms: float = math.nan
+    angle_quantisation_rms: float = math.nan
     verdict: str = 'not_completed'
 
     @property
@@ -269,7 +273,9 @@ def until_decided(play: Callable, budget: LoopBudget = LoopBudget(), diagnose_op
             outcome.verdict = 'cannot_decide_within_budget'
             outcome.needed_seconds = needed
             outcome.needed_noise_rms = design.noise_to_decide(_whole_schedules(left, design))
-            outcome.ending = cannot_decide_text(design, left, budget)
+            step = float(getattr(getattr(diagnosis, 'prepared', None), 'angle_step', 0.0) or 0.0)
+            outcome.angle_quantisation_rms = step / math.sqrt(12.0) if step > 0 else math.nan
+            outcome.ending = cannot_decide_text(design, left, budget, step)
             if on_round:
                 on_round(current)
             break
@@ -284,7 +290,7 @@ def until_decided(play: Callable, budget: LoopBudget = LoopBudget(), diagnose_op
     return outcome
 
 
-def cannot_decide_text(design, left_seconds: float, budget: LoopBudget) -> str:
+def cannot_decide_text(design, left_seconds: float, budget: LoopBudget, angle_step: float = 0.0) -> str:
     """The loop's early end when the design needs more than the budget left, in words.
 
     Parameters
@@ -295,6 +301,9 @@ def cannot_decide_text(design, left_seconds: float, budget: LoopBudget) -> str:
         Excitation left in the budget for the next round (its overhead taken off).
     budget : LoopBudget [-]
         The loop's budget (the --max-seconds it names).
+    angle_step : float [rad]
+        The angle sensor's count (0: no counts); when its quantisation alone exceeds the noise that would decide,
+        the text says that no noise level of this sensor decides and how much finer a sensor must be.
 
     Returns
     -------
@@ -307,6 +316,15 @@ def cannot_decide_text(design, left_seconds: float, budget: LoopBudget) -> str:
     quieter = design.noise_to_decide(_whole_schedules(left_seconds, design))
     lower = (f'lower the angle noise to about {quieter * 1e3:.2f} mrad RMS ({_decibels(noise, quieter):.1f} dB less)'
              if quieter > 0 else 'lower the angle noise')
+    counts = angle_step / math.sqrt(12.0) if angle_step > 0 else 0.0
+    if quieter > 0 and counts > quieter:
+        # the counts' own error (step / sqrt(12)) already exceeds it: this sensor cannot get there at any noise
+        finer = angle_step / (quieter * math.sqrt(12.0))
+        bits = math.ceil(math.log2(finer))
+        lower = (f'no noise level of this angle sensor gets there (its counts alone, {angle_step * 1e3:.2f} mrad '
+                 f'each, leave {counts * 1e3:.2f} mrad RMS, more than the {quieter * 1e3:.2f} mrad RMS that would '
+                 f'decide): it takes an angle sensor at least {finer:.1f} times finer ({bits} more bit'
+                 f'{"s" if bits > 1 else ""}), with noise to match,')
     reason = design.physical_reason()
     reason = f' ({reason})' if reason else ''
     where = (f'{", ".join(m.label for m in design.models)}: the best schedule found separates them by '

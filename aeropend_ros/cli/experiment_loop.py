@@ -255,6 +255,7 @@ def run_until_decided(args, run_once) -> int:
                                 'loop_verdict': outcome.verdict, 'excitation_seconds': outcome.excitation_seconds,
                                 'needed_seconds': outcome.needed_seconds,
                                 'needed_noise_rms_rad': outcome.needed_noise_rms,
+                                'angle_quantisation_rms_rad': outcome.angle_quantisation_rms,
                                 'decision': rounds[-1]['diagnosis'] if rounds else None})
     if outcome.refused:     # the rounds so far are listed (and in --json); the refusal is the one-line error, exit 2
         raise AeropendError(outcome.refused)
