@@ -544,3 +544,36 @@ def test_a_rival_that_replaces_the_chosen_effect_is_reported_alone_with_its_own_
     assert replaced.found[0].parameters == {k: v for k, v in judged[0].parameters.items()
                                             if k in replaced.found[0].parameters}
     assert any(f'{chosen} was replaced by {rival}' in note for note in replaced.notes)
+
+
+def test_a_discovered_lookalike_is_the_rival_the_design_separates_from_the_catalog_set():
+    """When the diagnosis is confounded between the catalog set and a term outside the catalog that explains the
+    data as well (a 'confounded' discovered term), the two competing models are the set and the term in its place
+    (a loop on a 10 mrad offset was confounded with cos(2*angle) after its first design and ended 'no two effects it
+    cannot tell apart', bench/results/2026-11-29-s16-loop7)."""
+    from types import SimpleNamespace
+
+    from aeropend_core.diagnosis.compare import compare, prepare
+    from aeropend_core.diagnosis.discovery import find_term
+    from aeropend_core.diagnosis.experiment_design import confounded_models
+    from aeropend_core.io.recording import from_columns
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    duty = lhc_schedule(40.0, duty_range=(0.0, 0.7), duty_cap=0.7, seed=9360).duty(duration=40.0)
+    run = simulate(duty, effects={'angle_offset': 0.01}, noise=MeasurementNoise(40.0, True), seed=9361)
+    prep = prepare(from_columns(run.columns(with_truth=False), source='offset'))
+    final = compare(prep, ('angle_offset',))
+    term = SimpleNamespace(status='confounded', term=find_term('cos(2*angle)'), confounded_with=['angle_offset'],
+                           coefficient=lambda: (0.5, math.nan))
+    diagnosis = SimpleNamespace(found=[SimpleNamespace(effect='angle_offset', confounded_with=[])],
+                                discovery=SimpleNamespace(terms=[term]), prepared=prep, final=final, candidates=[],
+                                fixed={}, verdict='confounded')
+    catalog, lookalike = confounded_models(diagnosis)
+    assert catalog.effects == ('angle_offset',) and lookalike.effects == ('term_cos_2angle',)
+    assert math.isfinite(lookalike.parameters['term_cos_2angle_coefficient'])
+    assert 'term_cos_2angle_coefficient' in lookalike.free_names
+    design = design_experiment([catalog, lookalike], prep.noise_rms, duration=20.0, seed=3, **QUICK)
+    assert design.separation > 0 and design.models[1].label == 'nominal + term_cos_2angle'
+    diagnosis.discovery = SimpleNamespace(terms=[])
+    with pytest.raises(DesignRefused, match='reports no two effects it cannot tell apart'):
+        confounded_models(diagnosis)

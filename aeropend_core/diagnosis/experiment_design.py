@@ -706,7 +706,9 @@ def competing_models(prepared, effect_sets: Sequence[Sequence[str]], fixed: Mapp
 
 
 def confounded_models(diagnosis) -> list[CompetingModel]:
-    """The two competing models of a diagnosis with the verdict 'confounded' (its first confounded pair).
+    """The two competing models of a diagnosis with the verdict 'confounded': its first confounded pair of catalog
+    effects, or else the catalog set and the term outside the catalog that explains the data as well (a discovered
+    lookalike, :mod:`aeropend_core.diagnosis.discovery`).
 
     Parameters
     ----------
@@ -716,30 +718,41 @@ def confounded_models(diagnosis) -> list[CompetingModel]:
     Returns
     -------
     list of CompetingModel
-        The selected model (with the chosen effect) and the same model with the rival in its place.
+        The selected model (with the chosen effect, or the catalog set) and the same model with the rival (or the
+        discovered term) in its place.
 
     Raises
     ------
     DesignRefused
-        The diagnosis reports no confounded pair of effects, or carries no prepared record.
+        The diagnosis reports no confounded pair of effects nor a lookalike term, or carries no prepared record.
     """
     pair = next(((f.effect, f.confounded_with[0]) for f in diagnosis.found if f.confounded_with), None)
-    if pair is None or diagnosis.prepared is None:
+    lookalike = None if pair is not None else next(
+        (t for t in getattr(getattr(diagnosis, 'discovery', None), 'terms', ()) if t.status == 'confounded'), None)
+    if (pair is None and lookalike is None) or diagnosis.prepared is None:
         raise DesignRefused(f'the diagnosis ({diagnosis.verdict}) reports no two effects it cannot tell apart; there '
                             'is nothing to design an experiment for')
-    chosen, rival = pair
     if diagnosis.prepared.reduced:
         raise DesignRefused('the record has no armature current (reduced model): designing an experiment needs the '
                             'full model; record the armature current')
     final = diagnosis.final
     observer = diagnosis.prepared.motor is not None
     first = CompetingModel.from_comparison(final, observer)
-    swapped = tuple(rival if e == chosen else e for e in final.effects)
+    start = dict(final.parameters)
+    if pair is not None:
+        chosen, rival = pair
+        swapped = tuple(rival if e == chosen else e for e in final.effects)
+    else:       # the discovered term in place of the catalog set it looks like
+        from aeropend_core.diagnosis.discovery import term_effect
+        name = term_effect(lookalike.term)
+        swapped = tuple(e for e in final.effects if e not in lookalike.confounded_with) + (name,)
+        value = lookalike.coefficient()[0]
+        start[f'{name}_coefficient'] = float(value) if math.isfinite(value) else 0.0
     known = next((c.comparison for c in diagnosis.candidates
                   if c.comparison is not None and set(c.comparison.effects) == set(swapped)), None)
     if known is None:
         from aeropend_core.diagnosis.compare import compare
-        known = compare(diagnosis.prepared, swapped, start=dict(final.parameters), fixed=dict(diagnosis.fixed))
+        known = compare(diagnosis.prepared, swapped, start=start, fixed=dict(diagnosis.fixed))
     return [first, CompetingModel.from_comparison(known, observer)]
 
 
