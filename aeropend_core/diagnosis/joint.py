@@ -118,7 +118,8 @@ def prepare_joint(recordings: Sequence, train_fraction: float | None = None):
     """A :class:`~aeropend_core.diagnosis.compare.PreparedRecord` of several records (module docstring).
 
     Each record is prepared alone first (input conditioning, noise, the motor observer: the observer's back-EMF,
-    the thrust voltage, starts from each record's own beginning and runs through it without a break), then the
+    the thrust voltage, starts from each record's own beginning and runs through it without a break; the motor's
+    parameters are then refitted to all records at once, :func:`aeropend_core.signals.motor.refit_shared`), then the
     prepared signals are joined in the order ``A-train, B-train, ..., A-held, B-held, ...`` with gaps between the
     pieces. Run over the joined record instead, the observer carried one piece's motor state across a 0.2 s gap
     into the next (its time constant is ~0.4 s): a designed record whose offset it named alone lost it in the
@@ -147,6 +148,12 @@ def prepare_joint(recordings: Sequence, train_fraction: float | None = None):
             p.gaps is not None and p.gaps.count for p in preps):
         return _prepare_joined(recordings, train_fraction)      # mixed kinds or lost samples: one preparation
     sample_time = preps[0].sample_time
+    if all(p.motor is not None for p in preps):     # one motor: its observer's parameters fitted to all records
+        from aeropend_core.signals.motor import refit_shared
+        shared = refit_shared([p.motor for p in preps], [p.gate_voltage for p in preps],
+                              [p.armature_current for p in preps], [p.step_indices for p in preps], sample_time)
+        if shared is not None:
+            preps = [dataclasses.replace(p, voltage=fit.back_emf, motor=fit) for p, fit in zip(preps, shared)]
     gap = max(1, int(round(GAP_SECONDS / sample_time)))
     names = ('armature_voltage', 'armature_current', 'angle', 'voltage', 'current', 'gate_voltage')
     pieces = []
