@@ -199,6 +199,8 @@ def loop_case(truth: dict, seed: int, args, first_duty=FIRST_DUTY) -> dict:
         result = 'still confounded'
     elif not wanted:
         result = 'correct' if final.verdict == 'nothing_missing' else 'wrong'
+    elif final.verdict == 'nothing_missing':
+        result = 'missed'       # nothing named: not a wrong name (the first record alone misses a small effect)
     else:
         result = 'correct' if final.verdict == 'effect_found' and pinned == wanted else 'wrong'
     return {'truth': truth, 'seed': seed, 'first_verdict': rounds[0]['verdict'] if rounds else None,
