@@ -316,8 +316,9 @@ def _parameters(kind: str, x: np.ndarray) -> dict[str, float]:
     return dict(zip(PARAMETER_NAMES, (float(v) for v in x[:4])))
 
 
-#: Entries of an observer's state vector that belong to the motor (the rest are a record's initial state), by kind.
-SHARED_ENTRIES = {'inductance': 5, 'quasi_static': 4}
+#: Lower bounds of the entries of an observer's state vector that belong to the motor (the rest are a record's
+#: initial state), by kind: the fits' own (a resistance and an electrical time constant above 0).
+SHARED_LOWER = {'inductance': (1e-3, 1e-5, 0.0, 0.0, 0.0), 'quasi_static': (1e-3, 0.0, 0.0, 1e-3)}
 
 
 def refit_shared(fits: list[MotorFit], voltages: list[np.ndarray], currents: list[np.ndarray],
@@ -353,7 +354,7 @@ def refit_shared(fits: list[MotorFit], voltages: list[np.ndarray], currents: lis
     if len(kinds) != 1 or not all(fit.solution for fit in fits):
         return None
     kind = kinds.pop()
-    shared = SHARED_ENTRIES[kind]
+    shared = len(SHARED_LOWER[kind])
     solutions = [np.asarray(fit.solution, dtype=float) for fit in fits]
     own = len(solutions[0]) - shared
     switches = [fit.switch if fit.switch is not None and len(fit.switch) == len(v) else None
@@ -371,8 +372,7 @@ def refit_shared(fits: list[MotorFit], voltages: list[np.ndarray], currents: lis
                                         - currents[k][used[k]]) for k in range(len(fits))])
 
     lower = np.full(start.size, -np.inf)
-    lower[:shared] = 0.0
-    lower[0] = 1e-3                                 # a rate (quasi-static) or the resistance (inductance) > 0
+    lower[:shared] = SHARED_LOWER[kind]
     z0 = np.maximum(start, lower + 1e-9 * scale) / scale
     with np.errstate(all='ignore'), threadpool_limits(1):
         result = least_squares(residuals, z0, bounds=(lower / scale, np.inf), method='trf', x_scale='jac',
