@@ -295,6 +295,38 @@ def summary() -> str:
     return '\n'.join(lines)
 
 
+def table(folder: Path) -> str:
+    """Markdown table of the loop runs (``loop_*.json``) in `folder`, one row per loop (the results folders'
+    ``table.py``)."""
+    lines = ['| truth | PSNR dB | budget | seed | first record | loop result | runs | s played | estimate +- sigma | '
+             '(estimate - truth) / sigma | CPU s |', '|---|---|---|---|---|---|---|---|---|---|---|']
+    for path in sorted(Path(folder).glob('loop_*.json')):
+        data = json.loads(path.read_text())
+        psnr = f"{data['settings']['psnr']:g}" + (' (no ADC)' if data['settings'].get('no_quantise') else '')
+        budget = f"{data['settings']['max_runs']} runs, {data['settings']['max_seconds']:g} s"
+        for row in data['rows']:
+            truth = row['truth']
+            name, size = next(iter(truth.items())) if truth else ('clean', math.nan)
+            sizes = row['rounds'][-1].get('sizes', {}) if row['rounds'] else {}
+            estimate = ''
+            z = ''
+            for effect, parameters in sizes.items():
+                for parameter, (value, sigma) in parameters.items():
+                    estimate += f'{effect} {value * 1e3:.2f} +- {sigma * 1e3:.2f} ms ' if parameter in (
+                        'time_constant', 'filter_delay') else f'{effect} {parameter} {value:.4g} +- {sigma:.2g} '
+                    if effect == name and sigma > 0:
+                        z = f'{(value - size) / sigma:+.2f}'
+            label = ('clean' if not truth else f'{name} {size * 1e3:.0f} ms' if name in ('thrust_lag', 'angle_filter')
+                     else f'{name} {size:g}')
+            # files written before the bench said 'missed' counted a first record that names nothing as 'wrong'
+            result = 'missed' if row['result'] == 'wrong' and row['final_verdict'] == 'nothing_missing' \
+                else row['result']
+            lines.append(f'| {label} | {psnr} | {budget} | {row["seed"]} | {row["first_verdict"]} | {result} | '
+                         f'{row["runs"]} | {row["excitation_seconds"]:.0f} | {estimate.strip() or "-"} | {z or "-"} | '
+                         f'{row["cpu_seconds"]:.0f} |')
+    return '\n'.join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument('--part', choices=['loop', 'clean', 'lagfilter', 'joint', 'summary'], required=True)

@@ -1,29 +1,10 @@
 """Markdown table of the loop runs in this folder: python bench/results/2026-11-28-s13-loop6/table.py"""
-import json
-import math
+import sys
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-print('| truth | PSNR dB | budget | seed | first record | loop result | runs | s played | estimate +- sigma | '
-      '(estimate - truth) / sigma | CPU s |')
-print('|---|---|---|---|---|---|---|---|---|---|---|')
-for path in sorted(HERE.glob('loop_*.json')):
-    data = json.loads(path.read_text())
-    psnr = f"{data['settings']['psnr']:g}" + (' (no ADC)' if data['settings'].get('no_quantise') else '')
-    budget = f"{data['settings']['max_runs']} runs, {data['settings']['max_seconds']:g} s"
-    for row in data['rows']:
-        truth = row['truth']
-        name, size = next(iter(truth.items())) if truth else ('clean', math.nan)
-        sizes = row['rounds'][-1].get('sizes', {}) if row['rounds'] else {}
-        estimate = ''
-        z = ''
-        for effect, parameters in sizes.items():
-            for parameter, (value, sigma) in parameters.items():
-                estimate += f'{effect} {value * 1e3:.2f} +- {sigma * 1e3:.2f} ms ' if parameter in (
-                    'time_constant', 'filter_delay') else f'{effect} {parameter} {value:.4g} +- {sigma:.2g} '
-                if effect == name and sigma > 0:
-                    z = f'{(value - size) / sigma:+.2f}'
-        label = f'{name} {size * 1e3:.0f} ms' if truth else 'clean'
-        print(f'| {label} | {psnr} | {budget} | {row["seed"]} | {row["first_verdict"]} | {row["result"]} | '
-              f'{row["runs"]} | '
-              f'{row["excitation_seconds"]:.0f} | {estimate.strip() or "-"} | {z or "-"} | {row["cpu_seconds"]:.0f} |')
+sys.path.insert(0, str(HERE.parents[1]))        # bench/
+
+from experiment_decide import table  # noqa: E402
+
+print(table(HERE))
