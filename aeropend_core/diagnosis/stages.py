@@ -616,6 +616,7 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
     prep, final, current, found, steps = catalog.prep, catalog.final, catalog.current, catalog.found, catalog.steps
     model, results, reference, remainder = catalog.model, catalog.results, catalog.reference, catalog.remainder
     noise = prep.noise_rms
+    reduced = getattr(prep, 'reduced', False)
     notes = list(catalog.notes) + list(drifted.notes)
     drifting = list(drifted.drifting)
     found_terms, motor_terms = discovered.pendulum, discovered.motor
@@ -623,7 +624,7 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
     proven = found_terms.proven if found_terms is not None else []
     # a proven term is the verdict only when it explains the error (what it leaves is within the noise's reach)
     proven = [t for t in proven if t.excess_after <= UNEXPLAINED_NOISE * reference]
-    if getattr(prep, 'reduced', False):
+    if reduced:
         notes += _series_twins(found)
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]
@@ -642,7 +643,7 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
         verdict = 'confounded'
         for f in unsure:
             for other in f.confounded_with:
-                if getattr(prep, 'reduced', False) and REDUCED_TWINS.get(f.effect) == other:
+                if reduced and REDUCED_TWINS.get(f.effect) == other:
                     continue            # said by _series_twins
                 notes.append(f'{f.effect} and {other} are interchangeable on this data (adding either makes the other '
                              f'insignificant); {separating_experiment(f.effect, other)}.')
@@ -665,7 +666,7 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
     if found_terms is not None and verdict == 'effect_found' and any(t.status == 'confounded'
                                                                    for t in found_terms.terms):
         verdict = 'confounded'      # a term outside the catalog explains the data as well as the set chosen
-    reduced_rate = (1.0 / prep.sample_time if verdict == 'unexplained' and getattr(prep, 'reduced', False)
+    reduced_rate = (1.0 / prep.sample_time if verdict == 'unexplained' and reduced
                     and rate_doubts(prep.sample_time, True) else None)
     low_rate = 1.0 / prep.sample_time if prep.sample_time > RATE_NOTE_TIME else None
     facts = VerdictFacts(
