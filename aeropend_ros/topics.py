@@ -42,6 +42,20 @@ DIAGNOSTICS_TOPIC = '/diagnostics'
 #: sensor_msgs/msg/JointState with ``name = PARAMETER_FIELDS`` (see :func:`parameter_to_msg`), one per window.
 PARAMETERS_TOPIC_PREFIX = '/aeropend/parameters'
 
+#: Topic of the closed loop's per-sample telemetry relative to the rig's namespace (sensor_msgs/msg/JointState,
+#: SensorData QoS, one per sample while a controller runs; ``name = CONTROL_NAMES``). Absent in open loop.
+CONTROL = 'aeropend/control'
+CONTROL_TOPIC = '/' + CONTROL
+#: ``JointState.name`` of every control message: reference angle [rad], the model's feedforward duty [fraction],
+#: the duty the law applied [fraction], its unsaturated output [fraction], its integral term [fraction], whether the
+#: safety trip holds the duty at 0 (1/0), and the acquisition sequence number of the sample it answered.
+CONTROL_NAMES: tuple[str, ...] = ('reference', 'feedforward', 'duty', 'unsaturated', 'integral', 'tripped',
+                                  'sequence')
+#: Topic of the controller's configuration (std_msgs/msg/String, a YAML document: gains, schedule, hashes;
+#: transient-local, reliable), published once when a controller starts and again at each change.
+CONTROLLER_CONFIG = 'aeropend/controller'
+CONTROLLER_CONFIG_TOPIC = '/' + CONTROLLER_CONFIG
+CONTROLLER_CONFIG_TYPE = 'std_msgs/msg/String'
 SAMPLES_TYPE = 'sensor_msgs/msg/JointState'
 DUTY_COMMAND_TYPE = 'std_msgs/msg/Float64'
 DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'
