@@ -3,7 +3,9 @@
 1. The C protocol header and aeropend_core.rig.protocol produce and accept the same bytes.
 2. Over the harness's pty with pyserial: boot STATUS, configuration commands, clamping, the PWM pin measured by the
    harness (frequency and duty), ADC values injected by the harness, corrupt commands counted, the watchdog.
-3. The serial bridge node (a real process over DDS) on the same pty: ~5 s of samples at 490 Hz +- 1 % with
+3. The controller law (firmware/aeropend/aeropend_control.h) against the Python reference (law_step) on 10,000 shared
+   vectors, built with the host C compiler and with avr-gcc (run in simavr).
+4. The serial bridge node (a real process over DDS) on the same pty: ~5 s of samples at 490 Hz +- 1 % with
    continuous sequence numbers, acquisition stamps, duty commands reaching the pin, the SI conversion of injected
    ADC voltages end to end, and the watchdog cutting the motor when the host dies.
 """
@@ -19,6 +21,7 @@ import numpy as np
 import pytest
 
 from aeropend_core.rig import protocol as P
+from aeropend_core.testing import law_vectors
 from tests.bridge_helpers import (
     DISCOVERY_TIMEOUT,
     FIRMWARE,
@@ -110,6 +113,51 @@ def test_c_protocol_header_matches_python(build):
     result = subprocess.run([str(build / 'protocol_vectors')], input='\n'.join(lines) + '\n', capture_output=True,
                             text=True, check=True, timeout=30)
     assert result.stdout.split() == expected
+
+
+#: How many shared law vectors both C builds are checked on.
+LAW_VECTORS = 10_000
+
+
+@pytest.fixture(scope='module')
+def vectors():
+    v = law_vectors.generate(LAW_VECTORS, seed=39)
+    return v, law_vectors.expected(v), law_vectors.encode_input(v)
+
+
+def check_law(comparison: law_vectors.Comparison) -> None:
+    """Every output of every vector within 8 * 2**-24 * (sum of its terms' magnitudes) + 1e-7 of the float64 Python
+    (law_vectors.tolerance), every branch (trip, saturation high / low, conditional integration) the same, and the
+    vectors exercise each branch."""
+    print(comparison.summary())
+    assert comparison.within_tolerance == comparison.count, comparison.summary()
+    assert comparison.branch_agreement == comparison.count, comparison.summary()
+    assert comparison.worst_ratio <= 1.0
+    n = comparison.count
+    assert comparison.trips > 0.05 * n and comparison.held > 0.05 * n and comparison.unprimed > 0.05 * n
+    assert comparison.saturated_high > 0.05 * n and comparison.saturated_low > 0.05 * n
+
+
+def test_c_law_matches_python_on_the_host(build, vectors):
+    v, want, data = vectors
+    assert v.count >= 10_000
+    output = subprocess.run([str(build / 'law_vectors')], input=data, capture_output=True, check=True,
+                            timeout=60).stdout
+    check_law(law_vectors.compare(v, law_vectors.decode_output(output, v.count), want))
+
+
+def test_avr_law_matches_python_in_simavr(build, vectors):
+    """The same source built with avr-gcc (float = double = IEEE single, avr-libc's soft float), run in simavr."""
+    v, want, data = vectors
+    result = subprocess.run([str(build / 'law_runner'), str(build / 'law_vectors_avr.elf')], input=data,
+                            capture_output=True, check=False, timeout=180)
+    assert result.returncode == 0, result.stderr.decode()
+    avr = law_vectors.decode_output(result.stdout, v.count)
+    check_law(law_vectors.compare(v, avr, want))
+    # And the host build answers the very same bits (both round every operation to single precision).
+    host = subprocess.run([str(build / 'law_vectors')], input=data, capture_output=True, check=True,
+                          timeout=60).stdout
+    assert result.stdout == host
 
 
 def test_firmware_over_pty(build, tmp_path):
