@@ -1,0 +1,242 @@
+"""Gains for a template on a model: a search on the linearised loop, then the nonlinear closed-loop prediction.
+
+1. The model is linearised at the operating angle (:mod:`aeropend_core.control.linear`), discretised with a
+   zero-order hold and one sample of latency.
+2. p, i, d are searched (Nelder-Mead in log space, from a start scaled by the plant's DC gain and its
+   pendulum frequency) on the *linear* plant closed by the *real* law (:func:`law_step` compiled: clamps,
+   anti-windup and the derivative filter included), for steps of the design schedule's sizes; the cost asks each
+   template item to be met with a margin (``LINEAR_MARGIN``) and then the fastest settling.
+3. The result is predicted with the nonlinear model: the closed-loop simulation of the model with the law, the
+   duty clamp, the sensor chain and its noise (:func:`aeropend_core.control.loop.simulate_loop`), on the design
+   schedule. When a prediction misses an item the linear margin is tightened and the search runs again (at most
+   ``ROUNDS`` times); when every round misses, the template is refused, naming the item and by how much.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+from scipy.optimize import minimize
+
+from aeropend_core.control.law import PidGains, law_step, new_state
+from aeropend_core.control.linear import Linearisation, linearise
+from aeropend_core.control.loop import ClosedLoopRecord, FeedforwardMap, simulate_loop
+from aeropend_core.control.metrics import StepMetrics, Template, schedule_metrics
+from aeropend_core.control.reference import ReferenceSchedule
+from aeropend_core.errors import AeropendError
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
+from aeropend_core.sim.noise import MeasurementNoise
+
+#: Share of each template limit the linear search aims at (the nonlinear loop needs the rest).
+LINEAR_MARGIN = 0.7
+#: Search rounds, each with a tighter margin, before a template is refused.
+ROUNDS = 3
+#: The derivative filter's time constant [s]: a tenth of the pendulum's time scale, well above Ts.
+DERIVATIVE_FILTER_TIME = 0.02
+
+_law_step = numba.njit(cache=True)(law_step)
+
+
+@numba.njit(cache=True)
+def _linear_loop(ad, bd, cd, coefficients, reference, feedforward, duty_offset, angle_offset, duty_out, angle_out):
+    """The law on the discrete linear plant (deviation states); absolute duty and angle out."""
+    state = np.zeros(6)
+    x = np.zeros(ad.shape[0])
+    applied = duty_offset
+    for k in range(reference.shape[0]):
+        angle = angle_offset
+        for j in range(x.shape[0]):
+            angle += cd[0, j] * x[j]
+        duty_out[k] = applied
+        angle_out[k] = angle
+        duty = _law_step(coefficients, state, reference[k], feedforward[k], angle)
+        du = applied - duty_offset
+        x = ad @ x + bd[:, 0] * du
+        applied = duty
+    return state
+
+
+@dataclass
+class Design:
+    """A design's outcome: gains, the predicted record and its per-step metrics, and the margins."""
+
+    gains: PidGains
+    template: Template
+    schedule: ReferenceSchedule
+    linearisation: Linearisation
+    predicted: ClosedLoopRecord
+    metrics: list[StepMetrics]
+    gain_margin_db: float
+    phase_margin_deg: float
+    notes: list[str] = field(default_factory=list)
+
+    def misses(self) -> dict[str, float]:
+        """The worst miss of each template item over the predicted steps (empty: every item met)."""
+        worst: dict[str, float] = {}
+        for metrics in self.metrics:
+            for item, amount in metrics.misses(self.template).items():
+                worst[item] = max(worst.get(item, -math.inf), amount)
+        return worst
+
+    def summary(self) -> dict:
+        return {'gains': self.gains.as_dict(), 'operating_angle': self.linearisation.angle,
+                'operating_duty': self.linearisation.duty, 'gain_margin_db': self.gain_margin_db,
+                'phase_margin_deg': self.phase_margin_deg,
+                'predicted_steps': [metrics.as_dict() for metrics in self.metrics], 'notes': list(self.notes)}
+
+
+def design_schedule(angle: float, swing_deg: float = 10.0, hold: float = 4.0) -> ReferenceSchedule:
+    """The default design steps around `angle` [rad]: from rest to angle - swing, to angle + swing, back."""
+    at = math.degrees(angle)
+    return ReferenceSchedule.steps_between([at - swing_deg, at + swing_deg, at - swing_deg], hold=hold,
+                                           start_hold=1.0)
+
+
+def _plant(lin: Linearisation, sample_time: float):
+    discrete = lin.discrete(sample_time, latency=False)
+    return (np.ascontiguousarray(discrete.A), np.ascontiguousarray(discrete.B), np.ascontiguousarray(discrete.C))
+
+
+def _linear_cost(log_gains, plants, base: PidGains, template: Template, margin: float, steps, sample_time):
+    from aeropend_core.control.metrics import step_metrics
+    p, i, d = np.exp(log_gains)
+    gains = base.replace(p=float(p), i=float(i), d=float(d))
+    coefficients = gains.coefficients(sample_time)
+    n = int(round(4.0 / sample_time))
+    time = np.arange(n) * sample_time
+    duty = np.empty(n)
+    angle = np.empty(n)
+    cost = 0.0
+    for lin, (ad, bd, cd) in plants:
+        for size in steps:
+            reference = np.full(n, lin.angle + size)
+            feedforward = np.full(n, lin.duty + size / lin.dc_gain)
+            _linear_loop(ad, bd, cd, coefficients, reference, feedforward, lin.duty, lin.angle, duty, angle)
+            if not np.all(np.isfinite(angle)) or np.max(np.abs(angle - lin.angle)) > 10 * abs(size):
+                return 1e6
+            metrics = step_metrics(time, angle, duty, 0.0, time[-1] + sample_time, lin.angle, lin.angle + size,
+                                   sigma=0.0)
+            limit = template.settling or 2.0
+            cost += metrics.settling_time / limit if metrics.settled else 10.0
+            for item in ('overshoot', 'error', 'settling', 'duty'):
+                bound = getattr(template, item)
+                if bound is not None:
+                    excess = metrics.value(item) / (margin * bound if item != 'duty' else bound) - 1.0
+                    cost += 20.0 * max(0.0, excess) ** 2
+            # Duty chatter in the tail (noise amplification by the derivative) kept small.
+            cost += 0.2 * float(np.std(np.diff(duty[n // 2:]))) / max(abs(size) / lin.dc_gain, 1e-6)
+    return cost
+
+
+def design(template: Template, angle: float, parameters: RigParameters = DEFAULT_PARAMETERS,
+           effects: Mapping[str, Mapping[str, float]] | None = None, schedule: ReferenceSchedule | None = None,
+           noise: MeasurementNoise | None = MeasurementNoise(psnr_db=50.0, quantise=True), seed: int = 0,
+           sample_time: float = SAMPLE_TIME, base: PidGains | None = None) -> Design:
+    """Gains that meet `template` on the model (parameters, effects) at the measured angle `angle` [rad].
+
+    Raises AeropendError naming the items and by how much when no round of the search meets the template on the
+    nonlinear prediction.
+    """
+    effects = dict(effects or {})
+    lin = linearise(angle, parameters, effects)
+    schedule = schedule or design_schedule(angle)
+    duty_cap = template.duty if template.duty is not None else 0.8
+    base = base or PidGains(derivative_filter_time=DERIVATIVE_FILTER_TIME, u_clamp_min=0.0, u_clamp_max=duty_cap,
+                            i_clamp_min=-0.3, i_clamp_max=0.3, antiwindup='back_calculation', feedforward_gain=1.0)
+    targets = sorted({after for _s, _e, _b, after in schedule.step_times()})
+    plants = []
+    for target in targets:
+        try:
+            point = lin if target == angle else linearise(target, parameters, effects)
+        except AeropendError:
+            continue
+        plants.append((point, _plant(point, sample_time)))
+    # Start: a loop gain of ~2 at DC on the proportional part; Ti ~ 0.5 s, Td ~ 0.05 s.
+    p0 = 2.0 / lin.dc_gain
+    start = np.log([p0, p0 / 0.5, p0 * 0.05])
+    sizes = sorted({round(after - before, 6) for _s, _e, before, after in schedule.step_times()}, key=abs)
+    step = min(abs(sizes[-1]), math.radians(20))
+    steps = [step, -step]
+    feedforward = FeedforwardMap(parameters, effects)
+    reference = schedule.reference(None, sample_time)
+    best: Design | None = None
+    margin = LINEAR_MARGIN
+    for _round in range(ROUNDS):
+        result = minimize(_linear_cost, start, args=(plants, base, template, margin, steps, sample_time),
+                          method='Nelder-Mead', options={'xatol': 0.02, 'fatol': 1e-3, 'maxfev': 260})
+        p, i, d = np.exp(result.x)
+        gains = base.replace(p=float(p), i=float(i), d=float(d))
+        predicted = simulate_loop(gains, reference, feedforward, parameters, effects, noise, seed,
+                                  sample_time=sample_time, duty_limit=duty_cap)
+        metrics = schedule_metrics(predicted.time, predicted.angle, predicted.duty, schedule)
+        gm, pm = margins(gains, lin, sample_time)
+        candidate = Design(gains, template, schedule, lin, predicted, metrics, gm, pm,
+                           [f'{name} left out of the linear search: {why}' for name, why in lin.left_out.items()])
+        if best is None or _badness(candidate) < _badness(best):
+            best = candidate
+        if not candidate.misses():
+            return candidate
+        margin *= 0.75
+        start = result.x
+    misses = best.misses()
+    raise TemplateNotMet(best, misses)
+
+
+def _badness(candidate: Design) -> float:
+    total = 0.0
+    for item, amount in candidate.misses().items():
+        limit = getattr(candidate.template, item) or 1.0
+        total += (10.0 if math.isinf(amount) else amount / limit)
+    return total
+
+
+class TemplateNotMet(AeropendError):
+    """No gains of the search meet the template on the nonlinear prediction; `design` holds the closest."""
+
+    def __init__(self, closest: Design, misses: Mapping[str, float]) -> None:
+        self.design = closest
+        self.misses = dict(misses)
+        parts = []
+        for item, amount in misses.items():
+            limit = getattr(closest.template, item)
+            unit = Template.UNITS[item]
+            if math.isinf(amount):
+                parts.append(f'{item}: the predicted angle does not settle within a hold (limit {limit:g} {unit})')
+            else:
+                parts.append(f'{item}: predicted {limit + amount:.3g} {unit} against {limit:g} {unit} '
+                             f'(misses by {amount:.3g} {unit})')
+        super().__init__('the model cannot meet this template with the PID law: ' + '; '.join(parts)
+                         + '. Relax the item(s), or check the model (aeropend diagnose names what it misses).')
+
+
+def margins(gains: PidGains, lin: Linearisation, sample_time: float = SAMPLE_TIME) -> tuple[float, float]:
+    """Gain margin [dB] and phase margin [deg] of the linear loop (law without clamps, one sample of latency)."""
+    import control
+    z = control.tf([1, 0], [1], sample_time)
+    integral = gains.i * sample_time * control.tf([1], [1, -1], sample_time)          # I(z) = i Ts / (z - 1)
+    a = gains.derivative_filter_time / (gains.derivative_filter_time + sample_time)
+    b = gains.d / (gains.derivative_filter_time + sample_time)
+    derivative = b * (z - 1) / (z - a)                                             # on the measurement
+    controller = gains.p + integral + derivative
+    plant = lin.discrete(sample_time, latency=True)
+    loop = controller * control.ss2tf(plant)
+    with np.errstate(all='ignore'):
+        gm, pm, _wcg, _wcp = control.margin(loop)
+    gm_db = float(20 * np.log10(gm)) if np.isfinite(gm) and gm > 0 else math.inf
+    return gm_db, float(pm)
+
+
+def stable(gains: PidGains, lin: Linearisation, sample_time: float = SAMPLE_TIME) -> bool:
+    """Whether the linear closed loop (law without clamps) is stable at the linearisation's operating point."""
+    import control
+    z = control.tf([1, 0], [1], sample_time)
+    integral = gains.i * sample_time * control.tf([1], [1, -1], sample_time)
+    a = gains.derivative_filter_time / (gains.derivative_filter_time + sample_time)
+    b = gains.d / (gains.derivative_filter_time + sample_time)
+    # u = p e + I e - D y with e = r - y: the loop seen from y is (p + I + D) P
+    loop = (gains.p + integral + b * (z - 1) / (z - a)) * control.ss2tf(lin.discrete(sample_time, latency=True))
+    closed = control.feedback(loop, 1)
+    return bool(np.all(np.abs(control.poles(closed)) < 1.0))
