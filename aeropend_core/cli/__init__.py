@@ -46,6 +46,7 @@ VERBS: dict[str, tuple[str, str]] = {
     'calibrate': ('aeropend_core.cli.calibrate', 'measure sensor zeros, angle scale, Ra and Kw on the rig (serial)'),
     'emulate': ('aeropend_core.cli.emulate', 'start the fake rig (device emulator) on a pty and print its port'),
     'import': ('aeropend_core.cli.import_log', 'import a log written by another rig through a log profile, write CSV'),
+    'control': ('aeropend_core.cli.control', 'design a controller on a model, check a closed-loop record, linearise'),
 }
 
 

@@ -223,7 +223,9 @@ def margins(gains: PidGains, lin: Linearisation, sample_time: float = SAMPLE_TIM
     controller = gains.p + integral + derivative
     plant = lin.discrete(sample_time, latency=True)
     loop = controller * control.ss2tf(plant)
-    with np.errstate(all='ignore'):
+    import warnings
+    with np.errstate(all='ignore'), warnings.catch_warnings():
+        warnings.simplefilter('ignore')        # python-control's note that it fell back to frequency points
         gm, pm, _wcg, _wcp = control.margin(loop)
     gm_db = float(20 * np.log10(gm)) if np.isfinite(gm) and gm > 0 else math.inf
     return gm_db, float(pm)

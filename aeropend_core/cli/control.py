@@ -1,0 +1,184 @@
+"""Design a controller on a model, check a closed-loop record against its template, linearise the model.
+
+Examples:
+  aeropend control design --template settling=2,overshoot=10,error=5,duty=0.8 --at 40deg -o gains.yaml
+  aeropend control design --model diagnosis.json --at 40deg -o gains.yaml   # on an identified model
+  aeropend control check bags/aeropend_20261206_190000 [--design gains.yaml] [--json check.json]
+  aeropend control linearise diagnosis.json --at 40deg [--json lin.json]    # state space, transfer function
+
+The law, the metrics and the rig's safety: docs/control.md.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from aeropend_core.errors import AeropendError
+
+
+def _angle(text: str) -> float:
+    """'40deg', '40 deg', '0.7rad' or '0.7' (rad) -> rad."""
+    value = text.strip().lower().replace(' ', '')
+    try:
+        if value.endswith(('deg', '°')):
+            return math.radians(float(value.rstrip('deg°')))
+        return float(value[:-3] if value.endswith('rad') else value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not an angle (write 40deg or 0.7rad)') from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from aeropend_core.cli import VerbParser
+    sub = parser.add_subparsers(dest='action', metavar='ACTION', parser_class=VerbParser)
+    design = sub.add_parser('design', help='gains for a template on the nominal or an identified model')
+    design.add_argument('--model', metavar='DIAGNOSIS.json', default=None,
+                        help='design on the model of an `aeropend diagnose/identify --json` file (default: nominal)')
+    design.add_argument('--template', default='settling=2,overshoot=10,error=5,duty=0.8',
+                        help='items: settling [s], overshoot [%%], error [%% of the step], duty [fraction]')
+    design.add_argument('--at', type=_angle, default=math.radians(40), metavar='ANGLE',
+                        help='operating angle, e.g. 40deg (default 40deg); design steps go 10 deg either side')
+    design.add_argument('--reference', metavar='STEPS.yaml', default=None,
+                        help='design on this schedule of steps instead (aeropend run --reference format)')
+    design.add_argument('--psnr', type=float, default=50.0, metavar='DB',
+                        help='angle noise of the prediction [dB PSNR] (default 50)')
+    design.add_argument('-o', '--output', default='gains.yaml', help='controller file to write (default gains.yaml)')
+    design.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE',
+                        help='the design as JSON (to FILE, or standard output)')
+    check = sub.add_parser('check', help='measured vs predicted transients of a closed-loop record')
+    check.add_argument('record', help='bag folder (or .mcap) of `aeropend run --controller`')
+    check.add_argument('--design', metavar='GAINS.yaml', default=None,
+                       help='judge against this controller file (default: the one stored in the bag)')
+    check.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE', help='the check as JSON')
+    linear = sub.add_parser('linearise', help='the model linearised at an angle: state space, transfer function')
+    linear.add_argument('model', nargs='?', default=None, metavar='MODEL.json',
+                        help='an `aeropend diagnose --json` file (default: the nominal model)')
+    linear.add_argument('--at', type=_angle, default=math.radians(40), metavar='ANGLE', help='e.g. 40deg')
+    linear.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE', help='as JSON')
+
+
+def main(args: argparse.Namespace) -> int:
+    if not getattr(args, 'action', None):
+        raise AeropendError('say what to do: aeropend control design | check | linearise (aeropend control --help)')
+    return {'design': _design, 'check': _check, 'linearise': _linearise}[args.action](args)
+
+
+def _write_json(target: str | None, data: dict) -> None:
+    if target:
+        from aeropend_core.present.json_output import write_json
+        write_json(target, data)
+
+
+def _design(args) -> int:
+    from aeropend_core.control.metrics import Template
+    template = Template.parse(args.template)
+    if not 0 < args.psnr <= 200:
+        raise AeropendError(f'--psnr must be in (0, 200] dB, got {args.psnr}')
+    from aeropend_core.cli._checks import check_json_target
+    from aeropend_core.io.paths import output_target
+    output_target(args.output, '--output')
+    check_json_target(args.json)
+    from aeropend_core.control.controller_file import Controller
+    from aeropend_core.control.design import TemplateNotMet, design
+    from aeropend_core.control.model_source import load_model
+    from aeropend_core.control.reference import ReferenceSchedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    model = load_model(args.model)
+    schedule = None
+    if args.reference:
+        from aeropend_core.io.inputs import load_yaml
+        schedule = ReferenceSchedule.from_mapping(load_yaml(args.reference, 'reference schedule'), args.reference)
+    for doubt in model.doubts:
+        print(f'aeropend control design: warning: {doubt}', file=sys.stderr)
+    try:
+        result = design(template, args.at, model.parameters, model.effects, schedule,
+                        MeasurementNoise(psnr_db=args.psnr, quantise=True))
+    except TemplateNotMet as refusal:
+        _print_design(refusal.design, model, predicted_only=True)
+        raise
+    controller = Controller(result.gains, model.parameters, model.effects, template, model.source,
+                            {**result.summary(), 'doubts': list(model.doubts)})
+    controller.write(args.output)
+    _print_design(result, model)
+    print(f'wrote {args.output} (controller sha256 {controller.sha256[:12]}); run it: aeropend run --controller '
+          f'{args.output}')
+    _write_json(args.json, {'schema': 'aeropend.control_design/1', 'output': args.output,
+                            'controller_sha256': controller.sha256, 'model': model.source,
+                            'model_effects': {k: dict(v) for k, v in model.effects.items()},
+                            'doubts': list(model.doubts), 'template': template.as_dict(), **result.summary()})
+    return 0
+
+
+def _print_design(result, model, predicted_only: bool = False) -> None:
+    gains = result.gains
+    effects = ', '.join(f'{name} (' + ', '.join(f'{key} = {value:.4g}' for key, value in values.items()) + ')'
+                        for name, values in model.effects.items()) or 'none'
+    print(f'Model: {model.source} (effects: {effects})')
+    print(f'Operating point: {math.degrees(result.linearisation.angle):.1f} deg at duty '
+          f'{result.linearisation.duty:.3f}; loop margins {result.gain_margin_db:.1f} dB, '
+          f'{result.phase_margin_deg:.1f} deg (linearised)')
+    print(f'{"Closest gains" if predicted_only else "Gains"}: p = {gains.p:.4g} 1/rad, i = {gains.i:.4g} 1/(rad s), '
+          f'd = {gains.d:.4g} s/rad, derivative filter {gains.derivative_filter_time:g} s, duty '
+          f'{gains.u_clamp_min:g}..{gains.u_clamp_max:g}, {gains.antiwindup}, feedforward x{gains.feedforward_gain:g}')
+    print(f'Predicted steps (nonlinear model, discrete law, duty clamp, 10-bit angle with noise) against '
+          f'{result.template.text()}:')
+    for index, m in enumerate(result.metrics, start=1):
+        misses = m.misses(result.template)
+        verdict = 'meets the template' if not misses else 'misses ' + ', '.join(misses)
+        settling = f'{m.settling_time:.2f} s' if m.settled else 'not settled'
+        print(f'  step {index}: {math.degrees(m.initial):5.1f} -> {math.degrees(m.target):5.1f} deg: overshoot '
+              f'{m.overshoot:4.1f} %, settling {settling}, rise {m.rise_time:.2f} s, error '
+              f'{m.steady_state_error:+.1f} %, peak duty {m.peak_duty:.2f}: {verdict}')
+    for note in result.notes:
+        print(f'Note: {note}')
+
+
+def _check(args) -> int:
+    from aeropend_core.cli._checks import check_json_target
+    check_json_target(args.json)
+    from aeropend_core.control.check import check_record
+    from aeropend_core.control.controller_file import Controller
+    from aeropend_core.control.record import load_closed_loop
+    data = load_closed_loop(args.record)
+    controller = Controller.load(args.design) if args.design else data.controller
+    if controller is None:
+        raise AeropendError(f'{args.record} holds no controller file; give the one it ran with: --design gains.yaml')
+    if data.schedule is None:
+        raise AeropendError(f'{args.record} holds no reference schedule: it is not a record of `aeropend run '
+                            '--controller`')
+    result = check_record(data.time, data.angle, data.duty, controller, data.schedule)
+    if not getattr(data, 'complete', True):
+        result.notes.insert(0, 'the run was cut short: its schedule did not play to the end')
+    print(result.as_text())
+    _write_json(args.json, {'record': str(args.record), 'controller_sha256': controller.sha256, **result.to_dict()})
+    return 0
+
+
+def _linearise(args) -> int:
+    from aeropend_core.cli._checks import check_json_target
+    check_json_target(args.json)
+    import numpy as np
+
+    from aeropend_core.control.linear import linearise
+    from aeropend_core.control.model_source import load_model
+    model = load_model(args.model)
+    lin = linearise(args.at, model.parameters, model.effects)
+    data = lin.to_dict()
+    print(f'Model: {model.source}; linearised at {math.degrees(lin.angle):.1f} deg (duty {lin.duty:.4f}, '
+          f'{lin.voltage_slope:.3f} V per unit duty)')
+    print('States: ' + ', '.join(f'{s["name"]} [{s["unit"]}]' for s in data['states'])
+          + '; input duty [1]; output measured angle [rad]')
+    with np.printoptions(precision=4, suppress=False, linewidth=110):
+        print(f'A =\n{lin.A}\nB =\n{lin.B.ravel()}\nC = {lin.C.ravel()}')
+    tf = data['transfer_function']
+    print(f'Transfer function duty -> angle: numerator {np.round(tf["numerator"], 6).tolist()}, denominator '
+          f'{np.round(tf["denominator"], 6).tolist()} (in s)')
+    print(f'DC gain {lin.dc_gain:.4f} rad per unit duty; poles ' + ', '.join(
+        f'{p["real"]:.2f}{p["imag"]:+.2f}j' for p in data['poles']))
+    for name, why in lin.left_out.items():
+        print(f'Note: {name} left out: {why}')
+    for doubt in model.doubts:
+        print(f'Note: {doubt}')
+    _write_json(args.json, {'schema': 'aeropend.linearisation/1', 'model': model.source,
+                            'doubts': list(model.doubts), **data})
+    return 0

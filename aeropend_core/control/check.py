@@ -1,0 +1,161 @@
+"""The check of a closed-loop record: for every step, measured vs predicted metrics and each template item.
+
+The prediction is the closed-loop simulation of the model the controller was designed on (the controller file's
+model), with the same law, gains, schedule and duty cap, at the noise measured in the record. A measured step that
+misses an item the prediction met is the model's miss (``aeropend diagnose`` says which effect); one the prediction
+missed too was never designed to pass.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from aeropend_core.control.controller_file import Controller
+from aeropend_core.control.loop import FeedforwardMap, simulate_loop
+from aeropend_core.control.metrics import StepMetrics, Template, noise_sigma, schedule_metrics
+from aeropend_core.control.reference import ReferenceSchedule
+from aeropend_core.errors import AeropendError
+from aeropend_core.model.parameters import SAMPLE_TIME
+from aeropend_core.sim.noise import FULL_SCALE, MeasurementNoise
+
+ITEM_NAMES = {'settling': 'settling time', 'overshoot': 'overshoot', 'error': 'steady-state error',
+              'duty': 'peak duty'}
+
+
+@dataclass
+class StepCheck:
+    """One step: measured and predicted metrics, and the template's items missed by each."""
+
+    index: int
+    measured: StepMetrics
+    predicted: StepMetrics | None
+    measured_misses: dict[str, float]
+    predicted_misses: dict[str, float]
+
+    def to_dict(self) -> dict:
+        return {'step': self.index, 'from_rad': self.measured.initial, 'to_rad': self.measured.target,
+                'measured': _finite(self.measured.as_dict()),
+                'predicted': _finite(self.predicted.as_dict()) if self.predicted else None,
+                'measured_misses': _finite(self.measured_misses), 'predicted_misses': _finite(self.predicted_misses)}
+
+
+@dataclass
+class CheckResult:
+    template: Template
+    steps: list[StepCheck]
+    predicted_time: np.ndarray
+    predicted_angle: np.ndarray
+    predicted_duty: np.ndarray
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def met(self) -> bool:
+        return all(not step.measured_misses for step in self.steps)
+
+    @property
+    def verdict(self) -> str:
+        if not self.steps:
+            return 'no complete step'
+        if self.met:
+            return 'meets the template'
+        if any(set(step.measured_misses) - set(step.predicted_misses) for step in self.steps):
+            return 'misses the template where the model predicted it would meet it'
+        return 'misses the template, as the model predicted'
+
+    def to_dict(self) -> dict:
+        return {'schema': 'aeropend.control_check/1', 'template': self.template.as_dict(), 'verdict': self.verdict,
+                'met': self.met, 'steps': [step.to_dict() for step in self.steps], 'notes': list(self.notes),
+                'units': {'angles': 'rad', 'times': 's', 'overshoot_and_error': '% of the step', 'duty': '1'}}
+
+    def as_text(self) -> str:
+        lines = [f'Template: {self.template.text()}']
+        for step in self.steps:
+            m, p = step.measured, step.predicted
+            lines.append(f'step {step.index}: {math.degrees(m.initial):.1f} -> {math.degrees(m.target):.1f} deg '
+                         f'(band +-{math.degrees(m.band):.2f} deg)')
+            for item in ('overshoot', 'settling', 'error', 'duty'):
+                limit = getattr(self.template, item)
+                measured = _show(item, m)
+                predicted = _show(item, p) if p else 'n/a'
+                if limit is None:
+                    judged = 'not judged'
+                else:
+                    judged = 'MISSED' if item in step.measured_misses else 'met'
+                    if item in step.measured_misses and item not in step.predicted_misses:
+                        judged += ' (predicted met)'
+                lines.append(f'  {ITEM_NAMES[item]:<19} measured {measured:>10}  predicted {predicted:>10}  '
+                             f'limit {_limit(item, limit):>8}  {judged}')
+            lines.append(f'  {"rise time":<19} measured {_rise(m):>10}  predicted {_rise(p) if p else "n/a":>10}')
+        lines.append(f'Verdict: {self.verdict}.')
+        if not self.met and any(set(s.measured_misses) - set(s.predicted_misses) for s in self.steps):
+            lines.append('Next: the model misses what the rig does; `aeropend diagnose` on this record names the '
+                         'effect, then `aeropend control design --model DIAGNOSIS.json` designs on it.')
+        lines.extend(f'Note: {note}' for note in self.notes)
+        return '\n'.join(lines)
+
+
+def _show(item: str, metrics: StepMetrics) -> str:
+    if item == 'settling':
+        return f'{metrics.settling_time:.2f} s' if metrics.settled else 'not settled'
+    if item == 'overshoot':
+        return f'{metrics.overshoot:.1f} %'
+    if item == 'error':
+        return f'{metrics.steady_state_error:+.1f} %'
+    return f'{metrics.peak_duty:.2f}'
+
+
+def _rise(metrics: StepMetrics) -> str:
+    return f'{metrics.rise_time:.2f} s' if math.isfinite(metrics.rise_time) else 'none'
+
+
+def _limit(item: str, limit) -> str:
+    if limit is None:
+        return '-'
+    return {'settling': f'{limit:g} s', 'overshoot': f'{limit:g} %', 'error': f'{limit:g} %',
+            'duty': f'{limit:g}'}[item]
+
+
+def _finite(values: dict) -> dict:
+    return {key: (None if isinstance(value, float) and not math.isfinite(value) else value)
+            for key, value in values.items()}
+
+
+def check_record(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, controller: Controller,
+                 schedule: ReferenceSchedule, template: Template | None = None, seed: int = 0,
+                 sample_time: float = SAMPLE_TIME, duty_limit: float | None = None) -> CheckResult:
+    """Measured vs predicted metrics of every complete step of a closed-loop record (time [s] from the schedule's
+    start, angle [rad], duty [fraction])."""
+    template = template or controller.template or Template()
+    time = np.asarray(time, dtype=float)
+    angle = np.asarray(angle, dtype=float)
+    duty = np.asarray(duty, dtype=float)
+    measured = schedule_metrics(time, angle, duty, schedule)
+    notes = []
+    if len(measured) < len([1 for _s, _e, b, a in schedule.step_times() if a != b]):
+        notes.append(f'{len(measured)} of {len(schedule.steps)} steps are complete in this record (a cut-short run '
+                     'is judged on the steps it played)')
+    # The prediction at the noise measured on the record's holds (PSNR against the stream's full-scale angle).
+    sigma = float(np.median([noise_sigma(angle[(time >= m.start + 0.8 * m.hold) & (time < m.start + m.hold)])
+                             for m in measured])) if measured else 0.0
+    psnr = 20 * math.log10(FULL_SCALE['angle'] / sigma) if sigma > 0 else None
+    noise = MeasurementNoise(psnr_db=psnr, quantise=True, signals=('angle',))
+    n = int(round(schedule.duration / sample_time))
+    cap = duty_limit if duty_limit is not None else controller.gains.u_clamp_max
+    predicted = simulate_loop(controller.gains, schedule.reference(n, sample_time),
+                              FeedforwardMap(controller.parameters, controller.effects), controller.parameters,
+                              controller.effects, noise, seed, sample_time=sample_time, duty_limit=cap)
+    predicted_metrics = schedule_metrics(predicted.time, predicted.angle, predicted.duty, schedule)
+    by_start = {round(m.start, 6): m for m in predicted_metrics}
+    steps = []
+    for index, m in enumerate(measured, start=1):
+        p = by_start.get(round(m.start, 6))
+        steps.append(StepCheck(index, m, p, m.misses(template), p.misses(template) if p else {}))
+    if schedule.dither_amplitude > 0:
+        notes.append(f'a reference dither of {math.degrees(schedule.dither_amplitude):.2f} deg was played: the '
+                     'metrics read the stepped reference')
+    if not steps:
+        raise AeropendError('no complete step in this record: nothing to check (the run ended before its first '
+                            'step was held to the end)')
+    return CheckResult(template, steps, predicted.time, predicted.angle, predicted.duty, notes)

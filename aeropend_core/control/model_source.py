@@ -1,0 +1,84 @@
+"""A model to design on, linearise or simulate: the nominal parameters, or those of an ``identify``/``diagnose``
+JSON (its fitted pendulum parameters, its armature resistance and the effects it added, with their fitted values).
+
+A diagnosis fits the thrust as one gain, (L/J) Kq (N2/(N1 Kw))^2 [rad/s^2/V^2]; the model here keeps the motor's
+nominal Kq and Kw and scales L/J so that the product equals the fitted gain (the loop only sees the product).
+"""
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+
+from aeropend_core.errors import AeropendError
+from aeropend_core.model.effects import find_parameter, resolve_effects
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, RigParameters
+
+
+@dataclass(frozen=True)
+class ModelSource:
+    """Parameters and effects of a model and where they came from; `doubts` are said next to every number made
+    with it."""
+
+    parameters: RigParameters = DEFAULT_PARAMETERS
+    effects: dict = field(default_factory=dict)
+    source: str = 'nominal'
+    doubts: tuple[str, ...] = ()
+
+
+def load_model(path: str | os.PathLike | None) -> ModelSource:
+    """The nominal model (`path` None) or the model of a diagnose/identify JSON file."""
+    if path is None:
+        return ModelSource()
+    from aeropend_core.io.inputs import read_input_text
+    text = read_input_text(path, 'model JSON')
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise AeropendError(f'model JSON {path}: not valid JSON ({error.msg} at line {error.lineno}); give the file '
+                            'written by `aeropend diagnose --json FILE`') from None
+    return model_from_dict(data, str(path))
+
+
+def model_from_dict(data, source: str) -> ModelSource:
+    if not isinstance(data, dict) or not isinstance(data.get('parameters'), dict):
+        raise AeropendError(f'{source}: no "parameters" in it; give the JSON of `aeropend diagnose --json FILE` '
+                            'or `aeropend identify --json FILE`')
+    fitted = data['parameters']
+    changes = {}
+    for name in ('gravity_stiffness', 'damping', 'armature_resistance'):
+        if _number(fitted.get(name)):
+            changes[name] = float(fitted[name])
+    parameters = DEFAULT_PARAMETERS.replace(**changes)
+    if _number(fitted.get('thrust_gain')) and fitted['thrust_gain'] > 0:
+        parameters = parameters.replace(lever_per_inertia=float(fitted['thrust_gain'])
+                                        / parameters.thrust_voltage_coefficient)
+    effects: dict[str, dict[str, float]] = {}
+    for name in data.get('model_effects') or []:
+        effects[str(name)] = {}
+    for parameter, value in fitted.items():
+        found = find_parameter(parameter)
+        if found is None or not _number(value):
+            continue
+        effect, _ = found
+        if effect.name in effects:
+            effects[effect.name][parameter] = float(value)
+    try:
+        effects = resolve_effects(effects)
+    except (AeropendError, TypeError, ValueError) as error:
+        raise AeropendError(f'{source}: its effects cannot be read: {error}') from None
+    doubts = []
+    verdict = data.get('verdict')
+    if verdict not in (None, 'nothing_missing'):
+        missing = ', '.join(data.get('missing_effects') or []) or str(data.get('missing_effect') or '')
+        doubts.append(f'this diagnosis says the model misses something ({verdict}{": " + missing if missing else ""}'
+                      f'); a design on it inherits the miss: add it (--add) and diagnose again')
+    for warning in data.get('parameter_warnings') or {}:
+        doubts.append(f'parameter {warning} failed a physical check in the diagnosis')
+    if data.get('warnings'):
+        doubts.append(f'the diagnosed record had {len(data["warnings"])} data warning(s)')
+    return ModelSource(parameters, effects, source, tuple(doubts))
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and value == value and abs(value) < 1e300
