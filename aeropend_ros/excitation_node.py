@@ -59,9 +59,11 @@ def done_qos() -> QoSProfile:
 def read_steps_file(path: str | Path) -> np.ndarray:
     """Read ``steps: [[duty, dwell_s], ...]`` from a YAML file; returns shape (n_steps, 2)."""
     import yaml
+
+    from aeropend_core.io.inputs import load_yaml
     path = Path(path)
     try:
-        document = yaml.safe_load(path.read_text())
+        document = load_yaml(path, 'the steps file')     # a FIFO, device or a too deep YAML: refused
     except OSError as error:
         raise AeropendError(f'cannot read the steps file {path}: {error.strerror}') from None
     except yaml.YAMLError as error:

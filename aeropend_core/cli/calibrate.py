@@ -211,14 +211,19 @@ def write_values(path: Path, updates: dict[str, float]) -> None:
     from ruamel.yaml import YAML, YAMLError
     from ruamel.yaml.comments import CommentedMap
 
+    from aeropend_core.io.inputs import YAML_MAX_BYTES
     from aeropend_core.io.paths import output_target, write_atomically
     output_target(path, '--write')              # a device or a FIFO is refused before reading it (it could block)
     yaml = YAML()                               # round trip: comments, order and quoting kept
     yaml.width = 4096                           # never fold a long comment line
     yaml.indent(mapping=2, sequence=4, offset=2)
     yaml.preserve_quotes = True
+    from aeropend_core.io.inputs import check_yaml_text, read_input_text
     try:
-        document = yaml.load(path.read_text()) if path.exists() else None
+        text = read_input_text(path, '--write', YAML_MAX_BYTES) if path.exists() else None
+        if text is not None:
+            check_yaml_text(text, f'--write {path}')        # depth, size, aliases: refused before ruamel reads it
+        document = yaml.load(text) if text is not None else None
     except (OSError, UnicodeDecodeError, YAMLError) as error:
         raise AeropendError(f'cannot read {path} to update it: {error}; give another --write FILE') from None
     if document is None:

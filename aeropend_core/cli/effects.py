@@ -37,8 +37,12 @@ def _write_discovered(args: argparse.Namespace) -> int:
     expressions = list(args.term)
     if args.from_json:
         import json
-        try:
-            data = json.loads(Path(args.from_json).read_text(encoding='utf-8'))
+        from aeropend_core.io.inputs import read_input_text
+        try:         # a FIFO or device is refused (it would block); a JSON nested too deep too (RecursionError)
+            data = json.loads(read_input_text(Path(args.from_json), '--from-json', 64 * 1024 * 1024))
+        except RecursionError:
+            raise AeropendError(f'--from-json {args.from_json} nests too deep to be a diagnosis; give the file '
+                                'written by `aeropend diagnose FILE --json OUT.json`') from None
         except (OSError, ValueError) as error:
             raise AeropendError(f'--from-json {args.from_json}: cannot read it ({error}); give the file written by '
                                 '`aeropend diagnose FILE --json OUT.json`') from None

@@ -88,10 +88,11 @@ def bag_files(path: str | os.PathLike) -> list[Path]:
     listed: list[Path] = []
     meta_path = path / 'metadata.yaml'
     if meta_path.is_file():
+        from aeropend_core.io.inputs import load_yaml
         try:
-            info = yaml.safe_load(meta_path.read_text(encoding='utf-8'))['rosbag2_bagfile_information']
+            info = load_yaml(meta_path, 'metadata file')['rosbag2_bagfile_information']
             listed = [path / Path(p).name for p in info.get('relative_file_paths', [])]
-        except (yaml.YAMLError, KeyError, TypeError):
+        except (yaml.YAMLError, KeyError, TypeError, AttributeError, OSError, AeropendError):
             listed = []
     found = sorted(path.glob('*.mcap'), key=_split_index)
     files = [p for p in listed if p.is_file()] + [p for p in found if p not in listed]

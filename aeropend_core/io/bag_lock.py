@@ -90,7 +90,7 @@ def _program() -> str:
 def _held_by_someone(path: Path) -> bool | None:
     """True when some open file description holds ``path``'s flock, False when not, None when there is no file."""
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC)
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK)      # a FIFO planted there never blocks
     except FileNotFoundError:
         return None
     except OSError:
@@ -254,11 +254,13 @@ def still_held(folder: str | os.PathLike) -> bool:
 def _parse(path: Path, text: str, held: bool) -> BagLock | None:
     if not text.strip():
         return None
+    from aeropend_core.io.inputs import check_yaml_text
     try:
+        check_yaml_text(text, str(path))
         data = yaml.safe_load(text)
         return BagLock(path, int(data['pid']), str(data['host']), str(data.get('program') or ''),
                        str(data.get('started') or ''), str(data.get('purpose') or 'recording'), held)
-    except (yaml.YAMLError, AttributeError, KeyError, TypeError, ValueError):
+    except (yaml.YAMLError, AttributeError, KeyError, TypeError, ValueError, AeropendError):
         return BagLock(path, 0, socket.gethostname(), held=held)
 
 
@@ -272,11 +274,12 @@ def read_lock(folder: str | os.PathLike) -> BagLock | None:
     held = _held_by_someone(path)
     if held is None:
         return None
+    from aeropend_core.io.inputs import read_input_text
     try:
-        text = path.read_text(encoding='utf-8')
+        text = read_input_text(path, 'the lock file', 64 * 1024)    # a FIFO, device or huge file: unreadable
     except FileNotFoundError:
         return None
-    except OSError:
+    except (OSError, AeropendError):
         text = ''
     return _parse(path, text, held) or BagLock(path, 0, socket.gethostname(), held=held)
 

@@ -122,9 +122,11 @@ def recover_bag(path: str | os.PathLike, keep_original: bool = False, in_place: 
     StorageError
         The system refused a write (disk full): the original files are then unchanged.
     """
+    from aeropend_core.io.inputs import check_input
     path = Path(path)
     if not path.exists():
         raise AeropendError(f'{path} {path_problem(path)}')
+    check_input(path, 'the bag', folder=True)      # a FIFO, device or socket would block or never end
     folder, files, bag_folder = _recovery_targets(path)
     if in_place and output is not None:
         raise AeropendError('give either --in-place or --output, not both')
@@ -160,10 +162,11 @@ def _recovery_targets(path: Path) -> tuple[Path, list[Path], bool]:
         raise AeropendError(f'{path} is not an MCAP file: give a bag folder, its metadata.yaml or a .mcap file')
     meta = path.parent / 'metadata.yaml'
     if meta.is_file():
+        from aeropend_core.io.inputs import load_yaml
         try:
-            info = yaml.safe_load(meta.read_text(encoding='utf-8'))['rosbag2_bagfile_information']
+            info = load_yaml(meta, 'metadata file')['rosbag2_bagfile_information']
             listed = {Path(p).name for p in info.get('relative_file_paths', [])}
-        except (yaml.YAMLError, KeyError, TypeError, OSError):
+        except (yaml.YAMLError, KeyError, TypeError, AttributeError, OSError, AeropendError):
             listed = set()
         if path.name in listed:
             return path.parent, bag_files(path.parent), True

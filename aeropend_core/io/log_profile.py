@@ -67,9 +67,11 @@ def load_profile(path: str | Path) -> dict:
         Unreadable file, or a profile that names an unknown key, quantity, unit or clock kind.
     """
     import yaml
+
+    from aeropend_core.io.inputs import load_yaml
     path = Path(path)
     try:
-        profile = yaml.safe_load(path.read_text(encoding='utf-8'))
+        profile = load_yaml(path, 'the profile')                 # a FIFO, device or a too deep YAML: refused
     except OSError as error:
         raise AeropendError(f'cannot read the profile {path}: {error.strerror or error}') from None
     except yaml.YAMLError as error:
@@ -268,9 +270,11 @@ def import_log(path: str | Path, profile: dict, profile_source: str = '') -> tup
     AeropendError
         A missing column, a non-number, unusable stamps (with the cause and the fix).
     """
+    from aeropend_core.io.inputs import check_input
     path = Path(path)
     if not path.exists():
         raise AeropendError(f'no such file: {path}')
+    check_input(path, 'the log', folder=profile.get('format', 'csv') == 'bag')     # a FIFO or device: refused
     check_profile(profile, profile_source or 'profile')
     notes: list[str] = []
     if profile.get('format', 'csv') == 'bag':

@@ -288,8 +288,9 @@ def _remember_definition(scan, opcode: int, stream) -> bool:
 
 
 def _open(path: Path):
+    from aeropend_core.io.inputs import open_input
     try:
-        handle = open(path, 'rb')  # noqa: SIM115 - closed by the caller's finally
+        handle = open_input(path, 'the bag file')      # a FIFO or device is refused, never waited on
     except OSError as error:
         raise storage_error(error, f'cannot read {path}: {error.strerror or error}') from None
     size = os.fstat(handle.fileno()).st_size

@@ -157,13 +157,14 @@ def _normalise_header(header: list[str], path: Path) -> tuple[list[str], dict[in
 
 def load_csv(path: str | Path) -> Recording:
     """Read a CSV with a header row (``t,duty,armature_voltage,armature_current,angle[,true_...]``)."""
+    from aeropend_core.io.inputs import open_input
     from aeropend_core.signals.quality import DataQualityError, Finding
     path = Path(path)
     findings = []
     try:
-        with path.open('rb') as raw:
+        with open_input(path, 'the recording') as raw:        # a FIFO or device: refused, never waited on
             bom = raw.read(3) == b'\xef\xbb\xbf'
-        with path.open(newline='', encoding='utf-8-sig') as handle:
+        with open_input(path, 'the recording', text=True, newline='', encoding='utf-8-sig') as handle:
             reader = csv.reader(_bounded_lines(handle, path))
             header = [h.strip() for h in next(reader, [])]
             while header and header[0].startswith('#'):      # `aeropend import` metadata: a leading comment
@@ -309,6 +310,8 @@ def load_recording(path: str | Path, sample_time: float | None = SAMPLE_TIME) ->
         from aeropend_core.io.paths import path_problem
         problem = path_problem(path)        # a symbolic link loop or a dangling link is named as such
         raise AeropendError(f'no such file or folder: {path}' if problem == 'does not exist' else f'{path} {problem}')
+    from aeropend_core.io.inputs import check_input
+    check_input(path, 'the recording', folder=True)     # a FIFO, device or socket would block or never end
     if path.suffix.lower() == '.csv':
         recording = load_csv(path)
     elif path.suffix.lower() == '.mcap' or path.is_dir():

@@ -251,9 +251,11 @@ def read_calibration_file(path: str | Path) -> dict:
         The file cannot be read or is not YAML, naming the file.
     """
     import yaml
+
+    from aeropend_core.io.inputs import load_yaml
     path = Path(path)
     try:
-        document = yaml.safe_load(path.read_text())
+        document = load_yaml(path, 'the calibration file')       # a FIFO, device or a too deep YAML: refused
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
         raise AeropendError(f'cannot read the calibration file {path}: {error}') from error
     if document is None:

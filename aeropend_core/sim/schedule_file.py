@@ -174,9 +174,11 @@ def read_schedule(path: str | Path, duty_limit: float = 1.0) -> tuple[np.ndarray
         An unreadable file, no valid steps, or a step above `duty_limit` (named).
     """
     import yaml
+
+    from aeropend_core.io.inputs import load_yaml
     path = Path(path)
     try:
-        document = yaml.safe_load(path.read_text(encoding='utf-8'))
+        document = load_yaml(path, 'the experiment file')        # a FIFO, device or a too deep YAML: refused
     except OSError as error:
         raise AeropendError(f'cannot read the experiment file {path}: {error.strerror}') from None
     except (yaml.YAMLError, UnicodeDecodeError) as error:
