@@ -95,7 +95,7 @@ def test_c_protocol_header_matches_python(build):
     rng = random.Random(7)
     lines, expected = [], []
     for _ in range(300):
-        payload = bytes(rng.choice([0, rng.randrange(256)]) for _ in range(rng.choice([3, 14, 18])))
+        payload = bytes(rng.choice([0, rng.randrange(256)]) for _ in range(rng.choice([3, 6, 8, 9, 14, 18, 30])))
         lines.append('frame ' + payload.hex())
         expected.append(P.frame(payload).hex())
         lines.append('crc ' + payload.hex())
@@ -450,3 +450,211 @@ def test_bridge_node_on_the_firmware(build, tmp_path, ros_context):
         reports = len(harness.pwm)
         assert poll(lambda: len(harness.pwm) >= reports + 2, 5.0)
         assert harness.pwm[-1][2] == 0.0
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# The closed loop over the pty: every new command, each refusal, the law on an injected angle, the trip, the watchdog
+# ------------------------------------------------------------------------------------------------------------------
+def counts_of(millivolts: int) -> int:
+    """The ADC result simavr gives for an injected voltage (it truncates mV * 1023 / 5000)."""
+    return millivolts * 1023 // 5000
+
+
+def fast_pwm_duty(q16: int) -> int:
+    """The duty_q16 the simulation build (fast PWM, 510 ticks) really applies for a commanded q16."""
+    high = (q16 * 510 + 32767) // 65535
+    return high * 65535 // 510
+
+
+def law_duty_q16(duty: float, max_duty_q16: int) -> int:
+    """The firmware's duty fraction -> q16 (half up), clamped to the maximum duty."""
+    q16 = 0 if not duty > 0 else 65535 if duty >= 1 else int(np.float32(duty) * np.float32(65535) + np.float32(0.5))
+    return min(q16, max_duty_q16)
+
+
+class Device:
+    """The firmware over its pty: commands, ACKs, and every message kept in order."""
+
+    def __init__(self, link) -> None:
+        self.link = link
+        self.decoder = P.FrameDecoder()
+        self.messages: list = []
+
+    def read(self, seconds: float, until=None) -> list:
+        start = len(self.messages)
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.messages += self.decoder.feed(self.link.read(max(1, self.link.in_waiting)))
+            if until is not None and until(self.messages[start:]):
+                break
+        return self.messages[start:]
+
+    def ack(self, command: bytes, timeout: float = 5.0) -> P.AckFrame:
+        self.link.write(command)
+        new = self.read(timeout, until=lambda ms: any(isinstance(m, P.AckFrame) for m in ms))
+        acks = [m for m in new if isinstance(m, P.AckFrame)]
+        assert len(acks) == 1, new[-5:]
+        return acks[0]
+
+    def samples(self, count: int, kind=P.ControlSampleFrame, timeout: float = 10.0) -> list:
+        new = self.read(timeout, until=lambda ms: sum(isinstance(m, kind) for m in ms) >= count)
+        found = [m for m in new if isinstance(m, kind)]
+        assert len(found) >= count, new[-5:]
+        return found
+
+
+def test_closed_loop_commands_over_pty(build, tmp_path):
+    import serial
+
+    from aeropend_core.control import law
+    from aeropend_core.rig.control_link import device_coefficients, send_gains
+    angle_mv = 2700                            # counts 552: 40 counts above the zero 512 -> 0.2454 rad
+    with Harness(build, tmp_path / 'ttyMEGA', adc={2: angle_mv}) as harness, \
+            serial.Serial(str(tmp_path / 'ttyMEGA'), 250000, timeout=0.02) as link:
+        device = Device(link)
+        boot = device.read(5.0, until=lambda ms: any(isinstance(m, P.StatusFrame) for m in ms))
+        status = next(m for m in boot if isinstance(m, P.StatusFrame))
+        assert status.protocol_version == 2 == P.PROTOCOL_VERSION
+        assert not status.flags & P.FLAG_CLOSED_LOOP
+        link.write(P.encode_command(P.SET_WATCHDOG, 2.0))    # a loaded test machine must not trip it by accident
+
+        # Refusals, one per code, before any coefficient is set.
+        ack = device.ack(P.encode_control_mode(P.MODE_CLOSED_LOOP))
+        assert (ack.command, ack.result, ack.value) == (P.SET_CONTROL_MODE, P.ACK_REFUSED, 0.0)   # coefficients unset
+        ack = device.ack(P.encode_control_mode(2))
+        assert (ack.result, ack.value) == (P.ACK_OUT_OF_RANGE, 0.0)
+        ack = device.ack(P.encode_coefficient(13, 1.0))
+        assert (ack.command, ack.index, ack.result, ack.value) == (P.SET_CONTROL_COEFFICIENT, 13,
+                                                                    P.ACK_UNKNOWN_INDEX, 0.0)
+        for index, value in [(law.P, math.nan), (law.P, math.inf), (law.P, -1.0), (law.D_POLE, 1.0),
+                             (law.U_MAX, 1.5), (law.U_MIN, -0.1), (law.AW_CODE, 3.0), (law.AW_CODE, 1.5),
+                             (law.ANGLE_MIN, 3.5), (law.ANGLE_MAX, -3.5), (law.I_TS, -math.inf)]:
+            ack = device.ack(P.encode_coefficient(index, value))
+            assert (ack.index, ack.result) == (index, P.ACK_OUT_OF_RANGE), (index, value, ack)
+        for zero, scale in [(512.0, 0.0), (math.nan, 0.006), (512.0, math.inf)]:
+            ack = device.ack(P.encode_angle_calibration(zero, scale))
+            assert (ack.command, ack.result, ack.value) == (P.SET_ANGLE_CALIBRATION, P.ACK_OUT_OF_RANGE, 0.0)
+        samples = device.samples(3, P.SampleFrame)            # still open loop: plain SAMPLEs, duty 0
+        assert all(s.duty_q16 == 0 for s in samples)
+
+        # A proportional law with feedforward: duty = ff + p (r - angle), clamped to [0, 0.6].
+        gains = law.PidGains(p=0.8, i=0.0, d=0.0, u_clamp_min=0.0, u_clamp_max=0.6, i_clamp_min=-0.2,
+                             i_clamp_max=0.2, antiwindup='conditional_integration', angle_min=-0.35,
+                             angle_max=1.75)
+        acks = send_gains(link, gains, decoder=device.decoder, messages=device.messages)
+        coefficients = device_coefficients(gains)
+        assert sorted(acks) == list(range(13))
+        assert all(a.ok and np.float32(a.value) == np.float32(coefficients[i]) for i, a in acks.items())
+        # Limits against their stored partner.
+        ack = device.ack(P.encode_coefficient(law.ANGLE_MIN, 1.75))
+        assert (ack.result, ack.value) == (P.ACK_OUT_OF_RANGE, np.float32(-0.35))      # angle_min >= angle_max
+        ack = device.ack(P.encode_coefficient(law.I_MAX, -0.3))
+        assert (ack.result, ack.value) == (P.ACK_OUT_OF_RANGE, np.float32(0.2))
+        ack = device.ack(P.encode_coefficient(law.U_MIN, 0.7))
+        assert ack.result == P.ACK_OUT_OF_RANGE
+        for reference, feedforward in [(2.0, 0.2), (-0.5, 0.2), (0.5, 1.5), (0.5, -0.1), (math.nan, 0.2)]:
+            ack = device.ack(P.encode_reference(reference, feedforward))
+            assert (ack.command, ack.result, ack.value) == (P.SET_REFERENCE, P.ACK_OUT_OF_RANGE, 0.0)
+        # Gains again, ordered against the stored limits (angle_min 2 > the stored angle_max 1.75: sent twice).
+        acks = send_gains(link, gains.replace(angle_min=1.8, angle_max=2.5), decoder=device.decoder,
+                          messages=device.messages)
+        assert acks[law.ANGLE_MIN].value == np.float32(1.8)
+        send_gains(link, gains, decoder=device.decoder, messages=device.messages)
+
+        ack = device.ack(P.encode_angle_calibration(512.0, 2 * math.pi / 1024))
+        assert (ack.result, ack.value) == (P.ACK_OK, 512.0)
+        reference, feedforward = 0.5, 0.2
+        ack = device.ack(P.encode_reference(reference, feedforward))
+        assert (ack.result, ack.value) == (P.ACK_OK, np.float32(reference))
+        ack = device.ack(P.encode_control_mode(P.MODE_CLOSED_LOOP))
+        assert (ack.result, ack.value) == (P.ACK_OK, 1.0)
+        ack = device.ack(P.encode_angle_calibration(500.0, 0.006))
+        assert (ack.result, ack.value) == (P.ACK_REFUSED, 512.0)        # not while the loop runs
+
+        # The law on the injected angle, sample by sample, against the Python law (float32 inputs).
+        samples = device.samples(40)
+        sequences = [s.sequence for s in samples]
+        assert sequences == list(range(sequences[0], sequences[0] + len(sequences)))
+        scale = np.float32(2 * math.pi / 1024)
+        angle = float((np.float32(counts_of(angle_mv)) - np.float32(512)) * scale)
+        state = law.new_state()
+        expected_duty = law.law_step(coefficients, state, float(np.float32(reference)),
+                                     float(np.float32(feedforward)), angle)
+        assert expected_duty == pytest.approx(0.2 + 0.8 * (0.5 - angle), abs=1e-6)
+        q16 = law_duty_q16(expected_duty, status.max_duty_q16)
+        for s in samples[2:]:
+            assert s.flags & P.FLAG_CLOSED_LOOP and not s.tripped
+            assert s.angle_counts == counts_of(angle_mv)
+            assert (s.reference, s.feedforward) == (np.float32(reference), np.float32(feedforward))
+            assert s.unsaturated == pytest.approx(expected_duty, abs=1e-6)
+            assert s.integral == 0.0
+            assert s.duty_q16 == fast_pwm_duty(q16)                  # the law's duty, from the next period on
+        # A new angle: the duty follows (saturating at u_clamp_max 0.6, below the device's 0.70).
+        harness.set_adc(2, 2400)                                     # counts 491: -0.129 rad
+        angle2 = float((np.float32(counts_of(2400)) - np.float32(512)) * scale)
+        new = device.read(5.0, until=lambda ms: sum(isinstance(m, P.ControlSampleFrame)
+                                                    and m.angle_counts == counts_of(2400) for m in ms) > 3)
+        moved = [m for m in new if isinstance(m, P.ControlSampleFrame) and m.angle_counts == counts_of(2400)]
+        assert moved[-1].unsaturated == pytest.approx(0.2 + 0.8 * (0.5 - angle2), abs=1e-6)
+        assert moved[-1].unsaturated > 0.6
+        assert moved[-1].duty_q16 == fast_pwm_duty(law_duty_q16(0.6, status.max_duty_q16))
+        assert not moved[-1].flags & P.FLAG_DUTY_CLAMPED
+        reports = len(harness.pwm)
+        assert poll(lambda: len(harness.pwm) >= reports + 2, 10.0)
+        assert harness.pwm[-1][2] == pytest.approx(0.6, abs=0.003)  # on the pin
+
+        # The angle leaves the window (above angle_max 1.75): duty 0 at once, latched when it comes back.
+        harness.set_adc(2, 4500)                                     # counts 920: 2.50 rad
+        new = device.read(5.0, until=lambda ms: sum(isinstance(m, P.ControlSampleFrame) and m.tripped
+                                                    for m in ms) > 3)
+        tripped = [m for m in new if isinstance(m, P.ControlSampleFrame) and m.tripped]
+        first = tripped[0]
+        assert first.angle_counts == counts_of(4500)
+        assert all(m.duty_q16 == 0 for m in tripped[2:]) and tripped[-1].unsaturated == 0.0
+        harness.set_adc(2, 2700)                                     # back inside
+        link.write(P.encode_command(P.REQUEST_STATUS))               # (a keep-alive does not release it)
+        new = device.samples(150)                                    # 0.3 s
+        back = [m for m in new if m.angle_counts == counts_of(2700)]
+        assert len(back) > 100 and all(m.tripped and m.duty_q16 == 0 for m in back)
+        status = [m for m in device.messages if isinstance(m, P.StatusFrame)][-1]
+        assert status.flags & P.FLAG_LAW_TRIPPED and status.flags & P.FLAG_CLOSED_LOOP
+        ack = device.ack(P.encode_reference(reference, feedforward))  # released by a new reference
+        assert ack.ok
+        new = device.samples(10)
+        assert not new[-1].tripped and new[-1].duty_q16 == fast_pwm_duty(q16)
+
+        # Watchdog in closed loop: 0.1 s without a command -> duty 0, the law stops; a keep-alive does not
+        # restart it, a new reference does.
+        link.write(P.encode_command(P.SET_WATCHDOG, 0.1))
+        new = device.read(3.0, until=lambda ms: sum(isinstance(m, P.ControlSampleFrame)
+                                                    and m.flags & P.FLAG_WATCHDOG_TRIPPED for m in ms) > 10)
+        cut = [m for m in new if isinstance(m, P.ControlSampleFrame) and m.flags & P.FLAG_WATCHDOG_TRIPPED]
+        assert len(cut) > 10 and all(m.duty_q16 == 0 for m in cut[1:])
+        status_reply = [m for m in new if isinstance(m, P.StatusFrame)][-1]    # the SET_WATCHDOG's STATUS
+        assert cut[0].sequence - status_reply.sequence == pytest.approx(0.1 / P.SAMPLE_PERIOD, abs=8)
+        link.write(P.encode_command(P.SET_WATCHDOG, 2.0) + P.encode_command(P.REQUEST_STATUS))
+        new = device.samples(20)
+        assert all(m.flags & P.FLAG_WATCHDOG_TRIPPED and m.duty_q16 == 0 for m in new[5:])
+        ack = device.ack(P.encode_reference(0.3, feedforward))
+        assert ack.ok and ack.value == np.float32(0.3)
+        new = device.samples(10)
+        assert not new[-1].flags & P.FLAG_WATCHDOG_TRIPPED
+        q16 = law_duty_q16(0.2 + 0.8 * (float(np.float32(0.3)) - angle), status.max_duty_q16)
+        assert new[-1].duty_q16 == fast_pwm_duty(q16)
+
+        # SET_DUTY takes the device back to open loop (plain SAMPLEs, the commanded duty).
+        link.write(P.encode_command(P.SET_DUTY, 0.3))
+        new = device.samples(10, P.SampleFrame)
+        assert new[-1].duty_q16 == fast_pwm_duty(P.duty_to_q16(0.3)) and not new[-1].flags & P.FLAG_CLOSED_LOOP
+        # Closed again (the stored reference 0.3), then SET_CONTROL_MODE 0: open loop with the duty at 0.
+        assert device.ack(P.encode_control_mode(P.MODE_CLOSED_LOOP)).ok
+        assert device.samples(5)[-1].duty_q16 == fast_pwm_duty(q16)
+        ack = device.ack(P.encode_control_mode(P.MODE_OPEN_LOOP))
+        assert (ack.result, ack.value) == (P.ACK_OK, 0.0)
+        new = device.samples(10, P.SampleFrame)
+        assert new[-1].duty_q16 == 0
+        # Nothing was corrupt on the way, and the device saw no bad frame.
+        assert device.decoder.counters.corrupt == 0
+        link.write(P.encode_command(P.REQUEST_STATUS))
+        new = device.read(3.0, until=lambda ms: any(isinstance(m, P.StatusFrame) for m in ms))
+        assert [m for m in new if isinstance(m, P.StatusFrame)][-1].rx_bad_frames == 0

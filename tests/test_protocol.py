@@ -311,3 +311,67 @@ def test_sample_clock_follows_a_ceramic_resonator(error):
     assert np.max(np.abs(error_s[acquisition - acquisition[0] >= 60.0])) < 2e-3
     assert clock.drift_ppm == pytest.approx(error * 1e6, abs=50.0)
     assert np.all(np.diff(stamps) > 0.5 * period)      # still evenly spaced
+
+
+# ---------------------------------------------------------------------------------------------- protocol version 2
+def test_closed_loop_messages_round_trip_and_layout():
+    ack = P.AckFrame(P.SET_CONTROL_COEFFICIENT, 7, P.ACK_OUT_OF_RANGE, 0.75)
+    control = P.ControlSampleFrame(12345, 1, 552, 3, 26453, P.FLAG_CLOSED_LOOP | P.FLAG_LAW_TRIPPED, 0.5, 0.375,
+                                   -0.25, 0.125)          # (float32-exact values: they round-trip unchanged)
+    commands = [P.encode_coefficient(3, 0.5), P.encode_reference(0.5, 0.2), P.encode_control_mode(1),
+                P.encode_angle_calibration(512.0, 2 * math.pi / 1024)]
+    # Payload sizes (type included): ACK 8, CONTROL_SAMPLE 30, commands 6 / 9 / 3 / 9.
+    assert [len(P.cobs_decode(b[1:-1])) - 2 for b in [P.encode_ack(ack), P.encode_control_sample(control),
+                                                       *commands]] == [8, 30, 6, 9, 3, 9]
+    assert len(P.encode_control_sample(control)) == P.CONTROL_SAMPLE_WIRE_LENGTH + 2 == 35
+    assert P.decode_message(P.encode_ack(ack)[1:-1]) == ack
+    assert P.decode_message(P.encode_control_sample(control)[1:-1]) == control
+    assert control.sample == P.SampleFrame(12345, 1, 552, 3, 26453, control.flags) and control.tripped
+    assert P.decode_message(commands[0][1:-1]) == P.CoefficientCommand(3, 0.5)
+    assert P.decode_message(commands[2][1:-1]) == P.CommandFrame(P.SET_CONTROL_MODE, 1)
+    decoded = P.decode_message(commands[3][1:-1])
+    assert decoded.rad_per_count == np.float32(2 * math.pi / 1024) and decoded.zero_counts == 512.0
+    # The host decoder: device messages always, commands only when asked; CONTROL_SAMPLEs count as samples.
+    stream = b''.join([P.encode_ack(ack), P.encode_control_sample(control), *commands])
+    host = P.FrameDecoder()
+    assert host.feed(b'\x00' + stream) == [ack, control] and host.counters.corrupt == 4
+    assert host.counters.samples == 1
+    device = P.FrameDecoder(accept_commands=True)
+    assert len(device.feed(b'\x00' + stream)) == 6 and device.counters.corrupt == 0
+    # Non-finite values travel (the device refuses them); values beyond float32 do not.
+    assert math.isnan(P.decode_message(P.encode_coefficient(0, math.nan)[1:-1]).value)
+    with pytest.raises(P.ProtocolError):
+        P.encode_coefficient(0, 1e40)
+    with pytest.raises(P.ProtocolError):
+        P.encode_coefficient(256, 1.0)
+    assert P.PROTOCOL_VERSION == 2
+
+
+def test_gains_upload_checks_every_ack_and_orders_limits():
+    from aeropend_core.control import law
+    from aeropend_core.rig.control_link import GainsUpload, device_coefficients
+
+    gains = law.PidGains(angle_min=1.8, angle_max=2.5)
+    upload = GainsUpload(gains)
+    values = device_coefficients(gains)
+    sent = P.FrameDecoder(accept_commands=True).feed(b'\x00' + upload.start())
+    assert [c.index for c in sent] == list(range(13))
+    assert all(np.float32(c.value) == np.float32(values[c.index]) for c in sent)
+    # The device still holds angle_max 1.75: angle_min 1.8 refused, resent once angle_max is in.
+    for index in range(13):
+        if index == law.ANGLE_MIN:
+            assert upload.accept(P.AckFrame(P.SET_CONTROL_COEFFICIENT, index, P.ACK_OUT_OF_RANGE, -0.35)) == b''
+            continue
+        resend = upload.accept(P.AckFrame(P.SET_CONTROL_COEFFICIENT, index, P.ACK_OK, float(values[index])))
+        assert (resend != b'') == (index == law.ANGLE_MAX)
+    assert not upload.done
+    assert P.decode_message(resend[1:-1]) == P.CoefficientCommand(law.ANGLE_MIN, np.float32(1.8))
+    upload.accept(P.AckFrame(P.SET_CONTROL_COEFFICIENT, law.ANGLE_MIN, P.ACK_OK, float(values[law.ANGLE_MIN])))
+    assert upload.done and upload.error is None
+    # A wrong stored value or any other refusal is an error.
+    upload = GainsUpload(gains)
+    upload.accept(P.AckFrame(P.SET_CONTROL_COEFFICIENT, law.P, P.ACK_OK, 0.25))
+    assert 'stored 0.25' in upload.error
+    upload = GainsUpload(gains)
+    upload.accept(P.AckFrame(P.SET_CONTROL_COEFFICIENT, law.AW_CODE, P.ACK_OUT_OF_RANGE, 0.0))
+    assert 'out of range' in upload.error and not upload.done

@@ -30,8 +30,10 @@ from aeropend_core.rig import protocol as P
 
 __all__ = ['SAMPLE_FLAGS', 'SEQUENCE_MODULUS', 'CheckCounters', 'CheckedSample', 'FrameChecker']
 
-#: Flag bits a SAMPLE may carry (FLAG_BOOT is only sent in STATUS but tolerated).
-SAMPLE_FLAGS = P.FLAG_WATCHDOG_TRIPPED | P.FLAG_DUTY_CLAMPED | P.FLAG_SAMPLES_DROPPED | P.FLAG_BOOT
+#: Flag bits a SAMPLE may carry (FLAG_BOOT is only sent in STATUS but tolerated; the closed loop's two in a
+#: CONTROL_SAMPLE).
+SAMPLE_FLAGS = P.FLAG_WATCHDOG_TRIPPED | P.FLAG_DUTY_CLAMPED | P.FLAG_SAMPLES_DROPPED | P.FLAG_BOOT \
+    | P.FLAG_LAW_TRIPPED | P.FLAG_CLOSED_LOOP
 #: The device's sequence counter wraps at this value (u32 on the wire).
 SEQUENCE_MODULUS = 1 << 32
 

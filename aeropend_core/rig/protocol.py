@@ -37,6 +37,53 @@ maximum duty), ``SET_MAX_DUTY`` (0x11, fraction * 65535), ``SET_WATCHDOG`` (0x12
 ``REQUEST_STATUS`` (0x13, value ignored). *Every* valid command feeds the device's watchdog; when no valid command
 arrives for the watchdog time the device sets the duty to zero and raises ``FLAG_WATCHDOG_TRIPPED`` until the next
 ``SET_DUTY``. A host must therefore repeat its duty command (the bridge node does it every 100 ms).
+
+Closed loop (protocol version 2)
+~~~~~~~~~~~~~~~~~~~~~~~~~~~~~~~~
+The firmware runs the controller law of :mod:`aeropend_core.control.law` (``law_step``, in single precision:
+``firmware/aeropend/aeropend_control.h``) once per sample on the angle it has just measured, and applies the duty
+from the next PWM period (clamped to the maximum duty). Open loop (the ``SET_DUTY`` behaviour above) is the mode at
+boot. Host -> device, float32 little-endian::
+
+    SET_CONTROL_COEFFICIENT (0x14)  u8 type | u8 index 0..12 | f32 value          (6 bytes)
+    SET_REFERENCE           (0x15)  u8 type | f32 reference [rad] | f32 feedforward duty [0..1]   (9 bytes)
+    SET_CONTROL_MODE        (0x16)  u8 type | u16 mode (0 open loop, 1 closed loop)                (3 bytes)
+    SET_ANGLE_CALIBRATION   (0x17)  u8 type | f32 zero [counts] | f32 scale [rad/count]           (9 bytes)
+
+The index is the coefficient layout of ``law.PidGains.coefficients`` (P, I_TS, D_POLE, D_GAIN, I_MIN, I_MAX, U_MIN,
+U_MAX, AW_CODE, AW_GAIN, FF_GAIN, ANGLE_MIN, ANGLE_MAX), computed on the host at :data:`SAMPLE_PERIOD`. The angle is
+``(angle_counts - zero) * scale`` (defaults 0 counts and 2 pi / 1024 rad/count). The device answers *each* of these
+four commands with an ``ACK`` (type 0x03, 8 bytes)::
+
+    u8 type | u8 command type | u8 index | u8 result | f32 value
+
+``index`` is the coefficient's (0 for the other commands); ``value`` is what the device holds after the command:
+the coefficient, the reference, the mode, the zero of the calibration (unchanged when refused; 0 for an unknown
+index). ``result``: ``ACK_OK`` 0; ``ACK_OUT_OF_RANGE`` 1 (a non-finite value; a negative gain; D_POLE outside
+[0, 1); AW_CODE not 0, 1 or 2; I_MIN > I_MAX, U_MIN/U_MAX outside 0 <= U_MIN <= U_MAX <= 1 or ANGLE_MIN >= ANGLE_MAX
+against the other limit as stored; a reference outside [ANGLE_MIN, ANGLE_MAX] or a feedforward outside [0, 1];
+a zero scale; a mode other than 0 or 1); ``ACK_UNKNOWN_INDEX`` 2; ``ACK_REFUSED`` 3 (closed loop before all 13
+coefficients have been set since boot; an angle calibration while the loop runs). A refused command does not feed
+the watchdog; an accepted one does.
+
+Safety: an angle outside [ANGLE_MIN, ANGLE_MAX] sets the duty to 0 and *trips* the law (``FLAG_LAW_TRIPPED``,
+latched) until the next accepted ``SET_REFERENCE`` or ``SET_CONTROL_MODE`` 1, which restart the law (integral 0,
+derivative unprimed). The watchdog stays: in closed loop the host must keep sending valid commands (the bridge sends
+``REQUEST_STATUS`` every 100 ms); when it expires the duty is 0 and the law stops until the next accepted
+``SET_REFERENCE`` or ``SET_CONTROL_MODE`` 1. ``SET_DUTY`` in closed loop switches the device back to open loop (and
+applies the duty): a host that only knows version 1 can always stop the motor with ``SET_DUTY 0``.
+``SET_CONTROL_MODE`` 0 sets the duty to 0. ``SET_REFERENCE`` is accepted in open loop too (stored for later).
+
+In closed loop every sample is a ``CONTROL_SAMPLE`` (type 0x04, 30 bytes) instead of a ``SAMPLE``::
+
+    SAMPLE's 14 bytes (type 0x04) | f32 reference | f32 feedforward | f32 unsaturated | f32 integral
+
+``duty_q16`` is, as in SAMPLE, the duty applied during this sample (the law's output of the previous one); the four
+floats are the law's inputs and its state after this sample's step (its duty applies from the next sample); flags
+gain ``FLAG_LAW_TRIPPED`` and ``FLAG_CLOSED_LOOP`` (also in STATUS). Link budget at 250000 baud 8N1 (25,000 B/s):
+a CONTROL_SAMPLE is 35 bytes on the wire (30 + CRC 2 + COBS 1 + two delimiters), 490.196 x 35 = 17,157 B/s
+(68.6 %); with STATUS at 1 Hz plus one per keep-alive REQUEST_STATUS at 10 Hz (11 x 23 = 253 B/s) 69.6 %, below
+the 80 % ceiling. (SAMPLE: 19 bytes, 9,314 B/s, 37 %.)
 """
 from __future__ import annotations
 
@@ -49,12 +96,26 @@ from typing import NamedTuple
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 
 __all__ = [
+    'ACK',
+    'ACK_OK',
+    'ACK_OUT_OF_RANGE',
+    'ACK_REFUSED',
+    'ACK_RESULTS',
+    'ACK_UNKNOWN_INDEX',
     'ADC_FULL_SCALE',
+    'CONTROL_SAMPLE',
+    'CONTROL_SAMPLE_WIRE_LENGTH',
+    'DEFAULT_DEVICE_ANGLE_SCALE',
+    'DEFAULT_DEVICE_ANGLE_ZERO',
     'DELIMITER',
     'FLAG_BOOT',
+    'FLAG_CLOSED_LOOP',
     'FLAG_DUTY_CLAMPED',
+    'FLAG_LAW_TRIPPED',
     'FLAG_SAMPLES_DROPPED',
     'FLAG_WATCHDOG_TRIPPED',
+    'MODE_CLOSED_LOOP',
+    'MODE_OPEN_LOOP',
     'PROTOCOL_VERSION',
     'PWM_FAST',
     'PWM_PHASE_CORRECT',
@@ -63,16 +124,25 @@ __all__ = [
     'SAMPLE',
     'SAMPLE_PERIOD',
     'SAMPLE_WIRE_LENGTH',
+    'SET_ANGLE_CALIBRATION',
+    'SET_CONTROL_COEFFICIENT',
+    'SET_CONTROL_MODE',
     'SET_DUTY',
     'SET_MAX_DUTY',
+    'SET_REFERENCE',
     'SET_WATCHDOG',
     'STATUS',
     'WATCHDOG_MS_RANGE',
+    'AckFrame',
+    'AngleCalibrationCommand',
     'Calibration',
+    'CoefficientCommand',
     'CommandFrame',
+    'ControlSampleFrame',
     'DecoderCounters',
     'FrameDecoder',
     'ProtocolError',
+    'ReferenceCommand',
     'SampleFrame',
     'StatusFrame',
     'cobs_decode',
@@ -80,30 +150,62 @@ __all__ = [
     'crc16',
     'decode_message',
     'duty_to_q16',
+    'encode_ack',
+    'encode_angle_calibration',
+    'encode_coefficient',
     'encode_command',
+    'encode_control_mode',
+    'encode_control_sample',
+    'encode_reference',
     'encode_sample',
     'encode_status',
     'frame',
     'q16_to_duty',
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
 DELIMITER = b'\x00'
 
 # Message types.
 SAMPLE = 0x01
 STATUS = 0x02
+ACK = 0x03
+CONTROL_SAMPLE = 0x04
 SET_DUTY = 0x10
 SET_MAX_DUTY = 0x11
 SET_WATCHDOG = 0x12
 REQUEST_STATUS = 0x13
-COMMAND_TYPES = (SET_DUTY, SET_MAX_DUTY, SET_WATCHDOG, REQUEST_STATUS)
+SET_CONTROL_COEFFICIENT = 0x14
+SET_REFERENCE = 0x15
+SET_CONTROL_MODE = 0x16
+SET_ANGLE_CALIBRATION = 0x17
+#: Commands in the ``u8 type | u16 value`` format.
+COMMAND_TYPES = (SET_DUTY, SET_MAX_DUTY, SET_WATCHDOG, REQUEST_STATUS, SET_CONTROL_MODE)
+#: Commands the device answers with an ACK.
+ACKED_COMMANDS = (SET_CONTROL_COEFFICIENT, SET_REFERENCE, SET_CONTROL_MODE, SET_ANGLE_CALIBRATION)
+
+# SET_CONTROL_MODE values.
+MODE_OPEN_LOOP = 0
+MODE_CLOSED_LOOP = 1
+
+# ACK results.
+ACK_OK = 0             #: accepted and stored
+ACK_OUT_OF_RANGE = 1   #: a non-finite value or one outside its limits (module docstring)
+ACK_UNKNOWN_INDEX = 2  #: no coefficient with that index
+ACK_REFUSED = 3        #: not in this state: closed loop before all coefficients are set; calibration in closed loop
+ACK_RESULTS = {ACK_OK: 'ok', ACK_OUT_OF_RANGE: 'out of range', ACK_UNKNOWN_INDEX: 'unknown index',
+               ACK_REFUSED: 'refused in this mode'}
+#: The device's angle calibration at boot: zero [counts] and scale [rad/count].
+DEFAULT_DEVICE_ANGLE_ZERO = 0.0
+DEFAULT_DEVICE_ANGLE_SCALE = 2.0 * math.pi / 1024
 
 # Bits of the ``flags`` byte (SAMPLE and STATUS).
 FLAG_WATCHDOG_TRIPPED = 0x01  #: motor cut because no command arrived within the watchdog time
 FLAG_DUTY_CLAMPED = 0x02      #: the last SET_DUTY asked for more than the maximum duty
 FLAG_SAMPLES_DROPPED = 0x04   #: the transmit buffer was full: samples before this one were not sent
 FLAG_BOOT = 0x08              #: set in the STATUS sent right after reset
+FLAG_LAW_TRIPPED = 0x10       #: closed loop: the angle left [ANGLE_MIN, ANGLE_MAX], duty 0 (latched)
+FLAG_CLOSED_LOOP = 0x20       #: closed loop runs (CONTROL_SAMPLE and STATUS)
 
 # PWM modes reported in STATUS.
 PWM_PHASE_CORRECT = 0  #: Timer1 mode 10, TOP = ICR1 = 255, prescaler 64: the real chip's default
@@ -119,12 +221,18 @@ WATCHDOG_MS_RANGE = (10, 60000)
 _SAMPLE = struct.Struct('<BIHHHHB')
 _STATUS = struct.Struct('<BBBBHHHHHI')
 _COMMAND = struct.Struct('<BH')
+_CONTROL_SAMPLE = struct.Struct('<BIHHHHBffff')
+_ACK = struct.Struct('<BBBBf')
+_COEFFICIENT = struct.Struct('<BBf')
+_TWO_FLOATS = struct.Struct('<Bff')
 _CRC = struct.Struct('<H')
 #: Encoded length (without delimiters) of each device message: COBS adds one byte to payloads < 254 bytes.
 SAMPLE_WIRE_LENGTH = _SAMPLE.size + 2 + 1
 STATUS_WIRE_LENGTH = _STATUS.size + 2 + 1
+CONTROL_SAMPLE_WIRE_LENGTH = _CONTROL_SAMPLE.size + 2 + 1
 #: Longest encoded message; a run of non-zero bytes longer than this is garbage.
-MAX_WIRE_LENGTH = max(SAMPLE_WIRE_LENGTH, STATUS_WIRE_LENGTH, _COMMAND.size + 3)
+MAX_WIRE_LENGTH = max(SAMPLE_WIRE_LENGTH, STATUS_WIRE_LENGTH, CONTROL_SAMPLE_WIRE_LENGTH, _COMMAND.size + 3,
+                      _TWO_FLOATS.size + 3)
 
 
 class ProtocolError(ValueError):
@@ -220,10 +328,122 @@ class StatusFrame(NamedTuple):
 
 
 class CommandFrame(NamedTuple):
-    """One host -> device command: ``kind`` is SET_DUTY, SET_MAX_DUTY, SET_WATCHDOG or REQUEST_STATUS."""
+    """One host -> device command in the u16 format: SET_DUTY, SET_MAX_DUTY, SET_WATCHDOG, REQUEST_STATUS or
+    SET_CONTROL_MODE."""
 
     kind: int
     value: int
+
+
+class ControlSampleFrame(NamedTuple):
+    """One CONTROL_SAMPLE (closed loop): a SAMPLE's fields plus the law's reference, feedforward, unsaturated output
+    and integral after this sample's step (float32 values)."""
+
+    sequence: int
+    current_counts: int
+    angle_counts: int
+    voltage_counts: int
+    duty_q16: int
+    flags: int
+    reference: float
+    feedforward: float
+    unsaturated: float
+    integral: float
+
+    @property
+    def duty(self) -> float:
+        """Applied duty fraction 0..1 (during this sample: the law's output of the previous one)."""
+        return self.duty_q16 / 65535.0
+
+    @property
+    def tripped(self) -> bool:
+        return bool(self.flags & FLAG_LAW_TRIPPED)
+
+    @property
+    def sample(self) -> SampleFrame:
+        """The SAMPLE part (for code that handles both)."""
+        return SampleFrame(*self[:6])
+
+
+class AckFrame(NamedTuple):
+    """The device's answer to SET_CONTROL_COEFFICIENT, SET_REFERENCE, SET_CONTROL_MODE or SET_ANGLE_CALIBRATION."""
+
+    command: int
+    index: int
+    result: int
+    value: float
+
+    @property
+    def ok(self) -> bool:
+        return self.result == ACK_OK
+
+    def describe(self) -> str:
+        return (f'ACK of 0x{self.command:02x}[{self.index}]: {ACK_RESULTS.get(self.result, self.result)}, '
+                f'value {self.value!r}')
+
+
+class CoefficientCommand(NamedTuple):
+    """SET_CONTROL_COEFFICIENT as the device receives it."""
+
+    index: int
+    value: float
+    kind: int = SET_CONTROL_COEFFICIENT
+
+
+class ReferenceCommand(NamedTuple):
+    """SET_REFERENCE as the device receives it."""
+
+    reference: float
+    feedforward: float
+    kind: int = SET_REFERENCE
+
+
+class AngleCalibrationCommand(NamedTuple):
+    """SET_ANGLE_CALIBRATION as the device receives it."""
+
+    zero_counts: float
+    rad_per_count: float
+    kind: int = SET_ANGLE_CALIBRATION
+
+
+def _pack(layout: struct.Struct, *values) -> bytes:
+    try:
+        return layout.pack(*values)
+    except (OverflowError, struct.error) as error:
+        raise ProtocolError(f'cannot encode {values!r}: {error}') from None
+
+
+def encode_coefficient(index: int, value: float) -> bytes:
+    """Wire bytes of SET_CONTROL_COEFFICIENT (`value` rounded to float32; the device checks it, not this)."""
+    if not 0 <= int(index) <= 255:
+        raise ProtocolError(f'coefficient index must fit a byte, got {index!r}')
+    return frame(_pack(_COEFFICIENT, SET_CONTROL_COEFFICIENT, int(index), float(value)))
+
+
+def encode_reference(reference: float, feedforward: float = 0.0) -> bytes:
+    """Wire bytes of SET_REFERENCE: reference angle [rad], feedforward duty [fraction]."""
+    return frame(_pack(_TWO_FLOATS, SET_REFERENCE, float(reference), float(feedforward)))
+
+
+def encode_control_mode(mode: int) -> bytes:
+    """Wire bytes of SET_CONTROL_MODE (MODE_OPEN_LOOP or MODE_CLOSED_LOOP; other values reach the device, which
+    refuses them)."""
+    return frame(_pack(_COMMAND, SET_CONTROL_MODE, int(mode)))
+
+
+def encode_angle_calibration(zero_counts: float, rad_per_count: float) -> bytes:
+    """Wire bytes of SET_ANGLE_CALIBRATION: angle = (angle_counts - zero_counts) * rad_per_count."""
+    return frame(_pack(_TWO_FLOATS, SET_ANGLE_CALIBRATION, float(zero_counts), float(rad_per_count)))
+
+
+def encode_ack(ack: AckFrame) -> bytes:
+    """Wire bytes of an ACK (device side: emulators)."""
+    return frame(_pack(_ACK, ACK, *ack))
+
+
+def encode_control_sample(sample: ControlSampleFrame) -> bytes:
+    """Wire bytes of a CONTROL_SAMPLE (device side: emulators)."""
+    return frame(_pack(_CONTROL_SAMPLE, CONTROL_SAMPLE, *sample))
 
 
 def encode_sample(sample: SampleFrame) -> bytes:
@@ -265,7 +485,7 @@ def encode_command(kind: int, value: float = 0) -> bytes:
     return frame(_COMMAND.pack(kind, raw))
 
 
-def decode_message(encoded: bytes) -> SampleFrame | StatusFrame | CommandFrame:
+def decode_message(encoded: bytes):
     """Decode one COBS chunk (without delimiters) into a message.
 
     Raises
@@ -286,7 +506,28 @@ def decode_message(encoded: bytes) -> SampleFrame | StatusFrame | CommandFrame:
         return StatusFrame(*_STATUS.unpack(body)[1:])
     if kind in COMMAND_TYPES and len(body) == _COMMAND.size:
         return CommandFrame(*_COMMAND.unpack(body))
+    message = _decode_v2(body)
+    if message is not None:
+        return message
     raise ProtocolError(f'unknown message type 0x{kind:02x} or wrong length {len(body)}')
+
+
+def _decode_v2(body: bytes, commands: bool = True):
+    """The version-2 messages (ACK, CONTROL_SAMPLE, the float commands when `commands`), or None."""
+    kind, length = body[0], len(body)
+    if kind == CONTROL_SAMPLE and length == _CONTROL_SAMPLE.size:
+        return ControlSampleFrame(*_CONTROL_SAMPLE.unpack(body)[1:])
+    if kind == ACK and length == _ACK.size:
+        return AckFrame(*_ACK.unpack(body)[1:])
+    if not commands:
+        return None
+    if kind == SET_CONTROL_COEFFICIENT and length == _COEFFICIENT.size:
+        return CoefficientCommand(*_COEFFICIENT.unpack(body)[1:])
+    if kind == SET_REFERENCE and length == _TWO_FLOATS.size:
+        return ReferenceCommand(*_TWO_FLOATS.unpack(body)[1:])
+    if kind == SET_ANGLE_CALIBRATION and length == _TWO_FLOATS.size:
+        return AngleCalibrationCommand(*_TWO_FLOATS.unpack(body)[1:])
+    return None
 
 
 @dataclass
@@ -295,7 +536,7 @@ class DecoderCounters:
 
     bytes_received: int = 0
     messages: int = 0   #: valid messages of any type
-    samples: int = 0    #: valid SAMPLE messages
+    samples: int = 0    #: valid SAMPLE and CONTROL_SAMPLE messages
     corrupt: int = 0    #: chunks between delimiters that failed COBS, length, CRC or type checks
     oversize: int = 0   #: runs of non-zero bytes longer than any message (counted within `corrupt` too)
 
@@ -391,7 +632,13 @@ class FrameDecoder:
             elif self.accept_commands and kind in COMMAND_TYPES and length == 5:
                 append(CommandFrame(*_COMMAND_UNPACK(payload[:-2])))
             else:
-                corrupt += 1
+                message = _decode_v2(payload[:-2], self.accept_commands)
+                if message is None:
+                    corrupt += 1
+                else:
+                    append(message)
+                    if kind == CONTROL_SAMPLE:
+                        samples += 1
         counters.corrupt += corrupt
         counters.samples += samples
         counters.messages += len(out)

@@ -28,7 +28,6 @@ import numpy as np
 
 from aeropend_core.control.law import (
     ANTIWINDUP,
-    N_COEFFICIENTS,
     N_STATE,
     PidGains,
     law_step,

@@ -23,7 +23,19 @@
  * - Serial: USART0 (USB), 250000 baud 8N1 (exact at 16 MHz), interrupt driven. Frame format: aeropend_protocol.h
  *   and aeropend_core/rig/protocol.py.
  * - Watchdog: when no valid command arrives for watchdog_ms (default 500 ms), the duty is cut to zero until the
- *   next SET_DUTY. Maximum duty default 0.70 (the paper's cap: the rod stays below 90 degrees).
+ *   next SET_DUTY (closed loop: the next accepted SET_REFERENCE or SET_CONTROL_MODE 1). Maximum duty default 0.70
+ *   (the paper's cap: the rod stays below 90 degrees).
+ * - Closed loop (protocol version 2; open loop is the mode at boot): the controller law of aeropend_control.h (the
+ *   single-precision mirror of aeropend_core/control/law.py's law_step) runs in the main loop once per sample, on
+ *   the angle just sampled, (angle_counts - zero) * rad_per_count (SET_ANGLE_CALIBRATION; defaults 0 counts and
+ *   2 pi / 1024 rad/count). Its duty, clamped to the maximum duty, is handed to the overflow interrupt like a
+ *   SET_DUTY and applies from the next PWM period; the law (~1000 cycles of soft float) and the CONTROL_SAMPLE
+ *   frame take well under the 2.04 ms period. The 13 coefficients come from the host (SET_CONTROL_COEFFICIENT, the
+ *   layout of law.PidGains.coefficients at Ts = 2.04 ms); closed loop is refused until all 13 have been set since
+ *   boot. Every new command is answered by an ACK with a result code; non-finite values and inconsistent limits
+ *   are refused. Safety: an angle outside [ANGLE_MIN, ANGLE_MAX] -> duty 0, latched (FLAG_LAW_TRIPPED) until the
+ *   next accepted SET_REFERENCE or SET_CONTROL_MODE 1 (both restart the law: integral 0, derivative unprimed);
+ *   the watchdog as above; SET_DUTY switches back to open loop; SET_CONTROL_MODE 0 sets the duty to 0.
  *
  * Builds with the Arduino IDE / arduino-cli (board "Arduino Mega or Mega 2560") or with plain avr-gcc (Makefile).
  */
@@ -32,6 +44,7 @@
 #include <avr/sleep.h>
 #include <util/atomic.h>
 
+#include "aeropend_control.h"
 #include "aeropend_protocol.h"
 
 #ifndef F_CPU
@@ -116,6 +129,18 @@ static volatile uint32_t ready_sequence;
 static volatile uint16_t ready_adc[3];
 static volatile uint16_t ready_duty;
 static volatile uint8_t status_due = 1;
+
+/* ---- closed loop (main loop only: commands and the law both run there) ---- */
+static uint8_t control_mode = AP_MODE_OPEN_LOOP;
+/* Coefficients until the host sets them: zero gains inside the widest limits (closed loop is refused until every
+ * one has been set, law_set_mask == LAW_ALL_SET). */
+static float law_c[AP_N_COEFFICIENTS] = {0, 0, 0, 0, -1.0f, 1.0f, 0.0f, 1.0f, 0, 0, 0, -3.14159265f, 3.14159265f};
+static uint16_t law_set_mask;
+#define LAW_ALL_SET ((1U << AP_N_COEFFICIENTS) - 1)
+static float law_s[AP_N_STATE];
+static float law_reference, law_feedforward;
+static float angle_zero_counts = 0.0f;
+static float angle_rad_per_count = 6.28318531f / 1024.0f;
 
 /* ---- UART rings ---- */
 #define TX_SIZE 256 /* power of two; uint8_t indices wrap */
@@ -285,10 +310,60 @@ ISR(ADC_vect)
     sample_ready = 1;
 }
 
+static void law_reset(void)
+{
+    for (uint8_t i = 0; i < AP_N_STATE; i++)
+        law_s[i] = 0.0f;
+}
+
+/* Duty fraction -> q16, saturating (NaN -> 0). */
+static uint16_t duty_q16_of(float duty)
+{
+    if (!(duty > 0.0f))
+        return 0;
+    if (duty >= 1.0f)
+        return 65535U;
+    return (uint16_t)(duty * 65535.0f + 0.5f);
+}
+
+/* One step of the law on this sample's angle; its duty applies from the next PWM period. */
+static void control_step(uint16_t angle_counts)
+{
+    uint8_t halted;
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        halted = flags & AP_FLAG_WATCHDOG_TRIPPED;
+    }
+    if (halted)
+        return; /* the watchdog cut the motor: the law waits for SET_REFERENCE or SET_CONTROL_MODE 1 */
+    float angle = ((float)angle_counts - angle_zero_counts) * angle_rad_per_count;
+    float duty = ap_law_step(law_c, law_s, law_reference, law_feedforward, angle);
+    uint16_t wanted = duty_q16_of(duty);
+    uint16_t limit = max_duty_q16;
+    uint16_t q16 = wanted > limit ? limit : wanted;
+    struct pwm_setting setting = duty_setting(q16);
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        if (!(flags & AP_FLAG_WATCHDOG_TRIPPED)) { /* (it may have fired meanwhile) */
+            commanded_duty_q16 = q16;
+            store_setting(&setting);
+            if (wanted > limit)
+                flags |= AP_FLAG_DUTY_CLAMPED;
+            else
+                flags &= (uint8_t)~AP_FLAG_DUTY_CLAMPED;
+        }
+    }
+}
+
+static uint8_t mode_flags(void)
+{
+    if (control_mode != AP_MODE_CLOSED_LOOP)
+        return 0;
+    return AP_FLAG_CLOSED_LOOP | (law_s[AP_S_TRIPPED] != 0.0f ? AP_FLAG_LAW_TRIPPED : 0);
+}
+
 static void send_sample(void)
 {
-    uint8_t payload[AP_SAMPLE_PAYLOAD];
-    uint8_t wire[AP_SAMPLE_PAYLOAD + 5];
+    uint8_t payload[AP_CONTROL_SAMPLE_PAYLOAD];
+    uint8_t wire[AP_CONTROL_SAMPLE_PAYLOAD + 5];
     uint32_t seq;
     uint16_t adc0, adc1, adc2, duty;
     uint8_t f;
@@ -302,14 +377,23 @@ static void send_sample(void)
         flags = f & (uint8_t)~AP_FLAG_SAMPLES_DROPPED;
         sample_ready = 0;
     }
-    payload[0] = AP_MSG_SAMPLE;
+    uint8_t closed = control_mode == AP_MODE_CLOSED_LOOP;
+    if (closed)
+        control_step(adc1);
+    payload[0] = closed ? AP_MSG_CONTROL_SAMPLE : AP_MSG_SAMPLE;
     ap_put_u32(payload + 1, seq);
     ap_put_u16(payload + 5, adc0);
     ap_put_u16(payload + 7, adc1);
     ap_put_u16(payload + 9, adc2);
     ap_put_u16(payload + 11, duty);
-    payload[13] = f;
-    tx_push(wire, ap_frame(payload, AP_SAMPLE_PAYLOAD, wire));
+    payload[13] = f | mode_flags();
+    if (closed) {
+        ap_put_f32(payload + 14, law_reference);
+        ap_put_f32(payload + 18, law_feedforward);
+        ap_put_f32(payload + 22, law_s[AP_S_UNSATURATED]);
+        ap_put_f32(payload + 26, law_s[AP_S_INTEGRAL]);
+    }
+    tx_push(wire, ap_frame(payload, closed ? AP_CONTROL_SAMPLE_PAYLOAD : AP_SAMPLE_PAYLOAD, wire));
     if (seq % STATUS_EVERY_SAMPLES == STATUS_EVERY_SAMPLES - 1)
         status_due = 1;
 }
@@ -333,7 +417,7 @@ static void send_status(void)
     payload[0] = AP_MSG_STATUS;
     payload[1] = AP_PROTOCOL_VERSION;
     payload[2] = PWM_MODE;
-    payload[3] = f;
+    payload[3] = f | mode_flags();
     ap_put_u16(payload + 4, PWM_TOP);
     ap_put_u16(payload + 6, max_duty_q16);
     ap_put_u16(payload + 8, watchdog_ms);
@@ -354,6 +438,7 @@ static void handle_command(uint8_t kind, uint16_t value)
     ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
         switch (kind) {
         case AP_CMD_SET_DUTY:
+            control_mode = AP_MODE_OPEN_LOOP; /* SET_DUTY always wins: back to open loop */
             if (value > limit)
                 flags |= AP_FLAG_DUTY_CLAMPED;
             else
@@ -391,6 +476,148 @@ static void handle_command(uint8_t kind, uint16_t value)
     }
 }
 
+/* ---- the closed loop's commands, each answered by an ACK ---- */
+static void send_ack(uint8_t command, uint8_t index, uint8_t result, float value)
+{
+    uint8_t payload[AP_ACK_PAYLOAD];
+    uint8_t wire[AP_ACK_PAYLOAD + 5];
+    payload[0] = AP_MSG_ACK;
+    payload[1] = command;
+    payload[2] = index;
+    payload[3] = result;
+    ap_put_f32(payload + 4, value);
+    tx_push(wire, ap_frame(payload, AP_ACK_PAYLOAD, wire));
+}
+
+/* Whether `v` may become coefficient `index`, given the others as stored. */
+static uint8_t coefficient_result(uint8_t index, float v)
+{
+    if (index >= AP_N_COEFFICIENTS)
+        return AP_ACK_UNKNOWN_INDEX;
+    if (!ap_f32_finite(v))
+        return AP_ACK_OUT_OF_RANGE;
+    uint8_t ok;
+    switch (index) {
+    case AP_C_P:
+    case AP_C_I_TS:
+    case AP_C_D_GAIN:
+    case AP_C_AW_GAIN:
+        ok = v >= 0.0f;
+        break;
+    case AP_C_D_POLE:
+        ok = v >= 0.0f && v < 1.0f;
+        break;
+    case AP_C_I_MIN:
+        ok = v <= law_c[AP_C_I_MAX];
+        break;
+    case AP_C_I_MAX:
+        ok = v >= law_c[AP_C_I_MIN];
+        break;
+    case AP_C_U_MIN:
+        ok = v >= 0.0f && v <= law_c[AP_C_U_MAX];
+        break;
+    case AP_C_U_MAX:
+        ok = v >= law_c[AP_C_U_MIN] && v <= 1.0f;
+        break;
+    case AP_C_AW_CODE:
+        ok = v == 0.0f || v == 1.0f || v == 2.0f;
+        break;
+    case AP_C_ANGLE_MIN:
+        ok = v < law_c[AP_C_ANGLE_MAX];
+        break;
+    case AP_C_ANGLE_MAX:
+        ok = v > law_c[AP_C_ANGLE_MIN];
+        break;
+    default: /* FF_GAIN: any finite weight */
+        ok = 1;
+    }
+    return ok ? AP_ACK_OK : AP_ACK_OUT_OF_RANGE;
+}
+
+/* Restart the law (integral 0, derivative unprimed, trip cleared) and lift a watchdog cut, in closed loop. */
+static void law_restart(void)
+{
+    law_reset();
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+        flags &= (uint8_t)~(AP_FLAG_WATCHDOG_TRIPPED | AP_FLAG_DUTY_CLAMPED);
+    }
+}
+
+static void handle_control_command(const uint8_t *payload)
+{
+    uint8_t kind = payload[0];
+    uint8_t index = 0, result = AP_ACK_OK;
+    float value = 0.0f;
+    if (kind == AP_CMD_SET_CONTROL_COEFFICIENT) {
+        index = payload[1];
+        float v = ap_get_f32(payload + 2);
+        result = coefficient_result(index, v);
+        if (result == AP_ACK_OK) {
+            law_c[index] = v;
+            law_set_mask |= (uint16_t)(1U << index);
+            /* new integral limits hold from now on (as PidController.set_gains) */
+            if (law_s[AP_S_INTEGRAL] > law_c[AP_C_I_MAX])
+                law_s[AP_S_INTEGRAL] = law_c[AP_C_I_MAX];
+            if (law_s[AP_S_INTEGRAL] < law_c[AP_C_I_MIN])
+                law_s[AP_S_INTEGRAL] = law_c[AP_C_I_MIN];
+        }
+        if (result != AP_ACK_UNKNOWN_INDEX)
+            value = law_c[index];
+    } else if (kind == AP_CMD_SET_REFERENCE) {
+        float reference = ap_get_f32(payload + 1), feedforward = ap_get_f32(payload + 5);
+        if (!ap_f32_finite(reference) || !ap_f32_finite(feedforward) || feedforward < 0.0f || feedforward > 1.0f
+            || reference < law_c[AP_C_ANGLE_MIN] || reference > law_c[AP_C_ANGLE_MAX]) {
+            result = AP_ACK_OUT_OF_RANGE;
+        } else {
+            uint8_t halted;
+            ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+                halted = flags & AP_FLAG_WATCHDOG_TRIPPED;
+            }
+            law_reference = reference;
+            law_feedforward = feedforward;
+            if (control_mode == AP_MODE_CLOSED_LOOP && (halted || law_s[AP_S_TRIPPED] != 0.0f))
+                law_restart();
+        }
+        value = law_reference;
+    } else if (kind == AP_CMD_SET_CONTROL_MODE) {
+        uint16_t mode = (uint16_t)payload[1] | ((uint16_t)payload[2] << 8);
+        if (mode == AP_MODE_OPEN_LOOP) {
+            struct pwm_setting setting = duty_setting(0);
+            control_mode = AP_MODE_OPEN_LOOP;
+            ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+                commanded_duty_q16 = 0;
+                store_setting(&setting);
+            }
+        } else if (mode != AP_MODE_CLOSED_LOOP) {
+            result = AP_ACK_OUT_OF_RANGE;
+        } else if (law_set_mask != LAW_ALL_SET) {
+            result = AP_ACK_REFUSED;
+        } else {
+            law_restart();
+            control_mode = AP_MODE_CLOSED_LOOP;
+        }
+        value = (float)control_mode;
+    } else { /* AP_CMD_SET_ANGLE_CALIBRATION */
+        float zero = ap_get_f32(payload + 1), scale = ap_get_f32(payload + 5);
+        if (!ap_f32_finite(zero) || !ap_f32_finite(scale) || scale == 0.0f) {
+            result = AP_ACK_OUT_OF_RANGE;
+        } else if (control_mode == AP_MODE_CLOSED_LOOP) {
+            result = AP_ACK_REFUSED; /* the angle would jump under the running law */
+        } else {
+            angle_zero_counts = zero;
+            angle_rad_per_count = scale;
+        }
+        value = angle_zero_counts;
+    }
+    if (result == AP_ACK_OK) {
+        uint16_t ticks = watchdog_ticks(watchdog_ms);
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+            watchdog_ticks_left = ticks; /* an accepted command feeds the watchdog */
+        }
+    }
+    send_ack(kind, index, result, value);
+}
+
 static uint8_t command_buffer[AP_MAX_WIRE];
 static uint8_t command_length;
 static uint8_t command_overflow;
@@ -410,16 +637,28 @@ static void receive_byte(uint8_t byte)
     int16_t n = command_overflow ? -1 : ap_cobs_decode(command_buffer, command_length);
     command_length = 0;
     command_overflow = 0;
-    if (n != AP_COMMAND_PAYLOAD + 2) {
-        rx_bad_frames++;
+    uint8_t kind = n > 0 ? command_buffer[0] : 0;
+    int16_t expected = kind == AP_CMD_SET_CONTROL_COEFFICIENT ? AP_COEFFICIENT_PAYLOAD
+        : (kind == AP_CMD_SET_REFERENCE || kind == AP_CMD_SET_ANGLE_CALIBRATION) ? AP_TWO_FLOAT_PAYLOAD
+        : AP_COMMAND_PAYLOAD;
+    if (n != expected + 2) {
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+            rx_bad_frames++;
+        }
         return;
     }
-    uint16_t crc = (uint16_t)command_buffer[3] | ((uint16_t)command_buffer[4] << 8);
-    if (ap_crc16(command_buffer, AP_COMMAND_PAYLOAD) != crc) {
-        rx_bad_frames++;
+    uint16_t crc = (uint16_t)command_buffer[expected] | ((uint16_t)command_buffer[expected + 1] << 8);
+    if (ap_crc16(command_buffer, (uint8_t)expected) != crc) {
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
+            rx_bad_frames++;
+        }
         return;
     }
-    handle_command(command_buffer[0], (uint16_t)command_buffer[1] | ((uint16_t)command_buffer[2] << 8));
+    if (kind == AP_CMD_SET_CONTROL_COEFFICIENT || kind == AP_CMD_SET_REFERENCE || kind == AP_CMD_SET_CONTROL_MODE
+        || kind == AP_CMD_SET_ANGLE_CALIBRATION)
+        handle_control_command(command_buffer);
+    else
+        handle_command(kind, (uint16_t)command_buffer[1] | ((uint16_t)command_buffer[2] << 8));
 }
 
 void setup(void)

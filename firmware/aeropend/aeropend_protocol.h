@@ -11,7 +11,7 @@
 
 #include <stdint.h>
 
-#define AP_PROTOCOL_VERSION 1
+#define AP_PROTOCOL_VERSION 2
 
 /* Message types. */
 #define AP_MSG_SAMPLE 0x01          /* device -> host, 14-byte payload */
@@ -20,12 +20,31 @@
 #define AP_CMD_SET_MAX_DUTY 0x11    /* host -> device: u16 max duty fraction * 65535 */
 #define AP_CMD_SET_WATCHDOG 0x12    /* host -> device: u16 timeout in ms (10..60000) */
 #define AP_CMD_REQUEST_STATUS 0x13  /* host -> device: u16 ignored */
+/* Version 2: the closed loop (aeropend_control.h). The four commands below are each answered by an ACK. */
+#define AP_MSG_ACK 0x03                 /* device -> host: u8 command, u8 index, u8 result, f32 value (8 bytes) */
+#define AP_MSG_CONTROL_SAMPLE 0x04      /* device -> host: SAMPLE's fields + f32 reference, feedforward,
+                                           unsaturated, integral (30 bytes), every sample in closed loop */
+#define AP_CMD_SET_CONTROL_COEFFICIENT 0x14 /* host -> device: u8 index 0..12, f32 value (6 bytes) */
+#define AP_CMD_SET_REFERENCE 0x15           /* host -> device: f32 reference rad, f32 feedforward duty (9 bytes) */
+#define AP_CMD_SET_CONTROL_MODE 0x16        /* host -> device: u16 0 open loop, 1 closed loop (3 bytes) */
+#define AP_CMD_SET_ANGLE_CALIBRATION 0x17   /* host -> device: f32 zero counts, f32 rad per count (9 bytes) */
+
+/* result of ACK */
+#define AP_ACK_OK 0
+#define AP_ACK_OUT_OF_RANGE 1
+#define AP_ACK_UNKNOWN_INDEX 2
+#define AP_ACK_REFUSED 3
+
+#define AP_MODE_OPEN_LOOP 0
+#define AP_MODE_CLOSED_LOOP 1
 
 /* flags byte of SAMPLE and STATUS. */
 #define AP_FLAG_WATCHDOG_TRIPPED 0x01
 #define AP_FLAG_DUTY_CLAMPED 0x02
 #define AP_FLAG_SAMPLES_DROPPED 0x04
 #define AP_FLAG_BOOT 0x08
+#define AP_FLAG_LAW_TRIPPED 0x10 /* closed loop: angle outside [ANGLE_MIN, ANGLE_MAX], duty 0, latched */
+#define AP_FLAG_CLOSED_LOOP 0x20
 
 /* pwm_mode of STATUS. */
 #define AP_PWM_PHASE_CORRECT 0
@@ -33,9 +52,16 @@
 
 #define AP_SAMPLE_PAYLOAD 14
 #define AP_STATUS_PAYLOAD 18
+#define AP_ACK_PAYLOAD 8
+#define AP_CONTROL_SAMPLE_PAYLOAD 30
 #define AP_COMMAND_PAYLOAD 3
+#define AP_COEFFICIENT_PAYLOAD 6
+#define AP_TWO_FLOAT_PAYLOAD 9
+#define AP_MAX_PAYLOAD AP_CONTROL_SAMPLE_PAYLOAD
 /* Largest encoded message: payload + CRC + COBS overhead + two delimiters. */
-#define AP_MAX_WIRE (AP_STATUS_PAYLOAD + 2 + 1 + 2)
+#define AP_MAX_WIRE (AP_MAX_PAYLOAD + 2 + 1 + 2)
+/* Largest encoded command between its delimiters: payload + CRC + COBS overhead. */
+#define AP_MAX_COMMAND_CHUNK (AP_TWO_FLOAT_PAYLOAD + 2 + 1)
 
 static inline uint16_t ap_crc16_update(uint16_t crc, uint8_t data)
 {
@@ -55,12 +81,12 @@ static inline uint16_t ap_crc16(const uint8_t *data, uint8_t length)
 }
 
 /*
- * Frame `payload` (length < 252) into `out`: 0x00, COBS(payload + CRC), 0x00. Returns the number of bytes
+ * Frame `payload` (length <= AP_MAX_PAYLOAD) into `out`: 0x00, COBS(payload + CRC), 0x00. Returns the number of bytes
  * written (length + 5). `out` must hold length + 5 bytes.
  */
 static inline uint8_t ap_frame(const uint8_t *payload, uint8_t length, uint8_t *out)
 {
-    uint8_t raw[AP_STATUS_PAYLOAD + 2];
+    uint8_t raw[AP_MAX_PAYLOAD + 2];
     uint16_t crc = ap_crc16(payload, length);
     for (uint8_t i = 0; i < length; i++)
         raw[i] = payload[i];
@@ -108,6 +134,27 @@ static inline void ap_put_u16(uint8_t *p, uint16_t v) { p[0] = (uint8_t)v; p[1] 
 static inline void ap_put_u32(uint8_t *p, uint32_t v)
 {
     p[0] = (uint8_t)v; p[1] = (uint8_t)(v >> 8); p[2] = (uint8_t)(v >> 16); p[3] = (uint8_t)(v >> 24);
+}
+
+/* float32 fields: both the AVR and the hosts are little-endian IEEE single. */
+static inline void ap_put_f32(uint8_t *p, float v)
+{
+    union { float f; uint32_t u; } bits;
+    bits.f = v;
+    ap_put_u32(p, bits.u);
+}
+static inline float ap_get_f32(const uint8_t *p)
+{
+    union { float f; uint32_t u; } bits;
+    bits.u = (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
+    return bits.f;
+}
+/* Not infinite, not NaN: the exponent is not all ones (no libm). */
+static inline uint8_t ap_f32_finite(float v)
+{
+    union { float f; uint32_t u; } bits;
+    bits.f = v;
+    return ((bits.u >> 23) & 0xFF) != 0xFF;
 }
 
 #endif /* AEROPEND_PROTOCOL_H */

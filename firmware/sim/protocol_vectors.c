@@ -34,7 +34,7 @@ int main(void)
     uint8_t data[256], out[300];
     while (fgets(line, sizeof(line), stdin)) {
         if (!strncmp(line, "frame ", 6)) {
-            int n = parse_hex(line + 6, data, AP_STATUS_PAYLOAD);
+            int n = parse_hex(line + 6, data, AP_MAX_PAYLOAD);
             print_hex(out, ap_frame(data, (uint8_t)n, out));
         } else if (!strncmp(line, "decode ", 7)) {
             int n = parse_hex(line + 7, data, 255);
