@@ -158,6 +158,15 @@ def test_avr_law_matches_python_in_simavr(build, vectors):
     host = subprocess.run([str(build / 'law_vectors')], input=data, capture_output=True, check=True,
                           timeout=60).stdout
     assert result.stdout == host
+    # What one step costs on the chip (Timer1 at the CPU clock around ap_law_step): far below the 2.04 ms period.
+    timed = law_vectors.LawVectors(v.coefficients, v.set_index[:2000], v.state[:2000], v.reference[:2000],
+                                   v.feedforward[:2000], v.angle[:2000])
+    result = subprocess.run([str(build / 'law_runner'), str(build / 'law_vectors_avr.elf')],
+                            input=law_vectors.encode_input(timed, timed=True), capture_output=True, check=True,
+                            timeout=120)
+    cycles = np.frombuffer(result.stdout, dtype='<u2')
+    print(f'ap_law_step on the AVR: median {np.median(cycles):.0f}, max {cycles.max()} cycles')
+    assert len(cycles) == 2000 and cycles.max() < 4000          # < 0.25 ms of the 32,640-cycle period
 
 
 def test_firmware_over_pty(build, tmp_path):

@@ -172,9 +172,11 @@ def tolerance(vectors: LawVectors, duty: np.ndarray) -> np.ndarray:
     return RELATIVE * magnitude + ABSOLUTE
 
 
-def encode_input(vectors: LawVectors) -> bytes:
-    """law_vectors.c's input: a 'C' record at each new coefficient set, a 'V' record per vector, then 'Q'."""
+def encode_input(vectors: LawVectors, timed: bool = False) -> bytes:
+    """law_vectors.c's input: a 'C' record at each new coefficient set, a 'V' record per vector (`timed`: 'T',
+    answered by the step's CPU cycles, u16), then 'Q'."""
     out = bytearray()
+    tag = b'T' if timed else b'V'
     current = -1
     coefficient = struct.Struct('<c13f')
     vector = struct.Struct('<c9f')
@@ -183,7 +185,7 @@ def encode_input(vectors: LawVectors) -> bytes:
         if index != current:
             out += coefficient.pack(b'C', *vectors.coefficients[index])
             current = index
-        out += vector.pack(b'V', *vectors.state[k], vectors.reference[k], vectors.feedforward[k],
+        out += vector.pack(tag, *vectors.state[k], vectors.reference[k], vectors.feedforward[k],
                            vectors.angle[k])
     out += b'Q'
     return bytes(out)

@@ -29,8 +29,9 @@
  *   single-precision mirror of aeropend_core/control/law.py's law_step) runs in the main loop once per sample, on
  *   the angle just sampled, (angle_counts - zero) * rad_per_count (SET_ANGLE_CALIBRATION; defaults 0 counts and
  *   2 pi / 1024 rad/count). Its duty, clamped to the maximum duty, is handed to the overflow interrupt like a
- *   SET_DUTY and applies from the next PWM period; the law (~1000 cycles of soft float) and the CONTROL_SAMPLE
- *   frame take well under the 2.04 ms period. The 13 coefficients come from the host (SET_CONTROL_COEFFICIENT, the
+ *   SET_DUTY and applies from the next PWM period; the law (at most ~3,200 cycles of soft float, 0.2 ms, measured
+ *   in simavr), the duty's PWM setting (~70 us) and the CONTROL_SAMPLE frame take well under the 2.04 ms period, so
+ *   it runs in the main loop with interrupts enabled, never in an interrupt. The 13 coefficients come from the host (SET_CONTROL_COEFFICIENT, the
  *   layout of law.PidGains.coefficients at Ts = 2.04 ms); closed loop is refused until all 13 have been set since
  *   boot. Every new command is answered by an ACK with a result code; non-finite values and inconsistent limits
  *   are refused. Safety: an angle outside [ANGLE_MIN, ANGLE_MAX] -> duty 0, latched (FLAG_LAW_TRIPPED) until the

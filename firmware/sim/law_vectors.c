@@ -10,6 +10,8 @@
  *                         one law step; answers 7 f32 (duty, the 6 state elements after the step) + u8 branches
  *                         (bit 0 tripped, 1 unsaturated > u_max, 2 unsaturated < u_min, 3 conditional integration
  *                         held the integral)
+ *   'T' + the same 9 f32  the same step, timed: answers u16 CPU cycles of the ap_law_step call (AVR: Timer1 at the
+ *                         CPU clock; host: 0)
  *   'Q'                   end (the AVR build stops: cli + sleep, which ends simavr)
  */
 #include <stdint.h>
@@ -41,6 +43,19 @@ static void io_put(uint8_t byte)
         ;
     UDR0 = byte;
 }
+static void timer_start(void)
+{
+    TCCR1A = 0;
+    TCCR1B = 0;
+    TCNT1 = 0;
+    TCCR1B = _BV(CS10); /* clk / 1 */
+}
+static uint16_t timer_stop(void)
+{
+    uint16_t t = TCNT1;
+    TCCR1B = 0;
+    return t;
+}
 static void io_end(void)
 {
     while (!(UCSR0A & _BV(TXC0)) && !(UCSR0A & _BV(UDRE0)))
@@ -55,6 +70,8 @@ static void io_init(void) {}
 static int io_get(void) { return getchar(); }
 static void io_put(uint8_t byte) { putchar(byte); }
 static void io_end(void) { fflush(stdout); }
+static void timer_start(void) {}
+static uint16_t timer_stop(void) { return 0; }
 #endif
 
 static void get_floats(float *out, uint8_t count)
@@ -109,6 +126,15 @@ int main(void)
             }
             put_floats(out, 7);
             io_put(branches);
+        } else if (kind == 'T') {
+            get_floats(s, AP_N_STATE);
+            get_floats(inputs, 3);
+            timer_start();
+            volatile float duty = ap_law_step(c, s, inputs[0], inputs[1], inputs[2]);
+            uint16_t cycles = timer_stop();
+            (void)duty;
+            io_put((uint8_t)cycles);
+            io_put((uint8_t)(cycles >> 8));
         } else {
             break; /* 'Q' or the end of the input */
         }
