@@ -40,8 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help='operating angle, e.g. 40deg (default 40deg); design steps go 10 deg either side')
     design.add_argument('--reference', metavar='STEPS.yaml', default=None,
                         help='design on this schedule of steps instead (aeropend run --reference format)')
-    design.add_argument('--psnr', type=float, default=50.0, metavar='DB',
-                        help='angle noise of the prediction [dB PSNR] (default 50)')
+    design.add_argument('--psnr', type=float, default=None, metavar='DB',
+                        help='angle noise the loop must live with [dB PSNR on 90 deg] (default: the noise the '
+                             '--model diagnosis measured, else 50)')
     design.add_argument('-o', '--output', default='gains.yaml', help='controller file to write (default gains.yaml)')
     design.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE',
                         help='the design as JSON (to FILE, or standard output)')
@@ -72,7 +73,7 @@ def _write_json(target: str | None, data: dict) -> None:
 def _design(args) -> int:
     from aeropend_core.control.metrics import Template
     template = Template.parse(args.template)
-    if not 0 < args.psnr <= 200:
+    if args.psnr is not None and not 0 < args.psnr <= 200:
         raise AeropendError(f'--psnr must be in (0, 200] dB, got {args.psnr}')
     from aeropend_core.cli._checks import check_json_target
     from aeropend_core.io.paths import output_target
@@ -90,9 +91,10 @@ def _design(args) -> int:
         schedule = ReferenceSchedule.from_mapping(load_yaml(args.reference, 'reference schedule'), args.reference)
     for doubt in model.doubts:
         print(f'aeropend control design: warning: {doubt}', file=sys.stderr)
+    psnr = args.psnr if args.psnr is not None else model.psnr_db
     try:
         result = design(template, args.at, model.parameters, model.effects, schedule,
-                        MeasurementNoise(psnr_db=args.psnr, quantise=True))
+                        MeasurementNoise(psnr_db=psnr, quantise=True))
     except TemplateNotMet as refusal:
         _print_design(refusal.design, model, predicted_only=True)
         raise

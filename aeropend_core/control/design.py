@@ -21,7 +21,7 @@ import numba
 import numpy as np
 from scipy.optimize import minimize
 
-from aeropend_core.control.law import PidGains, law_step, new_state
+from aeropend_core.control.law import PidGains, law_step
 from aeropend_core.control.linear import Linearisation, linearise
 from aeropend_core.control.loop import ClosedLoopRecord, FeedforwardMap, simulate_loop
 from aeropend_core.control.metrics import StepMetrics, Template, schedule_metrics
@@ -100,10 +100,31 @@ def _plant(lin: Linearisation, sample_time: float):
     return (np.ascontiguousarray(discrete.A), np.ascontiguousarray(discrete.B), np.ascontiguousarray(discrete.C))
 
 
-def _linear_cost(log_gains, plants, base: PidGains, template: Template, margin: float, steps, sample_time):
+#: Duty error of the feedforward the linear search makes the integral remove within the hold [fraction].
+FEEDFORWARD_ERROR = 0.03
+#: Largest standard deviation of the duty that the angle's noise may cause through the law (fraction of full duty).
+DUTY_NOISE_LIMIT = 0.03
+
+
+def duty_noise(gains: PidGains, angle_sigma: float, sample_time: float = SAMPLE_TIME) -> float:
+    """Standard deviation of the duty [fraction] caused by white angle noise of `angle_sigma` [rad] through the
+    law's proportional and filtered-derivative terms (the derivative of differenced white noise through the
+    first-order filter a: variance b^2 sigma^2 2 / (1 + a))."""
+    a = gains.derivative_filter_time / (gains.derivative_filter_time + sample_time)
+    b = gains.d / (gains.derivative_filter_time + sample_time)
+    return float(angle_sigma * math.sqrt(gains.p ** 2 + b * b * 2.0 / (1.0 + a)))
+
+
+def _gains(log_gains, base: PidGains) -> PidGains:
+    p, i, d, filter_time = np.exp(log_gains)
+    return base.replace(p=float(p), i=float(i), d=float(d),
+                        derivative_filter_time=float(min(max(filter_time, 1e-3), 0.3)))
+
+
+def _linear_cost(log_gains, plants, base: PidGains, template: Template, margin: float, steps, sample_time,
+                 angle_sigma):
     from aeropend_core.control.metrics import step_metrics
-    p, i, d = np.exp(log_gains)
-    gains = base.replace(p=float(p), i=float(i), d=float(d))
+    gains = _gains(log_gains, base)
     coefficients = gains.coefficients(sample_time)
     n = int(round(4.0 / sample_time))
     time = np.arange(n) * sample_time
@@ -113,7 +134,8 @@ def _linear_cost(log_gains, plants, base: PidGains, template: Template, margin: 
     for lin, (ad, bd, cd) in plants:
         for size in steps:
             reference = np.full(n, lin.angle + size)
-            feedforward = np.full(n, lin.duty + size / lin.dc_gain)
+            # The feedforward off by FEEDFORWARD_ERROR of duty: the integral must remove what a model misses.
+            feedforward = np.full(n, lin.duty + size / lin.dc_gain - FEEDFORWARD_ERROR)
             _linear_loop(ad, bd, cd, coefficients, reference, feedforward, lin.duty, lin.angle, duty, angle)
             if not np.all(np.isfinite(angle)) or np.max(np.abs(angle - lin.angle)) > 10 * abs(size):
                 return 1e6
@@ -126,8 +148,8 @@ def _linear_cost(log_gains, plants, base: PidGains, template: Template, margin: 
                 if bound is not None:
                     excess = metrics.value(item) / (margin * bound if item != 'duty' else bound) - 1.0
                     cost += 20.0 * max(0.0, excess) ** 2
-            # Duty chatter in the tail (noise amplification by the derivative) kept small.
-            cost += 0.2 * float(np.std(np.diff(duty[n // 2:]))) / max(abs(size) / lin.dc_gain, 1e-6)
+    # The angle's noise through P and the filtered D: a chattering duty clips at the limits and biases the loop.
+    cost += 20.0 * max(0.0, duty_noise(gains, angle_sigma, sample_time) / DUTY_NOISE_LIMIT - 1.0) ** 2
     return cost
 
 
@@ -156,7 +178,8 @@ def design(template: Template, angle: float, parameters: RigParameters = DEFAULT
         plants.append((point, _plant(point, sample_time)))
     # Start: a loop gain of ~2 at DC on the proportional part; Ti ~ 0.5 s, Td ~ 0.05 s.
     p0 = 2.0 / lin.dc_gain
-    start = np.log([p0, p0 / 0.5, p0 * 0.05])
+    start = np.log([p0, p0 / 0.5, p0 * 0.05, DERIVATIVE_FILTER_TIME])
+    angle_sigma = _angle_sigma(noise)
     sizes = sorted({round(after - before, 6) for _s, _e, before, after in schedule.step_times()}, key=abs)
     step = min(abs(sizes[-1]), math.radians(20))
     steps = [step, -step]
@@ -164,25 +187,36 @@ def design(template: Template, angle: float, parameters: RigParameters = DEFAULT
     reference = schedule.reference(None, sample_time)
     best: Design | None = None
     margin = LINEAR_MARGIN
+    starts = [start, start + np.log([0.5, 0.25, 0.5, 2.0])]      # a brisk and a gentle start
     for _round in range(ROUNDS):
-        result = minimize(_linear_cost, start, args=(plants, base, template, margin, steps, sample_time),
-                          method='Nelder-Mead', options={'xatol': 0.02, 'fatol': 1e-3, 'maxfev': 260})
-        p, i, d = np.exp(result.x)
-        gains = base.replace(p=float(p), i=float(i), d=float(d))
-        predicted = simulate_loop(gains, reference, feedforward, parameters, effects, noise, seed,
-                                  sample_time=sample_time, duty_limit=duty_cap)
-        metrics = schedule_metrics(predicted.time, predicted.angle, predicted.duty, schedule)
-        gm, pm = margins(gains, lin, sample_time)
-        candidate = Design(gains, template, schedule, lin, predicted, metrics, gm, pm,
-                           [f'{name} left out of the linear search: {why}' for name, why in lin.left_out.items()])
-        if best is None or _badness(candidate) < _badness(best):
-            best = candidate
-        if not candidate.misses():
-            return candidate
+        for index, begin in enumerate(starts):
+            result = minimize(_linear_cost, begin,
+                              args=(plants, base, template, margin, steps, sample_time, angle_sigma),
+                              method='Nelder-Mead', options={'xatol': 0.02, 'fatol': 1e-3, 'maxfev': 260})
+            gains = _gains(result.x, base)
+            predicted = simulate_loop(gains, reference, feedforward, parameters, effects, noise, seed,
+                                      sample_time=sample_time, duty_limit=duty_cap)
+            metrics = schedule_metrics(predicted.time, predicted.angle, predicted.duty, schedule)
+            gm, pm = margins(gains, lin, sample_time)
+            candidate = Design(gains, template, schedule, lin, predicted, metrics, gm, pm,
+                               [f'{name} left out of the linear search: {why}' for name, why in lin.left_out.items()])
+            if best is None or _badness(candidate) < _badness(best):
+                best = candidate
+            if not candidate.misses():
+                return candidate
+            starts[index] = result.x
         margin *= 0.75
-        start = result.x
     misses = best.misses()
     raise TemplateNotMet(best, misses)
+
+
+def _angle_sigma(noise: MeasurementNoise | None) -> float:
+    """The angle noise [rad] the design must live with: the PSNR's sigma on the stream's full scale and the 10-bit
+    count's rounding (count / sqrt(12))."""
+    from aeropend_core.sim.noise import ANGLE_LSB, FULL_SCALE, sigma_for_psnr
+    sigma = sigma_for_psnr(FULL_SCALE['angle'], noise.psnr_db) if noise and noise.psnr_db else 0.0
+    rounding = ANGLE_LSB / math.sqrt(12.0) if noise and noise.quantise else 0.0
+    return math.hypot(sigma, rounding)
 
 
 def _badness(candidate: Design) -> float:

@@ -24,6 +24,8 @@ class ModelSource:
     effects: dict = field(default_factory=dict)
     source: str = 'nominal'
     doubts: tuple[str, ...] = ()
+    #: angle noise of the source record as a PSNR on the 90 deg full scale [dB] (50, the simulator's, if unknown)
+    psnr_db: float = 50.0
 
 
 def load_model(path: str | os.PathLike | None) -> ModelSource:
@@ -77,7 +79,11 @@ def model_from_dict(data, source: str) -> ModelSource:
         doubts.append(f'parameter {warning} failed a physical check in the diagnosis')
     if data.get('warnings'):
         doubts.append(f'the diagnosed record had {len(data["warnings"])} data warning(s)')
-    return ModelSource(parameters, effects, source, tuple(doubts))
+    psnr = 50.0
+    if _number(data.get('noise_rms')) and data['noise_rms'] > 0:
+        import math
+        psnr = min(80.0, 20.0 * math.log10((math.pi / 2) / float(data['noise_rms'])))
+    return ModelSource(parameters, effects, source, tuple(doubts), psnr)
 
 
 def _number(value) -> bool:

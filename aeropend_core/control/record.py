@@ -155,9 +155,16 @@ def load_closed_loop(path: str | os.PathLike) -> ClosedLoopData:
     """
     import warnings
 
-    from aeropend_core.io.bag import bag_topics, read_messages, read_samples
+    from aeropend_core.io.bag import bag_files, bag_topics, read_messages, read_samples
     path = Path(path)
-    topics = bag_topics(path)
+    info = _bag_information(path)
+    listed = [path / Path(name).name for name in info.get('relative_file_paths') or []]
+    # one file (the usual bag): read it directly, so that the bag readers do not parse metadata.yaml again each
+    files = listed if listed and all(file.is_file() for file in listed) else bag_files(path)
+    target = files[0] if len(files) == 1 else path
+    topics = {str(entry['topic_metadata']['name']): str(entry['topic_metadata']['type'])
+              for entry in info.get('topics_with_message_count') or []
+              if isinstance(entry, dict) and isinstance(entry.get('topic_metadata'), dict)} or bag_topics(target)
     control_topic = _one_topic(topics, CONTROL_TOPIC, path)
     if control_topic is None:
         raise AeropendError(f'{path} holds no closed loop: no {CONTROL_TOPIC} messages (it holds '
@@ -169,14 +176,14 @@ def load_closed_loop(path: str | os.PathLike) -> ClosedLoopData:
     control_datas, config_texts = [], []
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')           # read_samples below says what a damaged bag lost, once
-        for message in read_messages(path, wanted, on_incomplete='ignore'):
+        for message in read_messages(target, wanted, on_incomplete='ignore'):
             if message.topic == control_topic:
                 control_datas.append(message.data)
             else:
                 config_texts.append(message.data)
     if not control_datas:
         raise AeropendError(f'{path} holds no closed loop: {control_topic} has no message')
-    samples = read_samples(path, samples_topic)
+    samples = read_samples(target, samples_topic)
     control_stamps, control = _decode_joint_states(control_datas, CONTROL_NAMES, f'{control_topic} in {path}')
     control_sequence = control[:, CONTROL_NAMES.index('sequence')].astype(np.int64)
     order = np.argsort(control_sequence, kind='stable')
@@ -191,7 +198,8 @@ def load_closed_loop(path: str | os.PathLike) -> ClosedLoopData:
         raise AeropendError(f'{path}: no sample matches a control message by sequence number (samples '
                             f'{sequence.min()}..{sequence.max()}, control {control_sequence.min()}..'
                             f'{control_sequence.max()}): not one closed loop')
-    metadata = _custom_data(path)
+    custom = info.get('custom_data') or {}
+    metadata = {str(key): str(value) for key, value in custom.items()} if isinstance(custom, dict) else {}
     configs = [_config(text) for text in config_texts]
     configs = [config for config in configs if config is not None]
     controller = _controller(metadata, configs, path)
@@ -228,21 +236,25 @@ def _one_topic(topics: dict[str, str], name: str, path: Path) -> str | None:
     return found[0] if found else None
 
 
-def _custom_data(path: Path) -> dict[str, str]:
-    """metadata.yaml's custom_data of a bag folder (or of the folder of a ``.mcap`` file); {} when there is none."""
+def _bag_information(path: Path) -> dict:
+    """metadata.yaml's ``rosbag2_bagfile_information`` of a bag folder (or of the folder of a ``.mcap`` file), read
+    once with libyaml when present (a big bag's metadata takes pure-Python YAML a tenth of a second); {} when there
+    is none or it is unreadable."""
     import yaml
 
-    from aeropend_core.io.inputs import load_yaml
+    from aeropend_core.io.inputs import YAML_MAX_BYTES, check_yaml_text, read_input_text
     folder = path if path.is_dir() else path.parent
     meta = folder / 'metadata.yaml'
     if not meta.is_file():
         return {}
+    loader = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
     try:
-        info = load_yaml(meta, 'metadata file')['rosbag2_bagfile_information']
-        data = info.get('custom_data') or {}
-    except (yaml.YAMLError, KeyError, TypeError, AttributeError, OSError, AeropendError):
+        text = read_input_text(meta, 'metadata file', YAML_MAX_BYTES)
+        check_yaml_text(text, f'metadata file {meta}')
+        info = yaml.load(text, Loader=loader)['rosbag2_bagfile_information']   # noqa: S506 - a safe loader
+    except (yaml.YAMLError, KeyError, TypeError, OSError, AeropendError):
         return {}
-    return {str(key): str(value) for key, value in data.items()} if isinstance(data, dict) else {}
+    return info if isinstance(info, dict) else {}
 
 
 def _config(data: bytes) -> dict | None:
