@@ -16,10 +16,30 @@ Parameters (see ``config/sim_node.yaml``): ``effects`` (string array ``NAME=VALU
 ``psnr_db`` (0 = no noise), ``quantise``, ``seed``, ``initial_angle`` [rad], ``duty_limit``, ``realtime_factor``,
 ``publish_period`` [s], ``max_block``, ``stop_after`` [s simulated, 0 = forever], ``wait_for_subscribers`` (start
 publishing once that many subscribers of the samples are matched; for fast batch runs with a recorder).
+
+Closed loop (``control_mode: closed_loop``; default ``open_loop`` is the behaviour above): the node runs the
+controller law (:class:`aeropend_core.control.law.PidController`) with the rig's timing
+(:class:`aeropend_core.control.loop.ClosedLoopSimulation`): the measured (noisy, quantised) angle of sample k goes
+to the law, whose duty is applied from sample k+1, capped by ``duty_limit``; duty commands are then ignored. Gains
+are parameters named as ros2_control's pid_controller (``p``, ``i``, ``d``, ``derivative_filter_time``,
+``i_clamp_min``/``max``, ``u_clamp_min``/``max``, ``antiwindup``, ``tracking_time_constant``,
+``feedforward_gain``, ``angle_min``/``max``), changeable at run time (checked together by
+:meth:`PidGains.problems`; a refused change says why and leaves every gain as it was). The reference comes from
+``aeropend/reference`` (``std_msgs/Float64MultiArray``, ``data = [reference_rad, feedforward_duty]``; without the
+feedforward the model's static duty) or from a schedule (``reference_file``, or :meth:`SimNode.play_schedule`)
+played from the next sample; while a schedule plays the topic is ignored, after it the last step is held. The
+feedforward model is that of ``controller_file`` (whose gains are then the defaults of the gain parameters), else
+the nominal model. Every sample has its telemetry on ``aeropend/control`` (``topics.CONTROL_NAMES``, the sample's
+stamp; the fields of :class:`aeropend_core.control.loop.ClosedLoopRecord`: ``duty`` is the duty applied during that
+sample, ``unsaturated``/``integral``/``tripped`` the law's state after answering its angle), and the configuration
+(gains, model, schedule, their sha256) on ``aeropend/controller`` (YAML, transient local). A measured angle outside
+[``angle_min``, ``angle_max``] trips the law: duty 0, latched, until ``control_mode`` is set again.
 """
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 from aeropend_ros._node_util import (  # first: prepares the ROS environment  # isort: skip
     ParameterError,
@@ -29,10 +49,13 @@ from aeropend_ros._node_util import (  # first: prepares the ROS environment  # 
     declare,
     run_node,
 )
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Float64MultiArray, String
 
+from aeropend_core.control.law import ANTIWINDUP, PidGains
 from aeropend_core.model.effects import parse_effect_assignments
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME
@@ -42,6 +65,29 @@ from aeropend_ros import topics
 
 #: Samples simulated and published at most per timer tick when catching up (keeps the executor responsive).
 CATCH_UP_LIMIT = 490
+#: Control modes: the duty command (today's behaviour), or the controller law on the measured angle.
+CONTROL_MODES = ('open_loop', 'closed_loop')
+#: The gain parameters (ros2_control pid_controller's names), in PidGains' order.
+GAIN_NAMES = tuple(PidGains.__dataclass_fields__)
+_GAIN_HELP = {
+    'p': 'proportional gain [duty/rad]', 'i': 'integral gain [duty/(rad s)]', 'd': 'derivative gain on the '
+    'measured angle [duty s/rad]', 'derivative_filter_time': 'Tf of the derivative filter [s] (0: plain difference)',
+    'i_clamp_min': 'lower limit of the integral term [duty]', 'i_clamp_max': 'upper limit of the integral term '
+    '[duty]', 'u_clamp_min': 'lowest duty the law outputs [fraction]', 'u_clamp_max': 'highest duty the law '
+    'outputs [fraction]', 'antiwindup': 'back_calculation, conditional_integration or none',
+    'tracking_time_constant': 'Tt of back-calculation [s] (0: sqrt(Ti Td))', 'feedforward_gain': 'weight of the '
+    "model's static feedforward duty [-]", 'angle_min': 'safety trip below this measured angle [rad]',
+    'angle_max': 'safety trip above this measured angle [rad]'}
+
+
+def reference_qos() -> QoSProfile:
+    """QoS of ``aeropend/reference``: reliable, keep last 10, volatile (as the duty command)."""
+    return topics.command_qos()
+
+
+def controller_config_qos() -> QoSProfile:
+    """QoS of ``aeropend/controller``: reliable, transient local, depth 1 (a late subscriber gets the last one)."""
+    return QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 class SimNode(Node):
@@ -86,6 +132,7 @@ class SimNode(Node):
         self.wait_for_subscribers = declare(self, 'wait_for_subscribers', 0, 'start publishing only when this '
                                             'many subscribers of the samples are matched (batch runs with a '
                                             'recorder)', read_only=True, low=0, high=100, integer=True)
+        self._declare_control()
         check_unknown_overrides(self)
         try:
             effects = parse_effect_assignments([text for text in effect_texts if text.strip()])
@@ -108,6 +155,7 @@ class SimNode(Node):
         else:
             self.duty_guard = None
             self.create_subscription(Float64, topics.DUTY_COMMAND, self._on_duty, topics.command_qos())
+        self._start_control()
         self.start_ns = self.get_clock().now().nanoseconds
         self.started = self.wait_for_subscribers == 0
         self.timer = self.create_timer(publish_period, self._on_timer)
@@ -120,6 +168,10 @@ class SimNode(Node):
     # ------------------------------------------------------------------------------------------------------------
     def _on_duty(self, msg: Float64) -> None:
         self.commanded_duty, _ = checked_duty(self, float(msg.data), 'duty_limit')
+        if self.closed_loop and not self._duty_ignored_said:
+            self._duty_ignored_said = True
+            self.get_logger().warning('closed loop: duty commands are ignored (the law sets the duty; '
+                                      'control_mode:=open_loop to command it)')
 
     def _on_guarded_duty(self, msg: Float64, msg_info) -> None:
         if self.duty_guard.accept(msg_info):
@@ -157,6 +209,9 @@ class SimNode(Node):
 
     def publish_block(self, count: int) -> None:
         """Simulate `count` samples at the commanded duty and publish them, stamped by their sample number."""
+        if self.closed_loop:
+            self._publish_closed_loop(count)
+            return
         duty = min(max(self.commanded_duty, 0.0), float(self.get_parameter('duty_limit').value))
         try:
             block = self.simulator.run([duty] * count)
@@ -173,6 +228,251 @@ class SimNode(Node):
                                    float(block.armature_current[k]), float(block.duty[k]), sequence)
             self.publisher.publish(topics.sample_to_msg(sample, msg))
         self.sequence += count
+
+    # -- closed loop ---------------------------------------------------------------------------------------------
+    def _declare_control(self) -> None:
+        """The closed loop's parameters; gains default to the controller file's (when given), else PidGains()."""
+        from aeropend_core.control.loop import FeedforwardMap
+        mode = declare(self, 'control_mode', 'open_loop', "'open_loop' (duty commands) or 'closed_loop' (the "
+                       'controller law on the measured angle); setting it again resets the law (and a trip)',
+                       choices=CONTROL_MODES)
+        controller_file = declare(self, 'controller_file', '', 'controller YAML (aeropend control design): its '
+                                  'gains are the defaults of the gain parameters, its model gives the feedforward; '
+                                  'empty: PidGains defaults, the nominal model', read_only=True)
+        reference_file = declare(self, 'reference_file', '', 'reference schedule YAML played in closed loop from '
+                                 'the first sample (steps: [{angle_deg: 20, hold: 5}, ...]); empty: the '
+                                 'aeropend/reference topic', read_only=True)
+        self.controller = None
+        if controller_file:
+            from aeropend_core.control.controller_file import Controller
+            try:
+                self.controller = Controller.load(controller_file)
+            except AeropendError as error:
+                raise ParameterError(f'{self.get_name()}: parameter controller_file: {error}') from None
+        defaults = (self.controller.gains if self.controller is not None else PidGains()).as_dict()
+        values = {}
+        for name in GAIN_NAMES:
+            default = defaults[name]
+            if name == 'antiwindup':
+                values[name] = declare(self, name, str(default), _GAIN_HELP[name], choices=tuple(ANTIWINDUP))
+            else:
+                values[name] = declare(self, name, float(default), _GAIN_HELP[name])
+        problems = _gain_problems(values)
+        if problems:
+            raise ParameterError(f'{self.get_name()}: controller gains: {"; ".join(problems)}; fix the -p values, '
+                                 'the params file or the controller file')
+        self.gains = PidGains(**values)
+        self.schedule = None
+        if reference_file:
+            from aeropend_core.control.record import read_schedule_file
+            try:
+                self.schedule = read_schedule_file(reference_file)
+            except AeropendError as error:
+                raise ParameterError(f'{self.get_name()}: parameter reference_file: {error}') from None
+        model = self.controller if self.controller is not None else None
+        self.feedforward_map = FeedforwardMap(model.parameters, model.effects) if model is not None else \
+            FeedforwardMap()
+        self.closed_loop = mode == 'closed_loop'
+        self._duty_ignored_said = False
+        self.add_on_set_parameters_callback(self._check_control_parameters)
+        self.add_post_set_parameters_callback(self._apply_control_parameters)
+
+    def _start_control(self) -> None:
+        """Publishers, the reference subscription and the law (called once the simulator exists)."""
+        from aeropend_core.control.loop import ClosedLoopSimulation
+        self.control_publisher = self.create_publisher(JointState, topics.CONTROL, topics.samples_qos())
+        self.config_publisher = self.create_publisher(String, topics.CONTROLLER_CONFIG, controller_config_qos())
+        self.create_subscription(Float64MultiArray, topics.REFERENCE, self._on_reference, reference_qos())
+        self.loop = ClosedLoopSimulation(self.gains, self.feedforward_map, sample_time=self.sample_time)
+        self.loop.simulator = self.simulator        # one simulated rig, whichever mode drives it
+        self.reference = 0.0                         # [rad], from the topic
+        self.topic_feedforward = None                # [duty] given with it; None: the model's
+        self.schedule_start = 0                      # sequence of the schedule's first sample
+        self._schedule_reference = np.empty(0)
+        self._schedule_feedforward = np.empty(0)
+        self.schedule_log: list = []                 # (first sequence, ClosedLoopRecord) while a schedule plays
+        self._trip_said = False
+        self._control_message = JointState()
+        self._control_message.header.frame_id = topics.SAMPLE_FRAME_ID
+        self._control_message.name = list(topics.CONTROL_NAMES)
+        if self.schedule is not None:
+            self.play_schedule(self.schedule)
+        if self.closed_loop:
+            self._enter_closed_loop()
+
+    def play_schedule(self, schedule) -> None:
+        """Play a :class:`~aeropend_core.control.reference.ReferenceSchedule` from the next sample (the first one
+        when publishing has not started); the topic's references are ignored while it plays."""
+        self.schedule = schedule
+        self.schedule_start = self.sequence
+        self._schedule_reference = schedule.reference(None, self.sample_time)
+        self._schedule_feedforward = np.array([self.feedforward_map(value) for value in self._schedule_reference])
+        self.schedule_log = []
+        self._publish_config()
+
+    @property
+    def schedule_samples(self) -> int:
+        """Length of the schedule being played [samples] (0: none)."""
+        return int(self._schedule_reference.size) if self.schedule is not None else 0
+
+    def schedule_done(self) -> bool:
+        """A schedule was given and every one of its samples is published."""
+        return self.schedule is not None and self.sequence - self.schedule_start >= self.schedule_samples
+
+    def _enter_closed_loop(self) -> None:
+        self.loop.controller.reset()
+        self.loop.next_duty = min(max(self.commanded_duty, 0.0), float(self.get_parameter('duty_limit').value))
+        self._trip_said = False
+        self.get_logger().info(f'closed loop: {self._reference_source()}, gains p {self.gains.p:g} i '
+                               f'{self.gains.i:g} d {self.gains.d:g}')
+        self._publish_config()
+
+    def _reference_source(self) -> str:
+        if self.schedule is not None:
+            return f'reference schedule of {self.schedule.duration:g} s ({len(self.schedule.steps)} steps)'
+        return f'reference from {self.resolve_topic_name(topics.REFERENCE)}'
+
+    def _on_reference(self, msg: Float64MultiArray) -> None:
+        data = list(msg.data)
+        if not data or not all(math.isfinite(value) for value in data[:2]):
+            self.get_logger().warning(f'reference {data!r} refused: data must be [reference_rad] or '
+                                      '[reference_rad, feedforward_duty], finite', throttle_duration_sec=2.0)
+            return
+        reference = float(data[0])
+        if not self.gains.angle_min <= reference <= self.gains.angle_max:
+            self.get_logger().warning(f'reference {reference:.3f} rad refused: outside the safety limits '
+                                      f'[{self.gains.angle_min:g}, {self.gains.angle_max:g}] rad',
+                                      throttle_duration_sec=2.0)
+            return
+        feedforward = float(data[1]) if len(data) > 1 else None
+        if feedforward is not None and not 0.0 <= feedforward <= 1.0:
+            self.get_logger().warning(f'feedforward {feedforward!r} refused: a duty fraction in [0, 1]',
+                                      throttle_duration_sec=2.0)
+            return
+        if feedforward is None:
+            try:
+                feedforward = self.feedforward_map(reference)
+            except AeropendError as error:
+                self.get_logger().warning(f'reference {reference:.3f} rad refused: {error}',
+                                          throttle_duration_sec=2.0)
+                return
+        self.reference, self.topic_feedforward = reference, feedforward
+
+    def _check_control_parameters(self, parameters) -> SetParametersResult:
+        """Gains are checked together (PidGains.problems); a refused change names why and changes nothing."""
+        changed = {p.name: p.value for p in parameters if p.name in GAIN_NAMES}
+        if not changed:
+            return SetParametersResult(successful=True)
+        values = {**self.gains.as_dict(), **changed}
+        problems = _gain_problems(values)
+        if problems:
+            return SetParametersResult(successful=False, reason=f'{self.get_name()}: controller gains refused: '
+                                       f'{"; ".join(problems)}; the gains are unchanged')
+        return SetParametersResult(successful=True)
+
+    def _apply_control_parameters(self, parameters) -> None:
+        """After a successful set: new gains from the next sample, or the new mode."""
+        names = {p.name for p in parameters}
+        if names & set(GAIN_NAMES):
+            self.gains = PidGains(**{name: self.get_parameter(name).value for name in GAIN_NAMES})
+            self.loop.controller.set_gains(self.gains)
+            self.get_logger().info('controller gains changed: ' + ', '.join(
+                f'{p.name} {p.value}' for p in parameters if p.name in GAIN_NAMES))
+            self._publish_config()
+        if 'control_mode' in names:
+            self.closed_loop = self.get_parameter('control_mode').value == 'closed_loop'
+            if self.closed_loop:
+                self._enter_closed_loop()
+            else:
+                self.commanded_duty = 0.0           # open loop again: duty 0 until commanded
+                self.get_logger().info('open loop: duty 0 until a duty command arrives')
+                self._publish_config()
+
+    def controller_config(self) -> dict:
+        """What ``aeropend/controller`` carries (as YAML): mode, gains, model, schedule, their sha256."""
+        import hashlib
+        import json
+
+        from aeropend_core.control.controller_file import Controller, model_hash
+        from aeropend_core.model.parameters import DEFAULT_PARAMETERS
+        gains = self.gains.as_dict()
+        controller = self.controller
+        model = {'source': controller.model_source, 'sha256': controller.model_sha256} if controller is not None \
+            else {'source': 'nominal', 'sha256': model_hash(DEFAULT_PARAMETERS, {})}
+        config = {'control_mode': 'closed_loop' if self.closed_loop else 'open_loop',
+                  'gains': gains,
+                  'gains_sha256': hashlib.sha256(json.dumps(gains, sort_keys=True).encode()).hexdigest(),
+                  'model': model,
+                  'controller_sha256': Controller(self.gains, controller.parameters, controller.effects).sha256
+                  if controller is not None else None,
+                  'duty_limit': float(self.get_parameter('duty_limit').value),
+                  'reference': 'schedule' if self.schedule is not None else topics.REFERENCE,
+                  'schedule': self.schedule.as_dict() if self.schedule is not None else None,
+                  'schedule_sha256': self.schedule.sha256 if self.schedule is not None else None,
+                  'schedule_start_sequence': self.schedule_start if self.schedule is not None else None,
+                  'applies_from_sequence': self.sequence}
+        return config
+
+    def _publish_config(self) -> None:
+        import yaml
+        if not hasattr(self, 'config_publisher'):
+            return
+        self.config_publisher.publish(String(data=yaml.safe_dump(self.controller_config(), sort_keys=False)))
+
+    def _publish_closed_loop(self, count: int) -> None:
+        """`count` samples under the law (the rig's timing: the angle of sample k sets the duty from k+1); each
+        sample and its control telemetry published with the same stamp."""
+        loop = self.loop
+        loop.duty_limit = float(self.get_parameter('duty_limit').value)
+        first = self.sequence
+        if self.schedule is not None:
+            index = np.minimum(np.arange(first, first + count) - self.schedule_start, self.schedule_samples - 1)
+            index = np.maximum(index, 0)
+            reference = self._schedule_reference[index]
+            loop.feedforward = self.feedforward_map      # cached per reference value (computed by play_schedule)
+        else:
+            reference = np.full(count, self.reference)
+            feedforward = self.topic_feedforward
+            loop.feedforward = self.feedforward_map if feedforward is None else (lambda _reference: feedforward)
+        try:
+            record = loop.advance(reference)
+        except (AeropendError, RuntimeError, ValueError) as error:
+            self.get_logger().error(f'simulation failed: {error}; stopping')
+            self.finished = True
+            self.timer.cancel()
+            return
+        if self.schedule is not None and first - self.schedule_start < self.schedule_samples:
+            self.schedule_log.append((first, record))
+        if loop.controller.tripped and not self._trip_said:
+            self._trip_said = True
+            where = int(np.argmax(record.tripped > 0))
+            self.get_logger().error(
+                f'safety trip: measured angle {record.angle[where]:.3f} rad outside [{self.gains.angle_min:g}, '
+                f'{self.gains.angle_max:g}] rad at sample {first + where}: duty 0 until control_mode is set again')
+        msg, control = self._message, self._control_message
+        angle, voltage, current = record.angle.tolist(), record.armature_voltage.tolist(), \
+            record.armature_current.tolist()
+        duty, unsaturated, integral, tripped = record.duty.tolist(), record.unsaturated.tolist(), \
+            record.integral.tolist(), record.tripped.tolist()
+        reference, feedforward = record.reference.tolist(), record.feedforward.tolist()
+        for k in range(count):
+            sequence = first + k
+            stamp_ns = self.start_ns + round(sequence * self.sample_time * 1e9)
+            sample = topics.Sample(stamp_ns, angle[k], voltage[k], current[k], duty[k], sequence)
+            self.publisher.publish(topics.sample_to_msg(sample, msg))
+            control.header.stamp = msg.header.stamp
+            control.position = [reference[k], feedforward[k], duty[k], unsaturated[k], integral[k], tripped[k],
+                                float(sequence)]
+            self.control_publisher.publish(control)
+        self.sequence += count
+
+
+def _gain_problems(values: dict) -> list[str]:
+    """What is wrong with a set of gain values (:meth:`PidGains.problems`), one sentence each."""
+    gains = object.__new__(PidGains)            # unchecked: problems() says what the constructor would refuse
+    for name, value in values.items():
+        object.__setattr__(gains, name, value)
+    return gains.problems()
 
 
 def main(args=None) -> int:

@@ -56,6 +56,13 @@ CONTROL_NAMES: tuple[str, ...] = ('reference', 'feedforward', 'duty', 'unsaturat
 CONTROLLER_CONFIG = 'aeropend/controller'
 CONTROLLER_CONFIG_TOPIC = '/' + CONTROLLER_CONFIG
 CONTROLLER_CONFIG_TYPE = 'std_msgs/msg/String'
+#: Topic of the closed loop's reference relative to the rig's namespace (std_msgs/msg/Float64MultiArray, reliable
+#: depth 10): ``data = [reference_rad, feedforward_duty]`` (the feedforward may be left out: the controller's model
+#: then gives it). A schedule played by the controller itself takes precedence while it plays.
+REFERENCE = 'aeropend/reference'
+REFERENCE_TOPIC = '/' + REFERENCE
+REFERENCE_TYPE = 'std_msgs/msg/Float64MultiArray'
+CONTROL_TYPE = 'sensor_msgs/msg/JointState'
 SAMPLES_TYPE = 'sensor_msgs/msg/JointState'
 DUTY_COMMAND_TYPE = 'std_msgs/msg/Float64'
 DIAGNOSTICS_TYPE = 'diagnostic_msgs/msg/DiagnosticArray'

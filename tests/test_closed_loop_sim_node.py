@@ -1,0 +1,203 @@
+"""The sim node in closed loop, a real process over DDS (private domain, local discovery): the law's timing on the
+measured angle, gains changed at run time, invalid gains refused with the reason, the latched angle trip.
+
+Every wait polls with ``wait_for`` (spinning the in-test node) instead of sleeping fixed times.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain, wait_for
+
+DOMAIN_ID = private_domain_id()
+use_domain(DOMAIN_ID)
+
+import rclpy  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Float64MultiArray, String  # noqa: E402
+
+from aeropend_ros import topics  # noqa: E402
+from aeropend_ros.sim_node import controller_config_qos, reference_qos  # noqa: E402
+
+pytestmark = pytest.mark.timeout(300)
+
+#: A node process's start (Python and numba imports, then discovery) on a loaded machine; waits end at once when
+#: their condition holds.
+START_TIMEOUT = 180.0
+WAIT = 60.0
+
+
+class Watcher:
+    """In-test node: samples and control telemetry by sequence number, the controller configurations; publishes
+    references and sets the sim's parameters."""
+
+    def __init__(self, context) -> None:
+        self.node = rclpy.create_node('closed_loop_watcher', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.samples: dict[int, topics.Sample] = {}
+        self.control: dict[int, tuple[int, list[float]]] = {}
+        self.configs: list[dict] = []
+        deep = QoSProfile(depth=2000, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.node.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, deep)
+        self.node.create_subscription(JointState, topics.CONTROL_TOPIC, self._on_control, deep)
+        self.node.create_subscription(String, topics.CONTROLLER_CONFIG_TOPIC,
+                                      lambda msg: self.configs.append(yaml.safe_load(msg.data)),
+                                      controller_config_qos())
+        self.reference = self.node.create_publisher(Float64MultiArray, topics.REFERENCE_TOPIC, reference_qos())
+        self.parameters = AsyncParameterClient(self.node, '/sim_node')
+
+    def _on_sample(self, msg) -> None:
+        sample = topics.msg_to_sample(msg)
+        self.samples[sample.sequence] = sample
+
+    def _on_control(self, msg) -> None:
+        assert list(msg.name) == list(topics.CONTROL_NAMES)
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.control[int(msg.position[-1])] = (stamp, list(msg.position))
+
+    def wait_for(self, condition, timeout: float = WAIT) -> bool:
+        return wait_for(condition, timeout, executor=self.executor)
+
+    def last(self) -> int:
+        return max(self.control) if self.control else -1
+
+    def set(self, **values):
+        """``ros2 param set`` for each value (one request): the SetParametersResult list."""
+        assert self.wait_for(self.parameters.services_are_ready, START_TIMEOUT), 'no parameter service /sim_node'
+        future = self.parameters.set_parameters([Parameter(name, value=value) for name, value in values.items()])
+        self.executor.spin_until_future_complete(future, timeout_sec=WAIT)
+        assert future.done(), 'set_parameters timed out'
+        return future.result().results
+
+    def get(self, name: str):
+        future = self.parameters.get_parameters([name])
+        self.executor.spin_until_future_complete(future, timeout_sec=WAIT)
+        assert future.done(), 'get_parameters timed out'
+        from rclpy.parameter import parameter_value_to_python
+        return parameter_value_to_python(future.result().values[0])
+
+    def hold(self, seconds: float) -> int:
+        """Until the sim has answered `seconds` [s] of samples more (its own clock); the last sequence then."""
+        target = self.last() + round(seconds * 490)
+        assert self.wait_for(lambda: self.last() >= target), 'the control telemetry stopped'
+        return self.last()
+
+
+@pytest.fixture(scope='module')
+def watcher():
+    with own_context(DOMAIN_ID) as context:
+        watcher = Watcher(context)
+        yield watcher
+        watcher.executor.shutdown()
+        watcher.node.destroy_node()
+
+
+@pytest.fixture(scope='module')
+def sim(watcher):
+    """A closed-loop sim at 2x real time with the rig's noise and quantisation, duty cap 0.7."""
+    with NodeProcess('aeropend_ros.sim_node', ['-p', 'control_mode:=closed_loop', '-p', 'realtime_factor:=2.0',
+                                               '-p', 'psnr_db:=50.0', '-p', 'duty_limit:=0.7'],
+                     DOMAIN_ID) as process:
+        assert watcher.wait_for(lambda: len(watcher.control) > 50 or process.process.poll() is not None,
+                                START_TIMEOUT) and len(watcher.control) > 50, process.output()
+        yield process
+
+
+def _tracking(watcher, reference: float):
+    watcher.reference.publish(Float64MultiArray(data=[reference]))
+    assert watcher.wait_for(lambda: watcher.control[watcher.last()][1][0] == reference), 'reference not taken'
+    end = watcher.hold(4.0)
+    angles = np.array([watcher.samples[k].angle for k in range(end - 490, end) if k in watcher.samples])
+    return angles
+
+
+def test_closed_loop_tracks_with_one_sample_of_latency(sim, watcher):
+    """The rod follows a reference from the topic; each sample's telemetry carries its stamp; the duty applied at
+    sample k+1 is the law's clamped answer to sample k (one sample of latency, the rig's timing)."""
+    angles = _tracking(watcher, 0.5)
+    assert angles.size > 200 and abs(np.mean(angles) - 0.5) < 0.03, np.mean(angles)
+    config = watcher.configs[-1]
+    assert config['control_mode'] == 'closed_loop' and config['gains']['p'] == 0.5 and len(config['gains_sha256']) == 64
+    both = sorted(set(watcher.samples) & set(watcher.control))
+    assert len(both) > 1000
+    names = topics.CONTROL_NAMES
+    checked = 0
+    for k in both:
+        stamp, values = watcher.control[k]
+        sample = watcher.samples[k]
+        assert stamp == sample.stamp_ns
+        assert values[names.index('duty')] == sample.duty          # the duty applied during the sample
+        if k + 1 in watcher.samples and k > both[0] + 10:
+            law = min(max(values[names.index('unsaturated')], 0.0), 0.8)      # u_clamp_min/max
+            assert watcher.samples[k + 1].duty == pytest.approx(min(law, 0.7), abs=1e-12)   # then duty_limit
+            checked += 1
+    assert checked > 1000
+
+
+def test_gains_changed_at_run_time_take_effect(sim, watcher):
+    """u_clamp_max 0.2 at run time: from the sample after the change on (that one still applies the answer to the
+    sample before, computed with the old gains), no duty above 0.2, and the rod sinks (to about 0.3 rad, where 0.2
+    holds it); the configuration is published again (it names the first sample it applies to); then back."""
+    _tracking(watcher, 0.5)
+    before = len(watcher.configs)
+    results = watcher.set(u_clamp_max=0.2)
+    assert results[0].successful, results[0].reason
+    assert watcher.wait_for(lambda: len(watcher.configs) > before)
+    config = watcher.configs[-1]
+    assert config['gains']['u_clamp_max'] == 0.2
+    applies = config['applies_from_sequence']
+    end = watcher.hold(3.0)
+    after = [watcher.samples[k].duty for k in range(applies + 1, end) if k in watcher.samples]
+    assert len(after) > 500 and max(after) <= 0.2 + 1e-12, max(after)
+    assert np.mean([watcher.samples[k].angle for k in range(end - 200, end) if k in watcher.samples]) < 0.4
+    assert watcher.set(u_clamp_max=0.8)[0].successful
+
+
+def test_invalid_gains_are_refused_with_the_reason(sim, watcher):
+    results = watcher.set(u_clamp_min=0.9)          # above u_clamp_max 0.8
+    assert not results[0].successful
+    assert 'u_clamp_min' in results[0].reason and 'unchanged' in results[0].reason, results[0].reason
+    assert watcher.get('u_clamp_min') == 0.0
+    results = watcher.set(i_clamp_max=-1.0)         # below i_clamp_min -0.3
+    assert not results[0].successful and 'i_clamp_min' in results[0].reason, results[0].reason
+    results = watcher.set(antiwindup='sometimes')
+    assert not results[0].successful and 'back_calculation' in results[0].reason, results[0].reason
+    results = watcher.set(p=-1.0)
+    assert not results[0].successful and 'p must be >= 0' in results[0].reason, results[0].reason
+    assert watcher.configs[-1]['gains']['p'] == 0.5
+
+
+def test_angle_trip_latches_duty_zero_until_reset(sim, watcher):
+    """angle_max below the rod's angle: the next sample trips the law, duty 0 and tripped from then on (latched,
+    even after the limit is raised again) until control_mode is set again."""
+    _tracking(watcher, 0.5)
+    assert watcher.set(angle_max=0.4)[0].successful
+    tripped_index = topics.CONTROL_NAMES.index('tripped')
+    assert watcher.wait_for(lambda: watcher.control[watcher.last()][1][tripped_index] == 1.0)
+    first = min(k for k, (_, values) in watcher.control.items() if values[tripped_index] == 1.0)
+    assert watcher.set(angle_max=1.75)[0].successful
+    end = watcher.hold(2.0)
+    after = [k for k in range(first + 1, end) if k in watcher.samples]
+    assert all(watcher.samples[k].duty == 0.0 for k in after)
+    assert all(watcher.control[k][1][tripped_index] == 1.0 for k in after if k in watcher.control)
+    assert watcher.set(control_mode='closed_loop')[0].successful          # reset: the law runs again
+    assert watcher.wait_for(lambda: watcher.control[watcher.last()][1][tripped_index] == 0.0
+                            and watcher.samples.get(watcher.last(), topics.Sample(0, 0, 0, 0, 0, 0)).duty > 0.0)
+    assert sim.process.poll() is None
+    assert 'safety trip: measured angle' in sim.output()
+
+
+def test_bad_gains_at_start_up_exit_2_with_one_line():
+    with NodeProcess('aeropend_ros.sim_node', ['-p', 'control_mode:=closed_loop', '-p', 'u_clamp_min:=0.9',
+                                               '-p', 'u_clamp_max:=0.5'], DOMAIN_ID) as process:
+        process.process.wait(START_TIMEOUT)
+        output = process.output()
+        assert process.process.returncode == 2, output
+        assert 'controller gains' in output and 'u_clamp_min' in output and 'Traceback' not in output, output
