@@ -3,8 +3,9 @@
 Examples:
   aeropend control design --template settling=2,overshoot=10,error=5,duty=0.8 --at 40deg -o gains.yaml
   aeropend control design --model diagnosis.json --at 40deg -o gains.yaml   # on an identified model
-  aeropend control check bags/aeropend_20261206_190000 [--design gains.yaml] [--json check.json]
-  aeropend control linearise diagnosis.json --at 40deg [--json lin.json]    # state space, transfer function
+  aeropend control check bags/aeropend_20261206_190000 --json check.json   # the controller stored in the bag
+  aeropend control check bags/aeropend_20261206_190000 --design gains.yaml
+  aeropend control linearise diagnosis.json --at 40deg --json lin.json      # state space, transfer function
 
 The law, the metrics and the rig's safety: docs/control.md.
 """
