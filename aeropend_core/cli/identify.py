@@ -72,6 +72,17 @@ def _pieces_between_gaps(time: np.ndarray, shortest: float = 1.0) -> list[tuple[
     return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:]) if (b - a) * step >= shortest]
 
 
+def _short_pieces(time: np.ndarray, shortest: float = 1.0) -> list[tuple[int, int, float, float]]:
+    """(first, stop, t first, t last) of each piece between gaps that :func:`_pieces_between_gaps` leaves out."""
+    if time.size < 3:
+        return []
+    kept = set(_pieces_between_gaps(time, shortest))
+    steps = np.diff(time)
+    bounds = np.concatenate(([0], np.flatnonzero(steps > 1.5 * float(np.median(steps))) + 1, [time.size]))
+    return [(int(a), int(b), float(time[a]), float(time[b - 1])) for a, b in zip(bounds[:-1], bounds[1:])
+            if (int(a), int(b)) not in kept]
+
+
 def main(args: argparse.Namespace) -> int:
     from aeropend_core.cli._checks import load_for_analysis, print_findings
     from aeropend_core.model.effects import check_effect_names
@@ -126,15 +137,24 @@ def main(args: argparse.Namespace) -> int:
             filter_note = {'delay': chain.angle_filter_delay, 'from': f'calibration file {args.calibration}',
                            'correction': 'none (no filter stated)' if chain.angle_filter_delay is None else
                            'none (no filter on the angle)'}
-        if len(pieces) > 1 or filter_note and filter_note['delay']:
+        if not pieces:
+            raise AeropendError(f'{args.data}: no piece between its gaps of lost samples lasts 1 s or more; nothing '
+                                'to fit')
+        whole = pieces == [(0, len(recording.time))]
+        if not whole or filter_note and filter_note['delay']:
             # lost samples: the weak form is fitted on the pieces between the gaps, together (also the single
-            # piece trimmed by the filter's delay)
+            # piece trimmed by the filter's delay, or the one piece left when a short one after a gap is dropped)
             cut = [[c[a:b] for a, b in pieces] for c in [np.asarray(recording.time, dtype=float), *columns]]
             fit = identify_pendulum(*cut, duty=None if duty is None else [duty[a:b] for a, b in pieces],
                                     effects=args.add)
             if len(pieces) > 1 and not args.quiet:
                 print(f'aeropend identify: {len(pieces) - 1} gap(s) of lost samples in the time stamps: fitted on '
                       f'the {len(pieces)} pieces between them together', file=sys.stderr)
+            dropped = _short_pieces(np.asarray(recording.time, dtype=float))
+            if dropped and not args.quiet:
+                print('aeropend identify: ' + '; '.join(f'{b - a} sample(s) from t = {t0:.3f} to {t1:.3f} s'
+                                                        for a, b, t0, t1 in dropped) +
+                      ' between gaps of lost samples: shorter than 1 s, not fitted', file=sys.stderr)
         else:
             fit = identify_pendulum(recording.time, *columns, duty=duty, effects=args.add)
     else:

@@ -254,18 +254,21 @@ def _joint_state_layout(data: bytes) -> tuple[int, int] | None:
         return None
 
 
-def _decode_samples(datas: list[bytes], where: str) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps (int64 ns) and the SAMPLE_CHANNELS values (n, 5) of JointState CDR messages.
+def _decode_samples(datas: list[bytes], where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stamps (int64 ns), the SAMPLE_CHANNELS values (n, 5) of JointState CDR messages, and a mask of the
+    messages that could not be decoded (their rows are meaningless; the caller drops them and says so).
 
-    Fast path: messages with the same length and the same bytes as the first one outside the stamp and the position
-    values (same frame_id, names, array lengths: every sample of one publisher) are decoded at once with numpy
-    views. Any other message goes through the ``rosbags`` deserialiser. The fast path is checked against rosbags
-    on the first message.
+    Fast path: messages with the same length and the same bytes as the first decodable one outside the stamp and the
+    position values (same frame_id, names, array lengths: every sample of one publisher) are decoded at once with
+    numpy views. Any other message goes through the ``rosbags`` deserialiser. The fast path is checked against
+    rosbags on that first message. A message rosbags cannot decode, or without the aeropend channel names, is
+    marked bad; when no message decodes, the first error is raised.
     """
     n_msgs = len(datas)
-    stamps = np.empty(n_msgs, dtype=np.int64)
-    table = np.empty((n_msgs, len(SAMPLE_CHANNELS)))
+    stamps = np.zeros(n_msgs, dtype=np.int64)
+    table = np.zeros((n_msgs, len(SAMPLE_CHANNELS)))
     done = np.zeros(n_msgs, dtype=bool)
+    bad = np.zeros(n_msgs, dtype=bool)
     decode = _joint_state_decoder()
 
     def decoded(data: bytes):
@@ -281,15 +284,24 @@ def _decode_samples(datas: list[bytes], where: str) -> tuple[np.ndarray, np.ndar
                                 'not an aeropend samples topic')
         return [names.index(n) for n in SAMPLE_CHANNELS]
 
-    first = datas[0]
+    first_error = None
+    for start, first in enumerate(datas):          # the first message that decodes is the reference
+        try:
+            reference = decoded(first)
+            channel_index(tuple(reference.name))
+            break
+        except AeropendError as error:
+            first_error = first_error or error
+            bad[start] = True
+    else:
+        raise first_error
     layout = _joint_state_layout(first)
     if layout is not None:
         pos_offset, n_pos = layout
-        reference = decoded(first)
         index = channel_index(tuple(reference.name))
         length = len(first)
         same_length = np.fromiter((len(d) == length for d in datas), dtype=bool, count=n_msgs)
-        rows = np.flatnonzero(same_length)
+        rows = np.flatnonzero(same_length & ~bad)       # rows[0] is the reference (the ones before it are bad)
         block = np.frombuffer(b''.join(datas[k] for k in rows), dtype=np.uint8).reshape(len(rows), length)
         ref = block[0]
         end = pos_offset + 8 * n_pos
@@ -305,15 +317,18 @@ def _decode_samples(datas: list[bytes], where: str) -> tuple[np.ndarray, np.ndar
             stamps[rows] = sec * NS_PER_S + nsec
             table[rows] = values[:, index]
             done[rows] = True
-    for k in np.flatnonzero(~done):                                   # anything unusual: the general decoder
-        msg = decoded(datas[k])
-        names = tuple(msg.name)
-        index = channel_index(names)
-        if len(msg.position) < len(names):
-            raise AeropendError(f'{where}: a JointState has fewer positions than names')
-        stamps[k] = int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec)
-        table[k] = [msg.position[i] for i in index]
-    return stamps, table
+    for k in np.flatnonzero(~done & ~bad):                            # anything unusual: the general decoder
+        try:
+            msg = decoded(datas[k])
+            names = tuple(msg.name)
+            index = channel_index(names)
+            if len(msg.position) < len(names):
+                raise AeropendError(f'{where}: a JointState has fewer positions than names')
+            stamps[k] = int(msg.header.stamp.sec) * NS_PER_S + int(msg.header.stamp.nanosec)
+            table[k] = [msg.position[i] for i in index]
+        except (AeropendError, OverflowError, TypeError, ValueError, IndexError):
+            bad[k] = True                       # not a sample: dropped and reported by the caller
+    return stamps, table, bad
 
 
 @dataclass
@@ -354,8 +369,9 @@ class SampleDamage:
 
 
 def _sample_damage(found: list[BagDamage], order: np.ndarray, receive_ns: np.ndarray, time: np.ndarray,
-                   sequence: np.ndarray) -> list[SampleDamage]:
-    """Locate each loss among the samples (by its chunk's log-time span, else by its place in file order)."""
+                   sequence: np.ndarray, kept_before: np.ndarray | None = None) -> list[SampleDamage]:
+    """Locate each loss among the samples (by its chunk's log-time span, else by its place in file order;
+    ``kept_before[k]``: the samples kept among the first k in file order, when some were dropped)."""
     n = len(order)
     rank = np.empty(n, dtype=np.int64)
     rank[order] = np.arange(n)                      # file-order index -> index in the time-ordered arrays
@@ -371,7 +387,9 @@ def _sample_damage(found: list[BagDamage], order: np.ndarray, receive_ns: np.nda
             j = int(np.searchsorted(latest, d.end_ns, side='right'))
             before, after = (k - 1 if k > 0 else None), (j if j < n else None)
         else:
-            k = min(d.after_messages, n)
+            k = d.after_messages if kept_before is None else int(kept_before[min(d.after_messages,
+                                                                                 len(kept_before) - 1)])
+            k = min(k, n)
             before = int(rank[k - 1]) if k > 0 else None
             after = int(rank[k]) if k < n else None
         samples = d.messages
@@ -471,13 +489,89 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     if np.any(order != np.arange(len(order))):
         datas = [datas[k] for k in order]
         received = [received[k] for k in order]
-    stamp_ns, table = _decode_samples(datas, f'{topic} in {path}')
+    stamp_ns, table, undecodable = _decode_samples(datas, f'{topic} in {path}')
+    bad_sequence = ~np.isfinite(table[:, SAMPLE_CHANNELS.index('sequence')]) & ~undecodable
+    undecodable |= bad_sequence                 # a counter that is not a number cannot be a sample of ours
+    out_of_order = _stamps_out_of_order(stamp_ns, undecodable)
+    keep = ~(undecodable | out_of_order)
+    received_ns = np.asarray(received, dtype=np.int64)
+    if not keep.all():
+        stamp_ns, table, received_ns = stamp_ns[keep], table[keep], received_ns[keep]
     out = {'time': (stamp_ns - stamp_ns[0]) * 1e-9}
     for column, name in enumerate(SAMPLE_CHANNELS):
         out[name] = table[:, column]
     out['sequence'] = np.rint(out['sequence']).astype(np.int64)
     out['stamp_ns'] = stamp_ns
-    out['receive_time_ns'] = np.asarray(received, dtype=np.int64)
+    out['receive_time_ns'] = received_ns
+    skipped = []
+    if not keep.all():
+        skipped = _skipped_samples(path, topic, keep, undecodable, out_of_order, file_index[order],
+                                   offsets[order] if len(offsets) else offsets, out['time'], out['sequence'])
+        for item in skipped:
+            if on_incomplete == 'raise':
+                raise AeropendError(f'{path}: {item.line()}')
+            if on_incomplete == 'warn':
+                warnings.warn(f'{path}: {item.line()}; the rest was read', stacklevel=2)
     if damage is not None:
-        damage.extend(_sample_damage(found, order, out['receive_time_ns'], out['time'], out['sequence']))
+        kept_file = np.ones(len(keep), dtype=bool)
+        kept_file[order[~keep]] = False                 # file-order messages kept
+        kept_before = np.concatenate(([0], np.cumsum(kept_file)))
+        damage.extend(_sample_damage(found, kept_before[:-1][order[keep]], out['receive_time_ns'], out['time'],
+                                     out['sequence'], kept_before))
+        damage.extend(skipped)
+    return out
+
+
+def _stamps_out_of_order(stamp_ns: np.ndarray, skip: np.ndarray, rounds: int = 4) -> np.ndarray:
+    """Mask of the samples whose stamp alone breaks the time order (one damaged stamp between two in order: too
+    late for the sample after it, or too early for the one before it). A block of samples out of order is left
+    alone (the data-quality gate judges it); ``skip`` marks samples already dropped."""
+    bad = np.zeros(len(stamp_ns), dtype=bool)
+    for _ in range(rounds):
+        index = np.flatnonzero(~(bad | skip))
+        s = stamp_ns[index]
+        back = np.flatnonzero(np.diff(s) < 0)
+        if not back.size or back.size > max(100, len(s) // 100):
+            break
+        for i in back:
+            before = s[i - 1] if i > 0 else None
+            after = s[i + 2] if i + 2 < len(s) else None
+            if before is None or before <= s[i + 1]:
+                bad[index[i]] = True                # s[i] too late
+            elif after is None or s[i] <= after:
+                bad[index[i + 1]] = True            # s[i + 1] too early
+    return bad
+
+
+def _skipped_samples(path, topic: str, keep: np.ndarray, undecodable: np.ndarray, out_of_order: np.ndarray,
+                     file_of: np.ndarray, chunk_of: np.ndarray, time: np.ndarray,
+                     sequence: np.ndarray) -> list[SampleDamage]:
+    """One :class:`SampleDamage` per chunk and kind for the messages :func:`read_samples` dropped (not decodable
+    as a sample, or a stamp out of order), with the span between the kept samples around them."""
+    files = bag_files(path)
+    kept_rank = np.cumsum(keep)                     # kept samples up to and including each index
+    out = []
+    for kind, mask, what in (
+            ('undecodable', undecodable, f'message(s) on {topic} that are not decodable as samples (not valid CDR '
+                                         'for JointState, or without the aeropend channels): skipped'),
+            ('stamp_out_of_order', out_of_order, 'sample(s) whose time stamp is out of order with the samples '
+                                                 'around them (a damaged stamp): skipped')):
+        rows = np.flatnonzero(mask)
+        if not rows.size:
+            continue
+        groups: dict[tuple[int, int], list[int]] = {}
+        for k in rows:
+            groups.setdefault((int(file_of[k]), int(chunk_of[k]) if len(chunk_of) else 0), []).append(int(k))
+        for (file_number, offset), members in groups.items():
+            before = int(kept_rank[members[0]]) - 1
+            after = int(kept_rank[members[-1]])
+            before = before if before >= 0 else None
+            after = after if after < len(time) else None
+            samples = len(members)
+            if before is not None and after is not None and sequence[after] > sequence[before]:
+                samples = int(sequence[after] - sequence[before] - 1)
+            file = files[min(file_number, len(files) - 1)]
+            damage = BagDamage(file, offset, kind, f'{len(members)} {what}', messages=len(members))
+            out.append(SampleDamage(damage, None if before is None else float(time[before]),
+                                    None if after is None else float(time[after]), samples))
     return out

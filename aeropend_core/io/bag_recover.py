@@ -40,7 +40,7 @@ __all__ = ['ChunkOutcome', 'RecoveryReport', 'recover_bag']
 
 #: Damage kinds that make a file worth rewriting (the rest are notes about an otherwise intact file).
 _REWRITE = {'chunk_skipped', 'record_skipped', 'cut', 'unknown_channel', 'duplicate_chunk', 'summary_damaged',
-            'summary_mismatch', 'no_footer', 'repaired_in_place'}
+            'summary_mismatch', 'no_footer', 'repaired_in_place', 'undecodable'}
 
 
 @dataclass
@@ -174,11 +174,55 @@ def _recovery_targets(path: Path) -> tuple[Path, list[Path], bool]:
 
 
 def _survey(file: Path) -> FileScan:
-    """First pass: definitions, metadata, damage (no message kept)."""
+    """First pass: definitions, metadata, damage (no message kept). Messages that nothing vouches for (outside
+    chunks, or in a chunk without CRC) are decoded with their schema: those that do not decode are listed in
+    ``scan.undecodable`` (chunk offset -> message indexes) and never written (an ``undecodable`` damage)."""
     scan = FileScan(file)
-    for _ in scan_file(file, scan):
-        pass
+    decodes = _decoder(scan)
+    for chunk in scan_file(file, scan):
+        if chunk.verified:
+            continue
+        bad = {k for k, message in enumerate(chunk.messages) if not decodes(message)}
+        if bad:
+            scan.undecodable[chunk.offset] = bad
+            where = 'outside chunks' if len(chunk.messages) == 1 and chunk.start_ns == chunk.end_ns else \
+                'in a chunk without CRC'
+            scan.damage.append(BagDamage(file, chunk.offset, 'undecodable', f'{len(bad)} message(s) {where} that '
+                                         'do not decode with their schema: left out', chunk.start_ns, chunk.end_ns,
+                                         messages=len(bad)))
     return scan
+
+
+def _decoder(scan: FileScan):
+    """``decodes(message) -> bool``: whether a message's bytes decode as its channel's schema (``rosbags``, from
+    the schema text the file carries, as an independent reader would). Messages of an unknown channel, or of a
+    schema that cannot be parsed, do not decode; a channel not in CDR/ros2msg cannot be judged and passes."""
+    stores: dict[int, object] = {}
+
+    def store_for(schema):
+        if schema.id not in stores:
+            from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+            try:
+                store = get_typestore(Stores.EMPTY)
+                store.register(get_types_from_msg(schema.data.decode('utf-8'), schema.name))
+            except Exception:   # a schema text rosbags cannot parse: the distribution's definition, if any
+                store = get_typestore(Stores.ROS2_JAZZY)
+            stores[schema.id] = store
+        return stores[schema.id]
+
+    def decodes(message) -> bool:
+        channel = scan.channels.get(message.channel_id)
+        schema = None if channel is None else scan.schemas.get(channel.schema_id)
+        if schema is None:
+            return False
+        if channel.message_encoding != 'cdr' or schema.encoding != 'ros2msg':
+            return True
+        try:
+            store_for(schema).deserialize_cdr(message.data, schema.name)
+            return True
+        except Exception:
+            return False
+    return decodes
 
 
 def _recover(path: Path, folder: Path, files: list[Path], bag_folder: bool, target: Path, in_place: bool,
@@ -319,6 +363,13 @@ def _rewrite(file: Path, scan: FileScan, destination: Path, topic_infos: dict[st
             channel_id(channel.id)
         second = FileScan(file)
         for chunk in scan_file(file, second):
+            bad = scan.undecodable.get(chunk.offset, ())
+            if bad:                         # never written: an independent reader could not read the bag after
+                outcomes.append(ChunkOutcome(file.name, chunk.offset, False, len(bad), chunk.start_ns, chunk.end_ns,
+                                             f'{len(bad)} message(s) that do not decode with their schema'))
+                chunk.messages = [m for k, m in enumerate(chunk.messages) if k not in bad]
+                if not chunk.messages:
+                    continue
             for message in chunk.messages:
                 writer.add_message(channel_id(message.channel_id), message.log_time, message.data,
                                    message.publish_time, message.sequence)

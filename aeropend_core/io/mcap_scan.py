@@ -90,6 +90,7 @@ class ChunkRead:
     start_ns: int
     end_ns: int
     messages: list = field(default_factory=list)        # mcap.records.Message
+    verified: bool = True       # False: a message outside chunks, or a chunk without CRC (damage undetectable)
 
 
 @dataclass
@@ -108,6 +109,7 @@ class FileScan:
     reordered: bool = False                              # chunks not in time order (valid MCAP; read sorted)
     statistics: object = None                            # mcap.records.Statistics of an intact summary
     problem: str = ''                                    # why the file is incomplete ('' when complete)
+    undecodable: dict = field(default_factory=dict)      # chunk offset -> indexes of messages that do not decode
 
     @property
     def lost(self) -> list[BagDamage]:
@@ -227,6 +229,33 @@ def _resync(buf, start: int, size: int) -> int:
         if _try_chunk(buf, position + 9, size, need_crc=True).ok:
             return position
         position += 1
+
+
+_KNOWN_OPCODES = frozenset((0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x08, 0x09, 0x0A, 0x0B, 0x0C, 0x0D, 0x0E, 0x0F))
+
+
+def _framed(buf, end: int, size: int) -> bool:
+    """Whether a record ends at ``end``: the file ends there, or a record of a known type whose length fits in the
+    file starts there."""
+    if end == size:
+        return True
+    if end + 9 > size or buf[end] not in _KNOWN_OPCODES:
+        return False
+    return end + 9 + struct.unpack_from('<Q', buf, end + 1)[0] <= size
+
+
+def _ends_data(buf, position: int, length: int, size: int) -> bool:
+    """Whether a data-end record at ``position`` really ends the data section: its length is 4 (the data CRC) and it
+    sits right before the summary (or the footer) an intact footer points at; without a footer, no chunk whose CRC
+    matches follows it."""
+    if length != 4:
+        return False
+    end = position + 9 + length
+    footer = _footer_at_end(buf, size)
+    if footer is not None:
+        footer_start = size - len(MCAP_MAGIC) - _FOOTER_BYTES
+        return end == (footer.summary_start or footer_start) or _resync(buf, end, footer_start) >= footer_start
+    return _resync(buf, end, size) >= size
 
 
 def _footer_at_end(buf, size: int):
@@ -366,6 +395,19 @@ def _walk(buf, size: int, scan: FileScan) -> Iterator[ChunkRead]:
         if opcode in (_OP_CHUNK, _OP_FOOTER) or opcode not in (0x01, 0x03, 0x04, 0x05, 0x07, 0x08, 0x09, 0x0A,
                                                                0x0B, 0x0C, 0x0D, 0x0E, 0x0F):
             got = _try_chunk(buf, body, size, need_crc=opcode != _OP_CHUNK)
+            framed = opcode not in (_OP_CHUNK, _OP_FOOTER) and _framed(buf, body + length, size)
+            if not got.ok and framed:   # a chunk without CRC under a damaged type byte: read when it opens whole
+                got = _try_chunk(buf, body, size)
+                got.ok = got.ok and got.end == body + length
+            if not got.ok and framed:
+                # a record of unknown type whose length field frames it (a valid record follows): skip that one
+                # record and read on, instead of searching for the next chunk with a CRC (a file without CRCs has
+                # none, and everything after the record was lost)
+                scan.damage.append(BagDamage(scan.path, position, 'repaired_in_place', f'record of unknown type '
+                                             f'0x{opcode:02x} ({length} bytes by its length field) skipped; the '
+                                             'record after it is intact and reading went on', lost=False))
+                position = body + length
+                continue
             if not got.ok:
                 if opcode == _OP_FOOTER:
                     position = skip(position, 'record_skipped', 'a footer record before the end of the file (a '
@@ -415,7 +457,8 @@ def _walk(buf, size: int, scan: FileScan) -> Iterator[ChunkRead]:
                 elif isinstance(record, Channel):
                     scan.channels.setdefault(record.id, record)
             scan.messages_read += len(messages)
-            yield ChunkRead(position, chunk.message_start_time, chunk.message_end_time, messages)
+            yield ChunkRead(position, chunk.message_start_time, chunk.message_end_time, messages,
+                            verified=bool(chunk.uncompressed_crc))
             position = got.end
             continue
         end = body + length
@@ -426,6 +469,15 @@ def _walk(buf, size: int, scan: FileScan) -> Iterator[ChunkRead]:
                 break
             position = skip(position, 'record_skipped', f'record of type 0x{opcode:02x} with a length field '
                             f'({length} bytes) that runs past the end of the file skipped')
+            continue
+        if opcode == _OP_DATA_END and not _ends_data(buf, position, length, size):
+            # a data-end record with chunks after it: a damaged type byte (e.g. a message index's 0x07 turned into
+            # 0x0f). Its length field framed a record: skip that one record and read on (before: the walk stopped
+            # here and everything after it was silently not read).
+            scan.damage.append(BagDamage(scan.path, position, 'repaired_in_place', 'a data-end record (0x0f) with '
+                                         f'data after it (a damaged type byte?): its {length} bytes skipped, '
+                                         'reading went on', lost=False))
+            position = end
             continue
         if opcode == _OP_DATA_END:
             data_end = True
@@ -446,7 +498,7 @@ def _walk(buf, size: int, scan: FileScan) -> Iterator[ChunkRead]:
             elif opcode == 0x05:
                 message = Message.read(stream, length)
                 scan.messages_read += 1
-                yield ChunkRead(position, message.log_time, message.log_time, [message])
+                yield ChunkRead(position, message.log_time, message.log_time, [message], verified=False)
             elif opcode == 0x0C:
                 scan.metadata.append(Metadata.read(stream))
             elif opcode == _OP_MESSAGE_INDEX and lost_chunk is not None:

@@ -334,6 +334,7 @@ def _load_bag(path: Path) -> Recording:
 
 #: Finding code of each kind of bag damage (:class:`aeropend_core.io.mcap_scan.BagDamage`).
 _BAG_CODES = {'chunk_skipped': 'bag_damaged', 'record_skipped': 'bag_damaged', 'unknown_channel': 'bag_damaged',
+              'undecodable': 'bag_damaged', 'stamp_out_of_order': 'bag_damaged',
               'cut': 'bag_incomplete', 'no_crc': 'bag_no_crc', 'summary_mismatch': 'bag_summary_mismatch',
               'summary_damaged': 'bag_summary_damaged', 'no_footer': 'bag_summary_damaged'}
 
