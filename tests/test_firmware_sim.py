@@ -30,6 +30,7 @@ from tests.bridge_helpers import (
     build_firmware,
     poll,
 )
+from tests.control_helpers import Device, check_refusals_after_gains, check_refusals_before_gains
 from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain
 
 DOMAIN_ID = private_domain_id()
@@ -481,37 +482,6 @@ def law_duty_q16(duty: float, max_duty_q16: int) -> int:
     return min(q16, max_duty_q16)
 
 
-class Device:
-    """The firmware over its pty: commands, ACKs, and every message kept in order."""
-
-    def __init__(self, link) -> None:
-        self.link = link
-        self.decoder = P.FrameDecoder()
-        self.messages: list = []
-
-    def read(self, seconds: float, until=None) -> list:
-        start = len(self.messages)
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            self.messages += self.decoder.feed(self.link.read(max(1, self.link.in_waiting)))
-            if until is not None and until(self.messages[start:]):
-                break
-        return self.messages[start:]
-
-    def ack(self, command: bytes, timeout: float = 5.0) -> P.AckFrame:
-        self.link.write(command)
-        new = self.read(timeout, until=lambda ms: any(isinstance(m, P.AckFrame) for m in ms))
-        acks = [m for m in new if isinstance(m, P.AckFrame)]
-        assert len(acks) == 1, new[-5:]
-        return acks[0]
-
-    def samples(self, count: int, kind=P.ControlSampleFrame, timeout: float = 10.0) -> list:
-        new = self.read(timeout, until=lambda ms: sum(isinstance(m, kind) for m in ms) >= count)
-        found = [m for m in new if isinstance(m, kind)]
-        assert len(found) >= count, new[-5:]
-        return found
-
-
 def test_closed_loop_commands_over_pty(build, tmp_path):
     import serial
 
@@ -527,22 +497,7 @@ def test_closed_loop_commands_over_pty(build, tmp_path):
         assert not status.flags & P.FLAG_CLOSED_LOOP
         link.write(P.encode_command(P.SET_WATCHDOG, 2.0))    # a loaded test machine must not trip it by accident
 
-        # Refusals, one per code, before any coefficient is set.
-        ack = device.ack(P.encode_control_mode(P.MODE_CLOSED_LOOP))
-        assert (ack.command, ack.result, ack.value) == (P.SET_CONTROL_MODE, P.ACK_REFUSED, 0.0)   # coefficients unset
-        ack = device.ack(P.encode_control_mode(2))
-        assert (ack.result, ack.value) == (P.ACK_OUT_OF_RANGE, 0.0)
-        ack = device.ack(P.encode_coefficient(13, 1.0))
-        assert (ack.command, ack.index, ack.result, ack.value) == (P.SET_CONTROL_COEFFICIENT, 13,
-                                                                    P.ACK_UNKNOWN_INDEX, 0.0)
-        for index, value in [(law.P, math.nan), (law.P, math.inf), (law.P, -1.0), (law.D_POLE, 1.0),
-                             (law.U_MAX, 1.5), (law.U_MIN, -0.1), (law.AW_CODE, 3.0), (law.AW_CODE, 1.5),
-                             (law.ANGLE_MIN, 3.5), (law.ANGLE_MAX, -3.5), (law.I_TS, -math.inf)]:
-            ack = device.ack(P.encode_coefficient(index, value))
-            assert (ack.index, ack.result) == (index, P.ACK_OUT_OF_RANGE), (index, value, ack)
-        for zero, scale in [(512.0, 0.0), (math.nan, 0.006), (512.0, math.inf)]:
-            ack = device.ack(P.encode_angle_calibration(zero, scale))
-            assert (ack.command, ack.result, ack.value) == (P.SET_ANGLE_CALIBRATION, P.ACK_OUT_OF_RANGE, 0.0)
+        check_refusals_before_gains(device)                   # each refusal code
         samples = device.samples(3, P.SampleFrame)            # still open loop: plain SAMPLEs, duty 0
         assert all(s.duty_q16 == 0 for s in samples)
 
@@ -554,16 +509,7 @@ def test_closed_loop_commands_over_pty(build, tmp_path):
         coefficients = device_coefficients(gains)
         assert sorted(acks) == list(range(13))
         assert all(a.ok and np.float32(a.value) == np.float32(coefficients[i]) for i, a in acks.items())
-        # Limits against their stored partner.
-        ack = device.ack(P.encode_coefficient(law.ANGLE_MIN, 1.75))
-        assert (ack.result, ack.value) == (P.ACK_OUT_OF_RANGE, np.float32(-0.35))      # angle_min >= angle_max
-        ack = device.ack(P.encode_coefficient(law.I_MAX, -0.3))
-        assert (ack.result, ack.value) == (P.ACK_OUT_OF_RANGE, np.float32(0.2))
-        ack = device.ack(P.encode_coefficient(law.U_MIN, 0.7))
-        assert ack.result == P.ACK_OUT_OF_RANGE
-        for reference, feedforward in [(2.0, 0.2), (-0.5, 0.2), (0.5, 1.5), (0.5, -0.1), (math.nan, 0.2)]:
-            ack = device.ack(P.encode_reference(reference, feedforward))
-            assert (ack.command, ack.result, ack.value) == (P.SET_REFERENCE, P.ACK_OUT_OF_RANGE, 0.0)
+        check_refusals_after_gains(device)                    # limits against their stored partner
         # Gains again, ordered against the stored limits (angle_min 2 > the stored angle_max 1.75: sent twice).
         acks = send_gains(link, gains.replace(angle_min=1.8, angle_max=2.5), decoder=device.decoder,
                           messages=device.messages)

@@ -8,7 +8,12 @@ filter and encoder wrap, the current read at the hold instant of a PWM-resolved 
 inverse of the bridge's :class:`~aeropend_core.rig.protocol.Calibration` (``chain=None``: ideal counts).
 Commands written to the port behave as on the firmware: SET_DUTY clamped to the maximum duty, a watchdog that cuts
 the duty when no valid command arrives in time (checked every emission, ~20 ms), STATUS on boot, after
-configuration and every second.
+configuration and every second. The closed loop of protocol version 2 too (the firmware's rules, the docstring of
+:mod:`aeropend_core.rig.protocol`): SET_CONTROL_COEFFICIENT, SET_REFERENCE, SET_CONTROL_MODE and
+SET_ANGLE_CALIBRATION, each answered by an ACK with the firmware's result codes; in closed loop the Python law
+(:func:`aeropend_core.control.law.law_step`, on float32-rounded coefficients) runs once per sample on the angle
+counts just produced, its duty applies from the next sample, and CONTROL_SAMPLE frames replace SAMPLE frames (the
+angle trip latched until a new reference, the watchdog halting the law, SET_DUTY back to open loop).
 
 Faults (all thread-safe, take effect at the next emission):
 
@@ -52,11 +57,21 @@ from pathlib import Path
 
 import numpy as np
 
+from aeropend_core.control import law
 from aeropend_core.rig import protocol as P
 from aeropend_core.sim.simulate import RigSimulator
 from aeropend_core.testing.measurement_chain import MeasurementChain
 
 __all__ = ['DeviceEmulator', 'EmulatorConfig']
+
+def _f32(value):
+    """Rounded to float32 (as the firmware stores it), returned as float64."""
+    return np.asarray(value, dtype=np.float32).astype(np.float64)
+
+
+def _encode(sample) -> bytes:
+    return P.encode_control_sample(sample) if isinstance(sample, P.ControlSampleFrame) else P.encode_sample(sample)
+
 
 #: Bytes the emulated device keeps when the host does not read (bounded, like a USB-serial link; generous so
 #: that bursts after a pause reach a reader intact).
@@ -182,6 +197,20 @@ class DeviceEmulator:
         self._status_due = True
         self._boot = True
         self._decoder.reset()
+        # closed loop (the firmware's boot values)
+        self.control_mode = P.MODE_OPEN_LOOP
+        self.law_coefficients = np.zeros(law.N_COEFFICIENTS)
+        self.law_coefficients[[law.I_MIN, law.I_MAX, law.U_MIN, law.U_MAX, law.ANGLE_MIN, law.ANGLE_MAX]] = \
+            _f32([-1.0, 1.0, 0.0, 1.0, -3.14159265, 3.14159265])
+        self.law_set = set()
+        self.law_state = law.new_state()
+        self.law_reference = 0.0
+        self.law_feedforward = 0.0
+        self.angle_zero_counts = P.DEFAULT_DEVICE_ANGLE_ZERO
+        self.angle_rad_per_count = _f32(P.DEFAULT_DEVICE_ANGLE_SCALE)
+        #: every ACK sent, in order
+        self.acks: list[P.AckFrame] = []
+        self._replies = bytearray()
         if self.auto_reset:
             # The bootloader runs first (a power-up or a DTR reset); the sketch starts after it, if left alone.
             self.state = 'bootloader'
@@ -374,13 +403,122 @@ class DeviceEmulator:
         corrupt_before = self._decoder.counters.corrupt
         now = time.monotonic()
         for message in self._decoder.feed(data):
-            if isinstance(message, P.CommandFrame):
+            if isinstance(message, P.CommandFrame) and message.kind == P.SET_CONTROL_MODE:
+                self.commands.append((now, message))
+                self._control_command(message)
+            elif isinstance(message, P.CommandFrame):
                 self.commands.append((now, message))
                 self._apply_command(message)
+            elif isinstance(message, (P.CoefficientCommand, P.ReferenceCommand, P.AngleCalibrationCommand)):
+                self.commands.append((now, message))
+                self._control_command(message)
         self.rx_bad_frames += self._decoder.counters.corrupt - corrupt_before
+
+    def _coefficient_result(self, index: int, value: float) -> int:
+        c = self.law_coefficients
+        if not 0 <= index < law.N_COEFFICIENTS:
+            return P.ACK_UNKNOWN_INDEX
+        if not math.isfinite(value):
+            return P.ACK_OUT_OF_RANGE
+        if index in (law.P, law.I_TS, law.D_GAIN, law.AW_GAIN):
+            ok = value >= 0.0
+        elif index == law.D_POLE:
+            ok = 0.0 <= value < 1.0
+        elif index == law.I_MIN:
+            ok = value <= c[law.I_MAX]
+        elif index == law.I_MAX:
+            ok = value >= c[law.I_MIN]
+        elif index == law.U_MIN:
+            ok = 0.0 <= value <= c[law.U_MAX]
+        elif index == law.U_MAX:
+            ok = c[law.U_MIN] <= value <= 1.0
+        elif index == law.AW_CODE:
+            ok = value in (0.0, 1.0, 2.0)
+        elif index == law.ANGLE_MIN:
+            ok = value < c[law.ANGLE_MAX]
+        elif index == law.ANGLE_MAX:
+            ok = value > c[law.ANGLE_MIN]
+        else:
+            ok = True
+        return P.ACK_OK if ok else P.ACK_OUT_OF_RANGE
+
+    def _law_restart(self) -> None:
+        self.law_state = law.new_state()
+        self.flags &= ~(P.FLAG_WATCHDOG_TRIPPED | P.FLAG_DUTY_CLAMPED)
+
+    def _control_command(self, command) -> None:
+        """The closed loop's commands, as the firmware's handle_control_command: an ACK for each."""
+        c = self.law_coefficients
+        index, result, value = 0, P.ACK_OK, 0.0
+        if command.kind == P.SET_CONTROL_COEFFICIENT:
+            index = command.index
+            result = self._coefficient_result(index, command.value)
+            if result == P.ACK_OK:
+                c[index] = command.value
+                self.law_set.add(index)
+                self.law_state[law.INTEGRAL] = min(max(self.law_state[law.INTEGRAL], c[law.I_MIN]), c[law.I_MAX])
+            value = c[index] if result != P.ACK_UNKNOWN_INDEX else 0.0
+        elif command.kind == P.SET_REFERENCE:
+            reference, feedforward = command.reference, command.feedforward
+            if not (math.isfinite(reference) and math.isfinite(feedforward) and 0.0 <= feedforward <= 1.0
+                    and c[law.ANGLE_MIN] <= reference <= c[law.ANGLE_MAX]):
+                result = P.ACK_OUT_OF_RANGE
+            else:
+                self.law_reference, self.law_feedforward = reference, feedforward
+                if self.control_mode == P.MODE_CLOSED_LOOP and (self.flags & P.FLAG_WATCHDOG_TRIPPED
+                                                                 or self.law_state[law.TRIPPED]):
+                    self._law_restart()
+            value = self.law_reference
+        elif command.kind == P.SET_CONTROL_MODE:
+            if command.value == P.MODE_OPEN_LOOP:
+                self.control_mode = P.MODE_OPEN_LOOP
+                self.commanded_q16 = 0
+            elif command.value != P.MODE_CLOSED_LOOP:
+                result = P.ACK_OUT_OF_RANGE
+            elif len(self.law_set) < law.N_COEFFICIENTS:
+                result = P.ACK_REFUSED
+            else:
+                self._law_restart()
+                self.control_mode = P.MODE_CLOSED_LOOP
+            value = float(self.control_mode)
+        else:   # SET_ANGLE_CALIBRATION
+            if not (math.isfinite(command.zero_counts) and math.isfinite(command.rad_per_count)
+                    and command.rad_per_count != 0.0):
+                result = P.ACK_OUT_OF_RANGE
+            elif self.control_mode == P.MODE_CLOSED_LOOP:
+                result = P.ACK_REFUSED
+            else:
+                self.angle_zero_counts, self.angle_rad_per_count = command.zero_counts, command.rad_per_count
+            value = self.angle_zero_counts
+        if result == P.ACK_OK:
+            self._last_command_time = time.monotonic()
+            self._watchdog_armed = True
+        ack = P.AckFrame(command.kind, index, result, float(value))
+        self.acks.append(ack)
+        self._replies += P.encode_ack(ack)
+
+    def _law_step(self, angle_counts: int) -> None:
+        """One sample of the closed loop (as the firmware's control_step): the duty from the next sample."""
+        if self.flags & P.FLAG_WATCHDOG_TRIPPED:
+            return
+        angle = float(_f32((np.float32(angle_counts) - np.float32(self.angle_zero_counts))
+                           * np.float32(self.angle_rad_per_count)))
+        duty = law.law_step(self.law_coefficients, self.law_state, self.law_reference, self.law_feedforward, angle)
+        wanted = 0 if not duty > 0.0 else 65535 if duty >= 1.0 else int(duty * 65535.0 + 0.5)
+        self.commanded_q16 = min(wanted, self.max_duty_q16)
+        if wanted > self.max_duty_q16:
+            self.flags |= P.FLAG_DUTY_CLAMPED
+        else:
+            self.flags &= ~P.FLAG_DUTY_CLAMPED
+
+    def _mode_flags(self) -> int:
+        if self.control_mode != P.MODE_CLOSED_LOOP:
+            return 0
+        return P.FLAG_CLOSED_LOOP | (P.FLAG_LAW_TRIPPED if self.law_state[law.TRIPPED] else 0)
 
     def _apply_command(self, command: P.CommandFrame) -> None:
         if command.kind == P.SET_DUTY:
+            self.control_mode = P.MODE_OPEN_LOOP     # SET_DUTY always wins, as on the firmware
             value = command.value
             if value > self.max_duty_q16:
                 value = self.max_duty_q16
@@ -414,6 +552,9 @@ class DeviceEmulator:
             self._watchdog_armed = False
             self.commanded_q16 = 0
             self.flags |= P.FLAG_WATCHDOG_TRIPPED
+        if self.control_mode == P.MODE_CLOSED_LOOP:
+            self._emit_closed_loop(n)
+            return
         duties = np.empty(n)
         applied = np.empty(n, dtype=np.int64)
         flags = np.empty(n, dtype=np.int64)
@@ -423,6 +564,52 @@ class DeviceEmulator:
             flags[k] = self.flags
             duties[k] = self.applied_q16 / 65535.0
             self.applied_q16 = self.commanded_q16
+        counts = self._measure(duties)
+        out = bytearray(self._replies)
+        self._replies.clear()
+        for k in range(n):
+            sequence = self.sequence
+            self.sequence += 1
+            sample = P.SampleFrame(sequence, int(counts[0][k]), int(counts[1][k]), int(counts[2][k]),
+                                   int(applied[k]), int(flags[k]))
+            out += self._sample_bytes(sequence, sample)
+            if self._status_due or sequence % self.config.status_every == self.config.status_every - 1:
+                out += self._status_frame()
+        self._write(out, n)
+
+    def _emit_closed_loop(self, n: int) -> None:
+        """n samples of the closed loop, one at a time: measure, step the law, CONTROL_SAMPLE."""
+        out = bytearray(self._replies)
+        self._replies.clear()
+        for _ in range(n):
+            applied, flags = self.applied_q16, self.flags
+            counts = self._measure(np.array([applied / 65535.0]))
+            self._law_step(int(counts[1][0]))
+            self.applied_q16 = self.commanded_q16
+            sequence = self.sequence
+            self.sequence += 1
+            s = self.law_state
+            sample = P.ControlSampleFrame(
+                sequence, int(counts[0][0]), int(counts[1][0]), int(counts[2][0]), int(applied),
+                int(flags | self._mode_flags()), self.law_reference, self.law_feedforward,
+                float(s[law.UNSATURATED]), float(s[law.INTEGRAL]))
+            out += self._sample_bytes(sequence, sample)
+            if self._status_due or sequence % self.config.status_every == self.config.status_every - 1:
+                out += self._status_frame()
+        self._write(out, n)
+
+    def _sample_bytes(self, sequence: int, sample) -> bytes:
+        if self._faults.tamper:
+            change = self._faults.tamper.pop(0)
+            offset = change.pop('sequence_offset', 0)
+            sample = sample._replace(sequence=(sequence + offset) % (1 << 32), **change)
+            self._log(sequence, 'tampered')
+            return _encode(sample)
+        return self._apply_faults(sequence, _encode(sample))
+
+    def _measure(self, duties: np.ndarray) -> np.ndarray:
+        """Raw counts (3, n) of the samples taken while `duties` are applied."""
+        n = len(duties)
         if self.locked_rotor:
             # Propeller held: no thrust, so the rod only settles; the armature obeys La dIa/dt = Va - Ra Ia.
             trajectory = self.simulator.run(np.zeros(n))
@@ -440,31 +627,13 @@ class DeviceEmulator:
             self._locked_current = 0.0
             measured_current, measured_voltage = trajectory.armature_current, trajectory.armature_voltage
         if self._front_end is not None:
-            counts = self._front_end.counts(trajectory.angle, measured_current, measured_voltage, duties)
-        else:
-            counts = np.array([self.calibration.to_counts(float(trajectory.angle[k]), float(measured_current[k]),
-                                                          float(measured_voltage[k])) for k in range(n)],
-                              dtype=np.int64).reshape(n, 3).T
-        out = bytearray()
-        for k in range(n):
-            sequence = self.sequence
-            self.sequence += 1
-            sample = P.SampleFrame(sequence, int(counts[0][k]), int(counts[1][k]), int(counts[2][k]),
-                                   int(applied[k]), int(flags[k]))
-            if self._faults.tamper:
-                change = self._faults.tamper.pop(0)
-                offset = change.pop('sequence_offset', 0)
-                sample = sample._replace(sequence=(sequence + offset) % (1 << 32), **change)
-                self._log(sequence, 'tampered')
-                out += P.encode_sample(sample)
-            else:
-                out += self._apply_faults(sequence, P.encode_sample(sample))
-            if self._status_due or sequence % self.config.status_every == self.config.status_every - 1:
-                out += self._status_frame()
-        self._write(out, n)
+            return self._front_end.counts(trajectory.angle, measured_current, measured_voltage, duties)
+        return np.array([self.calibration.to_counts(float(trajectory.angle[k]), float(measured_current[k]),
+                                                    float(measured_voltage[k])) for k in range(n)],
+                        dtype=np.int64).reshape(n, 3).T
 
     def _status_frame(self) -> bytes:
-        flags = self.flags | (P.FLAG_BOOT if self._boot else 0)
+        flags = self.flags | (P.FLAG_BOOT if self._boot else 0) | self._mode_flags()
         self._boot = False
         self._status_due = False
         return P.encode_status(P.StatusFrame(

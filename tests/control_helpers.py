@@ -1,0 +1,87 @@
+"""A device's closed-loop commands over its serial port, for the firmware (simavr) and emulator tests."""
+from __future__ import annotations
+
+import time
+
+from aeropend_core.rig import protocol as P
+
+
+class Device:
+    """A device (firmware in simavr or the pty emulator) over a pyserial port: commands, ACKs, every message kept."""
+
+    def __init__(self, link) -> None:
+        self.link = link
+        self.decoder = P.FrameDecoder()
+        self.messages: list = []
+
+    def read(self, seconds: float, until=None) -> list:
+        """Messages read for up to `seconds`, stopping early when `until(new messages)` is true."""
+        start = len(self.messages)
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            self.messages += self.decoder.feed(self.link.read(max(1, self.link.in_waiting)))
+            if until is not None and until(self.messages[start:]):
+                break
+        return self.messages[start:]
+
+    def ack(self, command: bytes, timeout: float = 5.0) -> P.AckFrame:
+        """Send one acknowledged command and return its ACK."""
+        self.link.write(command)
+        new = self.read(timeout, until=lambda ms: any(isinstance(m, P.AckFrame) for m in ms))
+        acks = [m for m in new if isinstance(m, P.AckFrame)]
+        assert len(acks) == 1, new[-5:]
+        return acks[0]
+
+    def samples(self, count: int, kind=P.ControlSampleFrame, timeout: float = 10.0) -> list:
+        """The next `count` (or more) messages of `kind`."""
+        new = self.read(timeout, until=lambda ms: sum(isinstance(m, kind) for m in ms) >= count)
+        found = [m for m in new if isinstance(m, kind)]
+        assert len(found) >= count, new[-5:]
+        return found
+
+    def status(self, timeout: float = 5.0) -> P.StatusFrame:
+        """A fresh STATUS (REQUEST_STATUS)."""
+        self.link.write(P.encode_command(P.REQUEST_STATUS))
+        new = self.read(timeout, until=lambda ms: any(isinstance(m, P.StatusFrame) for m in ms))
+        return [m for m in new if isinstance(m, P.StatusFrame)][-1]
+
+
+def check_refusals_before_gains(device: Device) -> None:
+    """Each refusal code a device gives before its coefficients are set (firmware and emulator alike)."""
+    import math
+
+    from aeropend_core.control import law
+    ack = device.ack(P.encode_control_mode(P.MODE_CLOSED_LOOP))
+    assert (ack.command, ack.result, ack.value) == (P.SET_CONTROL_MODE, P.ACK_REFUSED, 0.0)   # coefficients unset
+    ack = device.ack(P.encode_control_mode(2))
+    assert (ack.result, ack.value) == (P.ACK_OUT_OF_RANGE, 0.0)
+    ack = device.ack(P.encode_coefficient(13, 1.0))
+    assert (ack.command, ack.index, ack.result, ack.value) == (P.SET_CONTROL_COEFFICIENT, 13, P.ACK_UNKNOWN_INDEX,
+                                                                0.0)
+    for index, value in [(law.P, math.nan), (law.P, math.inf), (law.P, -1.0), (law.D_POLE, 1.0),
+                         (law.U_MAX, 1.5), (law.U_MIN, -0.1), (law.AW_CODE, 3.0), (law.AW_CODE, 1.5),
+                         (law.ANGLE_MIN, 3.5), (law.ANGLE_MAX, -3.5), (law.I_TS, -math.inf)]:
+        ack = device.ack(P.encode_coefficient(index, value))
+        assert (ack.index, ack.result) == (index, P.ACK_OUT_OF_RANGE), (index, value, ack)
+    for zero, scale in [(512.0, 0.0), (math.nan, 0.006), (512.0, math.inf)]:
+        ack = device.ack(P.encode_angle_calibration(zero, scale))
+        assert (ack.command, ack.result, ack.value) == (P.SET_ANGLE_CALIBRATION, P.ACK_OUT_OF_RANGE, 0.0)
+
+
+def check_refusals_after_gains(device: Device) -> None:
+    """Limits refused against their stored partner, and references outside the window (gains of the tests: u in
+    [0, 0.6], i in [-0.2, 0.2], angle in [-0.35, 1.75]; no reference stored yet)."""
+    import math
+
+    import numpy as np
+
+    from aeropend_core.control import law
+    ack = device.ack(P.encode_coefficient(law.ANGLE_MIN, 1.75))
+    assert (ack.result, ack.value) == (P.ACK_OUT_OF_RANGE, np.float32(-0.35))      # angle_min >= angle_max
+    ack = device.ack(P.encode_coefficient(law.I_MAX, -0.3))
+    assert (ack.result, ack.value) == (P.ACK_OUT_OF_RANGE, np.float32(0.2))
+    ack = device.ack(P.encode_coefficient(law.U_MIN, 0.7))
+    assert ack.result == P.ACK_OUT_OF_RANGE
+    for reference, feedforward in [(2.0, 0.2), (-0.5, 0.2), (0.5, 1.5), (0.5, -0.1), (math.nan, 0.2)]:
+        ack = device.ack(P.encode_reference(reference, feedforward))
+        assert (ack.command, ack.result, ack.value) == (P.SET_REFERENCE, P.ACK_OUT_OF_RANGE, 0.0)
