@@ -15,6 +15,7 @@ Examples:
   aeropend run --rig rig1                        # one of several rigs on a network: namespace /rig1
   aeropend run --experiment experiment.yaml      # play a designed schedule file instead of the hypercube
   aeropend run --until-decided --effect thrust_lag=0.02   # diagnose, design, run again until decided
+  aeropend run --controller gains.yaml --reference steps.yaml   # closed loop: the law tracks a reference schedule
 
 One graph per rig: before any node starts, a run takes a lock for its rig (namespace) and ROS domain on this host
 and looks at the ROS graph for another graph's nodes on the rig's topics; either refuses the run, naming the running
@@ -52,8 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--record', metavar='DIR', default='bags',
                         help='folder in which the bag folder is created (default: bags)')
     parser.add_argument('--no-record', action='store_true', help='do not record (diagnose the samples in memory)')
-    parser.add_argument('--duration', type=float, default=60.0, metavar='S',
-                        help='length of the experiment [s] (default 60; the diagnosis needs >= 20 s)')
+    parser.add_argument('--duration', type=float, default=None, metavar='S',
+                        help='length of the experiment [s] (default 60, or the --experiment / --reference '
+                             'schedule\'s; the diagnosis needs >= 20 s)')
     parser.add_argument('--effect', action='append', default=None, metavar='NAME=VALUE',
                         help='hidden effect of the simulator (repeatable; replaces the default hidden effect); '
                              '--effect none for a clean simulator')
@@ -86,6 +88,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              'port); layout: config/aeropend.foxglove.json')
     from aeropend_ros.cli.experiment_loop import add_arguments as add_experiment_arguments
     add_experiment_arguments(parser)
+    from aeropend_ros.cli.closed_loop_run import add_arguments as add_closed_loop_arguments
+    add_closed_loop_arguments(parser)
 
 
 def _check_arguments(args) -> None:
@@ -93,11 +97,27 @@ def _check_arguments(args) -> None:
 
     from aeropend_ros.topics import rig_namespace
     args.namespace = rig_namespace(getattr(args, 'rig', None))      # AeropendError (exit 2) for a bad name
+    duration_given = args.duration is not None
+    if not duration_given:
+        args.duration = 60.0
+    from aeropend_ros.cli.closed_loop_run import check_conflicts
+    check_conflicts(args)           # --controller with --experiment, --reference without --controller
     from aeropend_ros.cli.experiment_loop import check_arguments as check_experiment
     check_experiment(args)          # --experiment sets the duration from its schedule
+    if duration_given and not 0 < args.duration < math.inf:
+        raise AeropendError(f'--duration must be a positive number of seconds, got {args.duration}')
+    from aeropend_ros.cli.closed_loop_run import check_arguments as check_closed_loop
+    check_closed_loop(args, duration_given)     # --controller: the schedule's duration unless --duration is given
     if not 0 < args.duration < math.inf:
         raise AeropendError(f'--duration must be a positive number of seconds, got {args.duration}')
     from aeropend_core.diagnosis.compare import MIN_DURATION
+    args.diagnosis_skipped = None
+    if args.closed_loop is not None and not args.no_diagnose and args.duration < MIN_DURATION + 1.0 \
+            and not (args.report or args.json):
+        # a short closed-loop schedule is still worth running: the diagnosis is skipped, said, not refused
+        args.no_diagnose = True
+        args.diagnosis_skipped = (f'no diagnosis at the end: the {args.duration:g} s run is shorter than the '
+                                  f'{MIN_DURATION + 1:g} s it needs')
     # the recording starts a moment after the run (discovery), so a second of margin over the diagnosis's minimum
     if not args.no_diagnose and args.duration < MIN_DURATION + 1.0:
         raise AeropendError(f'--duration {args.duration:g} s is too short for the diagnosis at the end (it needs a '
@@ -223,6 +243,8 @@ def _run(args) -> int:
     # ignored (a background job of a non-interactive shell inherits SIG_IGN, and Python then keeps it), as the
     # nodes and `aeropend emulate` do; the diagnosis after the run stays interruptible too.
     signal.signal(signal.SIGINT, signal.default_int_handler)
+    closed = getattr(args, 'closed_loop', None)         # --controller: the law plays a reference schedule
+    steps = None
     nodes = []
     executors = []
     spinners = []
@@ -238,12 +260,16 @@ def _run(args) -> int:
             probe.destroy_node()
         if use_sim:
             from aeropend_ros.sim_node import SimNode
+            control = dict(control_mode='closed_loop', controller_file=str(closed['controller_path'])) \
+                if closed else {}
             source = SimNode(parameter_overrides=overrides(
                 effects=list(hidden) or [''], psnr_db=float(args.psnr), seed=int(args.seed),
                 duty_limit=float(args.duty_cap), realtime_factor=float(args.realtime_factor),
                 stop_after=float(args.duration) + (LATE_START_LIMIT if args.experiment else 0.0),
-                wait_for_subscribers=2),    # the recorder and the identification: no start-up backlog
-                namespace=namespace, guard_duty_sources=True)
+                wait_for_subscribers=2,     # the recorder and the identification: no start-up backlog
+                **control), namespace=namespace, guard_duty_sources=True)
+            if closed:
+                source.play_schedule(closed['schedule'])        # from the first sample
         else:
             from aeropend_ros.serial_bridge_node import SerialBridgeNode
             calibrated = {}
@@ -254,14 +280,16 @@ def _run(args) -> int:
                                       namespace=namespace)
         nodes.append(source)
         start_delay = 1.0
-        excitation = ExcitationNode(parameter_overrides=overrides(
-            duration=max(float(args.duration) - start_delay - 2.0, 1.0), seed=int(args.seed),
-            duty_cap=float(args.duty_cap), duty_max=min(0.7, float(args.duty_cap)), start_delay=start_delay,
-            time_source='wall', time_scale=float(args.realtime_factor) if use_sim else 1.0, exit_when_done=False,
-            **experiment_overrides(args)), namespace=namespace)
-        if use_sim:     # the schedule plays in simulated time: the simulator's published samples x Ts
-            excitation.follow(lambda: source.sequence * source.sample_time)
-        nodes.append(excitation)
+        excitation = None           # closed loop: the law sets the duty, no excitation node
+        if not closed:
+            excitation = ExcitationNode(parameter_overrides=overrides(
+                duration=max(float(args.duration) - start_delay - 2.0, 1.0), seed=int(args.seed),
+                duty_cap=float(args.duty_cap), duty_max=min(0.7, float(args.duty_cap)), start_delay=start_delay,
+                time_source='wall', time_scale=float(args.realtime_factor) if use_sim else 1.0,
+                exit_when_done=False, **experiment_overrides(args)), namespace=namespace)
+            if use_sim:     # the schedule plays in simulated time: the simulator's published samples x Ts
+                excitation.follow(lambda: source.sequence * source.sample_time)
+            nodes.append(excitation)
         identification = IdentificationNode(parameter_overrides=overrides(
             window_s=float(args.window), hop_s=float(args.hop), effects=list(args.model_effect) or ['']),
             namespace=namespace)
@@ -274,8 +302,19 @@ def _run(args) -> int:
             rig = f'{args.rig}_' if args.rig else ''
             folder = Path(args.record) / f'aeropend_{rig}{time.strftime("%Y%m%d_%H%M%S")}'
             folder.parent.mkdir(parents=True, exist_ok=True)
-            recorder = RecorderNode(parameter_overrides=overrides(output=str(folder)), namespace=namespace)
-            recorder.writer.custom_data.update(experiment_metadata(args))      # which schedule this bag played
+            extra = {}
+            if closed:      # the closed loop's reference and configuration topics are recorded too
+                from aeropend_ros import topics as contract
+                from aeropend_ros.recorder_node import DEFAULT_ALLOWED_TYPES
+                extra['allowed_types'] = [*DEFAULT_ALLOWED_TYPES, contract.REFERENCE_TYPE,
+                                          contract.CONTROLLER_CONFIG_TYPE]
+            recorder = RecorderNode(parameter_overrides=overrides(output=str(folder), **extra), namespace=namespace)
+            if closed:      # the controller file and the schedule, their content and sha256
+                from aeropend_core.control.record import closed_loop_metadata
+                recorder.writer.custom_data.update(closed_loop_metadata(
+                    closed['controller_path'], closed['schedule'], closed['reference_path']))
+            else:
+                recorder.writer.custom_data.update(experiment_metadata(args))  # which schedule this bag played
             nodes.append(recorder)
             bag_folder = folder
         else:
@@ -296,8 +335,19 @@ def _run(args) -> int:
         what = 'simulator' if use_sim else f'rig on {args.port}'
         if args.rig:
             what += f' as rig {args.rig} (namespace {namespace}: topics {namespace}/aeropend/...)'
+        if closed:          # said even with --quiet: which controller, and a schedule the user did not give
+            gains = closed['controller'].gains
+            print(f'aeropend run: closed loop: controller {closed["controller_path"]} (p {gains.p:g}, i {gains.i:g}, '
+                  f'd {gains.d:g}; model {closed["controller"].model_source}), reference '
+                  f'{closed["reference_text"]}' + ('' if closed['reference_path'] else ' (no --reference given)')
+                  + f'; duty capped at {args.duty_cap:g} (--duty-cap)'
+                  + (f', below the controller\'s u_clamp_max {gains.u_clamp_max:g}'
+                     if gains.u_clamp_max > args.duty_cap else ''), file=sys.stderr, flush=True)
+            if args.diagnosis_skipped:
+                print(f'aeropend run: {args.diagnosis_skipped}', file=sys.stderr, flush=True)
         if not args.quiet:          # progress: standard error (standard output carries the results)
-            print(f'aeropend run: {what}, {args.duration:g} s of excitation'
+            print(f'aeropend run: {what}, {args.duration:g} s of '
+                  + ('closed loop' if closed else 'excitation')
                   + (f' at {args.realtime_factor:g}x real time' if use_sim and args.realtime_factor != 1 else '')
                   + (f', recording to {bag_folder}' if bag_folder else ', not recording')
                   + f', identifying on {args.window:g} s windows every {args.hop:g} s'
@@ -307,12 +357,18 @@ def _run(args) -> int:
             spinner = threading.Thread(target=_spin, args=(executor,), name=node.get_name(), daemon=True)
             spinner.start()
             spinners.append(spinner)
-        clock = ScheduleClock(excitation, source, use_sim, float(args.duration), whole=bool(args.experiment))
+        if closed:
+            from aeropend_ros.cli.closed_loop_run import ClosedLoopClock, StepPrinter
+            clock = ClosedLoopClock(source)
+            steps = StepPrinter(source, closed['schedule'], closed['controller'].template)
+        else:
+            clock = ScheduleClock(excitation, source, use_sim, float(args.duration), whole=bool(args.experiment))
         interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME, recorder,
-                                       lambda: foreign_publishers(nodes, namespace), watched_topics(namespace), clock)
+                                       lambda: foreign_publishers(nodes, namespace), watched_topics(namespace), clock,
+                                       steps)
         if recorder is not None:        # where the schedule starts in the record, and whether it was played whole
             recorder.writer.custom_data.update(clock.metadata())
-        if excitation.started and not excitation.done:
+        if excitation is not None and excitation.started and not excitation.done:
             excitation.finish()          # duty back to 0 before the graph goes away
         if recorder is not None:
             _drain(recorder, getattr(source, 'sequence', None) if use_sim else None)
@@ -320,6 +376,8 @@ def _run(args) -> int:
         interrupted = True
         print('aeropend run: interrupted; finalising', file=sys.stderr)
     finally:
+        if closed and steps is not None:
+            _finish_steps(steps, args)
         # A second Ctrl-C must not cut the finalisation of the bag short (it takes a second or two).
         previous_sigint = signal.signal(signal.SIGINT, signal.SIG_IGN)
         for executor in executors:
@@ -342,7 +400,26 @@ def _run(args) -> int:
         print(f'recorded: {bag_folder}')
     if args.no_diagnose:
         return 130 if interrupted else 0
+    if closed:
+        # the closed loop's record is kept whatever becomes of the diagnosis (made for open-loop excitation)
+        try:
+            return _diagnose(bag_folder, memory, args, interrupted)
+        except KeyboardInterrupt:
+            return 130
+        except Exception as error:  # noqa: BLE001 - the record is what matters; say what failed, keep it
+            print(f'aeropend run: the diagnosis failed ({type(error).__name__}: {error}); the closed-loop record '
+                  f'is kept{": " + str(bag_folder) if bag_folder else ""}', file=sys.stderr)
+            return 1
     return _diagnose(bag_folder, memory, args, interrupted)
+
+
+def _finish_steps(steps, args) -> None:
+    """The closed loop's last console lines (steps not completed, the tally) even when the run was cut short."""
+    try:
+        steps.finish()
+    except Exception as error:  # noqa: BLE001 - the console must not cost the record
+        print(f'aeropend run: cannot judge the steps: {error}', file=sys.stderr)
+    args.closed_loop_steps = steps.results
 
 
 def _raise_keyboard_interrupt(signum, frame) -> None:
@@ -488,7 +565,7 @@ def _say_samples_received(identification, published: int) -> None:
 
 
 def _wait_until_done(args, source, excitation, identification, use_sim: bool, sample_time: float,
-                     recorder=None, foreign=None, watched=(), clock=None) -> bool:
+                     recorder=None, foreign=None, watched=(), clock=None, steps=None) -> bool:
     """Print the live windows (one line each) until the experiment is over; True when interrupted (Ctrl-C).
 
     Stops early when the recorder cannot write the bag (disk full): the run then ends with that error. `foreign`
@@ -501,6 +578,8 @@ def _wait_until_done(args, source, excitation, identification, use_sim: bool, sa
     try:
         while True:
             printer.update()
+            if steps is not None:       # closed loop: one line per completed step
+                steps.update()
             if foreign is not None and time.monotonic() - checked >= FOREIGN_CHECK_PERIOD_S:
                 checked = time.monotonic()
                 found = foreign()
@@ -631,7 +710,9 @@ def _diagnose(bag_folder, memory, args, interrupted: bool) -> int:
     if args.json:
         _write_json(args.json, {'recording': str(bag_folder) if bag_folder is not None else None,
                                 'samples': len(recording), 'interrupted': interrupted,
-                                'diagnosis': diagnosis.to_dict()})
+                                'diagnosis': diagnosis.to_dict(),
+                                **({'closed_loop_steps': args.closed_loop_steps}
+                                   if getattr(args, 'closed_loop_steps', None) is not None else {})})
     print(_next_step(diagnosis, bag_folder, args))
     return 130 if interrupted else 0
 

@@ -1,0 +1,195 @@
+"""``aeropend run --controller FILE [--reference FILE]``: play a reference schedule in closed loop.
+
+The simulator runs the controller law itself (:class:`aeropend_ros.sim_node.SimNode` in ``control_mode``
+``closed_loop``, gains and feedforward model from the controller file) on the schedule (``--reference``, or the
+default 20, 40, 60, 30 deg, 5 s each after 2 s at rest); no excitation node is started. The run lasts the schedule
+(``--duration`` cuts or extends it: after the schedule the last step is held). The bag holds the control telemetry
+(``/aeropend/control``), the controller's configuration (``/aeropend/controller``) and, in its metadata, the
+controller file and the schedule with their sha256 (:func:`aeropend_core.control.record.closed_loop_metadata`).
+While the run lasts, each completed step is judged against the controller's template (one line each); a run cut
+short names the steps it did not complete. The identification node runs as in open loop.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+
+from aeropend_core.errors import AeropendError
+
+#: One line when the rig is asked to close the loop before the serial bridge can.
+RIG_REFUSAL = ('--controller with --port: closed loop on the rig needs firmware protocol 2 and a serial bridge that '
+               'sends the law its gains and reference (not available yet); run the closed loop on the simulator '
+               '(drop --port)')
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The closed-loop options of ``aeropend run``."""
+    parser.add_argument('--controller', metavar='GAINS.yaml', default=None,
+                        help='close the loop with this controller file (gains and design model, written by '
+                             '`aeropend control design`) and play a reference schedule instead of the excitation '
+                             '(simulator only for now)')
+    parser.add_argument('--reference', metavar='STEPS.yaml', default=None,
+                        help='with --controller: the reference schedule (steps: [{angle_deg: 20, hold: 5}, ...]); '
+                             'default 20, 40, 60, 30 deg held 5 s each after 2 s at rest; the run lasts the '
+                             'schedule unless --duration is given')
+
+
+def check_conflicts(args) -> None:
+    """Options that cannot go with the closed loop, refused before the other checks read their files."""
+    if getattr(args, 'reference', None) and not getattr(args, 'controller', None):
+        raise AeropendError('--reference is the closed loop\'s schedule: give the controller too (--controller '
+                            'GAINS.yaml, written by `aeropend control design`)')
+    if getattr(args, 'controller', None) and (getattr(args, 'experiment', None) or
+                                              getattr(args, 'until_decided', False)):
+        raise AeropendError('--controller plays a reference schedule in closed loop; it cannot be combined with '
+                            '--experiment or --until-decided (open-loop duty schedules)')
+
+
+def _one_line(error: AeropendError) -> AeropendError:
+    """The same error on one line (a YAML parser's message spans several)."""
+    return AeropendError(' '.join(str(error).split()))
+
+
+def check_arguments(args, duration_given: bool) -> None:
+    """Refuse what cannot work before any node starts (AeropendError: one line, exit 2); on success
+    ``args.closed_loop`` holds the controller, the schedule and where they came from (None without --controller)."""
+    args.closed_loop = None
+    controller_path, reference_path = getattr(args, 'controller', None), getattr(args, 'reference', None)
+    check_conflicts(args)
+    if not controller_path:
+        return
+    if args.port is not None:
+        raise AeropendError(RIG_REFUSAL)
+    from aeropend_core.control.controller_file import Controller
+    from aeropend_core.control.loop import FeedforwardMap
+    from aeropend_core.control.record import default_schedule, default_schedule_text, read_schedule_file
+    try:
+        controller = Controller.load(controller_path)
+        schedule = read_schedule_file(reference_path) if reference_path else default_schedule()
+    except AeropendError as error:
+        raise _one_line(error) from None
+    gains = controller.gains
+    angles = [schedule.start_angle, *(step.angle for step in schedule.steps)]
+    for angle in angles:
+        low, high = angle - schedule.dither_amplitude, angle + schedule.dither_amplitude
+        if not (gains.angle_min < low and high < gains.angle_max):
+            raise AeropendError(f'the schedule asks for {math.degrees(angle):.1f} deg, outside the controller\'s '
+                                f'safety limits ({math.degrees(gains.angle_min):.1f} .. '
+                                f'{math.degrees(gains.angle_max):.1f} deg: angle_min/angle_max): the law would trip')
+    feedforward = FeedforwardMap(controller.parameters, controller.effects)
+    for angle in angles:
+        feedforward(angle)          # AeropendError when no duty holds it under the controller's model
+    if not duration_given:
+        args.duration = schedule.duration
+    args.closed_loop = {'controller': controller, 'controller_path': controller_path, 'schedule': schedule,
+                        'reference_path': reference_path,
+                        'reference_text': reference_path or default_schedule_text()}
+
+
+class ClosedLoopClock:
+    """Ends a closed-loop run when the simulator has published its `duration` (``stop_after``); says where the
+    schedule starts and whether it was played whole (the bag's metadata, the keys of ``--experiment``)."""
+
+    def __init__(self, source) -> None:
+        self.source = source
+
+    def over(self) -> bool:
+        return bool(self.source.finished)
+
+    def metadata(self) -> dict[str, str]:
+        source = self.source
+        start = source.schedule_start
+        offset = start * source.sample_time
+        return {'aeropend.schedule_seconds': f'{source.schedule.duration:.6f}',
+                'aeropend.schedule_complete': 'true' if source.schedule_done() else 'false',
+                'aeropend.schedule_start_stamp_ns': str(int(source.start_ns + round(offset * 1e9))),
+                'aeropend.schedule_offset_s': f'{offset:.6f}',
+                'aeropend.schedule_start_sample': str(int(start))}
+
+
+def _judged(value: float, limit: float | None, text: str, operator: str = '<=') -> str:
+    if limit is None:
+        return text
+    return f'{text} ({operator} {limit:g} {"ok" if value <= limit else "MISSED"})'
+
+
+def step_line(number: int, metrics, template) -> str:
+    """``step 2: 20.0 -> 40.0 deg: overshoot 6.1 % (<= 10 ok), settling 1.42 s (<= 2 ok), error 0.8 % (< 5 ok),
+    peak duty 0.74 (<= 0.8 ok)``; without a template the numbers alone."""
+    limits = template.as_dict() if template is not None else dict.fromkeys(('settling', 'overshoot', 'error',
+                                                                            'duty'))
+    head = f'step {number}: {math.degrees(metrics.initial):.1f} -> {math.degrees(metrics.target):.1f} deg: '
+    overshoot = _judged(metrics.overshoot, limits['overshoot'], f'overshoot {metrics.overshoot:.1f} %')
+    if metrics.settled:
+        settling = _judged(metrics.settling_time, limits['settling'], f'settling {metrics.settling_time:.2f} s')
+    else:
+        settling = f'settling: not settled in {metrics.hold:g} s' + (
+            f' (<= {limits["settling"]:g} MISSED)' if limits['settling'] is not None else '')
+    error = abs(metrics.steady_state_error)
+    error_text = f'error {metrics.steady_state_error:.1f} %'
+    if limits['error'] is not None:
+        error_text += f' (< {limits["error"]:g} {"ok" if error <= limits["error"] else "MISSED"})'
+    duty = _judged(metrics.peak_duty, limits['duty'], f'peak duty {metrics.peak_duty:.2f}')
+    return head + ', '.join((overshoot, settling, error_text, duty))
+
+
+class StepPrinter:
+    """The live console of a closed-loop run: one line per completed step of the schedule (measured metrics
+    against the controller's template), read from the simulator's log of the schedule."""
+
+    def __init__(self, source, schedule, template) -> None:
+        self.source, self.schedule, self.template = source, schedule, template
+        self.spans = schedule.step_times()
+        self.next = 0
+        self.results: list[dict] = []
+
+    def update(self) -> None:
+        source = self.source
+        played = (source.sequence - source.schedule_start) * source.sample_time
+        while self.next < len(self.spans) and played >= self.spans[self.next][1] - 1e-9:
+            self._judge(self.next)
+            self.next += 1
+
+    def _judge(self, index: int) -> None:
+        import numpy as np
+
+        from aeropend_core.control.loop import ClosedLoopRecord
+        from aeropend_core.control.metrics import step_metrics
+        start, end, before, after = self.spans[index]
+        if before == after:
+            self.results.append({'step': index + 1, 'completed': True, 'metrics': None})
+            return
+        parts = [record for _, record in list(self.source.schedule_log)]
+        first = self.source.schedule_log[0][0] - self.source.schedule_start if parts else 0
+        record = ClosedLoopRecord.concatenate(parts)
+        time = (first + np.arange(len(record))) * self.source.sample_time
+        try:
+            metrics = step_metrics(time, record.angle, record.duty, start, end, before, after)
+        except AeropendError as error:
+            print(f'step {index + 1}: {error}', flush=True)
+            self.results.append({'step': index + 1, 'completed': True, 'metrics': None})
+            return
+        print(step_line(index + 1, metrics, self.template), flush=True)
+        self.results.append({'step': index + 1, 'completed': True, 'metrics': metrics.as_dict(),
+                             'misses': metrics.misses(self.template) if self.template is not None else {}})
+
+    def finish(self) -> None:
+        """The steps not completed (a run cut short), in one line; then a tally against the template."""
+        self.update()
+        missing = [f'step {index + 1} ({math.degrees(before):.1f} -> {math.degrees(after):.1f} deg)'
+                   for index, (_, _, before, after) in enumerate(self.spans) if index >= self.next]
+        if missing:
+            print(f'not completed: {", ".join(missing)} (the run ended before their holds did)', flush=True)
+            self.results += [{'step': index + 1, 'completed': False} for index in range(self.next, len(self.spans))]
+        judged = [entry for entry in self.results if entry.get('metrics')]
+        if judged and self.template is not None:
+            met = sum(1 for entry in judged if not entry['misses'])
+            print(f'closed loop: {met} of {len(judged)} completed step(s) met the template ({self.template.text()})',
+                  flush=True)
+        if getattr(self.source, 'loop', None) is not None and self.source.loop.controller.tripped:
+            print('closed loop: SAFETY TRIP: the measured angle left the controller\'s angle_min..angle_max; the '
+                  'duty was held at 0 from then on', file=sys.stderr, flush=True)
+
+
+__all__ = ['ClosedLoopClock', 'RIG_REFUSAL', 'StepPrinter', 'add_arguments', 'check_arguments', 'step_line']
