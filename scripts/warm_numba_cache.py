@@ -32,6 +32,12 @@ def main() -> int:
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         diagnose(from_columns(run.columns(with_truth=False), source='warm-up'))
+        # the closed loop's kernels (the compiled loop, the law, the linear search's loop)
+        import math
+
+        from aeropend_core.control.design import design
+        from aeropend_core.control.metrics import Template
+        design(Template(), math.radians(40))
     print(f'warm_numba_cache: kernels compiled and cached in {time.perf_counter() - started:.1f} s')
     return 0
 

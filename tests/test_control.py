@@ -180,21 +180,29 @@ def test_nominal_design_meets_on_the_nominal_rig_and_misses_on_a_lagged_one(nomi
 
 
 @pytest.mark.slow
-def test_a_design_on_the_lagged_model_is_either_met_on_the_lagged_rig_or_refused_by_name():
-    """Never a confident wrong design: gains that come out meet the template on the rig they were designed for;
-    otherwise the refusal names the items the prediction misses."""
+def test_a_design_on_the_lagged_model_meets_the_template_on_the_lagged_rig():
+    """The redesign of the paper's story: designed on the model with the lag, checked on a lagged rig (another
+    noise seed than the design's)."""
     lag = {'thrust_lag': {'time_constant': 0.15}}
-    try:
-        result = design(Template(), math.radians(40), effects=lag)
-    except TemplateNotMet as refusal:
-        assert refusal.misses and all(item in str(refusal) for item in refusal.misses)
-        return
+    result = design(Template(), math.radians(40), effects=lag)
     controller = Controller(result.gains, effects=lag, template=Template())
     run = simulate_loop(result.gains, result.schedule.reference(), FeedforwardMap(effects=lag), effects=lag,
                         noise=MeasurementNoise(psnr_db=50, quantise=True), seed=12, duty_limit=0.8)
     check = check_record(run.time, run.angle, run.duty, controller, result.schedule)
     assert check.met, check.as_text()
     assert stable(result.gains, result.linearisation)
+
+
+@pytest.mark.parametrize('effects', [{}, {'thrust_lag': 0.12, 'angle_offset': 0.03},
+                                     {'angle_filter': 0.0141, 'dead_zone': 0.6, 'coulomb_friction': 2.0,
+                                      'cable_torque': 15.0, 'quadratic_drag': 3.0}])
+def test_compiled_closed_loop_equals_the_streaming_simulator_sample_by_sample(effects):
+    schedule = ReferenceSchedule.steps_between([30, 45], hold=2.0, start_hold=0.5)
+    gains = PidGains(p=1.2, i=0.6, d=0.15)
+    streaming = simulate_loop(gains, schedule.reference(), effects=effects, method='streaming', duty_limit=0.8)
+    compiled = simulate_loop(gains, schedule.reference(), effects=effects, method='compiled', duty_limit=0.8)
+    for name in ('angle', 'duty', 'armature_current', 'armature_voltage', 'integral'):
+        np.testing.assert_allclose(getattr(compiled, name), getattr(streaming, name), rtol=0, atol=1e-9)
 
 
 def test_an_impossible_template_is_refused_naming_the_item():

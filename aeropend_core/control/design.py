@@ -25,13 +25,15 @@ from aeropend_core.control.law import PidGains, law_step
 from aeropend_core.control.linear import Linearisation, linearise
 from aeropend_core.control.loop import ClosedLoopRecord, FeedforwardMap, simulate_loop
 from aeropend_core.control.metrics import StepMetrics, Template, schedule_metrics
-from aeropend_core.control.reference import ReferenceSchedule
+from aeropend_core.control.reference import ReferenceSchedule, ReferenceStep
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
 from aeropend_core.sim.noise import MeasurementNoise
 
 #: Share of each template limit the linear search aims at (the nonlinear loop needs the rest).
 LINEAR_MARGIN = 0.7
+#: Share of each template limit the nonlinear search aims at (noise of another seed needs the rest).
+NONLINEAR_MARGIN = 0.85
 #: Search rounds, each with a tighter margin, before a template is refused.
 ROUNDS = 3
 #: The derivative filter's time constant [s]: a tenth of the pendulum's time scale, well above Ts.
@@ -88,11 +90,20 @@ class Design:
                 'predicted_steps': [metrics.as_dict() for metrics in self.metrics], 'notes': list(self.notes)}
 
 
-def design_schedule(angle: float, swing_deg: float = 10.0, hold: float = 4.0) -> ReferenceSchedule:
-    """The default design steps around `angle` [rad]: from rest to angle - swing, to angle + swing, back."""
+#: Default design steps: +-SWING around the operating angle [deg], each held HOLD [s], after an approach of APPROACH
+#: [s] from the hanging rod to the first angle (played, not judged).
+SWING_DEG = 5.0
+HOLD = 4.0
+APPROACH = 4.0
+
+
+def design_schedule(angle: float, swing_deg: float = SWING_DEG, hold: float = HOLD,
+                    approach: float = APPROACH) -> ReferenceSchedule:
+    """The default design schedule around `angle` [rad]: the approach to angle - swing (not judged), then steps to
+    angle + swing, angle - swing and angle + swing."""
     at = math.degrees(angle)
-    return ReferenceSchedule.steps_between([at - swing_deg, at + swing_deg, at - swing_deg], hold=hold,
-                                           start_hold=1.0)
+    steps = tuple(ReferenceStep(math.radians(at + sign * swing_deg), hold) for sign in (1, -1, 1))
+    return ReferenceSchedule(steps=steps, start_angle=math.radians(at - swing_deg), start_hold=approach)
 
 
 def _plant(lin: Linearisation, sample_time: float):
@@ -103,7 +114,7 @@ def _plant(lin: Linearisation, sample_time: float):
 #: Duty error of the feedforward the linear search makes the integral remove within the hold [fraction].
 FEEDFORWARD_ERROR = 0.03
 #: Largest standard deviation of the duty that the angle's noise may cause through the law (fraction of full duty).
-DUTY_NOISE_LIMIT = 0.03
+DUTY_NOISE_LIMIT = 0.08
 
 
 def duty_noise(gains: PidGains, angle_sigma: float, sample_time: float = SAMPLE_TIME) -> float:
@@ -153,6 +164,26 @@ def _linear_cost(log_gains, plants, base: PidGains, template: Template, margin: 
     return cost
 
 
+def _nonlinear_cost(log_gains, base: PidGains, template: Template, margin: float, schedule: ReferenceSchedule,
+                    reference, feedforward, parameters, effects, noise, seed, sample_time, duty_cap, angle_sigma):
+    gains = _gains(log_gains, base)
+    run = simulate_loop(gains, reference, feedforward, parameters, effects, noise, seed, sample_time=sample_time,
+                        duty_limit=duty_cap)
+    if not np.all(np.isfinite(run.angle)) or run.tripped.any():
+        return 1e6
+    cost = 0.0
+    limit = template.settling or 2.0
+    for metrics in schedule_metrics(run.time, run.angle, run.duty, schedule):
+        cost += metrics.settling_time / limit if metrics.settled else 10.0
+        for item in ('overshoot', 'error', 'settling', 'duty'):
+            bound = getattr(template, item)
+            if bound is not None:
+                excess = metrics.value(item) / (margin * bound if item != 'duty' else bound) - 1.0
+                cost += 20.0 * max(0.0, excess) ** 2
+    cost += 20.0 * max(0.0, duty_noise(gains, angle_sigma, sample_time) / DUTY_NOISE_LIMIT - 1.0) ** 2
+    return cost
+
+
 def design(template: Template, angle: float, parameters: RigParameters = DEFAULT_PARAMETERS,
            effects: Mapping[str, Mapping[str, float]] | None = None, schedule: ReferenceSchedule | None = None,
            noise: MeasurementNoise | None = MeasurementNoise(psnr_db=50.0, quantise=True), seed: int = 0,
@@ -187,25 +218,40 @@ def design(template: Template, angle: float, parameters: RigParameters = DEFAULT
     reference = schedule.reference(None, sample_time)
     best: Design | None = None
     margin = LINEAR_MARGIN
-    starts = [start, start + np.log([0.5, 0.25, 0.5, 2.0])]      # a brisk and a gentle start
+    # 1. the linear search gives the start; 2. the nonlinear closed loop (compiled, ~10 ms a schedule) is searched
+    # from it at the design noise with one seed; 3. the result is predicted with that seed and another.
+    linear = minimize(_linear_cost, start, args=(plants, base, template, LINEAR_MARGIN, steps, sample_time,
+                                                 angle_sigma),
+                      method='Nelder-Mead', options={'xatol': 0.02, 'fatol': 1e-3, 'maxfev': 260})
+    margin = NONLINEAR_MARGIN
+    arguments = (base, template, margin, schedule, reference, feedforward, parameters, effects, noise, seed,
+                 sample_time, duty_cap, angle_sigma)
+    # The nonlinear search starts from the best of a coarse grid around the linear optimum: the linear plant
+    # misses the integral's slow tail after a step and the saturation of large ones.
+    grid = [linear.x + np.log([p_scale, i_scale, d_scale, 1.0]) for p_scale in (0.5, 1.0)
+            for i_scale in (0.1, 0.3, 1.0) for d_scale in (0.5, 1.0, 2.0)]
+    begin = min(grid, key=lambda point: _nonlinear_cost(point, *arguments))
     for _round in range(ROUNDS):
-        for index, begin in enumerate(starts):
-            result = minimize(_linear_cost, begin,
-                              args=(plants, base, template, margin, steps, sample_time, angle_sigma),
-                              method='Nelder-Mead', options={'xatol': 0.02, 'fatol': 1e-3, 'maxfev': 260})
-            gains = _gains(result.x, base)
-            predicted = simulate_loop(gains, reference, feedforward, parameters, effects, noise, seed,
-                                      sample_time=sample_time, duty_limit=duty_cap)
-            metrics = schedule_metrics(predicted.time, predicted.angle, predicted.duty, schedule)
-            gm, pm = margins(gains, lin, sample_time)
-            candidate = Design(gains, template, schedule, lin, predicted, metrics, gm, pm,
-                               [f'{name} left out of the linear search: {why}' for name, why in lin.left_out.items()])
-            if best is None or _badness(candidate) < _badness(best):
-                best = candidate
-            if not candidate.misses():
-                return candidate
-            starts[index] = result.x
-        margin *= 0.75
+        arguments = (base, template, margin, schedule, reference, feedforward, parameters, effects, noise, seed,
+                     sample_time, duty_cap, angle_sigma)
+        result = minimize(_nonlinear_cost, begin, args=arguments,
+                          method='Nelder-Mead', options={'xatol': 0.01, 'fatol': 1e-3, 'maxfev': 120})
+        gains = _gains(result.x, base)
+        gm, pm = margins(gains, lin, sample_time)
+        predictions = [simulate_loop(gains, reference, feedforward, parameters, effects, noise, seed + offset,
+                                     sample_time=sample_time, duty_limit=duty_cap) for offset in (0, 1)]
+        all_metrics = [schedule_metrics(run.time, run.angle, run.duty, schedule) for run in predictions]
+        candidate = Design(gains, template, schedule, lin, predictions[1], all_metrics[1], gm, pm,
+                           [f'{name} left out of the linear search: {why}' for name, why in lin.left_out.items()])
+        worst = Design(gains, template, schedule, lin, predictions[0], all_metrics[0], gm, pm, candidate.notes)
+        if _badness(worst) > _badness(candidate):
+            candidate = worst
+        if best is None or _badness(candidate) < _badness(best):
+            best = candidate
+        if not candidate.misses():
+            return candidate
+        margin *= 0.85
+        begin = result.x
     misses = best.misses()
     raise TemplateNotMet(best, misses)
 
