@@ -33,7 +33,8 @@ the nominal model. Every sample has its telemetry on ``aeropend/control`` (``top
 stamp; the fields of :class:`aeropend_core.control.loop.ClosedLoopRecord`: ``duty`` is the duty applied during that
 sample, ``unsaturated``/``integral``/``tripped`` the law's state after answering its angle), and the configuration
 (gains, model, schedule, their sha256) on ``aeropend/controller`` (YAML, transient local). A measured angle outside
-[``angle_min``, ``angle_max``] trips the law: duty 0, latched, until ``control_mode`` is set again.
+[``angle_min``, ``angle_max``] trips the law: duty 0, latched, until ``control_mode`` is set again or (as the
+firmware) a reference is accepted from the topic.
 """
 from __future__ import annotations
 
@@ -357,6 +358,10 @@ class SimNode(Node):
                                           throttle_duration_sec=2.0)
                 return
         self.reference, self.topic_feedforward = reference, feedforward
+        if self.closed_loop and self.schedule is None and self.loop.controller.tripped:
+            self.loop.controller.reset()            # as the firmware: an accepted reference restarts a tripped law
+            self._trip_said = False
+            self.get_logger().info(f'new reference {reference:.3f} rad: the tripped law restarts')
 
     def _check_control_parameters(self, parameters) -> SetParametersResult:
         """Gains are checked together (PidGains.problems); a refused change names why and changes nothing."""
@@ -448,7 +453,8 @@ class SimNode(Node):
             where = int(np.argmax(record.tripped > 0))
             self.get_logger().error(
                 f'safety trip: measured angle {record.angle[where]:.3f} rad outside [{self.gains.angle_min:g}, '
-                f'{self.gains.angle_max:g}] rad at sample {first + where}: duty 0 until control_mode is set again')
+                f'{self.gains.angle_max:g}] rad at sample {first + where}: duty 0 until control_mode is set again or '
+                'a new reference arrives')
         msg, control = self._message, self._control_message
         angle, voltage, current = record.angle.tolist(), record.armature_voltage.tolist(), \
             record.armature_current.tolist()

@@ -176,20 +176,35 @@ def test_invalid_gains_are_refused_with_the_reason(sim, watcher):
 
 def test_angle_trip_latches_duty_zero_until_reset(sim, watcher):
     """angle_max below the rod's angle: the next sample trips the law, duty 0 and tripped from then on (latched,
-    even after the limit is raised again) until control_mode is set again."""
-    _tracking(watcher, 0.5)
-    assert watcher.set(angle_max=0.4)[0].successful
+    even after the limit is raised again) until a new reference arrives (as the firmware) or control_mode is set
+    again."""
     tripped_index = topics.CONTROL_NAMES.index('tripped')
-    assert watcher.wait_for(lambda: watcher.control[watcher.last()][1][tripped_index] == 1.0)
-    first = min(k for k, (_, values) in watcher.control.items() if values[tripped_index] == 1.0)
-    assert watcher.set(angle_max=1.75)[0].successful
-    end = watcher.hold(2.0)
-    after = [k for k in range(first + 1, end) if k in watcher.samples]
-    assert all(watcher.samples[k].duty == 0.0 for k in after)
-    assert all(watcher.control[k][1][tripped_index] == 1.0 for k in after if k in watcher.control)
-    assert watcher.set(control_mode='closed_loop')[0].successful          # reset: the law runs again
-    assert watcher.wait_for(lambda: watcher.control[watcher.last()][1][tripped_index] == 0.0
-                            and watcher.samples.get(watcher.last(), topics.Sample(0, 0, 0, 0, 0, 0)).duty > 0.0)
+
+    def trip() -> int:
+        _tracking(watcher, 0.5)
+        before = watcher.last()
+        assert watcher.control[before][1][tripped_index] == 0.0
+        assert watcher.set(angle_max=0.4)[0].successful
+        assert watcher.wait_for(lambda: watcher.control[watcher.last()][1][tripped_index] == 1.0)
+        first = min(k for k, (_, values) in watcher.control.items() if values[tripped_index] == 1.0 and k > before)
+        assert watcher.set(angle_max=1.75)[0].successful
+        end = watcher.hold(2.0)
+        after = [k for k in range(first + 1, end) if k in watcher.samples]
+        assert len(after) > 300 and all(watcher.samples[k].duty == 0.0 for k in after)
+        assert all(watcher.control[k][1][tripped_index] == 1.0 for k in after if k in watcher.control)
+        return end
+
+    def running() -> bool:
+        last = watcher.last()
+        return watcher.control[last][1][tripped_index] == 0.0 and last in watcher.samples and \
+            watcher.samples[last].duty > 0.0
+
+    trip()
+    watcher.reference.publish(Float64MultiArray(data=[0.45]))       # a new reference restarts the law
+    assert watcher.wait_for(running)
+    trip()
+    assert watcher.set(control_mode='closed_loop')[0].successful    # so does setting the mode
+    assert watcher.wait_for(running)
     assert sim.process.poll() is None
     assert 'safety trip: measured angle' in sim.output()
 

@@ -25,6 +25,7 @@ telemetry decoded the same way, vectorised).
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import os
@@ -332,15 +333,51 @@ def _complete(metadata: dict[str, str], schedule: ReferenceSchedule | None, time
     return bool(time[-1] >= schedule.duration - 1.5 * SAMPLE_TIME)
 
 
+def _joint_state_layout(data: bytes) -> tuple[list[str], int, int] | None:
+    """(names, byte offset of ``position[0]``, len(position)) of a little-endian CDR ``sensor_msgs/JointState``, or
+    None when it is laid out otherwise (big endian, truncated)."""
+    if len(data) < 16 or data[0] != 0 or data[1] != 1:
+        return None
+
+    def align(offset: int, size: int) -> int:          # CDR alignment counts from after the 4-byte header
+        return offset + (-(offset - 4) % size)
+
+    try:
+        offset = 12                                     # header, then stamp (sec, nanosec)
+        (length,) = struct.unpack_from('<I', data, offset)
+        offset = align(offset + 4 + length, 4)          # frame_id
+        (count,) = struct.unpack_from('<I', data, offset)
+        offset += 4
+        names = []
+        for _ in range(count):
+            offset = align(offset, 4)
+            (length,) = struct.unpack_from('<I', data, offset)
+            names.append(data[offset + 4:offset + 4 + length].rstrip(b'\x00').decode('utf-8'))
+            offset += 4 + length
+        offset = align(offset, 4)
+        (positions,) = struct.unpack_from('<I', data, offset)
+        offset = align(offset + 4, 8)
+    except (struct.error, UnicodeDecodeError):
+        return None
+    return (names, offset, positions) if offset + 8 * positions <= len(data) else None
+
+
+@functools.lru_cache(maxsize=1)
+def _joint_state_decoder():
+    """The rosbags CDR deserialiser of JointState (for messages the vectorised path does not take)."""
+    from rosbags.typesys import Stores, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    return lambda data: store.deserialize_cdr(data, 'sensor_msgs/msg/JointState')
+
+
 def _decode_joint_states(datas: list[bytes], names: tuple[str, ...], where: str) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps (int64 ns) and the `names` values (n, len(names)) of JointState CDR messages: the messages laid out
-    as the first one (one publisher) at once with numpy, any other through the rosbags deserialiser."""
-    from aeropend_core.io.bag import _joint_state_decoder, _joint_state_layout
+    """Stamps (int64 ns) and the `names` values (n, len(names)) of JointState CDR messages: every message laid out
+    as the first one (one publisher: same length, same bytes outside the stamp and the values) at once with numpy,
+    any other through the rosbags deserialiser."""
     n = len(datas)
     stamps = np.empty(n, dtype=np.int64)
     table = np.empty((n, len(names)))
     done = np.zeros(n, dtype=bool)
-    decode = _joint_state_decoder()
 
     def index_of(message_names) -> list[int]:
         message_names = list(message_names)
@@ -353,18 +390,17 @@ def _decode_joint_states(datas: list[bytes], names: tuple[str, ...], where: str)
     first = datas[0]
     layout = _joint_state_layout(first)
     if layout is not None:
-        offset, count = layout
-        reference = decode(first)
-        index = index_of(reference.name)
+        message_names, offset, count = layout
+        index = index_of(message_names)
         length = len(first)
-        rows = np.flatnonzero(np.fromiter((len(d) == length for d in datas), dtype=bool, count=n))
-        block = np.frombuffer(b''.join(datas[k] for k in rows), dtype=np.uint8).reshape(len(rows), length)
         end = offset + 8 * count
-        alike = np.all(block[:, 12:offset] == block[0, 12:offset], axis=1) & \
-            np.all(block[:, end:] == block[0, end:], axis=1)
-        block, rows = block[alike], rows[alike]
-        values = np.ascontiguousarray(block[:, offset:end]).view('<f8')
-        if count > max(index) and np.array_equal(values[0], np.asarray(reference.position, dtype=float)):
+        if count >= len(message_names):
+            rows = np.flatnonzero(np.fromiter((len(d) == length for d in datas), dtype=bool, count=n))
+            block = np.frombuffer(b''.join(datas[k] for k in rows), dtype=np.uint8).reshape(len(rows), length)
+            alike = np.all(block[:, 12:offset] == block[0, 12:offset], axis=1) & \
+                np.all(block[:, end:] == block[0, end:], axis=1)
+            block, rows = block[alike], rows[alike]
+            values = np.ascontiguousarray(block[:, offset:end]).view('<f8')
             sec = np.ascontiguousarray(block[:, 4:8]).view('<i4')[:, 0].astype(np.int64)
             nsec = np.ascontiguousarray(block[:, 8:12]).view('<u4')[:, 0].astype(np.int64)
             stamps[rows] = sec * 1_000_000_000 + nsec
@@ -372,7 +408,7 @@ def _decode_joint_states(datas: list[bytes], names: tuple[str, ...], where: str)
             done[rows] = True
     for k in np.flatnonzero(~done):
         try:
-            message = decode(datas[k])
+            message = _joint_state_decoder()(datas[k])
         except Exception as error:  # noqa: BLE001 - rosbags raises its own types
             raise AeropendError(f'a message in {where} is not valid CDR for JointState: {error}') from None
         index = index_of(message.name)
