@@ -24,6 +24,24 @@ sample rate and clock drift. When the port disappears (USB unplugged) the node k
 ``reconnect_period`` seconds, re-sends the configuration (maximum duty, watchdog, current duty) once the device is
 back, and logs how many samples the outage cost.
 
+Closed loop (``control_mode: closed_loop``; default ``open_loop`` is the behaviour above): the *firmware* runs the
+controller law (protocol version 2, docs/rig-link.md section 5) on the angle it samples, the duty applying from the
+next PWM period. The gains are parameters named as ros2_control's pid_controller (``p``, ``i``, ``d``,
+``derivative_filter_time``, ``i_clamp_min``/``max``, ``u_clamp_min``/``max``, ``antiwindup``,
+``tracking_time_constant``, ``feedforward_gain``, ``angle_min``/``max``), as the sim node's, changeable at run time:
+a change is checked together (:meth:`PidGains.problems`; refused with the reason, nothing changed), then sent as 13
+SET_CONTROL_COEFFICIENT commands whose ACKs the reader thread checks (:class:`aeropend_core.rig.control_link.
+GainsUpload`; ``/diagnostics`` ``controller_gains`` says ``acknowledged``, ``sending`` or why the device refused).
+The gains, the angle calibration (``angle_zero``, ``angle_scale``) and, in closed loop, the last reference and the
+mode are sent again whenever the device (re)starts. The reference comes from ``aeropend/reference``
+(``std_msgs/Float64MultiArray``, ``data = [reference_rad, feedforward_duty]``; without the feedforward the nominal
+model's static duty), forwarded as SET_REFERENCE (a new reference also releases a latched angle trip). In closed
+loop duty commands are ignored and the heartbeat is REQUEST_STATUS (SET_DUTY would take the device back to open
+loop); each CONTROL_SAMPLE is published on ``aeropend/samples`` as usual and on ``aeropend/control``
+(``topics.CONTROL_NAMES``, the sample's stamp; ``duty`` the duty applied during the sample, ``unsaturated``,
+``integral`` and ``tripped`` the law's state after answering its angle). Setting ``control_mode`` to open_loop sets
+the duty to 0; setting closed_loop again restarts the law.
+
 Run on the rig::
 
     ros2 run aeropend_ros serial_bridge_node --ros-args -p port:=/dev/ttyACM0 \\
@@ -47,10 +65,12 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, Float64MultiArray
 
+from aeropend_core.control.law import ANTIWINDUP, PidGains
 from aeropend_core.rig import protocol as P
 from aeropend_core.errors import AeropendError
+from aeropend_core.rig.control_link import GainsUpload
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 from aeropend_core.rig.link_checks import CheckedSample, FrameChecker
 from aeropend_core.rig.sample_clock import SampleClock
@@ -65,6 +85,19 @@ DEVICE_PARAMETERS = ('max_duty', 'watchdog_timeout')
 #: Host time [s] a clock rate fault must last before samples are withheld (a backlog on a loaded host can look like
 #: a rate error for a few seconds; a wrong clock stays wrong). Until then the samples go out with a WARN.
 CLOCK_FAULT_PERSIST = 5.0
+#: Control modes: the duty command, or the firmware's controller law on the measured angle.
+CONTROL_MODES = ('open_loop', 'closed_loop')
+#: The gain parameters (ros2_control pid_controller's names, as the sim node's), in PidGains' order.
+GAIN_NAMES = tuple(PidGains.__dataclass_fields__)
+_GAIN_HELP = {
+    'p': 'proportional gain [duty/rad]', 'i': 'integral gain [duty/(rad s)]', 'd': 'derivative gain on the '
+    'measured angle [duty s/rad]', 'derivative_filter_time': 'Tf of the derivative filter [s] (0: plain difference)',
+    'i_clamp_min': 'lower limit of the integral term [duty]', 'i_clamp_max': 'upper limit of the integral term '
+    '[duty]', 'u_clamp_min': 'lowest duty the law outputs [fraction]', 'u_clamp_max': 'highest duty the law '
+    'outputs [fraction]', 'antiwindup': 'back_calculation, conditional_integration or none',
+    'tracking_time_constant': 'Tt of back-calculation [s] (0: sqrt(Ti Td))', 'feedforward_gain': 'weight of the '
+    "feedforward duty [-]", 'angle_min': 'safety trip below this measured angle [rad] (on the device)',
+    'angle_max': 'safety trip above this measured angle [rad] (on the device)'}
 #: Reads observed before the first stamps of a (re)started clock are published (about 0.1 s of data).
 PRIME_ARRIVALS = 8
 
@@ -124,6 +157,7 @@ class SerialBridgeNode(Node):
         # its calibration file for `aeropend diagnose/identify --calibration` (aeropend calibrate angle-filter).
         declare(self, 'angle_filter_delay', 0.0141, "DC group delay [s] of the angle's RC low-pass on the board "
                 '(3 R C; 0 = none); read by the diagnosis, not by the bridge', read_only=True, low=0.0, high=0.05)
+        self._declare_control()
         check_unknown_overrides(self)
         if self.heartbeat_period >= self.get_parameter('watchdog_timeout').value:
             raise ParameterError(f'{self.get_name()}: heartbeat_period ({self.heartbeat_period:g} s) must be shorter '
@@ -178,6 +212,11 @@ class SerialBridgeNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self.publisher = self.create_publisher(JointState, topics.SAMPLES, topics.samples_qos())
+        self.control_publisher = self.create_publisher(JointState, topics.CONTROL, topics.samples_qos())
+        self._control_message = JointState()
+        self._control_message.header.frame_id = topics.SAMPLE_FRAME_ID
+        self._control_message.name = list(topics.CONTROL_NAMES)
+        self.create_subscription(Float64MultiArray, topics.REFERENCE, self._on_reference, topics.command_qos())
         self.diagnostics_publisher = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS_TOPIC,
                                                            topics.diagnostics_qos())
         self.duty_guard = DutySourceGuard(self, topics.DUTY_COMMAND, self._refuse_duty)
@@ -212,15 +251,173 @@ class SerialBridgeNode(Node):
         if 'watchdog_timeout' in changed and changed['watchdog_timeout'] <= self.heartbeat_period:
             return SetParametersResult(successful=False, reason=f'watchdog_timeout must exceed heartbeat_period '
                                        f'({self.heartbeat_period} s)')
+        gains = {name: value for name, value in changed.items() if name in GAIN_NAMES}
+        if gains:
+            problems = _gain_problems({**self.gains.as_dict(), **gains})
+            if problems:
+                return SetParametersResult(successful=False, reason=f'{self.get_name()}: controller gains refused: '
+                                           f'{"; ".join(problems)}; the gains are unchanged')
         return SetParametersResult(successful=True)
 
     def _apply_parameters(self, parameters) -> None:
         names = {p.name for p in parameters}
         if names & set(CALIBRATION_PARAMETERS):
             self.calibration = self._calibration_from_parameters({})
+            if names & {'angle_zero', 'angle_scale'}:
+                if self.closed_loop:
+                    self.get_logger().warning('angle calibration changed: the device takes it in open loop only '
+                                              '(it is sent again when the device restarts or the loop is opened)')
+                else:
+                    self._write(self._calibration_command())
         if names & set(DEVICE_PARAMETERS):
             self.duty = min(self.duty, float(self.get_parameter('max_duty').value))
             self._send_configuration()
+        if names & set(GAIN_NAMES):
+            self.gains = PidGains(**{name: self.get_parameter(name).value for name in GAIN_NAMES})
+            self.get_logger().info('controller gains changed: ' + ', '.join(
+                f'{p.name} {p.value}' for p in parameters if p.name in GAIN_NAMES) + '; sending them to the device')
+            self._start_upload()
+        if 'control_mode' in names:
+            closed = self.get_parameter('control_mode').value == 'closed_loop'
+            self.closed_loop = closed
+            if closed:
+                self.get_logger().info('closed loop: the device runs the law once the gains are acknowledged')
+                self._close_loop()
+            else:
+                self.duty = 0.0
+                self.get_logger().info('open loop: duty 0 until a duty command arrives')
+                self._write(P.encode_control_mode(P.MODE_OPEN_LOOP) + self._calibration_command())
+
+    # ----------------------------------------------------------------------------------------------- closed loop
+    def _declare_control(self) -> None:
+        """The closed loop's parameters (as the sim node's): the mode and the gains."""
+        mode = declare(self, 'control_mode', 'open_loop', "'open_loop' (duty commands) or 'closed_loop' (the "
+                       "firmware's controller law on the measured angle); setting closed_loop again restarts the "
+                       'law (and releases a trip)', choices=CONTROL_MODES)
+        defaults = PidGains().as_dict()
+        values = {}
+        for name in GAIN_NAMES:
+            if name == 'antiwindup':
+                values[name] = declare(self, name, str(defaults[name]), _GAIN_HELP[name], choices=tuple(ANTIWINDUP))
+            else:
+                values[name] = declare(self, name, float(defaults[name]), _GAIN_HELP[name])
+        problems = _gain_problems(values)
+        if problems:
+            raise ParameterError(f'{self.get_name()}: controller gains: {"; ".join(problems)}; fix the -p values '
+                                 'or the params file')
+        self.gains = PidGains(**values)
+        self.closed_loop = mode == 'closed_loop'
+        self._control_lock = threading.Lock()
+        self._upload: GainsUpload | None = None
+        self.gains_state = 'not sent'          # 'sending', 'acknowledged' or why the device refused
+        self.reference: tuple[float, float] | None = None
+        self._device_closed = False            # the device's last frame had FLAG_CLOSED_LOOP
+        self._trip_said = False
+        self._duty_ignored_said = False
+        self.control_stats = {'acks_refused': 0, 'law_trips': 0, 'control_published': 0}
+
+    def _calibration_command(self) -> bytes:
+        return P.encode_angle_calibration(self.calibration.angle_zero, self.calibration.angle_scale)
+
+    def _start_upload(self) -> None:
+        """Send the gains as 13 coefficients; the reader thread checks the ACKs (_on_ack)."""
+        upload = GainsUpload(self.gains, self.sample_period)
+        with self._control_lock:
+            if not self._write(upload.start()):
+                self._upload, self.gains_state = None, 'not sent'
+                return
+            self._upload, self.gains_state = upload, 'sending'
+
+    def _close_loop(self) -> None:
+        """Reference (if any) and SET_CONTROL_MODE 1, once the gains are acknowledged (else when they are)."""
+        with self._control_lock:
+            if self.gains_state != 'acknowledged':
+                return
+            data = b''
+            if self.reference is not None:
+                data += P.encode_reference(*self.reference)
+            self._write(data + P.encode_control_mode(P.MODE_CLOSED_LOOP))
+
+    def _configure_controller(self) -> None:
+        """After the device (re)starts: calibration (open loop only takes it), gains; closed loop follows."""
+        self._device_closed = False
+        self._write(self._calibration_command())   # (refused, harmlessly, by a device still in closed loop)
+        self._start_upload()
+
+    def _on_ack(self, ack: P.AckFrame) -> None:
+        """An ACK (reader thread): the gain upload's, the mode's or a reference's."""
+        logger = self.get_logger()
+        if not ack.ok:
+            self.control_stats['acks_refused'] += 1
+        if ack.command == P.SET_CONTROL_COEFFICIENT:
+            with self._control_lock:
+                upload = self._upload
+                if upload is None:
+                    return
+                resend = upload.accept(ack)
+                if resend:
+                    self._write(resend)
+                if upload.error is not None:
+                    self.gains_state = f'refused: {upload.error}'
+                    self._upload = None
+                    logger.error(f'the device refused the controller gains: {upload.error}')
+                    return
+                if not upload.done:
+                    return
+                self._upload = None
+                self.gains_state = 'acknowledged'
+            logger.info('controller gains acknowledged by the device')
+            if self.closed_loop and not self._device_closed:
+                self._close_loop()
+        elif ack.command == P.SET_CONTROL_MODE:
+            if ack.ok:
+                self._device_closed = ack.value == P.MODE_CLOSED_LOOP
+                if self._device_closed:
+                    self._trip_said = False
+                    logger.info('the device runs the closed loop')
+            else:
+                logger.error(f'the device refused SET_CONTROL_MODE: {ack.describe()}')
+        elif ack.command == P.SET_REFERENCE and not ack.ok:
+            logger.warning(f'the device refused the reference: {ack.describe()}', throttle_duration_sec=2.0)
+        elif ack.command == P.SET_ANGLE_CALIBRATION and not ack.ok and ack.result != P.ACK_REFUSED:
+            logger.error(f'the device refused the angle calibration: {ack.describe()}')
+
+    def _on_reference(self, msg: Float64MultiArray) -> None:
+        data = list(msg.data)
+        if not 1 <= len(data) <= 2 or not all(math.isfinite(value) for value in data):
+            self.get_logger().warning(f'reference {data!r} refused: data must be [reference_rad] or '
+                                      '[reference_rad, feedforward_duty], finite', throttle_duration_sec=2.0)
+            return
+        reference = float(data[0])
+        if not self.gains.angle_min <= reference <= self.gains.angle_max:
+            self.get_logger().warning(f'reference {reference:.3f} rad refused: outside the safety limits '
+                                      f'[{self.gains.angle_min:g}, {self.gains.angle_max:g}] rad',
+                                      throttle_duration_sec=2.0)
+            return
+        if len(data) > 1:
+            feedforward = float(data[1])
+        else:
+            from aeropend_core.control.feedforward import static_duty
+            try:
+                feedforward = float(static_duty(reference))
+            except AeropendError as error:
+                self.get_logger().warning(f'reference {reference:.3f} rad refused: {error}',
+                                          throttle_duration_sec=2.0)
+                return
+        if not 0.0 <= feedforward <= 1.0:
+            self.get_logger().warning(f'feedforward {feedforward!r} refused: a duty fraction in [0, 1]',
+                                      throttle_duration_sec=2.0)
+            return
+        self.reference = (reference, feedforward)
+        self._write(P.encode_reference(reference, feedforward))
+
+    def _publish_control(self, frame: P.ControlSampleFrame, stamp) -> None:
+        control = self._control_message
+        control.header.stamp = stamp
+        control.position = [frame.reference, frame.feedforward, frame.duty, frame.unsaturated, frame.integral,
+                            1.0 if frame.tripped else 0.0, float(frame.sequence)]
+        self.control_publisher.publish(control)
+        self.control_stats['control_published'] += 1
 
     # ------------------------------------------------------------------------------------------------ serial link
     def _open(self):
@@ -297,9 +494,10 @@ class SerialBridgeNode(Node):
         max_duty = float(self.get_parameter('max_duty').value)
         watchdog = float(self.get_parameter('watchdog_timeout').value)
         self._config_sent_at = time.monotonic()
+        # (no SET_DUTY in closed loop: it would take the device back to open loop)
+        duty = b'' if self.closed_loop else P.encode_command(P.SET_DUTY, min(self.duty, max_duty))
         self._write(P.encode_command(P.SET_MAX_DUTY, max_duty) + P.encode_command(P.SET_WATCHDOG, watchdog)
-                    + P.encode_command(P.SET_DUTY, min(self.duty, max_duty))
-                    + P.encode_command(P.REQUEST_STATUS))
+                    + duty + P.encode_command(P.REQUEST_STATUS))
 
     # ---------------------------------------------------------------------------------------------------- decoding
     def _device_talks(self, messages: list) -> None:
@@ -311,6 +509,7 @@ class SerialBridgeNode(Node):
             self.get_logger().info(f'device on {self.port} is talking ({since_open:.1f} s after opening): sending '
                                    'the configuration')
             self._send_configuration()
+            self._configure_controller()
 
     def _warn_if_silent(self) -> None:
         """One warning when the open port stays silent well past the boot delay."""
@@ -329,8 +528,10 @@ class SerialBridgeNode(Node):
             self._device_talks(messages)
         samples = []
         for message in messages:
-            if type(message) is P.SampleFrame:
+            if type(message) is P.SampleFrame or type(message) is P.ControlSampleFrame:
                 samples.append(message)
+            elif type(message) is P.AckFrame:
+                self._on_ack(message)
             else:
                 self._handle_status(message)
         # Range and sequence plausibility after the CRC (aeropend_core.rig.link_checks): what the stream
@@ -391,6 +592,12 @@ class SerialBridgeNode(Node):
                 self.get_logger().warning(message)
             else:   # commanded duty 0 anyway (e.g. while shutting down): nothing was cut
                 self.get_logger().debug(message)
+        if frame.flags & P.FLAG_LAW_TRIPPED and not self._last_flags & P.FLAG_LAW_TRIPPED:
+            self.control_stats['law_trips'] += 1
+            self.get_logger().error(f'safety trip on the device: angle outside [{self.gains.angle_min:g}, '
+                                    f'{self.gains.angle_max:g}] rad, duty 0 until a new reference (or control_mode '
+                                    'set again)')
+        self._device_closed = bool(frame.flags & P.FLAG_CLOSED_LOOP)
         self._last_flags = frame.flags
         self._last_sequence = frame.sequence
         self._last_arrival = arrival
@@ -426,6 +633,8 @@ class SerialBridgeNode(Node):
             sample = topics.Sample(self._epoch_ns + round(stamp * 1e9), angle, voltage, current, duty,
                                    frame.sequence)
             self.publisher.publish(topics.sample_to_msg(sample, self._message))
+            if type(frame) is P.ControlSampleFrame:
+                self._publish_control(frame, self._message.header.stamp)
         self.stats['samples_published'] += len(run)
 
     def _rate_text(self) -> str:
@@ -476,6 +685,8 @@ class SerialBridgeNode(Node):
                 self.publisher.publish(topics.sample_to_msg(topics.Sample(
                     self._epoch_ns + round(stamp * 1e9), angle, voltage, current, duty, frame.sequence),
                     self._message))
+                if type(frame) is P.ControlSampleFrame:
+                    self._publish_control(frame, self._message.header.stamp)
             self.stats['samples_published'] += len(run)
 
     def _device_reset(self, arrival: float, first: int, newest: int) -> None:
@@ -503,6 +714,7 @@ class SerialBridgeNode(Node):
             self.get_logger().warning(f'device reset detected; about {missing} samples lost (the new run starts at '
                                       f'sequence {first}); re-sending the configuration')
         self._send_configuration()
+        self._configure_controller()
 
     def _handle_status(self, status) -> None:
         if not isinstance(status, P.StatusFrame):
@@ -521,6 +733,12 @@ class SerialBridgeNode(Node):
     def _on_duty(self, msg: Float64, msg_info) -> None:
         if not self.duty_guard.accept(msg_info):
             return
+        if self.closed_loop:
+            if not self._duty_ignored_said:
+                self._duty_ignored_said = True
+                self.get_logger().warning('duty command ignored: the device runs the closed loop (set '
+                                          'control_mode:=open_loop to command the duty)')
+            return
         duty, clamped = checked_duty(self, float(msg.data), 'max_duty')
         self.stats['clamped_commands'] += clamped
         self.duty = duty
@@ -528,13 +746,18 @@ class SerialBridgeNode(Node):
         self._write(P.encode_command(P.SET_DUTY, duty))
 
     def _refuse_duty(self) -> None:
-        """Two sources command this rig: duty 0 on the device now (DutySourceGuard); the heartbeat repeats it."""
+        """Two sources command this rig: duty 0 on the device now (DutySourceGuard); the heartbeat repeats it.
+        (In closed loop duty commands are ignored anyway: the law keeps running.)"""
         self.duty = 0.0
-        self._write(P.encode_command(P.SET_DUTY, 0.0))
+        if not self.closed_loop:
+            self._write(P.encode_command(P.SET_DUTY, 0.0))
 
     def _on_heartbeat(self) -> None:
         if not self._device_spoke:
             self._warn_if_silent()
+        if self.closed_loop:
+            self._write(P.encode_command(P.REQUEST_STATUS))    # feeds the watchdog without leaving closed loop
+            return
         timeout = float(self.get_parameter('command_timeout').value)
         if timeout > 0.0 and self.duty > 0.0 and time.monotonic() - self._last_command_time > timeout:
             self.get_logger().warning(f'no duty command for {timeout:g} s: duty set to 0')
@@ -567,6 +790,10 @@ class SerialBridgeNode(Node):
             'sequence_wraps': str(self.checker.counters.wraps),
         }
         values.update({name: str(count) for name, count in self.stats.items()})
+        values.update({'control_mode': 'closed_loop' if self.closed_loop else 'open_loop',
+                       'controller_gains': self.gains_state, 'device_closed_loop': str(self._device_closed),
+                       'law_tripped': str(bool(self._last_flags & P.FLAG_LAW_TRIPPED))})
+        values.update({name: str(count) for name, count in self.control_stats.items()})
         if self.status is not None:
             values.update({
                 'device_protocol_version': str(self.status.protocol_version),
@@ -651,6 +878,14 @@ class SerialBridgeNode(Node):
                 pass
         self._reader.join(timeout=2.0)
         super().destroy_node()
+
+
+def _gain_problems(values: dict) -> list[str]:
+    """What is wrong with a set of gain values (:meth:`PidGains.problems`), one sentence each."""
+    gains = object.__new__(PidGains)            # unchecked: problems() says what the constructor would refuse
+    for name, value in values.items():
+        object.__setattr__(gains, name, value)
+    return gains.problems()
 
 
 def main(args=None) -> int:

@@ -1,0 +1,128 @@
+"""The serial bridge in closed loop, a real process over DDS, on the pty device emulator (which runs the firmware's
+closed loop with the Python law): gains as parameters sent and acknowledged, the reference topic, the telemetry on
+aeropend/control from CONTROL_SAMPLE frames, gains changed at run time, invalid gains refused with the reason,
+back to open loop. (The same commands on the real firmware in simavr: tests/test_firmware_sim.py.)"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aeropend_core.control import law
+from aeropend_core.control.feedforward import static_duty
+from aeropend_core.rig.control_link import device_coefficients
+from aeropend_core.testing.device_emulator import DeviceEmulator
+from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain, wait_for
+
+DOMAIN_ID = private_domain_id()
+use_domain(DOMAIN_ID)
+
+import rclpy  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Float64MultiArray  # noqa: E402
+
+from aeropend_ros import topics  # noqa: E402
+
+pytestmark = pytest.mark.timeout(300)
+
+START_TIMEOUT = 120.0
+WAIT = 30.0
+
+
+class Watcher:
+    """In-test node: samples and control telemetry by sequence number; publishes references, sets parameters."""
+
+    def __init__(self, context) -> None:
+        self.node = rclpy.create_node('bridge_closed_loop_watcher', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.samples: dict[int, topics.Sample] = {}
+        self.control: dict[int, list[float]] = {}
+        deep = QoSProfile(depth=2000, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.node.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, deep)
+        self.node.create_subscription(JointState, topics.CONTROL_TOPIC, self._on_control, deep)
+        self.reference = self.node.create_publisher(Float64MultiArray, topics.REFERENCE_TOPIC, topics.command_qos())
+        self.parameters = AsyncParameterClient(self.node, '/serial_bridge_node')
+
+    def _on_sample(self, msg) -> None:
+        sample = topics.msg_to_sample(msg)
+        self.samples[sample.sequence] = sample
+
+    def _on_control(self, msg) -> None:
+        assert list(msg.name) == list(topics.CONTROL_NAMES)
+        self.control[int(msg.position[-1])] = list(msg.position)
+
+    def wait_for(self, condition, timeout: float = WAIT) -> bool:
+        return wait_for(condition, timeout, executor=self.executor)
+
+    def set(self, **values):
+        assert self.wait_for(self.parameters.services_are_ready, START_TIMEOUT), 'no parameter service'
+        future = self.parameters.set_parameters([Parameter(name, value=value) for name, value in values.items()])
+        self.executor.spin_until_future_complete(future, timeout_sec=WAIT)
+        assert future.done(), 'set_parameters timed out'
+        return future.result().results
+
+
+def test_bridge_runs_the_device_closed_loop():
+    gains = law.PidGains(u_clamp_max=0.6)
+    with own_context(DOMAIN_ID) as context, DeviceEmulator(seed=8, auto_reset=False) as emulator:
+        watcher = Watcher(context)
+        bridge = NodeProcess('aeropend_ros.serial_bridge_node',
+                             ['-p', f'port:={emulator.port}', '-p', 'control_mode:=closed_loop',
+                              '-p', 'u_clamp_max:=0.6', '-p', 'boot_delay:=0.2',
+                              '-p', 'clock_max_drift:=0.05'],     # a loaded machine paces the emulator late
+                             domain_id=DOMAIN_ID)
+        try:
+            # The gains go out, are acknowledged, and the device closes the loop: telemetry flows.
+            assert watcher.wait_for(lambda: len(watcher.control) > 50 or bridge.process.poll() is not None,
+                                    START_TIMEOUT) and len(watcher.control) > 50, bridge.output()
+            assert emulator.control_mode == 1
+            np.testing.assert_array_equal(emulator.law_coefficients, device_coefficients(gains))
+            assert (emulator.angle_zero_counts, emulator.angle_rad_per_count) == (512.0, np.float32(2 * np.pi / 1024))
+
+            # A reference with its feedforward: forwarded, in the telemetry, and the rod follows it.
+            feedforward = static_duty(0.5, emulator.simulator.parameters)
+            watcher.reference.publish(Float64MultiArray(data=[0.5, feedforward]))
+            assert watcher.wait_for(lambda: watcher.control[max(watcher.control)][0] == np.float32(0.5)), \
+                bridge.output()
+            start = max(watcher.control)
+            assert watcher.wait_for(lambda: max(watcher.control) > start + 4 * 490, 60.0)
+            end = max(watcher.control)
+            angles = np.array([watcher.samples[k].angle for k in range(end - 490, end) if k in watcher.samples])
+            assert len(angles) > 400 and np.mean(angles) == pytest.approx(0.5, abs=0.05)
+            row = watcher.control[end]
+            assert row[1] == pytest.approx(feedforward, abs=1e-6) and row[5] == 0.0
+            assert 0.0 < row[2] <= 0.6 + 1e-4                            # duty within u_clamp_max
+            # The telemetry's duty is the sample's duty, and its integral is the device's (emulator's) state.
+            common = [k for k in range(end - 100, end) if k in watcher.samples and k in watcher.control]
+            assert common and all(watcher.control[k][2] == watcher.samples[k].duty for k in common)
+
+            # Gains at run time: checked together, then sent and acknowledged.
+            results = watcher.set(p=0.6)
+            assert results[0].successful
+            assert watcher.wait_for(lambda: emulator.law_coefficients[law.P] == np.float32(0.6)), bridge.output()
+            results = watcher.set(u_clamp_min=0.9)
+            assert not results[0].successful and 'u_clamp_min' in results[0].reason, results[0].reason
+            assert emulator.law_coefficients[law.U_MIN] == 0.0
+            # An unacceptable reference is refused by the bridge (outside the angle window): the device keeps 0.5.
+            watcher.reference.publish(Float64MultiArray(data=[2.5, 0.3]))
+            last = max(watcher.control)
+            assert watcher.wait_for(lambda: max(watcher.control) > last + 100)
+            assert watcher.control[max(watcher.control)][0] == np.float32(0.5)
+
+            # Open loop again: duty 0 on the device, plain samples, no more telemetry.
+            assert watcher.set(control_mode='open_loop')[0].successful
+            assert watcher.wait_for(lambda: emulator.control_mode == 0), bridge.output()
+            last = max(watcher.samples)
+            assert watcher.wait_for(lambda: max(watcher.samples) > last + 200)
+            assert watcher.samples[max(watcher.samples)].duty == 0.0
+            assert max(watcher.control) < max(watcher.samples) - 100
+        finally:
+            output = bridge.output()
+            bridge.stop()
+            watcher.executor.shutdown()
+            watcher.node.destroy_node()
+    assert 'the device refused' not in output, output
