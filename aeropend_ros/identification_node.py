@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import math
 import multiprocessing
+import os
 import threading
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -244,6 +245,34 @@ def _ignore_interrupts() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+#: prctl option: the signal a process gets when its parent (the thread that created it) dies (linux/prctl.h).
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent(parent_pid: int) -> bool:
+    """Make this process get SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)`` through ctypes), and exit at
+    once if the parent is already gone. Without it a SIGKILLed node left its spawned worker running (34 s and more,
+    issue 43). Returns False where prctl is not available (not Linux): the worker then ends on its own.
+    """
+    import ctypes
+    import signal
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) != 0:
+            return False
+    except (OSError, AttributeError):
+        return False
+    if os.getppid() != parent_pid:      # the parent died before the prctl: nobody would ever send the signal
+        os._exit(1)
+    return True
+
+
+def _worker_start(parent_pid: int) -> None:
+    """Worker start-up: die with the node's process, leave Ctrl-C to the node."""
+    die_with_parent(parent_pid)
+    _ignore_interrupts()
+
+
 def _warm_up() -> None:
     """Import the analysis stack in the worker process ahead of the first window (spawn start-up takes seconds)."""
     import aeropend_core.identify.pendulum  # noqa: F401
@@ -284,7 +313,7 @@ class IdentificationNode(Node):
         # The analysis runs in a worker *process* (spawned: no fork of the DDS threads): a worker thread would
         # hold the GIL for most of a window's fit and starve the executor, which then drops samples.
         self.worker = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
-                                          initializer=_ignore_interrupts)
+                                          initializer=_worker_start, initargs=(os.getpid(),))
         self.pending = self.worker.submit(_warm_up)
         self.windows_done = 0
         self.windows_skipped = 0
