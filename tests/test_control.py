@@ -238,3 +238,41 @@ def test_cli_design_writes_gains_and_linearise_json(tmp_path):
     bad = subprocess.run([*AEROPEND, 'control', 'design', '--template', 'duty=80'],
                          capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and bad.stderr.count('\n') == 1 and 'fraction' in bad.stderr
+
+
+# --- the diagnosis of a closed-loop record ------------------------------------------------------------------------
+def _closed_loop_record(effects, seed, noise_db=50):
+    gains = PidGains(p=1.2074, i=0.129, d=0.1255, derivative_filter_time=0.02, u_clamp_max=0.8)
+    schedule = ReferenceSchedule.steps_between([20, 40, 60, 30], hold=5.0)
+    run = simulate_loop(gains, schedule.reference(), FeedforwardMap(), effects=effects,
+                        noise=MeasurementNoise(psnr_db=noise_db, quantise=True), seed=seed, duty_limit=0.7)
+    return gains, run
+
+
+@pytest.mark.slow
+def test_closed_loop_diagnosis_names_a_hidden_thrust_lag_within_its_sigma():
+    from aeropend_core.control.loop_diagnosis import diagnose_loop
+    gains, run = _closed_loop_record({'thrust_lag': 0.15}, seed=21)
+    result = diagnose_loop(run.time, run.angle, run.duty, run.reference, run.feedforward, gains, 0.7)
+    assert result.replay_mismatches == 0
+    assert result.named == 'thrust_lag', result.as_text()
+    fit = result.best_model()
+    assert abs(fit.values['time_constant'] - 0.15) <= 3 * fit.sigmas['time_constant'] + 0.01, result.as_text()
+
+
+@pytest.mark.slow
+def test_closed_loop_diagnosis_of_a_clean_rig_names_nothing():
+    from aeropend_core.control.loop_diagnosis import diagnose_loop
+    gains, run = _closed_loop_record({}, seed=22)
+    result = diagnose_loop(run.time, run.angle, run.duty, run.reference, run.feedforward, gains, 0.7)
+    assert result.named is None, result.as_text()
+    assert result.verdict == 'nothing_missing', result.as_text()
+
+
+def test_replay_check_catches_a_controller_other_than_the_declared_one():
+    from aeropend_core.control.loop_diagnosis import replay
+    gains, run = _closed_loop_record({}, seed=23)
+    assert replay(gains, run.reference, run.feedforward, run.angle, run.duty, 0.7) == (0.0, 0)
+    other = gains.replace(p=gains.p * 1.1)
+    largest, count = replay(other, run.reference, run.feedforward, run.angle, run.duty, 0.7)
+    assert count > 100 and largest > 1e-3

@@ -185,3 +185,75 @@ def _linearise(args) -> int:
     _write_json(args.json, {'schema': 'aeropend.linearisation/1', 'model': model.source,
                             'doubts': list(model.doubts), **data})
     return 0
+
+
+def closed_loop_record(path: str):
+    """The closed-loop data of a bag of `aeropend run --controller`, or None for any other input."""
+    from pathlib import Path
+    target = Path(path)
+    if not (target.is_dir() or target.suffix == '.mcap'):
+        return None
+    from aeropend_core.control.record import load_closed_loop
+    try:
+        return load_closed_loop(target)
+    except AeropendError as error:
+        if 'holds no closed loop' in str(error):
+            return None
+        raise
+
+
+def _duty_cap(data) -> tuple[float, str]:
+    """The duty cap the loop ran under: the controller's u_clamp_max, or the rig's lower cap seen in the data
+    (the logged duty held flat below what the law asked)."""
+    gains = data.controller.gains
+    import numpy as np
+    logged_max = float(np.max(data.duty)) if data.duty.size else gains.u_clamp_max
+    asked = data.unsaturated[:-1] if data.unsaturated.size > 1 else data.unsaturated
+    if logged_max < gains.u_clamp_max - 1e-6 and np.any(asked > logged_max + 1e-6):
+        return logged_max, f'the rig capped the duty at {logged_max:.3g} (below the controller\'s ' \
+                           f'{gains.u_clamp_max:g}; read from the data)'
+    return gains.u_clamp_max, ''
+
+
+def diagnose_closed_loop(args, data) -> int:
+    """`aeropend diagnose BAG` on a closed-loop record: the models judged in closed loop (docs/control.md)."""
+    from aeropend_core.control.loop_diagnosis import diagnose_loop
+    if data.controller is None:
+        raise AeropendError(f'{args.data[0]} is a closed-loop record without its controller file: the closed-loop '
+                            'diagnosis needs the gains that ran (record with `aeropend run --controller`), or use '
+                            '--as-open-loop (biased)')
+    import numpy as np
+    cap, cap_note = _duty_cap(data)
+    if not args.quiet:
+        print(f'aeropend diagnose: {args.data[0]} is a closed-loop record (controller '
+              f'{data.controller.sha256[:12]}); judging models in closed loop', file=sys.stderr)
+    keep = ~data.tripped
+    if not keep.all():
+        cut = int(np.argmax(data.tripped))
+        print(f'aeropend diagnose: warning: the safety trip held the duty at 0 from t = {data.time[cut]:.2f} s; '
+              'only the record before it is judged', file=sys.stderr)
+        keep = np.arange(len(data)) < cut
+    result = diagnose_loop(data.time[keep], data.angle[keep], data.duty[keep], data.reference[keep],
+                           data.feedforward[keep], data.controller.gains, cap, data.controller.parameters,
+                           add=tuple(args.add))
+    if cap_note:
+        result.notes.append(cap_note)
+    if not data.complete:
+        result.notes.append('the run was cut short: its schedule did not play to the end')
+    if data.samples_without_control:
+        result.notes.append(f'{data.samples_without_control} sample(s) without their control telemetry were left '
+                            'out')
+    print(f'Diagnosis of {len(data)} closed-loop samples ({data.time[-1] - data.time[0]:.1f} s) from {args.data[0]}:')
+    print(result.as_text())
+    if args.json:
+        from aeropend_core.present.json_output import write_json
+        payload = result.to_dict()
+        payload['source'] = str(args.data[0])
+        payload['controller_sha256'] = data.controller.sha256
+        payload['design_model'] = {'parameters': data.controller.parameters.as_dict(),
+                                   'effects': {k: dict(v) for k, v in data.controller.effects.items()}}
+        write_json(args.json, payload)
+    if args.report:
+        print('aeropend diagnose: note: the HTML report covers open-loop diagnoses; the closed-loop diagnosis is '
+              'in the text and --json', file=sys.stderr)
+    return 0

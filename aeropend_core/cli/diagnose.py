@@ -61,6 +61,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from aeropend_core.cli._checks import add_json_argument
     add_json_argument(parser, 'the diagnosis as one object (to standard output: instead of the text summary)')
     parser.add_argument('--quiet', action='store_true', help='no progress messages on standard error')
+    parser.add_argument('--as-open-loop', action='store_true',
+                        help='diagnose a closed-loop record as if its Va were an open-loop input (biased: the duty '
+                             'carries fed-back noise; for comparison with the closed-loop diagnosis)')
     from aeropend_core.cli._checks import add_sample_rate_argument, add_time_range_arguments
     add_time_range_arguments(parser)
     add_sample_rate_argument(parser)
@@ -100,6 +103,11 @@ def main(args: argparse.Namespace) -> int:
         check_report_path(args.report)    # a folder, device, FIFO, link loop or missing folder: refused
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
+    if len(args.data) == 1 and not args.as_open_loop:
+        from aeropend_core.cli.control import closed_loop_record, diagnose_closed_loop
+        data = closed_loop_record(args.data[0])
+        if data is not None:                # a record of `aeropend run --controller`: judged in closed loop
+            return diagnose_closed_loop(args, data)
     records = []
     for path in args.data:      # each through the data-quality gate (and --profile), each cut by --start/--stop
         records.append(time_window(load_for_analysis(args, 'diagnose', path=path), args.start, args.stop))

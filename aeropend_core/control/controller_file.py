@@ -51,6 +51,19 @@ class Controller:
     design: Mapping = field(default_factory=dict)
 
     @property
+    def schedule(self):
+        """The reference schedule the gains were designed on (:class:`ReferenceSchedule`), None if not stored."""
+        stored = self.design.get('schedule') if isinstance(self.design, Mapping) else None
+        if not isinstance(stored, Mapping):
+            return None
+        from aeropend_core.control.reference import ReferenceSchedule
+        dither = stored.get('dither') or {}
+        return ReferenceSchedule.from_mapping({'start_angle': stored.get('start_angle', 0.0),
+                                               'start_hold': stored.get('start_hold', 2.0),
+                                               'steps': stored.get('steps'),
+                                               'dither': dither}, 'the controller file\'s design schedule')
+
+    @property
     def model_sha256(self) -> str:
         return model_hash(self.parameters, self.effects)
 

@@ -84,7 +84,8 @@ class Design:
         return worst
 
     def summary(self) -> dict:
-        return {'gains': self.gains.as_dict(), 'operating_angle': self.linearisation.angle,
+        return {'gains': self.gains.as_dict(), 'schedule': self.schedule.as_dict(),
+                'operating_angle': self.linearisation.angle,
                 'operating_duty': self.linearisation.duty, 'gain_margin_db': self.gain_margin_db,
                 'phase_margin_deg': self.phase_margin_deg,
                 'predicted_steps': [metrics.as_dict() for metrics in self.metrics], 'notes': list(self.notes)}

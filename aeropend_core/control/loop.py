@@ -229,7 +229,12 @@ def _simulate_compiled(gains, reference, feedforward, parameters, effects, noise
                           p.motor_inertia, p.motor_friction, p.propeller_torque_coefficient, p.gear_ratio,
                           p.thrust_coefficient, p.gravity_stiffness, p.damping, p.lever_per_inertia])
     voltage_fit = np.array([p.duty_voltage_k0, p.duty_voltage_k1, p.duty_voltage_k2, p.duty_voltage_k3])
-    feedforward_values = np.array([feedforward(value) for value in reference])
+    if callable(feedforward):
+        feedforward_values = np.array([feedforward(value) for value in reference])
+    else:                   # the feedforward played, sample by sample (a record's telemetry)
+        feedforward_values = np.ascontiguousarray(feedforward, dtype=float)
+        if feedforward_values.shape != reference.shape:
+            raise ValueError('a feedforward array must have one value per reference sample')
     state = np.zeros(5)
     state[2] = initial_angle
     out = np.empty((n, 10))
@@ -255,6 +260,8 @@ def simulate_loop(gains: PidGains, reference: np.ndarray, feedforward: Callable[
     >>> len(record), float(record.duty[0])
     (490, 0.0)
 
+    `feedforward`: a function of the reference [rad -> duty], or (compiled path) one duty per sample.
+
     `method`: 'compiled' (built-in effects, ~1 us a sample), 'streaming' (any effect, ~30 us a sample) or 'auto'.
     """
     resolved = resolve_effects(effects)
@@ -263,7 +270,8 @@ def simulate_loop(gains: PidGains, reference: np.ndarray, feedforward: Callable[
         raise ValueError(f"method must be 'auto', 'compiled' or 'streaming', got {method!r}")
     if method == 'compiled' or (method == 'auto' and compiled):
         return _simulate_compiled(gains, np.asarray(reference, dtype=float).ravel(),
-                                  feedforward or FeedforwardMap(), parameters, resolved, noise, seed, initial_angle,
+                                  FeedforwardMap() if feedforward is None else feedforward, parameters, resolved,
+                                  noise, seed, initial_angle,
                                   sample_time, duty_limit)
     simulation = ClosedLoopSimulation(gains, feedforward, parameters, effects, noise, seed, initial_angle,
                                       sample_time, duty_limit)

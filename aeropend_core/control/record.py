@@ -17,6 +17,7 @@ their sha256; one message at the start and one per change), and in ``metadata.ya
 ``aeropend.reference_yaml``            its content (the default schedule: as YAML)
 ``aeropend.reference_file_sha256``     sha256 of the file's bytes (a file only)
 ``aeropend.reference_sha256``          :attr:`ReferenceSchedule.sha256` (its content)
+``aeropend.duty_limit``               the rig's duty cap after the law (``--duty-cap``) [fraction]
 ``aeropend.schedule_*``                where the schedule starts and whether it was played whole (as ``--experiment``)
 =====================================  ====================================================================
 
@@ -78,9 +79,10 @@ def read_schedule_file(path: str | os.PathLike) -> ReferenceSchedule:
 
 
 def closed_loop_metadata(controller_path: str | os.PathLike, schedule: ReferenceSchedule,
-                         schedule_path: str | os.PathLike | None = None) -> dict[str, str]:
+                         schedule_path: str | os.PathLike | None = None,
+                         duty_limit: float | None = None) -> dict[str, str]:
     """The bag's ``custom_data`` of a closed-loop run (module docstring): the controller file and the schedule,
-    their content and sha256. `schedule_path` None: the default schedule."""
+    their content and sha256, the duty cap [fraction]. `schedule_path` None: the default schedule."""
     import yaml
     controller_path = Path(controller_path)
     controller_bytes = controller_path.read_bytes()
@@ -91,6 +93,8 @@ def closed_loop_metadata(controller_path: str | os.PathLike, schedule: Reference
             'aeropend.controller_file_sha256': hashlib.sha256(controller_bytes).hexdigest(),
             'aeropend.controller_sha256': controller.sha256,
             'aeropend.reference_sha256': schedule.sha256}
+    if duty_limit is not None:
+        data['aeropend.duty_limit'] = repr(float(duty_limit))
     if schedule_path is None:
         data['aeropend.reference'] = default_schedule_text()
         data['aeropend.reference_yaml'] = yaml.safe_dump(schedule.as_dict(), sort_keys=False)
@@ -129,6 +133,8 @@ class ClosedLoopData:
     schedule: ReferenceSchedule | None
     complete: bool
     source: str = ''
+    #: the rig's duty cap after the law [fraction] (``--duty-cap``; NaN when the record does not say)
+    duty_limit: float = math.nan
     #: the controller configurations published while recording (:meth:`SimNode.controller_config`), each with
     #: ``time`` [s, same clock as `time`]; more than one: the gains changed during the run
     configs: list[dict] = field(default_factory=list)
@@ -223,6 +229,7 @@ def load_closed_loop(path: str | os.PathLike) -> ClosedLoopData:
                           armature_voltage=samples['armature_voltage'][in_samples],
                           armature_current=samples['armature_current'][in_samples], sequence=common,
                           controller=controller, schedule=schedule, complete=complete, source=str(path),
+                          duty_limit=_duty_limit(metadata, configs),
                           configs=configs, samples_without_control=int(sequence.size - common.size),
                           metadata=metadata)
 
@@ -322,6 +329,17 @@ def _schedule_start_ns(metadata: dict[str, str], configs: list[dict], samples: d
             first = int(samples['sequence'][0])
             return int(samples['stamp_ns'][0] + round((start - first) * SAMPLE_TIME * 1e9))
     return int(stamps[0])
+
+
+def _duty_limit(metadata: dict[str, str], configs: list[dict]) -> float:
+    try:
+        return float(metadata['aeropend.duty_limit'])
+    except (KeyError, ValueError):
+        pass
+    for config in reversed(configs):
+        if isinstance(config.get('duty_limit'), (int, float)):
+            return float(config['duty_limit'])
+    return math.nan
 
 
 def _complete(metadata: dict[str, str], schedule: ReferenceSchedule | None, time: np.ndarray) -> bool:

@@ -1,0 +1,358 @@
+"""Diagnosis of a closed-loop record: models judged by the closed loop simulated from the reference with the known
+controller (the indirect method of closed-loop identification).
+
+Under feedback the duty depends on the measured angle's noise, so a fit that takes the measured Va as an open-loop
+input is biased; the controller is known exactly here (the record carries its gains and the feedforward it played),
+so each model is simulated *in closed loop* from the logged reference and compared with the measured angle:
+
+1. **Replay check** before physics: the declared law run on the logged reference, feedforward and angle must give
+   the logged duty (one sample later). A mismatch is an implementation fault (gains, latency, clamp), not a missing
+   effect, and is said first.
+2. **Fits**: the nominal model (gravity, damping and thrust scale free) and the nominal model plus each catalog
+   effect the compiled loop runs, by least squares on the first ``TRAIN_SHARE`` of the record; scored on the rest
+   (held-out RMS error of the angle, the error beyond the measurement noise).
+3. **Evidence**: an effect is named when it is the best held-out candidate, its BIC gain on the training part is
+   decisive (< ``-10`` with the sample count divided by the residual's correlation length) and it removes at least
+   half of the held-out error beyond the noise. Effects that give the same closed loop within ``TIE`` of that error
+   are said to be confounded, with the record that would separate them (in closed loop a thrust lag and the
+   sensor's filter give the same loop gain: the current, or an open-loop segment, separates them).
+
+The ± of each parameter is the local least-squares standard error, inflated by the residual's correlation length.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from aeropend_core.control.law import PidGains, law_step, new_state
+from aeropend_core.control.loop import simulate_loop
+from aeropend_core.errors import AeropendError
+from aeropend_core.model.effects import get_effect, resolve_effects
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
+
+#: Share of the record the fits use; the rest scores them.
+TRAIN_SHARE = 0.7
+#: Decisive BIC gain (on the correlation-corrected sample count).
+DECISIVE_BIC = -10.0
+#: Share of the held-out error beyond the noise a named effect must remove.
+MATERIAL_SHARE = 0.5
+#: Candidates within this share of the best one's held-out error beyond the noise are confounded with it.
+TIE = 0.15
+#: Catalog effects the closed-loop diagnosis tries (those with compiled kernel terms that change the loop).
+CANDIDATES = ('thrust_lag', 'angle_filter', 'angle_offset', 'dead_zone', 'coulomb_friction', 'cable_torque',
+              'quadratic_drag')
+#: Pairs that the closed loop cannot tell apart and what would.
+SEPARATED_BY = {frozenset({'thrust_lag', 'angle_filter'}):
+                'in closed loop a thrust lag and the angle sensor\'s filter give the same loop gain; the armature '
+                'current (motor side) or an open-loop segment (duty steps with the loop open) separates them'}
+#: The pendulum parameters a closed-loop fit may free. A feedback loop holds the rod near its references, so the
+#: record pins the static balance (thrust per unit of gravity) far better than gravity and damping apart: by
+#: default only the thrust scale is fitted and gravity and damping stay those of the controller's model (an
+#: identified model, ideally: `aeropend diagnose` of an open-loop record).
+BASE_PARAMETERS = ('gravity_stiffness', 'damping', 'lever_per_inertia')
+DEFAULT_FREE = ('lever_per_inertia',)
+
+
+@dataclass
+class LoopFit:
+    """One model fitted in closed loop."""
+
+    effects: dict[str, dict[str, float]]
+    parameters: RigParameters
+    values: dict[str, float]
+    sigmas: dict[str, float]
+    train_rss: float
+    test_rms: float
+    beyond_noise: float
+    n_parameters: int
+    delta_bic: float = 0.0
+
+    @property
+    def name(self) -> str:
+        return ' + '.join(self.effects) or 'nominal'
+
+
+@dataclass
+class LoopDiagnosis:
+    """The outcome (see the module docstring); angles [rad]."""
+
+    base: LoopFit
+    candidates: list[LoopFit]
+    noise_rms: float
+    replay_max_error: float
+    replay_mismatches: int
+    added: tuple[str, ...]
+    verdict: str
+    named: str | None
+    confounded_with: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def best_model(self) -> LoopFit:
+        if self.named:
+            return next(fit for fit in self.candidates if fit.name.endswith(self.named))
+        return self.base
+
+    def to_dict(self) -> dict:
+        model = self.best_model() if self.named else self.base
+        parameters = _reported(self.base)
+        return {'schema': 'aeropend.loop_diagnosis/1', 'closed_loop': True, 'verdict': self.verdict,
+                'missing_effect': self.named, 'missing_effects': [self.named] if self.named else [],
+                'add': [self.named] if self.named else [], 'model_effects': list(self.added),
+                'parameters': parameters, 'standard_errors': dict(self.base.sigmas),
+                'with_missing_effect': ({'parameters': _reported(model), 'standard_errors': dict(model.sigmas)}
+                                        if self.named else None),
+                'noise_rms': self.noise_rms, 'rms_error': self.base.test_rms,
+                'error_beyond_noise': self.base.beyond_noise,
+                'replay': {'max_duty_error': self.replay_max_error, 'mismatched_samples': self.replay_mismatches},
+                'candidates': [{'effect': fit.name, 'parameters': dict(fit.values), 'standard_errors': dict(fit.sigmas),
+                                'rms_error': fit.test_rms, 'error_beyond_noise': fit.beyond_noise,
+                                'delta_bic': fit.delta_bic} for fit in self.candidates],
+                'confounded_with': list(self.confounded_with), 'notes': list(self.notes),
+                'units': {'angles': 'rad', 'errors': 'rad', 'parameters': 'SI (see aeropend effects)'}}
+
+    def as_text(self) -> str:
+        lines = ['Closed-loop record: models judged by the closed loop simulated from the reference with the '
+                 'known controller (not by taking the fed-back Va as an input)']
+        if self.replay_mismatches:
+            lines.append(f'Replay check: FAILED: the declared law on the logged angle gives another duty at '
+                         f'{self.replay_mismatches} sample(s) (largest difference {self.replay_max_error:.3g}): the '
+                         'controller that ran is not the one declared (gains, latency or clamp); fix that first')
+        else:
+            lines.append(f'Replay check: the declared law on the logged reference and angle gives the logged duty '
+                         f'(largest difference {self.replay_max_error:.2g})')
+        base = self.base
+        lines.append(f'Model: {base.name if not self.added else "nominal + " + " + ".join(self.added)}: held-out '
+                     f'RMS error {1e3 * base.test_rms:.2f} mrad, measurement noise {1e3 * self.noise_rms:.2f} mrad, '
+                     f'error beyond noise {1e3 * base.beyond_noise:.2f} mrad')
+        lines.append('Parameters (SI, +- 1 sigma): ' + ', '.join(
+            f'{name} = {value:.4g} +- {base.sigmas.get(name, math.nan):.2g}' for name, value in base.values.items()))
+        if self.candidates:
+            lines.append('Candidates (best first, held-out error beyond noise, BIC gain on the training part):')
+            for fit in self.candidates:
+                extra = ', '.join(f'{name} = {value:.4g} +- {fit.sigmas.get(name, math.nan):.2g}'
+                                  for name, value in fit.values.items() if name not in BASE_PARAMETERS)
+                lines.append(f'  {fit.name:<28} beyond noise {1e3 * fit.beyond_noise:6.2f} mrad  dBIC '
+                             f'{fit.delta_bic:9.1f}  {extra}')
+        lines.append(f'Verdict: {self.verdict_text()}')
+        lines.extend(f'Note: {note}' for note in self.notes)
+        return '\n'.join(lines)
+
+    def verdict_text(self) -> str:
+        if self.verdict == 'missing_effect':
+            fit = self.best_model()
+            values = ', '.join(f'{name} = {value:.4g} +- {fit.sigmas.get(name, math.nan):.2g}'
+                               for name, value in fit.values.items() if name not in BASE_PARAMETERS)
+            removed = 100 * (1 - fit.beyond_noise / self.base.beyond_noise) if self.base.beyond_noise > 0 else 0.0
+            text = (f'missing effect: {self.named} ({values}; removes {removed:.0f} % of the held-out error beyond '
+                    f'the noise in closed loop). Add it (--add {self.named}), then design on that diagnosis: '
+                    f'aeropend control design --model DIAGNOSIS.json')
+            if self.confounded_with:
+                text += (f'. Confounded with {", ".join(self.confounded_with)} in this record (they give the same '
+                         'closed loop): the design is the same either way, the physics is not decided')
+            return text
+        if self.verdict == 'nothing_missing':
+            return (f'nothing significant is missing in closed loop: the error beyond the noise is '
+                    f'{1e3 * self.base.beyond_noise:.2f} mrad against {1e3 * self.noise_rms:.2f} mrad of noise')
+        return (f'unexplained: {1e3 * self.base.beyond_noise:.2f} mrad beyond the noise remain and no catalog effect '
+                'removes half of it in closed loop')
+
+
+def _reported(fit: LoopFit) -> dict[str, float]:
+    """A diagnosis JSON's parameter names (what `control design --model` reads): thrust as the lumped gain."""
+    values = {'gravity_stiffness': fit.parameters.gravity_stiffness, 'damping': fit.parameters.damping,
+              'thrust_gain': fit.parameters.thrust_gain}
+    values.update({name: value for name, value in fit.values.items() if name not in BASE_PARAMETERS})
+    return values
+
+
+def replay(gains: PidGains, reference: np.ndarray, feedforward: np.ndarray, angle: np.ndarray, duty: np.ndarray,
+           duty_limit: float, sample_time: float = SAMPLE_TIME) -> tuple[float, int]:
+    """(largest |duty difference|, samples differing by more than 1e-4) between the logged duty and the declared
+    law run on the logged reference, feedforward and angle (its answer applies one sample later)."""
+    c = gains.coefficients(sample_time)
+    state = new_state()
+    computed = np.empty(angle.size)
+    for k in range(angle.size):
+        computed[k] = min(max(law_step(c, state, reference[k], feedforward[k], angle[k]), 0.0), duty_limit)
+    difference = np.abs(computed[:-1] - duty[1:])
+    return (float(difference.max()) if difference.size else 0.0), int(np.count_nonzero(difference > 1e-4))
+
+
+def _noise_sigma(angle: np.ndarray) -> float:
+    differences = np.diff(angle)
+    return float(1.4826 * np.median(np.abs(differences - np.median(differences))) / math.sqrt(2.0))
+
+
+def _correlation_length(residual: np.ndarray) -> float:
+    """Samples to the first zero of the residual's autocorrelation (>= 1)."""
+    centred = residual - residual.mean()
+    n = centred.size
+    spectrum = np.fft.rfft(centred, 2 * n)
+    autocorrelation = np.fft.irfft(spectrum * np.conj(spectrum))[:n]
+    if autocorrelation[0] <= 0:
+        return 1.0
+    below = np.flatnonzero(autocorrelation <= 0)
+    return float(max(1, below[0])) if below.size else float(n)
+
+
+class _Problem:
+    """The closed-loop output-error problem of one record."""
+
+    def __init__(self, gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free):
+        self.free = tuple(free)
+        self.gains, self.reference, self.feedforward, self.angle = gains, reference, feedforward, angle
+        self.duty_limit, self.sample_time, self.parameters = duty_limit, sample_time, parameters
+        self.split = int(TRAIN_SHARE * angle.size)
+        self.initial_angle = float(np.median(angle[:max(5, int(0.05 / sample_time))]))
+
+    def simulate(self, parameters, effects) -> np.ndarray:
+        run = simulate_loop(self.gains, self.reference, self.feedforward, parameters, effects, None, None,
+                            self.initial_angle, self.sample_time, self.duty_limit, method='compiled')
+        return run.angle
+
+    def fit(self, effects: Mapping[str, Mapping[str, float]], noise: float) -> LoopFit:
+        effects = resolve_effects({name: {parameter.name: values.get(parameter.name, parameter.start_value)
+                                          for parameter in get_effect(name).parameters}
+                                   for name, values in effects.items()})
+        names = list(self.free)
+        starts = [getattr(self.parameters, name) for name in names]
+        lower = [0.3 * value for value in starts]
+        upper = [3.0 * value for value in starts]
+        scales = list(starts)
+        effect_slots = []
+        for effect_name, values in effects.items():
+            effect = get_effect(effect_name)
+            for parameter in effect.parameters:
+                names.append(parameter.name)
+                start = values[parameter.name]
+                low, high = parameter.lower, min(parameter.upper, 1e6)
+                if effect_name == 'thrust_lag':
+                    low = max(low, 0.005)
+                start = min(max(start, low + 1e-9 * (high - low)), high - 1e-9 * (high - low))
+                starts.append(start)
+                lower.append(low)
+                upper.append(high)
+                scales.append(parameter.scale if parameter.scale else max(abs(start), 0.01))
+                effect_slots.append((effect_name, parameter.name))
+        split = self.split
+
+        n_free = len(self.free)
+
+        def model(x):
+            parameters = self.parameters.replace(**dict(zip(self.free, x[:n_free])))
+            chosen = {name: {} for name in effects}
+            for (effect_name, parameter_name), value in zip(effect_slots, x[n_free:]):
+                chosen[effect_name][parameter_name] = float(value)
+            return parameters, chosen
+
+        def residual(x):
+            parameters, chosen = model(x)
+            simulated = self.simulate(parameters, chosen)
+            difference = simulated[:split] - self.angle[:split]
+            return np.where(np.isfinite(difference), difference, 10.0)
+
+        result = None
+        for start in _starts(starts, effect_slots, n_free, lower, upper):
+            trial = least_squares(residual, start, bounds=(lower, upper), x_scale=np.array(scales),
+                                  diff_step=1e-3, max_nfev=80, method='trf')
+            if result is None or trial.cost < result.cost:
+                result = trial
+        parameters, chosen = model(result.x)
+        simulated = self.simulate(parameters, chosen)
+        test = simulated[split:] - self.angle[split:]
+        test_rms = float(np.sqrt(np.mean(test ** 2))) if test.size else math.nan
+        train_residual = result.fun
+        rss = float(np.sum(train_residual ** 2))
+        correlation = _correlation_length(train_residual)
+        sigmas = {}
+        try:
+            jacobian = result.jac
+            dof = max(1, train_residual.size - len(names))
+            covariance = np.linalg.pinv(jacobian.T @ jacobian) * rss / dof * correlation
+            sigmas = {name: float(math.sqrt(max(covariance[i, i], 0.0))) for i, name in enumerate(names)}
+        except (np.linalg.LinAlgError, ValueError):
+            sigmas = dict.fromkeys(names, math.nan)
+        values = dict(zip(names, map(float, result.x)))
+        beyond = math.sqrt(max(0.0, test_rms ** 2 - noise ** 2))
+        return LoopFit(chosen, parameters, values, sigmas, rss, test_rms, beyond, len(names))
+
+
+def _starts(starts, effect_slots, n_free, lower, upper):
+    """The start, and for a time-like effect parameter (a lag, a filter) also short and long ones: the closed loop's
+    cost has a basin per oscillation mode."""
+    yield np.array(starts)
+    for index, (_effect, parameter) in enumerate(effect_slots):
+        if parameter in ('time_constant', 'filter_delay'):
+            for factor in (0.3, 3.0):
+                other = np.array(starts)
+                other[n_free + index] = min(max(starts[n_free + index] * factor, lower[n_free + index]),
+                                            upper[n_free + index])
+                yield other
+
+
+def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, reference: np.ndarray,
+                  feedforward: np.ndarray, gains: PidGains, duty_limit: float,
+                  parameters: RigParameters = DEFAULT_PARAMETERS, add: Sequence[str] = (),
+                  candidates: Sequence[str] = CANDIDATES, sample_time: float = SAMPLE_TIME,
+                  free: Sequence[str] = DEFAULT_FREE) -> LoopDiagnosis:
+    """Diagnose a closed-loop record (arrays of shape (n,): time [s], measured angle [rad], applied duty, reference
+    [rad], the feedforward played [duty]); `gains` the law that ran, `duty_limit` the duty cap it ran under."""
+    angle = np.asarray(angle, dtype=float)
+    if angle.size < int(10.0 / sample_time):
+        raise AeropendError(f'the closed-loop record has {angle.size * sample_time:.1f} s; the closed-loop '
+                            'diagnosis needs at least 10 s (two steps with their holds)')
+    reference = np.ascontiguousarray(reference, dtype=float)
+    feedforward = np.ascontiguousarray(feedforward, dtype=float)
+    for name in add:
+        if name not in CANDIDATES:
+            raise AeropendError(f'--add {name}: the closed-loop diagnosis runs the catalog effects '
+                                f'{", ".join(CANDIDATES)}')
+    max_error, mismatches = replay(gains, reference, feedforward, angle, np.asarray(duty, dtype=float), duty_limit,
+                                   sample_time)
+    noise = _noise_sigma(angle)
+    problem = _Problem(gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free)
+    base_effects = {name: {} for name in add}
+    base = problem.fit(base_effects, noise)
+    fits = []
+    n_effective = problem.split / _correlation_length(
+        problem.simulate(base.parameters, base.effects)[:problem.split] - angle[:problem.split])
+    for name in candidates:
+        if name in add:
+            continue
+        fit = problem.fit({**base_effects, name: {}}, noise)
+        fit.delta_bic = float(n_effective * math.log(max(fit.train_rss, 1e-300) / max(base.train_rss, 1e-300))
+                              + (fit.n_parameters - base.n_parameters) * math.log(max(n_effective, 2.0)))
+        fits.append(fit)
+    fits.sort(key=lambda fit: fit.test_rms)
+    notes = []
+    named, confounded = None, []
+    verdict = 'nothing_missing' if base.beyond_noise <= 0.5 * noise else 'unexplained'
+    if fits and base.beyond_noise > 0:
+        best = fits[0]
+        decisive = best.delta_bic < DECISIVE_BIC
+        material = best.beyond_noise <= (1 - MATERIAL_SHARE) * base.beyond_noise
+        if decisive and material:
+            named = next(iter(set(best.effects) - set(add)))
+            verdict = 'missing_effect'
+            for other in fits[1:]:
+                if other.test_rms - best.test_rms <= TIE * base.beyond_noise and other.delta_bic < DECISIVE_BIC:
+                    confounded.append(next(iter(set(other.effects) - set(add))))
+            for other in confounded:
+                why = SEPARATED_BY.get(frozenset({named, other}))
+                if why:
+                    notes.append(why)
+        elif decisive:
+            notes.append(f'{best.name} is supported by the statistics but removes only '
+                         f'{100 * (1 - best.beyond_noise / base.beyond_noise):.0f} % of the error beyond the noise '
+                         '(half is needed to name it)')
+    if mismatches:
+        notes.insert(0, 'the replay check failed: judge the physics only after the controller matches its '
+                        'declaration')
+    notes.append('closed-loop data excite the rig only as much as the controller lets them: parameters the '
+                 'loop holds still (the static thrust map near one angle) are less sure than in an open-loop '
+                 'record of the same length')
+    return LoopDiagnosis(base, fits, noise, max_error, mismatches, tuple(add), verdict, named, confounded, notes)
