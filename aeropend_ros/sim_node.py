@@ -384,6 +384,8 @@ class SimNode(Node):
             self.get_logger().info('controller gains changed: ' + ', '.join(
                 f'{p.name} {p.value}' for p in parameters if p.name in GAIN_NAMES))
             self._publish_config()
+        if 'duty_limit' in names and not names & set(GAIN_NAMES):
+            self._publish_config()                  # the configuration names the cap after the law
         if 'control_mode' in names:
             self.closed_loop = self.get_parameter('control_mode').value == 'closed_loop'
             if self.closed_loop:

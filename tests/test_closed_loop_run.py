@@ -86,7 +86,7 @@ def test_the_bag_holds_the_closed_loop_read_back_two_ways(played, files):
     schedule = read_schedule_file(files / 'steps.yaml')
     assert custom['aeropend.reference_yaml'] == SCHEDULE and custom['aeropend.reference_sha256'] == schedule.sha256
     assert custom['aeropend.reference_file_sha256'] == hashlib.sha256(SCHEDULE.encode()).hexdigest()
-    assert custom['aeropend.schedule_complete'] == 'true'
+    assert custom['aeropend.schedule_complete'] == 'true' and custom['aeropend.duty_limit'] == '0.7'
     # load_closed_loop: every sample with its telemetry, on the schedule's clock
     started = time.perf_counter()
     data = load_closed_loop(bag)
@@ -101,7 +101,7 @@ def test_the_bag_holds_the_closed_loop_read_back_two_ways(played, files):
     assert np.array_equal(data.reference, schedule.reference(n))
     assert data.complete and data.schedule == schedule
     assert data.controller.sha256 == custom['aeropend.controller_sha256']
-    assert data.controller.template == Template()
+    assert data.controller.template == Template() and data.duty_limit == 0.7
     assert not data.tripped.any()
     law = np.minimum(np.clip(data.unsaturated, 0.0, 0.8), 0.7)         # u_clamp, then --duty-cap 0.7
     assert np.allclose(data.duty[1:], law[:-1], atol=1e-12), 'duty at k+1 = the law\'s answer to sample k'

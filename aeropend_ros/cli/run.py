@@ -312,7 +312,7 @@ def _run(args) -> int:
             if closed:      # the controller file and the schedule, their content and sha256
                 from aeropend_core.control.record import closed_loop_metadata
                 recorder.writer.custom_data.update(closed_loop_metadata(
-                    closed['controller_path'], closed['schedule'], closed['reference_path']))
+                    closed['controller_path'], closed['schedule'], closed['reference_path'], args.duty_cap))
             else:
                 recorder.writer.custom_data.update(experiment_metadata(args))  # which schedule this bag played
             nodes.append(recorder)
