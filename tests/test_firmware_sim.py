@@ -613,3 +613,67 @@ def test_closed_loop_commands_over_pty(build, tmp_path):
         link.write(P.encode_command(P.REQUEST_STATUS))
         new = device.read(3.0, until=lambda ms: any(isinstance(m, P.StatusFrame) for m in ms))
         assert [m for m in new if isinstance(m, P.StatusFrame)][-1].rx_bad_frames == 0
+
+
+def phase_correct_duty(q16: int) -> int:
+    """The duty_q16 the shipped build (phase-correct PWM, TOP 255) really applies for a commanded q16."""
+    return (q16 * 255 + 32767) // 65535 * 65535 // 255
+
+
+@pytest.mark.parametrize(('firmware', 'options'), [
+    ('aeropend_sim.elf', []),                                    # fast PWM, simavr's own Timer1
+    ('aeropend.elf', ['--phase-correct-timer1']),                # the shipped build, the harness's mode-10 model
+])
+def test_firmware_law_replayed_over_pty(build, tmp_path, firmware, options):
+    """A full PID (integral with back-calculation, filtered derivative, clamps) on the firmware while the injected
+    angle moves: every CONTROL_SAMPLE from the first closed-loop sample on, replayed through the Python law on the
+    reported angle counts, gives the reported unsaturated output and integral (within float32 rounding), and its
+    duty is the next sample's (applied from the next PWM period, in both PWM modes)."""
+    import serial
+
+    from aeropend_core.control import law
+    from aeropend_core.rig.control_link import device_coefficients, send_gains
+    gains = law.PidGains(p=0.8, i=2.0, d=0.05, derivative_filter_time=0.02, i_clamp_min=-0.2, i_clamp_max=0.2,
+                         u_clamp_min=0.05, u_clamp_max=0.6, antiwindup='back_calculation', angle_min=-0.35,
+                         angle_max=1.75)
+    on_pin = phase_correct_duty if options else fast_pwm_duty
+    with Harness(build, tmp_path / 'ttyMEGA', adc={2: 2700}, firmware=firmware, options=options) as harness, \
+            serial.Serial(str(tmp_path / 'ttyMEGA'), 250000, timeout=0.02) as link:
+        device = Device(link)
+        device.read(5.0, until=lambda ms: any(isinstance(m, P.StatusFrame) for m in ms))
+        link.write(P.encode_command(P.SET_WATCHDOG, 2.0))
+        send_gains(link, gains, decoder=device.decoder, messages=device.messages)
+        assert device.ack(P.encode_angle_calibration(512.0, 2 * math.pi / 1024)).ok
+        assert device.ack(P.encode_reference(0.5, 0.2)).ok
+        assert device.ack(P.encode_control_mode(P.MODE_CLOSED_LOOP)).ok
+        closed_at = len(device.messages) - 1
+        for millivolts in (2700, 2600, 2750, 2950, 2400, 3300, 2700, 2650):
+            harness.set_adc(2, millivolts)
+            for _ in range(3):
+                link.write(P.encode_command(P.REQUEST_STATUS))
+                device.read(0.1)
+        samples = [m for m in device.messages[closed_at:] if isinstance(m, P.ControlSampleFrame)]
+        assert len(samples) > 300
+        sequences = [s.sequence for s in samples]
+        assert sequences == list(range(sequences[0], sequences[0] + len(sequences)))
+        coefficients = device_coefficients(gains)
+        scale = np.float32(2 * math.pi / 1024)
+        state = law.new_state()
+        exact_duty = saturated = 0
+        for k, sample in enumerate(samples):
+            angle = float((np.float32(sample.angle_counts) - np.float32(512)) * scale)
+            duty = law.law_step(coefficients, state, sample.reference, sample.feedforward, angle)
+            assert sample.unsaturated == pytest.approx(state[law.UNSATURATED], abs=2e-6), k
+            assert sample.integral == pytest.approx(state[law.INTEGRAL], abs=2e-6), k
+            state[law.INTEGRAL] = sample.integral        # carry the device's float32 integral on
+            saturated += not gains.u_clamp_min <= state[law.UNSATURATED] <= gains.u_clamp_max
+            if k + 1 < len(samples):
+                want = on_pin(law_duty_q16(duty, P.duty_to_q16(0.7)))
+                if not options and (want == 0) != (sample.duty_q16 == 0):
+                    continue      # fast PWM (simavr build) connects / disconnects the pin through the interrupt
+                got = samples[k + 1].duty_q16
+                assert abs(got - want) <= 65535 // 255 + 1, k   # one PWM tick at most (a rounding on an edge)
+                exact_duty += got == want
+        assert exact_duty >= 0.99 * (len(samples) - 2)
+        assert saturated > 10 and len({s.angle_counts for s in samples}) >= 6
+        assert any(s.integral == np.float32(0.2) for s in samples)    # the integral on its clamp

@@ -32,7 +32,8 @@
  *   harness raises it instead, at BOTTOM every 2 x ICR1 timer ticks, while the firmware has mode 10 and a clock
  *   selected (CS12:0; prescaler 1/8/64/256/1024); it drives OC1A (PB5) high while TCNT1 < OCR1A, i.e. for
  *   OCR1A ticks either side of BOTTOM (non-inverting COM1A1), with OCR1A latched at TOP (double-buffered). So the
- *   shipped build runs in the loop: frames, duty on the pin and the sampling instant can be measured.
+ *   shipped build runs in the loop: frames, duty on the pin and the sampling instant can be measured. At each TOP
+ *   it sets ICF1 in TIFR1, as the chip does when ICR1 is TOP.
  * - --dump-registers SECONDS: run that long in simulated time, print "reg NAME VALUE" for the Timer1 and ADC
  *   set-up registers (TCCR1A, TCCR1B, ICR1, OCR1A, TIMSK1, ADMUX, ADCSRA, ADCSRB) and exit; this works for the
  *   shipped phase-correct build too, whose timer simavr 1.6 does not run.
@@ -170,6 +171,7 @@ static void timer1_overflow_hook(struct avr_irq_t *irq, uint32_t value, void *pa
 
 /* Timer1 mode 10 model (--phase-correct-timer1, see the header comment) */
 #define REG_TIFR1 0x36
+#define BIT_ICF1 5
 static avr_int_vector_t model_overflow;          /* replaces simavr's Timer1 overflow vector */
 static avr_irq_t *pb5_irq;
 static avr_cycle_count_t model_events[4];        /* pin high, BOTTOM, pin low, next TOP (absolute cycles) */
@@ -228,8 +230,13 @@ static avr_cycle_count_t timer1_model_event(avr_t *a, avr_cycle_count_t when, vo
         avr_raise_irq(pb5_irq, 0);
     else if (kind == EVENT_BOTTOM)
         avr_raise_interrupt(avr, &model_overflow);
-    else if (kind == EVENT_TOP)
+    else if (kind == EVENT_TOP) {
+        /* ICR1 is TOP in mode 10: the chip sets ICF1 when the counter reaches it (the firmware's closed loop reads
+         * it to know whether this period's OCR1A latch is still ahead) */
+        if (timer1_mode() == 10)
+            avr->data[REG_TIFR1] |= 1 << BIT_ICF1;
         model_plan(at);
+    }
     if (model_next >= model_count)
         model_plan(at);   /* not reached: TOP is always last */
     (void)when;
