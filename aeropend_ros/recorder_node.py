@@ -176,7 +176,8 @@ class RecorderNode(Node):
         self._lost_reported = 0
         self.writer = BagWriter(output, max_file_bytes=get('max_file_bytes').value,
                                 max_file_duration=get('max_file_duration').value,
-                                chunk_size=get('chunk_size').value, compression=get('compression').value)
+                                chunk_size=get('chunk_size').value, compression=get('compression').value,
+                                max_chunk_duration=get('chunk_duration').value)
         self.writer.custom_data.update({'aeropend.rig': contract.rig_name(self._namespace),
                                         'aeropend.namespace': self._namespace})
         self._load_msg = msg_file_loader(ament_prefixes() or [sys.prefix])
@@ -227,6 +228,8 @@ class RecorderNode(Node):
                 '(0: never)', read_only=True, low=0.0, high=1e9)
         declare(self, 'chunk_size', 256 * 1024, 'uncompressed bytes per MCAP chunk; a kill loses at most the chunk '
                 'in progress', read_only=True, low=1024, high=64 * 1024 * 1024, integer=True)
+        declare(self, 'chunk_duration', 0.75, 'seconds after which the chunk in progress goes to disk whatever its '
+                'size (0: by size only); a kill loses at most about this much', read_only=True, low=0.0, high=3600.0)
         declare(self, 'compression', 'zstd', 'chunk compression', read_only=True, choices=('zstd', 'lz4', 'none'))
         declare(self, 'queue_depth', 10000, 'subscription history depth: messages DDS buffers while the recorder is '
                 'busy (10000 = 20 s at 490 Hz)', read_only=True, low=1, high=100000, integer=True)
@@ -341,9 +344,10 @@ class RecorderNode(Node):
         queue = self._queue
         writer = self.writer
         while True:
-            self._wake.wait(0.1)
+            self._wake.wait(0.05)
             self._wake.clear()
             try:
+                writer.tick()                   # the chunk in progress goes to disk on time, messages or not
                 while queue:
                     item = queue.popleft()
                     if item[0] == 'topic' and len(item) == 6:

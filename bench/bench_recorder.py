@@ -68,6 +68,48 @@ def baseline(count: int, folder: Path) -> tuple[float, float]:
     return count / elapsed, cpu / count
 
 
+def write_cost(count: int, folder: Path, chunk_duration: float, rate: float = 490.0) -> dict:
+    """Cost of closing chunks on time (issue 43): `count` samples written to BagWriter as if they came at `rate` Hz
+    (the writer's monotonic clock advances 1/rate per message), 256 KiB chunks also closed after `chunk_duration` s
+    (0: on size only). Returns CPU per message, bytes on disk per message and the number of chunks."""
+    from aeropend_core.io import bag_writer
+    from aeropend_core.io.bag_writer import BagWriter
+    from aeropend_core.io.mcap_format import msg_file_loader, ros2msg_definition
+    from aeropend_ros._ros_env import ament_prefixes
+    data = sample_bytes(count)
+    clock = [0.0]
+    real = bag_writer.time.monotonic
+    bag_writer.time.monotonic = lambda: clock[0]
+    try:
+        writer = BagWriter(folder, chunk_size=256 * 1024, max_chunk_duration=chunk_duration)
+        loader = msg_file_loader(ament_prefixes() or [sys.prefix])
+        writer.add_topic('/aeropend/samples', 'sensor_msgs/msg/JointState',
+                         ros2msg_definition('sensor_msgs/msg/JointState', loader))
+        step_ns = round(1e9 / rate)
+        cpu0 = time.process_time()
+        for k, raw in enumerate(data):
+            clock[0] = k / rate
+            writer.write('/aeropend/samples', raw, 1_700_000_000_000_000_000 + k * step_ns)
+        writer.finish()
+        cpu = time.process_time() - cpu0
+    finally:
+        bag_writer.time.monotonic = real
+    size = sum(p.stat().st_size for p in folder.glob('*.mcap'))
+    return {'chunk_duration_s': chunk_duration, 'cpu_s_per_msg': cpu / count, 'bytes_per_msg': size / count,
+            'chunks_closed_on_time': writer.chunks_closed_on_time}
+
+
+def print_write_cost(work: Path, count: int = 100_000) -> list[dict]:
+    """Write cost of 256 KiB chunks closed on size only against also on time (0.75 s, the recorder's default)."""
+    rows = [write_cost(count, work / f'cost_{d}', d) for d in (0.0, 0.75, 0.25)]
+    for r in rows:
+        how = f'after {r["chunk_duration_s"]} s' if r['chunk_duration_s'] else 'on size only'
+        print(f'write cost at 490 Hz, chunks closed {how:>13}: '
+              f'{r["cpu_s_per_msg"] * 1e6:5.2f} us CPU/msg, {r["bytes_per_msg"]:6.1f} bytes/msg on disk, '
+              f'{r["chunks_closed_on_time"]} chunks closed on time', flush=True)
+    return rows
+
+
 def publisher(rate: float, seconds: float, reliable: bool) -> None:
     """Publisher role (own process): wait for the recorder's subscription, publish N numbered samples at `rate`."""
     ensure_ros_environment(local_only=True)
@@ -144,6 +186,8 @@ def main() -> int:
     parser.add_argument('--queue-depth', type=int, default=50000,
                         help='recorder queue_depth parameter (subscription history; absorbs CPU stalls)')
     add_json_argument(parser)
+    parser.add_argument('--write-cost', action='store_true',
+                        help='only measure the cost of closing chunks on time (BagWriter alone, no ROS; ~20 s)')
     parser.add_argument('--role', default='bench', choices=['bench', 'publisher'], help=argparse.SUPPRESS)
     parser.add_argument('--rate', type=float, default=20000.0, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -156,6 +200,13 @@ def main() -> int:
         os.environ['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(Path(args.fastdds_profile).resolve())
     work = Path(tempfile.mkdtemp(prefix='bench_recorder_'))
     try:
+        cost = print_write_cost(work)
+        if args.write_cost:
+            write_json(args.json, 'bench_recorder_write_cost', [
+                figure(f'bag writing at 490 Hz, chunks closed after {r["chunk_duration_s"]} s: CPU per message',
+                       r['cpu_s_per_msg'] * 1e6, 'us/msg', baseline=cost[0]['cpu_s_per_msg'] * 1e6,
+                       baseline_name='chunks closed on size only') for r in cost[1:]], runs=cost)
+            return 0
         base_rate, base_cpu = baseline(100_000, work / 'baseline')
         print(f'baseline  BagWriter alone: {base_rate:,.0f} msg/s, {base_cpu * 1e6:.1f} us CPU/msg')
         print(f'{"offered":>9} {"achieved":>9} {"published":>9} {"recorded":>9} {"lost":>6} {"gaps":>5} '

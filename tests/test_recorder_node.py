@@ -176,7 +176,7 @@ def test_killed_recorder_leaves_readable_bag_and_recovers(tmp_path, watch):
     samples = topics.SAMPLES_TOPIC
     bag = tmp_path / 'killed_run'
     recorder_args = ['-p', f'output:={bag}', '-p', 'diagnostics_period:=0.2', '-p', 'chunk_size:=16384',
-                     *ONLY_SAMPLES]
+                     '-p', 'chunk_duration:=0.0', *ONLY_SAMPLES]      # chunks closed by size only here
     with NodeProcess('aeropend_ros.recorder_node', recorder_args, DOMAIN_ID) as recorder, \
             NodeProcess('aeropend_ros.sim_node', ['-p', 'psnr_db:=40.0'], DOMAIN_ID) as sim:
         assert watch.wait_for(lambda: watch.received(bag, samples) >= 1500, DISCOVERY_TIMEOUT + 10), \
