@@ -308,7 +308,12 @@ def test_timer1_and_adc_set_up_in_the_running_build(build, firmware, mode, top, 
     assert bit(r['ADCSRA'], ADEN) and bit(r['ADCSRA'], ADATE) and bit(r['ADCSRA'], ADIE)
     assert r['ADCSRA'] & 0b111 == 0b111                                # prescaler 128: 125 kHz ADC clock
     assert r['ADCSRB'] & 0b111 == ADTS_TIMER1_OVERFLOW
-    assert r['ADMUX'] == (1 << REFS0) | 0                              # AVCC reference, current channel A0
+    if mode == 14:
+        assert r['ADMUX'] == (1 << REFS0) | 0                          # AVCC reference, current channel A0
+    else:
+        # simavr alone runs mode 10's Timer1 at its ~9.3 kHz fallback, which keeps the ADC chain (current, angle,
+        # voltage) busy all the time: at the dump instant ADMUX may be on any channel of the chain.
+        assert r['ADMUX'] & 0xE0 == 1 << REFS0 and r['ADMUX'] & 0x1F in (0, 2, 3), r
 
 
 @pytest.mark.slow
