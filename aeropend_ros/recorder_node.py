@@ -330,6 +330,9 @@ class RecorderNode(Node):
 
     def _enqueue(self, topic: str, data: bytes, info: dict) -> None:
         if len(self._queue) >= self._max_queue or self._failed.is_set():
+            # received, not written: counted as both, so that whoever waits for the in-flight messages to arrive
+            # (aeropend run's drain) sees them arrive after a failed write too (it waited its whole 30 s before)
+            self._received[topic] += 1
             self._dropped += 1
             return
         received = info.get('received_timestamp') or time.time_ns()

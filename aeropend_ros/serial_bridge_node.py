@@ -640,8 +640,9 @@ class SerialBridgeNode(Node):
     def _rate_text(self) -> str:
         clock = self.clock_model
         error = clock.rate_error
+        measured = clock.nominal_period * (1.0 + error)    # clock.period is the stamping slope, clamped to tolerance
         return (f'device clock {abs(error) * 100:.2f} % {"slow" if error > 0 else "fast"} (measured period '
-                f'{clock.period * 1e3:.4f} ms ± {clock.rate_error_bound * 100:.2f} %, nominal '
+                f'{measured * 1e3:.4f} ms ± {clock.rate_error_bound * 100:.2f} %, nominal '
                 f'{clock.nominal_period * 1e3:.4f} ms, tolerance ±{clock.max_drift * 100:.2f} %)')
 
     def _clock_withholds(self) -> bool:

@@ -258,14 +258,20 @@ def read_calibration_file(path: str | Path) -> dict:
         document = load_yaml(path, 'the calibration file')       # a FIFO, device or a too deep YAML: refused
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
         raise AeropendError(f'cannot read the calibration file {path}: {error}') from error
-    if document is None:
-        return {}
-    if not isinstance(document, dict):
-        raise AeropendError(f'{path} is not a calibration file (a YAML mapping with {NODE_KEY}: ros__parameters: '
-                            f'...; see config/serial_bridge_node.yaml)')
-    section = document.get(NODE_KEY) or document.get(NODE_KEY.removeprefix('/**/')) or {}   # old files: no '/**/'
+    if not isinstance(document, dict):      # an empty file, a lone value (.nan), a list: nothing to calibrate from
+        raise AeropendError(f'{path} is not a calibration file ({"empty" if document is None else "no mapping"}: '
+                            f'it needs {NODE_KEY}: ros__parameters: ...; see config/serial_bridge_node.yaml)')
+    key = next((k for k in (NODE_KEY, NODE_KEY.removeprefix('/**/')) if k in document), None)  # old files: no '/**/'
+    if key is None:
+        raise AeropendError(f'{path} has no {NODE_KEY} section (it holds {", ".join(map(str, document)) or "nothing"}'
+                            f'): not a calibration file; see config/serial_bridge_node.yaml')
+    section = document[key] or {}
     values = section.get('ros__parameters') if isinstance(section, dict) else None
-    return dict(values) if isinstance(values, dict) else {}
+    values = dict(values) if isinstance(values, dict) else {}
+    for name, value in values.items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise AeropendError(f'{path}: {name} is {value!r}, not a number a calibration can hold; fix or remove it')
+    return values
 
 
 @dataclass(frozen=True)
