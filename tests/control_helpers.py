@@ -85,3 +85,57 @@ def check_refusals_after_gains(device: Device) -> None:
     for reference, feedforward in [(2.0, 0.2), (-0.5, 0.2), (0.5, 1.5), (0.5, -0.1), (math.nan, 0.2)]:
         ack = device.ack(P.encode_reference(reference, feedforward))
         assert (ack.command, ack.result, ack.value) == (P.SET_REFERENCE, P.ACK_OUT_OF_RANGE, 0.0)
+
+
+class Watcher:
+    """In-test node: samples and control telemetry by sequence number; publishes references, sets parameters."""
+
+    def __init__(self, context) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.parameter_client import AsyncParameterClient
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Float64MultiArray
+
+        from aeropend_ros import topics
+        self.topics = topics
+        self.node = rclpy.create_node('bridge_closed_loop_watcher', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.samples: dict = {}
+        self.control: dict[int, list[float]] = {}
+        deep = QoSProfile(depth=2000, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self.node.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, deep)
+        self.node.create_subscription(JointState, topics.CONTROL_TOPIC, self._on_control, deep)
+        self.reference = self.node.create_publisher(Float64MultiArray, topics.REFERENCE_TOPIC, topics.command_qos())
+        self.Float64MultiArray = Float64MultiArray
+        self.parameters = AsyncParameterClient(self.node, '/serial_bridge_node')
+
+    def _on_sample(self, msg) -> None:
+        sample = self.topics.msg_to_sample(msg)
+        self.samples[sample.sequence] = sample
+
+    def _on_control(self, msg) -> None:
+        assert list(msg.name) == list(self.topics.CONTROL_NAMES)
+        self.control[int(msg.position[-1])] = list(msg.position)
+
+    def wait_for(self, condition, timeout: float = 30.0) -> bool:
+        from tests.ros_helpers import wait_for
+        return wait_for(condition, timeout, executor=self.executor)
+
+    def set(self, **values):
+        """``ros2 param set`` on the bridge (one request): the SetParametersResult list."""
+        from rclpy.parameter import Parameter
+        assert self.wait_for(self.parameters.services_are_ready, 120.0), 'no parameter service'
+        future = self.parameters.set_parameters([Parameter(name, value=value) for name, value in values.items()])
+        self.executor.spin_until_future_complete(future, timeout_sec=30.0)
+        assert future.done(), 'set_parameters timed out'
+        return future.result().results
+
+    def publish_reference(self, *data: float) -> None:
+        self.reference.publish(self.Float64MultiArray(data=[float(value) for value in data]))
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()

@@ -11,59 +11,18 @@ from aeropend_core.control import law
 from aeropend_core.control.feedforward import static_duty
 from aeropend_core.rig.control_link import device_coefficients
 from aeropend_core.testing.device_emulator import DeviceEmulator
-from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain, wait_for
+from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain
 
 DOMAIN_ID = private_domain_id()
 use_domain(DOMAIN_ID)
 
-import rclpy  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
-from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
-from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 
-from aeropend_ros import topics  # noqa: E402
+from tests.control_helpers import Watcher  # noqa: E402
 
 pytestmark = pytest.mark.timeout(300)
 
 START_TIMEOUT = 120.0
-WAIT = 30.0
-
-
-class Watcher:
-    """In-test node: samples and control telemetry by sequence number; publishes references, sets parameters."""
-
-    def __init__(self, context) -> None:
-        self.node = rclpy.create_node('bridge_closed_loop_watcher', context=context)
-        self.executor = SingleThreadedExecutor(context=context)
-        self.executor.add_node(self.node)
-        self.samples: dict[int, topics.Sample] = {}
-        self.control: dict[int, list[float]] = {}
-        deep = QoSProfile(depth=2000, reliability=ReliabilityPolicy.BEST_EFFORT)
-        self.node.create_subscription(JointState, topics.SAMPLES_TOPIC, self._on_sample, deep)
-        self.node.create_subscription(JointState, topics.CONTROL_TOPIC, self._on_control, deep)
-        self.reference = self.node.create_publisher(Float64MultiArray, topics.REFERENCE_TOPIC, topics.command_qos())
-        self.parameters = AsyncParameterClient(self.node, '/serial_bridge_node')
-
-    def _on_sample(self, msg) -> None:
-        sample = topics.msg_to_sample(msg)
-        self.samples[sample.sequence] = sample
-
-    def _on_control(self, msg) -> None:
-        assert list(msg.name) == list(topics.CONTROL_NAMES)
-        self.control[int(msg.position[-1])] = list(msg.position)
-
-    def wait_for(self, condition, timeout: float = WAIT) -> bool:
-        return wait_for(condition, timeout, executor=self.executor)
-
-    def set(self, **values):
-        assert self.wait_for(self.parameters.services_are_ready, START_TIMEOUT), 'no parameter service'
-        future = self.parameters.set_parameters([Parameter(name, value=value) for name, value in values.items()])
-        self.executor.spin_until_future_complete(future, timeout_sec=WAIT)
-        assert future.done(), 'set_parameters timed out'
-        return future.result().results
 
 
 def test_bridge_runs_the_device_closed_loop():
@@ -123,6 +82,5 @@ def test_bridge_runs_the_device_closed_loop():
         finally:
             output = bridge.output()
             bridge.stop()
-            watcher.executor.shutdown()
-            watcher.node.destroy_node()
+            watcher.close()
     assert 'the device refused' not in output, output

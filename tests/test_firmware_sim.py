@@ -682,3 +682,69 @@ def test_firmware_law_replayed_over_pty(build, tmp_path, firmware, options):
         assert exact_duty >= 0.99 * (len(samples) - 2)
         assert saturated > 10 and len({s.angle_counts for s in samples}) >= 6
         assert any(s.integral == np.float32(0.2) for s in samples)    # the integral on its clamp
+
+
+def test_bridge_closes_the_loop_on_the_firmware(build, tmp_path, ros_context):
+    """The serial bridge process on the real firmware in simavr, closed loop: the gains sent and acknowledged at
+    start, the reference topic forwarded, the law's duty from the injected angle on the samples and on
+    aeropend/control, a gain changed at run time, the angle trip latched until a new reference, and the firmware's
+    watchdog cutting the motor when the bridge dies in closed loop."""
+    import serial
+
+    from tests.control_helpers import Watcher
+    port = tmp_path / 'ttyMEGA'
+    angle_mv = 2700
+    angle = float((np.float32(counts_of(angle_mv)) - np.float32(512)) * np.float32(2 * math.pi / 1024))
+    with Harness(build, port, adc={2: angle_mv}) as harness:
+        watcher = Watcher(ros_context)
+        bridge = NodeProcess('aeropend_ros.serial_bridge_node',
+                             ['-p', f'port:={port}', '-p', 'control_mode:=closed_loop', '-p', 'p:=0.8',
+                              '-p', 'i:=0.0', '-p', 'd:=0.0', '-p', 'u_clamp_max:=0.6',
+                              '-p', 'clock_max_drift:=0.05'], domain_id=DOMAIN_ID)
+        try:
+            assert watcher.wait_for(lambda: len(watcher.control) > 50 or bridge.process.poll() is not None,
+                                    DISCOVERY_TIMEOUT) and len(watcher.control) > 50, bridge.output()
+            assert watcher.wait_for(lambda: watcher.reference.get_subscription_count() > 0, DISCOVERY_TIMEOUT)
+            watcher.publish_reference(0.5, 0.2)
+
+            def settled(unsaturated: float) -> bool:
+                row = watcher.control[max(watcher.control)]
+                return abs(row[3] - unsaturated) < 1e-5
+
+            expected = 0.2 + 0.8 * (0.5 - angle)
+            assert watcher.wait_for(lambda: settled(expected)), (watcher.control[max(watcher.control)],
+                                                                 bridge.output())
+            watcher.wait_for(lambda: False, 0.3)
+            last = max(watcher.control)
+            row = watcher.control[last]
+            assert row[0] == np.float32(0.5) and row[1] == np.float32(0.2) and row[5] == 0.0
+            assert row[2] == pytest.approx(fast_pwm_duty(law_duty_q16(expected, P.duty_to_q16(0.7))) / 65535)
+            assert watcher.samples[last].duty == row[2]
+            assert watcher.samples[last].angle == pytest.approx(angle, abs=1e-6)
+
+            # A gain at run time: sent, acknowledged, the law's output follows.
+            assert watcher.set(p=0.4)[0].successful
+            assert watcher.wait_for(lambda: settled(0.2 + 0.4 * (0.5 - angle))), bridge.output()
+
+            # The trip: the angle leaves the window; back inside it stays tripped until a new reference.
+            harness.set_adc(2, 4500)
+            assert watcher.wait_for(lambda: watcher.control[max(watcher.control)][5] == 1.0), bridge.output()
+            harness.set_adc(2, angle_mv)
+            watcher.wait_for(lambda: False, 0.5)
+            row = watcher.control[max(watcher.control)]
+            assert row[5] == 1.0 and row[2] == 0.0
+            watcher.publish_reference(0.5, 0.2)
+            assert watcher.wait_for(lambda: watcher.control[max(watcher.control)][5] == 0.0 and
+                                    watcher.control[max(watcher.control)][2] > 0.0), bridge.output()
+        finally:
+            output = bridge.output()
+            watcher.close()
+            bridge.process.kill()          # the host dies without a word, the loop closed
+            bridge.process.wait()
+            bridge.log.close()
+        assert 'safety trip on the device' in output and 'controller gains acknowledged' in output, output
+        with serial.Serial(str(port), 250000, timeout=0.02) as link:
+            messages = read_messages(link, P.FrameDecoder(), 3.0, until=lambda ms: sum(
+                1 for m in ms if isinstance(m, P.ControlSampleFrame) and m.flags & P.FLAG_WATCHDOG_TRIPPED) > 5)
+        cut = [m for m in messages if isinstance(m, P.ControlSampleFrame) and m.flags & P.FLAG_WATCHDOG_TRIPPED]
+        assert len(cut) > 5 and all(m.duty_q16 == 0 for m in cut[1:]), output
