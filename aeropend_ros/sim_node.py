@@ -320,6 +320,17 @@ class SimNode(Node):
         """A schedule was given and every one of its samples is published."""
         return self.schedule is not None and self.sequence - self.schedule_start >= self.schedule_samples
 
+    def schedule_series(self):
+        """(time from the schedule's start [s], angle [rad], duty applied [fraction]) of the schedule's samples
+        published so far (the run's console judges its steps on them)."""
+        parts = list(self.schedule_log)
+        if not parts:
+            return np.empty(0), np.empty(0), np.empty(0)
+        first = parts[0][0] - self.schedule_start
+        angle = np.concatenate([record.angle for _, record in parts])
+        duty = np.concatenate([record.duty for _, record in parts])
+        return (first + np.arange(angle.size)) * self.sample_time, angle, duty
+
     def _enter_closed_loop(self) -> None:
         self.loop.controller.reset()
         self.loop.next_duty = min(max(self.commanded_duty, 0.0), float(self.get_parameter('duty_limit').value))

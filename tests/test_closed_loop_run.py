@@ -158,6 +158,34 @@ def test_without_reference_the_default_schedule_is_said(files, tmp_path):
     assert 'not completed: step 1 (0.0 -> 20.0 deg), step 2' in result.stdout, result.stdout
 
 
+@pytest.mark.timeout(300)
+def test_run_closes_the_loop_on_the_rig_through_the_bridge(files, tmp_path):
+    """`--port` with `--controller` against the device emulator (protocol 2): the firmware's law, the schedule played
+    on aeropend/reference by the device's sample counter, one line per step, the bag's telemetry from the bridge, and
+    the device back in open loop at the end."""
+    from aeropend_core.control.record import load_closed_loop
+    from aeropend_core.rig import protocol as P
+    from aeropend_core.testing.device_emulator import DeviceEmulator
+    (files / 'rig_steps.yaml').write_text('start_hold: 1.0\nsteps:\n  - {angle_deg: 20, hold: 3}\n'
+                                          '  - {angle_deg: 35, hold: 3}\n')
+    with DeviceEmulator(seed=5) as emulator:
+        result = run_cli(['run', '--port', str(emulator.port), '--controller', str(files / 'gains.yaml'),
+                          '--reference', str(files / 'rig_steps.yaml'), '--record', str(tmp_path)], timeout=200)
+        mode_at_end = emulator.control_mode
+    output = result.stdout + result.stderr
+    assert result.returncode == 0 and 'Traceback' not in output, output
+    assert 'rig on' in result.stderr and '7 s of closed loop' in result.stderr, output
+    assert [m[0] for m in STEP_LINE.findall(result.stdout)] == ['1', '2'], result.stdout
+    assert mode_at_end == P.MODE_OPEN_LOOP
+    data = load_closed_loop(next(p for p in tmp_path.iterdir() if p.is_dir()))
+    assert data.complete and data.controller is not None and data.duty_limit == 0.7
+    played = data.time >= 0
+    assert data.time[played][-1] >= 7.0 - 2 * SAMPLE_TIME
+    changes = data.time[1:][np.diff(data.reference) != 0]
+    assert len(changes) == 2 and np.all(changes - np.array([1.0, 4.0]) < 0.1), changes      # the link's latency
+    assert abs(np.degrees(data.angle[(data.time > 6.0) & (data.time < 7.0)].mean()) - 35.0) < 3.0
+
+
 def test_bag_without_closed_loop_is_refused_clearly(tmp_path):
     from aeropend_core.control.record import load_closed_loop
     from aeropend_core.errors import AeropendError
@@ -174,7 +202,6 @@ def test_bag_without_closed_loop_is_refused_clearly(tmp_path):
     (['--controller', '{gains}', '--reference', '{bad_steps}'], 'holds 0.0 s; holds must be positive'),
     (['--controller', '{gains}', '--reference', '{too_high}'], 'outside the controller\'s safety limits'),
     (['--controller', '{gains}', '--experiment', '{steps}'], 'cannot be combined with --experiment'),
-    (['--controller', '{gains}', '--port', '/dev/null'], 'closed loop on the rig needs firmware protocol 2'),
 ])
 def test_closed_loop_refusals_exit_2_with_one_line(files, arguments, message):
     (files / 'bad.yaml').write_text('gains: {p: [1, 2\n')

@@ -2,8 +2,12 @@
 
 The simulator runs the controller law itself (:class:`aeropend_ros.sim_node.SimNode` in ``control_mode``
 ``closed_loop``, gains and feedforward model from the controller file) on the schedule (``--reference``, or the
-default 20, 40, 60, 30 deg, 5 s each after 2 s at rest); no excitation node is started. The run lasts the schedule
-(``--duration`` cuts or extends it: after the schedule the last step is held). The bag holds the control telemetry
+default 20, 40, 60, 30 deg, 5 s each after 2 s at rest); no excitation node is started. On the rig (``--port``) the
+firmware runs the law (:class:`aeropend_ros.serial_bridge_node.SerialBridgeNode` in ``closed_loop``, the gains sent
+as parameters) and :class:`ReferencePlayer` plays the schedule on ``aeropend/reference`` (reference and the
+controller model's feedforward, one message per change), timed by the device's sample counter from the first sample
+the law answered. The run lasts the schedule (``--duration`` cuts or extends it: after the schedule the last step is
+held). The bag holds the control telemetry
 (``/aeropend/control``), the controller's configuration (``/aeropend/controller``) and, in its metadata, the
 controller file and the schedule with their sha256 (:func:`aeropend_core.control.record.closed_loop_metadata`).
 While the run lasts, each completed step is judged against the controller's template (one line each); a run cut
@@ -17,10 +21,9 @@ import sys
 
 from aeropend_core.errors import AeropendError
 
-#: One line when the rig is asked to close the loop before the serial bridge can.
-RIG_REFUSAL = ('--controller with --port: closed loop on the rig needs firmware protocol 2 and a serial bridge that '
-               'sends the law its gains and reference (not available yet); run the closed loop on the simulator '
-               '(drop --port)')
+#: Longest wait [s] on the rig for the law's first answer (the gains acknowledged, the loop closed) before the run
+#: ends without the schedule.
+RIG_START_LIMIT = 30.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -59,8 +62,6 @@ def check_arguments(args, duration_given: bool) -> None:
     check_conflicts(args)
     if not controller_path:
         return
-    if args.port is not None:
-        raise AeropendError(RIG_REFUSAL)
     from aeropend_core.control.controller_file import Controller
     from aeropend_core.control.loop import FeedforwardMap
     from aeropend_core.control.record import default_schedule, default_schedule_text, read_schedule_file
@@ -88,24 +89,113 @@ def check_arguments(args, duration_given: bool) -> None:
 
 
 class ClosedLoopClock:
-    """Ends a closed-loop run when the simulator has published its `duration` (``stop_after``); says where the
-    schedule starts and whether it was played whole (the bag's metadata, the keys of ``--experiment``)."""
+    """Ends a closed-loop run: on the simulator when it has published its `duration` (``stop_after``); on the rig
+    when the player has seen `duration` [s] of samples since the schedule's start (or the law never answered within
+    RIG_START_LIMIT s). Says where the schedule starts and whether it was played whole (the bag's metadata, the keys
+    of ``--experiment``). `player` is the simulator itself or the :class:`ReferencePlayer`."""
 
-    def __init__(self, source) -> None:
-        self.source = source
+    def __init__(self, source, player, duration: float, use_sim: bool = True) -> None:
+        import time
+        self.source, self.player, self.duration, self.use_sim = source, player, float(duration), use_sim
+        self.started = time.monotonic()
+        self.never_started = False
 
     def over(self) -> bool:
-        return bool(self.source.finished)
+        import time
+        if self.use_sim:
+            return bool(self.source.finished)
+        player = self.player
+        if not player.started:
+            self.never_started = time.monotonic() - self.started > RIG_START_LIMIT
+            return self.never_started
+        return (player.sequence - player.schedule_start) * player.sample_time >= self.duration - 1e-9
 
     def metadata(self) -> dict[str, str]:
-        source = self.source
-        start = source.schedule_start
-        offset = start * source.sample_time
-        return {'aeropend.schedule_seconds': f'{source.schedule.duration:.6f}',
-                'aeropend.schedule_complete': 'true' if source.schedule_done() else 'false',
-                'aeropend.schedule_start_stamp_ns': str(int(source.start_ns + round(offset * 1e9))),
-                'aeropend.schedule_offset_s': f'{offset:.6f}',
-                'aeropend.schedule_start_sample': str(int(start))}
+        player = self.player
+        data = {'aeropend.schedule_seconds': f'{player.schedule.duration:.6f}',
+                'aeropend.schedule_complete': 'true' if player.schedule_done() else 'false'}
+        if not getattr(player, 'started', True):
+            return data
+        start = player.schedule_start
+        if self.use_sim:
+            offset = start * player.sample_time
+            data.update({'aeropend.schedule_start_stamp_ns': str(int(player.start_ns + round(offset * 1e9))),
+                         'aeropend.schedule_offset_s': f'{offset:.6f}'})
+        else:
+            data['aeropend.schedule_start_stamp_ns'] = str(int(player.start_stamp_ns))
+        data['aeropend.schedule_start_sample'] = str(int(start))
+        return data
+
+
+def make_reference_player(schedule, controller, namespace: str, sample_time: float):
+    """A :class:`ReferencePlayer` node (rclpy imported here)."""
+    from rclpy.node import Node
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64MultiArray
+
+    from aeropend_core.control.loop import FeedforwardMap
+    from aeropend_ros import topics
+
+    class ReferencePlayer(Node):
+        """Plays a reference schedule on ``aeropend/reference`` for a rig whose firmware runs the law: the schedule
+        starts at the first sample the law answered (the first ``aeropend/control`` message) and is timed by the
+        device's sample counter; a message goes out when the reference changes (the firmware restarts a tripped
+        law on each accepted reference; an untripped one keeps its integral). Keeps the angle and duty of the
+        schedule's samples for the console (:meth:`schedule_series`)."""
+
+        def __init__(self) -> None:
+            super().__init__('reference_player', namespace=namespace, start_parameter_services=False)
+            import numpy as np
+            self.schedule = schedule
+            self.sample_time = float(sample_time)
+            self.feedforward = FeedforwardMap(controller.parameters, controller.effects)
+            self._reference = schedule.reference(None, self.sample_time)
+            self._feedforward = np.array([self.feedforward(value) for value in self._reference])
+            self.started = False
+            self.schedule_start = 0
+            self.start_stamp_ns = 0
+            self.sequence = 0                 # one past the last sample seen
+            self._last_sent: float | None = None
+            self._angles: list[tuple[int, float, float]] = []
+            self.publisher = self.create_publisher(Float64MultiArray, topics.REFERENCE, topics.command_qos())
+            self.create_subscription(JointState, topics.CONTROL, self._on_control, topics.samples_qos())
+            self.create_subscription(JointState, topics.SAMPLES, self._on_sample, topics.samples_qos())
+
+        @property
+        def schedule_samples(self) -> int:
+            return int(self._reference.size)
+
+        def schedule_done(self) -> bool:
+            return self.started and self.sequence - self.schedule_start >= self.schedule_samples
+
+        def _on_control(self, msg) -> None:
+            sequence = int(msg.position[-1])
+            if not self.started:
+                self.started = True
+                self.schedule_start = sequence
+                self.start_stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                self.get_logger().info(f'the law answers: the schedule starts at sample {sequence}')
+            self.sequence = max(self.sequence, sequence + 1)
+            index = min(max(sequence + 1 - self.schedule_start, 0), self.schedule_samples - 1)
+            reference = float(self._reference[index])     # for the next sample: the device applies it from then
+            if reference != self._last_sent:
+                self._last_sent = reference
+                self.publisher.publish(Float64MultiArray(data=[reference, float(self._feedforward[index])]))
+
+        def _on_sample(self, msg) -> None:
+            if self.started:
+                sequence = int(msg.position[4])
+                if sequence >= self.schedule_start:
+                    self._angles.append((sequence, float(msg.position[0]), float(msg.position[3])))
+
+        def schedule_series(self):
+            """(time from the schedule's start [s], angle [rad], duty [fraction]) of the samples seen so far."""
+            import numpy as np
+            rows = np.array(list(self._angles), dtype=float).reshape(-1, 3)
+            rows = rows[np.argsort(rows[:, 0], kind='stable')]
+            return (rows[:, 0] - self.schedule_start) * self.sample_time, rows[:, 1], rows[:, 2]
+
+    return ReferencePlayer()
 
 
 def _judged(value: float, limit: float | None, text: str, operator: str = '<=') -> str:
@@ -139,6 +229,7 @@ class StepPrinter:
     against the controller's template), read from the simulator's log of the schedule."""
 
     def __init__(self, source, schedule, template) -> None:
+        # `source`: the simulator or the ReferencePlayer (sequence, schedule_start, sample_time, schedule_series())
         self.source, self.schedule, self.template = source, schedule, template
         self.spans = schedule.step_times()
         self.next = 0
@@ -146,26 +237,22 @@ class StepPrinter:
 
     def update(self) -> None:
         source = self.source
+        if not getattr(source, 'started', True):
+            return
         played = (source.sequence - source.schedule_start) * source.sample_time
         while self.next < len(self.spans) and played >= self.spans[self.next][1] - 1e-9:
             self._judge(self.next)
             self.next += 1
 
     def _judge(self, index: int) -> None:
-        import numpy as np
-
-        from aeropend_core.control.loop import ClosedLoopRecord
         from aeropend_core.control.metrics import step_metrics
         start, end, before, after = self.spans[index]
         if before == after:
             self.results.append({'step': index + 1, 'completed': True, 'metrics': None})
             return
-        parts = [record for _, record in list(self.source.schedule_log)]
-        first = self.source.schedule_log[0][0] - self.source.schedule_start if parts else 0
-        record = ClosedLoopRecord.concatenate(parts)
-        time = (first + np.arange(len(record))) * self.source.sample_time
+        time, angle, duty = self.source.schedule_series()
         try:
-            metrics = step_metrics(time, record.angle, record.duty, start, end, before, after)
+            metrics = step_metrics(time, angle, duty, start, end, before, after)
         except AeropendError as error:
             print(f'step {index + 1}: {error}', flush=True)
             self.results.append({'step': index + 1, 'completed': True, 'metrics': None})
@@ -192,4 +279,5 @@ class StepPrinter:
                   'duty was held at 0 from then on', file=sys.stderr, flush=True)
 
 
-__all__ = ['ClosedLoopClock', 'RIG_REFUSAL', 'StepPrinter', 'add_arguments', 'check_arguments', 'step_line']
+__all__ = ['ClosedLoopClock', 'RIG_START_LIMIT', 'StepPrinter', 'add_arguments', 'check_arguments', 'check_conflicts',
+           'make_reference_player', 'step_line']

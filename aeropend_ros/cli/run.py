@@ -245,6 +245,7 @@ def _run(args) -> int:
     signal.signal(signal.SIGINT, signal.default_int_handler)
     closed = getattr(args, 'closed_loop', None)         # --controller: the law plays a reference schedule
     steps = None
+    source = None
     nodes = []
     executors = []
     spinners = []
@@ -276,9 +277,18 @@ def _run(args) -> int:
             if args.calibration:        # the rig's calibration (zeros, scales, ...); --port wins over its port
                 from aeropend_core.rig.calibration import read_calibration_file
                 calibrated = read_calibration_file(args.calibration)
-            source = SerialBridgeNode(parameter_overrides=overrides(**{**calibrated, 'port': args.port}),
+            control = {}
+            if closed:      # the firmware runs the law: the controller's gains, the duty cap on the device
+                control = {**closed['controller'].gains.as_dict(), 'control_mode': 'closed_loop',
+                           'max_duty': min(float(args.duty_cap), float(calibrated.get('max_duty', 1.0)))}
+            source = SerialBridgeNode(parameter_overrides=overrides(**{**calibrated, **control, 'port': args.port}),
                                       namespace=namespace)
         nodes.append(source)
+        player = source                 # closed loop: what plays the schedule (the sim itself, or a player node)
+        if closed and not use_sim:
+            from aeropend_ros.cli.closed_loop_run import make_reference_player
+            player = make_reference_player(closed['schedule'], closed['controller'], namespace, SAMPLE_TIME)
+            nodes.append(player)
         start_delay = 1.0
         excitation = None           # closed loop: the law sets the duty, no excitation node
         if not closed:
@@ -359,8 +369,8 @@ def _run(args) -> int:
             spinners.append(spinner)
         if closed:
             from aeropend_ros.cli.closed_loop_run import ClosedLoopClock, StepPrinter
-            clock = ClosedLoopClock(source)
-            steps = StepPrinter(source, closed['schedule'], closed['controller'].template)
+            clock = ClosedLoopClock(source, player, float(args.duration), use_sim)
+            steps = StepPrinter(player, closed['schedule'], closed['controller'].template)
         else:
             clock = ScheduleClock(excitation, source, use_sim, float(args.duration), whole=bool(args.experiment))
         interrupted = _wait_until_done(args, source, excitation, identification, use_sim, SAMPLE_TIME, recorder,
@@ -370,11 +380,24 @@ def _run(args) -> int:
             recorder.writer.custom_data.update(clock.metadata())
         if excitation is not None and excitation.started and not excitation.done:
             excitation.finish()          # duty back to 0 before the graph goes away
-        if recorder is not None:
+        if closed and not use_sim:
+            _open_the_loop(source)       # the device: open loop, duty 0, before the graph goes away
+            if clock.never_started:
+                from aeropend_ros.cli.closed_loop_run import RIG_START_LIMIT
+                print(f'aeropend run: the device never ran the law within {RIG_START_LIMIT:g} s (controller '
+                      f'gains: {getattr(source, "gains_state", "?")}): closed loop needs firmware protocol 2 '
+                      '(docs/rig-link.md)', file=sys.stderr, flush=True)
+        if recorder is not None and closed and not use_sim:
+            # the device keeps streaming (open loop, duty 0): its counts never go quiet; the samples in flight
+            # in this process arrive within milliseconds
+            _drain(recorder, None, timeout=CLOSED_LOOP_RIG_DRAIN_S)
+        elif recorder is not None:
             _drain(recorder, getattr(source, 'sequence', None) if use_sim else None)
     except KeyboardInterrupt:
         interrupted = True
         print('aeropend run: interrupted; finalising', file=sys.stderr)
+        if closed and not use_sim and source is not None:
+            _open_the_loop(source)
     finally:
         if closed and steps is not None:
             _finish_steps(steps, args)
@@ -411,6 +434,20 @@ def _run(args) -> int:
                   f'is kept{": " + str(bag_folder) if bag_folder else ""}', file=sys.stderr)
             return 1
     return _diagnose(bag_folder, memory, args, interrupted)
+
+
+#: How long [s] a closed-loop run on the rig lets the recorder take the samples in flight at its end.
+CLOSED_LOOP_RIG_DRAIN_S = 2.0
+
+
+def _open_the_loop(bridge) -> None:
+    """The rig's device back to open loop with duty 0 (the bridge's control_mode), said if it cannot be."""
+    from rclpy.parameter import Parameter
+    try:
+        bridge.set_parameters([Parameter('control_mode', value='open_loop')])
+    except Exception as error:  # noqa: BLE001 - the bridge's destroy sends duty 0 anyway
+        print(f'aeropend run: cannot open the loop on the device ({error}); duty 0 is sent as the bridge stops',
+              file=sys.stderr)
 
 
 def _finish_steps(steps, args) -> None:
