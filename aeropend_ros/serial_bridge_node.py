@@ -861,10 +861,18 @@ class SerialBridgeNode(Node):
         return DiagnosticStatus.OK, 'streaming'
 
     def _command_doubts(self) -> list[str]:
-        """Doubts about the duty commands: two sources (the guard's own status is ERROR)."""
+        """Doubts about the commands: two duty sources (the guard's own status is ERROR); a closed loop asked for
+        but not running on the device (its gains refused or not acknowledged yet); the device's safety trip."""
+        doubts = []
         if self.duty_guard.contested:
-            return [f'two duty command sources: {self.duty_guard.refused} commands refused, duty held at 0']
-        return []
+            doubts.append(f'two duty command sources: {self.duty_guard.refused} commands refused, duty held at 0')
+        if self.closed_loop and not self._device_closed:
+            doubts.append(f'closed loop asked for, the device is not running it (controller gains: '
+                          f'{self.gains_state})')
+        if self._last_flags & P.FLAG_LAW_TRIPPED:
+            doubts.append('safety trip on the device: angle outside [angle_min, angle_max], duty 0 until a new '
+                          'reference')
+        return doubts
 
     def destroy_node(self) -> None:
         """Stop the reader thread, set the duty to 0 on the device and close the port."""
