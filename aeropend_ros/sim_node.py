@@ -68,8 +68,11 @@ from aeropend_ros import topics
 CATCH_UP_LIMIT = 490
 #: Control modes: the duty command (today's behaviour), or the controller law on the measured angle.
 CONTROL_MODES = ('open_loop', 'closed_loop')
-#: The gain parameters (ros2_control pid_controller's names), in PidGains' order.
+#: The gain parameters (ros2_control pid_controller's names), in PidGains' order; all numbers but antiwindup.
 GAIN_NAMES = tuple(PidGains.__dataclass_fields__)
+NUMERIC_GAIN_NAMES = tuple(name for name in GAIN_NAMES if name != 'antiwindup')
+#: Their defaults without a controller file.
+DEFAULT_GAINS = PidGains().as_dict()
 _GAIN_HELP = {
     'p': 'proportional gain [duty/rad]', 'i': 'integral gain [duty/(rad s)]', 'd': 'derivative gain on the '
     'measured angle [duty s/rad]', 'derivative_filter_time': 'Tf of the derivative filter [s] (0: plain difference)',
@@ -250,14 +253,15 @@ class SimNode(Node):
                 self.controller = Controller.load(controller_file)
             except AeropendError as error:
                 raise ParameterError(f'{self.get_name()}: parameter controller_file: {error}') from None
-        defaults = (self.controller.gains if self.controller is not None else PidGains()).as_dict()
+        if self.controller is not None:         # the file's gains are the defaults (a -p value still wins)
+            self.gain_defaults = self.controller.gains.as_dict()
+        # (written so that `sim_node --help` reads the defaults without building the node: getattr, not an if)
         values = {}
-        for name in GAIN_NAMES:
-            default = defaults[name]
-            if name == 'antiwindup':
-                values[name] = declare(self, name, str(default), _GAIN_HELP[name], choices=tuple(ANTIWINDUP))
-            else:
-                values[name] = declare(self, name, float(default), _GAIN_HELP[name])
+        for name in NUMERIC_GAIN_NAMES:
+            values[name] = declare(self, name, float(getattr(self, 'gain_defaults', DEFAULT_GAINS)[name]),
+                                   _GAIN_HELP[name])
+        values['antiwindup'] = declare(self, 'antiwindup', str(getattr(self, 'gain_defaults', DEFAULT_GAINS)[
+            'antiwindup']), _GAIN_HELP['antiwindup'], choices=tuple(ANTIWINDUP))
         problems = _gain_problems(values)
         if problems:
             raise ParameterError(f'{self.get_name()}: controller gains: {"; ".join(problems)}; fix the -p values, '

@@ -216,3 +216,29 @@ def test_bad_gains_at_start_up_exit_2_with_one_line():
         output = process.output()
         assert process.process.returncode == 2, output
         assert 'controller gains' in output and 'u_clamp_min' in output and 'Traceback' not in output, output
+
+
+def test_controller_file_gains_are_the_defaults_and_a_parameter_wins(tmp_path):
+    """controller_file: its gains are the parameters' defaults (`-p` still wins); its model gives the feedforward;
+    reference_file: a schedule played from the first sample (the node built in this process, not spun)."""
+    from aeropend_core.control.controller_file import Controller
+    from aeropend_core.control.law import PidGains
+    from aeropend_core.model.effects import resolve_effects
+    from aeropend_ros.sim_node import SimNode
+    path = tmp_path / 'gains.yaml'
+    Controller(PidGains(p=1.25, i=0.2, antiwindup='none'), effects=resolve_effects({'angle_offset': 0.05})).write(path)
+    (tmp_path / 'steps.yaml').write_text('steps:\n  - {angle_deg: 30, hold: 2}\n')
+    with own_context(private_domain_id()) as context:
+        node = SimNode(context=context, parameter_overrides=[
+            Parameter('controller_file', value=str(path)), Parameter('i', value=0.3),
+            Parameter('reference_file', value=str(tmp_path / 'steps.yaml'))])
+        try:
+            assert node.get_parameter('p').value == 1.25 and node.get_parameter('antiwindup').value == 'none'
+            assert node.get_parameter('i').value == 0.3 and node.gains.i == 0.3 and node.gains.p == 1.25
+            assert node.feedforward_map.effects == {'angle_offset': {'angle_offset': 0.05}}
+            assert node.schedule.duration == 4.0 and node.schedule_samples == 1960
+            config = node.controller_config()
+            assert config['model']['sha256'] == Controller.load(path).model_sha256
+            assert config['schedule_sha256'] == node.schedule.sha256 and config['gains']['i'] == 0.3
+        finally:
+            node.destroy_node()

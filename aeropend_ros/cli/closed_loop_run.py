@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--controller', metavar='GAINS.yaml', default=None,
                         help='close the loop with this controller file (gains and design model, written by '
                              '`aeropend control design`) and play a reference schedule instead of the excitation '
-                             '(simulator only for now)')
+                             '(the simulator runs the law; with --port the rig\'s firmware, protocol 2)')
     parser.add_argument('--reference', metavar='STEPS.yaml', default=None,
                         help='with --controller: the reference schedule (steps: [{angle_deg: 20, hold: 5}, ...]); '
                              'default 20, 40, 60, 30 deg held 5 s each after 2 s at rest; the run lasts the '
