@@ -186,6 +186,28 @@ def test_run_closes_the_loop_on_the_rig_through_the_bridge(files, tmp_path):
     assert abs(np.degrees(data.angle[(data.time > 6.0) & (data.time < 7.0)].mean()) - 35.0) < 3.0
 
 
+@pytest.mark.timeout(300)
+def test_a_failing_diagnosis_keeps_the_closed_loop_record(files, tmp_path):
+    """The diagnosis at the end runs as in open loop (22 s: long enough); when it fails (here made to raise), the
+    run says so, exits 1, and the record is complete and readable."""
+    from aeropend_core.control.record import load_closed_loop
+    crashing = [sys.executable, '-c', 'import sys; import aeropend_core.diagnosis.diagnose as d\n'
+                'def broken(*args, **kwargs):\n    raise RuntimeError("injected failure")\n'
+                'd.diagnose = broken\nfrom aeropend_core.cli import main; sys.exit(main())']
+    result = subprocess.run(crashing + ['run', '--controller', str(files / 'gains.yaml'), '--reference',
+                                        str(files / 'steps.yaml'), '--duration', '22', '--realtime-factor', '10',
+                                        '--record', str(tmp_path)],
+                            env=local_ros_environment(domain_id=private_domain_id()), cwd=ROOT, capture_output=True,
+                            text=True, timeout=240)
+    output = result.stdout + result.stderr
+    bag = next(p for p in tmp_path.iterdir() if p.is_dir())
+    assert result.returncode == 1, output
+    assert f'the diagnosis failed (RuntimeError: injected failure); the closed-loop record is kept: {bag}' in output
+    assert 'Traceback' not in output and f'recorded: {bag}' in result.stdout, output
+    data = load_closed_loop(bag)
+    assert data.complete and len(data) == round(22 / SAMPLE_TIME)
+
+
 def test_bag_without_closed_loop_is_refused_clearly(tmp_path):
     from aeropend_core.control.record import load_closed_loop
     from aeropend_core.errors import AeropendError
