@@ -147,8 +147,12 @@ class ClosedLoopData:
 
     @property
     def sample_time(self) -> float:
-        """Ts [s] (from the sequence numbers and stamps; the rig's when too short)."""
-        return SAMPLE_TIME
+        """Ts [s]: the median spacing of the samples per sequence step (the rig's 1/490 s when too short)."""
+        if self.time.size < 2:
+            return SAMPLE_TIME
+        steps = np.diff(self.sequence)
+        spacing = np.diff(self.time)[steps > 0] / steps[steps > 0]
+        return float(np.median(spacing)) if spacing.size else SAMPLE_TIME
 
 
 def load_closed_loop(path: str | os.PathLike) -> ClosedLoopData:
