@@ -177,7 +177,10 @@ def test_run_closes_the_loop_on_the_rig_through_the_bridge(files, tmp_path):
     assert 'rig on' in result.stderr and '7 s of closed loop' in result.stderr, output
     assert [m[0] for m in STEP_LINE.findall(result.stdout)] == ['1', '2'], result.stdout
     assert mode_at_end == P.MODE_OPEN_LOOP
-    data = load_closed_loop(next(p for p in tmp_path.iterdir() if p.is_dir()))
+    bag = next(p for p in tmp_path.iterdir() if p.is_dir())
+    from aeropend_core.io.bag import bag_topics
+    assert {'/aeropend/control', '/aeropend/reference'} <= set(bag_topics(bag))       # the player's references too
+    data = load_closed_loop(bag)
     assert data.complete and data.controller is not None and data.duty_limit == 0.7
     played = data.time >= 0
     assert data.time[played][-1] >= 7.0 - 2 * SAMPLE_TIME
