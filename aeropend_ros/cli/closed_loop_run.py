@@ -129,6 +129,7 @@ class ClosedLoopClock:
 
 def make_reference_player(schedule, controller, namespace: str, sample_time: float):
     """A :class:`ReferencePlayer` node (rclpy imported here)."""
+    import numpy as np
     from rclpy.node import Node
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64MultiArray
@@ -140,12 +141,14 @@ def make_reference_player(schedule, controller, namespace: str, sample_time: flo
         """Plays a reference schedule on ``aeropend/reference`` for a rig whose firmware runs the law: the schedule
         starts at the first sample the law answered (the first ``aeropend/control`` message) and is timed by the
         device's sample counter; a message goes out when the reference changes (the firmware restarts a tripped
-        law on each accepted reference; an untripped one keeps its integral). Keeps the angle and duty of the
-        schedule's samples for the console (:meth:`schedule_series`)."""
+        law on each accepted reference; an untripped one keeps its integral). A reference reaches the device some
+        samples after it is sent (bridge, serial link): the player measures that latency on the telemetry (the
+        sample whose ``reference`` is the new one) and sends the next changes that many samples early (the median
+        of those measured), so the steps land on the schedule's times. Keeps the angle and duty of the schedule's
+        samples for the console (:meth:`schedule_series`)."""
 
         def __init__(self) -> None:
             super().__init__('reference_player', namespace=namespace, start_parameter_services=False)
-            import numpy as np
             self.schedule = schedule
             self.sample_time = float(sample_time)
             self.feedforward = FeedforwardMap(controller.parameters, controller.effects)
@@ -156,6 +159,9 @@ def make_reference_player(schedule, controller, namespace: str, sample_time: flo
             self.start_stamp_ns = 0
             self.sequence = 0                 # one past the last sample seen
             self._last_sent: float | None = None
+            self._pending: tuple[int, float] | None = None     # (sample it is meant for, reference) not seen yet
+            self.latencies: list[int] = []                     # samples from meant to applied, per change
+            self.lead = 0                                      # samples a change is sent early
             self._angles: list[tuple[int, float, float]] = []
             self.publisher = self.create_publisher(Float64MultiArray, topics.REFERENCE, topics.command_qos())
             self.create_subscription(JointState, topics.CONTROL, self._on_control, topics.samples_qos())
@@ -176,10 +182,18 @@ def make_reference_player(schedule, controller, namespace: str, sample_time: flo
                 self.start_stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
                 self.get_logger().info(f'the law answers: the schedule starts at sample {sequence}')
             self.sequence = max(self.sequence, sequence + 1)
-            index = min(max(sequence + 1 - self.schedule_start, 0), self.schedule_samples - 1)
-            reference = float(self._reference[index])     # for the next sample: the device applies it from then
+            if self._pending is not None and abs(msg.position[0] - self._pending[1]) < 1e-6:   # float32 on the device
+                self.latencies.append(max(sequence - self._pending[0], 0))
+                self.lead = int(np.median(self.latencies))
+                self._pending = None
+            # the reference of the next sample (the device applies it from then), `lead` samples ahead
+            meant = sequence + 1 + self.lead
+            index = min(max(meant - self.schedule_start, 0), self.schedule_samples - 1)
+            reference = float(self._reference[index])
             if reference != self._last_sent:
                 self._last_sent = reference
+                if meant - self.schedule_start < self.schedule_samples:
+                    self._pending = (meant, reference)
                 self.publisher.publish(Float64MultiArray(data=[reference, float(self._feedforward[index])]))
 
         def _on_sample(self, msg) -> None:
@@ -190,7 +204,6 @@ def make_reference_player(schedule, controller, namespace: str, sample_time: flo
 
         def schedule_series(self):
             """(time from the schedule's start [s], angle [rad], duty [fraction]) of the samples seen so far."""
-            import numpy as np
             rows = np.array(list(self._angles), dtype=float).reshape(-1, 3)
             rows = rows[np.argsort(rows[:, 0], kind='stable')]
             return (rows[:, 0] - self.schedule_start) * self.sample_time, rows[:, 1], rows[:, 2]
