@@ -522,24 +522,42 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     return out
 
 
-def _stamps_out_of_order(stamp_ns: np.ndarray, skip: np.ndarray, rounds: int = 4) -> np.ndarray:
-    """Mask of the samples whose stamp alone breaks the time order (one damaged stamp between two in order: too
-    late for the sample after it, or too early for the one before it). A block of samples out of order is left
-    alone (the data-quality gate judges it); ``skip`` marks samples already dropped."""
+#: Largest fraction of the samples :func:`_stamps_out_of_order` drops; beyond it the stamps are left as they are
+#: (two recordings in one bag, a clock stepped back: the data-quality gate then refuses them with its own words).
+MAX_OUT_OF_ORDER = 0.1
+
+
+def _stamps_out_of_order(stamp_ns: np.ndarray, skip: np.ndarray) -> np.ndarray:
+    """Mask of the samples whose stamps break the time order: all but the longest non-decreasing run of stamps
+    (a subsequence, found in O(n log n) only when a stamp goes back), so that one damaged stamp, or a few garbled
+    by a bit flip in a chunk without CRC, cost only themselves. ``skip`` marks samples already dropped. Nothing is
+    marked when more than MAX_OUT_OF_ORDER of the samples would go."""
+    import bisect
     bad = np.zeros(len(stamp_ns), dtype=bool)
-    for _ in range(rounds):
-        index = np.flatnonzero(~(bad | skip))
-        s = stamp_ns[index]
-        back = np.flatnonzero(np.diff(s) < 0)
-        if not back.size or back.size > max(100, len(s) // 100):
-            break
-        for i in back:
-            before = s[i - 1] if i > 0 else None
-            after = s[i + 2] if i + 2 < len(s) else None
-            if before is None or before <= s[i + 1]:
-                bad[index[i]] = True                # s[i] too late
-            elif after is None or s[i] <= after:
-                bad[index[i + 1]] = True            # s[i + 1] too early
+    index = np.flatnonzero(~skip)
+    s = stamp_ns[index]
+    if len(s) < 2 or not np.any(np.diff(s) < 0):
+        return bad
+    tails: list[int] = []                  # smallest last stamp of a non-decreasing run of each length
+    tail_at: list[int] = []                # its position in s
+    previous = np.full(len(s), -1, dtype=np.int64)
+    for k, value in enumerate(s.tolist()):
+        length = bisect.bisect_right(tails, value)
+        if length:
+            previous[k] = tail_at[length - 1]
+        if length == len(tails):
+            tails.append(value)
+            tail_at.append(k)
+        else:
+            tails[length], tail_at[length] = value, k
+    if len(s) - len(tails) > MAX_OUT_OF_ORDER * len(s):
+        return bad
+    keep = np.zeros(len(s), dtype=bool)
+    k = tail_at[-1]
+    while k >= 0:
+        keep[k] = True
+        k = previous[k]
+    bad[index[~keep]] = True
     return bad
 
 

@@ -40,7 +40,7 @@ MAX_CHUNK_BYTES = 256 * 1024 * 1024
 
 _COMPRESSIONS = ('', 'zstd', 'lz4')
 _FOOTER_BYTES = 1 + 8 + 20            # opcode, length, summary_start, summary_offset_start, summary_crc
-_OP_DATA_END, _OP_MESSAGE_INDEX, _OP_STATISTICS = 0x0F, 0x07, 0x0B
+_OP_DATA_END, _OP_MESSAGE_INDEX, _OP_STATISTICS, _OP_CHUNK_INDEX = 0x0F, 0x07, 0x0B, 0x08
 
 
 @dataclass
@@ -110,6 +110,8 @@ class FileScan:
     statistics: object = None                            # mcap.records.Statistics of an intact summary
     problem: str = ''                                    # why the file is incomplete ('' when complete)
     undecodable: dict = field(default_factory=dict)      # chunk offset -> indexes of messages that do not decode
+    indexed_chunks: set = field(default_factory=set)     # chunk offsets the summary's chunk indexes point at
+    chunk_offsets: list = field(default_factory=list)    # offsets of the chunks read
 
     @property
     def lost(self) -> list[BagDamage]:
@@ -296,6 +298,8 @@ def _read_summary(buf, size: int, scan: FileScan) -> None:
                 pass
             elif opcode == _OP_STATISTICS:
                 scan.statistics = Statistics.read(stream)
+            elif opcode == _OP_CHUNK_INDEX and length >= 24:
+                scan.indexed_chunks.add(struct.unpack_from('<Q', buf, body + 16)[0])
             position = end
     except Exception:               # a summary that passed its CRC but does not parse: written by a broken writer
         scan.statistics = None
@@ -443,6 +447,7 @@ def _walk(buf, size: int, scan: FileScan) -> Iterator[ChunkRead]:
                 position = got.end
                 continue
             seen[key] = position
+            scan.chunk_offsets.append(position)
             scan.chunks_read += 1
             scan.chunks_without_crc += chunk.uncompressed_crc == 0
             if last_end_ns is not None and chunk.message_start_time < last_end_ns:
@@ -528,6 +533,12 @@ def _compare_summary(scan: FileScan) -> None:
     if stats is None:
         return
     lost = scan.lost
+    moved = scan.indexed_chunks - set(scan.chunk_offsets)
+    if scan.indexed_chunks and moved and not lost:
+        scan.damage.append(BagDamage(scan.path, min(moved), 'summary_mismatch', f'the summary\'s chunk index points '
+                                     f'at {len(moved)} offset(s) where no chunk was found (chunks moved): every chunk '
+                                     'was read by walking the file, but readers that follow the index fail there',
+                                     lost=False))
     expected = int(stats.message_count)
     if not lost and expected != scan.messages_read:
         scan.damage.append(BagDamage(scan.path, 0, 'summary_mismatch', f'the summary says {expected} messages and '

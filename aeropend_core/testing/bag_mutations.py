@@ -7,7 +7,9 @@ Used by ``bench/bag_mutations.py`` (hundreds of mutated bags) and ``tests/test_b
   without chunk CRCs.
 - :data:`OPERATORS` damage its bytes: CRC or data byte flips, truncation, a chunk's type byte made a footer's or an
   unknown one, reordered or duplicated chunks, a damaged chunk length field, the summary removed or damaged, zeroed
-  blocks, inserted garbage, bit flips in a file without CRCs.
+  blocks, inserted garbage, bit flips in a file without CRCs; and (issue 43) a message index's type byte made a
+  data end's (0x0f), a message's (0x05) or an unknown one, the CRC of the chunk before last, a flipped bit in one
+  sample's time stamp and one in any byte of one message in an uncompressed file without CRCs.
 - :func:`judge_messages` is the referee: it looks for chunks everywhere in a file and keeps those that the ``mcap``
   package itself opens with ``breakup_chunk(validate_crc=True)`` (chunks without CRC only where a chunk record
   starts). It shares no code with :mod:`aeropend_core.io.mcap_scan`.
@@ -15,6 +17,7 @@ Used by ``bench/bag_mutations.py`` (hundreds of mutated bags) and ``tests/test_b
 from __future__ import annotations
 
 import io
+import math
 import os
 import random
 import struct
@@ -23,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ['OPERATORS', 'Layout', 'judge_messages', 'layout', 'message_keys', 'write_sample_bag']
+__all__ = ['NEEDS', 'OPERATORS', 'Layout', 'judge_messages', 'layout', 'message_keys', 'write_sample_bag']
 
 SAMPLES_TOPIC, DUTY_TOPIC = '/aeropend/samples', '/aeropend/duty_cmd'
 SAMPLE_PERIOD_NS = 2_040_816                 # 1/490 s
@@ -40,7 +43,7 @@ def _schema_text(type_name: str) -> bytes:
 
 
 def write_sample_bag(path: str | os.PathLike, samples: int, chunk_size: int = 16 * 1024, crcs: bool = True,
-                     seed: int = 0) -> Path:
+                     seed: int = 0, compression: str = 'zstd') -> Path:
     """Write ``samples`` JointState samples (490 Hz, sequence 0..n-1) and a duty command every 49 samples.
 
     Parameters
@@ -55,6 +58,8 @@ def write_sample_bag(path: str | os.PathLike, samples: int, chunk_size: int = 16
         Write chunk and summary CRCs (``False``: a file whose bit flips cannot be detected).
     seed : int [-]
         Seed of the sample values.
+    compression : str [-]
+        ``'zstd'`` or ``'none'`` (the bytes of each message lie in the file as written).
 
     Returns
     -------
@@ -72,7 +77,8 @@ def write_sample_bag(path: str | os.PathLike, samples: int, chunk_size: int = 16
     rng = random.Random(seed)
     path = Path(path)
     with open(path, 'wb') as stream:
-        writer = Writer(stream, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_crcs=crcs)
+        writer = Writer(stream, chunk_size=chunk_size, enable_crcs=crcs,
+                        compression=CompressionType.ZSTD if compression == 'zstd' else CompressionType.NONE)
         writer.start(profile='ros2', library='aeropend bag_mutations')
         writer.add_metadata('rosbag2', {'ROS_DISTRO': 'jazzy'})
         js = writer.register_schema('sensor_msgs/msg/JointState', 'ros2msg',
@@ -85,7 +91,10 @@ def write_sample_bag(path: str | os.PathLike, samples: int, chunk_size: int = 16
             message = joint_state(
                 header=header_type(stamp=time_type(sec=stamp // 10**9, nanosec=stamp % 10**9), frame_id='aeropend'),
                 name=['angle', 'armature_voltage', 'armature_current', 'duty', 'sequence'],
-                position=np.array([rng.uniform(-1, 1), rng.uniform(0, 2), rng.uniform(0, 1), (k % 100) / 100,
+                # smooth signals with a little noise: the data-quality gate takes the intact file as a recording
+                position=np.array([0.5 * math.sin(k * 0.01) + rng.gauss(0, 0.002),
+                                   6.0 + 2.0 * math.sin(k * 0.013) + rng.gauss(0, 0.01),
+                                   0.5 + 0.2 * math.sin(k * 0.013) + rng.gauss(0, 0.002), (k % 100) / 100,
                                    float(k)]),
                 velocity=np.array([], dtype=float), effort=np.array([], dtype=float))
             writer.add_message(samples_channel, stamp + 300_000,
@@ -194,12 +203,65 @@ def _insert_garbage(data: bytes, lay: Layout, rng: random.Random) -> bytes:
     return data[:at] + bytes(rng.randrange(256) for _ in range(rng.choice([1, 7, 100, 3000]))) + data[at:]
 
 
+def _index_opcode(value: int) -> Callable[[bytes, Layout, random.Random], bytes]:
+    """The type byte of the first message index after a random chunk set to `value` (issue 43: 0x0f made the data
+    end there, 0x05 a junk message)."""
+    def mutate(data: bytes, lay: Layout, rng: random.Random) -> bytes:
+        out = bytearray(data)
+        start, length, _ = rng.choice(lay.chunks[:-1])
+        assert out[start + length] == 0x07, 'no message index after the chunk'
+        out[start + length] = value
+        return bytes(out)
+    return mutate
+
+
+def _crc_flip_near_end(data: bytes, lay: Layout, rng: random.Random) -> bytes:
+    """The CRC of the chunk before the last one damaged (issue 43: the short piece after the gap)."""
+    out = bytearray(data)
+    _flip(out, lay.chunks[-2][0] + 9 + 24 + rng.randrange(4))
+    return bytes(out)
+
+
+def _sample_messages(data: bytes, lay: Layout) -> list[tuple[int, int]]:
+    """(offset of the CDR bytes, their length) of every JointState message in the uncompressed chunks of `data`."""
+    found = []
+    for start, length, _ in lay.chunks:
+        body = start + 9
+        (clen,) = struct.unpack_from('<I', data, body + 28)
+        assert clen == 0, 'the file is compressed'
+        position = body + 32 + clen + 8
+        end = start + length
+        while position + 9 <= end:
+            (record,) = struct.unpack_from('<Q', data, position + 1)
+            if data[position] == 0x05 and record > 22 + 40:
+                found.append((position + 9 + 22, record - 22))
+            position += 9 + record
+    return found
+
+
+def _stamp_flip(data: bytes, lay: Layout, rng: random.Random) -> bytes:
+    """One bit of the seconds of one sample's header stamp flipped (an uncompressed file without CRCs)."""
+    out = bytearray(data)
+    offset, _ = rng.choice(_sample_messages(data, lay))
+    out[offset + 4 + rng.randrange(4)] ^= 1 << rng.randrange(8)
+    return bytes(out)
+
+
+def _message_flip(data: bytes, lay: Layout, rng: random.Random) -> bytes:
+    """One bit of one sample message's CDR bytes flipped (an uncompressed file without CRCs)."""
+    out = bytearray(data)
+    offset, length = rng.choice(_sample_messages(data, lay))
+    out[offset + rng.randrange(length)] ^= 1 << rng.randrange(8)
+    return bytes(out)
+
+
 def _chunk_from_other(data: bytes, lay: Layout, rng: random.Random) -> bytes:
     """Two chunks damaged at once (the reader must go on after each)."""
     return _data_flip(_crc_flip(data, lay, rng), lay, rng)
 
 
-#: name -> mutate(data, layout, rng) -> damaged bytes. ``no_crc_flip`` expects a file written without CRCs.
+#: name -> mutate(data, layout, rng) -> damaged bytes. ``no_crc_flip`` expects a file written without CRCs,
+#: ``stamp_flip`` and ``message_flip`` one written without CRCs and without compression (:data:`NEEDS`).
 OPERATORS: dict[str, Callable[[bytes, Layout, random.Random], bytes]] = {
     'crc_flip': _crc_flip,
     'data_flip': _data_flip,
@@ -215,7 +277,17 @@ OPERATORS: dict[str, Callable[[bytes, Layout, random.Random], bytes]] = {
     'insert_garbage': _insert_garbage,
     'two_chunks_damaged': _chunk_from_other,
     'no_crc_flip': _data_flip,
+    'index_opcode_data_end': _index_opcode(0x0F),
+    'index_opcode_message': _index_opcode(0x05),
+    'index_opcode_unknown': _index_opcode(0x55),
+    'crc_flip_near_end': _crc_flip_near_end,
+    'stamp_flip': _stamp_flip,
+    'message_flip': _message_flip,
 }
+
+#: The original an operator damages: (chunk CRCs, compression); the rest take a zstd file with CRCs.
+NEEDS: dict[str, tuple[bool, str]] = {'no_crc_flip': (False, 'zstd'), 'stamp_flip': (False, 'none'),
+                                      'message_flip': (False, 'none')}
 
 
 def message_keys(messages) -> set[tuple[int, int, int, bytes]]:
