@@ -245,30 +245,11 @@ def _ignore_interrupts() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-#: prctl option: the signal a process gets when its parent (the thread that created it) dies (linux/prctl.h).
-PR_SET_PDEATHSIG = 1
-
-
-def die_with_parent(parent_pid: int) -> bool:
-    """Make this process get SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)`` through ctypes), and exit at
-    once if the parent is already gone. Without it a SIGKILLed node left its spawned worker running (34 s and more,
-    issue 43). Returns False where prctl is not available (not Linux): the worker then ends on its own.
-    """
-    import ctypes
-    import signal
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) != 0:
-            return False
-    except (OSError, AttributeError):
-        return False
-    if os.getppid() != parent_pid:      # the parent died before the prctl: nobody would ever send the signal
-        os._exit(1)
-    return True
-
 
 def _worker_start(parent_pid: int) -> None:
-    """Worker start-up: die with the node's process, leave Ctrl-C to the node."""
+    """Worker start-up: die with the node's process (:func:`aeropend_ros._lifetime.die_with_parent`), leave Ctrl-C
+    to the node."""
+    from aeropend_ros._lifetime import die_with_parent
     die_with_parent(parent_pid)
     _ignore_interrupts()
 
