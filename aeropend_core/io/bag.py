@@ -21,7 +21,8 @@ rosbag2's MCAP storage plugin are followed:
   metadata YAML) before each file's summary.
 
 Reading: each file is read by :mod:`aeropend_core.io.mcap_scan` on the ``mcap`` library's records, every chunk
-CRC-checked. A damaged chunk is skipped and reading goes on after it; a recording killed with SIGKILL leaves a
+CRC-checked. A damaged chunk or record is skipped and reading goes on after it, and so is a message that does not
+decode as a sample or whose stamp breaks the time order; a recording killed with SIGKILL leaves a
 file readable up to its last complete chunk (no summary, no footer). Everything skipped is reported: a warning, and
 with ``damage=`` a :class:`SampleDamage` per problem with the lost span [s] and sample count, which
 :func:`aeropend_core.io.recording.load_recording` turns into findings. Chunks are read in time order.
@@ -419,7 +420,11 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     """Acquisition samples of a recording as arrays (the JointState messages of ``/aeropend/samples``).
 
     Chunks are read in time order (their start log time; valid MCAP files may hold them in any order), past
-    damaged chunks (see :func:`read_messages`).
+    damaged chunks (see :func:`read_messages`). A message that does not decode as a sample (not valid CDR for
+    JointState, no aeropend channel names, a counter that is not a number), and a sample whose stamp breaks the time
+    order (all but the longest run of stamps in order, at most 10 % of them), are skipped and reported (``damage``:
+    kinds ``undecodable`` and ``stamp_out_of_order``, with the span between the samples kept around them); the bag is
+    refused only when no message decodes.
 
     Parameters
     ----------
