@@ -75,6 +75,9 @@ from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 from aeropend_core.rig.link_checks import CheckedSample, FrameChecker
 from aeropend_core.rig.sample_clock import SampleClock
 from aeropend_ros import topics
+from aeropend_ros.bridge_control import BridgeControl
+from aeropend_ros.control_parameters import (CONTROL_MODES, DEFAULT_GAINS, GAIN_HELP, GAIN_NAMES,
+                                            NUMERIC_GAIN_NAMES, gain_problems)
 
 #: Parameters whose change rebuilds the counts -> SI conversion.
 CALIBRATION_PARAMETERS = ('current_scale', 'current_offset', 'angle_zero', 'angle_scale', 'voltage_source',
@@ -85,24 +88,11 @@ DEVICE_PARAMETERS = ('max_duty', 'watchdog_timeout')
 #: Host time [s] a clock rate fault must last before samples are withheld (a backlog on a loaded host can look like
 #: a rate error for a few seconds; a wrong clock stays wrong). Until then the samples go out with a WARN.
 CLOCK_FAULT_PERSIST = 5.0
-#: Control modes: the duty command, or the firmware's controller law on the measured angle.
-CONTROL_MODES = ('open_loop', 'closed_loop')
-#: The gain parameters (ros2_control pid_controller's names, as the sim node's), in PidGains' order.
-GAIN_NAMES = tuple(PidGains.__dataclass_fields__)
-_GAIN_HELP = {
-    'p': 'proportional gain [duty/rad]', 'i': 'integral gain [duty/(rad s)]', 'd': 'derivative gain on the '
-    'measured angle [duty s/rad]', 'derivative_filter_time': 'Tf of the derivative filter [s] (0: plain difference)',
-    'i_clamp_min': 'lower limit of the integral term [duty]', 'i_clamp_max': 'upper limit of the integral term '
-    '[duty]', 'u_clamp_min': 'lowest duty the law outputs [fraction]', 'u_clamp_max': 'highest duty the law '
-    'outputs [fraction]', 'antiwindup': 'back_calculation, conditional_integration or none',
-    'tracking_time_constant': 'Tt of back-calculation [s] (0: sqrt(Ti Td))', 'feedforward_gain': 'weight of the '
-    "feedforward duty [-]", 'angle_min': 'safety trip below this measured angle [rad] (on the device)',
-    'angle_max': 'safety trip above this measured angle [rad] (on the device)'}
 #: Reads observed before the first stamps of a (re)started clock are published (about 0.1 s of data).
 PRIME_ARRIVALS = 8
 
 
-class SerialBridgeNode(Node):
+class SerialBridgeNode(BridgeControl, Node):
     """Bridge between the rig's serial link and the aeropend topics (see module docstring)."""
 
     def __init__(self, node_name: str = 'serial_bridge_node', **kwargs) -> None:
@@ -253,7 +243,7 @@ class SerialBridgeNode(Node):
                                        f'({self.heartbeat_period} s)')
         gains = {name: value for name, value in changed.items() if name in GAIN_NAMES}
         if gains:
-            problems = _gain_problems({**self.gains.as_dict(), **gains})
+            problems = gain_problems({**self.gains.as_dict(), **gains})
             if problems:
                 return SetParametersResult(successful=False, reason=f'{self.get_name()}: controller gains refused: '
                                            f'{"; ".join(problems)}; the gains are unchanged')
@@ -294,14 +284,12 @@ class SerialBridgeNode(Node):
         mode = declare(self, 'control_mode', 'open_loop', "'open_loop' (duty commands) or 'closed_loop' (the "
                        "firmware's controller law on the measured angle); setting closed_loop again restarts the "
                        'law (and releases a trip)', choices=CONTROL_MODES)
-        defaults = PidGains().as_dict()
         values = {}
-        for name in GAIN_NAMES:
-            if name == 'antiwindup':
-                values[name] = declare(self, name, str(defaults[name]), _GAIN_HELP[name], choices=tuple(ANTIWINDUP))
-            else:
-                values[name] = declare(self, name, float(defaults[name]), _GAIN_HELP[name])
-        problems = _gain_problems(values)
+        for name in NUMERIC_GAIN_NAMES:
+            values[name] = declare(self, name, float(DEFAULT_GAINS[name]), GAIN_HELP[name])
+        values['antiwindup'] = declare(self, 'antiwindup', str(DEFAULT_GAINS['antiwindup']), GAIN_HELP['antiwindup'],
+                                       choices=tuple(ANTIWINDUP))
+        problems = gain_problems(values)
         if problems:
             raise ParameterError(f'{self.get_name()}: controller gains: {"; ".join(problems)}; fix the -p values '
                                  'or the params file')
@@ -315,109 +303,6 @@ class SerialBridgeNode(Node):
         self._trip_said = False
         self._duty_ignored_said = False
         self.control_stats = {'acks_refused': 0, 'law_trips': 0, 'control_published': 0}
-
-    def _calibration_command(self) -> bytes:
-        return P.encode_angle_calibration(self.calibration.angle_zero, self.calibration.angle_scale)
-
-    def _start_upload(self) -> None:
-        """Send the gains as 13 coefficients; the reader thread checks the ACKs (_on_ack)."""
-        upload = GainsUpload(self.gains, self.sample_period)
-        with self._control_lock:
-            if not self._write(upload.start()):
-                self._upload, self.gains_state = None, 'not sent'
-                return
-            self._upload, self.gains_state = upload, 'sending'
-
-    def _close_loop(self) -> None:
-        """Reference (if any) and SET_CONTROL_MODE 1, once the gains are acknowledged (else when they are)."""
-        with self._control_lock:
-            if self.gains_state != 'acknowledged':
-                return
-            data = b''
-            if self.reference is not None:
-                data += P.encode_reference(*self.reference)
-            self._write(data + P.encode_control_mode(P.MODE_CLOSED_LOOP))
-
-    def _configure_controller(self) -> None:
-        """After the device (re)starts: calibration (open loop only takes it), gains; closed loop follows."""
-        self._device_closed = False
-        self._write(self._calibration_command())   # (refused, harmlessly, by a device still in closed loop)
-        self._start_upload()
-
-    def _on_ack(self, ack: P.AckFrame) -> None:
-        """An ACK (reader thread): the gain upload's, the mode's or a reference's."""
-        logger = self.get_logger()
-        if not ack.ok:
-            self.control_stats['acks_refused'] += 1
-        if ack.command == P.SET_CONTROL_COEFFICIENT:
-            with self._control_lock:
-                upload = self._upload
-                if upload is None:
-                    return
-                resend = upload.accept(ack)
-                if resend:
-                    self._write(resend)
-                if upload.error is not None:
-                    self.gains_state = f'refused: {upload.error}'
-                    self._upload = None
-                    logger.error(f'the device refused the controller gains: {upload.error}')
-                    return
-                if not upload.done:
-                    return
-                self._upload = None
-                self.gains_state = 'acknowledged'
-            logger.info('controller gains acknowledged by the device')
-            if self.closed_loop and not self._device_closed:
-                self._close_loop()
-        elif ack.command == P.SET_CONTROL_MODE:
-            if ack.ok:
-                self._device_closed = ack.value == P.MODE_CLOSED_LOOP
-                if self._device_closed:
-                    self._trip_said = False
-                    logger.info('the device runs the closed loop')
-            else:
-                logger.error(f'the device refused SET_CONTROL_MODE: {ack.describe()}')
-        elif ack.command == P.SET_REFERENCE and not ack.ok:
-            logger.warning(f'the device refused the reference: {ack.describe()}', throttle_duration_sec=2.0)
-        elif ack.command == P.SET_ANGLE_CALIBRATION and not ack.ok and ack.result != P.ACK_REFUSED:
-            logger.error(f'the device refused the angle calibration: {ack.describe()}')
-
-    def _on_reference(self, msg: Float64MultiArray) -> None:
-        data = list(msg.data)
-        if not 1 <= len(data) <= 2 or not all(math.isfinite(value) for value in data):
-            self.get_logger().warning(f'reference {data!r} refused: data must be [reference_rad] or '
-                                      '[reference_rad, feedforward_duty], finite', throttle_duration_sec=2.0)
-            return
-        reference = float(data[0])
-        if not self.gains.angle_min <= reference <= self.gains.angle_max:
-            self.get_logger().warning(f'reference {reference:.3f} rad refused: outside the safety limits '
-                                      f'[{self.gains.angle_min:g}, {self.gains.angle_max:g}] rad',
-                                      throttle_duration_sec=2.0)
-            return
-        if len(data) > 1:
-            feedforward = float(data[1])
-        else:
-            from aeropend_core.control.feedforward import static_duty
-            try:
-                feedforward = float(static_duty(reference))
-            except AeropendError as error:
-                self.get_logger().warning(f'reference {reference:.3f} rad refused: {error}',
-                                          throttle_duration_sec=2.0)
-                return
-        if not 0.0 <= feedforward <= 1.0:
-            self.get_logger().warning(f'feedforward {feedforward!r} refused: a duty fraction in [0, 1]',
-                                      throttle_duration_sec=2.0)
-            return
-        self.reference = (reference, feedforward)
-        self._write(P.encode_reference(reference, feedforward))
-
-    def _publish_control(self, frame: P.ControlSampleFrame, stamp) -> None:
-        control = self._control_message
-        control.header.stamp = stamp
-        control.position = [frame.reference, frame.feedforward, frame.duty, frame.unsaturated, frame.integral,
-                            1.0 if frame.tripped else 0.0, float(frame.sequence)]
-        self.control_publisher.publish(control)
-        self.control_stats['control_published'] += 1
 
     # ------------------------------------------------------------------------------------------------ serial link
     def _open(self):
@@ -887,14 +772,6 @@ class SerialBridgeNode(Node):
                 pass
         self._reader.join(timeout=2.0)
         super().destroy_node()
-
-
-def _gain_problems(values: dict) -> list[str]:
-    """What is wrong with a set of gain values (:meth:`PidGains.problems`), one sentence each."""
-    gains = object.__new__(PidGains)            # unchecked: problems() says what the constructor would refuse
-    for name, value in values.items():
-        object.__setattr__(gains, name, value)
-    return gains.problems()
 
 
 def main(args=None) -> int:

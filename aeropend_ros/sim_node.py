@@ -63,27 +63,11 @@ from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import RigSimulator
 from aeropend_ros import topics
+from aeropend_ros.control_parameters import (CONTROL_MODES, DEFAULT_GAINS, GAIN_HELP, GAIN_NAMES,
+                                            NUMERIC_GAIN_NAMES, gain_problems)
 
 #: Samples simulated and published at most per timer tick when catching up (keeps the executor responsive).
 CATCH_UP_LIMIT = 490
-#: Control modes: the duty command (today's behaviour), or the controller law on the measured angle.
-CONTROL_MODES = ('open_loop', 'closed_loop')
-#: The gain parameters (ros2_control pid_controller's names), in PidGains' order; all numbers but antiwindup.
-GAIN_NAMES = tuple(PidGains.__dataclass_fields__)
-NUMERIC_GAIN_NAMES = tuple(name for name in GAIN_NAMES if name != 'antiwindup')
-#: Their defaults without a controller file.
-DEFAULT_GAINS = PidGains().as_dict()
-_GAIN_HELP = {
-    'p': 'proportional gain [duty/rad]', 'i': 'integral gain [duty/(rad s)]', 'd': 'derivative gain on the '
-    'measured angle [duty s/rad]', 'derivative_filter_time': 'Tf of the derivative filter [s] (0: plain difference)',
-    'i_clamp_min': 'lower limit of the integral term [duty]', 'i_clamp_max': 'upper limit of the integral term '
-    '[duty]', 'u_clamp_min': 'lowest duty the law outputs [fraction]', 'u_clamp_max': 'highest duty the law '
-    'outputs [fraction]', 'antiwindup': 'back_calculation, conditional_integration or none',
-    'tracking_time_constant': 'Tt of back-calculation [s] (0: sqrt(Ti Td))', 'feedforward_gain': 'weight of the '
-    "model's static feedforward duty [-]", 'angle_min': 'safety trip below this measured angle [rad]',
-    'angle_max': 'safety trip above this measured angle [rad]'}
-
-
 def reference_qos() -> QoSProfile:
     """QoS of ``aeropend/reference``: reliable, keep last 10, volatile (as the duty command)."""
     return topics.command_qos()
@@ -259,10 +243,10 @@ class SimNode(Node):
         values = {}
         for name in NUMERIC_GAIN_NAMES:
             values[name] = declare(self, name, float(getattr(self, 'gain_defaults', DEFAULT_GAINS)[name]),
-                                   _GAIN_HELP[name])
+                                   GAIN_HELP[name])
         values['antiwindup'] = declare(self, 'antiwindup', str(getattr(self, 'gain_defaults', DEFAULT_GAINS)[
-            'antiwindup']), _GAIN_HELP['antiwindup'], choices=tuple(ANTIWINDUP))
-        problems = _gain_problems(values)
+            'antiwindup']), GAIN_HELP['antiwindup'], choices=tuple(ANTIWINDUP))
+        problems = gain_problems(values)
         if problems:
             raise ParameterError(f'{self.get_name()}: controller gains: {"; ".join(problems)}; fix the -p values, '
                                  'the params file or the controller file')
@@ -384,7 +368,7 @@ class SimNode(Node):
         if not changed:
             return SetParametersResult(successful=True)
         values = {**self.gains.as_dict(), **changed}
-        problems = _gain_problems(values)
+        problems = gain_problems(values)
         if problems:
             return SetParametersResult(successful=False, reason=f'{self.get_name()}: controller gains refused: '
                                        f'{"; ".join(problems)}; the gains are unchanged')
@@ -490,12 +474,6 @@ class SimNode(Node):
         self.sequence += count
 
 
-def _gain_problems(values: dict) -> list[str]:
-    """What is wrong with a set of gain values (:meth:`PidGains.problems`), one sentence each."""
-    gains = object.__new__(PidGains)            # unchecked: problems() says what the constructor would refuse
-    for name, value in values.items():
-        object.__setattr__(gains, name, value)
-    return gains.problems()
 
 
 def main(args=None) -> int:

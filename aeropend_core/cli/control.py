@@ -95,7 +95,7 @@ def _design(args) -> int:
     psnr = args.psnr if args.psnr is not None else model.psnr_db
     try:
         result = design(template, args.at, model.parameters, model.effects, schedule,
-                        MeasurementNoise(psnr_db=psnr, quantise=True))
+                        MeasurementNoise(psnr_db=psnr, quantise=True), thrust_tolerance=model.thrust_tolerance)
     except TemplateNotMet as refusal:
         _print_design(refusal.design, model, predicted_only=True)
         raise
@@ -149,7 +149,9 @@ def _check(args) -> int:
     if data.schedule is None:
         raise AeropendError(f'{args.record} holds no reference schedule: it is not a record of `aeropend run '
                             '--controller`')
-    result = check_record(data.time, data.angle, data.duty, controller, data.schedule)
+    cap = getattr(data, 'duty_limit', math.nan)
+    result = check_record(data.time, data.angle, data.duty, controller, data.schedule,
+                          duty_limit=min(cap, controller.gains.u_clamp_max) if math.isfinite(cap) else None)
     if not getattr(data, 'complete', True):
         result.notes.insert(0, 'the run was cut short: its schedule did not play to the end')
     print(result.as_text())
@@ -206,6 +208,14 @@ def _duty_cap(data) -> tuple[float, str]:
     """The duty cap the loop ran under: the controller's u_clamp_max, or the rig's lower cap seen in the data
     (the logged duty held flat below what the law asked)."""
     gains = data.controller.gains
+    recorded = getattr(data, 'duty_limit', math.nan)
+    if not math.isfinite(recorded):
+        recorded = None
+    if recorded and recorded < gains.u_clamp_max - 1e-9:
+        return float(recorded), (f'the rig capped the duty at {recorded:g} (below the controller\'s '
+                                 f'{gains.u_clamp_max:g})')
+    if recorded:
+        return gains.u_clamp_max, ''
     import numpy as np
     logged_max = float(np.max(data.duty)) if data.duty.size else gains.u_clamp_max
     asked = data.unsaturated[:-1] if data.unsaturated.size > 1 else data.unsaturated

@@ -137,7 +137,11 @@ class Controller:
         try:
             data = load_yaml(path, 'controller file')
         except yaml.YAMLError as error:
-            raise AeropendError(f'controller file {path}: not valid YAML ({error})') from None
+            mark = getattr(error, 'problem_mark', None)
+            where = f' at line {mark.line + 1}, column {mark.column + 1}' if mark is not None else ''
+            problem = getattr(error, 'problem', None) or 'a syntax error'
+            raise AeropendError(f'controller file {path}: not valid YAML ({problem}{where}); write it with '
+                                '`aeropend control design -o gains.yaml`') from None
         return cls.from_dict(data, f'controller file {path}')
 
 

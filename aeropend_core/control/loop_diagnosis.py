@@ -30,6 +30,7 @@ from scipy.optimize import least_squares
 
 from aeropend_core.control.law import PidGains, law_step, new_state
 from aeropend_core.control.loop import simulate_loop
+from aeropend_core.control.metrics import noise_sigma
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.effects import get_effect, resolve_effects
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
@@ -51,10 +52,12 @@ SEPARATED_BY = {frozenset({'thrust_lag', 'angle_filter'}):
                 'current (motor side) or an open-loop segment (duty steps with the loop open) separates them'}
 #: The pendulum parameters a closed-loop fit may free. A feedback loop holds the rod near its references, so the
 #: record pins the static balance (thrust per unit of gravity) far better than gravity and damping apart: by
-#: default only the thrust scale is fitted and gravity and damping stay those of the controller's model (an
-#: identified model, ideally: `aeropend diagnose` of an open-loop record).
+#: default the thrust scale and gravity are fitted within BASE_BOUNDS of the controller's model and the damping
+#: stays the model's (an identified model, ideally: `aeropend diagnose` of an open-loop record).
 BASE_PARAMETERS = ('gravity_stiffness', 'damping', 'lever_per_inertia')
-DEFAULT_FREE = ('lever_per_inertia',)
+DEFAULT_FREE = ('gravity_stiffness', 'lever_per_inertia')
+#: Bounds of the free pendulum parameters relative to the controller's model.
+BASE_BOUNDS = (0.6, 1.6)
 
 
 @dataclass
@@ -102,8 +105,8 @@ class LoopDiagnosis:
         return {'schema': 'aeropend.loop_diagnosis/1', 'closed_loop': True, 'verdict': self.verdict,
                 'missing_effect': self.named, 'missing_effects': [self.named] if self.named else [],
                 'add': [self.named] if self.named else [], 'model_effects': list(self.added),
-                'parameters': parameters, 'standard_errors': dict(self.base.sigmas),
-                'with_missing_effect': ({'parameters': _reported(model), 'standard_errors': dict(model.sigmas)}
+                'parameters': parameters, 'standard_errors': _reported_sigmas(self.base),
+                'with_missing_effect': ({'parameters': _reported(model), 'standard_errors': _reported_sigmas(model)}
                                         if self.named else None),
                 'noise_rms': self.noise_rms, 'rms_error': self.base.test_rms,
                 'error_beyond_noise': self.base.beyond_noise,
@@ -169,6 +172,15 @@ def _reported(fit: LoopFit) -> dict[str, float]:
     return values
 
 
+def _reported_sigmas(fit: LoopFit) -> dict[str, float]:
+    """The standard errors under the reported names (the thrust gain's from L/J's: same relative doubt)."""
+    sigmas = {name: value for name, value in fit.sigmas.items() if name != 'lever_per_inertia'}
+    if 'lever_per_inertia' in fit.sigmas:
+        sigmas['thrust_gain'] = fit.sigmas['lever_per_inertia'] / fit.parameters.lever_per_inertia \
+            * fit.parameters.thrust_gain
+    return sigmas
+
+
 def replay(gains: PidGains, reference: np.ndarray, feedforward: np.ndarray, angle: np.ndarray, duty: np.ndarray,
            duty_limit: float, sample_time: float = SAMPLE_TIME) -> tuple[float, int]:
     """(largest |duty difference|, samples differing by more than 1e-4) between the logged duty and the declared
@@ -180,11 +192,6 @@ def replay(gains: PidGains, reference: np.ndarray, feedforward: np.ndarray, angl
         computed[k] = min(max(law_step(c, state, reference[k], feedforward[k], angle[k]), 0.0), duty_limit)
     difference = np.abs(computed[:-1] - duty[1:])
     return (float(difference.max()) if difference.size else 0.0), int(np.count_nonzero(difference > 1e-4))
-
-
-def _noise_sigma(angle: np.ndarray) -> float:
-    differences = np.diff(angle)
-    return float(1.4826 * np.median(np.abs(differences - np.median(differences))) / math.sqrt(2.0))
 
 
 def _correlation_length(residual: np.ndarray) -> float:
@@ -220,10 +227,11 @@ class _Problem:
                                    for name, values in effects.items()})
         names = list(self.free)
         starts = [getattr(self.parameters, name) for name in names]
-        lower = [0.3 * value for value in starts]
-        upper = [3.0 * value for value in starts]
+        lower = [BASE_BOUNDS[0] * value for value in starts]
+        upper = [BASE_BOUNDS[1] * value for value in starts]
         scales = list(starts)
         effect_slots = []
+        typical = []
         for effect_name, values in effects.items():
             effect = get_effect(effect_name)
             for parameter in effect.parameters:
@@ -238,6 +246,7 @@ class _Problem:
                 upper.append(high)
                 scales.append(parameter.scale if parameter.scale else max(abs(start), 0.01))
                 effect_slots.append((effect_name, parameter.name))
+                typical.append(parameter.typical)
         split = self.split
 
         n_free = len(self.free)
@@ -256,7 +265,7 @@ class _Problem:
             return np.where(np.isfinite(difference), difference, 10.0)
 
         result = None
-        for start in _starts(starts, effect_slots, n_free, lower, upper):
+        for start in _starts(starts, effect_slots, n_free, lower, upper, typical):
             trial = least_squares(residual, start, bounds=(lower, upper), x_scale=np.array(scales),
                                   diff_step=1e-3, max_nfev=80, method='trf')
             if result is None or trial.cost < result.cost:
@@ -281,16 +290,16 @@ class _Problem:
         return LoopFit(chosen, parameters, values, sigmas, rss, test_rms, beyond, len(names))
 
 
-def _starts(starts, effect_slots, n_free, lower, upper):
-    """The start, and for a time-like effect parameter (a lag, a filter) also short and long ones: the closed loop's
-    cost has a basin per oscillation mode."""
+def _starts(starts, effect_slots, n_free, lower, upper, typical):
+    """The start, then for each effect parameter starts at its typical size and at twice it: the closed loop's
+    cost has a basin per oscillation mode (a lag, a filter) and is flat around a threshold or a friction level
+    that the loop never crosses."""
     yield np.array(starts)
-    for index, (_effect, parameter) in enumerate(effect_slots):
-        if parameter in ('time_constant', 'filter_delay'):
-            for factor in (0.3, 3.0):
-                other = np.array(starts)
-                other[n_free + index] = min(max(starts[n_free + index] * factor, lower[n_free + index]),
-                                            upper[n_free + index])
+    for index in range(len(effect_slots)):
+        for value in (typical[index], 2.0 * typical[index]):
+            other = np.array(starts)
+            other[n_free + index] = min(max(value, lower[n_free + index]), upper[n_free + index])
+            if not np.allclose(other, starts):
                 yield other
 
 
@@ -313,7 +322,7 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
                                 f'{", ".join(CANDIDATES)}')
     max_error, mismatches = replay(gains, reference, feedforward, angle, np.asarray(duty, dtype=float), duty_limit,
                                    sample_time)
-    noise = _noise_sigma(angle)
+    noise = noise_sigma(angle)
     problem = _Problem(gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free)
     base_effects = {name: {} for name in add}
     base = problem.fit(base_effects, noise)

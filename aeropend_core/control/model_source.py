@@ -26,6 +26,9 @@ class ModelSource:
     doubts: tuple[str, ...] = ()
     #: angle noise of the source record as a PSNR on the 90 deg full scale [dB] (50, the simulator's, if unknown)
     psnr_db: float = 50.0
+    #: the rig's thrust relative to this model's that a design must tolerate: +-2 sigma of the fitted thrust gain
+    #: (at least +-5 %, at most +-15 %); a nominal model -20 % to +25 %
+    thrust_tolerance: tuple[float, float] = (0.8, 1.25)
 
 
 def load_model(path: str | os.PathLike | None) -> ModelSource:
@@ -83,7 +86,13 @@ def model_from_dict(data, source: str) -> ModelSource:
     if _number(data.get('noise_rms')) and data['noise_rms'] > 0:
         import math
         psnr = min(80.0, 20.0 * math.log10((math.pi / 2) / float(data['noise_rms'])))
-    return ModelSource(parameters, effects, source, tuple(doubts), psnr)
+    tolerance = (0.8, 1.25)
+    sigma = (data.get('standard_errors') or {}).get('thrust_gain')
+    gain = fitted.get('thrust_gain')
+    if _number(sigma) and _number(gain) and gain > 0:
+        relative = min(0.15, max(0.05, 2.0 * float(sigma) / float(gain)))
+        tolerance = (1.0 - relative, 1.0 + relative)
+    return ModelSource(parameters, effects, source, tuple(doubts), psnr, tolerance)
 
 
 def _number(value) -> bool:

@@ -1,0 +1,35 @@
+"""The closed loop's ROS parameters, shared by the nodes that run the law (the sim node and the serial bridge).
+
+The gains carry ros2_control ``pid_controller``'s names (``p``, ``i``, ``d``, ``i_clamp_*``, ``u_clamp_*``,
+``antiwindup``, ``tracking_time_constant``, ``feedforward_gain``) plus the derivative filter and the safety
+limits (:class:`aeropend_core.control.law.PidGains`). The nodes declare them themselves (so that ``--help``, which
+reads each node's own source, lists them); their names, help texts and the check live here once.
+"""
+from __future__ import annotations
+
+from aeropend_core.control.law import PidGains
+
+#: Control modes: the duty command (open loop, the default), or the controller law on the measured angle.
+CONTROL_MODES = ('open_loop', 'closed_loop')
+#: The gain parameters, in PidGains' order; all numbers but antiwindup.
+GAIN_NAMES = tuple(PidGains.__dataclass_fields__)
+NUMERIC_GAIN_NAMES = tuple(name for name in GAIN_NAMES if name != 'antiwindup')
+#: Their defaults without a controller file.
+DEFAULT_GAINS = PidGains().as_dict()
+GAIN_HELP = {
+    'p': 'proportional gain [duty/rad]', 'i': 'integral gain [duty/(rad s)]', 'd': 'derivative gain on the '
+    'measured angle [duty s/rad]', 'derivative_filter_time': 'Tf of the derivative filter [s] (0: plain difference)',
+    'i_clamp_min': 'lower limit of the integral term [duty]', 'i_clamp_max': 'upper limit of the integral term '
+    '[duty]', 'u_clamp_min': 'lowest duty the law outputs [fraction]', 'u_clamp_max': 'highest duty the law '
+    'outputs [fraction]', 'antiwindup': 'back_calculation, conditional_integration or none',
+    'tracking_time_constant': 'Tt of back-calculation [s] (0: sqrt(Ti Td))', 'feedforward_gain': 'weight of the '
+    "model's static feedforward duty [-]", 'angle_min': 'safety trip below this measured angle [rad]',
+    'angle_max': 'safety trip above this measured angle [rad]'}
+
+
+def gain_problems(values: dict) -> list[str]:
+    """What is wrong with a set of gain values (:meth:`PidGains.problems`), one sentence each."""
+    gains = object.__new__(PidGains)            # unchecked: problems() says what the constructor would refuse
+    for name, value in values.items():
+        object.__setattr__(gains, name, value)
+    return gains.problems()
