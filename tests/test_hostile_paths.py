@@ -151,3 +151,28 @@ def test_regular_files_still_read(tmp_path):
     assert inputs.check_input(tmp_path, 'bag', folder=True) == tmp_path
     with pytest.raises(AeropendError, match='is a folder'):
         inputs.check_input(tmp_path, 'file')
+
+
+def test_deep_yaml_or_json_inside_a_recording_is_no_bug(tmp_path, capsys):
+    """Nested text inside the data: a bag channel's QoS YAML (read by bag-recover) and the import comment of a CSV."""
+    from mcap.writer import Writer
+
+    from aeropend_core.io.bag_recover import recover_bag
+    bag = tmp_path / 'deep_qos.mcap'
+    with open(bag, 'wb') as stream:
+        writer = Writer(stream)
+        writer.start(profile='ros2', library='test')
+        schema = writer.register_schema('std_msgs/msg/Float64', 'ros2msg', b'float64 data\n')
+        channel = writer.register_channel('/x', 'cdr', schema,
+                                          {'offered_qos_profiles': '[' * 100_000 + ']' * 100_000})
+        writer.add_message(channel, 1, b'\x00\x01\x00\x00' + bytes(8), 1, 1)
+        writer.finish()
+    data = bag.read_bytes()
+    bag.write_bytes(data[:-10])                 # cut: bag-recover rewrites it and reads the QoS
+    report = recover_bag(bag)
+    assert report.message_count == 1
+    csv = tmp_path / 'deep_comment.csv'
+    csv.write_text('# aeropend-import: ' + '[' * 100_000 + ']' * 100_000 + '\n'
+                   't,duty,armature_voltage,armature_current,angle\n0,0,1,0.1,0\n')
+    status, err, _ = run_bounded(['identify', str(csv)], capsys)
+    assert status == 2 and 'bug' not in err and len(err.strip().splitlines()) == 1, err

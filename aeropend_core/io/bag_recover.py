@@ -306,7 +306,13 @@ def _recover(path: Path, folder: Path, files: list[Path], bag_folder: bool, targ
 def _topic(topic_infos: dict[str, TopicInfo], scan: FileScan, channel) -> TopicInfo:
     if channel.topic not in topic_infos:
         schema = scan.schemas.get(channel.schema_id)
-        qos = yaml.safe_load(channel.metadata.get('offered_qos_profiles') or '[]') or []
+        from aeropend_core.io.inputs import check_yaml_text
+        text = channel.metadata.get('offered_qos_profiles') or '[]'
+        try:                # the channel's QoS YAML, from the damaged file: within the limits of every YAML input
+            check_yaml_text(text, f'the QoS of {channel.topic}')
+            qos = yaml.safe_load(text) or []
+        except (AeropendError, yaml.YAMLError):
+            qos = []
         topic_infos[channel.topic] = TopicInfo(
             channel.topic, schema.name if schema else '', schema.data.decode('utf-8', 'replace') if schema else '',
             qos if isinstance(qos, list) else [], channel.metadata.get('topic_type_hash', ''))

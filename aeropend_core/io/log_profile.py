@@ -364,7 +364,7 @@ def read_import_metadata(path: str | Path) -> dict | None:
     if first.startswith('# aeropend-import: '):
         try:
             return json.loads(first[len('# aeropend-import: '):])
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, RecursionError):      # nested too deep: not our metadata
             return None
     return None
 
