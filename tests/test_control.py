@@ -276,3 +276,28 @@ def test_replay_check_catches_a_controller_other_than_the_declared_one():
     other = gains.replace(p=gains.p * 1.1)
     largest, count = replay(other, run.reference, run.feedforward, run.angle, run.duty, 0.7)
     assert count > 100 and largest > 1e-3
+
+
+@pytest.mark.slow
+def test_simulate_runs_a_diagnosis_model_on_the_users_duty(tmp_path):
+    """`aeropend simulate --model D.json --input duty.csv`: the JSON's fitted parameters and effects, the user's duty
+    held between its stamps at 490 Hz; equal to the library's simulation of that model."""
+    from aeropend_core.control.model_source import model_from_dict
+    from aeropend_core.sim.simulate import simulate
+    model_json = {'parameters': {'gravity_stiffness': 120.0, 'damping': 12.0, 'thrust_gain': 150.0,
+                                 'time_constant': 0.12}, 'model_effects': ['thrust_lag'], 'verdict': 'nothing_missing'}
+    (tmp_path / 'd.json').write_text(json.dumps(model_json))
+    (tmp_path / 'duty.csv').write_text('t,duty\n0,0\n1,0.45\n2.5,0.3\n4,0.3\n')
+    result = subprocess.run([*AEROPEND, 'simulate', '-o', str(tmp_path / 'out.csv'), '--model',
+                             str(tmp_path / 'd.json'), '--input', str(tmp_path / 'duty.csv'), '--quiet'],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    table = np.genfromtxt(tmp_path / 'out.csv', delimiter=',', names=True)
+    assert table['duty'][int(1.5 / TS)] == 0.45 and table['duty'][int(3 / TS)] == 0.3
+    model = model_from_dict(model_json, 'd.json')
+    assert model.parameters.thrust_gain == pytest.approx(150.0)
+    expected = simulate(table['duty'], model.parameters, model.effects)
+    np.testing.assert_allclose(table['angle'], expected.angle, atol=1e-6)
+    bad = subprocess.run([*AEROPEND, 'simulate', '-o', str(tmp_path / 'x.csv'), '--input', str(tmp_path / 'd.json')],
+                         capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 2 and 'no "duty" column' in bad.stderr

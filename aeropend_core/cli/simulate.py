@@ -3,8 +3,13 @@
 Columns: t [s], duty [1], armature_voltage [V], armature_current [A], angle [rad], then the simulator's truth
 (true_armature_current, true_motor_speed, true_angle, true_angular_rate, true_thrust, true_armature_voltage).
 
-Example:
+With --input the duty comes from your own CSV (a ``duty`` column, fraction 0..1, and optionally ``t`` [s]: held
+between its stamps and sampled at the rig's 490 Hz); with --model the rig is the model of an `aeropend diagnose
+--json` file (its fitted parameters and added effects) instead of the nominal one.
+
+Examples:
   aeropend simulate -o run.csv --duration 60 --seed 1 --psnr 40 --quantise --effect coulomb_friction=4
+  aeropend simulate -o mine.csv --model diagnosis.json --input duty.csv
 """
 from __future__ import annotations
 
@@ -36,6 +41,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--preset', choices=sorted(PRESETS), default='default', help='nominal parameter set')
     parser.add_argument('--max-duty', type=float, default=0.7, help='upper end of the duty range (default 0.7)')
     parser.add_argument('--no-truth', action='store_true', help='write only the measured columns')
+    parser.add_argument('--input', metavar='DUTY.csv', default=None,
+                        help='drive the rig with this duty (CSV column duty, fraction 0..1; optional t [s]) instead '
+                             'of the Latin-hypercube excitation; --duration is then the input\'s')
+    parser.add_argument('--model', metavar='DIAGNOSIS.json', default=None,
+                        help='simulate the model of an `aeropend diagnose --json` file (fitted parameters and added '
+                             'effects; --effect adds to them) instead of --preset')
     parser.add_argument('--quiet', action='store_true', help='no "wrote N samples" line on standard error')
     from aeropend_core.cli._checks import add_json_argument
     add_json_argument(parser, 'what was simulated (file, samples, duration, rate, seed, noise, effects, columns)')
@@ -81,11 +92,23 @@ def main(args: argparse.Namespace) -> int:
     from aeropend_core.sim.excitation import lhc_schedule       # scipy: imported once the arguments are known good
     from aeropend_core.sim.noise import MeasurementNoise
     from aeropend_core.sim.simulate import simulate
-    schedule = lhc_schedule(args.duration, duty_range=(0.0, args.max_duty), seed=args.seed, duty_cap=args.max_duty)
+    parameters = PRESETS[args.preset]
+    if args.model:
+        from aeropend_core.control.model_source import load_model
+        model = load_model(args.model)
+        parameters, effects = model.parameters, {**model.effects, **effects}
+        for doubt in model.doubts:
+            print(f'aeropend simulate: warning: {doubt}', file=sys.stderr)
+    if args.input:
+        duty = input_duty(args.input)
+        args.duration = duty.size * SAMPLE_TIME
+    else:
+        schedule = lhc_schedule(args.duration, duty_range=(0.0, args.max_duty), seed=args.seed,
+                                duty_cap=args.max_duty)
+        duty = schedule.duty(SAMPLE_TIME, args.duration)
     psnr = args.psnr if args.psnr else None             # 0: no noise
     noise = MeasurementNoise(psnr, args.quantise) if (psnr is not None or args.quantise) else None
-    trajectory = simulate(schedule.duty(SAMPLE_TIME, args.duration), parameters=PRESETS[args.preset],
-                          effects=effects, noise=noise, seed=args.seed)
+    trajectory = simulate(duty, parameters=parameters, effects=effects, noise=noise, seed=args.seed)
     write_csv(args.output, trajectory.columns(with_truth=not args.no_truth))
     if args.output != '-' and not args.quiet:
         print(f'wrote {len(trajectory)} samples ({args.duration:g} s at {1 / SAMPLE_TIME:g} Hz) to {args.output}',
@@ -101,6 +124,42 @@ def main(args: argparse.Namespace) -> int:
             'max_duty': args.max_duty, 'columns': list(columns),
             'units': {'t': 's', 'duty': '1', 'armature_voltage': 'V', 'armature_current': 'A', 'angle': 'rad'}})
     return 0
+
+
+def input_duty(path: str):
+    """The duty of a user's CSV at the rig's sample rate: column ``duty`` (fraction 0..1), held between the stamps
+    of an optional ``t`` column [s] (else one value per sample)."""
+    import csv
+    import io
+
+    import numpy as np
+
+    from aeropend_core.io.inputs import read_input_text
+    text = read_input_text(path, '--input', max_bytes=500_000_000)
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows or 'duty' not in [name.strip() for name in rows[0]]:
+        raise AeropendError(f'--input {path}: no "duty" column in its header (write a CSV with a header line '
+                            '"t,duty" or "duty", duty as a fraction 0..1)')
+    header = [name.strip() for name in rows[0]]
+    try:
+        values = np.array([[float(row[header.index(name)]) for name in ('t', 'duty') if name in header]
+                           for row in rows[1:] if row], dtype=float)
+    except (ValueError, IndexError):
+        raise AeropendError(f'--input {path}: every row needs a number in each of its columns') from None
+    if values.size == 0:
+        raise AeropendError(f'--input {path}: no rows after the header')
+    duty = values[:, -1]
+    if not np.all(np.isfinite(values)) or duty.min() < 0 or duty.max() > 1:
+        raise AeropendError(f'--input {path}: duty must be finite fractions in [0, 1] (70 % is 0.7)')
+    if 't' in header:
+        stamps = values[:, 0]
+        if np.any(np.diff(stamps) <= 0):
+            raise AeropendError(f'--input {path}: t must increase from row to row')
+        grid = stamps[0] + np.arange(int(np.floor((stamps[-1] - stamps[0]) / SAMPLE_TIME)) + 1) * SAMPLE_TIME
+        duty = duty[np.searchsorted(stamps, grid + 1e-12, side='right') - 1]
+    if duty.size < 2:
+        raise AeropendError(f'--input {path}: it holds less than two samples at {1 / SAMPLE_TIME:g} Hz')
+    return duty
 
 
 def _check_output(path: str) -> None:
