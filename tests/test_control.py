@@ -301,3 +301,18 @@ def test_simulate_runs_a_diagnosis_model_on_the_users_duty(tmp_path):
     bad = subprocess.run([*AEROPEND, 'simulate', '-o', str(tmp_path / 'x.csv'), '--input', str(tmp_path / 'd.json')],
                          capture_output=True, text=True, timeout=300)
     assert bad.returncode == 2 and 'no "duty" column' in bad.stderr
+
+
+def test_check_and_linearisation_pages_are_self_contained(tmp_path, nominal_design):
+    from aeropend_core.control.report import check_report, linearisation_report
+    controller = Controller(nominal_design.gains, template=Template())
+    schedule = nominal_design.schedule
+    run = simulate_loop(controller.gains, schedule.reference(), FeedforwardMap(), effects={'thrust_lag': 0.15},
+                        noise=MeasurementNoise(psnr_db=50, quantise=True), seed=3, duty_limit=0.8)
+    result = check_record(run.time, run.angle, run.duty, controller, schedule)
+    for page in (check_report(result, run.time, run.angle, run.duty, run.reference, 'simulated'),
+                 linearisation_report(linearise(math.radians(40)), 'nominal')):
+        assert page.startswith('<!DOCTYPE html>') and '<svg' in page
+        assert 'http://' not in page.replace('http://www.w3.org/2000/svg', '') and 'https://' not in page
+    assert page.count('<svg') == 2                           # step response, Bode
+    assert check_report(result, run.time, run.angle, run.duty, None, 's').count('<svg') == len(result.steps)

@@ -52,11 +52,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     check.add_argument('--design', metavar='GAINS.yaml', default=None,
                        help='judge against this controller file (default: the one stored in the bag)')
     check.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE', help='the check as JSON')
+    check.add_argument('--report', metavar='FILE.html', default=None,
+                       help='measured and predicted transients overlaid, step by step (one self-contained page)')
     linear = sub.add_parser('linearise', help='the model linearised at an angle: state space, transfer function')
     linear.add_argument('model', nargs='?', default=None, metavar='MODEL.json',
                         help='an `aeropend diagnose --json` file (default: the nominal model)')
     linear.add_argument('--at', type=_angle, default=math.radians(40), metavar='ANGLE', help='e.g. 40deg')
     linear.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE', help='as JSON')
+    linear.add_argument('--report', metavar='FILE.html', default=None,
+                        help='step response and Bode plot of the linear model (one self-contained page)')
 
 
 def main(args: argparse.Namespace) -> int:
@@ -136,9 +140,19 @@ def _print_design(result, model, predicted_only: bool = False) -> None:
         print(f'Note: {note}')
 
 
+def _check_page(path: str | None) -> None:
+    """Refuse a --report that cannot be an HTML page before any work (as diagnose's --report)."""
+    if path:
+        if not path.lower().endswith(('.html', '.htm')):
+            raise AeropendError(f'--report {path}: the report is an HTML page; name it .html (e.g. check.html)')
+        from aeropend_core.cli._checks import check_report_path
+        check_report_path(path)
+
+
 def _check(args) -> int:
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
+    _check_page(args.report)
     from aeropend_core.control.check import check_record
     from aeropend_core.control.controller_file import Controller
     from aeropend_core.control.record import load_closed_loop
@@ -156,12 +170,17 @@ def _check(args) -> int:
         result.notes.insert(0, 'the run was cut short: its schedule did not play to the end')
     print(result.as_text())
     _write_json(args.json, {'record': str(args.record), 'controller_sha256': controller.sha256, **result.to_dict()})
+    if args.report:
+        from aeropend_core.control.report import check_report
+        _write_page(args.report, check_report(result, data.time, data.angle, data.duty, data.reference,
+                                              str(args.record)))
     return 0
 
 
 def _linearise(args) -> int:
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
+    _check_page(args.report)
     import numpy as np
 
     from aeropend_core.control.linear import linearise
@@ -186,7 +205,16 @@ def _linearise(args) -> int:
         print(f'Note: {doubt}')
     _write_json(args.json, {'schema': 'aeropend.linearisation/1', 'model': model.source,
                             'doubts': list(model.doubts), **data})
+    if args.report:
+        from aeropend_core.control.report import linearisation_report
+        _write_page(args.report, linearisation_report(lin, model.source))
     return 0
+
+
+def _write_page(path: str, page: str) -> None:
+    from aeropend_core.io.atomic import atomic_write
+    atomic_write(path, lambda handle: handle.write(page))
+    print(f'wrote {path}', file=sys.stderr)
 
 
 def closed_loop_record(path: str):
