@@ -47,7 +47,7 @@ def played(files):
     """One run of the whole schedule (13 s) at 10x real time, recorded."""
     record = files / 'bags'
     result = run_cli(['run', '--controller', str(files / 'gains.yaml'), '--reference', str(files / 'steps.yaml'),
-                      '--realtime-factor', '10', '--record', str(record)])
+                      '--realtime-factor', '10', '--record', str(record), '--duty-cap', '0.7'])
     bags = [p for p in record.iterdir() if p.is_dir()] if record.is_dir() else []
     return result, bags
 
@@ -155,6 +155,7 @@ def test_without_reference_the_default_schedule_is_said(files, tmp_path):
     output = result.stdout + result.stderr
     assert result.returncode == 0 and 'Traceback' not in output, output
     assert 'reference default: 20, 40, 60, 30 deg, 5 s each after 2 s at rest (no --reference given)' in result.stderr
+    assert 'duty capped at 0.8' in result.stderr        # no --duty-cap: the controller's own u_clamp_max
     assert 'not completed: step 1 (0.0 -> 20.0 deg), step 2' in result.stdout, result.stdout
 
 
@@ -170,7 +171,8 @@ def test_run_closes_the_loop_on_the_rig_through_the_bridge(files, tmp_path):
                                           '  - {angle_deg: 35, hold: 3}\n')
     with DeviceEmulator(seed=5) as emulator:
         result = run_cli(['run', '--port', str(emulator.port), '--controller', str(files / 'gains.yaml'),
-                          '--reference', str(files / 'rig_steps.yaml'), '--record', str(tmp_path)], timeout=200)
+                          '--reference', str(files / 'rig_steps.yaml'), '--record', str(tmp_path),
+                          '--duty-cap', '0.7'], timeout=200)
         mode_at_end = emulator.control_mode
     output = result.stdout + result.stderr
     assert result.returncode == 0 and 'Traceback' not in output, output
@@ -260,3 +262,17 @@ def test_step_line_format():
                                               'not settled in 5 s (<= 2 MISSED), error -7.0 % (< 5 MISSED), peak duty '
                                               '0.90 (<= 0.8 MISSED)')
     assert step_line(1, late, None).endswith('error -7.0 %, peak duty 0.90')
+
+
+@pytest.mark.timeout(300)
+def test_without_reference_the_controllers_design_schedule_is_played(tmp_path):
+    """A controller file from `control design` carries the schedule it was designed on: --controller alone plays it
+    (not the generic default) and says so."""
+    from aeropend_core.control.reference import ReferenceSchedule
+    designed = ReferenceSchedule.steps_between([30, 50], hold=4.0, start_hold=3.0)
+    Controller(PidGains(), template=Template(), design={'schedule': designed.as_dict()}).write(tmp_path / 'g.yaml')
+    result = run_cli(['run', '--controller', str(tmp_path / 'g.yaml'), '--duration', '4', '--realtime-factor', '10',
+                      '--no-record', '--no-diagnose'])
+    output = result.stdout + result.stderr
+    assert result.returncode == 0 and 'Traceback' not in output, output
+    assert "reference the controller's design schedule: 0.0 deg approached in 3 s, then 30.0, 50.0 deg" in output

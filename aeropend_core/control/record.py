@@ -80,7 +80,7 @@ def read_schedule_file(path: str | os.PathLike) -> ReferenceSchedule:
 
 def closed_loop_metadata(controller_path: str | os.PathLike, schedule: ReferenceSchedule,
                          schedule_path: str | os.PathLike | None = None,
-                         duty_limit: float | None = None) -> dict[str, str]:
+                         duty_limit: float | None = None, schedule_text: str | None = None) -> dict[str, str]:
     """The bag's ``custom_data`` of a closed-loop run (module docstring): the controller file and the schedule,
     their content and sha256, the duty cap [fraction]. `schedule_path` None: the default schedule."""
     import yaml
@@ -96,7 +96,7 @@ def closed_loop_metadata(controller_path: str | os.PathLike, schedule: Reference
     if duty_limit is not None:
         data['aeropend.duty_limit'] = repr(float(duty_limit))
     if schedule_path is None:
-        data['aeropend.reference'] = default_schedule_text()
+        data['aeropend.reference'] = schedule_text or default_schedule_text()
         data['aeropend.reference_yaml'] = yaml.safe_dump(schedule.as_dict(), sort_keys=False)
     else:
         schedule_bytes = Path(schedule_path).read_bytes()

@@ -67,7 +67,8 @@ def check_arguments(args, duration_given: bool) -> None:
     from aeropend_core.control.record import default_schedule, default_schedule_text, read_schedule_file
     try:
         controller = Controller.load(controller_path)
-        schedule = read_schedule_file(reference_path) if reference_path else default_schedule()
+        designed = None if reference_path else controller.schedule
+        schedule = read_schedule_file(reference_path) if reference_path else (designed or default_schedule())
     except AeropendError as error:
         raise _one_line(error) from None
     gains = controller.gains
@@ -85,7 +86,15 @@ def check_arguments(args, duration_given: bool) -> None:
         args.duration = schedule.duration
     args.closed_loop = {'controller': controller, 'controller_path': controller_path, 'schedule': schedule,
                         'reference_path': reference_path,
-                        'reference_text': reference_path or default_schedule_text()}
+                        'reference_text': reference_path or (designed_schedule_text(designed) if designed else
+                                                             default_schedule_text())}
+
+
+def designed_schedule_text(schedule) -> str:
+    """The controller file's design schedule in words (console, metadata)."""
+    steps = ', '.join(f'{math.degrees(step.angle):.1f}' for step in schedule.steps)
+    return (f"the controller's design schedule: {math.degrees(schedule.start_angle):.1f} deg approached in "
+            f'{schedule.start_hold:g} s, then {steps} deg, {schedule.steps[0].hold:g} s each')
 
 
 class ClosedLoopClock:

@@ -72,7 +72,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--psnr', type=float, default=50.0, metavar='DB',
                         help='simulated measurement noise [dB] (0 = none)')
     parser.add_argument('--seed', type=int, default=1, help='seed of the excitation and the simulated noise')
-    parser.add_argument('--duty-cap', type=float, default=0.7, metavar='FRACTION', help='safety cap on the duty')
+    parser.add_argument('--duty-cap', type=float, default=None, metavar='FRACTION',
+                        help='safety cap on the duty (default 0.7; with --controller, the controller\'s u_clamp_max)')
     parser.add_argument('--no-diagnose', action='store_true', help='skip the diagnosis at the end')
     parser.add_argument('--report', metavar='FILE.html', help='write the diagnosis as a self-contained HTML report')
     parser.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE',
@@ -102,12 +103,16 @@ def _check_arguments(args) -> None:
         args.duration = 60.0
     from aeropend_ros.cli.closed_loop_run import check_conflicts
     check_conflicts(args)           # --controller with --experiment, --reference without --controller
+    if args.duty_cap is None and not getattr(args, 'controller', None):
+        args.duty_cap = 0.7         # the paper's cap: the rod stays below 90 deg
     from aeropend_ros.cli.experiment_loop import check_arguments as check_experiment
     check_experiment(args)          # --experiment sets the duration from its schedule
     if duration_given and not 0 < args.duration < math.inf:
         raise AeropendError(f'--duration must be a positive number of seconds, got {args.duration}')
     from aeropend_ros.cli.closed_loop_run import check_arguments as check_closed_loop
     check_closed_loop(args, duration_given)     # --controller: the schedule's duration unless --duration is given
+    if args.duty_cap is None:       # with --controller: the controller's own cap (it was designed with it)
+        args.duty_cap = args.closed_loop['controller'].gains.u_clamp_max if args.closed_loop else 0.7
     if not 0 < args.duration < math.inf:
         raise AeropendError(f'--duration must be a positive number of seconds, got {args.duration}')
     from aeropend_core.diagnosis.compare import MIN_DURATION
@@ -322,7 +327,8 @@ def _run(args) -> int:
             if closed:      # the controller file and the schedule, their content and sha256
                 from aeropend_core.control.record import closed_loop_metadata
                 recorder.writer.custom_data.update(closed_loop_metadata(
-                    closed['controller_path'], closed['schedule'], closed['reference_path'], args.duty_cap))
+                    closed['controller_path'], closed['schedule'], closed['reference_path'], args.duty_cap,
+                    closed['reference_text']))
             else:
                 recorder.writer.custom_data.update(experiment_metadata(args))  # which schedule this bag played
             nodes.append(recorder)
