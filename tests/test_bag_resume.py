@@ -170,3 +170,25 @@ def test_new_mutations_read_at_least_what_rosbags_reads(tmp_path, operator):
     with warnings.catch_warnings():
         warnings.simplefilter('ignore')
         assert len(load_recording(path)) >= 0.9 * 1200        # not refused
+
+
+def test_bytes_inserted_in_the_first_chunk_keep_the_definitions_of_the_summary(tmp_path):
+    """Garbage inserted inside the first chunk (the one with the schemas and channels) shifts the summary away from
+    where the footer says it is: it is found after the data-end record (its CRC still matches), so the messages of
+    every other chunk keep their topic; before, the bag was refused as holding no sample (mutation insert_garbage,
+    seed 31 of --per-operator 40)."""
+    from aeropend_core.testing.bag_mutations import layout, write_sample_bag
+    data = write_sample_bag(tmp_path / 'original.mcap', 1200, chunk_size=8 * 1024).read_bytes()
+    at = layout(data).chunks[0][0] + 60                 # inside the first chunk's data
+    path = tmp_path / 'garbage.mcap'
+    path.write_bytes(data[:at] + bytes(range(100)) + data[at:])
+    damage: list = []
+    samples = quiet_samples(path, damage)
+    assert 1000 < len(samples['time']) < 1200
+    assert any(d.damage.kind == 'summary_mismatch' and 'starts at byte' in d.damage.detail for d in damage)
+    recover_bag(path)
+    from rosbags.highlevel import AnyReader
+    with AnyReader([tmp_path / 'garbage_recovered.mcap']) as reader:
+        assert sum(1 for c in reader.connections if c.topic == SAMPLES) == 1
+        assert sum(1 for _ in reader.messages(connections=[c for c in reader.connections
+                                                             if c.topic == SAMPLES])) == len(samples['time'])

@@ -280,12 +280,22 @@ def _read_summary(buf, size: int, scan: FileScan) -> None:
     footer_start = size - len(MCAP_MAGIC) - _FOOTER_BYTES
     if footer is None or not footer.summary_start or not len(MCAP_MAGIC) < footer.summary_start <= footer_start:
         return
-    if footer.summary_crc and zlib.crc32(buf[footer.summary_start:footer_start + 25]) != footer.summary_crc:
-        scan.damage.append(BagDamage(scan.path, footer.summary_start, 'summary_damaged',
-                                     'the summary section fails its CRC: it was not used; the records were read '
-                                     'without it', lost=False))
-        return
-    position = footer.summary_start
+    summary_start = footer.summary_start
+    if footer.summary_crc and zlib.crc32(buf[summary_start:footer_start + 25]) != footer.summary_crc:
+        # bytes inserted or removed before it shift the summary: it starts after the data-end record (its CRC,
+        # over the summary and the footer's fields as written, then still matches)
+        moved = buf.rfind(b'\x0f\x04\x00\x00\x00\x00\x00\x00\x00', len(MCAP_MAGIC), footer_start) + 13
+        if moved > 12 and zlib.crc32(buf[moved:footer_start + 25]) == footer.summary_crc:
+            scan.damage.append(BagDamage(scan.path, moved, 'summary_mismatch', f'the footer says the summary starts '
+                                         f'at byte {summary_start}, it starts at byte {moved} (bytes inserted or '
+                                         'removed before it): read there', lost=False))
+            summary_start = moved
+        else:
+            scan.damage.append(BagDamage(scan.path, footer.summary_start, 'summary_damaged',
+                                         'the summary section fails its CRC: it was not used; the records were read '
+                                         'without it', lost=False))
+            return
+    position = summary_start
     try:
         while position + 9 <= footer_start:
             opcode = buf[position]
