@@ -27,7 +27,6 @@ import json
 import math
 import time
 import warnings
-from dataclasses import fields
 from pathlib import Path
 
 import numpy as np

@@ -8,7 +8,7 @@
     model:                                                                 # what it was designed on
       source: nominal                  # or the diagnosis/identify JSON it came from
       parameters: {gravity_stiffness: 131.75, ...}                        # RigParameters, SI
-      effects: {thrust_lag: {time_constant: 0.15}}
+      effects: {EFFECT: {PARAMETER: VALUE}}                              # the catalog's names
       sha256: ...                      # of parameters + effects
     design: {...}                      # operating point, predicted metrics (for the reader; not read back)
     sha256: ...                        # of gains + model: the bag's metadata names the controller by it

@@ -15,11 +15,17 @@ import numpy as np
 from scipy.optimize import brentq
 
 from aeropend_core.errors import AeropendError
-from aeropend_core.model.effects import PENDULUM, THRUST_GATE, get_effect, resolve_effects, wants_thrust
+from aeropend_core.model.effects import (PENDULUM, THRUST_GATE, get_effect, kernel_coefficients, resolve_effects,
+                                         wants_thrust)
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, RigParameters
 
-#: Effects whose rest torque is not a function of the angle (dry friction holds anything inside its band).
-_REST_UNDETERMINED = frozenset({'coulomb_friction'})
+#: Kernel kinds whose rest torque is not a function of the angle (dry friction holds anything inside its band).
+REST_UNDETERMINED_KINDS = frozenset({'rate_sign'})
+
+
+def undetermined_at_rest(name: str) -> bool:
+    """Whether an effect's torque at rest is undetermined (a dry friction: its kernel has a sign of the rate)."""
+    return any(kind in REST_UNDETERMINED_KINDS for kind, _ in get_effect(name).kernel_terms)
 
 
 def rest_thrust_torque(duty: float, parameters: RigParameters = DEFAULT_PARAMETERS,
@@ -42,7 +48,7 @@ def holding_torque(angle: float, parameters: RigParameters = DEFAULT_PARAMETERS,
     needed = parameters.gravity_stiffness * math.sin(angle)
     for name, values in resolve_effects(effects).items():
         effect = get_effect(name)
-        if effect.kind != PENDULUM or name in _REST_UNDETERMINED:
+        if effect.kind != PENDULUM or undetermined_at_rest(name):
             continue
         function = effect.function
         extra = function(angle, 0.0, **values, thrust=0.0) if wants_thrust(function) else function(angle, 0.0,
@@ -55,7 +61,8 @@ def static_duty(angle: float, parameters: RigParameters = DEFAULT_PARAMETERS,
                 effects: Mapping[str, Mapping[str, float]] | None = None, measured: bool = True) -> float:
     """The duty (fraction 0..1) that holds the rod at `angle` [rad] at rest under the model.
 
-    `measured`: `angle` is what the sensor reads (a catalog ``angle_offset`` is taken off to get the true angle).
+    `measured`: `angle` is what the sensor reads (a sensor offset of the catalog is taken off to get the true
+    angle).
     Raises AeropendError when no duty up to 1 holds that angle.
 
     >>> round(static_duty(0.0), 6)
@@ -64,7 +71,7 @@ def static_duty(angle: float, parameters: RigParameters = DEFAULT_PARAMETERS,
     True
     """
     effects = resolve_effects(effects)
-    true_angle = angle - effects.get('angle_offset', {}).get('angle_offset', 0.0) if measured else angle
+    true_angle = angle - kernel_coefficients(effects)['measured_offset'] if measured else angle
     needed = holding_torque(true_angle, parameters, effects)
     if needed <= 0.0:
         return 0.0

@@ -15,13 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aeropend_core.control.feedforward import static_duty
+from aeropend_core.control.feedforward import static_duty, undetermined_at_rest
 from aeropend_core.errors import AeropendError
-from aeropend_core.model.effects import resolve_effects
+from aeropend_core.model.effects import kernel_coefficients, resolve_effects
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
 
-#: Effects left out of the linearisation (no derivative at rest), with the reason shown to the user.
-NOT_LINEARISED = {'coulomb_friction': 'dry friction has no slope at rest (left to the nonlinear check)'}
+#: Why an effect is left out of the linearisation (no derivative at rest: a dry friction's sign of the rate).
+NOT_LINEARISED_REASON = 'dry friction has no slope at rest (left to the nonlinear check)'
 STATE_NAMES = ('armature_current', 'motor_speed', 'angle', 'angular_rate', 'thrust', 'filter_1', 'filter_2')
 STATE_UNITS = ('A', 'rad/s', 'rad', 'rad/s', 'N', 'rad', 'rad/s')
 
@@ -94,14 +94,15 @@ def linearise(angle: float, parameters: RigParameters = DEFAULT_PARAMETERS,
     from aeropend_core.sim.simulate import RigSimulator
 
     effects = resolve_effects(effects)
-    left_out = {name: NOT_LINEARISED[name] for name in effects if name in NOT_LINEARISED}
-    kept = {name: values for name, values in effects.items() if name not in NOT_LINEARISED}
+    left_out = {name: NOT_LINEARISED_REASON for name in effects if undetermined_at_rest(name)}
+    kept = {name: values for name, values in effects.items() if name not in left_out}
+    coefficients = kernel_coefficients(kept)
     duty = static_duty(angle, parameters, kept)
     if duty <= 0.0:
         raise AeropendError(f'at {np.degrees(angle):.1f} deg the model needs no thrust: linearise at an angle the '
                             'propeller holds (above the hanging position)')
     voltage = float(parameters.voltage_from_duty(duty))
-    offset = kept.get('angle_offset', {}).get('angle_offset', 0.0)
+    offset = coefficients['measured_offset']
     true_angle = angle - offset
     simulator = RigSimulator(parameters, kept, method='lsoda')
     steady = parameters.steady_state(voltage)
@@ -127,7 +128,7 @@ def linearise(angle: float, parameters: RigParameters = DEFAULT_PARAMETERS,
     c = np.zeros((1, n))
     c[0, 2] = 1.0
     names = list(STATE_NAMES[:4]) + (['thrust'] if n == 5 else [])
-    delay = kept.get('angle_filter', {}).get('filter_delay', 0.0)
+    delay = coefficients['measured_lowpass']
     if delay > 0:
         # H(s) = 1 / ((tau s)^2 + 3 tau s + 1) on the angle: states z1 (filtered angle), z2 = dz1/dt.
         tau = delay / 3.0

@@ -32,7 +32,7 @@ from aeropend_core.control.law import PidGains, law_step, new_state
 from aeropend_core.control.loop import simulate_loop
 from aeropend_core.control.metrics import noise_sigma
 from aeropend_core.errors import AeropendError
-from aeropend_core.model.effects import get_effect, resolve_effects
+from aeropend_core.model.effects import CATALOG, get_effect, resolve_effects
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
 
 #: Share of the record the fits use; the rest scores them.
@@ -43,13 +43,28 @@ DECISIVE_BIC = -10.0
 MATERIAL_SHARE = 0.5
 #: Candidates within this share of the best one's held-out error beyond the noise are confounded with it.
 TIE = 0.15
-#: Catalog effects the closed-loop diagnosis tries (those with compiled kernel terms that change the loop).
-CANDIDATES = ('thrust_lag', 'angle_filter', 'angle_offset', 'dead_zone', 'coulomb_friction', 'cable_torque',
-              'quadratic_drag')
-#: Pairs that the closed loop cannot tell apart and what would.
-SEPARATED_BY = {frozenset({'thrust_lag', 'angle_filter'}):
+#: Pairs of kernel kinds that the closed loop cannot tell apart, and what would.
+SEPARATED_BY = {frozenset({'thrust_lag_time', 'measured_lowpass'}):
                 'in closed loop a thrust lag and the angle sensor\'s filter give the same loop gain; the armature '
                 'current (motor side) or an open-loop segment (duty steps with the loop open) separates them'}
+#: The shortest lag a fit may reach [s]: the closed loop's integrator needs a lag above a few samples.
+SHORTEST_LAG = 0.005
+
+
+def candidates() -> tuple[str, ...]:
+    """The catalog effects the closed-loop diagnosis tries: every one the compiled loop runs (kernel terms)."""
+    return tuple(name for name, effect in CATALOG.items() if effect.compiled and effect.kernel_terms)
+
+
+def _kinds(name: str) -> frozenset[str]:
+    return frozenset(kind for kind, _ in get_effect(name).kernel_terms)
+
+
+def _separation(a: str, b: str) -> str | None:
+    for pair, why in SEPARATED_BY.items():
+        if any(pair == frozenset({x, y}) for x in _kinds(a) for y in _kinds(b)):
+            return why
+    return None
 #: The pendulum parameters a closed-loop fit may free. A feedback loop holds the rod near its references, so the
 #: record pins the static balance (thrust per unit of gravity) far better than gravity and damping apart: by
 #: default the thrust scale and gravity are fitted within BASE_BOUNDS of the controller's model and the damping
@@ -238,8 +253,8 @@ class _Problem:
                 names.append(parameter.name)
                 start = values[parameter.name]
                 low, high = parameter.lower, min(parameter.upper, 1e6)
-                if effect_name == 'thrust_lag':
-                    low = max(low, 0.005)
+                if ('thrust_lag_time', parameter.name) in get_effect(effect_name).kernel_terms:
+                    low = max(low, SHORTEST_LAG)
                 start = min(max(start, low + 1e-9 * (high - low)), high - 1e-9 * (high - low))
                 starts.append(start)
                 lower.append(low)
@@ -306,7 +321,7 @@ def _starts(starts, effect_slots, n_free, lower, upper, typical):
 def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, reference: np.ndarray,
                   feedforward: np.ndarray, gains: PidGains, duty_limit: float,
                   parameters: RigParameters = DEFAULT_PARAMETERS, add: Sequence[str] = (),
-                  candidates: Sequence[str] = CANDIDATES, sample_time: float = SAMPLE_TIME,
+                  candidates: Sequence[str] | None = None, sample_time: float = SAMPLE_TIME,
                   free: Sequence[str] = DEFAULT_FREE) -> LoopDiagnosis:
     """Diagnose a closed-loop record (arrays of shape (n,): time [s], measured angle [rad], applied duty, reference
     [rad], the feedforward played [duty]); `gains` the law that ran, `duty_limit` the duty cap it ran under."""
@@ -316,10 +331,11 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
                             'diagnosis needs at least 10 s (two steps with their holds)')
     reference = np.ascontiguousarray(reference, dtype=float)
     feedforward = np.ascontiguousarray(feedforward, dtype=float)
+    tried = candidates if candidates is not None else globals()['candidates']()
     for name in add:
-        if name not in CANDIDATES:
+        if name not in tried:
             raise AeropendError(f'--add {name}: the closed-loop diagnosis runs the catalog effects '
-                                f'{", ".join(CANDIDATES)}')
+                                f'{", ".join(tried)}')
     max_error, mismatches = replay(gains, reference, feedforward, angle, np.asarray(duty, dtype=float), duty_limit,
                                    sample_time)
     noise = noise_sigma(angle)
@@ -329,7 +345,7 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
     fits = []
     n_effective = problem.split / _correlation_length(
         problem.simulate(base.parameters, base.effects)[:problem.split] - angle[:problem.split])
-    for name in candidates:
+    for name in tried:
         if name in add:
             continue
         fit = problem.fit({**base_effects, name: {}}, noise)
@@ -351,7 +367,7 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
                 if other.test_rms - best.test_rms <= TIE * base.beyond_noise and other.delta_bic < DECISIVE_BIC:
                     confounded.append(next(iter(set(other.effects) - set(add))))
             for other in confounded:
-                why = SEPARATED_BY.get(frozenset({named, other}))
+                why = _separation(named, other)
                 if why:
                     notes.append(why)
         elif decisive:
