@@ -4,11 +4,10 @@ declares the parameters and owns the link; the protocol is in :mod:`aeropend_cor
 """
 from __future__ import annotations
 
-import math
 
-from aeropend_core.errors import AeropendError
 from aeropend_core.rig import protocol as P
 from aeropend_core.rig.control_link import GainsUpload
+from aeropend_ros.control_parameters import checked_reference
 
 
 class BridgeControl:
@@ -82,31 +81,12 @@ class BridgeControl:
 
     def _on_reference(self, msg) -> None:
         """A reference (std_msgs/Float64MultiArray: [reference_rad] or [reference_rad, feedforward_duty])."""
-        data = list(msg.data)
-        if not 1 <= len(data) <= 2 or not all(math.isfinite(value) for value in data):
-            self.get_logger().warning(f'reference {data!r} refused: data must be [reference_rad] or '
-                                      '[reference_rad, feedforward_duty], finite', throttle_duration_sec=2.0)
+        from aeropend_core.control.feedforward import static_duty
+        checked = checked_reference(msg.data, self.gains, static_duty)
+        if isinstance(checked, str):
+            self.get_logger().warning(checked, throttle_duration_sec=2.0)
             return
-        reference = float(data[0])
-        if not self.gains.angle_min <= reference <= self.gains.angle_max:
-            self.get_logger().warning(f'reference {reference:.3f} rad refused: outside the safety limits '
-                                      f'[{self.gains.angle_min:g}, {self.gains.angle_max:g}] rad',
-                                      throttle_duration_sec=2.0)
-            return
-        if len(data) > 1:
-            feedforward = float(data[1])
-        else:
-            from aeropend_core.control.feedforward import static_duty
-            try:
-                feedforward = float(static_duty(reference))
-            except AeropendError as error:
-                self.get_logger().warning(f'reference {reference:.3f} rad refused: {error}',
-                                          throttle_duration_sec=2.0)
-                return
-        if not 0.0 <= feedforward <= 1.0:
-            self.get_logger().warning(f'feedforward {feedforward!r} refused: a duty fraction in [0, 1]',
-                                      throttle_duration_sec=2.0)
-            return
+        reference, feedforward = checked
         self.reference = (reference, feedforward)
         self._write(P.encode_reference(reference, feedforward))
 

@@ -7,7 +7,11 @@ reads each node's own source, lists them); their names, help texts and the check
 """
 from __future__ import annotations
 
+import math
+from collections.abc import Callable, Sequence
+
 from aeropend_core.control.law import PidGains
+from aeropend_core.errors import AeropendError
 
 #: Control modes: the duty command (open loop, the default), or the controller law on the measured angle.
 CONTROL_MODES = ('open_loop', 'closed_loop')
@@ -33,3 +37,27 @@ def gain_problems(values: dict) -> list[str]:
     for name, value in values.items():
         object.__setattr__(gains, name, value)
     return gains.problems()
+
+
+def checked_reference(data: Sequence[float], gains: PidGains,
+                      feedforward_of: Callable[[float], float]) -> tuple[float, float] | str:
+    """``(reference [rad], feedforward [duty])`` of an ``aeropend/reference`` message's data ([reference_rad] or
+    [reference_rad, feedforward_duty]; the feedforward of `feedforward_of` when not given), or why it is refused."""
+    data = list(data)
+    if not 1 <= len(data) <= 2 or not all(math.isfinite(value) for value in data):
+        return (f'reference {data!r} refused: data must be [reference_rad] or [reference_rad, feedforward_duty], '
+                'finite')
+    reference = float(data[0])
+    if not gains.angle_min <= reference <= gains.angle_max:
+        return (f'reference {reference:.3f} rad refused: outside the safety limits [{gains.angle_min:g}, '
+                f'{gains.angle_max:g}] rad')
+    if len(data) > 1:
+        feedforward = float(data[1])
+    else:
+        try:
+            feedforward = float(feedforward_of(reference))
+        except AeropendError as error:
+            return f'reference {reference:.3f} rad refused: {error}'
+    if not 0.0 <= feedforward <= 1.0:
+        return f'feedforward {feedforward!r} refused: a duty fraction in [0, 1]'
+    return reference, feedforward

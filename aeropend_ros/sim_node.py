@@ -64,7 +64,7 @@ from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import RigSimulator
 from aeropend_ros import topics
 from aeropend_ros.control_parameters import (CONTROL_MODES, DEFAULT_GAINS, GAIN_HELP, GAIN_NAMES,
-                                            NUMERIC_GAIN_NAMES, gain_problems)
+                                            NUMERIC_GAIN_NAMES, checked_reference, gain_problems)
 
 #: Samples simulated and published at most per timer tick when catching up (keeps the executor responsive).
 CATCH_UP_LIMIT = 490
@@ -333,29 +333,11 @@ class SimNode(Node):
         return f'reference from {self.resolve_topic_name(topics.REFERENCE)}'
 
     def _on_reference(self, msg: Float64MultiArray) -> None:
-        data = list(msg.data)
-        if not data or not all(math.isfinite(value) for value in data[:2]):
-            self.get_logger().warning(f'reference {data!r} refused: data must be [reference_rad] or '
-                                      '[reference_rad, feedforward_duty], finite', throttle_duration_sec=2.0)
+        checked = checked_reference(msg.data, self.gains, self.feedforward_map)
+        if isinstance(checked, str):
+            self.get_logger().warning(checked, throttle_duration_sec=2.0)
             return
-        reference = float(data[0])
-        if not self.gains.angle_min <= reference <= self.gains.angle_max:
-            self.get_logger().warning(f'reference {reference:.3f} rad refused: outside the safety limits '
-                                      f'[{self.gains.angle_min:g}, {self.gains.angle_max:g}] rad',
-                                      throttle_duration_sec=2.0)
-            return
-        feedforward = float(data[1]) if len(data) > 1 else None
-        if feedforward is not None and not 0.0 <= feedforward <= 1.0:
-            self.get_logger().warning(f'feedforward {feedforward!r} refused: a duty fraction in [0, 1]',
-                                      throttle_duration_sec=2.0)
-            return
-        if feedforward is None:
-            try:
-                feedforward = self.feedforward_map(reference)
-            except AeropendError as error:
-                self.get_logger().warning(f'reference {reference:.3f} rad refused: {error}',
-                                          throttle_duration_sec=2.0)
-                return
+        reference, feedforward = checked
         self.reference, self.topic_feedforward = reference, feedforward
         if self.closed_loop and self.schedule is None and self.loop.controller.tripped:
             self.loop.controller.reset()            # as the firmware: an accepted reference restarts a tripped law

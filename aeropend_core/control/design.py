@@ -141,6 +141,19 @@ def _gains(log_gains, base: PidGains) -> PidGains:
                         derivative_filter_time=float(min(max(filter_time, 1e-3), 0.3)))
 
 
+def _step_cost(metrics: StepMetrics, template: Template, margin: float) -> float:
+    """One step's share of a search cost: its settling time in units of the limit (10 when it never settles),
+    plus a steep penalty on each item beyond `margin` of its limit (the duty against its limit itself)."""
+    limit = template.settling or 2.0
+    cost = metrics.settling_time / limit if metrics.settled else 10.0
+    for item in ('overshoot', 'error', 'settling', 'duty'):
+        bound = getattr(template, item)
+        if bound is not None:
+            excess = metrics.value(item) / (margin * bound if item != 'duty' else bound) - 1.0
+            cost += 20.0 * max(0.0, excess) ** 2
+    return cost
+
+
 def _linear_cost(log_gains, plants, base: PidGains, template: Template, margin: float, steps, sample_time,
                  angle_sigma):
     from aeropend_core.control.metrics import step_metrics
@@ -161,13 +174,7 @@ def _linear_cost(log_gains, plants, base: PidGains, template: Template, margin: 
                 return 1e6
             metrics = step_metrics(time, angle, duty, 0.0, time[-1] + sample_time, lin.angle, lin.angle + size,
                                    sigma=0.0)
-            limit = template.settling or 2.0
-            cost += metrics.settling_time / limit if metrics.settled else 10.0
-            for item in ('overshoot', 'error', 'settling', 'duty'):
-                bound = getattr(template, item)
-                if bound is not None:
-                    excess = metrics.value(item) / (margin * bound if item != 'duty' else bound) - 1.0
-                    cost += 20.0 * max(0.0, excess) ** 2
+            cost += _step_cost(metrics, template, margin)
     # The angle's noise through P and the filtered D: a chattering duty clips at the limits and biases the loop.
     cost += 20.0 * max(0.0, duty_noise(gains, angle_sigma, sample_time) / DUTY_NOISE_LIMIT - 1.0) ** 2
     return cost
@@ -185,7 +192,6 @@ def _nonlinear_cost(log_gains, base: PidGains, template: Template, margin: float
                     angle_sigma, factors):
     gains = _gains(log_gains, base)
     cost = 0.0
-    limit = template.settling or 2.0
     for factor in factors:
         rig = parameters.scaled(lever_per_inertia=factor)
         run = simulate_loop(gains, reference, feedforward_values, rig, effects, noise, seed,
@@ -193,12 +199,7 @@ def _nonlinear_cost(log_gains, base: PidGains, template: Template, margin: float
         if not np.all(np.isfinite(run.angle)) or run.tripped.any():
             return 1e6
         for metrics in schedule_metrics(run.time, run.angle, run.duty, schedule):
-            cost += metrics.settling_time / limit if metrics.settled else 10.0
-            for item in ('overshoot', 'error', 'settling', 'duty'):
-                bound = getattr(template, item)
-                if bound is not None:
-                    excess = metrics.value(item) / (margin * bound if item != 'duty' else bound) - 1.0
-                    cost += 20.0 * max(0.0, excess) ** 2
+            cost += _step_cost(metrics, template, margin)
     cost += 20.0 * max(0.0, duty_noise(gains, angle_sigma, sample_time) / DUTY_NOISE_LIMIT - 1.0) ** 2
     return cost
 
