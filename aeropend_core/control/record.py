@@ -269,14 +269,24 @@ def _bag_information(path: Path) -> dict:
     return info if isinstance(info, dict) else {}
 
 
+def _safe_yaml(text: str, where: str):
+    """YAML text carried in a bag, within the project's limits (size, depth, aliases); AeropendError or
+    yaml.YAMLError when it cannot be read."""
+    import yaml
+
+    from aeropend_core.io.inputs import check_yaml_text
+    check_yaml_text(text, where)
+    return yaml.safe_load(text)
+
+
 def _config(data: bytes) -> dict | None:
     """A configuration message (std_msgs/String CDR: 4 bytes header, u32 length, text with its NUL) as a dict."""
     import yaml
     try:
         (length,) = struct.unpack_from('<I', data, 4)
         text = data[8:8 + length].rstrip(b'\x00').decode('utf-8')
-        config = yaml.safe_load(text)
-    except (struct.error, UnicodeDecodeError, yaml.YAMLError):
+        config = _safe_yaml(text, 'a controller configuration message')
+    except (struct.error, UnicodeDecodeError, yaml.YAMLError, AeropendError):
         return None
     return config if isinstance(config, dict) else None
 
@@ -286,7 +296,7 @@ def _controller(metadata: dict[str, str], configs: list[dict], path: Path) -> Co
     text = metadata.get('aeropend.controller_yaml')
     if text:
         try:
-            return Controller.from_dict(yaml.safe_load(text), f'the controller in {path}')
+            return Controller.from_dict(_safe_yaml(text, f'the controller in {path}'), f'the controller in {path}')
         except (yaml.YAMLError, AeropendError):
             pass
     for config in reversed(configs):                # the gains alone (no model): the last configuration's
@@ -306,7 +316,8 @@ def _schedule(metadata: dict[str, str], configs: list[dict], path: Path) -> Refe
     text = metadata.get('aeropend.reference_yaml')
     if text:
         try:
-            return ReferenceSchedule.from_mapping(yaml.safe_load(text), f'the reference schedule in {path}')
+            return ReferenceSchedule.from_mapping(_safe_yaml(text, f'the schedule in {path}'),
+                                                  f'the reference schedule in {path}')
         except (yaml.YAMLError, AeropendError):
             pass
     for config in reversed(configs):
