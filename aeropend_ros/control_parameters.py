@@ -30,6 +30,12 @@ GAIN_HELP = {
     "model's static feedforward duty [-]", 'angle_min': 'safety trip below this measured angle [rad]',
     'angle_max': 'safety trip above this measured angle [rad]'}
 
+#: The range of each numeric gain parameter (what rclpy enforces; PidGains checks their relations).
+GAIN_RANGES = {'p': (0.0, 100.0), 'i': (0.0, 1000.0), 'd': (0.0, 100.0), 'derivative_filter_time': (0.0, 10.0),
+               'i_clamp_min': (-1.0, 1.0), 'i_clamp_max': (-1.0, 1.0), 'u_clamp_min': (0.0, 1.0),
+               'u_clamp_max': (0.0, 1.0), 'tracking_time_constant': (0.0, 100.0), 'feedforward_gain': (0.0, 2.0),
+               'angle_min': (-math.pi, math.pi), 'angle_max': (-math.pi, math.pi)}
+
 
 def gain_problems(values: dict) -> list[str]:
     """What is wrong with a set of gain values (:meth:`PidGains.problems`), one sentence each."""

@@ -76,7 +76,7 @@ from aeropend_core.rig.link_checks import CheckedSample, FrameChecker
 from aeropend_core.rig.sample_clock import SampleClock
 from aeropend_ros import topics
 from aeropend_ros.bridge_control import BridgeControl
-from aeropend_ros.control_parameters import (CONTROL_MODES, DEFAULT_GAINS, GAIN_HELP, GAIN_NAMES,
+from aeropend_ros.control_parameters import (CONTROL_MODES, DEFAULT_GAINS, GAIN_HELP, GAIN_NAMES, GAIN_RANGES,
                                             NUMERIC_GAIN_NAMES, gain_problems)
 
 #: Parameters whose change rebuilds the counts -> SI conversion.
@@ -286,7 +286,8 @@ class SerialBridgeNode(BridgeControl, Node):
                        'law (and releases a trip)', choices=CONTROL_MODES)
         values = {}
         for name in NUMERIC_GAIN_NAMES:
-            values[name] = declare(self, name, float(DEFAULT_GAINS[name]), GAIN_HELP[name])
+            values[name] = declare(self, name, float(DEFAULT_GAINS[name]), GAIN_HELP[name],
+                                   low=GAIN_RANGES[name][0], high=GAIN_RANGES[name][1])
         values['antiwindup'] = declare(self, 'antiwindup', str(DEFAULT_GAINS['antiwindup']), GAIN_HELP['antiwindup'],
                                        choices=tuple(ANTIWINDUP))
         problems = gain_problems(values)

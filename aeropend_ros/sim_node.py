@@ -63,7 +63,7 @@ from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME
 from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import RigSimulator
 from aeropend_ros import topics
-from aeropend_ros.control_parameters import (CONTROL_MODES, DEFAULT_GAINS, GAIN_HELP, GAIN_NAMES,
+from aeropend_ros.control_parameters import (CONTROL_MODES, DEFAULT_GAINS, GAIN_HELP, GAIN_NAMES, GAIN_RANGES,
                                             NUMERIC_GAIN_NAMES, checked_reference, gain_problems)
 
 #: Samples simulated and published at most per timer tick when catching up (keeps the executor responsive).
@@ -243,7 +243,7 @@ class SimNode(Node):
         values = {}
         for name in NUMERIC_GAIN_NAMES:
             values[name] = declare(self, name, float(getattr(self, 'gain_defaults', DEFAULT_GAINS)[name]),
-                                   GAIN_HELP[name])
+                                   GAIN_HELP[name], low=GAIN_RANGES[name][0], high=GAIN_RANGES[name][1])
         values['antiwindup'] = declare(self, 'antiwindup', str(getattr(self, 'gain_defaults', DEFAULT_GAINS)[
             'antiwindup']), GAIN_HELP['antiwindup'], choices=tuple(ANTIWINDUP))
         problems = gain_problems(values)
