@@ -12,10 +12,12 @@ so each model is simulated *in closed loop* from the logged reference and compar
    effect the compiled loop runs, by least squares on the first ``TRAIN_SHARE`` of the record; scored on the rest
    (held-out RMS error of the angle, the error beyond the measurement noise).
 3. **Evidence**: an effect is named when it is the best held-out candidate, its BIC gain on the training part is
-   decisive (< ``-10`` with the sample count divided by the residual's correlation length) and it removes at least
-   half of the held-out error beyond the noise. Effects that give the same closed loop within ``TIE`` of that error
-   are said to be confounded, with the record that would separate them (in closed loop a thrust lag and the
-   sensor's filter give the same loop gain: the current, or an open-loop segment, separates them).
+   decisive (< ``-10`` with the sample count divided by the residual's correlation length; or any gain with every
+   parameter of the effect ``SIGNIFICANT`` sigmas from zero: a limit cycle leaves few effective samples) and it
+   removes at least half of the held-out error beyond the noise. Effects that give the same closed loop within
+   ``TIE`` of that error are said to be confounded, with the record that would separate them (in closed loop a
+   thrust lag and the sensor's filter give the same loop gain: the current, or an open-loop segment, separates
+   them).
 
 The ± of each parameter is the local least-squares standard error, inflated by the residual's correlation length.
 """
@@ -305,6 +307,17 @@ class _Problem:
         return LoopFit(chosen, parameters, values, sigmas, rss, test_rms, beyond, len(names))
 
 
+#: Sigmas from zero every parameter of an effect must be for a BIC gain short of decisive to count.
+SIGNIFICANT = 4.0
+
+
+def _significant(fit: LoopFit, add: Sequence[str]) -> bool:
+    names = [parameter.name for effect in set(fit.effects) - set(add) for parameter in get_effect(effect).parameters]
+    sigmas = [fit.sigmas.get(name, math.nan) for name in names]
+    return bool(names) and all(math.isfinite(sigma) and sigma > 0 and abs(fit.values[name]) >= SIGNIFICANT * sigma
+                               for name, sigma in zip(names, sigmas))
+
+
 def _starts(starts, effect_slots, n_free, lower, upper, typical):
     """The start, then for each effect parameter starts at its typical size and at twice it: the closed loop's
     cost has a basin per oscillation mode (a lag, a filter) and is flat around a threshold or a friction level
@@ -358,7 +371,9 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
     verdict = 'nothing_missing' if base.beyond_noise <= 0.5 * noise else 'unexplained'
     if fits and base.beyond_noise > 0:
         best = fits[0]
-        decisive = best.delta_bic < DECISIVE_BIC
+        # Decisive: the BIC gain, or (a limit cycle's residual is correlated for long: few effective samples) a
+        # gain with every parameter of the effect SIGNIFICANT sigmas from zero.
+        decisive = best.delta_bic < DECISIVE_BIC or (best.delta_bic < 0 and _significant(best, add))
         material = best.beyond_noise <= (1 - MATERIAL_SHARE) * base.beyond_noise
         if decisive and material:
             named = next(iter(set(best.effects) - set(add)))
