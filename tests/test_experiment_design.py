@@ -341,7 +341,9 @@ def test_run_plays_the_experiment_file_and_the_bag_says_so(tmp_path):
     # time (0.5 s wall at 4x) seen beside a benchmark on both cores (one process, one GIL for every node)
     for level, start, stop in ((0.55, 3.0, 9.0), (0.3, 15.0, 21.0)):
         held = time[np.round(samples['duty'], 3) == level] - offset
-        assert start <= held[0] <= start + 3.0 and stop <= held[-1] + SAMPLE_TIME <= stop + 3.0, (level, held)
+        # (never early: at most a stamp's nanosecond rounding, seen as 2.9999997 s for 3.0 beside a CPU hog)
+        assert start - 1e-6 <= held[0] <= start + 3.0 and stop - 1e-6 <= held[-1] + SAMPLE_TIME <= stop + 3.0, \
+            (level, held)
     assert time[-1] - offset - held[-1] >= 1.9          # the rest after the schedule is in the bag
 
 

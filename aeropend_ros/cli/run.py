@@ -476,11 +476,13 @@ def _spin(executor) -> None:
         executor.spin()
     except ExternalShutdownException:
         pass
-    except AttributeError:
+    except Exception as error:  # noqa: BLE001 - filtered below, everything else re-raised
         # rclpy (Jazzy) can fail inside its own task handler when the executor is shut down from another thread
-        # while a callback is being dispatched (its guard condition is already None): the end of the run, not an
-        # error. Anything else, or this while the executor still runs, is raised.
-        if not getattr(executor, '_is_shutdown', False):
+        # while a callback is being dispatched: its guard condition is already None (AttributeError) or already
+        # destroyed (InvalidHandle, "destruction was requested"; seen beside a CPU hog): the end of the run, not an
+        # error. Anything else, or these while the executor still runs, is raised.
+        ending = isinstance(error, AttributeError) or type(error).__name__ == 'InvalidHandle'
+        if not (ending and getattr(executor, '_is_shutdown', False)):
             raise
 
 
