@@ -57,8 +57,16 @@ def claim_rig(namespace: str, lock_folder: str | os.PathLike | None = None):
     try:
         fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
-        handle.seek(0)
-        holder = handle.read().strip() or 'another process'
+        # The holder writes its name just after taking the lock: two runs started together can find it empty for a
+        # moment (seen in a fresh-clone run), so read again for up to a second before saying 'another process'.
+        holder = ''
+        for _ in range(20):
+            handle.seek(0)
+            holder = handle.read().strip()
+            if holder:
+                break
+            time.sleep(0.05)
+        holder = holder or 'another process'
         handle.close()
         raise AeropendError(
             f'{_rig_words(namespace)} on ROS domain {domain} already has a graph on this host ({holder}): a second '
