@@ -37,6 +37,23 @@ GAIN_RANGES = {'p': (0.0, 100.0), 'i': (0.0, 1000.0), 'd': (0.0, 100.0), 'deriva
                'angle_min': (-math.pi, math.pi), 'angle_max': (-math.pi, math.pi)}
 
 
+def gain_refusal(node_name: str, gains: PidGains, changed: dict) -> str | None:
+    """Why a parameter change is refused (the gains it leaves, checked together), or None when it is accepted;
+    `changed` may hold other parameters too (only the gains are judged)."""
+    gains_changed = {name: value for name, value in changed.items() if name in GAIN_NAMES}
+    if not gains_changed:
+        return None
+    problems = gain_problems({**gains.as_dict(), **gains_changed})
+    if not problems:
+        return None
+    return f'{node_name}: controller gains refused: {"; ".join(problems)}; the gains are unchanged'
+
+
+def gains_of(node) -> PidGains:
+    """The node's gain parameters as they are now (after an accepted change)."""
+    return PidGains(**{name: node.get_parameter(name).value for name in GAIN_NAMES})
+
+
 def gain_problems(values: dict) -> list[str]:
     """What is wrong with a set of gain values (:meth:`PidGains.problems`), one sentence each."""
     gains = object.__new__(PidGains)            # unchecked: problems() says what the constructor would refuse

@@ -77,7 +77,7 @@ from aeropend_core.rig.sample_clock import SampleClock
 from aeropend_ros import topics
 from aeropend_ros.bridge_control import BridgeControl
 from aeropend_ros.control_parameters import (CONTROL_MODES, DEFAULT_GAINS, GAIN_HELP, GAIN_NAMES, GAIN_RANGES,
-                                            NUMERIC_GAIN_NAMES, gain_problems)
+                                            NUMERIC_GAIN_NAMES, gain_problems, gain_refusal, gains_of)
 
 #: Parameters whose change rebuilds the counts -> SI conversion.
 CALIBRATION_PARAMETERS = ('current_scale', 'current_offset', 'angle_zero', 'angle_scale', 'voltage_source',
@@ -241,13 +241,8 @@ class SerialBridgeNode(BridgeControl, Node):
         if 'watchdog_timeout' in changed and changed['watchdog_timeout'] <= self.heartbeat_period:
             return SetParametersResult(successful=False, reason=f'watchdog_timeout must exceed heartbeat_period '
                                        f'({self.heartbeat_period} s)')
-        gains = {name: value for name, value in changed.items() if name in GAIN_NAMES}
-        if gains:
-            problems = gain_problems({**self.gains.as_dict(), **gains})
-            if problems:
-                return SetParametersResult(successful=False, reason=f'{self.get_name()}: controller gains refused: '
-                                           f'{"; ".join(problems)}; the gains are unchanged')
-        return SetParametersResult(successful=True)
+        refusal = gain_refusal(self.get_name(), self.gains, changed)
+        return SetParametersResult(successful=refusal is None, reason=refusal or '')
 
     def _apply_parameters(self, parameters) -> None:
         names = {p.name for p in parameters}
@@ -263,7 +258,7 @@ class SerialBridgeNode(BridgeControl, Node):
             self.duty = min(self.duty, float(self.get_parameter('max_duty').value))
             self._send_configuration()
         if names & set(GAIN_NAMES):
-            self.gains = PidGains(**{name: self.get_parameter(name).value for name in GAIN_NAMES})
+            self.gains = gains_of(self)
             self.get_logger().info('controller gains changed: ' + ', '.join(
                 f'{p.name} {p.value}' for p in parameters if p.name in GAIN_NAMES) + '; sending them to the device')
             self._start_upload()

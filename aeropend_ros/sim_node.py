@@ -64,7 +64,8 @@ from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.sim.simulate import RigSimulator
 from aeropend_ros import topics
 from aeropend_ros.control_parameters import (CONTROL_MODES, DEFAULT_GAINS, GAIN_HELP, GAIN_NAMES, GAIN_RANGES,
-                                            NUMERIC_GAIN_NAMES, checked_reference, gain_problems)
+                                            NUMERIC_GAIN_NAMES, checked_reference, gain_problems,
+                                            gain_refusal, gains_of)
 
 #: Samples simulated and published at most per timer tick when catching up (keeps the executor responsive).
 CATCH_UP_LIMIT = 490
@@ -346,21 +347,14 @@ class SimNode(Node):
 
     def _check_control_parameters(self, parameters) -> SetParametersResult:
         """Gains are checked together (PidGains.problems); a refused change names why and changes nothing."""
-        changed = {p.name: p.value for p in parameters if p.name in GAIN_NAMES}
-        if not changed:
-            return SetParametersResult(successful=True)
-        values = {**self.gains.as_dict(), **changed}
-        problems = gain_problems(values)
-        if problems:
-            return SetParametersResult(successful=False, reason=f'{self.get_name()}: controller gains refused: '
-                                       f'{"; ".join(problems)}; the gains are unchanged')
-        return SetParametersResult(successful=True)
+        refusal = gain_refusal(self.get_name(), self.gains, {p.name: p.value for p in parameters})
+        return SetParametersResult(successful=refusal is None, reason=refusal or '')
 
     def _apply_control_parameters(self, parameters) -> None:
         """After a successful set: new gains from the next sample, or the new mode."""
         names = {p.name for p in parameters}
         if names & set(GAIN_NAMES):
-            self.gains = PidGains(**{name: self.get_parameter(name).value for name in GAIN_NAMES})
+            self.gains = gains_of(self)
             self.loop.controller.set_gains(self.gains)
             self.get_logger().info('controller gains changed: ' + ', '.join(
                 f'{p.name} {p.value}' for p in parameters if p.name in GAIN_NAMES))

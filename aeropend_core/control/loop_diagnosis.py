@@ -53,7 +53,7 @@ SEPARATED_BY = {frozenset({'thrust_lag_time', 'measured_lowpass'}):
 SHORTEST_LAG = 0.005
 
 
-def candidates() -> tuple[str, ...]:
+def catalog_candidates() -> tuple[str, ...]:
     """The catalog effects the closed-loop diagnosis tries: every one the compiled loop runs (kernel terms)."""
     return tuple(name for name, effect in CATALOG.items() if effect.compiled and effect.kernel_terms)
 
@@ -349,7 +349,7 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
                             'diagnosis needs at least 10 s (two steps with their holds)')
     reference = np.ascontiguousarray(reference, dtype=float)
     feedforward = np.ascontiguousarray(feedforward, dtype=float)
-    tried = candidates if candidates is not None else globals()['candidates']()
+    tried = candidates if candidates is not None else catalog_candidates()
     for name in add:
         if name not in tried:
             raise AeropendError(f'--add {name}: the closed-loop diagnosis runs the catalog effects '

@@ -7,6 +7,7 @@ nominal Kq and Kw and scales L/J so that the product equals the fitted gain (the
 from __future__ import annotations
 
 import json
+import math
 import os
 from dataclasses import dataclass, field
 
@@ -84,7 +85,6 @@ def model_from_dict(data, source: str) -> ModelSource:
         doubts.append(f'the diagnosed record had {len(data["warnings"])} data warning(s)')
     psnr = 50.0
     if _number(data.get('noise_rms')) and data['noise_rms'] > 0:
-        import math
         psnr = min(80.0, 20.0 * math.log10((math.pi / 2) / float(data['noise_rms'])))
     tolerance = (0.8, 1.25)
     sigma = (data.get('standard_errors') or {}).get('thrust_gain')
