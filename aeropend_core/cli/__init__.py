@@ -119,6 +119,16 @@ SYNONYMS = {'--effect': '--add', '--model-effect': '--add', '--effects': '--add'
             '--quite': '--quiet', '--html': '--report'}
 
 
+_QUANTISED = ('the simulator of `aeropend run` always quantises the angle and the current like the rig\'s 10-bit ADC '
+              '(sim_node parameter quantise); --quantise is an option of `aeropend simulate`')
+#: (verb, option of another verb) -> what it means here: said instead of a guess at a look-alike option
+#: (`run --quantise` was answered "did you mean --quiet?")
+OTHER_VERBS_OPTIONS = {
+    ('run', '--quantise'): _QUANTISED, ('run', '--quantize'): _QUANTISED,
+    ('run', '--no-truth'): '`aeropend run` records no truth columns; --no-truth is an option of `aeropend simulate`',
+}
+
+
 def unrecognized_message(parser: argparse.ArgumentParser, extras: list[str]) -> str:
     """'unrecognized option --efect (did you mean --effect?)' for the first unknown option in `extras` (or the
     unexpected arguments when no option is among them)."""
@@ -131,6 +141,9 @@ def unrecognized_message(parser: argparse.ArgumentParser, extras: list[str]) -> 
         name = extra.split('=', 1)[0]
         if name in known:                 # a known option after an unknown one: keep looking
             continue
+        meaning = OTHER_VERBS_OPTIONS.get((parser.prog.removeprefix('aeropend '), name))
+        if meaning is not None:
+            return f'unrecognized option {name} ({meaning})'
         typo = difflib.get_close_matches(name, known, n=1, cutoff=0.85)        # --efect, --quantize, --durration
         synonym = difflib.get_close_matches(name, list(SYNONYMS), n=1, cutoff=0.85)   # another verb's word
         suggestion = typo[0] if typo else SYNONYMS[synonym[0]] if synonym and SYNONYMS[synonym[0]] in known else None
@@ -213,9 +226,9 @@ def debug_enabled() -> bool:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     parser, args = parse_arguments(argv)
-    if not getattr(args, 'verb', None):
+    if not getattr(args, 'verb', None):     # bare `aeropend`: asking what it does is no mistake (help, status 0)
         parser.print_help()
-        return 2
+        return 0
     prefix = f'aeropend {args.verb}'
     from aeropend_core.blas import single_blas_thread
     with single_blas_thread():

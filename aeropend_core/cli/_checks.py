@@ -4,9 +4,21 @@ from __future__ import annotations
 from aeropend_core.errors import AeropendError
 
 
+#: What a name may end in for an option that writes an HTML page.
+HTML_SUFFIXES = ('.html', '.htm')
+
+
 def check_report_path(path: str | None, option: str = '--report') -> None:
     """An output file can be written to `path` (refused before any work: a folder, a missing folder, a device, a
-    named pipe, a symbolic link loop; see :func:`aeropend_core.io.paths.output_target`)."""
+    named pipe, a symbolic link loop; see :func:`aeropend_core.io.paths.output_target`). ``--report`` writes an
+    HTML page: a name not ending in .html or .htm (``out.png``, ``report.pdf``) is refused, never written as HTML
+    under a picture's name."""
+    if path and option == '--report' and not path.lower().endswith(HTML_SUFFIXES):
+        import os
+        stem = os.path.splitext(path)[0] or 'report'
+        raise AeropendError(f'--report {path}: the report is one self-contained HTML page (its pictures inline), '
+                            f'not a {os.path.splitext(path)[1] or "file without a suffix"}; name it .html '
+                            f'(e.g. --report {stem}.html) and open it in a browser')
     if path:
         from aeropend_core.io.paths import output_target
         output_target(path, option)
@@ -191,3 +203,27 @@ def calibration_fixed(path: str | None, fixed: dict[str, dict[str, float]]) -> t
     what = ('no filter on the angle (delay 0 s)' if chain.angle_filter_delay == 0.0 else
             f'angle filter delay {chain.angle_filter_delay * 1e3:.2f} ms')
     return merged, {'angle_filter': where}, f'{what} fixed from {where}'
+
+
+def save_beside_bag(diagnosis, bag_folder) -> list[str]:
+    """Save a run's diagnosis beside its bag: ``<bag>.diagnosis.json`` (as ``aeropend diagnose --json``, its
+    ``schema`` key ``aeropend.diagnosis/1``) and ``<bag>.report.html`` (as ``--report``), so that what the run
+    printed is kept with the record. Returns the paths written.
+
+    Parameters
+    ----------
+    diagnosis : Diagnosis [-]
+        The finished diagnosis of the bag.
+    bag_folder : str or PathLike [-]
+        The bag folder (``bags/aeropend_20261206_210000``); the files go next to it, not into it (the bag's files
+        and its SHA-256 stay as recorded).
+    """
+    from pathlib import Path
+
+    from aeropend_core.present.json_output import write_json
+    from aeropend_core.present.report import write_report
+    from aeropend_core.present.verdict_text import diagnosis_dict
+    folder = Path(bag_folder)
+    json_path, report_path = (folder.with_name(folder.name + suffix) for suffix in ('.diagnosis.json', '.report.html'))
+    write_json(str(json_path), diagnosis_dict(diagnosis))
+    return [str(json_path), str(write_report(diagnosis, str(report_path), source=str(folder)))]

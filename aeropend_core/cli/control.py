@@ -143,8 +143,6 @@ def _print_design(result, model, predicted_only: bool = False) -> None:
 def _check_page(path: str | None) -> None:
     """Refuse a --report that cannot be an HTML page before any work (as diagnose's --report)."""
     if path:
-        if not path.lower().endswith(('.html', '.htm')):
-            raise AeropendError(f'--report {path}: the report is an HTML page; name it .html (e.g. check.html)')
         from aeropend_core.cli._checks import check_report_path
         check_report_path(path)
 
@@ -223,6 +221,9 @@ def closed_loop_record(path: str):
     target = Path(path)
     if not (target.is_dir() or target.suffix == '.mcap'):
         return None
+    if target.is_dir():
+        from aeropend_core.io.recording import check_bag_folder
+        check_bag_folder(target)            # a folder of bags (`diagnose bags/`): refused with a lead
     from aeropend_core.control.record import load_closed_loop
     try:
         return load_closed_loop(target)

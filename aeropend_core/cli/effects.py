@@ -6,6 +6,7 @@ With --write-discovered FILE.py, write the terms the discovery stage proposed (-
 
 Examples:
   aeropend effects
+  aeropend effects thrust_lag                   # one effect, and how to simulate it and add it to a model
   aeropend effects --write-discovered my_effects.py --term 'thrust*angular_rate'
   aeropend effects --write-discovered my_effects.py --from-json diagnosis.json
 """
@@ -18,6 +19,9 @@ from aeropend_core.model.effects import CATALOG
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('effect', nargs='*', metavar='EFFECT',
+                        help='show only these effects, with the commands that simulate them and add them to the '
+                             'model (default: the whole catalog)')
     from aeropend_core.cli._checks import add_json_argument
     add_json_argument(parser, 'the catalog')
     parser.add_argument('--write-discovered', metavar='FILE.py', default=None,
@@ -79,6 +83,9 @@ def main(args: argparse.Namespace) -> int:
         return _write_discovered(args)
     if args.term or args.from_json:
         raise AeropendError('--term and --from-json go with --write-discovered FILE.py')
+    from aeropend_core.model.effects import check_effect_names
+    names = check_effect_names(args.effect, 'aeropend effects')   # a misspelt name: refused with the closest one
+    shown = {name: CATALOG[name] for name in names} if names else CATALOG
     if args.json:
         from aeropend_core.cli._checks import check_json_target
         from aeropend_core.present.json_output import write_json
@@ -87,12 +94,18 @@ def main(args: argparse.Namespace) -> int:
                                       'equation': e.equation,
                                       'parameters': {p.name: {'unit': p.unit, 'description': p.description,
                                                               'typical': p.typical} for p in e.parameters}}
-                               for name, e in CATALOG.items()})
+                               for name, e in shown.items()})
         if args.json != '-':
             print(f'json: {args.json}')
         return 0
-    for name, effect in CATALOG.items():
+    for name, effect in shown.items():
         parameters = ', '.join(f'{p.name} [{p.unit}] (typ. {p.typical:g})' for p in effect.parameters)
         print(f'{name}\n    {effect.description}\n    enters: {effect.equation}\n    parameters: {parameters}'
-              f'\n    signature: {effect.signature}\n')
+              f'\n    signature: {effect.signature}')
+        if names:          # one asked for by name: what to do with it next
+            hidden = (f'--effect {name}={effect.parameters[0].typical:g}' if len(effect.parameters) == 1 else
+                      ' '.join(f'--effect {name}.{p.name}={p.typical:g}' for p in effect.parameters))
+            print(f'    simulate it (hidden from the model): aeropend simulate -o {name}.csv {hidden}'
+                  f'\n    put it in the model of a diagnosis: aeropend diagnose RECORDING --add {name}')
+        print()
     return 0

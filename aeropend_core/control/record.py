@@ -168,7 +168,8 @@ def load_closed_loop(path: str | os.PathLike) -> ClosedLoopData:
 
     from aeropend_core.io.bag import bag_files, bag_topics, read_messages, read_samples
     path = Path(path)
-    info = _bag_information(path)
+    from aeropend_core.io.bag import bag_information
+    info = bag_information(path)
     listed = [path / Path(name).name for name in info.get('relative_file_paths') or []]
     # one file (the usual bag): read it directly, so that the bag readers do not parse metadata.yaml again each
     files = listed if listed and all(file.is_file() for file in listed) else bag_files(path)
@@ -246,27 +247,6 @@ def _one_topic(topics: dict[str, str], name: str, path: Path) -> str | None:
     if len(found) > 1:
         raise AeropendError(f'{path} holds several rigs\' {name} ({", ".join(found)}); one rig per bag')
     return found[0] if found else None
-
-
-def _bag_information(path: Path) -> dict:
-    """metadata.yaml's ``rosbag2_bagfile_information`` of a bag folder (or of the folder of a ``.mcap`` file), read
-    once with libyaml when present (a big bag's metadata takes pure-Python YAML a tenth of a second); {} when there
-    is none or it is unreadable."""
-    import yaml
-
-    from aeropend_core.io.inputs import YAML_MAX_BYTES, check_yaml_text, read_input_text
-    folder = path if path.is_dir() else path.parent
-    meta = folder / 'metadata.yaml'
-    if not meta.is_file():
-        return {}
-    loader = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
-    try:
-        text = read_input_text(meta, 'metadata file', YAML_MAX_BYTES)
-        check_yaml_text(text, f'metadata file {meta}')
-        info = yaml.load(text, Loader=loader)['rosbag2_bagfile_information']   # noqa: S506 - a safe loader
-    except (yaml.YAMLError, KeyError, TypeError, OSError, AeropendError):
-        return {}
-    return info if isinstance(info, dict) else {}
 
 
 def _safe_yaml(text: str, where: str):

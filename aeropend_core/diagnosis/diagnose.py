@@ -61,6 +61,11 @@ from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the se
     excitation_advice, prepare_stage, rerun_on_corrected_input, separating_experiment, verdict_stage)
 from aeropend_core.io.recording import Recording
 
+#: The ``schema`` key of a diagnosis's JSON (``aeropend diagnose --json``, ``aeropend run --json``'s
+#: ``diagnosis``, the ``.diagnosis.json`` saved beside a bag): its name and version, raised when a key changes
+#: meaning or goes away.
+DIAGNOSIS_SCHEMA = 'aeropend.diagnosis/1'
+
 
 @dataclass
 class Diagnosis:
@@ -157,6 +162,7 @@ class Diagnosis:
         :func:`aeropend_core.present.verdict_text.diagnosis_dict`)."""
         current = self.current
         result = {
+            'schema': DIAGNOSIS_SCHEMA,
             'model_effects': list(self.effects),
             'fit_percent': _finite(current.fit_percent),
             'fit_definition': 'held-out free-run simulation of the angle, NRMSE fit % as MATLAB compare',

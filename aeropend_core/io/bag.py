@@ -52,7 +52,8 @@ from aeropend_core.io.mcap_scan import BagDamage, FileScan, scan_file
 from aeropend_core.io.paths import path_problem
 
 
-__all__ = ['BagDamage', 'BagMessage', 'bag_files', 'bag_topics', 'damage_line', 'read_messages', 'read_samples']
+__all__ = ['BagDamage', 'BagMessage', 'bag_files', 'bag_information', 'bag_topics', 'damage_line', 'read_messages',
+           'read_samples']
 
 
 # --------------------------------------------------------------------------------------------------------------
@@ -208,6 +209,26 @@ def damage_line(damage: BagDamage) -> str:
     """One line for a :class:`~aeropend_core.io.mcap_scan.BagDamage`: what, where, what it cost if known."""
     cost = f' ({damage.messages} messages lost)' if damage.lost and damage.messages is not None else ''
     return f'byte {damage.offset}: {damage.detail}{cost}'
+
+
+def bag_information(path: str | os.PathLike) -> dict:
+    """metadata.yaml's ``rosbag2_bagfile_information`` of a bag folder (or of the folder of a ``.mcap`` file), read
+    once with libyaml when present (a big bag's metadata takes pure-Python YAML a tenth of a second); {} when there
+    is none or it is unreadable."""
+    from aeropend_core.io.inputs import YAML_MAX_BYTES, check_yaml_text, read_input_text
+    path = Path(path)
+    folder = path if path.is_dir() else path.parent
+    meta = folder / 'metadata.yaml'
+    if not meta.is_file():
+        return {}
+    loader = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
+    try:
+        text = read_input_text(meta, 'metadata file', YAML_MAX_BYTES)
+        check_yaml_text(text, f'metadata file {meta}')
+        info = yaml.load(text, Loader=loader)['rosbag2_bagfile_information']   # noqa: S506 - a safe loader
+    except (yaml.YAMLError, KeyError, TypeError, OSError, AeropendError):
+        return {}
+    return info if isinstance(info, dict) else {}
 
 
 def bag_topics(path: str | os.PathLike) -> dict[str, str]:

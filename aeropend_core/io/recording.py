@@ -312,6 +312,8 @@ def load_recording(path: str | Path, sample_time: float | None = SAMPLE_TIME) ->
         raise AeropendError(f'no such file or folder: {path}' if problem == 'does not exist' else f'{path} {problem}')
     from aeropend_core.io.inputs import check_input
     check_input(path, 'the recording', folder=True)     # a FIFO, device or socket would block or never end
+    if path.is_dir():
+        check_bag_folder(path)                          # `diagnose bags/`: a folder of bags is not one bag
     if path.suffix.lower() == '.csv':
         recording = load_csv(path)
     elif path.suffix.lower() == '.mcap' or path.is_dir():
@@ -319,6 +321,35 @@ def load_recording(path: str | Path, sample_time: float | None = SAMPLE_TIME) ->
     else:
         raise AeropendError(f'{path}: unknown recording type {path.suffix!r}; give a .csv (or an MCAP bag)')
     return check_recording(recording, sample_time=sample_time).recording
+
+
+def check_bag_folder(path: str | Path) -> None:
+    """Refuse a folder that is not one bag (no ``.mcap`` file, no ``metadata.yaml``) with a lead: the bags and
+    CSV records it holds, newest first, and the command for the newest (``aeropend diagnose bags/`` said nothing
+    useful before).
+
+    Raises
+    ------
+    AeropendError
+        `path` holds no bag of its own (exit status 2).
+    """
+    path = Path(path)
+    if (path / 'metadata.yaml').is_file() or any(path.glob('*.mcap')):
+        return
+    try:
+        inside = list(path.iterdir())
+    except OSError:
+        return                                          # unreadable: the bag reader says why
+    bags = [p for p in inside if p.is_dir() and ((p / 'metadata.yaml').is_file() or any(p.glob('*.mcap')))]
+    records = sorted(bags + [p for p in inside if p.suffix.lower() in ('.csv', '.mcap') and p.is_file()],
+                     key=lambda p: p.stat().st_mtime, reverse=True)
+    if not records:
+        raise AeropendError(f'{path} is a folder but not a bag (no .mcap file, no metadata.yaml) and holds no bag or '
+                            'CSV record; give a .csv, an .mcap file or a bag folder (`aeropend run` records them '
+                            'under bags/)')
+    listed = ', '.join(str(p) for p in records[:6]) + (f' and {len(records) - 6} more' if len(records) > 6 else '')
+    raise AeropendError(f'{path} is a folder of {len(records)} records, not one bag; give one of them, e.g. the '
+                        f'newest, {records[0]} (newest first: {listed})')
 
 
 def _load_bag(path: Path) -> Recording:
@@ -349,7 +380,7 @@ def bag_findings(path: str | Path, damage: list) -> tuple:
     """
     from aeropend_core.io import bag_lock
     from aeropend_core.signals.quality import Finding
-    findings = []
+    findings = list(schedule_findings(path))
     writer = bag_lock.live_writer(path)
     live = writer is not None
     for item in damage:
@@ -371,6 +402,27 @@ def bag_findings(path: str | Path, damage: list) -> tuple:
                      item.t_stop if item.t_stop is not None else item.t_start)
         findings.append(Finding(code, severity, f'{path}: {item.line()}{advice}', where, item.samples or 0))
     return tuple(findings)
+
+
+def schedule_findings(path: str | Path) -> tuple:
+    """A ``schedule_incomplete`` warning for a bag whose run did not play its schedule whole (metadata.yaml's
+    ``custom_data`` says ``aeropend.schedule_complete: 'false'``: the run was stopped, the rig or simulator went
+    quiet, the excitation never finished), so that every later diagnosis of it says so (text, JSON, report).
+    Empty for a whole run and for a bag that states nothing (recorded by another program)."""
+    from aeropend_core.io.bag import bag_information
+    from aeropend_core.signals.quality import Finding
+    custom = bag_information(Path(path)).get('custom_data') or {}
+    if not isinstance(custom, dict) or str(custom.get('aeropend.schedule_complete', '')).lower() != 'false':
+        return ()
+    planned = custom.get('aeropend.schedule_seconds')
+    try:
+        planned_text = f' of its {float(planned):.1f} s schedule' if planned is not None else ' of its schedule'
+    except ValueError:
+        planned_text = ' of its schedule'
+    return (Finding('schedule_incomplete', 'warning', f'{path}: the run that recorded this bag was cut short: it '
+                    f'did not play the whole{planned_text} (metadata.yaml: aeropend.schedule_complete false); '
+                    'the record excites the rig less than planned, so an effect the missing part would have shown '
+                    'can go unseen. Record a whole run (aeropend run) to be sure'),)
 
 
 def write_csv(path: str, columns: dict[str, np.ndarray]) -> None:

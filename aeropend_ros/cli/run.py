@@ -23,7 +23,7 @@ one and the --rig / ROS_DOMAIN_ID to use (two graphs on one rig would each drive
 lasts it keeps looking, every second: another graph that discovery shows later stops it with the same refusal.
 
 ROS_AUTOMATIC_DISCOVERY_RANGE is set to LOCALHOST for this demo unless you set it yourself (SUBNET to reach the
-other machines of a lab; README "Many rigs on one network").
+other machines of a lab; docs/graph.md#many-rigs-on-one-network).
 """
 from __future__ import annotations
 
@@ -749,11 +749,15 @@ def _diagnose(bag_folder, memory, args, interrupted: bool) -> int:
         return 130 if interrupted else 1
     from aeropend_core.present.summary import format_summary
     print(format_summary(diagnosis))
+    if bag_folder is not None:                   # kept with the record: what was printed, and its report
+        from aeropend_core.cli._checks import save_beside_bag
+        print('saved beside the bag: ' + ', '.join(save_beside_bag(diagnosis, bag_folder)))
     if args.report:
         from aeropend_core.present.report import write_report
         print(f'report: {write_report(diagnosis, args.report, source=str(bag_folder or "samples in memory"))}')
     if args.json:
-        _write_json(args.json, {'recording': str(bag_folder) if bag_folder is not None else None,
+        _write_json(args.json, {'schema': 'aeropend.run/1',
+                                'recording': str(bag_folder) if bag_folder is not None else None,
                                 'samples': len(recording), 'interrupted': interrupted,
                                 'diagnosis': diagnosis.to_dict(),
                                 **({'closed_loop_steps': args.closed_loop_steps}
@@ -764,15 +768,9 @@ def _diagnose(bag_folder, memory, args, interrupted: bool) -> int:
 
 def _write_json(target: str, value: dict) -> None:
     """One JSON object (NaN/inf as null) to standard output (``-``) or a file."""
-    import json
-
-    from aeropend_core.present.json_output import finite_json
-    text = json.dumps(finite_json(value), indent=2, allow_nan=False)
-    if target == '-':
-        sys.__stdout__.write(text + '\n')
-        sys.__stdout__.flush()
-    else:
-        Path(target).write_text(text + '\n', encoding='utf-8')
+    from aeropend_core.present.json_output import write_json
+    write_json(target, value, stream=sys.__stdout__)
+    if target != '-':
         print(f'json: {target}')
 
 
