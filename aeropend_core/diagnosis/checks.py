@@ -75,6 +75,9 @@ def check_diagnosis(diagnosis):
             warnings.setdefault(name, text)
     diagnosis.parameter_warnings = warnings
     diagnosis.independent = independent
+    diagnosis.parameter_doubts = scale_doubts(diagnosis)
+    for name, text in diagnosis.parameter_doubts.items():
+        diagnosis.notes.append(f'{name} {text}.')
     if warnings:
         diagnosis.verdict = DOES_NOT_FIT
         diagnosis.missing_effect = None
@@ -89,3 +92,18 @@ def check_diagnosis(diagnosis):
     if doubt is not None:
         diagnosis.notes.insert(0, doubt + '.')
     return diagnosis
+
+
+def scale_doubts(diagnosis) -> dict[str, str]:
+    """Doubts on numbers the fit cannot check itself (name -> text, said beside the number and in a note): the
+    armature resistance of the motor observer against the rig's stated value and the observer's own consistency
+    (:func:`aeropend_core.identify.plausibility.resistance_doubt`), which catches a current in the wrong scale."""
+    from aeropend_core.identify.plausibility import current_scale_ratio, resistance_doubt
+    prep = diagnosis.prepared
+    motor = getattr(prep, 'motor', None)
+    if motor is None or 'armature_resistance' in diagnosis.fixed:
+        return {}
+    value = motor.parameters.get('motor_resistance', float('nan'))
+    sigma = motor.standard_errors.get('motor_resistance', float('nan'))
+    text = resistance_doubt(value, sigma, current_scale_ratio(motor.parameters))
+    return {'armature_resistance': text} if text else {}

@@ -95,6 +95,9 @@ class Diagnosis:
     fixed_from: dict[str, str] = field(default_factory=dict)
     #: Parameters that fail a physical check -> the warning (:mod:`aeropend_core.diagnosis.checks`).
     parameter_warnings: dict[str, str] = field(default_factory=dict)
+    #: Doubts on parameters the fit cannot check itself -> the text (a current's scale on Ra:
+    #: :func:`aeropend_core.diagnosis.checks.scale_doubts`); said beside the number, not a failed check.
+    parameter_doubts: dict[str, str] = field(default_factory=dict)
     independent: object = None      #: the free-oscillation estimate (aeropend_core.identify.plausibility)
     #: The discovery stage's result (:class:`aeropend_core.diagnosis.discovery.Discovery`; None when it did not run).
     discovery: object = None
@@ -172,7 +175,7 @@ class Diagnosis:
             'prediction_horizon': current.evaluation.prediction_horizon,
             'parameters': self.reported_parameters(current),
             'standard_errors': self.reported_errors(current), 'parameter_warnings': self.parameter_warnings,
-            'parameters_doubt': misfit_doubt(self),
+            'parameters_doubt': misfit_doubt(self), 'parameter_doubts': self.parameter_doubts,
             'model': 'reduced' if self.prepared is not None and self.prepared.reduced else 'full',
             'not_identifiable': _not_identifiable(self.prepared),
             'motor_map': getattr(self.prepared, 'motor_map', None),

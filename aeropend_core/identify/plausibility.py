@@ -224,3 +224,84 @@ def verdict_line(warnings: Mapping[str, str]) -> str:
     return (f'THE MODEL DOES NOT FIT THIS DATA: {", ".join(warnings)} '
             f'{"fails" if len(warnings) == 1 else "fail"} a physical check (see the warnings next to '
             f'{"it" if len(warnings) == 1 else "them"}); do not use these numbers')
+
+
+#: An armature resistance within this factor of the rig's stated one raises no doubt (a motor of the same kind).
+RESISTANCE_RATIO = 1.5
+#: ... nor one within this many combined standard errors of it.
+RESISTANCE_SIGMAS = 4.0
+
+
+def current_scale_ratio(motor_parameters: Mapping[str, float], rig=None) -> float:
+    """How many times too small the recorded current reads, by the motor observer's own consistency [-].
+
+    The observer fits ``de/dt = p1 (Va - e) - ...`` and ``Ia = (Va - e) / Rm`` (:mod:`aeropend_core.signals.motor`)
+    with ``p1 = Kw Kt / (Jm Rm)``. The back-EMF's dynamics (p1) do not depend on the current's scale; Rm does: a
+    current recorded k times too small gives Rm k times too large and the same p1. So ``p1 Rm Jm / (Kw Kt)`` is 1
+    for a current in amperes on the stated motor, and k for one off by k, whatever the true Ra.
+
+    Parameters
+    ----------
+    motor_parameters : mapping of str -> float [SI]
+        The observer's ``motor_drive_rate`` [1/s] and ``motor_resistance`` [ohm].
+    rig : RigParameters, optional
+        The motor's stated Kw [V s/rad], Kt [N m/A], Jm [kg m^2] (default: the paper's rig).
+
+    Returns
+    -------
+    float
+        The ratio (nan when the observer gives none).
+    """
+    from aeropend_core.model.parameters import DEFAULT_PARAMETERS
+    rig = rig or DEFAULT_PARAMETERS
+    drive, resistance = motor_parameters.get('motor_drive_rate'), motor_parameters.get('motor_resistance')
+    if drive is None or resistance is None or not (math.isfinite(drive) and math.isfinite(resistance)):
+        return math.nan
+    return drive * resistance * rig.motor_inertia / (rig.back_emf_constant * rig.torque_constant)
+
+
+def resistance_doubt(value: float, sigma: float, scale_ratio: float = math.nan, stated: float | None = None,
+                     stated_sigma: float | None = None, source: str = "the paper's rig, locked-rotor test") -> str:
+    """The doubt on an armature resistance far from the rig's stated one ('' when none), to print beside it.
+
+    A current recorded in the wrong unit or scale (ADC counts declared as mA, a sense resistor or amplifier gain
+    mis-set) scales the observer's resistance by the same factor and fits Ia as well: Ra = 3.18 ohm for a truth of
+    1.08 with counts read as mA. Neither the fit nor its ± can show it; the stated value and the observer's
+    consistency (:func:`current_scale_ratio`) can.
+
+    Parameters
+    ----------
+    value, sigma : float [ohm]
+        The observer's Ra and its 1σ.
+    scale_ratio : float [-]
+        :func:`current_scale_ratio` (nan: not known).
+    stated, stated_sigma : float, optional [ohm]
+        The rig's stated Ra and its 1σ (default: the paper's 1.08 ± 0.04 ohm).
+    source : str [-]
+        Where the stated value comes from, for the text.
+
+    Returns
+    -------
+    str
+        One sentence without a final full stop, or '' when the value raises no doubt.
+    """
+    from aeropend_core.model.parameters import DEFAULT_PARAMETERS
+    stated = DEFAULT_PARAMETERS.armature_resistance if stated is None else stated
+    stated_sigma = 0.04 if stated_sigma is None else stated_sigma
+    if not (math.isfinite(value) and value > 0 and stated > 0):
+        return ''
+    ratio = value / stated
+    combined = math.hypot(sigma if math.isfinite(sigma) else 0.0, stated_sigma)
+    if 1 / RESISTANCE_RATIO <= ratio <= RESISTANCE_RATIO or abs(value - stated) <= RESISTANCE_SIGMAS * combined:
+        return ''
+    text = (f'DOUBT: {ratio:.3g} x the stated {stated:.3g} ohm ({source}); a recorded current {1 / ratio:.3g} x '
+            'the true one (ADC counts declared as mA, a sense resistor or gain mis-set) gives exactly this and fits '
+            'Ia as well, so neither the fit nor its +- can show it')
+    if math.isfinite(scale_ratio) and abs(math.log(scale_ratio / ratio)) < math.log(RESISTANCE_RATIO):
+        text += (f'; the motor observer agrees: its drive rate times Ra puts the recorded current at '
+                 f'{1 / scale_ratio:.3g} x the true one for the stated motor')
+    elif math.isfinite(scale_ratio) and abs(math.log(scale_ratio)) < math.log(RESISTANCE_RATIO):
+        text += (f'; the motor observer finds the current\'s scale right ({scale_ratio:.2f} x), so this motor\'s '
+                 'resistance may really differ from the stated one')
+    return text + ('; check the current\'s scale (the log profile\'s scale/unit, `aeropend calibrate`) before '
+                   'using this Ra')

@@ -192,14 +192,17 @@ def load_csv(path: str | Path) -> Recording:
                 f'({written[seen[name]]!r}, {written[index]!r}) are both named {name!r}; which one holds the data '
                 'cannot be told: delete or rename one', count=2), findings)
         seen[name] = index
+    from aeropend_core.io.profile_guess import foreign_log_error, looks_foreign
     if len(header) == 1 and any(sep in header[0] for sep in ';\t'):
-        raise AeropendError(f'{path}: the header {header[0]!r} is not comma-separated; write the fields separated '
-                            'by commas')
+        separator = 'semicolons' if ';' in header[0] else 'tabs'
+        raise foreign_log_error(path, f'its header {header[0]!r} is separated by {separator}, not commas')
     if ragged is not None:
         row_number, fields = ragged
         raise AeropendError(f'{path}: data row {row_number} has {fields} fields, the header has '
                             f'{len(header)}; is the file cut short or edited by hand?')
     if non_numeric is not None:
+        if looks_foreign(path):         # a PC date-time under another rig's header: not a typo in our format
+            raise foreign_log_error(path, f'non-numeric value ({non_numeric}) under the header {", ".join(written)}')
         raise AeropendError(f'{path}: non-numeric value ({non_numeric}); expected numbers under the header') from None
     if table.size == 0:
         raise AeropendError(f'{path} has a header but no samples')
@@ -207,6 +210,10 @@ def load_csv(path: str | Path) -> Recording:
         raise AeropendError(f'{path}: rows have a different number of fields than the header ({len(header)})')
     for index, factor in scales.items():
         table[:, index] *= factor
+    lacking = [name for name in REQUIRED_COLUMNS if name not in header]
+    if lacking or not any(name in header for name in INPUT_COLUMNS):
+        raise foreign_log_error(path, f'no column named {" or ".join(lacking or INPUT_COLUMNS)}; its columns: '
+                                f'{", ".join(written)}')
     return from_columns({name: table[:, i] for i, name in enumerate(header)}, source=str(path),
                         findings=tuple(findings))
 

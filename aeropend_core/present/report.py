@@ -255,6 +255,7 @@ def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
     from aeropend_core.diagnosis.doubts import rate_doubts
     prep = diagnosis.prepared
     doubts = rate_doubts(getattr(prep, 'sample_time', None), getattr(prep, 'reduced', False))
+    doubts.update(getattr(diagnosis, 'parameter_doubts', {}))         # e.g. Ra against a current's scale
     reported = diagnosis.reported_parameters(comparison)
     if motor is not None:            # the observer's R is shown from the comparison's row below
         reported = {**reported, 'armature_resistance': comparison.parameters.get('armature_resistance', 0.0)}
@@ -274,6 +275,8 @@ def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
             meaning = ('the motor observer\'s back-EMF is the thrust input, so R is 0 in the pendulum model; '
                        'shown: the armature resistance the observer estimated')
             relative = float('nan')
+            if name in doubts:                          # a current's scale: said beside the observer's value
+                shown += f' <b style="color:#b00">{_esc(doubts[name])}</b>'
         meaning = _observer_meaning(name, motor, meaning)
         rows.append(f'<tr><td><code>{_esc(name)}</code></td><td class="num">{shown}</td><td>{_esc(unit)}</td>'
                     f'<td class="num">{_num(relative, 1, suffix="&nbsp;%")}</td><td>{_esc(meaning)}</td></tr>')

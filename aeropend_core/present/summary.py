@@ -38,6 +38,7 @@ def format_summary(diagnosis: Diagnosis) -> str:
     warnings = diagnosis.parameter_warnings
     from aeropend_core.diagnosis.doubts import rate_doubts
     doubts = rate_doubts(getattr(prep, 'sample_time', None), getattr(prep, 'reduced', False))
+    doubts.update(getattr(diagnosis, 'parameter_doubts', {}))         # e.g. Ra against a current's scale
     for name, value in diagnosis.reported_parameters(current).items():
         error = errors.get(name, float('nan'))
         found = find_parameter(name)
