@@ -103,7 +103,7 @@ def steady_allocator() -> bool:
     the full graph at 490 Hz, more with larger chunks, about a third with 64 KiB chunks; replaying a recorded
     full-graph bag to a recorder reproduces it per message, not per second, and malloc_trim does not give it
     back). A fixed threshold keeps those buffers in mmap; one arena keeps the writer thread's blocks with the
-    others. Measured in bench/load_test.py (README, "Load test"). No effect (returns False) outside glibc.
+    others. Measured in bench/load_test.py (bench/results/README.md#load-test). No effect (returns False) outside glibc.
     """
     try:
         libc = ctypes.CDLL(None)
