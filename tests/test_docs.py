@@ -207,7 +207,7 @@ def test_every_command_in_the_docs_runs(tmp_path, script, where):
     env['PATH'] = os.pathsep.join([str(venv_bin), env.get('PATH', '')])       # as after source .venv/bin/activate
     env['PYTHONPATH'] = os.pathsep.join([str(ROOT), env.get('PYTHONPATH', '')])
     env['MPLBACKEND'] = 'Agg'
-    for name in ('config', 'scripts', 'launch', 'firmware', 'bench', 'setup.py', 'requirements.txt'):
+    for name in ('config', 'scripts', 'launch', 'firmware', 'bench', 'samples', 'setup.py', 'requirements.txt'):
         (tmp_path / name).symlink_to(ROOT / name)               # the repository's files, read where the docs say
     result = subprocess.run(['bash', '-euo', 'pipefail', '-c', script], cwd=tmp_path, env=env, capture_output=True,
                             text=True, timeout=900, check=False)
