@@ -68,6 +68,13 @@ def test_run_records_identifies_and_diagnoses(tmp_path):
     import json
     summary = json.loads((tmp_path / 'run.json').read_text())
     assert summary['samples'] == 14700 and summary['diagnosis']['missing_effect'] == 'angle_offset'
+    assert summary['schema'] == 'aeropend.run/1' and summary['diagnosis']['schema'] == 'aeropend.diagnosis/1'
+    # the diagnosis is also kept beside the bag (JSON and report), the bag folder left as recorded
+    saved = json.loads((tmp_path / f'{folders[0].name}.diagnosis.json').read_text())
+    assert saved['missing_effect'] == 'angle_offset' and saved['schema'] == 'aeropend.diagnosis/1'
+    assert (tmp_path / f'{folders[0].name}.report.html').stat().st_size > 10_000
+    assert f'saved beside the bag: {folders[0]}.diagnosis.json' in output, output
+    assert 'schedule_incomplete' not in output              # a whole run is not called cut short
     assert (tmp_path / 'r.html').stat().st_size > 10_000
     assert 'Next: add it and watch the error fall: aeropend diagnose' in output and '--add angle_offset' in output
 
@@ -177,6 +184,9 @@ def test_run_interrupted_finalises_the_bag(tmp_path, started_with):
     assert (folder / 'metadata.yaml').exists()
     samples = read_samples(folder, on_incomplete='raise')
     assert samples['sequence'].size > 10 * 490 and np.all(np.diff(samples['sequence']) == 1)
+    # cut short: every later diagnosis of this bag says so (a finding of the reader, as the data-quality gate's)
+    from aeropend_core.io.recording import schedule_findings
+    assert [f.code for f in schedule_findings(folder)] == ['schedule_incomplete']
     # The last duty command recorded is 0: the excitation was stopped before the graph went away.
     import struct
     from aeropend_core.io.bag import read_messages

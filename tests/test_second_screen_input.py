@@ -64,6 +64,13 @@ def test_another_rigs_csv_is_recognised_and_the_error_names_import_with_a_guesse
     assert 'angle' in profile['columns']
 
 
+def test_a_text_log_not_named_csv_is_recognised_too(tmp_path, capsys):
+    log = tmp_path / 'rig_log.txt'
+    log.write_text(FOREIGN['datetime'][0])
+    status, _, err = call(capsys, 'identify', str(log))
+    assert status == 2 and "another rig's log" in err and '--guess-profile' in err, err
+
+
 def test_guessed_profile_of_a_generated_log_matches_the_generators_own(tmp_path):
     """A ;-separated log with millis(), duty in %, angle in degrees: delimiter, clock and units guessed as written."""
     from aeropend_core.io.profile_guess import guess_profile

@@ -74,16 +74,17 @@ def _datetime_format(value: str) -> str | None:
 
 
 def read_head(path: str | Path, lines: int = GUESS_LINES) -> list[str]:
-    """The first non-blank, non-comment lines of a text file (at most `lines`); [] when it cannot be read."""
+    """The first non-blank, non-comment lines of a text file (at most `lines`); [] when it cannot be read or is
+    not UTF-8 text."""
     head: list[str] = []
     try:
-        with open(path, encoding='utf-8-sig', errors='replace') as handle:
+        with open(path, encoding='utf-8-sig') as handle:
             for line in handle:
                 if line.strip() and not line.lstrip().startswith('#'):
                     head.append(line.rstrip('\r\n'))
                     if len(head) >= lines:
                         break
-    except OSError:
+    except (OSError, UnicodeDecodeError):
         return []
     return head
 

@@ -326,6 +326,10 @@ def load_recording(path: str | Path, sample_time: float | None = SAMPLE_TIME) ->
     elif path.suffix.lower() == '.mcap' or path.is_dir():
         recording = _load_bag(path)
     else:
+        from aeropend_core.io.profile_guess import foreign_log_error, read_head
+        head = read_head(path, 2)
+        if len(head) == 2 and any(sep in head[0] for sep in ',;\t'):     # a text log with a header: another rig's
+            raise foreign_log_error(path, f'a {path.suffix or "suffix-less"} file, where our records are .csv or MCAP')
         raise AeropendError(f'{path}: unknown recording type {path.suffix!r}; give a .csv (or an MCAP bag)')
     return check_recording(recording, sample_time=sample_time).recording
 
