@@ -17,20 +17,10 @@ import numpy as np
 import pytest
 import yaml
 
-from aeropend_core.cli import main as cli
 from aeropend_core.errors import AeropendError
+from tests.test_cli_strict import call
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def call(capsys, *argv: str) -> tuple[int, str, str]:
-    """(exit status, stdout, stderr) of `aeropend ARGV` in-process."""
-    try:
-        status = cli(list(argv))
-    except SystemExit as stop:
-        status = stop.code if isinstance(stop.code, int) else 1
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err
 
 
 # ------------------------------------------------------------------------------------------------------------------

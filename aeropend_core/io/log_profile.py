@@ -179,10 +179,8 @@ def _read_table(path: Path, delimiter: str | None) -> tuple[list[str], list[list
     if len(lines) < 2:
         raise AeropendError(f'{path}: no header and data rows')
     if delimiter is None:
-        try:
-            delimiter = csv.Sniffer().sniff(lines[0], delimiters=',;\t ').delimiter
-        except csv.Error:
-            delimiter = ','
+        from aeropend_core.io.profile_guess import sniff_delimiter
+        delimiter = sniff_delimiter(lines[0])
     rows = list(csv.reader(lines, delimiter=delimiter))
     header = [h.strip() for h in rows[0]]
     width = len(header)

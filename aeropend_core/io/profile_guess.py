@@ -89,6 +89,14 @@ def read_head(path: str | Path, lines: int = GUESS_LINES) -> list[str]:
     return head
 
 
+def sniff_delimiter(header_line: str) -> str:
+    """The field delimiter of a log's header line: ',', ';', a tab or a space (',' when none stands out)."""
+    try:
+        return csv.Sniffer().sniff(header_line, delimiters=',;\t ').delimiter
+    except csv.Error:
+        return ','
+
+
 def guess_profile(path: str | Path) -> tuple[dict, list[str]]:
     """A log profile guessed from a log's header and first rows, and one sentence per guess to check.
 
@@ -113,10 +121,7 @@ def guess_profile(path: str | Path) -> tuple[dict, list[str]]:
     head = read_head(path)
     if len(head) < 2:
         raise AeropendError(f'{path}: no header and data rows to guess a profile from')
-    try:
-        delimiter = csv.Sniffer().sniff(head[0], delimiters=',;\t ').delimiter
-    except csv.Error:
-        delimiter = ','
+    delimiter = sniff_delimiter(head[0])
     rows = list(csv.reader(head, delimiter=delimiter))
     header = [h.strip() for h in rows[0]]
     body = [[cell.strip() for cell in row] for row in rows[1:] if len(row) == len(header)]
@@ -257,4 +262,4 @@ def foreign_log_error(path: str | Path, problem: str) -> AeropendError:
                          f'log: bring it in through a log profile. {lead}')
 
 
-__all__ = ['foreign_log_error', 'guess_profile', 'looks_foreign', 'profile_yaml', 'read_head']
+__all__ = ['foreign_log_error', 'guess_profile', 'looks_foreign', 'profile_yaml', 'read_head', 'sniff_delimiter']
