@@ -92,7 +92,7 @@ from aeropend_ros import topics
 from aeropend_core.diagnosis.compare import MAX_LOST_FRACTION as _OFFLINE_MAX_LOST_FRACTION
 from aeropend_core.diagnosis.online import (TREND_PARAMETERS, ParameterTrends, WindowResult, analyze_window,
                                             trend_message, trend_text)
-from aeropend_core.model.names import parameter_unit
+from aeropend_core.model.effects import parameter_unit
 from aeropend_core.model.effects import check_effect_names
 from aeropend_core.io.recording import Recording
 

@@ -44,7 +44,8 @@ _SYMBOLS = {'gravity_stiffness': 'mgd/J', 'damping': 'c/J', 'thrust_gain': 'k', 
 
 def _nominal_bands() -> dict[str, str]:
     """The nominal and derived parameters as published (nominal first), titled with symbol and SI unit."""
-    from aeropend_core.model.names import NOMINAL_PARAMETERS, parameter_unit
+    from aeropend_core.model.effects import parameter_unit
+    from aeropend_core.model.names import NOMINAL_PARAMETERS
     names = [*NOMINAL_PARAMETERS, 'thrust_coefficient']
     return {name: f'{_SYMBOLS.get(name, name)} [{parameter_unit(name)}]' for name in names}
 

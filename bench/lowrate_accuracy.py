@@ -1,5 +1,5 @@
 """Accuracy of diagnose's nominal parameters per sample rate over several seeds (issue #21; the rate doubts
-that ``aeropend diagnose`` prints next to its numbers, :data:`aeropend_core.diagnosis.doubts.RATE_ACCURACY`).
+that ``aeropend diagnose`` prints next to its numbers, :data:`aeropend_core.signals.rate_accuracy.RATE_ACCURACY`).
 
 Records as in bench/rate_sweep.py (default rig, Latin hypercube, 40 dB, 10-bit, 30 s), one per seed, decimated by
 keeping every Nth sample, each through ``diagnose --only angle_offset --no-drift`` (as the sweep runs it).

@@ -15,8 +15,7 @@ import pytest
 from aeropend_core.cli import main as cli_main
 from aeropend_core.io.recording import write_csv
 from aeropend_core.diagnosis.diagnose import diagnose
-from aeropend_core.diagnosis.evidence import (bandwidth, diebold_mariano, effective_samples, hac_covariance,
-                                              long_run_variance)
+from aeropend_core.stats import bandwidth, diebold_mariano, effective_samples, hac_covariance, long_run_variance
 from aeropend_core.io.recording import from_columns
 from aeropend_core.model.effects import CATALOG
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_core.diagnosis import evidence
+from aeropend_core import stats as evidence
 from aeropend_core.diagnosis.drift import trend_test
 
 sandwich = pytest.importorskip('statsmodels.stats.sandwich_covariance')

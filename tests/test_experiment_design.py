@@ -459,7 +459,7 @@ def test_the_designs_need_decides_nine_times_in_ten_on_white_noise():
     clears the diagnosis's own Diebold--Mariano test (its function and threshold) in DECISION_POWER = 90 % of draws of
     white noise, whatever the separation's shape and the record's length (300 seeded draws each: binomial 1 sigma is
     1.7 %)."""
-    from aeropend_core.diagnosis.evidence import diebold_mariano
+    from aeropend_core.stats import diebold_mariano
     from aeropend_core.diagnosis.experiment_design import DECISION_POWER, DECISIVE_EVIDENCE, DM_THRESHOLD
     rng = np.random.default_rng(27)
     for samples in (2450, 9800):

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from aeropend_core.diagnosis.diagnose import diagnose
-from aeropend_core.diagnosis.evidence import held_bias_covariance, input_covariance
+from aeropend_core.stats import held_bias_covariance, input_covariance
 from aeropend_core.io.recording import from_columns
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 from aeropend_core.sim.excitation import lhc_schedule, staircase_schedule

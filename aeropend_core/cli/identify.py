@@ -245,7 +245,7 @@ def _identify_reduced(args: argparse.Namespace, recording) -> int:
                                    None if prep is None else prep.step_indices)
     warnings = check_parameters(fit.parameters, fit.standard_errors, independent)
     if args.json:
-        from aeropend_core.model.names import parameter_unit
+        from aeropend_core.model.effects import parameter_unit
         from aeropend_core.present.json_output import write_json
         write_json(args.json, {
             'model': REDUCED_MODEL, 'parameters': finite_json(fit.parameters),

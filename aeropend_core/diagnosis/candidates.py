@@ -14,11 +14,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error
-from aeropend_core.diagnosis.evidence import diebold_mariano, share_words, t_statistic_words
+from aeropend_core.diagnosis.evidence import share_words, t_statistic_words
 from aeropend_core.diagnosis.output_error import _bounds
 from aeropend_core.errors import InsufficientDataError
 from aeropend_core.model.effects import get_effect
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.stats import diebold_mariano
 
 #: A candidate's parameter must be this many (HAC) standard errors from zero ...
 T_MIN = 4.0

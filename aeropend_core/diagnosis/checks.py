@@ -29,7 +29,7 @@ def misfit_doubt(diagnosis) -> str | None:
         One sentence (no final full stop), with the misfit in mrad.
     """
     from aeropend_core.diagnosis.compare import excess_error
-    from aeropend_core.diagnosis.diagnose import UNEXPLAINED_NOISE
+    from aeropend_core.diagnosis.thresholds import UNEXPLAINED_NOISE
     current = diagnosis.current
     noise = current.noise_rms
     beyond = excess_error(current.rms_error, noise)

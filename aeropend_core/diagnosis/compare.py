@@ -22,12 +22,14 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property, partial
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.signal import savgol_filter
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.diagnosis.basins import PROFILED, search_lag_basins
+from aeropend_core.diagnosis.map_profile import profile_motor_map
 from aeropend_core.diagnosis.gaps import MAX_LOST_FRACTION, SHORTEST_PIECE, Gaps, split_at_gaps  # noqa: F401
 from aeropend_core.model.effects import kernel_parameter
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
@@ -36,6 +38,9 @@ from aeropend_core.signals.motor import MotorFit, back_emf_ensemble, fit_motor
 from aeropend_core.signals.preprocess import (condition_inputs, noise_rms, piecewise_constant, step_switches,
                                              quantisation_bias_rms, quantisation_step)
 from aeropend_core.io.recording import Recording
+
+if TYPE_CHECKING:       # annotations only (the motor discovery sits above this module)
+    from aeropend_core.diagnosis.motor_discovery import AddedMotorTerm
 
 #: Fraction of the record used for training; the rest is held out.
 TRAIN_FRACTION = 0.75
@@ -113,7 +118,7 @@ class PreparedRecord:
     motor_map: dict | None = None
     #: A motor term given with ``--motor-term``, already in the observer whose back-EMF is `voltage`
     #: (:class:`aeropend_core.diagnosis.motor_discovery.AddedMotorTerm`; None: none).
-    motor_term: object = None
+    motor_term: AddedMotorTerm | None = None
     train: SegmentedData = field(init=False)
     heldout: SegmentedData = field(init=False)
 
@@ -265,8 +270,7 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
                           motor=motor, gate_voltage=stepped if stepped is not None else conditioned.armature_voltage,
                           gaps=gaps, angle_step=quantisation_step(angle[valid]), voltage_ensemble=ensemble,
                           findings=tuple(checked.findings), reduced=reduced)
-    from aeropend_core.diagnosis.reduced_fit import profile_motor_map     # here: it imports this module
-    return profile_motor_map(prep) if reduced else prep
+    return profile_motor_map(prep, fit_model) if reduced else prep
 
 
 def initial_guess(prep: PreparedRecord, threshold_voltage: float | None = None) -> dict[str, float]:

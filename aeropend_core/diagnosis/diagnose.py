@@ -47,6 +47,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from aeropend_core.blas import single_blas_thread
 from aeropend_core.diagnosis.candidates import (  # noqa: F401  (re-exported: the evidence's thresholds)
@@ -65,6 +66,11 @@ from aeropend_core.io.recording import Recording
 #: ``diagnosis``, the ``.diagnosis.json`` saved beside a bag): its name and version, raised when a key changes
 #: meaning or goes away.
 DIAGNOSIS_SCHEMA = 'aeropend.diagnosis/1'
+
+if TYPE_CHECKING:       # annotations only (imported where their stage runs)
+    from aeropend_core.diagnosis.discovery import Discovery
+    from aeropend_core.diagnosis.motor_discovery import MotorDiscovery
+    from aeropend_core.identify.plausibility import FreeOscillation
 
 
 @dataclass
@@ -98,12 +104,12 @@ class Diagnosis:
     #: Doubts on parameters the fit cannot check itself -> the text (a current's scale on Ra:
     #: :func:`aeropend_core.diagnosis.checks.scale_doubts`); said beside the number, not a failed check.
     parameter_doubts: dict[str, str] = field(default_factory=dict)
-    independent: object = None      #: the free-oscillation estimate (aeropend_core.identify.plausibility)
+    independent: FreeOscillation | None = None      #: the free-oscillation estimate (identify/plausibility)
     #: The discovery stage's result (:class:`aeropend_core.diagnosis.discovery.Discovery`; None when it did not run).
-    discovery: object = None
+    discovery: Discovery | None = None
     #: The motor equation's discovery (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscovery`; None when the
     #: discovery stage was off).
-    motor_discovery: object = None
+    motor_discovery: MotorDiscovery | None = None
 
     @property
     def message(self) -> str:

@@ -31,6 +31,7 @@ import numpy as np
 
 from aeropend_core.diagnosis.evidence import t_statistic_words
 from aeropend_core.model.effects import CATALOG, MEASUREMENT_FILTER, get_effect, separating_experiment
+from aeropend_core.signals.rate_accuracy import RATE_ACCURACY
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 
 #: Nominal parameters that move by more than this fraction when the candidate is added are listed.
@@ -62,12 +63,25 @@ def parameter_moves(before: dict[str, float], after: dict[str, float]) -> list[t
     return moves
 
 
+#: The advice when the catalog knows no experiment that shows an effect.
+DEFAULT_EXPERIMENT = 'vary the step amplitudes and add rests at duty 0; longer records narrow the uncertainty'
+
+
+def excitation_advice(effect: str) -> str:
+    """The experiment that shows `effect` best: the one separating it from a nominal parameter, if known."""
+    for nominal in NOMINAL_PARAMETERS:
+        advice = separating_experiment(effect, nominal)
+        if advice:
+            return advice
+    return DEFAULT_EXPERIMENT
+
+
 def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
     """One note per candidate that passes the parameter t and the held-out test but is not named.
 
-    The tests and thresholds are those of :mod:`aeropend_core.diagnosis.diagnose` (``T_MIN``, ``DM_MIN``,
+    The tests and thresholds are those of :mod:`aeropend_core.diagnosis.candidates` (``T_MIN``, ``DM_MIN``,
     ``BIC_MARGIN``, ``MATERIAL``); the noise-power spread is its
-    :func:`~aeropend_core.diagnosis.diagnose.beyond_spread`.
+    :func:`~aeropend_core.diagnosis.candidates.beyond_spread`.
 
     Parameters
     ----------
@@ -83,20 +97,20 @@ def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
     list of str
         The notes (empty when no candidate is a near miss).
     """
-    from aeropend_core.diagnosis import diagnose as rules      # the diagnosis's own thresholds (it imports us)
-    noise, spread = prep.noise_rms, rules.beyond_spread(prep)
+    from aeropend_core.diagnosis.candidates import BIC_MARGIN, DM_MIN, MATERIAL, T_MIN, beyond_spread
+    noise, spread = prep.noise_rms, beyond_spread(prep)
     notes = []
     for candidate in candidates:
         if candidate.significant or candidate.comparison is None or not candidate.parameters:
             continue
-        if not (candidate.t_statistic >= rules.T_MIN and candidate.dm_statistic >= rules.DM_MIN
+        if not (candidate.t_statistic >= T_MIN and candidate.dm_statistic >= DM_MIN
                 and math.isfinite(candidate.delta_bic)):
             continue
-        floor = (rules.MATERIAL * noise) ** 2
-        failed = ([f'training BIC {candidate.delta_bic:+.0f} is not below -{rules.BIC_MARGIN:g}']
-                  if candidate.delta_bic >= -rules.BIC_MARGIN else []) + (
+        floor = (MATERIAL * noise) ** 2
+        failed = ([f'training BIC {candidate.delta_bic:+.0f} is not below -{BIC_MARGIN:g}']
+                  if candidate.delta_bic >= -BIC_MARGIN else []) + (
             [f'it lowers the held-out mean-square error by {candidate.mse_gain * 1e6:.3f} mrad^2, less than '
-             f'({rules.MATERIAL:g} x the noise RMS)^2 = {floor * 1e6:.3f} mrad^2'] if candidate.mse_gain < floor
+             f'({MATERIAL:g} x the noise RMS)^2 = {floor * 1e6:.3f} mrad^2'] if candidate.mse_gain < floor
             else [])
         units = {p.name: p.unit for p in get_effect(candidate.effect).parameters}
         values = ', '.join(f'{name} = {value:.4g} +- {candidate.standard_errors.get(name, float("nan")):.2g} '
@@ -116,7 +130,7 @@ def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
                'remove.')
             + (f' With it the nominal parameters move: {moved}; the reported values are uncertain by that much'
                f' (the nominal parameters can absorb most of a small {candidate.effect}).' if moves else '')
-            + f' To decide, {rules.excitation_advice(candidate.effect)}.')
+            + f' To decide, {excitation_advice(candidate.effect)}.')
     return notes
 
 
@@ -298,22 +312,13 @@ def rate_notes(found: list, sample_time: float) -> list[str]:
     return notes
 
 
-#: Largest |relative error| of diagnose's nominal parameters measured per sample rate [Hz] on seeded simulations
-#: (bench/lowrate_accuracy.py: default rig, 40 dB, 10-bit, 30 s, 4 seeds; bench/results/2026-11-27-lowrate), and
-#: the tolerance the rate is held to (damping and gravity_stiffness; thrust_gain twice it).
-RATE_ACCURACY = (
-    (98.0, {'gravity_stiffness': 0.049, 'damping': 0.014, 'thrust_gain': 0.058}, 0.10),
-    (49.0, {'gravity_stiffness': 0.037, 'damping': 0.021, 'thrust_gain': 0.043}, 0.15),
-    (24.5, {'gravity_stiffness': 0.103, 'damping': 0.066, 'thrust_gain': 0.127}, 0.25),
-)
-
-
 def rate_doubts(sample_time: float | None, reduced: bool = False) -> dict[str, str]:
     """What the sample rate does to the accuracy of each nominal parameter, to be said next to its number.
 
     Below ~327 Hz (:data:`RATE_NOTE_TIME`) each of gravity_stiffness, damping and thrust_gain gets the largest error
-    measured at this rate (within 2 %), else the larger of the two measured rates around it (:data:`RATE_ACCURACY`);
-    a rate below the lowest measured one says that the error there may be larger than measured.
+    measured at this rate (within 2 %), else the larger of the two measured rates around it
+    (:data:`aeropend_core.signals.rate_accuracy.RATE_ACCURACY`); a rate below the lowest measured one says that the
+    error there may be larger than measured.
 
     Parameters
     ----------
@@ -356,5 +361,5 @@ def rate_doubts(sample_time: float | None, reduced: bool = False) -> dict[str, s
     return out
 
 
-__all__ = ['ambiguity_notes', 'chain_notes', 'doubt_notes', 'near_miss_notes', 'parameter_moves', 'rate_doubts',
-           'rate_notes', 'residual_structure', 'unresolvable']
+__all__ = ['DEFAULT_EXPERIMENT', 'ambiguity_notes', 'chain_notes', 'doubt_notes', 'excitation_advice',
+           'near_miss_notes', 'parameter_moves', 'rate_doubts', 'rate_notes', 'residual_structure', 'unresolvable']

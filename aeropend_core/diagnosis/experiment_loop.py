@@ -25,8 +25,14 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
+
+if TYPE_CHECKING:       # annotations only (imported where the loop uses them, so importing it stays cheap)
+    from aeropend_core.diagnosis.diagnose import Diagnosis
+    from aeropend_core.diagnosis.experiment_design import ExperimentDesign
+    from aeropend_core.io.recording import Recording
 
 #: Verdict that keeps the loop going.
 CONFOUNDED = 'confounded'
@@ -81,7 +87,7 @@ class Played:
         Excitation time the round used (counted against the budget).
     """
 
-    recording: object
+    recording: Recording
     source: str
     played: str
     seconds: float
@@ -109,8 +115,8 @@ class LoopRound:
 
     number: int
     played: Played
-    diagnosis: object
-    design: object = None
+    diagnosis: Diagnosis
+    design: ExperimentDesign | None = None
     next_schedule: str = ''
     diagnosis_seconds: float = 0.0
     design_seconds: float = 0.0

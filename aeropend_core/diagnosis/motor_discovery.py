@@ -46,9 +46,9 @@ from threadpoolctl import threadpool_limits
 
 from aeropend_core.diagnosis.candidates import BIC_MARGIN, DM_MIN, DM_WEAK, MAJOR_SHARE, MATERIAL, T_MIN
 from aeropend_core.diagnosis.compare import PreparedRecord, excess_error
-from aeropend_core.diagnosis.evidence import (TermEvidence, diebold_mariano, effective_samples, finite_or_none,
-                                              hac_covariance, input_covariance, screening_doubt)
+from aeropend_core.diagnosis.evidence import TermEvidence, finite_or_none, screening_doubt
 from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.stats import diebold_mariano, effective_samples, hac_covariance, input_covariance
 
 #: Time constant [s] of the dissipated-power proxy (the winding's thermal lag; tens of seconds for a small motor).
 HEATING_TIME = 30.0

@@ -31,8 +31,6 @@ from scipy import sparse
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from aeropend_core.diagnosis.evidence import (effective_samples, hac_covariance, held_bias_covariance,
-                                              input_covariance)
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import (FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, find_parameter, get_effect,
                                          kernel_parameter, wants_thrust)
@@ -40,6 +38,7 @@ from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.diagnosis.term_kernel import term_value
 from aeropend_core.diagnosis.user_kernel import EXTRA_TYPE, compiled_user_terms, no_extra
 from aeropend_core.model.sensor_filter import filter_angle
+from aeropend_core.stats import effective_samples, hac_covariance, held_bias_covariance, input_covariance
 
 #: Column of each nominal parameter, then of each kernel kind, in the kernel's parameter row.
 NOMINAL_COLUMNS = {name: column for column, name in enumerate(NOMINAL_PARAMETERS)}

@@ -22,23 +22,25 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from aeropend_core.diagnosis.candidates import (CORRELATION_LIMIT, BIC_MARGIN, Candidate, _effect_parameters, _try,
                                                 assess)
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error, prepare
-from aeropend_core.diagnosis.doubts import (RATE_NOTE_TIME, doubt_notes, rate_doubts, rate_notes,
-                                            residual_structure)
+from aeropend_core.diagnosis.thresholds import UNEXPLAINED_NOISE
+from aeropend_core.diagnosis.doubts import (DEFAULT_EXPERIMENT, RATE_NOTE_TIME, doubt_notes, excitation_advice,
+                                            rate_doubts, rate_notes, residual_structure)
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import CATALOG, REDUCED_TWINS, THRUST_LAG, Effect, get_effect
 from aeropend_core.model.effects import separating_experiment as record_experiment
-from aeropend_core.model.names import NOMINAL_PARAMETERS
 
-#: "Unexplained" (the best set leaves error no catalog effect explains) is claimed beyond this multiple of the
-#: noise RMS: a smaller excess can come from the noise estimate itself (quantisation that does not dither is partly
-#: a slow bias).
-UNEXPLAINED_NOISE = 0.5
+if TYPE_CHECKING:       # annotations only (these modules are imported where their stage runs)
+    from aeropend_core.diagnosis.discovery import Discovery
+    from aeropend_core.diagnosis.long_record import SearchSubset
+    from aeropend_core.diagnosis.motor_discovery import MotorDiscovery
+
 #: Angle [rad] above which the record is flagged: the rod went above the horizontal, towards the unstable upright.
 UPRIGHT_WARNING = math.radians(95.0)
 #: A significant runner-up is tested for interchangeability with the best when its held-out error beyond the noise
@@ -52,7 +54,6 @@ RETRY_NOISE = 0.25
 DISCOVERY_NOISE = 0.25
 #: At most this many effects are added by the search.
 MAX_EFFECTS = 4
-DEFAULT_EXPERIMENT = 'vary the step amplitudes and add rests at duty 0; longer records narrow the uncertainty'
 
 Say = Callable[[str], None]
 
@@ -60,15 +61,6 @@ Say = Callable[[str], None]
 def separating_experiment(a: str, b: str) -> str:
     """The experiment that separates `a` from `b` (effects or nominal parameters), from the catalog's records."""
     return record_experiment(a, b) or DEFAULT_EXPERIMENT
-
-
-def excitation_advice(effect: str) -> str:
-    """The experiment that shows `effect` best: the one separating it from a nominal parameter, if known."""
-    for nominal in NOMINAL_PARAMETERS:
-        advice = record_experiment(effect, nominal)
-        if advice:
-            return advice
-    return DEFAULT_EXPERIMENT
 
 
 def _finite(value: float) -> float | None:
@@ -126,7 +118,7 @@ class Prepared:
     held_from: dict
     prep: PreparedRecord
     search: PreparedRecord
-    subset: object
+    subset: SearchSubset | None
     pool: tuple[Effect, ...]
 
     def on_input(self, prep: PreparedRecord) -> Prepared:
@@ -215,7 +207,7 @@ class CatalogResult:
 
     prep: PreparedRecord
     search: PreparedRecord
-    subset: object
+    subset: SearchSubset | None
     model: tuple[str, ...]
     final: Comparison
     current: Comparison
@@ -417,8 +409,8 @@ class Discovered:
         motor term proven, or the pendulum could not be refitted with it).
     """
 
-    pendulum: object = None
-    motor: object = None
+    pendulum: Discovery | None = None
+    motor: MotorDiscovery | None = None
     corrected: PreparedRecord | None = None
 
 
@@ -572,11 +564,11 @@ class VerdictFacts:
     drift_text: str = ''
     heldout_only: tuple = ()
     heldout_advice: str = ''
-    discovery: object = None
+    discovery: Discovery | None = None
     explained_below: float = math.inf
     reduced_rate_hz: float | None = None
     low_rate_hz: float | None = None
-    motor: object = None
+    motor: MotorDiscovery | None = None
     prefix: str = ''
     motor_input_corrected: bool = False
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from aeropend_core.wsindy import library as lib
 from aeropend_core.model.effects import CATALOG, get_effect
-from aeropend_core.model.names import parameter_unit
+from aeropend_core.model.effects import parameter_unit
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, RigParameters
 from aeropend_core.io.recording import Recording

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aeropend_core.errors import AeropendError, UnknownEffectError
+from aeropend_core.model.names import DERIVED_PARAMETERS, NOMINAL_PARAMETERS
 
 PENDULUM, MEASUREMENT, THRUST_GATE, THRUST_LAG = 'pendulum', 'measurement', 'thrust_gate', 'thrust_lag'
 MEASUREMENT_FILTER = 'measurement_filter'
@@ -201,7 +202,6 @@ def add_effect(effect: Effect, *, replace: bool = False) -> Effect:
     """Put an effect into the catalog (``replace=True`` to overwrite one of the same name)."""
     if effect.name in CATALOG and not replace:
         raise AeropendError(f'an effect named {effect.name!r} is already registered; pick another name')
-    from aeropend_core.model.names import NOMINAL_PARAMETERS
     for parameter in effect.parameter_names:
         owner = find_parameter(parameter)
         if parameter in NOMINAL_PARAMETERS or (owner and owner[0].name != effect.name):
@@ -370,6 +370,16 @@ def find_parameter(parameter: str) -> tuple[Effect, EffectParameter] | None:
             if candidate.name == parameter:
                 return effect, candidate
     return None
+
+
+def parameter_unit(name: str) -> str:
+    """SI unit of a nominal, derived or catalog-effect parameter ('' when the name is unknown)."""
+    if name in NOMINAL_PARAMETERS:
+        return NOMINAL_PARAMETERS[name][0]
+    if name in DERIVED_PARAMETERS:
+        return DERIVED_PARAMETERS[name][0]
+    found = find_parameter(name)
+    return found[1].unit if found else ''
 
 
 def resolve_effects(effects: Mapping[str, Mapping[str, float] | float] | None) -> dict[str, dict[str, float]]:

@@ -4,7 +4,8 @@ Every fit of the pendulum equation (weak SINDy in :mod:`aeropend_core.identify.p
 :mod:`aeropend_core.diagnosis.output_error`, the online window analysis, the JSON outputs, the HTML report and the
 monitor) reports its values under these names; an effect's parameters keep the names of its catalog record
 (:mod:`aeropend_core.model.effects`), which are unique across the catalog. Where two estimators give the same
-quantity, the output names the estimator (:data:`ESTIMATORS`).
+quantity, the output names the estimator (:data:`ESTIMATORS`). A leaf module: it imports nothing of aeropend, and
+the unit of any parameter, catalog effects included, is :func:`aeropend_core.model.effects.parameter_unit`.
 """
 from __future__ import annotations
 
@@ -29,15 +30,4 @@ ESTIMATORS = {
 }
 
 
-def parameter_unit(name: str) -> str:
-    """SI unit of a nominal, derived or catalog-effect parameter ('' when the name is unknown)."""
-    if name in NOMINAL_PARAMETERS:
-        return NOMINAL_PARAMETERS[name][0]
-    if name in DERIVED_PARAMETERS:
-        return DERIVED_PARAMETERS[name][0]
-    from aeropend_core.model.effects import find_parameter
-    found = find_parameter(name)
-    return found[1].unit if found else ''
-
-
-__all__ = ['NOMINAL_PARAMETERS', 'DERIVED_PARAMETERS', 'ESTIMATORS', 'parameter_unit']
+__all__ = ['NOMINAL_PARAMETERS', 'DERIVED_PARAMETERS', 'ESTIMATORS']

@@ -510,7 +510,7 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
     # bent the thrust input enough for the pendulum fit to absorb it as a 1.4 mrad "angle offset" (t = 9) on a
     # clean record. The refinement nests the quasi-static model (La -> 0): it is kept unless the quasi-static one
     # explains the current significantly better (one-sided Diebold-Mariano test on the squared errors).
-    from aeropend_core.diagnosis.evidence import diebold_mariano
+    from aeropend_core.stats import diebold_mariano
     statistic, _ = diebold_mariano(refined_error, quasi_static_error)
     if np.isfinite(statistic) and statistic > REFINEMENT_REJECT:
         return None

@@ -68,6 +68,7 @@ Every check that repairs also says so (severity ``repaired``): nothing is change
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -126,7 +127,6 @@ def check_recording(recording, *, sample_time: float | None = None, context: str
     DataQualityError
         A refused finding (its message names the problem, where, and what to do).
     """
-    from aeropend_core.io.recording import Recording
     source = recording.source or ('the window' if context == 'window' else 'the recording')
     previous = tuple(getattr(recording, 'findings', ()))
     gate = _Gate(recording.time, recording.signals, source, context, previous)
@@ -158,7 +158,8 @@ def check_recording(recording, *, sample_time: float | None = None, context: str
     if gate.time.size > 2:
         _check_rest_angle(gate, float(np.median(np.diff(gate.time))))
     findings = gate.findings
-    repaired = Recording(gate.time, gate.signals, recording.source, tuple(findings))
+    # the recording's own class, so the gate needs nothing from io/ (which calls it when it loads a file)
+    repaired = dataclasses.replace(recording, time=gate.time, signals=gate.signals, findings=tuple(findings))
     return QualityReport(repaired, [f for f in findings if f not in previous])
 
 

@@ -7,10 +7,14 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from aeropend_core.errors import AeropendError
+
+if TYPE_CHECKING:       # for the annotation only: io/ calls the gate when it loads a file
+    from aeropend_core.io.recording import Recording
 
 
 #: Finding severities, mildest first.
@@ -135,7 +139,7 @@ class DataQualityError(AeropendError):
 class QualityReport:
     """The gate's answer: the repaired recording and every finding (the recording carries them too)."""
 
-    recording: object
+    recording: Recording
     findings: list[Finding] = field(default_factory=list)
 
     @property

@@ -94,7 +94,7 @@ def _check_time(gate: _Gate, sample_time: float | None) -> None:
             step, typical = np.diff(time), typical * factor
             break
     if typical > 1.0 / LOWEST_RATE:
-        from aeropend_core.diagnosis.doubts import RATE_ACCURACY
+        from aeropend_core.signals.rate_accuracy import RATE_ACCURACY
         slowest, errors, _ = RATE_ACCURACY[-1]
         gate.add('sample_rate_mismatch', 'refused', f'samples are {typical:g} time units apart; the t column must be '
                  f'in seconds (the rig samples every 1/490 s = 0.00204 s; divide milliseconds by 1000), and the '

@@ -250,8 +250,8 @@ def run_until_decided(args, run_once) -> int:
         from aeropend_core.present.report import write_report
         print(f'report: {write_report(diagnosis, args.report, source=" + ".join(map(str, bags)))}')
     if args.json:
-        from aeropend_ros.cli.run import _write_json
-        _write_json(args.json, {'rounds': rounds, 'ending': ending, 'bags': [str(b) for b in bags],
+        from aeropend_ros.cli.run_json import write_run_json
+        write_run_json(args.json, {'rounds': rounds, 'ending': ending, 'bags': [str(b) for b in bags],
                                 'loop_verdict': outcome.verdict, 'excitation_seconds': outcome.excitation_seconds,
                                 'needed_seconds': outcome.needed_seconds,
                                 'needed_noise_rms_rad': outcome.needed_noise_rms,

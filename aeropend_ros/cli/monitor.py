@@ -222,7 +222,7 @@ def main(args) -> int:
     from rclpy.executors import ExternalShutdownException
     from sensor_msgs.msg import JointState
 
-    from aeropend_core.model.names import parameter_unit
+    from aeropend_core.model.effects import parameter_unit
     from aeropend_core.present.json_output import JsonLines
     from aeropend_ros import topics
     from aeropend_ros.identification_node import (COEFFICIENTS_TOPIC, DIAGNOSTIC_NAME, FIT_TOPIC, PARAMETERS_TOPIC,

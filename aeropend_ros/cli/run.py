@@ -38,6 +38,7 @@ from pathlib import Path
 from aeropend_core.errors import AeropendError
 from aeropend_ros.cli.rig_guard import (UNNAMED_NODE, check_graph_is_free, claim_rig, foreign_publishers,
                                          graph_in_use, refusal_due, watched_topics)
+from aeropend_ros.cli.run_json import write_run_json
 
 #: Hidden effect of the default simulation (documented in README, not printed: finding it is the job).
 DEFAULT_HIDDEN_EFFECTS = ['angle_offset=0.05']
@@ -756,22 +757,14 @@ def _diagnose(bag_folder, memory, args, interrupted: bool) -> int:
         from aeropend_core.present.report import write_report
         print(f'report: {write_report(diagnosis, args.report, source=str(bag_folder or "samples in memory"))}')
     if args.json:
-        _write_json(args.json, {'schema': 'aeropend.run/1',
-                                'recording': str(bag_folder) if bag_folder is not None else None,
-                                'samples': len(recording), 'interrupted': interrupted,
-                                'diagnosis': diagnosis.to_dict(),
-                                **({'closed_loop_steps': args.closed_loop_steps}
-                                   if getattr(args, 'closed_loop_steps', None) is not None else {})})
+        write_run_json(args.json, {'schema': 'aeropend.run/1',
+                                   'recording': str(bag_folder) if bag_folder is not None else None,
+                                   'samples': len(recording), 'interrupted': interrupted,
+                                   'diagnosis': diagnosis.to_dict(),
+                                   **({'closed_loop_steps': args.closed_loop_steps}
+                                      if getattr(args, 'closed_loop_steps', None) is not None else {})})
     print(_next_step(diagnosis, bag_folder, args))
     return 130 if interrupted else 0
-
-
-def _write_json(target: str, value: dict) -> None:
-    """One JSON object (NaN/inf as null) to standard output (``-``) or a file."""
-    from aeropend_core.present.json_output import write_json
-    write_json(target, value, stream=sys.__stdout__)
-    if target != '-':
-        print(f'json: {target}')
 
 
 def _next_step(diagnosis, bag_folder, args) -> str:
