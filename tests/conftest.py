@@ -122,3 +122,13 @@ def clean_record():
     from aeropend_core.sim.simulate import simulate
     duty = lhc_schedule(60, seed=7).duty(duration=60)
     return simulate(duty, noise=MeasurementNoise(psnr_db=40, quantise=True), seed=7)
+
+
+@pytest.fixture
+def scoped_catalog():
+    """The catalog of effects for one test: whatever the test registers (a user's effect, a ``--term``, an effects
+    module) leaves it afterwards, so no test's catalog depends on what ran before it in the process
+    (:func:`aeropend_core.model.effects.catalog_scope`, as python-control's ``editsdefaults`` fixture)."""
+    from aeropend_core.model.effects import catalog_scope
+    with catalog_scope() as catalog:
+        yield catalog

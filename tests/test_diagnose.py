@@ -28,7 +28,7 @@ import pytest
 from aeropend_core.cli import main as cli_main
 from aeropend_core.diagnosis.compare import excess_error
 from aeropend_core.diagnosis.diagnose import diagnose
-from aeropend_core.model.effects import CATALOG, EffectParameter, register_effect
+from aeropend_core.model.effects import CATALOG, EffectParameter, catalog_scope, register_effect
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 from aeropend_core.sim.noise import MeasurementNoise
@@ -148,24 +148,21 @@ def test_diagnosis_localises_the_error_and_reports_residual_tests():
 
 
 @pytest.mark.slow
-def test_user_registered_effect_is_a_candidate_and_can_be_found():
+def test_user_registered_effect_is_a_candidate_and_can_be_found(scoped_catalog):
     @register_effect('test_cubic_spring', 'a hardening spring at the pivot', replace=True,
                      parameters=[EffectParameter('cubic_stiffness', '1/(s^2 rad^2)', 'cubic spring', 40.0,
                                                  0.0, 1000.0)])
     def cubic(angle, angular_rate, cubic_stiffness):
         return -cubic_stiffness * angle ** 3
 
-    try:
-        recording = measured_recording({'test_cubic_spring': 60.0}, seed=7, max_duty=0.9, duration=40.0)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter('always')
-            found = diagnose(recording, candidates=['test_cubic_spring', 'cable_torque', 'coulomb_friction'])
-        # compiled, as fast as a built-in term (in Python this test took 54 s instead of ~8)
-        assert not [w for w in caught if 'runs in Python' in str(w.message)]
-        assert found.candidates[0].effect == 'test_cubic_spring', format_summary(found)
-        assert found.candidates[0].parameters['cubic_stiffness'] == pytest.approx(60.0, rel=0.3)
-    finally:
-        CATALOG.pop('test_cubic_spring')
+    recording = measured_recording({'test_cubic_spring': 60.0}, seed=7, max_duty=0.9, duration=40.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        found = diagnose(recording, candidates=['test_cubic_spring', 'cable_torque', 'coulomb_friction'])
+    # compiled, as fast as a built-in term (in Python this test took 54 s instead of ~8)
+    assert not [w for w in caught if 'runs in Python' in str(w.message)]
+    assert found.candidates[0].effect == 'test_cubic_spring', format_summary(found)
+    assert found.candidates[0].parameters['cubic_stiffness'] == pytest.approx(60.0, rel=0.3)
 
 
 @pytest.mark.slow
@@ -228,15 +225,13 @@ def test_too_short_or_unexcited_or_broken_data_is_refused_clearly(tmp_path, caps
 
 @pytest.mark.slow
 def test_error_no_catalog_effect_explains_is_reported_with_the_residual_structure():
-    @register_effect('test_cogging', 'a periodic cogging torque', replace=True,
-                     parameters=[EffectParameter('amplitude', 'rad/s^2', 'cogging torque', 10.0, 0.0, 100.0)])
-    def cogging(angle, angular_rate, amplitude):
-        return -amplitude * np.sin(8.0 * angle)
+    with catalog_scope():       # in the catalog only while simulating: the diagnosis must not have it as a candidate
+        @register_effect('test_cogging', 'a periodic cogging torque', replace=True,
+                         parameters=[EffectParameter('amplitude', 'rad/s^2', 'cogging torque', 10.0, 0.0, 100.0)])
+        def cogging(angle, angular_rate, amplitude):
+            return -amplitude * np.sin(8.0 * angle)
 
-    try:
         recording = measured_recording({'test_cogging': 15.0}, seed=3)
-    finally:
-        CATALOG.pop('test_cogging')
     found = diagnose(recording)
     assert found.verdict == 'unexplained' and found.missing_effect is None, verdict_of(found)
     assert found.residual_structure and 'register_effect' in verdict_of(found)

@@ -20,7 +20,7 @@ from aeropend_core.diagnosis.diagnose import diagnose
 from aeropend_core.diagnosis.discovery import VOCABULARY, find_term, term_effect
 from aeropend_core.errors import AeropendError
 from aeropend_core.io.recording import from_columns
-from aeropend_core.model.effects import CATALOG, load_effects_module
+from aeropend_core.model.effects import CATALOG, catalog_scope, load_effects_module
 from aeropend_core.present.discovery_text import effect_module_text
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
@@ -31,28 +31,18 @@ HALF = 0.5
 EFFECTS_MODULE = str(__import__('pathlib').Path(__file__).parents[1] / 'bench' / 'discovery_effects.py')
 
 
-@pytest.fixture(autouse=True)
-def catalog_restored():
-    """Effects registered here (the test-local module, discovered terms) leave the catalog after each test: other
-    test files' diagnoses must not try them as candidates."""
-    before = dict(CATALOG)
-    yield
-    CATALOG.clear()
-    CATALOG.update(before)
+#: Effects registered here (the test-local module, `--term`) leave the catalog after each test (tests/conftest.py)
+pytestmark = pytest.mark.usefixtures('scoped_catalog')
 
 
 def measured_columns(effects=None, seed=11, duration=60.0):
     """Only the measured columns (t, duty, Va, Ia, angle) of a simulated, noisy, quantised record; the test-local
     effects are in the catalog only while simulating (the diagnosis must not have them as candidates)."""
-    builtin = set(CATALOG)
-    load_effects_module(EFFECTS_MODULE)
-    try:
+    with catalog_scope():
+        load_effects_module(EFFECTS_MODULE)
         schedule = lhc_schedule(duration, duty_range=(0.0, 0.7), duty_cap=0.7, seed=seed)
         trajectory = simulate(schedule.duty(duration=duration), effects=effects,
                               noise=MeasurementNoise(psnr_db=40.0, quantise=True), seed=seed + 1)
-    finally:
-        for name in set(CATALOG) - builtin:
-            CATALOG.pop(name)
     return trajectory.columns(with_truth=False)
 
 
@@ -170,17 +160,14 @@ def test_a_lookalike_the_catalog_set_absorbs_is_reported_as_confounded_with_the_
     experiment that separates them (issue #25: a discovered term and a catalog set that explain the data equally)."""
     from aeropend_core.model.effects import MEASUREMENT, EffectParameter, register_effect
 
-    builtin = set(CATALOG)
-    register_effect('test_encoder_harmonic', 'encoder second-harmonic nonlinearity', kind=MEASUREMENT, replace=True,
-                    parameters=[EffectParameter('test_encoder_amplitude', 'rad', 'amplitude', 0.04, -1.0, 1.0)])(
-        lambda angle, test_encoder_amplitude: angle + test_encoder_amplitude * np.sin(2.0 * angle))
-    try:
+    with catalog_scope():       # in the catalog only while simulating: the diagnosis must not have it as a candidate
+        register_effect('test_encoder_harmonic', 'encoder second-harmonic nonlinearity', kind=MEASUREMENT,
+                        replace=True,
+                        parameters=[EffectParameter('test_encoder_amplitude', 'rad', 'amplitude', 0.04, -1.0, 1.0)])(
+            lambda angle, test_encoder_amplitude: angle + test_encoder_amplitude * np.sin(2.0 * angle))
         schedule = lhc_schedule(60.0, duty_range=(0.0, 0.7), duty_cap=0.7, seed=11)
         trajectory = simulate(schedule.duty(duration=60.0), effects={'test_encoder_harmonic': 0.04},
                               noise=MeasurementNoise(psnr_db=40.0, quantise=True), seed=12)
-    finally:
-        for name in set(CATALOG) - builtin:
-            CATALOG.pop(name)
     found = diagnose(from_columns(trajectory.columns(with_truth=False)), drift=False)
     confounded = [t for t in found.discovery.terms if t.status == 'confounded'] if found.discovery else []
     assert confounded, (found.verdict, verdict_of(found))

@@ -57,7 +57,7 @@ def test_every_estimator_reports_the_nominal_parameters_under_the_same_names():
 
 
 @pytest.mark.slow
-def test_an_effect_declared_in_a_few_lines_runs_compiled_and_is_diagnosed():
+def test_an_effect_declared_in_a_few_lines_runs_compiled_and_is_diagnosed(scoped_catalog):
     from aeropend_core.diagnosis.diagnose import diagnose
     from aeropend_core.io.recording import from_columns
     from aeropend_core.sim.excitation import lhc_schedule
@@ -71,16 +71,13 @@ def test_an_effect_declared_in_a_few_lines_runs_compiled_and_is_diagnosed():
     def pivot_drag(angle, angular_rate, pivot_drag):
         return -pivot_drag * angular_rate * np.abs(angular_rate)
 
-    try:
-        assert RigSimulator(effects={'test_pivot_drag': 4.0}).method == 'compiled'
-        duty = lhc_schedule(40.0, seed=9).duty(duration=40.0)
-        compiled = simulate(duty, effects={'test_pivot_drag': 4.0})
-        reference = simulate(duty, effects={'test_pivot_drag': 4.0}, method='lsoda')
-        assert np.max(np.abs(compiled.angle - reference.angle)) < 1e-4
-        noisy = simulate(duty, effects={'test_pivot_drag': 4.0}, noise=MeasurementNoise(40.0, True), seed=10)
-        found = diagnose(from_columns(noisy.columns(with_truth=False)),
-                         candidates=['test_pivot_drag', 'coulomb_friction'])
-        assert found.candidates[0].effect == 'test_pivot_drag', format_summary(found)
-        assert found.candidates[0].parameters['pivot_drag'] == pytest.approx(4.0, rel=0.15)
-    finally:
-        CATALOG.pop('test_pivot_drag')
+    assert RigSimulator(effects={'test_pivot_drag': 4.0}).method == 'compiled'
+    duty = lhc_schedule(40.0, seed=9).duty(duration=40.0)
+    compiled = simulate(duty, effects={'test_pivot_drag': 4.0})
+    reference = simulate(duty, effects={'test_pivot_drag': 4.0}, method='lsoda')
+    assert np.max(np.abs(compiled.angle - reference.angle)) < 1e-4
+    noisy = simulate(duty, effects={'test_pivot_drag': 4.0}, noise=MeasurementNoise(40.0, True), seed=10)
+    found = diagnose(from_columns(noisy.columns(with_truth=False)),
+                     candidates=['test_pivot_drag', 'coulomb_friction'])
+    assert found.candidates[0].effect == 'test_pivot_drag', format_summary(found)
+    assert found.candidates[0].parameters['pivot_drag'] == pytest.approx(4.0, rel=0.15)

@@ -5,7 +5,7 @@ import sys
 import numpy as np
 import pytest
 
-from aeropend_core.model.effects import CATALOG, EffectParameter, get_effect, parse_effect_assignments, register_effect
+from aeropend_core.model.effects import EffectParameter, get_effect, parse_effect_assignments, register_effect
 from aeropend_core.errors import AeropendError, UnknownEffectError
 from aeropend_core.sim.excitation import latin_hypercube_steps, lhc_schedule, voltage_range_to_duty
 from aeropend_core.sim.simulate import simulate
@@ -39,18 +39,15 @@ def test_catalog_has_the_required_effects_with_units_and_descriptions():
         assert all(p.unit for p in effect.parameters)
 
 
-def test_user_effect_is_one_small_function_and_enters_the_simulation():
+def test_user_effect_is_one_small_function_and_enters_the_simulation(scoped_catalog):
     @register_effect('test_cubic_spring', 'hardening spring', replace=True,
                      parameters=[EffectParameter('stiffness', '1/(s^2 rad^2)', 'cubic spring', 50.0)])
     def cubic_spring(angle, angular_rate, stiffness):
         return -stiffness * angle ** 3
 
-    try:
-        duty = np.full(1500, 0.6)
-        base, stiff = simulate(duty), simulate(duty, effects={'test_cubic_spring': 200.0})
-        assert stiff.angle[-1] < base.angle[-1] - 0.05
-    finally:
-        CATALOG.pop('test_cubic_spring')
+    duty = np.full(1500, 0.6)
+    base, stiff = simulate(duty), simulate(duty, effects={'test_cubic_spring': 200.0})
+    assert stiff.angle[-1] < base.angle[-1] - 0.05
 
 
 def test_effect_assignments_parse_and_reject_mistakes():

@@ -162,18 +162,15 @@ def test_busy_port_and_bad_port_are_one_line_errors():
 
 # -- the shipped layouts --------------------------------------------------------------------------------------------
 
-def test_shipped_layouts_are_the_generated_ones():
+def test_shipped_layouts_are_the_generated_ones(scoped_catalog):
     from aeropend_ros import layouts
     assert (ROOT / 'config' / layouts.FOXGLOVE_FILE).read_text() == layouts.foxglove_layout_json()
     assert (ROOT / 'config' / layouts.PLOTJUGGLER_FILE).read_text() == layouts.plotjuggler_layout_xml()
     # an effect registered in this process (a user module, a discovered term) does not change the shipped layouts
-    from aeropend_core.model.effects import CATALOG, EffectParameter, register_effect
+    from aeropend_core.model.effects import EffectParameter, register_effect
     probe = [EffectParameter('layout_probe_k', '1/s^2', 'k', 1.0, 0.0, 2.0)]
     register_effect('layout_probe', 'a probe', parameters=probe)(lambda angle, angular_rate, layout_probe_k: 0.0)
-    try:
-        assert 'layout_probe_k' not in layouts.band_parameters()
-    finally:
-        CATALOG.pop('layout_probe', None)
+    assert 'layout_probe_k' not in layouts.band_parameters()
 
 
 def test_layout_names_are_the_published_ones():

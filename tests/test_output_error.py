@@ -102,13 +102,13 @@ def _user_data(n=2400, ts=1.0 / 490.0):
     return output_error.SegmentedData(voltage, 0.15 * voltage, np.zeros(n), [(0, n // 2), (n // 2, n)], ts)
 
 
-def test_a_users_effect_runs_compiled_with_the_python_paths_values(clean_record):
+def test_a_users_effect_runs_compiled_with_the_python_paths_values(clean_record, scoped_catalog):
     """A user's effect (with the thrust keyword, beside a built-in lag and friction) runs in the compiled kernel:
     its free run equals the numpy path's (which calls the Python function) to rounding. And a user's function that
     is a built-in effect's law (drag -Cd W|W|) fits to the built-in's value and sigma on the same record."""
     import numpy as np
     from aeropend_core.diagnosis.user_kernel import compiled_user_terms
-    from aeropend_core.model.effects import CATALOG, EffectParameter, register_effect
+    from aeropend_core.model.effects import EffectParameter, register_effect
 
     @register_effect('test_user_inflow', 'thrust falls with the rod rate', replace=True,
                      parameters=[EffectParameter('test_user_loss', 's/rad', 'loss', 0.05, 0.0, 1.0)])
@@ -120,55 +120,51 @@ def test_a_users_effect_runs_compiled_with_the_python_paths_values(clean_record)
     def drag(angle, angular_rate, test_user_drag_coefficient):
         return -test_user_drag_coefficient * angular_rate * np.abs(angular_rate)
 
-    try:
-        data = _user_data()
-        structure = output_error.Structure(('thrust_lag', 'test_user_inflow', 'coulomb_friction'))
-        assert compiled_user_terms(structure.user_terms()) is not None
-        values = {**TRUTH, 'armature_resistance': 1.0, 'time_constant': 0.1, 'test_user_loss': 0.05,
-                  'friction_acceleration': 2.0}
-        rows = np.array([structure.row(values), structure.row({**values, 'test_user_loss': 0.2})])
-        initial = np.zeros((2, 2, 2))
-        initial[:, :, 0] = 0.3
-        compiled = data.simulate(structure, rows, initial)
-        python = np.full_like(compiled, np.nan)
-        output_error._simulate_numpy(rows, data.voltage, data.current, data.gate_signal, data.seg_start,
-                                     data.seg_stop, initial, data.sample_time, True, False, python,
-                                     structure.user_terms())
-        index = data.residual_index
-        assert np.ptp(compiled[:, index]) > 0.2 and np.ptp(compiled[0, index] - compiled[1, index]) > 1e-3
-        assert np.allclose(compiled[:, index], python[:, index], rtol=0, atol=1e-12)
-        # beside a discovered term (the discovery stage on a model with the user's effect): both compiled
-        from aeropend_core.diagnosis.discovery import find_term, term_effect
-        both = output_error.Structure(('test_user_inflow', term_effect(find_term('sin(2*angle)'))))
-        assert compiled_user_terms(both.user_terms()) is not None
-        rows = np.array([both.row({**values, 'test_user_loss': 0.05, both.parameter_names[-1]: c})
-                         for c in (0.0, 3.0)])
-        compiled = data.simulate(both, rows, initial)
-        python = np.full_like(compiled, np.nan)
-        output_error._simulate_numpy(rows, data.voltage, data.current, data.gate_signal, data.seg_start,
-                                     data.seg_stop, initial, data.sample_time, False, False, python,
-                                     both.user_terms())
-        assert np.ptp(compiled[0, index] - compiled[1, index]) > 1e-3
-        assert np.allclose(compiled[:, index], python[:, index], rtol=0, atol=1e-12)
+    data = _user_data()
+    structure = output_error.Structure(('thrust_lag', 'test_user_inflow', 'coulomb_friction'))
+    assert compiled_user_terms(structure.user_terms()) is not None
+    values = {**TRUTH, 'armature_resistance': 1.0, 'time_constant': 0.1, 'test_user_loss': 0.05,
+              'friction_acceleration': 2.0}
+    rows = np.array([structure.row(values), structure.row({**values, 'test_user_loss': 0.2})])
+    initial = np.zeros((2, 2, 2))
+    initial[:, :, 0] = 0.3
+    compiled = data.simulate(structure, rows, initial)
+    python = np.full_like(compiled, np.nan)
+    output_error._simulate_numpy(rows, data.voltage, data.current, data.gate_signal, data.seg_start,
+                                 data.seg_stop, initial, data.sample_time, True, False, python,
+                                 structure.user_terms())
+    index = data.residual_index
+    assert np.ptp(compiled[:, index]) > 0.2 and np.ptp(compiled[0, index] - compiled[1, index]) > 1e-3
+    assert np.allclose(compiled[:, index], python[:, index], rtol=0, atol=1e-12)
+    # beside a discovered term (the discovery stage on a model with the user's effect): both compiled
+    from aeropend_core.diagnosis.discovery import find_term, term_effect
+    both = output_error.Structure(('test_user_inflow', term_effect(find_term('sin(2*angle)'))))
+    assert compiled_user_terms(both.user_terms()) is not None
+    rows = np.array([both.row({**values, 'test_user_loss': 0.05, both.parameter_names[-1]: c})
+                     for c in (0.0, 3.0)])
+    compiled = data.simulate(both, rows, initial)
+    python = np.full_like(compiled, np.nan)
+    output_error._simulate_numpy(rows, data.voltage, data.current, data.gate_signal, data.seg_start,
+                                 data.seg_stop, initial, data.sample_time, False, False, python,
+                                 both.user_terms())
+    assert np.ptp(compiled[0, index] - compiled[1, index]) > 1e-3
+    assert np.allclose(compiled[:, index], python[:, index], rtol=0, atol=1e-12)
 
-        record = simulate(clean_record.duty[:int(25.0 / clean_record.sample_time)], effects={'quadratic_drag': 4.0},
-                          noise=MeasurementNoise(psnr_db=40, quantise=True), seed=7)
-        prep = prepared(record)
-        builtin, user = fit_model(prep, ['quadratic_drag']), fit_model(prep, ['test_user_drag'])
-        assert builtin.parameters['drag_coefficient'] == pytest.approx(4.0, rel=0.3)
-        assert user.parameters['test_user_drag_coefficient'] == pytest.approx(
-            builtin.parameters['drag_coefficient'], rel=1e-6)
-        assert user.standard_errors['test_user_drag_coefficient'] == pytest.approx(
-            builtin.standard_errors['drag_coefficient'], rel=1e-4)
-    finally:
-        CATALOG.pop('test_user_inflow', None)
-        CATALOG.pop('test_user_drag', None)
+    record = simulate(clean_record.duty[:int(25.0 / clean_record.sample_time)], effects={'quadratic_drag': 4.0},
+                      noise=MeasurementNoise(psnr_db=40, quantise=True), seed=7)
+    prep = prepared(record)
+    builtin, user = fit_model(prep, ['quadratic_drag']), fit_model(prep, ['test_user_drag'])
+    assert builtin.parameters['drag_coefficient'] == pytest.approx(4.0, rel=0.3)
+    assert user.parameters['test_user_drag_coefficient'] == pytest.approx(
+        builtin.parameters['drag_coefficient'], rel=1e-6)
+    assert user.standard_errors['test_user_drag_coefficient'] == pytest.approx(
+        builtin.standard_errors['drag_coefficient'], rel=1e-4)
 
 
 _SOFT_TABLE = {'gain': 30.0}
 
 
-def test_a_users_effect_numba_cannot_compile_runs_in_python_and_says_so_once():
+def test_a_users_effect_numba_cannot_compile_runs_in_python_and_says_so_once(scoped_catalog):
     """A function reading a Python dict cannot be compiled: it runs in the numpy path (same free run as that path
     gives) and the user is told once which effect runs in Python and what to do. One that compiles to other values
     (int64 overflows where Python's integers do not) is caught by the check against Python, also with a
@@ -177,43 +173,39 @@ def test_a_users_effect_numba_cannot_compile_runs_in_python_and_says_so_once():
 
     import numpy as np
     from aeropend_core.diagnosis.user_kernel import compiled_user_terms
-    from aeropend_core.model.effects import CATALOG, EffectParameter, register_effect
+    from aeropend_core.model.effects import EffectParameter, register_effect
 
     @register_effect('test_user_table', 'a spring from a table', replace=True,
                      parameters=[EffectParameter('test_user_table_scale', '1/s^2', 'scale', 1.0, 0.0, 10.0)])
     def table(angle, angular_rate, test_user_table_scale):
         return -test_user_table_scale * _SOFT_TABLE['gain'] * angle
 
-    try:
-        data = _user_data()
-        structure = output_error.Structure(('test_user_table',))
-        row = structure.row({**TRUTH, 'armature_resistance': 1.0, 'test_user_table_scale': 2.0})[None, :]
-        initial = np.zeros((1, 2, 2))
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter('always')
-            first = data.simulate(structure, row, initial)
-            second = data.simulate(structure, row, initial)
-        said = [str(w.message) for w in caught if 'test_user_table' in str(w.message)]
-        assert len(said) == 1 and 'runs in Python' in said[0] and 'math or numpy' in said[0], said
-        python = np.full_like(first, np.nan)
-        output_error._simulate_numpy(row, data.voltage, data.current, data.gate_signal, data.seg_start,
-                                     data.seg_stop, initial, data.sample_time, False, False, python,
-                                     structure.user_terms())
-        assert np.array_equal(first, python, equal_nan=True) and np.array_equal(first, second, equal_nan=True)
+    data = _user_data()
+    structure = output_error.Structure(('test_user_table',))
+    row = structure.row({**TRUTH, 'armature_resistance': 1.0, 'test_user_table_scale': 2.0})[None, :]
+    initial = np.zeros((1, 2, 2))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        first = data.simulate(structure, row, initial)
+        second = data.simulate(structure, row, initial)
+    said = [str(w.message) for w in caught if 'test_user_table' in str(w.message)]
+    assert len(said) == 1 and 'runs in Python' in said[0] and 'math or numpy' in said[0], said
+    python = np.full_like(first, np.nan)
+    output_error._simulate_numpy(row, data.voltage, data.current, data.gate_signal, data.seg_start,
+                                 data.seg_stop, initial, data.sample_time, False, False, python,
+                                 structure.user_terms())
+    assert np.array_equal(first, python, equal_nan=True) and np.array_equal(first, second, equal_nan=True)
 
-        @register_effect('test_user_overflow', 'a spring in exact integers', replace=True,
-                         parameters=[EffectParameter('test_user_overflow_scale', '1/s^2', 'scale', 0.0, -1.0, 1.0)])
-        def overflow(angle, angular_rate, test_user_overflow_scale):    # Python's integers do not overflow; int64
-            return -test_user_overflow_scale * float(int(angle * 1e7) ** 3) * 1e-21
+    @register_effect('test_user_overflow', 'a spring in exact integers', replace=True,
+                     parameters=[EffectParameter('test_user_overflow_scale', '1/s^2', 'scale', 0.0, -1.0, 1.0)])
+    def overflow(angle, angular_rate, test_user_overflow_scale):    # Python's integers do not overflow; int64
+        return -test_user_overflow_scale * float(int(angle * 1e7) ** 3) * 1e-21
 
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter('always')
-            assert compiled_user_terms(output_error.Structure(('test_user_overflow',)).user_terms()) is None
-        said = [str(w.message) for w in caught if 'test_user_overflow' in str(w.message)]
-        assert len(said) == 1 and 'where Python gives' in said[0], said     # checked at a non-zero scale
-    finally:
-        CATALOG.pop('test_user_table', None)
-        CATALOG.pop('test_user_overflow', None)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter('always')
+        assert compiled_user_terms(output_error.Structure(('test_user_overflow',)).user_terms()) is None
+    said = [str(w.message) for w in caught if 'test_user_overflow' in str(w.message)]
+    assert len(said) == 1 and 'where Python gives' in said[0], said     # checked at a non-zero scale
 
 
 def test_a_fitted_model_that_runs_away_is_flagged_not_squared_into_an_overflow(clean_prep):

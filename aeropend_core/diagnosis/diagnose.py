@@ -61,6 +61,7 @@ from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the se
     UPRIGHT_WARNING, Found, VerdictFacts, _finite, catalog_stage, compare_stage, discovery_stage, drift_stage,
     excitation_advice, prepare_stage, rerun_on_corrected_input, separating_experiment, verdict_stage)
 from aeropend_core.io.recording import Recording
+from aeropend_core.model.effects import catalog_scope
 
 #: The ``schema`` key of a diagnosis's JSON (``aeropend diagnose --json``, ``aeropend run --json``'s
 #: ``diagnosis``, the ``.diagnosis.json`` saved beside a bag): its name and version, raised when a key changes
@@ -292,7 +293,9 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         set to add), ``verdict``, ``facts`` (the verdict's numbers, worded by
         :func:`aeropend_core.present.verdict_text.verdict_of`) and ``notes``; angles in rad, parameters SI.
     """
-    with single_blas_thread():          # small matrices: BLAS's own threads only wait on a busy machine
+    # small matrices: BLAS's own threads only wait on a busy machine; the discovery stage's term_* effects are
+    # registered for this diagnosis only (its result carries what it found), so no analysis changes the next one's
+    with single_blas_thread(), catalog_scope():
         return _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from, discovery)
 
 

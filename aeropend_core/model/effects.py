@@ -38,8 +38,9 @@ L f / J [rad/s^2] too (simulator and output-error fit), e.g. ``def inflow(angle,
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace as replaced
 
 import numpy as np
 
@@ -209,6 +210,48 @@ def add_effect(effect: Effect, *, replace: bool = False) -> Effect:
                                 f'{owner[0].name if owner else "the nominal model"}; parameter names must be unique')
     CATALOG[effect.name] = effect
     return effect
+
+
+@contextmanager
+def catalog_scope(*effects: Effect) -> Iterator[dict[str, Effect]]:
+    """The catalog for the duration of a ``with`` block: `effects` are registered in it, and on leaving the catalog is
+    put back as it was (every effect registered or replaced inside the block is undone).
+
+    An analysis that needs an effect of its own for a while (the discovery stage's ``term_*`` effects, which the fits
+    look up by name) registers it inside a scope, so nothing it ran changes what the next analysis in the process
+    sees; what it found travels in its result. As python-control's ``config.defaults``, with one test fixture
+    (``scoped_catalog`` in tests/conftest.py). Not for threads that register effects at the same time.
+
+    Parameters
+    ----------
+    *effects : Effect [-]
+        Effects registered for the block (replacing one of the same name).
+
+    Yields
+    ------
+    dict of str -> Effect
+        :data:`CATALOG` itself.
+
+    Examples
+    --------
+    >>> from aeropend_core.model.effects import CATALOG, EffectParameter, catalog_scope, register_effect
+    >>> with catalog_scope():
+    ...     @register_effect('probe_spring', 'a probe', parameters=[EffectParameter('probe_k', '1/s^2', 'k', 1.0)])
+    ...     def probe_spring(angle, angular_rate, probe_k):
+    ...         return -probe_k * angle
+    ...     'probe_spring' in CATALOG
+    True
+    >>> 'probe_spring' in CATALOG
+    False
+    """
+    saved = dict(CATALOG)
+    try:
+        for effect in effects:
+            add_effect(effect, replace=True)
+        yield CATALOG
+    finally:
+        CATALOG.clear()
+        CATALOG.update(saved)
 
 
 def register_effect(name: str, description: str, *, parameters: list[EffectParameter], signature: str = '',
@@ -613,8 +656,8 @@ add_effect(Effect(
         'damping': 'add free decays of several amplitudes and fast duty steps: the filter delays, damping dissipates',
     }))
 
-for _effect in CATALOG.values():
-    object.__setattr__(_effect, 'builtin', True)
+# the records above are the built-ins: flagged by new records, not by writing into the frozen ones
+CATALOG.update({name: replaced(effect, builtin=True) for name, effect in CATALOG.items()})
 
 
 def load_effects_module(path: str) -> None:
