@@ -17,9 +17,75 @@ Folders follow the data flow, from a recording to a verdict:
 =================  ===========================================================================================
 
 The names below are the public API; they are imported on first use, so ``import aeropend_core`` stays cheap
-(the numerical modules compile numba kernels). The method and the model are described in ``docs/``.
+(the numerical modules compile numba kernels). The method and the model are described in ``docs/``; the packages
+and the direction of their imports in ``docs/architecture.md``.
 
->>> from aeropend_core import simulate, lhc_schedule, diagnose, from_columns
+Examples
+--------
+The whole API on one 20 s simulated record, measured as the rig would (40 dB PSNR, 10-bit ADC); run as a doctest
+by tests/test_doctests.py (about ten seconds). Simulate it and load it as a recording, also from a CSV file:
+
+>>> import tempfile
+>>> from pathlib import Path
+>>> import numpy as np
+>>> from aeropend_core import (DEFAULT_PARAMETERS, SAMPLE_TIME, MeasurementNoise, Recording, RigParameters,
+...                            RigSimulator, from_columns, lhc_schedule, load_recording, simulate)
+>>> duty = lhc_schedule(20, seed=4).duty(duration=20)            # duty steps (fraction 0..1) at 490 Hz
+>>> run = simulate(duty, noise=MeasurementNoise(psnr_db=40, quantise=True), seed=5)
+>>> recording = from_columns(run.columns(with_truth=False), source='simulated')
+>>> isinstance(recording, Recording), len(recording), round(len(recording) * SAMPLE_TIME, 3)    # samples, s
+(True, 9800, 20.0)
+>>> from aeropend_core.io.recording import write_csv
+>>> with tempfile.TemporaryDirectory() as folder:
+...     write_csv(str(Path(folder) / 'run.csv'), run.columns(with_truth=False))
+...     len(load_recording(Path(folder) / 'run.csv'))
+9800
+>>> isinstance(DEFAULT_PARAMETERS, RigParameters), len(RigSimulator().run(duty[:490]).angle)    # 1 s streamed
+(True, 490)
+
+Identify the pendulum's equation with weak SINDy, or any equation with :func:`fit_weak_sindy` (here dx/dt = -2 x):
+
+>>> from aeropend_core import Equation, WeakSindyResult, fit_weak_sindy, identify_pendulum
+>>> fit = identify_pendulum(run.time, run.armature_voltage, run.armature_current, run.angle)
+>>> {'gravity_stiffness', 'damping', 'thrust_gain'} <= set(fit.parameters)        # SI, with fit.standard_errors
+True
+>>> from aeropend_core.wsindy import library
+>>> time = np.arange(0.0, 5.0, 0.002)                               # s
+>>> result = fit_weak_sindy(time, {'x': np.exp(-2 * time)}, [Equation('x', library.polynomial(['x'], degree=1))])
+>>> isinstance(result, WeakSindyResult), round(result['x'].coefficients['x'], 2)               # 1/s
+(True, -2.0)
+
+Compare the nominal model with the data, diagnose what is missing, write the report:
+
+>>> from aeropend_core import Comparison, Diagnosis, Verdict, compare, diagnose, write_report
+>>> comparison = compare(recording)            # fitted on the training part, judged on the held-out part
+>>> isinstance(comparison, Comparison), 0 < comparison.fit_percent <= 100    # held-out fit, %
+(True, True)
+>>> diagnosis = diagnose(recording, drift=False)
+>>> isinstance(diagnosis, Diagnosis), diagnosis.verdict in set(Verdict)
+(True, True)
+>>> with tempfile.TemporaryDirectory() as folder:
+...     write_report(diagnosis, Path(folder) / 'report.html').stat().st_size > 10_000    # bytes
+True
+
+An effect of your own, registered for a block only; every mistake is an :class:`AeropendError`:
+
+>>> from aeropend_core import (AeropendError, EffectParameter, InsufficientDataError, StorageError,
+...                            UnknownEffectError, catalog_scope, register_effect)
+>>> with catalog_scope():
+...     stiffness = EffectParameter('cubic_k', '1/s^2', 'cubic spring per inertia', 5.0)
+...     @register_effect('cubic_spring', 'a hardening spring', parameters=[stiffness])
+...     def cubic_spring(angle, angular_rate, cubic_k):
+...         return -cubic_k * angle ** 3
+...     bool(np.ptp(simulate(duty[:980], effects={'cubic_spring': 50.0}).angle) > 0)
+True
+>>> try:
+...     simulate(duty[:980], effects={'cubic_spring': 50.0})        # gone with its block
+... except UnknownEffectError as error:
+...     isinstance(error, AeropendError)
+True
+>>> all(issubclass(e, AeropendError) for e in (InsufficientDataError, StorageError, UnknownEffectError))
+True
 """
 from __future__ import annotations
 
@@ -39,6 +105,7 @@ _PUBLIC = {
     'SAMPLE_TIME': 'aeropend_core.model.parameters',
     'EffectParameter': 'aeropend_core.model.effects',
     'register_effect': 'aeropend_core.model.effects',
+    'catalog_scope': 'aeropend_core.model.effects',
     'RigSimulator': 'aeropend_core.sim.simulate',
     'simulate': 'aeropend_core.sim.simulate',
     'lhc_schedule': 'aeropend_core.sim.excitation',
@@ -46,8 +113,12 @@ _PUBLIC = {
     'Equation': 'aeropend_core.wsindy.weak_form',
     'fit_weak_sindy': 'aeropend_core.wsindy.weak_form',
     'identify_pendulum': 'aeropend_core.identify.pendulum',
+    'WeakSindyResult': 'aeropend_core.wsindy.weak_form',
+    'Comparison': 'aeropend_core.diagnosis.compare',
     'compare': 'aeropend_core.diagnosis.compare',
+    'Diagnosis': 'aeropend_core.diagnosis.diagnose',
     'diagnose': 'aeropend_core.diagnosis.diagnose',
+    'Verdict': 'aeropend_core.diagnosis.verdicts',
     'write_report': 'aeropend_core.present.report',
 }
 

@@ -136,7 +136,8 @@ def test_public_api_is_importable_and_listed():
     import aeropend_core
     required = {'load_recording', 'simulate', 'RigSimulator', 'RigParameters', 'DEFAULT_PARAMETERS',
                 'identify_pendulum', 'fit_weak_sindy', 'compare', 'diagnose', 'register_effect', 'write_report',
-                'AeropendError', 'InsufficientDataError', 'StorageError', 'UnknownEffectError'}
+                'AeropendError', 'InsufficientDataError', 'StorageError', 'UnknownEffectError',
+                'Diagnosis', 'Comparison', 'WeakSindyResult', 'Verdict', 'catalog_scope'}      # the results too
     assert required <= set(aeropend_core.__all__)
     for name in aeropend_core.__all__:
         assert getattr(aeropend_core, name) is not None

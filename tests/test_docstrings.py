@@ -9,11 +9,13 @@ For every function and class exported by ``aeropend_core`` (``__all__``), parsed
   not a physical quantity) or says ``dimensionless``;
 - a function has a ``Returns`` section (a class documents its attributes instead).
 
-Exceptions are exempt from the parameter rules (they take a message). Constants (``DEFAULT_PARAMETERS``,
+Exceptions are exempt from the parameter rules (they take a message), and so are enumerations (``Verdict``:
+its members are its documentation). Constants (``DEFAULT_PARAMETERS``,
 ``SAMPLE_TIME``) are documented where they are defined.
 """
 from __future__ import annotations
 
+import enum
 import inspect
 import re
 import warnings
@@ -33,7 +35,7 @@ def public_callables() -> list[str]:
     for name in aeropend_core.__all__:
         obj = getattr(aeropend_core, name)
         if (inspect.isclass(obj) or inspect.isfunction(obj)) and not (
-                inspect.isclass(obj) and issubclass(obj, BaseException)):
+                inspect.isclass(obj) and issubclass(obj, (BaseException, enum.Enum))):
             names.append(name)
     return names
 

@@ -7,8 +7,10 @@ from dataclasses import replace
 
 import numpy as np
 
+from aeropend_core.diagnosis.verdicts import Verdict
+
 #: Verdict of a diagnosis whose identified parameters fail a physical check.
-DOES_NOT_FIT = 'model_does_not_fit'
+DOES_NOT_FIT = Verdict.MODEL_DOES_NOT_FIT
 
 
 def misfit_doubt(diagnosis) -> str | None:

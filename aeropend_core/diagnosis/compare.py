@@ -631,7 +631,17 @@ def _worst_windows(prep: PreparedRecord, error: np.ndarray, width: float = 1.0, 
 
 @dataclass
 class Comparison:
-    """A fitted model (nominal + effects) and its evaluation on the held-out data."""
+    """A fitted model (nominal + effects) and its evaluation on the held-out data; made by :func:`compare`.
+
+    Parameters
+    ----------
+    effects : tuple of str [-]
+        Effects in the model besides the nominal equation.
+    fit : OutputErrorFit [-]
+        The output-error fit on the training part: ``parameters`` and ``standard_errors`` (SI).
+    evaluation : Evaluation [-]
+        The free-run simulation of the held-out part: ``fit_percent`` [%], ``rms_error`` and ``noise_rms`` [rad].
+    """
 
     effects: tuple[str, ...]
     fit: OutputErrorFit

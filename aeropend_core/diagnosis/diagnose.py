@@ -60,6 +60,7 @@ from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the se
     CONFOUNDING_FACTOR, DEFAULT_EXPERIMENT, DISCOVERY_NOISE, MAX_EFFECTS, RETRY_NOISE, UNEXPLAINED_NOISE,
     UPRIGHT_WARNING, Found, VerdictFacts, _finite, catalog_stage, compare_stage, discovery_stage, drift_stage,
     excitation_advice, prepare_stage, rerun_on_corrected_input, separating_experiment, verdict_stage)
+from aeropend_core.diagnosis.verdicts import Verdict
 from aeropend_core.io.recording import Recording
 from aeropend_core.model.effects import catalog_scope
 
@@ -77,13 +78,63 @@ if TYPE_CHECKING:       # annotations only (imported where their stage runs)
 @dataclass
 class Diagnosis:
     """Outcome of :func:`diagnose`. Angles in rad; parameters SI. Its verdict's words:
-    :func:`aeropend_core.present.verdict_text.verdict_of` (from :attr:`facts`)."""
+    :func:`aeropend_core.present.verdict_text.verdict_of` (from :attr:`facts`); its JSON form
+    :func:`aeropend_core.present.verdict_text.diagnosis_dict`; its text
+    :func:`aeropend_core.present.summary.format_summary`.
+
+    Made by :func:`diagnose`, not by hand (the example of :mod:`aeropend_core` runs one).
+
+    Parameters
+    ----------
+    effects : tuple of str [-]
+        Effects in the model as given (``--add``).
+    current : Comparison [-]
+        That model fitted and judged on the held-out part (fit %, RMS error [rad]).
+    candidates : list of Candidate [-]
+        Every catalog effect tried, best first, with its evidence.
+    missing_effect : str or None [-]
+        The one effect to add, when the data pin exactly one.
+    verdict : Verdict [-]
+        What it concluded (a ``str`` too: ``'effect_found'``, ``'nothing_missing'``, ...).
+    facts : VerdictFacts [-]
+        The verdict's numbers (errors [rad], shares), worded in present/.
+    notes : list of str [-]
+        Notes said under the verdict.
+    before : Comparison or None [-]
+        The nominal model, when the model as given has effects.
+    residual_structure : list of dict [-]
+        Structure left in the residual (lags [s], correlations [-]) when the error is unexplained.
+    prepared : PreparedRecord or None [-]
+        The conditioned record (noise RMS [rad], sample time [s], training and held-out parts).
+    seconds : float [s]
+        Wall-clock time of the diagnosis.
+    found : list of Found [-]
+        The selected set of missing effects, in the order the search added them (confounded ones included).
+    selected : Comparison or None [-]
+        The model with the selected set (None when nothing was selected).
+    drift : list of dict [-]
+        Per-segment drift test of the nominal parameters (:func:`aeropend_core.diagnosis.drift.drift_test`).
+    fixed : dict of str -> float [SI unit of each parameter]
+        Parameters held at given values (``--fix``, a calibration file).
+    fixed_from : dict of str -> str [-]
+        Where each held parameter's value came from (``'--fix'``, ``'calibration file PATH'``).
+    parameter_warnings : dict of str -> str [-]
+        Parameters that fail a physical check -> the warning (:mod:`aeropend_core.diagnosis.checks`).
+    parameter_doubts : dict of str -> str [-]
+        Doubts on parameters the fit cannot check itself -> the text, said beside the number.
+    independent : FreeOscillation or None [-]
+        The free-oscillation estimate (:mod:`aeropend_core.identify.plausibility`; frequency [rad/s]).
+    discovery : Discovery or None [-]
+        The discovery stage's result: terms outside the catalog (None when it did not run).
+    motor_discovery : MotorDiscovery or None [-]
+        The motor equation's discovery (None when the discovery stage was off).
+    """
 
     effects: tuple[str, ...]
     current: Comparison
     candidates: list[Candidate]
     missing_effect: str | None
-    verdict: str                     # 'nothing_missing' | 'effect_found' | 'confounded' | 'unexplained' | ...
+    verdict: Verdict                 #: what it concluded (a str too: 'effect_found', 'nothing_missing', ...)
     facts: VerdictFacts
     notes: list[str]
     before: Comparison | None = None
@@ -314,7 +365,7 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
     decided = verdict_stage(catalog, discovered, drifted, input_corrected=rerun is not None)
     return check_diagnosis(Diagnosis(
         effects=prepared.effects, current=catalog.current, candidates=catalog.results,
-        missing_effect=decided.missing, verdict=decided.verdict, facts=decided.facts,
+        missing_effect=decided.missing, verdict=Verdict(decided.verdict), facts=decided.facts,
         notes=([rerun.note] if rerun is not None else []) + list(decided.notes),
         before=compared.before, residual_structure=list(decided.structure), prepared=catalog.prep,
         seconds=time.perf_counter() - started, found=list(catalog.found), selected=catalog.selected,

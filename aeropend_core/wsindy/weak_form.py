@@ -188,7 +188,13 @@ class EquationFit:
 
 @dataclass(frozen=True, eq=False)
 class WeakSindyResult:
-    """Identified equations, in the order requested. Index by left-hand side name or by target signal."""
+    """Identified equations, in the order requested. Index by left-hand side name or by target signal.
+
+    Parameters
+    ----------
+    equations : tuple of EquationFit [-]
+        One per requested equation: coefficients in (left-hand side unit) / (term unit), with 1σ.
+    """
 
     equations: tuple[EquationFit, ...]
 
