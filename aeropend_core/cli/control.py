@@ -84,16 +84,17 @@ def _design(args) -> int:
     from aeropend_core.io.paths import output_target
     output_target(args.output, '--output')
     check_json_target(args.json)
-    from aeropend_core.control.controller_file import Controller
-    from aeropend_core.control.design import TemplateNotMet, design
     from aeropend_core.control.model_source import load_model
-    from aeropend_core.control.reference import ReferenceSchedule
-    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.control.reference import ReferenceSchedule, design_schedule
     model = load_model(args.model)
-    schedule = None
     if args.reference:
         from aeropend_core.io.inputs import load_yaml
         schedule = ReferenceSchedule.from_mapping(load_yaml(args.reference, 'reference schedule'), args.reference)
+    else:                       # built (and an angle out of range refused) before the design stack is imported
+        schedule = design_schedule(args.at)
+    from aeropend_core.control.controller_file import Controller
+    from aeropend_core.control.design import TemplateNotMet, design
+    from aeropend_core.sim.noise import MeasurementNoise
     for doubt in model.doubts:
         print(f'aeropend control design: warning: {doubt}', file=sys.stderr)
     psnr = args.psnr if args.psnr is not None else model.psnr_db
@@ -151,7 +152,6 @@ def _check(args) -> int:
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
     _check_page(args.report)
-    from aeropend_core.control.check import check_record
     from aeropend_core.control.controller_file import Controller
     from aeropend_core.control.record import load_closed_loop
     data = load_closed_loop(args.record)
@@ -162,6 +162,7 @@ def _check(args) -> int:
         raise AeropendError(f'{args.record} holds no reference schedule: it is not a record of `aeropend run '
                             '--controller`')
     cap = getattr(data, 'duty_limit', math.nan)
+    from aeropend_core.control.check import check_record         # numba: once the record is read
     result = check_record(data.time, data.angle, data.duty, controller, data.schedule,
                           duty_limit=min(cap, controller.gains.u_clamp_max) if math.isfinite(cap) else None)
     if not getattr(data, 'complete', True):

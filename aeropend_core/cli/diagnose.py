@@ -122,7 +122,7 @@ def main(args: argparse.Namespace) -> int:
             validation_recording = load_for_analysis(args, 'diagnose', path=args.validate)
         except AeropendError as error:
             raise AeropendError(f'--validate: {error}') from None
-        from aeropend_core.diagnosis.compare import MIN_DURATION
+        from aeropend_core.diagnosis import MIN_DURATION
         times = validation_recording.time
         span = float(times[-1] - times[0]) if times.size else 0.0
         if span < MIN_DURATION:

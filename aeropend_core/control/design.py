@@ -25,7 +25,7 @@ from aeropend_core.control.law import PidGains, law_step
 from aeropend_core.control.linear import Linearisation, linearise
 from aeropend_core.control.loop import ClosedLoopRecord, FeedforwardMap, simulate_loop
 from aeropend_core.control.metrics import StepMetrics, Template, schedule_metrics
-from aeropend_core.control.reference import ReferenceSchedule, ReferenceStep
+from aeropend_core.control.reference import ReferenceSchedule, design_schedule
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
 from aeropend_core.sim.noise import MeasurementNoise
@@ -97,22 +97,6 @@ class Design:
                 'operating_duty': self.linearisation.duty, 'gain_margin_db': self.gain_margin_db,
                 'phase_margin_deg': self.phase_margin_deg,
                 'predicted_steps': [metrics.as_dict() for metrics in self.metrics], 'notes': list(self.notes)}
-
-
-#: Default design steps: +-SWING around the operating angle [deg], each held HOLD [s], after an approach of APPROACH
-#: [s] from the hanging rod to the first angle (played, not judged).
-SWING_DEG = 10.0
-HOLD = 4.0
-APPROACH = 4.0
-
-
-def design_schedule(angle: float, swing_deg: float = SWING_DEG, hold: float = HOLD,
-                    approach: float = APPROACH) -> ReferenceSchedule:
-    """The default design schedule around `angle` [rad]: the approach to angle - swing (not judged), then steps to
-    angle + swing, angle - swing and angle + swing."""
-    at = math.degrees(angle)
-    steps = tuple(ReferenceStep(math.radians(at + sign * swing_deg), hold) for sign in (1, -1, 1))
-    return ReferenceSchedule(steps=steps, start_angle=math.radians(at - swing_deg), start_hold=approach)
 
 
 def _plant(lin: Linearisation, sample_time: float):

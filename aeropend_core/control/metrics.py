@@ -27,7 +27,6 @@ import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.ndimage import uniform_filter1d
 
 from aeropend_core.errors import AeropendError
 from aeropend_core.sim.noise import ANGLE_LSB
@@ -172,6 +171,7 @@ def step_metrics(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, start: f
     sample_time = float(np.median(np.diff(time))) if time.size > 1 else 0.0
     window = max(1, int(round(SMOOTHING_TIME / sample_time))) if sample_time > 0 else 1
     raw = y
+    from scipy.ndimage import uniform_filter1d     # here: reading a controller file needs no scipy
     y = uniform_filter1d(raw, window, mode='nearest')
     tail = t >= (1.0 - FINAL_SHARE) * hold
     if tail.sum() < 2:

@@ -160,3 +160,19 @@ def _angle(item, key: str, source: str, where: str, default: float | None = None
             raise AeropendError(f'{source}: {where} gives both "{key}" (rad) and "{key}_deg"; keep one')
         return math.radians(_number(item, f'{key}_deg', source, where))
     return _number(item, key, source, where, default)
+
+
+#: Default design steps: +-SWING around the operating angle [deg], each held HOLD [s], after an approach of APPROACH
+#: [s] from the hanging rod to the first angle (played, not judged).
+SWING_DEG = 10.0
+HOLD = 4.0
+APPROACH = 4.0
+
+
+def design_schedule(angle: float, swing_deg: float = SWING_DEG, hold: float = HOLD,
+                    approach: float = APPROACH) -> ReferenceSchedule:
+    """The default design schedule around `angle` [rad]: the approach to angle - swing (not judged), then steps to
+    angle + swing, angle - swing and angle + swing."""
+    at = math.degrees(angle)
+    steps = tuple(ReferenceStep(math.radians(at + sign * swing_deg), hold) for sign in (1, -1, 1))
+    return ReferenceSchedule(steps=steps, start_angle=math.radians(at - swing_deg), start_hold=approach)

@@ -28,6 +28,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.diagnosis import MIN_DURATION  # noqa: F401 - the shortest record [s], also read from here
 from aeropend_core.diagnosis.basins import PROFILED, search_lag_basins
 from aeropend_core.diagnosis.map_profile import profile_motor_map
 from aeropend_core.diagnosis.gaps import MAX_LOST_FRACTION, SHORTEST_PIECE, Gaps, split_at_gaps  # noqa: F401
@@ -46,8 +47,6 @@ if TYPE_CHECKING:       # annotations only (the motor discovery sits above this 
 TRAIN_FRACTION = 0.75
 #: Target length of the multiple-shooting segments [s] (shorter ones let Ia^2 terms mimic damping).
 SEGMENT_SECONDS = 10.0
-#: Shortest record the comparison accepts [s].
-MIN_DURATION = 20.0
 #: Held-out initial state is estimated on this many seconds [s].
 HELDOUT_INITIAL_SECONDS = 1.0
 #: Horizon of the k-step prediction [s].

@@ -63,7 +63,6 @@ def check_arguments(args, duration_given: bool) -> None:
     if not controller_path:
         return
     from aeropend_core.control.controller_file import Controller
-    from aeropend_core.control.loop import FeedforwardMap
     from aeropend_core.control.record import default_schedule, default_schedule_text, read_schedule_file
     try:
         controller = Controller.load(controller_path)
@@ -79,6 +78,7 @@ def check_arguments(args, duration_given: bool) -> None:
             raise AeropendError(f'the schedule asks for {math.degrees(angle):.1f} deg, outside the controller\'s '
                                 f'safety limits ({math.degrees(gains.angle_min):.1f} .. '
                                 f'{math.degrees(gains.angle_max):.1f} deg: angle_min/angle_max): the law would trip')
+    from aeropend_core.control.loop import FeedforwardMap      # numba: once the files are read and checked
     feedforward = FeedforwardMap(controller.parameters, controller.effects)
     for angle in angles:
         feedforward(angle)          # AeropendError when no duty holds it under the controller's model

@@ -116,7 +116,7 @@ def _check_arguments(args) -> None:
         args.duty_cap = args.closed_loop['controller'].gains.u_clamp_max if args.closed_loop else 0.7
     if not 0 < args.duration < math.inf:
         raise AeropendError(f'--duration must be a positive number of seconds, got {args.duration}')
-    from aeropend_core.diagnosis.compare import MIN_DURATION
+    from aeropend_core.diagnosis import MIN_DURATION
     args.diagnosis_skipped = None
     if args.closed_loop is not None and not args.no_diagnose and args.duration < MIN_DURATION + 1.0 \
             and not (args.report or args.json):
