@@ -142,10 +142,10 @@ def search_lag_basins(prep, fit_from: Callable, values: dict[str, float], parame
         return abs(a - b) >= DISTINCT_OFFSET
 
     rss, coefficients = lag_profile(prep, values, grid, kind)
-    fits = [local_fit]
+    starts = []
     tried = [local_fit.parameters[parameter]]
     for rank, index in enumerate(_local_minima(rss)):
-        if len(fits) > EXTRA_STARTS:
+        if len(starts) >= EXTRA_STARTS:
             break
         value = float(grid[index])
         gravity, damping, gain = coefficients[index]
@@ -160,7 +160,9 @@ def search_lag_basins(prep, fit_from: Callable, values: dict[str, float], parame
         start = {**values, parameter: value, 'gravity_stiffness': float(gravity),
                  'damping': float(max(damping, 0.1)), 'thrust_gain': float(gain)}
         tried.append(value)
-        fits.append(fit_from(start))
+        starts.append(start)
+    from aeropend_core.diagnosis.parallel import map_in_order     # the starts do not depend on the fits: side by side
+    fits = [local_fit, *map_in_order(fit_from, starts)]
     order = sorted(range(len(fits)), key=lambda i: fits[i].residual_rms)
     best = fits[order[0]]
     basins = []

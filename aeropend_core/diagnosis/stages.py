@@ -270,6 +270,20 @@ def _judge_pair(prep: PreparedRecord, model: tuple[str, ...], final: Comparison,
     return 'interchangeable', swapped
 
 
+def _try_round(search, base: Comparison, model: tuple[str, ...], names: list[str], held, say: Say,
+               round_number: int) -> list[Candidate]:
+    """Each of `names` tried on top of `model`, the fits side by side (:mod:`aeropend_core.diagnosis.parallel`);
+    the candidates in the order of `names`, the same whatever the number of workers."""
+    from aeropend_core.diagnosis.parallel import locked, map_in_order
+    say_one = locked(say)
+
+    def attempt(numbered: tuple[int, str]) -> Candidate:
+        index, name = numbered
+        say_one(f'[round {round_number}, {index}/{len(names)}] trying {name}')
+        return _try(search, base, model, name, held)
+    return map_in_order(attempt, enumerate(names, 1))
+
+
 def catalog_stage(prepared: Prepared, compared: Compared, say: Say) -> CatalogResult:
     """Forward selection with backward elimination over the candidates, scored by the catalog's evidence."""
     from aeropend_core.diagnosis.long_record import fit_on_all, search_record
@@ -299,10 +313,7 @@ def catalog_stage(prepared: Prepared, compared: Compared, say: Say) -> CatalogRe
             remaining = [e for e in pool if e.name not in model and e.name not in hopeless]
         if not remaining:
             break
-        tried: list[Candidate] = []
-        for index, entry in enumerate(remaining, 1):
-            say(f'[round {round_index + 1}, {index}/{len(remaining)}] trying {entry.name}')
-            tried.append(_try(search, base, model, entry.name, held))
+        tried = _try_round(search, base, model, [entry.name for entry in remaining], held, say, round_index + 1)
         if round_index == 0:
             first_round = tried
         # a candidate without training evidence (BIC not lower by the margin) is not tried again in later rounds

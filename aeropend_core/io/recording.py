@@ -260,8 +260,12 @@ def _read_rows(reader, width: int) -> tuple[np.ndarray, tuple[int, int] | None, 
         first = number - len(block) + 1              # data row number of block[0]
         if block and non_numeric is None:
             try:
-                blocks.append(np.array([[float(cell) if cell.strip() else np.nan for cell in row] for row in block],
-                                       dtype=float).reshape(len(block), width))
+                try:        # numpy parses each cell as float() does, in C; an empty cell (NaN) takes the loop below
+                    converted = np.array(block, dtype=float)
+                except ValueError:
+                    converted = np.array([[float(cell) if cell.strip() else np.nan for cell in row] for row in block],
+                                         dtype=float)
+                blocks.append(converted.reshape(len(block), width))
             except ValueError as error:
                 non_numeric = str(error)
                 for offset, row in enumerate(block):
@@ -273,7 +277,7 @@ def _read_rows(reader, width: int) -> tuple[np.ndarray, tuple[int, int] | None, 
         block.clear()
 
     for row in reader:
-        if not row or not any(cell.strip() for cell in row):
+        if not row or not (row[0].strip() or any(cell.strip() for cell in row)):      # blank: skipped
             continue
         number += 1
         if len(row) != width:

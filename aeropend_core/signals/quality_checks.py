@@ -607,15 +607,15 @@ def _step_jumps(gate: _Gate, voltage: np.ndarray, current: np.ndarray) -> float 
     sample_time = float(np.median(np.diff(gate.time)))
     steps = detect_steps(voltage, sample_time)
     span = float(np.subtract(*np.percentile(voltage, [99, 1])))
-    values = []
-    for k in steps:
-        if k < 3 or k + 3 > voltage.size:
-            continue
-        d_voltage = float(np.median(voltage[k:k + 3]) - np.median(voltage[k - 3:k]))
-        if abs(d_voltage) < 0.1 * span:
-            continue
-        values.append(np.sign(d_voltage) * (float(np.median(current[k:k + 2])) - float(np.median(current[k - 2:k]))))
-    if len(values) < 5:
+    steps = steps[(steps >= 3) & (steps + 3 <= voltage.size)]
+    # medians of the 3 (voltage) and 2 (current) samples after and before each step, all steps at once
+    d_voltage = np.median(voltage[steps[:, None] + np.arange(3)], axis=1) - \
+        np.median(voltage[steps[:, None] + np.arange(-3, 0)], axis=1)
+    larger = np.abs(d_voltage) >= 0.1 * span
+    steps, d_voltage = steps[larger], d_voltage[larger]
+    values = np.sign(d_voltage) * (np.median(current[steps[:, None] + np.arange(2)], axis=1)
+                                   - np.median(current[steps[:, None] + np.arange(-2, 0)], axis=1))
+    if values.size < 5:
         return None
     return float(np.median(values))
 
@@ -700,9 +700,8 @@ def _check_stuck(gate: _Gate, name: str, driver: str, sample_time: float) -> Non
         return
     minimum = max(int(STUCK_SECONDS / sample_time), 20)
     response = int(STUCK_RESPONSE / sample_time)
-    for first, last in zip(starts, stops):
-        if last - first + 1 < minimum + response:
-            continue
+    long_enough = stops - starts + 1 >= minimum + response        # the runs worth a look, found at once
+    for first, last in zip(starts[long_enough], stops[long_enough]):
         moved = float(np.ptp(smooth[first:last + 1 - response]))   # an input change the sensor had time to see
         if moved > 0.2 * span:
             gate.add('stuck_sensor', 'refused', f'{name!r} is stuck at {values[first]:.6g} for '

@@ -1,0 +1,99 @@
+"""Independent fits side by side on the machine's cores: the candidates of one round of the catalog search.
+
+Each candidate's output-error fit spends most of its time in the compiled simulation kernel
+(:func:`aeropend_core.diagnosis.output_error._simulate_kernel`, compiled ``nogil``), so threads of one process
+run the fits of a round at the same time without copying the record into other processes or importing the
+stack again. The fits share nothing they write, BLAS runs one thread (:mod:`aeropend_core.blas`) and each fit
+does exactly the arithmetic it does alone, so the results are identical whatever the number of workers (a test
+compares 1 and 2 workers exactly); the results come back in the order of the inputs.
+
+``AEROPEND_WORKERS`` sets the number of workers (1: one after the other, as before); by default one per core this
+process may run on. Where a thread cannot be started, the fits run one after the other.
+"""
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Callable, Iterable
+from typing import TypeVar
+
+from aeropend_core.errors import AeropendError
+
+#: Environment variable that sets the number of workers (a whole number >= 1).
+WORKERS_VARIABLE = 'AEROPEND_WORKERS'
+
+#: Name prefix of the worker threads (a map inside a worker runs serially).
+_THREAD_PREFIX = 'aeropend-fit'
+
+Item = TypeVar('Item')
+Result = TypeVar('Result')
+
+
+def default_workers() -> int:
+    """Workers for independent fits [-]: ``AEROPEND_WORKERS`` when set, else the cores this process may run on.
+
+    Raises
+    ------
+    AeropendError
+        ``AEROPEND_WORKERS`` is not a whole number >= 1.
+    """
+    text = os.environ.get(WORKERS_VARIABLE, '').strip()
+    if text:
+        try:
+            value = int(text)
+        except ValueError:
+            value = 0
+        if value < 1:
+            raise AeropendError(f'{WORKERS_VARIABLE}={text!r} is not a number of workers; set a whole number >= 1 '
+                                f'(1: one fit after the other) or unset it (one worker per core)')
+        return value
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):        # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def map_in_order(function: Callable[[Item], Result], items: Iterable[Item], workers: int | None = None) -> list[Result]:
+    """``[function(item) for item in items]``, computed on up to `workers` threads (None: :func:`default_workers`).
+
+    Parameters
+    ----------
+    function : callable [-]
+        Applied to each item; must not write anything another call reads.
+    items : iterable [-]
+        The inputs.
+    workers : int or None [-]
+        Number of threads; 1 computes in this thread, one item after the other.
+
+    Returns
+    -------
+    list
+        The results in the order of `items`. An exception raised by a call is raised here (the first in the order
+        of `items`), as the serial loop would.
+    """
+    items = list(items)
+    count = min(default_workers() if workers is None else int(workers), len(items))
+    if threading.current_thread().name.startswith(_THREAD_PREFIX):
+        count = 1                           # already a worker: the cores are taken by the outer map
+    if count <= 1:
+        return [function(item) for item in items]
+    from concurrent.futures import ThreadPoolExecutor
+    try:
+        pool = ThreadPoolExecutor(max_workers=count, thread_name_prefix=_THREAD_PREFIX)
+        futures = [pool.submit(function, item) for item in items]
+    except RuntimeError:                     # cannot start a thread (resource limits, interpreter shutting down)
+        return [function(item) for item in items]
+    try:
+        return [future.result() for future in futures]
+    finally:                                 # on an error or Ctrl-C: start no further fit
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+def locked(say: Callable[[str], None]) -> Callable[[str], None]:
+    """`say` made safe to call from several workers (one message at a time)."""
+    lock = threading.Lock()
+
+    def say_locked(message: str) -> None:
+        with lock:
+            say(message)
+    return say_locked
