@@ -1,0 +1,101 @@
+"""The candidates of a search round fitted side by side (aeropend_core.diagnosis.parallel, issue 41): the answer does
+not depend on the number of workers.
+
+The diagnosis with one worker is the old code path (the candidates one after the other); with two the fits run on
+two threads at once. Verdicts, parameters and their +- must be equal exactly (not within a tolerance: each fit does
+the same arithmetic), on records with a known hidden effect that the diagnosis must also name.
+"""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+
+from aeropend_core.diagnosis.parallel import WORKERS_VARIABLE, default_workers, map_in_order
+from aeropend_core.errors import AeropendError
+
+
+def test_map_in_order_keeps_the_order_and_raises_the_first_error():
+    assert map_in_order(lambda x: x * x, range(7), workers=3) == [x * x for x in range(7)]
+    assert map_in_order(lambda x: x, [], workers=2) == []
+
+    def fails(x):
+        if x in (2, 5):
+            raise ValueError(f'item {x}')
+        return x
+    with pytest.raises(ValueError, match='item 2'):
+        map_in_order(fails, range(7), workers=2)
+
+
+def test_a_map_inside_a_worker_runs_in_that_worker():
+    both_started = threading.Barrier(2, timeout=60)       # the two outer items run at once
+
+    def inner(_):
+        both_started.wait()
+        return set(map_in_order(lambda y: threading.current_thread().name, range(3), workers=2))
+    outer = map_in_order(inner, range(2), workers=2)
+    names = set().union(*outer)
+    assert len(names) == 2 and all(name.startswith('aeropend-fit') for name in names)   # no nested pool
+    assert all(len(found) == 1 for found in outer)
+
+
+def test_the_workers_variable(monkeypatch):
+    monkeypatch.setenv(WORKERS_VARIABLE, '3')
+    assert default_workers() == 3
+    for bad in ('0', 'two', '-1'):
+        monkeypatch.setenv(WORKERS_VARIABLE, bad)
+        with pytest.raises(AeropendError, match=WORKERS_VARIABLE):
+            default_workers()
+    monkeypatch.delenv(WORKERS_VARIABLE)
+    assert default_workers() >= 1
+
+
+def _without_times(value):
+    """The diagnosis as JSON without its wall-clock fields (they differ from run to run)."""
+    if isinstance(value, dict):
+        return {k: _without_times(v) for k, v in value.items() if k not in ('seconds', 'elapsed_s')}
+    if isinstance(value, list):
+        return [_without_times(v) for v in value]
+    return value
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('hidden, named', [({'thrust_lag': 0.15}, 'thrust_lag'),
+                                           ({'angle_offset': 0.05}, 'angle_offset')])
+def test_the_diagnosis_is_the_same_with_one_and_two_workers(hidden, named, monkeypatch):
+    from aeropend_core.diagnosis import stages
+    from aeropend_core.diagnosis.diagnose import diagnose
+    from aeropend_core.io.recording import from_columns
+    from aeropend_core.present.verdict_text import diagnosis_dict
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.sim.simulate import simulate
+    duty = lhc_schedule(25.0, seed=4).duty(duration=25.0)
+    trajectory = simulate(duty, effects=hidden, noise=MeasurementNoise(40.0, True), seed=4)
+    recording = from_columns(trajectory.columns(with_truth=False))
+    threads: set[str] = set()
+    original = stages._try
+
+    def spying(*args, **kwargs):
+        threads.add(threading.current_thread().name)
+        return original(*args, **kwargs)
+    monkeypatch.setattr(stages, '_try', spying)
+    results = {}
+    for workers in (1, 2):
+        monkeypatch.setenv(WORKERS_VARIABLE, str(workers))
+        threads.clear()
+        result = diagnose(recording, candidates=['thrust_lag', 'angle_filter', 'angle_offset', 'coulomb_friction'],
+                          drift=False, discovery=False)
+        results[workers] = (result, _without_times(diagnosis_dict(result)), set(threads))
+    serial, parallel = results[1], results[2]
+    assert serial[2] == {threading.current_thread().name}            # one worker: in this thread, as before
+    assert len({t for t in parallel[2] if t.startswith('aeropend-fit')}) == 2      # two at once (a round of one
+    # candidate, or a rival tried alone, runs in this thread)
+    assert serial[0].missing_effect == named == parallel[0].missing_effect         # the known truth is named
+    for one, two in zip(serial[0].candidates, parallel[0].candidates):
+        assert one.effect == two.effect
+        np.testing.assert_equal(one.parameters, two.parameters)         # exact; NaN equal to NaN
+        np.testing.assert_equal(one.standard_errors, two.standard_errors)
+        np.testing.assert_equal(one.delta_bic, two.delta_bic)
+    np.testing.assert_equal(serial[1], parallel[1])           # everything the JSON says, exactly
