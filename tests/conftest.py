@@ -37,6 +37,9 @@ _ONE_BLAS_THREAD = single_blas_thread().__enter__()
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 for _threads in ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'NUMBA_NUM_THREADS'):
     os.environ.setdefault(_threads, '1')            # before numpy is first imported (test modules import it later)
+# the candidates of a diagnosis one after the other: the test workers already fill the cores (the parallel path has
+# its own test, tests/test_parallel_fits.py, which sets the number of workers itself)
+os.environ.setdefault('AEROPEND_WORKERS', '1')
 
 #: what marks a test (or one of its fixtures) as using ROS: rclpy, the nodes, the ROS test helpers, `aeropend run`
 _ROS_USE = re.compile(r'rclpy|aeropend_ros|NodeProcess|private_domain_id|own_context|use_domain|ros2|'
