@@ -8,7 +8,8 @@ does exactly the arithmetic it does alone, so the results are identical whatever
 compares 1 and 2 workers exactly); the results come back in the order of the inputs.
 
 ``AEROPEND_WORKERS`` sets the number of workers (1: one after the other, as before); by default one per core this
-process may run on. Where a thread cannot be started, the fits run one after the other.
+process may run on. Where a thread cannot be started, and for records longer than :data:`PARALLEL_MAX_SAMPLES`
+(memory), the fits run one after the other.
 """
 from __future__ import annotations
 
@@ -51,6 +52,18 @@ def default_workers() -> int:
         return max(1, len(os.sched_getaffinity(0)))
     except (AttributeError, OSError):        # not on Linux
         return max(1, os.cpu_count() or 1)
+
+
+#: Longest record [samples] whose fits run side by side (~306 s at 490 Hz). Each fit of a long record holds its own
+#: simulations and Jacobian: a 600 s record diagnosed with two workers peaked at 632 MB of resident memory against
+#: 436 MB with one (bench/results/2026-12-06-s18-speed), so longer records fit one candidate after the other.
+PARALLEL_MAX_SAMPLES = 150_000
+
+
+def workers_for(samples: int) -> int | None:
+    """Workers for the fits of a record of `samples` samples [-]: None (the default, one per core) up to
+    :data:`PARALLEL_MAX_SAMPLES`, 1 above it (the peak memory stays that of one fit)."""
+    return None if samples <= PARALLEL_MAX_SAMPLES else 1
 
 
 def map_in_order(function: Callable[[Item], Result], items: Iterable[Item], workers: int | None = None) -> list[Result]:

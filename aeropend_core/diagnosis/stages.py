@@ -274,14 +274,14 @@ def _try_round(search, base: Comparison, model: tuple[str, ...], names: list[str
                round_number: int) -> list[Candidate]:
     """Each of `names` tried on top of `model`, the fits side by side (:mod:`aeropend_core.diagnosis.parallel`);
     the candidates in the order of `names`, the same whatever the number of workers."""
-    from aeropend_core.diagnosis.parallel import locked, map_in_order
+    from aeropend_core.diagnosis.parallel import locked, map_in_order, workers_for
     say_one = locked(say)
 
     def attempt(numbered: tuple[int, str]) -> Candidate:
         index, name = numbered
         say_one(f'[round {round_number}, {index}/{len(names)}] trying {name}')
         return _try(search, base, model, name, held)
-    return map_in_order(attempt, enumerate(names, 1))
+    return map_in_order(attempt, enumerate(names, 1), workers=workers_for(len(search.angle)))
 
 
 def catalog_stage(prepared: Prepared, compared: Compared, say: Say) -> CatalogResult:
