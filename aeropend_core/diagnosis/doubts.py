@@ -76,8 +76,37 @@ def excitation_advice(effect: str) -> str:
     return DEFAULT_EXPERIMENT
 
 
+#: A near miss that moves no nominal parameter beyond its +- 2 sigma is worth a note only when it removes at least
+#: this share of the held-out error beyond the noise [-].
+MATERIAL_SHARE = 0.05
+
+
+def material_moves(current, after: dict[str, float]) -> list[tuple[str, float, float, float]]:
+    """:func:`parameter_moves` that take a nominal parameter beyond +- 2 of its standard errors in `current` (all of
+    them when `current` carries no standard errors).
+
+    Parameters
+    ----------
+    current : Comparison [-]
+        The model the candidate was added to (``parameters``, ``fit.standard_errors``; SI).
+    after : dict of str -> float [SI unit of each parameter]
+        The parameters with the candidate.
+
+    Returns
+    -------
+    list of (name, before, after, relative change)
+        As :func:`parameter_moves`.
+    """
+    errors = getattr(getattr(current, 'fit', None), 'standard_errors', None) or {}
+    moves = parameter_moves(current.parameters, after)
+    return [move for move in moves if not (math.isfinite(errors.get(move[0], math.nan))
+                                           and abs(move[2] - move[1]) <= 2.0 * errors[move[0]])]
+
+
 def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
-    """One note per candidate that passes the parameter t and the held-out test but is not named.
+    """One note per candidate that passes the parameter t and the held-out test but is not named, when it matters:
+    it moves a nominal parameter beyond its +- 2 sigma, or removes at least ``MATERIAL_SHARE`` of the error beyond
+    the noise (a note on a model already within the noise that moves nothing would contradict "nothing missing").
 
     The tests and thresholds are those of :mod:`aeropend_core.diagnosis.candidates` (``T_MIN``, ``DM_MIN``,
     ``BIC_MARGIN``, ``MATERIAL``); the noise-power spread is its
@@ -116,22 +145,52 @@ def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
         values = ', '.join(f'{name} = {value:.4g} +- {candidate.standard_errors.get(name, float("nan")):.2g} '
                            f'{units.get(name, "")}' for name, value in candidate.parameters.items())
         beyond = max(current.rms_error ** 2 - noise ** 2, 0.0)
-        moves = parameter_moves(current.parameters, candidate.comparison.parameters)
+        moves = material_moves(current, candidate.comparison.parameters)
+        if not moves and not (candidate.excess_before > 0 and candidate.share_removed >= MATERIAL_SHARE):
+            continue    # moves nothing beyond its +- and removes next to nothing: not worth a doubt beside "nothing"
         moved = '; '.join(f'{name} {old:.4g} -> {new:.4g} {NOMINAL_PARAMETERS[name][0]} ({change * 100:+.1f} %)'
                           for name, old, new, change in moves[:3])
         notes.append(
-            f'{candidate.effect} is supported by the statistics ({values}; {t_statistic_words(candidate.t_statistic)}'
-            f', training BIC {candidate.delta_bic:+.0f}, held-out Diebold-Mariano {candidate.dm_statistic:+.1f}) '
-            f'but not named: {"; ".join(failed) or "it is not significant"}. '
+            f'a small {candidate.effect} cannot be ruled out ({values}; {t_statistic_words(candidate.t_statistic)}'
+            f', training BIC {candidate.delta_bic:+.0f}, held-out Diebold-Mariano {candidate.dm_statistic:+.1f}), '
+            f'but it is too small to name: {"; ".join(failed) or "it is not significant"}. '
             + (f'It removes {candidate.share_removed * 100:.0f} % of the held-out error beyond the noise '
                f'({candidate.mse_gain * 1e6:.2f} of {beyond * 1e6:.2f} mrad^2, which is known only to '
                f'+-{spread * 1e6:.2f} mrad^2).' if candidate.excess_before > 0 else
-               'The model it was added to is already within the noise: no error beyond the noise is left for it to '
-               'remove.')
+               'The model is already within the noise without it.')
             + (f' With it the nominal parameters move: {moved}; the reported values are uncertain by that much'
                f' (the nominal parameters can absorb most of a small {candidate.effect}).' if moves else '')
             + f' To decide, {excitation_advice(candidate.effect)}.')
     return notes
+
+
+def chain_confusions(found: Iterable, model: Iterable[str]) -> dict[str, list[str]]:
+    """The measurement-chain effects each named effect may hold (the pairs :func:`chain_notes` writes about).
+
+    Parameters
+    ----------
+    found : iterable of Found [-]
+        The selected effects.
+    model : iterable of str [-]
+        Effects in the model.
+
+    Returns
+    -------
+    dict of str -> list of str
+        ``{named effect: [chain effects this data cannot tell apart from it]}``, both directions (the chain effect
+        maps to the named one too); empty when the chain is in the model.
+    """
+    held = set(model)
+    chain = [name for name, effect in CATALOG.items() if effect.kind == MEASUREMENT_FILTER and name not in held]
+    pairs: dict[str, list[str]] = {}
+    for item in found:
+        if item.confounded_with:
+            continue            # already reported as "one of ..." with the experiment that separates them
+        for other in chain:
+            if separating_experiment(item.effect, other):
+                pairs.setdefault(item.effect, []).append(other)
+                pairs.setdefault(other, []).append(item.effect)
+    return pairs
 
 
 def chain_notes(found: Iterable, model: Iterable[str]) -> list[str]:
@@ -149,16 +208,12 @@ def chain_notes(found: Iterable, model: Iterable[str]) -> list[str]:
     list of str
         The notes (empty when the chain is in the model or nothing confusable with it was named).
     """
-    held = set(model)
-    chain = [name for name, effect in CATALOG.items() if effect.kind == MEASUREMENT_FILTER and name not in held]
+    found = list(found)
+    pairs = chain_confusions(found, model)
     notes = []
     for item in found:
-        if item.confounded_with:
-            continue            # already reported as "one of ..." with the experiment that separates them
-        for other in chain:
+        for other in pairs.get(item.effect, []) if not item.confounded_with else []:
             experiment = separating_experiment(item.effect, other)
-            if not experiment:
-                continue
             entry = get_effect(other)
             typical = ', '.join(f'{p.name} = {p.typical:g} {p.unit}' for p in entry.parameters)
             values = ', '.join(f'{name} = {value:.4g}' for name, value in item.parameters.items())

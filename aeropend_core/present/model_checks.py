@@ -17,7 +17,7 @@ from aeropend_core.diagnosis.diagnose import Diagnosis
 from aeropend_core.diagnosis.output_error import STRIDE
 from aeropend_core.diagnosis.validation import (Validation, prediction_points, residual_correlations,
                                                 simulation_band)
-from aeropend_core.present.formatting import (CANDIDATE, CURRENT, HELDOUT_SHADE, MEASURED, NOISE_SHADE, _esc,
+from aeropend_core.present.formatting import (BEFORE, CANDIDATE, CURRENT, HELDOUT_SHADE, MEASURED, NOISE_SHADE, _esc,
                                               _finite_trace, _model_name, _mrad, _num, envelope)
 from aeropend_core.present.svgplot import Figure
 
@@ -110,6 +110,9 @@ def scatter_section(diagnosis: Diagnosis) -> str:
     e = prep.voltage - diagnosis.current.parameters.get('armature_resistance', 0.0) * prep.current
     index = np.flatnonzero(np.isfinite(simulated))
     residual = (prep.angle[index] - simulated[index]) * 1e3
+    before = None
+    if diagnosis.before is not None:
+        before = (prep.angle[index] - diagnosis.before.evaluation.simulated[index]) * 1e3
     axes_data = [('rate of the rod &Omega; [rad/s]', 'rate \u03a9 [rad/s]', prep.smoothed_rate[index]),
                  ('angle y [deg]', 'angle y [deg]', np.degrees(prep.smoothed_angle[index])),
                  ('thrust input e|e| [V&sup2;]', 'thrust input e|e| [V\u00b2]', (e * np.abs(e))[index])]
@@ -122,8 +125,11 @@ def scatter_section(diagnosis: Diagnosis) -> str:
     for axes, (_, label, x) in zip(panels, axes_data):
         axes.span(y0=-noise, y1=noise, colour=NOISE_SHADE, opacity=0.6)
         axes.points(x[pick], residual[pick], MEASURED, size=2, opacity=0.35)
+        if before is not None:          # after --add: the signature the added effect took away, beside the flat one
+            centres, means = _binned_mean(x, before)
+            axes.line(centres, means, BEFORE, width=1.6, style=':', label='binned mean, before')
         centres, means = _binned_mean(x, residual)
-        axes.line(centres, means, CURRENT, width=1.8, label='binned mean')
+        axes.line(centres, means, CURRENT, width=1.8, label='binned mean' + (', after' if before is not None else ''))
         axes.points(centres, means, CURRENT, size=5)
         axes.rule(y=0, colour='black', width=0.7)
         axes.xlabel = label
@@ -138,8 +144,10 @@ def scatter_section(diagnosis: Diagnosis) -> str:
             '&plusmn; the noise RMS) against the rod\'s rate, its angle and the thrust input. A model that lacks '
             'nothing leaves a flat mean. Signatures: a step at zero rate (dotted red line) is dry friction '
             '(sign &Omega;); a slope against the rate, damping; an S against the angle, a cable or an offset; a bend '
-            'at low thrust, a dead zone.</p>'
-            + figure.html('residual against rate, angle and thrust input'))
+            'at low thrust, a dead zone.'
+            + (f' Red dotted: the binned mean of the model before ({_esc(_model_name(diagnosis.before.effects))}), '
+               'the signature the added effect took away.' if before is not None else '')
+            + '</p>' + figure.html('residual against rate, angle and thrust input'))
 
 
 # -- residual correlations and spectrum -------------------------------------------------------------------------------

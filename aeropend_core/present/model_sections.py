@@ -134,12 +134,14 @@ def equation_html(comparison: Comparison, observer: bool) -> str:
     (:mod:`aeropend_core.model.effects`), so no effect is named in this module.
     """
     effects = comparison.effects
-    lines = ['dy/dt = &Omega;', 'd&Omega;/dt = &minus;a&middot;sin y &minus; b&middot;&Omega; + k&middot;e|e|'
-             + (' (+ the effects below)' if effects else '')]
+    lines = ['dy/dt = &Omega; &emsp;(7)', 'd&Omega;/dt = &minus;a&middot;sin y &minus; b&middot;&Omega; + '
+             'k&middot;e|e|' + (' (+ the effects below)' if effects else '') + ' &emsp;(6)']
     lines += [f'{_esc(name)}: {_esc(CATALOG[name].equation or CATALOG[name].description)}'
               for name in effects if name in CATALOG]
     lines.append('e = back-EMF of the motor observer [V] (fitted to Ia)' if observer else
                  'e = Va &minus; R&middot;Ia [V] (measured)')
+    lines.append('k&middot;e|e| is the quasi-static thrust per unit inertia, f_eq5 &prop; (Va &minus; R&middot;Ia)'
+                 '&sup2; &emsp;(5)')
     symbols = {'gravity_stiffness': 'a', 'damping': 'b', 'thrust_gain': 'k'}
     if not observer:
         symbols['armature_resistance'] = 'R'
@@ -153,7 +155,9 @@ def equation_section(diagnosis: Diagnosis, best: Candidate | None) -> str:
     observer = diagnosis.prepared.motor is not None
     parts = ['<section id="equation"><h2>The identified equation</h2><p class="caption">The model as given '
              f'(<b>{_esc(_model_name(diagnosis.effects))}</b>), fitted by output error on the training part; y is the '
-             'rod angle [rad], &Omega; its rate [rad/s]; &plusmn; 1&sigma; as in the parameter table.</p>',
+             'rod angle [rad], &Omega; its rate [rad/s]; &plusmn; 1&sigma; as in the parameter table. The numbers '
+             'in brackets are the source paper\'s equations that the effects, the candidates and the notes cite: '
+             '(5) the quasi-static thrust f_eq5, (6) the rod\'s angular acceleration, (7) its angle.</p>',
              equation_html(diagnosis.current, observer)]
     if best is not None and best.significant and best.comparison is not None:
         parts.append(f'<h3>With the missing effect added (+ {_esc(best.effect)})</h3>'

@@ -53,6 +53,7 @@ def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
     breaks = _segment_starts(diagnosis)
     figure = Figure(440)
     angle_axes, input_axes = figure.grid(2, 1, top=22, height_ratios=[3.2, 1])
+    angle_axes.zoom_x = input_axes.zoom_x = True
     t_split = time[prep.split]
     for axes in (angle_axes, input_axes):
         axes.span(x0=t_split, x1=time[-1], colour=HELDOUT_SHADE)
@@ -83,6 +84,7 @@ def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
     width = max(1, round(SMOOTHING_SECONDS / prep.sample_time / 2))   # simulated every 2nd sample
     figure = Figure(330)
     axes, = figure.grid()
+    axes.zoom_x = True
     axes.span(x0=time[prep.split], x1=time[-1], colour=HELDOUT_SHADE)
     windows = diagnosis.current.evaluation.worst_windows
     for rank, window in enumerate(windows, 1):
@@ -170,7 +172,7 @@ def _candidate_status(diagnosis: Diagnosis, candidate: Candidate) -> tuple[str, 
     if candidate.effect in diagnosis.missing_effects:
         return SELECTED, 'SELECTED'
     if candidate.significant:
-        return REDUNDANT, 'significant alone, not selected (redundant with the selected set)'
+        return REDUNDANT, 'significant alone, not selected'
     return '#9e9e9e', 'not significant'
 
 
@@ -182,7 +184,7 @@ def candidate_chart_rows(diagnosis: Diagnosis) -> list[dict]:
     list of dict
         ``label``; ``start`` and ``end`` [mrad]: held-out error beyond the noise (a reference model is a bar from 0
         to its value; a candidate an arrow from the model it was added to, to the model with it); ``colour``;
-        ``tag`` (``'reference'``, ``'SELECTED'``, ``'significant alone, not selected ...'``, ``'not significant'``);
+        ``tag`` (``'reference'``, ``'SELECTED'``, ``'significant alone, not selected'``, ``'not significant'``);
         ``effect`` (None for a reference model).
     """
     now = _excess(diagnosis.current) * 1e3
@@ -220,12 +222,14 @@ def _plot_candidates(diagnosis: Diagnosis) -> str | None:
     axes, = figure.grid(left=_label_pixels([row['label'] for row in rows], 12))
     positions = list(range(len(rows)))[::-1]
     references = 0
+    labels = []                      # (x where the text starts [mrad], its estimated width [px])
     for position, row in zip(positions, rows):
         start, end, colour = row['start'], row['end'], row['colour']
         if row['effect'] is None:
             references += 1
             axes.bars([position], [0.0], [end], 0.62, colour, opacity=0.85)
             axes.text(end, position, f'{end:.2f} mrad', colour=colour, size=10.5, dx=6, dy=4, bold=True)
+            labels.append((end, 6 + 0.65 * 10.5 * len(f'{end:.2f} mrad')))
             continue
         axes.line([start, end], [position, position], colour, width=3, scale=False)
         axes.marker(end, position, '<' if end < start else '>', colour)
@@ -234,8 +238,10 @@ def _plot_candidates(diagnosis: Diagnosis) -> str | None:
                   f'{end:.2f} mrad, unchanged' if abs(removed) < 0.005 * start else
                   f'{end:.2f} mrad, {removed:.2f} removed' if removed > 0 else f'{end:.2f} mrad, worse')
         selected = row['tag'] == 'SELECTED'
-        axes.text(max(start, end), position, f'{change}  \u2014 {row["tag"]}', colour=SELECTED if selected else
-                  '#333333', size=10.5, dx=10, dy=4, bold=selected)
+        text = f'{change}  \u2014 {row["tag"]}'
+        axes.text(max(start, end), position, text, colour=SELECTED if selected else '#333333', size=10.5, dx=10,
+                  dy=4, bold=selected)
+        labels.append((max(start, end), 10 + 0.65 * 10.5 * len(text)))
     if references < len(rows):
         axes.rule(y=positions[references - 1] - 0.5, colour='#999999', width=0.8)
     axes.rule(x=noise, colour='black', style='--', width=1,
@@ -248,7 +254,10 @@ def _plot_candidates(diagnosis: Diagnosis) -> str | None:
     axes.yticks = (positions, [row['label'] for row in rows])
     axes.grid = 'x'
     largest = max([max(row['start'], row['end']) for row in rows] + [noise])
-    axes.xlim = (0, largest * 1.75)
+    # wide enough that every label ends inside the plot (x / limit * width + text <= width): none is clipped
+    width = axes.box[2]
+    fits = [x * width / (width - pixels) for x, pixels in labels if pixels < 0.9 * width]
+    axes.xlim = (0, max([largest * 1.15, *fits]))
     axes.ylim = (-0.6, len(rows) - 0.4)
     axes.xlabel = ('held-out model error beyond the noise, \u221a(RMS\u00b2 \u2212 noise\u00b2) [mrad]  '
                    '(shorter is better; arrow: model as given \u2192 with the candidate)')

@@ -19,7 +19,6 @@ from __future__ import annotations
 import datetime
 import math
 import re
-import shlex
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +49,8 @@ from aeropend_core.present.formatting import (
 from aeropend_core.present.model_checks import (band_section, correlation_section, scatter_section,
                                                 validation_section)
 from aeropend_core.present.discovery_text import discovery_html, motor_html
+from aeropend_core.present.plain_verdict import plain_verdict
+from aeropend_core.present.svgplot import ZOOM_CSS, ZOOM_SCRIPT
 from aeropend_core.present.verdict_text import verdict_of
 from aeropend_core.present.model_sections import model_sections
 from aeropend_core.present.plots import (
@@ -74,6 +75,8 @@ p, li { line-height: 1.45; font-size: 14.5px; }
 .verdict.ok { background: #e9f6ec; border-color: #1a9641; }
 .verdict.warn { background: #fffbe0; border-color: #d9a400; }
 .verdict.bad { background: #fdecec; border-color: #d7301f; }
+.verdict .plain { font-size: 16px; }
+details.evidence { margin-top: 6px; font-size: 13.5px; } details.evidence summary { cursor: pointer; color: #1f63b4; }
 .next { font-family: 'DejaVu Sans Mono', monospace; background: #f1f1f1; padding: 2px 6px; border-radius: 3px; }
 .cards { display: flex; flex-wrap: wrap; gap: 10px; margin: 10px 0; }
 .card { flex: 1 1 200px; border: 1px solid #dde1e6; border-radius: 6px; padding: 8px 12px; background: #fafbfc; }
@@ -134,21 +137,13 @@ def _verdict_html(diagnosis: Diagnosis, source: str | None = None) -> str:
         missing=', '.join(diagnosis.missing_effects) or diagnosis.missing_effect)
     css = VERDICT_CLASSES.get(diagnosis.verdict, 'warn')
     parts = [f'<section class="verdict {css}" id="verdict"><div class="title">{_esc(title)}</div>',
-             f'<div>{_esc(_plain(_without_title(verdict_of(diagnosis))))}</div>']
-    if diagnosis.verdict == 'effect_found':
-        added = ''.join(f' --add {e}' for e in (*diagnosis.effects, diagnosis.missing_effect))
-        data = shlex.quote(source) if source else 'DATA'
-        parts.append(f'<div style="margin-top:6px">Next: <span class="next">aeropend diagnose {_esc(data)}{_esc(added)}'
-                     f' --report after.html</span> and check that the error falls.</div>')
+             f'<div class="plain">{_esc(_plain(plain_verdict(diagnosis, source, report=True)))}</div>',
+             f'<details class="evidence"><summary>The evidence (the statistics behind the verdict)</summary>'
+             f'<div>{_esc(_plain(_without_title(verdict_of(diagnosis))))}</div></details>']
     proven = diagnosis.discovery.proven if getattr(diagnosis, 'discovery', None) is not None else []
     if diagnosis.verdict == 'term_discovered' and proven:
-        data = shlex.quote(source) if source else 'DATA'
-        kept = [*diagnosis.effects, *(f.effect for f in diagnosis.found if not f.confounded_with
-                                      and f.effect not in proven[0].replaces)]
-        added = ''.join(f' --add {e}' for e in kept) + ' ' + ' '.join(shlex.quote(a) for a in proven[0].add)
-        parts.append(f'<div style="margin-top:6px">Next: <span class="next">aeropend diagnose {_esc(data)}'
-                     f'{_esc(added)} --report after.html</span> and check that the error falls; the term, its '
-                     '&plusmn; and its lookalikes: <a href="#discovery">see below</a>.</div>')
+        parts.append('<div style="margin-top:6px">The term, its &plusmn; and its lookalikes: <a href="#discovery">'
+                     'see below</a>.</div>')
     if diagnosis.notes:
         parts.append(f'<div style="margin-top:6px">{len(diagnosis.notes)} note(s) on confounding and experiments: '
                      f'<a href="#notes">see below</a>.</div>')
@@ -337,6 +332,9 @@ def _parameters_with_sigma(candidate: Candidate) -> str:
 
 def _candidates_table(diagnosis: Diagnosis) -> str:
     rows = []
+    from aeropend_core.diagnosis.doubts import chain_confusions
+    # the pairs the notes call indistinguishable are named in the column too (never a dash beside such a note)
+    chain = chain_confusions(diagnosis.found, [*diagnosis.effects, *(f.effect for f in diagnosis.found)])
     for rank, candidate in enumerate(diagnosis.candidates, 1):
         if candidate.comparison is None:
             badge = '<span class="badge na">not testable</span>'
@@ -350,7 +348,12 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
         css = 'main significant' if candidate.effect in diagnosis.missing_effects else 'main'
         change = (_percent_change(-candidate.improvement * 100) if candidate.comparison is not None
                   and candidate.excess_before > 0 else 'nothing to remove')
-        confounded = ', '.join(_esc(c) for c in candidate.confounded_with) or '&mdash;'
+        found = next((f for f in diagnosis.found if f.effect == candidate.effect), None)
+        together = [*candidate.confounded_with, *(found.confounded_with if found is not None else ()),
+                    *chain.get(candidate.effect, ())]
+        confounded = ', '.join(_esc(c) for c in dict.fromkeys(together)) or '&mdash;'
+        if chain.get(candidate.effect):
+            confounded += ' <small>(this record cannot tell them apart; <a href="#notes">notes</a>)</small>'
         rows.append(
             f'<tr class="{css}"><td>{rank}</td><td><b>{_esc(candidate.effect)}</b></td><td>{badge}</td>'
             f'<td class="num">{_num(candidate.fit_percent, 2, suffix="&nbsp;%")}</td>'
@@ -443,6 +446,8 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
         raise AeropendError('this diagnosis carries no prepared recording; run diagnose() on a recording to '
                             'make a report')
     best = _best_candidate(diagnosis)
+    if best is not None and diagnosis.before is not None and not best.significant:
+        best = None         # after --add: a candidate that adds nothing is not drawn beside the model (no line)
     prep = diagnosis.prepared
     model = _model_name(diagnosis.effects)
     heldout_from = prep.time[prep.split]
@@ -525,7 +530,9 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
         f'<b>selected set</b> (orange, as in the verdict). A light-green arrow is significant when tried alone but '
         f'not selected (the selected set already explains what it would); grey is not significant. The chart '
         f'starts with the reference models (before &rarr; after when the model was given <code>--add</code>); each '
-        f'candidate is an arrow from the model as given to the error with that candidate added.</p>'
+        f'candidate is an arrow from the model as given to the error with that candidate added. The effects\' '
+        f'equations cite the source paper\'s eq (5) (the quasi-static thrust f_eq5) and eq (6) (the rod\'s angular '
+        f'acceleration), written out with their numbers in <a href="#equation">the identified equation</a>.</p>'
         + (chart or '')
         + _candidates_table(diagnosis))
 
@@ -559,9 +566,9 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
                     + ' (plots are inline SVG; the CSV export is decompressed by the browser itself).</footer>')
     return ('<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
             '<meta name="viewport" content="width=device-width, initial-scale=1">'
-            f'<title>{_esc(title)}</title><style>{CSS}</style>'
+            f'<title>{_esc(title)}</title><style>{CSS}{ZOOM_CSS}</style>'
             + '</head><body><main>'
-            + '\n'.join(sections) + '</main></body></html>\n')
+            + '\n'.join(sections) + f'</main>{ZOOM_SCRIPT}</body></html>\n')
 
 
 def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = None,

@@ -9,8 +9,10 @@ from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.signals.reduced import MAP_PARAMETERS
 
 
-def format_summary(diagnosis: Diagnosis) -> str:
-    """The text report printed by ``aeropend diagnose``."""
+def format_summary(diagnosis: Diagnosis, source: str | None = None) -> str:
+    """The text report printed by ``aeropend diagnose``: the verdict in two layers, one plain sentence
+    (:func:`~aeropend_core.present.plain_verdict.plain_verdict`; `source`, the record's name, goes into its next
+    command) and the evidence (:func:`~aeropend_core.present.verdict_text.verdict_of`)."""
     current = diagnosis.current
     noise = current.noise_rms
     from aeropend_core.signals.quality import quality_lines
@@ -110,7 +112,9 @@ def format_summary(diagnosis: Diagnosis) -> str:
     from aeropend_core.present.discovery_text import discovery_lines, motor_lines
     lines += discovery_lines(getattr(diagnosis, 'discovery', None))
     lines += motor_lines(getattr(diagnosis, 'motor_discovery', None))
-    lines.append('Verdict: ' + verdict_of(diagnosis))
+    from aeropend_core.present.plain_verdict import plain_verdict
+    lines.append('Verdict: ' + plain_verdict(diagnosis, source))
+    lines.append('Evidence: ' + verdict_of(diagnosis))
     for note in diagnosis.notes:
         lines.append('Note: ' + note)
     for row in diagnosis.residual_structure:

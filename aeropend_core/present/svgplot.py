@@ -147,6 +147,9 @@ class Axes:
         self.legend: list[tuple[str, str, dict]] = []
         self.shared: Axes | None = None
         self._above: list[Axes] = []
+        #: The x axis can be zoomed and panned in the browser (:data:`ZOOM_SCRIPT`): the data are drawn in a group
+        #: the script scales along x, the x tick labels are rewritten for the view.
+        self.zoom_x = False
 
     # -- data -----------------------------------------------------------------------------------------------------
 
@@ -273,16 +276,25 @@ class Axes:
         # the data, clipped to the plotting area by a nested svg
         out.append(f'<svg width="{width:.1f}" height="{height:.1f}" overflow="hidden">')
         # shaded spans under the grid, the data over it, the labels last (outside the clipping)
-        out += [self._item_svg(item, sx, sy, width, height) for item in self._items if item[0] == 'span']
+        spans = [self._item_svg(item, sx, sy, width, height) for item in self._items if item[0] == 'span']
+        if not self.zoom_x:
+            out += spans
         if grid:
-            out.append(f'<path d="{"".join(grid)}" stroke="#000" stroke-opacity="0.12" stroke-width="1"/>')
-        out += [self._item_svg(item, sx, sy, width, height) for item in self._items
-                if item[0] not in ('span', 'text')]
+            out.append(f'<path class="grid" d="{"".join(grid)}" stroke="#000" stroke-opacity="0.12" '
+                       'stroke-width="1"/>')
+        data = [self._item_svg(item, sx, sy, width, height) for item in self._items if item[0] not in ('span', 'text')]
+        if self.zoom_x:       # spans (above the grid, which hides while zoomed) and data: the group the script scales
+            data = spans + data
+            out.append(f'<g class="zx" data-x0="{x0!r}" data-x1="{x1!r}" data-w="{width:.1f}">' + ''.join(data)
+                       + '</g>')
+        else:
+            out += data
         out.append('</svg>')
         out.append(f'<rect width="{width:.1f}" height="{height:.1f}" fill="none" stroke="#888" stroke-width="1"/>')
         font = f'font-size="{TICK_FONT}" fill="#333"'
         if self.show_xticks:
-            out.append(f'<g text-anchor="middle" {font}>' + ''.join(
+            zoom = f' class="xt" data-w="{width:.1f}" data-y="{height + 14:.1f}"' if self.zoom_x else ''
+            out.append(f'<g{zoom} text-anchor="middle" {font}>' + ''.join(
                 f'<text x="{float(sx(t)):.1f}" y="{height + 14:.1f}">{_esc(label)}</text>' for t, label in xticks)
                 + '</g>')
         out.append(f'<g text-anchor="end" {font}>' + ''.join(
@@ -297,7 +309,8 @@ class Axes:
         if self.title:
             out.append(f'<text x="{width / 2:.1f}" y="-7" text-anchor="middle" font-size="{LABEL_FONT}" '
                        f'font-weight="bold">{_esc(self.title)}</text>')
-        out += [self._item_svg(item, sx, sy, width, height) for item in self._items if item[0] == 'text']
+        texts = ''.join(self._item_svg(item, sx, sy, width, height) for item in self._items if item[0] == 'text')
+        out.append(f'<g class="zt">{texts}</g>' if self.zoom_x else texts)    # hidden while zoomed (not moved)
         out.append('</g>')
         return ''.join(out)
 
@@ -441,9 +454,86 @@ class Figure:
                     keys.append(_legend_key(label, kind, style))
         legend = f'<div class="legend">{"".join(keys)}</div>' if keys else ''
         body = ''.join(axes.svg() for axes in self.axes)
-        return (f'<figure class="plot">{legend}<svg class="plot" viewBox="0 0 {WIDTH} {self.height:.0f}" '
+        zoom = next((axes for axes in self.axes if axes.zoom_x), None)
+        extra = ''
+        if zoom is not None:
+            (x0, x1), _ = zoom.limits()
+            extra = f' zoom" data-x0="{x0!r}" data-x1="{x1!r}'
+            legend += ('<div class="legend zoomhint">Time axis: Shift + mouse wheel zooms, drag pans, double-click '
+                       'shows the whole record again.</div>')
+        return (f'<figure class="plot">{legend}<svg class="plot{extra}" viewBox="0 0 {WIDTH} {self.height:.0f}" '
                 f'role="img" aria-label="{_esc(alt)}" font-family="inherit"><title>{_esc(alt)}</title>{body}</svg>'
                 '</figure>')
+
+
+#: Pan and zoom of the time axis of every ``svg.zoom`` in the page (:attr:`Axes.zoom_x`), inline and offline: Shift +
+#: wheel zooms about the pointer, a drag pans, a double-click resets; the x tick labels are rewritten for the view
+#: (1, 2, 2.5 or 5 times a power of ten, as :func:`nice_ticks`).
+ZOOM_SCRIPT = """<script>
+(function () {
+  function ticks(a, b, n) {
+    var raw = (b - a) / n, p = Math.pow(10, Math.floor(Math.log10(raw))), s = 10 * p, m = [1, 2, 2.5, 5];
+    for (var i = 0; i < m.length; i++) { if (m[i] * p >= raw) { s = m[i] * p; break; } }
+    var out = [];
+    for (var x = Math.ceil(a / s - 1e-9) * s; x <= b + s * 1e-9; x += s) { out.push(x); }
+    return [out, s];
+  }
+  function view(svg, a, b) {
+    svg.aeropendView = [a, b];
+    svg.querySelectorAll('g.zx').forEach(function (g) {
+      var x0 = +g.dataset.x0, x1 = +g.dataset.x1, w = +g.dataset.w, k = (x1 - x0) / (b - a);
+      g.setAttribute('transform', 'translate(' + (-(a - x0) * w / (b - a)) + ' 0) scale(' + k + ' 1)');
+    });
+    svg.querySelectorAll('g.xt').forEach(function (g) {
+      var w = +g.dataset.w, t = ticks(a, b, Math.max(5, Math.floor(w / 75)));
+      var digits = 0;
+      while (digits < 6 && Math.abs(Math.round(t[1] * Math.pow(10, digits)) - t[1] * Math.pow(10, digits)) > 1e-6) {
+        digits++;
+      }
+      g.innerHTML = t[0].map(function (x) {
+        var px = ((x - a) / (b - a) * w).toFixed(1);
+        return '<text x="' + px + '" y="' + g.dataset.y + '">' + x.toFixed(digits) + '</text>';
+      }).join('');
+    });
+    svg.classList.toggle('zoomed', a > +svg.dataset.x0 || b < +svg.dataset.x1);
+  }
+  document.querySelectorAll('svg.zoom').forEach(function (svg) {
+    var X0 = +svg.dataset.x0, X1 = +svg.dataset.x1, drag = null;
+    svg.aeropendView = [X0, X1];
+    function area() { return svg.querySelector('g.zx').parentNode.getBoundingClientRect(); }
+    function clamp(a, b) {
+      if (b - a >= X1 - X0) { return [X0, X1]; }
+      if (a < X0) { b += X0 - a; a = X0; }
+      if (b > X1) { a -= b - X1; b = X1; }
+      return [a, b];
+    }
+    svg.addEventListener('wheel', function (e) {
+      if (!e.shiftKey) { return; }
+      e.preventDefault();
+      var r = area(), v = svg.aeropendView, f = (e.deltaY || e.deltaX) < 0 ? 0.8 : 1.25;
+      var c = v[0] + Math.min(Math.max((e.clientX - r.left) / r.width, 0), 1) * (v[1] - v[0]);
+      var z = clamp(c - (c - v[0]) * f, c + (v[1] - c) * f);
+      view(svg, z[0], z[1]);
+    }, {passive: false});
+    svg.addEventListener('mousedown', function (e) {
+      drag = [e.clientX, svg.aeropendView.slice()];
+      e.preventDefault();
+    });
+    window.addEventListener('mouseup', function () { drag = null; });
+    svg.addEventListener('mousemove', function (e) {
+      if (!drag) { return; }
+      var v = drag[1], d = (e.clientX - drag[0]) / area().width * (v[1] - v[0]), z = clamp(v[0] - d, v[1] - d);
+      view(svg, z[0], z[1]);
+    });
+    svg.addEventListener('dblclick', function () { view(svg, X0, X1); });
+  });
+})();
+</script>"""
+
+#: The style the zoom needs: lines keep their width while the group is scaled; what is not moved is hidden.
+ZOOM_CSS = """svg.zoom { cursor: ew-resize; } svg.zoom g.zx * { vector-effect: non-scaling-stroke; }
+svg.zoomed g.zt, svg.zoomed path.grid { display: none; } .zoomhint { color: #666; font-size: 12px; }
+"""
 
 
 def _legend_key(label: str, kind: str, style: dict) -> str:
@@ -464,4 +554,4 @@ def _legend_key(label: str, kind: str, style: dict) -> str:
     return f'<span class="key">{swatch}{_esc(label)}</span>'
 
 
-__all__ = ['Axes', 'Figure', 'WIDTH', 'nice_ticks', 'tick_labels']
+__all__ = ['Axes', 'Figure', 'WIDTH', 'ZOOM_CSS', 'ZOOM_SCRIPT', 'nice_ticks', 'tick_labels']

@@ -180,7 +180,8 @@ def verdict_of(diagnosis) -> str:
 
 
 def diagnosis_dict(diagnosis) -> dict:
-    """The ``aeropend diagnose --json`` form: the diagnosis's numbers with the verdict's ``message`` after ``verdict``.
+    """The ``aeropend diagnose --json`` form: the diagnosis's numbers with the verdict's ``plain`` sentence and its
+    ``message`` (the evidence) after ``verdict``.
 
     Parameters
     ----------
@@ -190,12 +191,15 @@ def diagnosis_dict(diagnosis) -> dict:
     Returns
     -------
     dict
-        ``diagnosis.to_dict()`` with ``message`` (:func:`verdict_of`) inserted after ``verdict``.
+        ``diagnosis.to_dict()`` with ``plain`` (:func:`~aeropend_core.present.plain_verdict.plain_verdict`) and
+        ``message`` (:func:`verdict_of`) inserted after ``verdict``.
     """
+    from aeropend_core.present.plain_verdict import plain_verdict
     out = {}
     for key, value in diagnosis.to_dict().items():
         out[key] = value
         if key == 'verdict':
+            out['plain'] = plain_verdict(diagnosis)
             out['message'] = verdict_of(diagnosis)
     return out
 
