@@ -24,6 +24,7 @@ from aeropend_core.sim.noise import MeasurementNoise
 from aeropend_core.io.recording import from_columns
 from aeropend_core.present.report import VERDICT_TITLES, write_report
 from aeropend_core.sim.simulate import simulate
+from aeropend_core.present.plain_verdict import plain_verdict
 from aeropend_core.present.verdict_text import verdict_of
 
 DURATION = 30.0
@@ -85,7 +86,7 @@ class TagBalance(HTMLParser):
 
 def inline_svgs(text):
     """Every plot of the page: an inline ``<svg class="plot">`` element, as text."""
-    return re.findall(r'<svg class="plot".*?</svg>(?=</figure>)', text, re.DOTALL)
+    return re.findall(r'<svg class="plot[ "].*?</svg>(?=</figure>)', text, re.DOTALL)
 
 
 def check_svg(text: str) -> ElementTree.Element:
@@ -112,8 +113,9 @@ def test_report_is_one_self_contained_file(page):
     assert path.is_file() and page_bytes(text) < MAX_BYTES
     assert text.startswith('<!DOCTYPE html>') and text.rstrip().endswith('</html>')
     # Every link is a fragment inside the page and every image is inline data: nothing to fetch. The one script is
-    # inline (the CSV download; tests/test_report_interactive.py checks the page in Chromium).
-    assert len(INLINE_SCRIPT.findall(text)) == 2
+    # inline (the CSV download and the time traces' zoom; tests/test_report_interactive.py checks the page in
+    # Chromium).
+    assert len(INLINE_SCRIPT.findall(text)) == 3
     markup = INLINE_SCRIPT.sub('', text)
     for value in re.findall(r'\b(?:src|href)\s*=\s*["\']?([^"\'\s>]+)', markup, re.IGNORECASE):
         assert value.startswith('#'), value
@@ -128,7 +130,7 @@ def test_plots_are_inline_svg(page):
     plots = inline_svgs(text)
     # overlay, held-out band and k-step, error vs time, regimes, residual scatter, correlations and spectrum,
     # candidate chart, motor observer
-    assert len(plots) == 8 == text.count('<svg class="plot"')
+    assert len(plots) == 8 == text.count('<svg class="plot')
     assert '<img ' not in text and 'data:image/png' not in text
     for plot in plots:
         check_svg(plot)
@@ -139,8 +141,11 @@ def test_header_states_verdict_and_key_numbers_with_units(page, diagnosis):
     banner = section(text, 'verdict', 'section')
     title = VERDICT_TITLES[diagnosis.verdict].format(missing=diagnosis.missing_effect)
     assert html.escape(title) in banner
-    # the message follows without repeating the title's words (issue #24)
-    message = re.search(r'<div class="title">.*?</div><div>(.*?)</div>', banner).group(1)
+    # two layers (issue #42): the plain sentence first, then the evidence, folded, without repeating the title's
+    # words (issue #24)
+    plain = re.search(r'<div class="title">.*?</div><div class="plain">(.*?)</div>', banner).group(1)
+    assert html.unescape(plain) == plain_verdict(diagnosis, 'friction.csv', report=True)
+    message = re.search(r'<details class="evidence"><summary>.*?</summary><div>(.*?)</div></details>', banner).group(1)
     assert html.unescape(message).lower() in verdict_of(diagnosis).lower()
     assert not message.lower().startswith(('missing effect', 'nothing significant is missing'))
     if diagnosis.missing_effect is not None:

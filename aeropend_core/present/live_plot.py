@@ -153,22 +153,26 @@ class LivePlot:
             flagged = np.array([p.flagged for p in self.points], dtype=bool)
             if flagged.any():
                 axes.plot(times[flagged], value[flagged], 'x', color='#d7301f', label='data repaired/flagged')
-            self._robust_axis(axes, times, value)
+            cut = self._robust_axis(axes, times, value, sigma, self.units.get(name, ''))
             unit = self.units.get(name, '')
             estimator = self.estimators.get(name, '')
             title = f'{name} [{unit}]' + (f' — {estimator}' if estimator else '')
             if not np.isfinite(sigma).any():
                 title += ' (σ unknown: no band)'
+            elif cut:
+                title += f' (±1σ band wider than the axis in {cut} window(s): cut at its edge)'
             drift = self.drift.get(name, '')
             axes.set_title(title + (f'   {drift}' if drift else ''), fontsize=8, loc='left',
                            color='#d7301f' if 'DRIFT' in drift else 'black')
             axes.tick_params(labelsize=7)
-            if row == 0:
+            if row == 0 or any(line.get_label().startswith('off scale') for line in axes.get_lines()):
                 axes.legend(fontsize=7, loc='upper right')
         axes = figure.add_subplot(rows, 1, rows)
         fit = np.array([p.fit_percent for p in self.points], dtype=float)
-        axes.plot(times, fit, '-o', color='#1a9641', markersize=2)
-        self._robust_axis(axes, times, fit)
+        axes.plot(times, fit, '-o', color='#1a9641', markersize=2, label='held-out fit')
+        self._robust_axis(axes, times, fit, unit='%')
+        if any(line.get_label().startswith('off scale') for line in axes.get_lines()):
+            axes.legend(fontsize=7, loc='lower right')
         axes.set_title('held-out fit [%] (MATLAB compare NRMSE)', fontsize=8, loc='left')
         axes.set_xlabel('window end [s], acquisition time since the run began (as aeropend run prints it)',
                         fontsize=8)
@@ -180,21 +184,31 @@ class LivePlot:
             plt.pause(0.001)
 
     @staticmethod
-    def _robust_axis(axes, times, value) -> None:
-        """Limit the y axis to :func:`robust_limits` of `value`; values beyond it drawn at its edge (red ▲/▼)."""
+    def _robust_axis(axes, times, value, sigma=None, unit: str = '') -> int:
+        """Limit the y axis to :func:`robust_limits` of `value` and its ±1σ band (`sigma`, same unit); a value beyond
+        it is drawn at its edge as a red ▲/▼ labelled with the value and `unit`. Returns how many windows' bands
+        the limits cut (a band wider than the recent windows' spread, e.g. a σ of a damaged window)."""
         import numpy as np
-        limits = robust_limits(value)
+        sigma = np.full_like(value, np.nan) if sigma is None else np.asarray(sigma, dtype=float)
+        spread = np.where(np.isfinite(sigma), sigma, 0.0)
+        # the recent values and their band edges, interleaved so that the robust limits see the same windows
+        edges = np.column_stack([value, value - spread, value + spread]).ravel()
+        limits = robust_limits(edges, recent=3 * LIMIT_WINDOWS)
         if limits is None:
-            return
+            return 0
         low, high = limits
         axes.set_ylim(low, high)
         above, below = value > high, value < low
-        if above.any():
-            axes.plot(times[above], np.full(int(above.sum()), high), '^', color='#d7301f', markersize=5,
-                      clip_on=False, label='off scale (beyond the axis)')
-        if below.any():
-            axes.plot(times[below], np.full(int(below.sum()), low), 'v', color='#d7301f', markersize=5,
-                      clip_on=False, label='off scale (beyond the axis)')
+        for where, edge, marker, offset in ((above, high, '^', -9), (below, low, 'v', 4)):
+            if not where.any():
+                continue
+            axes.plot(times[where], np.full(int(where.sum()), edge), marker, color='#d7301f', markersize=5,
+                      clip_on=False, label='off scale (beyond the axis; its value beside it)')
+            for t, v in zip(times[where][-3:], value[where][-3:]):      # the latest three, not a pile of text
+                axes.annotate(f'{v:.4g} {unit}'.strip(), (t, edge), textcoords='offset points', xytext=(4, offset),
+                              fontsize=6.5, color='#d7301f', annotation_clip=False)
+        inside = np.isfinite(value) & ~above & ~below
+        return int(np.sum(inside & ((value + spread > high) | (value - spread < low))))
 
     def save(self, path: str) -> None:
         """Write the current figure to `path` (PNG, SVG or PDF by its suffix) [-], replacing it whole."""

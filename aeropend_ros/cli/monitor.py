@@ -82,7 +82,8 @@ class DriftTracker:
     stats: dict[str, RunningStats] = field(default_factory=dict)
 
     def update(self, values: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float | None, bool]]:
-        """Add one window; returns ``{name: (running mean before this window, deviation in sigmas, drifting)}``."""
+        """Add one window; returns ``{name: (running mean with this window, deviation from the mean of the previous
+        windows in this window's sigmas, drifting)}`` (the mean is the value itself on the first window)."""
         if set(values) != set(self.stats):
             self.stats = {name: RunningStats() for name in values}
         report = {}
@@ -93,29 +94,80 @@ class DriftTracker:
             if stats.count >= self.min_windows and math.isfinite(value) and error > 0 and math.isfinite(error):
                 deviation = (value - stats.mean) / error
                 drifting = abs(deviation) > self.sigma
-            report[name] = (stats.mean if stats.count else float('nan'), deviation, drifting)
             if math.isfinite(value):
                 stats.add(value)
+            report[name] = (stats.mean if stats.count else value, deviation, drifting)
         return report
+
+
+#: Parameters the node publishes that no diagnosis prints, and what they are (labelled, never shown as a fit).
+DERIVED = {'thrust_coefficient': 'derived: thrust_gain x (gear ratio x Kw)^2 / (L/J) with the paper\'s constants; '
+                                 'aeropend diagnose does not print it'}
+
+#: Weak-form coefficients of d²angle/dt² that are one parameter of the refined model: ``{term: (parameter, sign)}``
+#: (the parameter is sign x the coefficient).
+WEAK_TWINS = {'sin(angle)': ('gravity_stiffness', -1.0), 'dangle/dt': ('damping', -1.0)}
+
+#: The weak form disagrees with the output-error fit beyond this many combined standard errors [-].
+WEAK_AGREEMENT_SIGMAS = 3.0
+
+
+def weak_form_remark(term: str, value: float, sigma: float, parameters: dict) -> str:
+    """What a weak-form coefficient says beside the output-error fit of the same quantity ('' when none).
+
+    Parameters
+    ----------
+    term : str [-]
+        The library term (``sin(angle)``, ...).
+    value, sigma : float [rad/s² per unit term]
+        The coefficient and its standard error.
+    parameters : dict [-]
+        The refined model's ``{name: (value, sigma)}`` (SI).
+
+    Returns
+    -------
+    str
+        '= gravity_stiffness 3.56 +- 3.5 1/s^2: DISAGREES with the output-error fit 145 +- 2 (40 sigma); read ...'.
+    """
+    from aeropend_core.model.names import parameter_unit
+    if term not in WEAK_TWINS or WEAK_TWINS[term][0] not in parameters:
+        return ''
+    name, sign = WEAK_TWINS[term]
+    implied = sign * value
+    fitted, fitted_sigma = parameters[name]
+    combined = math.hypot(sigma if math.isfinite(sigma) else 0.0, fitted_sigma if math.isfinite(fitted_sigma) else 0.0)
+    head = f'= {name} {implied:.4g} +- {sigma:.2g} {parameter_unit(name)}'
+    if not (combined > 0 and math.isfinite(implied)):
+        return head
+    apart = abs(implied - fitted) / combined
+    if apart <= WEAK_AGREEMENT_SIGMAS:
+        return f'{head}: agrees with the output-error fit {fitted:.4g} ({apart:.1f} sigma)'
+    return (f'{head}: DISAGREES with the output-error fit {fitted:.4g} +- {fitted_sigma:.2g} ({apart:.0f} sigma); read '
+            'the output-error value: the weak form only starts that fit and is biased by noise and by what the model '
+            'lacks')
 
 
 def render(parameters, coefficients, fit, status, drift, windows: int, width: int | None = 100, trends=None,
            estimators=None, node_drift: str = '', data: str | None = None,
-           span: tuple[float, float] | None = None) -> str:
+           span: tuple[float, float] | None = None, ended: str = '') -> str:
     """The text table of one refresh (all arguments may be empty before the first window).
 
-    `width` cuts the status lines to a terminal's columns (None: never cut, e.g. when piped);
-    `trends` maps a parameter to the node's trend text (``trend_<name>`` on /diagnostics) or to a local trend row;
-    `estimators` maps a parameter to its estimator; `node_drift` is the node's drift sentence ('' or 'none': none);
-    `data` is the window's data-quality flags ('' when clean, None when the node did not say); `span` the window's
-    start and end in acquisition
-    time since the run began [s] (as ``aeropend run`` prints them).
+    `drift` maps a parameter to (running mean with this window, deviation in sigmas or None, jump) as
+    :meth:`DriftTracker.update` returns it; `width` cuts the status lines to a terminal's columns (None: never cut,
+    e.g. when piped); `trends` maps a parameter to the node's trend text (``trend_<name>`` on /diagnostics) or to a
+    local trend row; `estimators` maps a parameter to its estimator (the node's default, output_error, when it does
+    not say); `node_drift` is the node's drift sentence ('' or 'none': none); `data` is the window's data-quality
+    flags ('' when clean, None when the node did not say); `span` the window's start and end in acquisition time
+    since the run began [s] (as ``aeropend run`` prints them); `ended` says that the run has ended ('' while it runs).
     """
+    from aeropend_core.model.names import parameter_unit
     lines = []
     if not parameters and not fit:
         lines.append('aeropend monitor: waiting for the identification node\'s first window ...')
         if status:
             lines.append(f'identification: {status}')
+        if ended:
+            lines.append(f'RUN ENDED: {ended}')
         return '\n'.join(lines)
     where = f', the latest {span[0]:.1f}-{span[1]:.1f} s (acquisition time)' if span else ''
     lines.append(f'aeropend monitor: {windows} window(s) received{where}' + ' ' * 4 + time.strftime('%H:%M:%S'))
@@ -137,11 +189,15 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
     estimators = estimators or {}
     lines.append('parameters of the refined model (estimator: output_error = free-run simulation fitted to the angle; '
                  'motor_observer = observer fitted to Ia):'[:max(width, 60) if width else None])
-    lines.append(f'{"parameter (SI)":26s} {"value":>13s} {"±1σ":>11s} {"running mean":>13s}  {"estimator":15s} '
-                 'jump / trend')
+    lines.append(f'{"parameter":26s} {"value":>13s} {"±1σ":>11s} {"unit":12s} {"mean so far":>13s}  '
+                 f'{"estimator":15s} jump / trend')
     trends = trends or {}
+    derived = []
     for name, (value, error) in parameters.items():
-        mean, deviation, drifting = drift.get(name, (float('nan'), None, False))
+        if name in DERIVED:
+            derived.append(f'  {name} = {value:.4g} +- {error:.2g} {parameter_unit(name)} ({DERIVED[name]})')
+            continue
+        mean, deviation, drifting = drift.get(name, (value, None, False))
         flag = f'JUMP ({deviation:+.1f}σ)' if drifting else (f'{deviation:+.1f}σ' if deviation is not None else '')
         trend = trends.get(name)
         if isinstance(trend, str) and trend:
@@ -149,15 +205,40 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
         elif isinstance(trend, dict) and trend['stretches'] >= 4 and math.isfinite(trend['change']):
             flag += (f'  trend {trend["change"] * 100:+.0f} % over {trend["span"]:.0f} s'
                      + (' PARAMETER DRIFT' if trend['drifting'] else ''))
-        estimator = estimators.get(name, '?')
-        lines.append(f'{name:26s} {value:13.6g} {error:11.3g} {mean:13.6g}  {estimator:15s} {flag}')
+        estimator = estimators.get(name, 'output_error')
+        lines.append(f'{name:26s} {value:13.6g} {error:11.3g} {parameter_unit(name) or "-":12s} {mean:13.6g}  '
+                     f'{estimator:15s} {flag}')
+    if derived:
+        lines.append('not a fitted parameter:')
+        lines += derived
     if coefficients:
         lines.append('')
-        lines.append('estimator weak_sindy: coefficients of d²angle/dt² [rad/s² per unit term] (-sin(angle) '
-                     'coefficient = its gravity_stiffness, the start of the refinement above):')
+        lines.append('estimator weak_sindy: coefficients of d²angle/dt² [rad/s² per unit term], the start of the '
+                     'refinement above (where they name the same quantity, read the refined value):')
         for name, (value, error) in coefficients.items():
-            lines.append(f'  {name:38s} {value:13.6g} ± {error:.3g}')
+            remark = weak_form_remark(name, value, error, parameters)
+            lines.append(f'  {name:38s} {value:13.6g} ± {error:.3g}' + (f'  {remark}' if remark else ''))
+    if ended:
+        lines.append('')
+        lines.append(f'RUN ENDED: {ended}')
     return '\n'.join(lines)
+
+
+#: Silence of the identification node after which the run is said to have ended: this many times the usual interval
+#: between its windows [-], and at least SILENCE_MIN_S [s].
+SILENCE_WINDOWS = 3.0
+SILENCE_MIN_S = 15.0
+
+
+def silent_for(state: dict, now: float) -> float:
+    """Seconds the identification node has been silent when that says the run ended (0.0 while it is not), from
+    ``state['last_status_at']`` and ``state['result_times']`` (monotonic seconds) of the windows received."""
+    times = state['result_times']
+    if not times or state['last_status_at'] is None:
+        return 0.0
+    usual = float(sorted(b - a for a, b in zip(times, times[1:]))[(len(times) - 2) // 2]) if len(times) > 1 else 0.0
+    quiet = now - state['last_status_at']
+    return quiet if quiet > max(SILENCE_MIN_S, SILENCE_WINDOWS * usual) else 0.0
 
 
 def output_width(stream) -> int | None:
@@ -229,7 +310,8 @@ def main(args) -> int:
                                                   msg_to_named_values, results_qos)
 
     state = {'parameters': {}, 'coefficients': {}, 'fit': {}, 'status': '', 'drift': {}, 'windows': 0,
-             'dirty': False, 'values': {}, 'stamp_ns': 0, 'first_ns': None}
+             'dirty': False, 'values': {}, 'stamp_ns': 0, 'first_ns': None, 'counted_ns': None, 'window_ready': False,
+             'ended': '', 'last_status_at': None, 'result_times': []}
     tracker = DriftTracker(sigma=args.drift_sigma)
     from aeropend_core.diagnosis.online import ParameterTrends
     local_trends = ParameterTrends(args.window)      # only for a node that does not run the trend test itself
@@ -238,33 +320,47 @@ def main(args) -> int:
     text_out = sys.stderr if args.json == '-' else sys.stdout
 
     def on_parameters(msg):
-        values = msg_to_named_values(msg)
-        state['parameters'] = values
-        state['drift'] = tracker.update(values)
-        state['local_trends'] = local_trends.add(msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec, values)
+        state['parameters'] = msg_to_named_values(msg)
         state['stamp_ns'] = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        state['windows'] += 1
-        state['dirty'] = True
 
     def on_coefficients(msg):
         state['coefficients'] = msg_to_named_values(msg)
 
     def on_fit(msg):
         state['fit'] = msg_to_named_values(msg)
-        state['dirty'] = True
+
+    def on_done(msg):
+        if msg.data and not state['ended']:
+            state['ended'] = ('the excitation has finished (aeropend/excitation/done); a window still being computed '
+                              'may follow, then nothing more')
+            state['dirty'] = state['window_ready'] = True
+
+    def count_window(values):
+        """A window's result is complete (its status came after its numbers): counted, tracked, drawn, once."""
+        if state['counted_ns'] == state['stamp_ns']:
+            return
+        state['counted_ns'] = state['stamp_ns']
+        state['windows'] += 1
+        state['drift'] = tracker.update(state['parameters'])
+        state['local_trends'] = local_trends.add(state['stamp_ns'] * 1e-9, state['parameters'])
+        state['result_times'].append(time.monotonic())
+        state['window_ready'] = True
 
     def on_diagnostics(msg):
         for status in msg.status:
             if status.name != status_prefix(namespace) + DIAGNOSTIC_NAME:     # this rig's identification only
                 continue
             values = {kv.key: kv.value for kv in status.values}
+            state['last_status_at'] = time.monotonic()
             extra = ' | '.join(f'{k} {values[k]}' for k in ('excitation', 'lost_samples', 'effects') if k in values)
             state['status'] = status.message + (f' | {extra}' if extra else '')
             state['dirty'] = True
             result = 'fit_percent' in values and values.get('window_stop_ns') == str(state['stamp_ns'])
             if result:
                 state['values'] = values
-                _on_window(state, values, plot, args, parameter_unit)
+                if state['counted_ns'] != state['stamp_ns']:
+                    count_window(values)
+                    _on_window(state, values, plot, args, parameter_unit)
             if json_out is not None:
                 json_out.write(_json_line(status, values, state if result else None, parameter_unit))
 
@@ -274,6 +370,10 @@ def main(args) -> int:
     node.create_subscription(JointState, COEFFICIENTS_TOPIC, on_coefficients, results_qos())
     node.create_subscription(JointState, FIT_TOPIC, on_fit, results_qos())
     node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS_TOPIC, on_diagnostics, topics.diagnostics_qos())
+    from std_msgs.msg import Bool
+
+    from aeropend_ros.excitation_node import DONE_TOPIC, done_qos
+    node.create_subscription(Bool, DONE_TOPIC, on_done, done_qos())
     clear = text_out.isatty() and not args.no_clear and not args.once
     started = time.monotonic()
     last_draw = 0.0
@@ -285,9 +385,11 @@ def main(args) -> int:
         trends = ({name[len('trend_'):]: text for name, text in values.items() if name.startswith('trend_')}
                   or state.get('local_trends'))
         estimators = dict(part.split(':', 1) for part in values.get('estimators', '').split(',') if ':' in part)
-        return render(state['parameters'], state['coefficients'], state['fit'], state['status'], state['drift'],
+        shown = bool(state['windows'])        # a window's numbers only once its status has completed them
+        return render(state['parameters'] if shown else {}, state['coefficients'] if shown else {},
+                      state['fit'] if shown else {}, state['status'], state['drift'],
                       state['windows'], width, trends=trends, estimators=estimators,
-                      node_drift=values.get('drift', ''), span=window_span(values),
+                      node_drift=values.get('drift', ''), span=window_span(values), ended=state['ended'],
                       data=window_data(values) if 'lost_samples' in values or values.get('data_quality') else None)
     try:
         while rclpy.ok():
@@ -311,16 +413,21 @@ def main(args) -> int:
             # One redraw per window: its parameters, coefficients, fit and status arrive within milliseconds. While
             # waiting: a terminal's screen is redrawn at most once a second; a pipe gets a line only when the
             # waiting status changes its kind (not each second's "12.0 of 25 s buffered").
-            if state['parameters']:
-                due = state['dirty'] and now - last_draw > 0.5
+            silence = silent_for(state, now)
+            if silence and not state['ended']:
+                state['ended'] = (f'no status from the identification node for {silence:.0f} s: the run has ended '
+                                  '(or the node stopped); the latest window above is the last')
+                state['window_ready'] = True
+            if state['windows']:
+                due = state['window_ready']          # one table per window (and one when the run ends)
             elif clear:
-                due = (state['dirty'] and now - last_draw > 1.0) or last_draw == 0.0
+                due = (state['dirty'] and now - last_draw > 1.0) or last_draw == 0.0 or state['window_ready']
             else:
-                due = waiting_kind(state['status']) != shown_kind or last_draw == 0.0
+                due = waiting_kind(state['status']) != shown_kind or last_draw == 0.0 or state['window_ready']
             if due:
                 text = table(output_width(text_out))
                 print(('\x1b[H\x1b[2J' if clear else '\n') + text, flush=True, file=text_out)
-                state['dirty'] = False
+                state['dirty'] = state['window_ready'] = False
                 shown_kind = waiting_kind(state['status'])
                 last_draw = now
     except (KeyboardInterrupt, ExternalShutdownException):
