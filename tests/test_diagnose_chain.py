@@ -166,7 +166,7 @@ def test_a_near_miss_that_changes_nothing_is_not_noted_beside_nothing_missing():
                          excess_before, excess_before, False, t_statistic=rules.T_MIN + 1, dm_statistic=3.9,
                          mse_gain=0.0, share_removed=share)
 
-    assert near_miss_notes([candidate(127.2 + 3.0)], within, prep) == []             # within +-2 sigma, nothing to remove
+    assert near_miss_notes([candidate(127.2 + 3.0)], within, prep) == []     # within +-2 sigma, nothing to remove
     moved = near_miss_notes([candidate(127.2 + 5.0)], within, prep)                  # 2.8 sigma: the +- is too small
     assert len(moved) == 1 and 'gravity_stiffness 127.2 -> 132.2' in moved[0] and 'within the noise' in moved[0]
     removes = near_miss_notes([candidate(127.2, 0.004, MATERIAL_SHARE + 0.01)], within, prep)

@@ -44,6 +44,11 @@ def test_monitor_table_json_lines_and_plot_file_on_a_live_graph(tmp_path):
     row = next(line for line in table.stdout.splitlines() if line.startswith('thrust_gain '))
     assert 'output_error' in row
     assert 'estimator weak_sindy' in table.stdout and 'sin(angle)' in table.stdout
+    # issue #42: the first table a monitor prints has a unit per row, a running mean and an estimator (no nan, ?)
+    rows = [line for line in table.stdout.splitlines()
+            if line.split() and line.split()[0] in ('gravity_stiffness', 'damping', 'thrust_gain')]
+    assert len(rows) == 3 and not [r for r in rows if 'nan' in r or ' ? ' in r], table.stdout
+    assert 'rad/s^2/V^2' in row and 'window(s) received' in table.stdout
     # JSON lines to a file: each line one object; the window's line carries value, sigma, band, unit, estimator.
     objects = [json.loads(line) for line in lines.read_text().splitlines()]
     window = [o for o in objects if 'window' in o][-1]['window']
@@ -106,3 +111,76 @@ def test_live_plot_draws_bands_drift_and_flags_off_screen(tmp_path):
     path = tmp_path / 'frame.png'
     plot.save(str(path))
     assert path.read_bytes()[:4] == b'\x89PNG'
+
+
+def test_the_first_table_has_units_means_and_no_unknowns():
+    """Issue #42 item 2: the first table showed `nan` (the running mean of no previous window) and `?` (the
+    estimator, before the window's status said it); no unit column. Now the mean counts the window itself, the
+    estimator defaults to the node's own (output_error), and every row carries its SI unit."""
+    from aeropend_ros.cli.monitor import DriftTracker, render
+    parameters = {'gravity_stiffness': (145.0, 2.0), 'thrust_gain': (136.7, 2.0), 'damping': (14.0, 0.3)}
+    drift = DriftTracker().update(parameters)
+    text = render(parameters, {}, {'fit_percent': (95.0, math.nan)}, 'fit 95 %', drift, 1, width=None)
+    rows = {line.split()[0]: line for line in text.splitlines() if line.split() and line.split()[0] in parameters}
+    assert set(rows) == set(parameters)
+    assert 'nan' not in text and '?' not in text
+    assert 'unit' in text and 'rad/s^2/V^2' in rows['thrust_gain'] and '1/s^2' in rows['gravity_stiffness']
+    assert rows['damping'].split()[4] == '14' and 'output_error' in rows['damping']          # the mean: the value
+    second = DriftTracker()
+    second.update({'damping': (14.0, 0.3)})
+    assert second.update({'damping': (16.0, 0.3)})['damping'][0] == pytest.approx(15.0)      # with this window
+
+
+def test_the_weak_form_says_when_it_disagrees_and_a_derived_value_is_labelled():
+    """The issue's window: the weak form's sin(angle) coefficient -3.56 +- 3.53 beside gravity 145 with no word why,
+    and thrust_coefficient 5.04e-06 printed like a fit though no diagnosis prints it."""
+    from aeropend_ros.cli.monitor import render, weak_form_remark
+    parameters = {'gravity_stiffness': (145.0, 2.0), 'damping': (14.0, 0.3), 'thrust_coefficient': (5.04e-6, 1e-7)}
+    coefficients = {'sin(angle)': (-3.56, 3.53), 'dangle/dt': (-14.2, 0.5), 'armature_voltage^2': (12.0, 1.0)}
+    text = render(parameters, coefficients, {'fit_percent': (95.0, math.nan)}, '', {}, 4, width=None,
+                  ended='the excitation has finished')
+    sin_row = next(line for line in text.splitlines() if line.strip().startswith('sin(angle)'))
+    assert 'gravity_stiffness 3.56' in sin_row and 'DISAGREES' in sin_row and '145' in sin_row
+    assert 'read the output-error value' in sin_row
+    rate_row = next(line for line in text.splitlines() if line.strip().startswith('dangle/dt'))
+    assert 'agrees with the output-error fit' in rate_row and 'DISAGREES' not in rate_row
+    assert weak_form_remark('armature_voltage^2', 12.0, 1.0, parameters) == ''
+    assert not [line for line in text.splitlines() if line.startswith('thrust_coefficient')]      # not a table row
+    assert 'thrust_coefficient = 5.04e-06' in text and 'derived' in text and 'does not print it' in text
+    assert text.rstrip().endswith('RUN ENDED: the excitation has finished')
+
+
+def test_the_end_of_the_run_is_said_after_a_silence_of_three_windows():
+    from aeropend_ros.cli.monitor import SILENCE_MIN_S, silent_for
+    state = {'result_times': [100.0, 105.0, 110.0, 115.0], 'last_status_at': 115.0}
+    assert silent_for(state, 115.0 + SILENCE_MIN_S - 1) == 0.0
+    assert silent_for(state, 115.0 + SILENCE_MIN_S + 1) == pytest.approx(SILENCE_MIN_S + 1)
+    slow = {'result_times': [0.0, 30.0, 60.0], 'last_status_at': 60.0}                   # windows every 30 s
+    assert silent_for(slow, 60.0 + 80.0) == 0.0 and silent_for(slow, 60.0 + 91.0) > 90.0
+    assert silent_for({'result_times': [], 'last_status_at': None}, 1e6) == 0.0
+
+
+def test_live_plot_keeps_bands_inside_and_labels_what_leaves_the_axis(tmp_path):
+    """The issue's PNG: +-1 sigma bands left the axes and a fit point fell below them unlabelled. The limits now
+    hold the recent windows' bands; a value beyond them is drawn at the edge with its value written beside it, and
+    the panel's legend says what the triangle is; a band wider than the axis is said in the title."""
+    import matplotlib
+    matplotlib.use('Agg')
+    from aeropend_core.present.live_plot import LivePlot, WindowPoint
+    plot = LivePlot(interactive=False)
+    for k in range(12):
+        gravity = (710.0, 90.0) if k == 6 else (140.0 + 0.5 * math.sin(k), 4.0 if k != 9 else 400.0)
+        plot.add(WindowPoint(5.0 * k, {'gravity_stiffness': gravity}, -35.0 if k == 8 else 95.0 + 0.2 * k))
+    plot.units = {'gravity_stiffness': '1/s^2'}
+    plot.draw()
+    gravity_axes, fit_axes = plot.figure.axes
+    low, high = gravity_axes.get_ylim()
+    ordinary = [140.0 + 0.5 * math.sin(k) for k in range(12) if k not in (6, 9)]
+    assert low <= min(ordinary) - 4.0 and high >= max(ordinary) + 4.0          # every ordinary band inside
+    assert high < 700.0                                                        # the wild window does not squash
+    notes = [text.get_text() for text in gravity_axes.texts]
+    assert '710 1/s^2' in notes
+    assert 'band wider than the axis in 1 window(s)' in gravity_axes.get_title(loc='left')
+    assert [text.get_text() for text in fit_axes.texts] == ['-35 %']
+    assert fit_axes.get_legend() is not None and 'off scale' in fit_axes.get_legend().get_texts()[-1].get_text()
+    plot.save(str(tmp_path / 'frame.png'))

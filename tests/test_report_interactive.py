@@ -158,6 +158,54 @@ def test_candidate_chart_after_add_shows_before_and_after(added, tmp_path):
     assert not re.search(r'\binf\b', visible)                 # a profiled threshold's t statistic said in words
 
 
+def test_candidate_labels_end_inside_the_chart(diagnosis):
+    """Issue #42 item 7: a candidate's label ran past the chart's right edge (clipped at 1000 px). With a candidate
+    significant alone but not selected (the longest tag) beside a long arrow, every label still ends inside."""
+    first = next(c for c in diagnosis.candidates if c.effect not in diagnosis.missing_effects and c.comparison)
+    redundant = dataclasses.replace(first, significant=True, excess_after=0.6 * first.excess_before)
+    crowded = dataclasses.replace(diagnosis, candidates=[redundant if c is first else c for c in diagnosis.candidates])
+    chart = plots._plot_candidates(crowded)
+    frame = re.search(r'<g transform="translate\(([\d.]+) [\d.]+\)">.*?<rect width="([\d.]+)" height="[\d.]+" '
+                      r'fill="none"', chart, re.DOTALL)
+    width = float(frame.group(2))
+    labels = re.findall(r'<text x="([\d.]+)"[^>]*>([^<]*\u2014[^<]*)</text>', chart)
+    assert any('significant alone, not selected' in label for _, label in labels), labels
+    for x, label in labels:
+        assert float(x) + 0.65 * 10.5 * len(label) <= width + 1, (x, label, width)     # x holds the 10 px gap
+
+
+def test_after_add_the_report_shows_the_old_signature_and_no_insignificant_candidate(added, tmp_path):
+    """Issue #42 item 7: after --add the report still drew a "best candidate (not significant)" line, and the
+    residual-vs-state plot showed only the (flat) residual of the model with the effect, not the signature it took
+    away. The equation the effects cite as eq (5)/(6) is shown, numbered."""
+    best = next(c for c in added.candidates if c.comparison is not None)
+    assert not best.significant
+    text = write_report(added, tmp_path / 'after.html', source='friction.csv').read_text(encoding='utf-8')
+    assert 'best candidate' not in text and '(not significant)' not in text
+    scatter = text.split('id="scatter"', 1)[1].split('<h3', 1)[0]
+    assert 'binned mean, before' in scatter and 'the signature the added effect took away' in scatter
+    equation = text.split('id="equation"', 1)[1].split('</section>', 1)[0]
+    assert '&emsp;(5)' in equation and '&emsp;(6)' in equation and 'f_eq5' in equation
+
+
+def test_the_confounded_column_names_what_the_notes_call_indistinguishable(diagnosis):
+    """Issue #42 item 7: "confounded with —" stood beside a note saying the thrust lag found includes any angle
+    filter. The column now names the pairs of the chain notes."""
+    from aeropend_core.diagnosis.doubts import chain_confusions, chain_notes
+    from aeropend_core.present.report import _candidates_table
+    lag = dataclasses.replace(diagnosis.found[0], effect='thrust_lag', parameters={'time_constant': 0.14},
+                              confounded_with=())
+    pairs = chain_confusions([lag], ['thrust_lag'])
+    assert pairs == {'thrust_lag': ['angle_filter'], 'angle_filter': ['thrust_lag']}
+    assert len(chain_notes([lag], ['thrust_lag'])) == 1
+    candidates = [dataclasses.replace(diagnosis.candidates[0], effect=name, confounded_with=())
+                  for name in ('thrust_lag', 'angle_filter')]
+    table = _candidates_table(dataclasses.replace(diagnosis, found=[lag], candidates=candidates, effects=[]))
+    cells = re.findall(r'<td>([^<]*(?:<small>.*?</small>)?)</td></tr>', table)
+    assert [cell.split(' <small>')[0] for cell in cells[:1]] == ['angle_filter'], cells
+    assert 'this record cannot tell them apart' in table and '&mdash;' not in table
+
+
 def test_rows_without_error_to_remove_do_not_claim_a_share():
     """A candidate added to a model already within the noise removes nothing: no 'removes 100 %' on a 'no' row, and a
     profiled threshold's infinite t statistic said in words -- by the diagnosis's own wording, not patched later."""
@@ -375,3 +423,129 @@ def test_chromium_renders_without_errors_or_fetches(page, added, diagnosis, tmp_
     assert f'data-gzip-bytes="{len(base64.b64decode(packed))}"' in dom
     assert 'data-gzip-magic="1f8b"' in dom
     assert 'data-decompression="function"' in dom and 'data-download="function"' in dom
+
+
+ZOOM_PROBE = """<script>
+// Shift + wheel over the time trace, then a drag: the data group is scaled along x and the ticks rewritten.
+var svg = document.querySelector('svg.zoom'), box = svg.querySelector('g.zx').parentNode.getBoundingClientRect();
+var x = box.left + box.width / 2, y = box.top + box.height / 2;
+svg.dispatchEvent(new WheelEvent('wheel', {deltaY: -100, shiftKey: true, clientX: x, clientY: y, bubbles: true,
+                                           cancelable: true}));
+svg.dispatchEvent(new WheelEvent('wheel', {deltaY: -100, shiftKey: true, clientX: x, clientY: y, bubbles: true,
+                                           cancelable: true}));
+document.body.setAttribute('data-zoom-transform', svg.querySelector('g.zx').getAttribute('transform'));
+document.body.setAttribute('data-zoom-view', svg.aeropendView.map(function (v) { return v.toFixed(3); }).join(' '));
+document.body.setAttribute('data-zoom-ticks', Array.from(svg.querySelectorAll('g.xt text')).map(
+    function (t) { return t.textContent; }).join(' '));
+svg.dispatchEvent(new MouseEvent('mousedown', {clientX: x, clientY: y, bubbles: true}));
+svg.dispatchEvent(new MouseEvent('mousemove', {clientX: x + box.width / 4, clientY: y, bubbles: true}));
+window.dispatchEvent(new MouseEvent('mouseup', {bubbles: true}));
+document.body.setAttribute('data-pan-view', svg.aeropendView.map(function (v) { return v.toFixed(3); }).join(' '));
+svg.dispatchEvent(new MouseEvent('dblclick', {bubbles: true}));
+document.body.setAttribute('data-reset-zoomed', String(svg.classList.contains('zoomed')));
+</script>"""
+
+
+@needs_chromium
+@pytest.mark.timeout(300)
+def test_time_traces_zoom_and_pan_offline(page, diagnosis, tmp_path):
+    """Issue #42 item 7: static time traces. Shift + wheel zooms the time axis of the overlay (0.8 x per step,
+    about the pointer), a drag pans it, a double-click resets; the ticks are rewritten; nothing is fetched."""
+    path, text = page
+    assert text.count('<svg class="plot zoom"') == 2                # the whole-record overlay and the error trace
+    probe = tmp_path / 'zoom.html'
+    probe.write_text(text.replace('</body>', ZOOM_PROBE + '</body>'), encoding='utf-8')
+    dom, log, requested = chromium(probe.as_uri(), tmp_path, '--dump-dom')
+    assert 'Uncaught' not in log and requested == []
+    time = diagnosis.prepared.time
+    full = time[-1] - time[0]
+    view = [float(v) for v in re.search(r'data-zoom-view="([^"]+)"', dom).group(1).split()]
+    assert view[1] - view[0] == pytest.approx(0.64 * full, rel=1e-3)          # two steps of 0.8
+    assert 'scale(1.5625 1)' in re.search(r'data-zoom-transform="([^"]+)"', dom).group(1)
+    ticks = [float(t) for t in re.search(r'data-zoom-ticks="([^"]+)"', dom).group(1).split()]
+    assert len(ticks) >= 5 and view[0] <= ticks[0] and ticks[-1] <= view[1] + 1e-9
+    panned = [float(v) for v in re.search(r'data-pan-view="([^"]+)"', dom).group(1).split()]
+    assert panned[0] < view[0] and panned[1] - panned[0] == pytest.approx(view[1] - view[0], rel=1e-6)
+    assert 'data-reset-zoomed="false"' in dom
+
+
+# -- pictures for the docs (issue #42 item 8) -----------------------------------------------------------------------
+
+DOC_IMAGES = Path(__file__).resolve().parents[1] / 'docs' / 'images'
+
+
+def _monitor_page(tmp_path) -> Path:
+    """`aeropend monitor`'s table and live plot, as the monitor draws them, for three windows identified by the
+    online analysis itself (25 s windows every 5 s over a simulated 35 s run with the default hidden 0.05 rad angle
+    offset, 40 dB): the terminal's text in a <pre>, the plot as the PNG the monitor saves with --plot-file."""
+    from aeropend_core.diagnosis.online import analyze_window
+    from aeropend_core.model.names import parameter_unit
+    from aeropend_core.present.live_plot import LivePlot, WindowPoint
+    from aeropend_ros.cli.monitor import DriftTracker, render
+    duty = lhc_schedule(35.0, seed=7).duty(SAMPLE_TIME, 35.0)
+    columns = simulate(duty, effects={'angle_offset': 0.05}, noise=MeasurementNoise(40, True),
+                       seed=7).columns(with_truth=False)
+    time = columns['t']
+    tracker, plot, text = DriftTracker(), LivePlot(interactive=False), ''
+    for stop in (25.0, 30.0, 35.0):
+        inside = (time >= stop - 25.0) & (time < stop)
+        result = analyze_window(time[inside], columns['armature_voltage'][inside],
+                                columns['armature_current'][inside], columns['angle'][inside])
+        drift = tracker.update(result.parameters)
+        fit = {'fit_percent': (result.fit_percent, 0.0), 'rms_error': (result.rms_error, 0.0),
+               'noise_rms': (result.noise_rms, 0.0), 'compute_time': (result.compute_time, 0.0)}
+        text = render(result.parameters, result.coefficients, fit, f'fit {result.fit_percent:.1f} % on '
+                      f'{result.held_out_seconds:.1f} s held out', drift, len(plot.points) + 1, width=None,
+                      estimators=result.estimators, data='', span=(stop - 25.0, stop))
+        plot.add(WindowPoint(stop, dict(result.parameters), result.fit_percent))
+        plot.units.update({name: parameter_unit(name) for name in result.parameters})
+        plot.estimators.update(result.estimators)
+    plot.draw()
+    png = tmp_path / 'live.png'
+    plot.save(str(png))
+    page = tmp_path / 'monitor.html'
+    page.write_text('<!DOCTYPE html><html><body style="margin:0;background:#fff;font-family:sans-serif">'
+                    '<pre style="background:#1e1e1e;color:#e6e6e6;padding:12px;margin:0;font-size:12px;'
+                    f'white-space:pre">$ aeropend monitor\n{html.escape(text)}</pre><img style="display:block" '
+                    f'src="data:image/png;base64,{base64.b64encode(png.read_bytes()).decode()}"></body></html>',
+                    encoding='utf-8')
+    return page
+
+
+def _small_png(shot: Path, target: Path, height: int) -> None:
+    """The screenshot's top `height` px, in 256 colours (a small file for the repository)."""
+    from PIL import Image
+    image = Image.open(shot).convert('RGB')
+    image.crop((0, 0, image.width, min(height, image.height))).quantize(colors=256).save(target, optimize=True)
+
+
+@pytest.mark.slow
+@needs_chromium
+@pytest.mark.timeout(600)
+def test_screenshots_of_the_report_and_the_monitor_for_the_docs(page, tmp_path):
+    """The pictures in README.md and docs/ are made here, by headless Chromium, from a real report and from the
+    monitor's own table and plot: kept as artefacts, and written to docs/images/ with AEROPEND_UPDATE_SCREENSHOTS=1.
+    Either way the page loads nothing from outside and the pictures the docs show exist and are shown."""
+    from PIL import Image
+    path, _ = page
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    update = os.environ.get('AEROPEND_UPDATE_SCREENSHOTS') == '1'
+    for name, source, size, keep in (('report', path, (1100, 1500), 1250),
+                                     ('monitor', _monitor_page(tmp_path), (1000, 1500), 1500)):
+        shot = ARTIFACTS / f'{name}_full.png'
+        _, log, requested = chromium(source.as_uri(), tmp_path, f'--screenshot={shot}', size=size)
+        assert 'Uncaught' not in log and requested == []
+        _small_png(shot, ARTIFACTS / f'{name}.png', keep)
+        if update:
+            DOC_IMAGES.mkdir(exist_ok=True)
+            shutil.copyfile(ARTIFACTS / f'{name}.png', DOC_IMAGES / f'{name}.png')
+        shown = DOC_IMAGES / f'{name}.png'
+        assert shown.is_file(), f'{shown} missing: run this test with AEROPEND_UPDATE_SCREENSHOTS=1'
+        with Image.open(shown) as image:
+            assert image.width == size[0] and 600 <= image.height <= keep
+            assert len(image.convert('RGB').getcolors(maxcolors=1 << 16) or []) > 50     # a picture, not a blank
+        assert shown.stat().st_size < 400_000
+    readme = (DOC_IMAGES.parents[1] / 'README.md').read_text(encoding='utf-8')
+    assert 'docs/images/report.png' in readme and 'docs/images/monitor.png' in readme
+    assert 'images/report.png' in (DOC_IMAGES.parent / 'report.md').read_text(encoding='utf-8')
+    assert 'images/monitor.png' in (DOC_IMAGES.parent / 'live.md').read_text(encoding='utf-8')

@@ -20,6 +20,9 @@ FIRST = ('gravity_stiffness', 'damping', 'thrust_gain', 'armature_resistance')
 LIMIT_MADS = 6.0
 #: Windows the axis limits are taken from (the most recent) [-].
 LIMIT_WINDOWS = 30
+#: A window's ±1σ band is kept on the axis up to this many times the recent windows' median σ; a wider one (a damaged
+#: window's) is cut at the edge and said in the title [-].
+BAND_WIDEST = 3.0
 
 
 def robust_limits(values, k: float = LIMIT_MADS, recent: int = LIMIT_WINDOWS) -> tuple[float, float] | None:
@@ -190,13 +193,21 @@ class LivePlot:
         the limits cut (a band wider than the recent windows' spread, e.g. a σ of a damaged window)."""
         import numpy as np
         sigma = np.full_like(value, np.nan) if sigma is None else np.asarray(sigma, dtype=float)
-        spread = np.where(np.isfinite(sigma), sigma, 0.0)
-        # the recent values and their band edges, interleaved so that the robust limits see the same windows
-        edges = np.column_stack([value, value - spread, value + spread]).ravel()
-        limits = robust_limits(edges, recent=3 * LIMIT_WINDOWS)
+        limits = robust_limits(value)
         if limits is None:
             return 0
         low, high = limits
+        # the bands of the windows on the axis, unless a band is far wider than the recent windows' usual one
+        inside = np.isfinite(value) & (value >= low) & (value <= high)
+        recent = sigma[-LIMIT_WINDOWS:][np.isfinite(sigma[-LIMIT_WINDOWS:])]
+        usual = float(np.median(recent)) if recent.size else 0.0
+        banded = inside & np.isfinite(sigma) & (sigma <= BAND_WIDEST * usual)
+        cut = int(np.sum(inside & np.isfinite(sigma) & ~banded))
+        if banded.any():
+            low = min(low, float(np.min(value[banded] - sigma[banded])))
+            high = max(high, float(np.max(value[banded] + sigma[banded])))
+            margin = 0.05 * (high - low)
+            low, high = low - margin, high + margin
         axes.set_ylim(low, high)
         above, below = value > high, value < low
         for where, edge, marker, offset in ((above, high, '^', -9), (below, low, 'v', 4)):
@@ -207,8 +218,7 @@ class LivePlot:
             for t, v in zip(times[where][-3:], value[where][-3:]):      # the latest three, not a pile of text
                 axes.annotate(f'{v:.4g} {unit}'.strip(), (t, edge), textcoords='offset points', xytext=(4, offset),
                               fontsize=6.5, color='#d7301f', annotation_clip=False)
-        inside = np.isfinite(value) & ~above & ~below
-        return int(np.sum(inside & ((value + spread > high) | (value - spread < low))))
+        return cut
 
     def save(self, path: str) -> None:
         """Write the current figure to `path` (PNG, SVG or PDF by its suffix) [-], replacing it whole."""

@@ -172,11 +172,14 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
     where = f', the latest {span[0]:.1f}-{span[1]:.1f} s (acquisition time)' if span else ''
     lines.append(f'aeropend monitor: {windows} window(s) received{where}' + ' ' * 4 + time.strftime('%H:%M:%S'))
     if fit:
-        get = {name: value for name, (value, _) in fit.items()}
-        lines.append(f'held-out fit {get.get("fit_percent", float("nan")):7.2f} %   rms error '
-                     f'{get.get("rms_error", float("nan")) * 1e3:7.2f} mrad   noise '
-                     f'{get.get("noise_rms", float("nan")) * 1e3:6.2f} mrad   compute '
-                     f'{get.get("compute_time", float("nan")):.2f} s')
+        get = {name: value for name, (value, _) in fit.items() if math.isfinite(value)}
+        shown = [(key, text) for key, text in (('fit_percent', 'held-out fit {:7.2f} %'),
+                                               ('rms_error', 'rms error {:7.2f} mrad'),
+                                               ('noise_rms', 'noise {:6.2f} mrad'),
+                                               ('compute_time', 'compute {:.2f} s'))
+                 if key in get]      # what the node did not say is left out, never shown as nan
+        lines.append('   '.join(text.format(get[key] * (1e3 if key in ('rms_error', 'noise_rms') else 1.0))
+                                for key, text in shown))
     if status:
         lines.append(f'identification: {status}'[:width])
     if data:
