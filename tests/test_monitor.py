@@ -141,12 +141,13 @@ def test_the_weak_form_says_when_it_disagrees_and_a_derived_value_is_labelled():
                   ended='the excitation has finished')
     sin_row = next(line for line in text.splitlines() if line.strip().startswith('sin(angle)'))
     assert 'gravity_stiffness 3.56' in sin_row and 'DISAGREES' in sin_row and '145' in sin_row
-    assert 'read the output-error value' in sin_row
+    assert sin_row.endswith('sigma)*') and '* read the output-error value above' in text
     rate_row = next(line for line in text.splitlines() if line.strip().startswith('dangle/dt'))
     assert 'agrees with the output-error fit' in rate_row and 'DISAGREES' not in rate_row
     assert weak_form_remark('armature_voltage^2', 12.0, 1.0, parameters) == ''
     assert not [line for line in text.splitlines() if line.startswith('thrust_coefficient')]      # not a table row
-    assert 'thrust_coefficient = 5.04e-06' in text and 'derived' in text and 'does not print it' in text
+    assert '  thrust_coefficient = 5.04e-06 +- 1e-07 N s^2 (Kq, from thrust_gain' in text
+    assert 'not fitted, derived' in text and 'does not print it' in text
     assert text.rstrip().endswith('RUN ENDED: the excitation has finished')
 
 

@@ -506,7 +506,7 @@ def _monitor_page(tmp_path) -> Path:
     page = tmp_path / 'monitor.html'
     page.write_text('<!DOCTYPE html><html><body style="margin:0;background:#fff;font-family:sans-serif">'
                     '<pre style="background:#1e1e1e;color:#e6e6e6;padding:12px;margin:0;font-size:12px;'
-                    f'white-space:pre">$ aeropend monitor\n{html.escape(text)}</pre><img style="display:block" '
+                    f'white-space:pre-wrap">$ aeropend monitor\n{html.escape(text)}</pre><img style="display:block" '
                     f'src="data:image/png;base64,{base64.b64encode(png.read_bytes()).decode()}"></body></html>',
                     encoding='utf-8')
     return page
@@ -531,7 +531,7 @@ def test_screenshots_of_the_report_and_the_monitor_for_the_docs(page, tmp_path):
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     update = os.environ.get('AEROPEND_UPDATE_SCREENSHOTS') == '1'
     for name, source, size, keep in (('report', path, (1100, 1500), 1250),
-                                     ('monitor', _monitor_page(tmp_path), (1000, 1500), 1500)):
+                                     ('monitor', _monitor_page(tmp_path), (1000, 1100), 1100)):
         shot = ARTIFACTS / f'{name}_full.png'
         _, log, requested = chromium(source.as_uri(), tmp_path, f'--screenshot={shot}', size=size)
         assert 'Uncaught' not in log and requested == []

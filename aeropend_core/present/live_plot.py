@@ -130,10 +130,12 @@ class LivePlot:
         del self.points[:-self.keep]
 
     def names(self) -> list[str]:
-        """Parameters to draw: :data:`FIRST` that appear, then the others in order of appearance."""
+        """Parameters to draw: :data:`FIRST` that appear, then the others in order of appearance (not the derived
+        ones, e.g. thrust_coefficient: no diagnosis prints them)."""
+        from aeropend_core.model.names import DERIVED_PARAMETERS
         seen: list[str] = []
         for point in self.points:
-            seen += [name for name in point.values if name not in seen]
+            seen += [name for name in point.values if name not in seen and name not in DERIVED_PARAMETERS]
         return [name for name in FIRST if name in seen] + [name for name in seen if name not in FIRST]
 
     def draw(self) -> None:
@@ -197,10 +199,13 @@ class LivePlot:
         if limits is None:
             return 0
         low, high = limits
-        # the bands of the windows on the axis, unless a band is far wider than the recent windows' usual one
-        inside = np.isfinite(value) & (value >= low) & (value <= high)
+        # the bands of the windows on the axis, unless a band is far wider than the recent windows' usual one; a value
+        # within BAND_WIDEST usual sigmas of the median is on the axis too (few windows make a narrow robust range)
         recent = sigma[-LIMIT_WINDOWS:][np.isfinite(sigma[-LIMIT_WINDOWS:])]
         usual = float(np.median(recent)) if recent.size else 0.0
+        middle = float(np.nanmedian(value[-LIMIT_WINDOWS:]))
+        inside = np.isfinite(value) & (((value >= low) & (value <= high))
+                                       | (np.abs(value - middle) <= BAND_WIDEST * usual))
         banded = inside & np.isfinite(sigma) & (sigma <= BAND_WIDEST * usual)
         cut = int(np.sum(inside & np.isfinite(sigma) & ~banded))
         if banded.any():

@@ -18,7 +18,7 @@ def _what(found) -> str:
     is in words."""
     entry = get_effect(found.effect)
     units = {p.name: p.unit for p in entry.parameters}
-    sizes = ', '.join(f'{name} {value:.3g} +- {found.standard_errors.get(name, float("nan")):.2g} {units[name]}'
+    sizes = ', '.join(f'{name} {value:.4g} +- {found.standard_errors.get(name, float("nan")):.2g} {units[name]}'
                       for name, value in found.parameters.items())
     return f'{found.effect}{", " + sizes if sizes else ""} ({entry.description})'
 

@@ -100,10 +100,6 @@ class DriftTracker:
         return report
 
 
-#: Parameters the node publishes that no diagnosis prints, and what they are (labelled, never shown as a fit).
-DERIVED = {'thrust_coefficient': 'derived: thrust_gain x (gear ratio x Kw)^2 / (L/J) with the paper\'s constants; '
-                                 'aeropend diagnose does not print it'}
-
 #: Weak-form coefficients of d²angle/dt² that are one parameter of the refined model: ``{term: (parameter, sign)}``
 #: (the parameter is sign x the coefficient).
 WEAK_TWINS = {'sin(angle)': ('gravity_stiffness', -1.0), 'dangle/dt': ('damping', -1.0)}
@@ -142,9 +138,7 @@ def weak_form_remark(term: str, value: float, sigma: float, parameters: dict) ->
     apart = abs(implied - fitted) / combined
     if apart <= WEAK_AGREEMENT_SIGMAS:
         return f'{head}: agrees with the output-error fit {fitted:.4g} ({apart:.1f} sigma)'
-    return (f'{head}: DISAGREES with the output-error fit {fitted:.4g} +- {fitted_sigma:.2g} ({apart:.0f} sigma); read '
-            'the output-error value: the weak form only starts that fit and is biased by noise and by what the model '
-            'lacks')
+    return f'{head}: DISAGREES with the output-error fit {fitted:.4g} +- {fitted_sigma:.2g} ({apart:.0f} sigma)*'
 
 
 def render(parameters, coefficients, fit, status, drift, windows: int, width: int | None = 100, trends=None,
@@ -160,7 +154,7 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
     flags ('' when clean, None when the node did not say); `span` the window's start and end in acquisition time
     since the run began [s] (as ``aeropend run`` prints them); `ended` says that the run has ended ('' while it runs).
     """
-    from aeropend_core.model.names import parameter_unit
+    from aeropend_core.model.names import DERIVED_PARAMETERS, parameter_unit
     lines = []
     if not parameters and not fit:
         lines.append('aeropend monitor: waiting for the identification node\'s first window ...')
@@ -197,8 +191,9 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
     trends = trends or {}
     derived = []
     for name, (value, error) in parameters.items():
-        if name in DERIVED:
-            derived.append(f'  {name} = {value:.4g} +- {error:.2g} {parameter_unit(name)} ({DERIVED[name]})')
+        if name in DERIVED_PARAMETERS:
+            derived.append(f'  {name} = {value:.4g} +- {error:.2g} {parameter_unit(name)} '
+                           f'({DERIVED_PARAMETERS[name][1]})')
             continue
         mean, deviation, drifting = drift.get(name, (value, None, False))
         flag = f'JUMP ({deviation:+.1f}σ)' if drifting else (f'{deviation:+.1f}σ' if deviation is not None else '')
@@ -212,8 +207,9 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
         lines.append(f'{name:26s} {value:13.6g} {error:11.3g} {parameter_unit(name) or "-":12s} {mean:13.6g}  '
                      f'{estimator:15s} {flag}')
     if derived:
-        lines.append('not a fitted parameter:')
+        lines.append('not fitted, derived with the paper\'s constants (aeropend diagnose does not print it):')
         lines += derived
+    disagree = False
     if coefficients:
         lines.append('')
         lines.append('estimator weak_sindy: coefficients of d²angle/dt² [rad/s² per unit term], the start of the '
@@ -221,6 +217,10 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
         for name, (value, error) in coefficients.items():
             remark = weak_form_remark(name, value, error, parameters)
             lines.append(f'  {name:38s} {value:13.6g} ± {error:.3g}' + (f'  {remark}' if remark else ''))
+            disagree = disagree or 'DISAGREES' in remark
+        if disagree:
+            lines.append('  * read the output-error value above: the weak form only starts that fit, and noise and '
+                         'what the model lacks bias it')
     if ended:
         lines.append('')
         lines.append(f'RUN ENDED: {ended}')
