@@ -482,7 +482,7 @@ def _monitor_page(tmp_path) -> Path:
     online analysis itself (25 s windows every 5 s over a simulated 35 s run with the default hidden 0.05 rad angle
     offset, 40 dB): the terminal's text in a <pre>, the plot as the PNG the monitor saves with --plot-file."""
     from aeropend_core.diagnosis.online import analyze_window
-    from aeropend_core.model.names import parameter_unit
+    from aeropend_core.model.effects import parameter_unit
     from aeropend_core.present.live_plot import LivePlot, WindowPoint
     from aeropend_ros.cli.monitor import DriftTracker, render
     duty = lhc_schedule(35.0, seed=7).duty(SAMPLE_TIME, 35.0)

@@ -125,7 +125,7 @@ def weak_form_remark(term: str, value: float, sigma: float, parameters: dict) ->
     str
         '= gravity_stiffness 3.56 +- 3.5 1/s^2: DISAGREES with the output-error fit 145 +- 2 (40 sigma); read ...'.
     """
-    from aeropend_core.model.names import parameter_unit
+    from aeropend_core.model.effects import parameter_unit
     if term not in WEAK_TWINS or WEAK_TWINS[term][0] not in parameters:
         return ''
     name, sign = WEAK_TWINS[term]
@@ -154,7 +154,8 @@ def render(parameters, coefficients, fit, status, drift, windows: int, width: in
     flags ('' when clean, None when the node did not say); `span` the window's start and end in acquisition time
     since the run began [s] (as ``aeropend run`` prints them); `ended` says that the run has ended ('' while it runs).
     """
-    from aeropend_core.model.names import DERIVED_PARAMETERS, parameter_unit
+    from aeropend_core.model.effects import parameter_unit
+    from aeropend_core.model.names import DERIVED_PARAMETERS
     lines = []
     if not parameters and not fit:
         lines.append('aeropend monitor: waiting for the identification node\'s first window ...')
