@@ -9,6 +9,8 @@
 - Imports only point down: no circle in the import graph of ``aeropend_core`` and ``aeropend_ros``, every import
   statement counted (function-level and relative ones too).
 - Nothing in the repository points at files outside it.
+- The second truth simulator (``aeropend_core/testing/second_rig.py``) imports only numpy, scipy and the standard
+  library: nothing of the model code it is meant to test (model, sim, signals, diagnosis, ...).
 """
 from __future__ import annotations
 
@@ -290,3 +292,22 @@ def test_real_time_tests_share_one_worker(request):
     if not getattr(request.config, 'workerinput', None) or not request.config.getvalue('loadgroup'):
         pytest.skip('not under pytest-xdist with --dist loadgroup: nothing is grouped')
     assert request.node.nodeid.endswith('@real_time'), request.node.nodeid
+
+
+def test_second_truth_simulator_imports_none_of_the_model_code():
+    """A benchmark on the second rig must test the diagnosis against a rig written apart from it (issue 40)."""
+    path = CORE / 'testing' / 'second_rig.py'
+    tree = ast.parse(path.read_text(encoding='utf-8'), str(path))
+    modules = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            modules.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            assert node.level == 0, f'relative import at line {node.lineno}'
+            modules.add(node.module)
+    roots = {name.split('.')[0] for name in modules}
+    allowed = {'numpy', 'scipy', 'math', 'dataclasses', '__future__'}
+    assert roots <= allowed, sorted(roots - allowed)
+    by_string = [node.value for node in ast.walk(tree) if isinstance(node, ast.Constant)
+                 and isinstance(node.value, str) and re.match(r'\s*aeropend_(core|ros)\.', node.value)]
+    assert not by_string, by_string

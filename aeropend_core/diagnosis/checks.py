@@ -43,6 +43,28 @@ def misfit_doubt(diagnosis) -> str | None:
             + ('; the values with the missing effects added are given with them' if diagnosis.found else ''))
 
 
+def fitted_thrust_lag(diagnosis) -> tuple[float | None, float | None, str]:
+    """(thrust time constant [s], mgd/J [1/s^2] of the same fit, which fit) the diagnosis finds: from the reported
+    model (selected, else current) when it carries a thrust lag, else from the strongest significant candidate that
+    is one; (None, None, '') when no fit finds a lag."""
+    from aeropend_core.model.effects import CATALOG, THRUST_LAG
+    lag_parameters = [p.name for e in CATALOG.values() if e.kind == THRUST_LAG for p in e.parameters]
+    for comparison, source in ((diagnosis.selected, 'the selected model'), (diagnosis.current, 'the model')):
+        if comparison is None:
+            continue
+        values = comparison.parameters
+        for name in lag_parameters:
+            if values.get(name):
+                return float(values[name]), values.get('gravity_stiffness'), source
+    lags = [c for c in diagnosis.candidates if c.significant and c.comparison is not None
+            and any(c.parameters.get(name) for name in lag_parameters)]
+    if lags:
+        best = min(lags, key=lambda c: c.delta_bic)
+        value = next(best.parameters[name] for name in lag_parameters if best.parameters.get(name))
+        return float(value), best.comparison.parameters.get('gravity_stiffness'), f'the {best.effect} candidate'
+    return None, None, ''
+
+
 def check_diagnosis(diagnosis):
     """Check `diagnosis`'s reported parameters; set ``parameter_warnings`` and ``independent`` and, when one fails,
     the verdict :data:`DOES_NOT_FIT` with the reason first in the message. Returns the diagnosis.
@@ -57,7 +79,7 @@ def check_diagnosis(diagnosis):
     Diagnosis
         The same object, updated.
     """
-    from aeropend_core.identify.plausibility import check_parameters, free_oscillation, verdict_line
+    from aeropend_core.identify.plausibility import check_parameters, check_premise, free_oscillation, verdict_line
     from aeropend_core.signals.reduced import NOT_IDENTIFIABLE
     prep = diagnosis.prepared
     independent = None
@@ -66,6 +88,8 @@ def check_diagnosis(diagnosis):
             independent = free_oscillation(prep.time, prep.angle, prep.gate_voltage, prep.step_indices)
         except (ValueError, np.linalg.LinAlgError):
             independent = None
+    if independent is not None:
+        independent = check_premise(independent, *fitted_thrust_lag(diagnosis))
     warnings: dict[str, str] = {}
     for comparison in (diagnosis.current, diagnosis.selected):
         if comparison is None:

@@ -11,6 +11,10 @@ cheap, against an independent estimate.
   :data:`RINGING_DAMPING_RATIO`) or a thrust that still rises through the interval (a slow motor), the interval is
   not free and the estimate is biased low; it is then reported as not informative and not used. Because of that
   bias the comparison is one-sided (:data:`AGREEMENT_RATIO`): an identified value far *below* it fails.
+  **Its premise** (a constant thrust after each step) is checked against the fit (:func:`check_premise`): when the
+  fitted model's thrust lags the input by a time constant above :data:`PREMISE_LAG_RATIO` of the pendulum's
+  period, the thrust still changes through much of each swing, so the estimate is shown as *not used*, with the
+  reason, in the text, the JSON (``used``, ``premise``) and the report.
 
 :func:`check_parameters` returns one warning per failing parameter; callers print it next to the number (text,
 JSON, report, topic), and the verdict then says the model does not fit this data.
@@ -19,7 +23,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -44,6 +48,11 @@ MAX_RELATIVE_SPREAD = 0.6
 #: low (on the default simulated rig, motor lag 0.3 s: mgd/J 43 against 131.75, c/J 6.3 against 13.8), so only an
 #: identified value well below them is evidence that the model does not fit.
 AGREEMENT_RATIO = {'gravity_stiffness': 0.6, 'damping': 0.4}
+#: The free-oscillation premise (constant thrust after a step) fails when the fitted thrust time constant exceeds
+#: this share of the pendulum's period 2 pi / sqrt(mgd/J): the thrust then settles (3 time constants) only after
+#: about a third of a swing or later, and the fit of ``y'' = -a sin y - b y' + c`` takes the rising thrust for a
+#: weaker restoring term (on a record with a 0.15 s lag it gave mgd/J ~ 18 for a fitted 127).
+PREMISE_LAG_RATIO = 0.1
 
 
 @dataclass(frozen=True)
@@ -71,6 +80,8 @@ class FreeOscillation:
     intervals: int = 0
     informative: bool = False
     reason: str = ''
+    #: How its premise was checked against the fitted model (empty: not checked), :func:`check_premise`.
+    premise: str = ''
 
     def to_dict(self) -> dict:
         """JSON form (SI; NaN as None)."""
@@ -79,6 +90,7 @@ class FreeOscillation:
         return {'gravity_stiffness': clean(self.gravity_stiffness), 'damping': clean(self.damping),
                 'quartiles': {k: [clean(a), clean(b)] for k, (a, b) in self.quartiles.items()},
                 'intervals': self.intervals, 'informative': self.informative, 'reason': self.reason,
+                'used': self.informative, 'premise': self.premise,
                 'model': "y'' = -a sin y - b y' + c after each duty step (equation error)"}
 
     def describe(self) -> str:
@@ -158,6 +170,42 @@ def free_oscillation(time: np.ndarray, angle: np.ndarray, input_signal: np.ndarr
     elif (a_q[2] - a_q[0]) / a > MAX_RELATIVE_SPREAD:
         reason = f'the intervals disagree (IQR {100 * (a_q[2] - a_q[0]) / a:.0f} % of the median)'
     return FreeOscillation(a, b, quartiles, len(a_values), not reason, reason)
+
+
+def check_premise(independent: FreeOscillation, thrust_time_constant: float | None, gravity_stiffness: float | None,
+                  source: str = 'the fit') -> FreeOscillation:
+    """`independent` with its premise checked against a fitted thrust lag (module docstring): not used, with the
+    reason, when the lag exceeds :data:`PREMISE_LAG_RATIO` of the pendulum's period.
+
+    Parameters
+    ----------
+    independent : FreeOscillation
+        The estimate.
+    thrust_time_constant : float or None [s]
+        The thrust's fitted first-order time constant (None or 0: the fit finds no lag).
+    gravity_stiffness : float or None [1/s^2]
+        The fitted mgd/J that sets the pendulum's period.
+    source : str [-]
+        Which fit found the lag, for the reason.
+
+    Returns
+    -------
+    FreeOscillation
+        The same estimate, ``premise`` said and, when the premise fails, ``informative`` False with the reason.
+    """
+    tau = thrust_time_constant
+    if not independent.intervals or tau is None or not math.isfinite(tau) or tau <= 0 or gravity_stiffness is None \
+            or not math.isfinite(gravity_stiffness) or gravity_stiffness <= 0:
+        return replace(independent, premise='constant thrust after each step: no thrust lag fitted')
+    period = 2 * math.pi / math.sqrt(gravity_stiffness)
+    premise = (f'constant thrust after each step: {source} finds a thrust time constant of {tau:.3g} s, '
+               f'{tau / period:.2f} of the pendulum period {period:.3g} s (premise holds up to {PREMISE_LAG_RATIO})')
+    if tau <= PREMISE_LAG_RATIO * period:
+        return replace(independent, premise=premise)
+    reason = (f'its premise fails: it assumes the thrust is constant after each duty step, but {source} finds the '
+              f'thrust lags with a time constant of {tau:.3g} s ({tau / period:.2f} of the {period:.3g} s pendulum '
+              'period), so the thrust still rises through the swing and biases the estimate low')
+    return replace(independent, informative=False, reason=reason, premise=premise)
 
 
 def check_parameters(parameters: Mapping[str, float], standard_errors: Mapping[str, float] | None = None,
