@@ -74,3 +74,18 @@ def test_the_free_oscillation_check_is_not_used_when_its_premise_fails(lag):
     else:
         assert check.informative, check.reason
         assert as_json['used'] is True and 'no thrust lag fitted' in as_json['premise']
+
+
+def test_the_second_rigs_rc_ladder_is_the_model_filter_with_delay_three_rc():
+    """The lumped filter delay of the second rig (3 RC) read back through the model's own filter: the same angle."""
+    from aeropend_core.model.sensor_filter import filter_angle
+    rng = np.random.default_rng(5)
+    rig = second_rig.draw_rig(rng)
+    effects = second_rig.RigEffects(filter_rc=0.01)
+    true = second_rig.integrate(second_rig.excitation(4.0, second_rig.duty_cap(rig), rng), rig, effects)
+    delay = rig.lumped(effects)['measured_lowpass']
+    assert delay == pytest.approx(0.03)
+    through_model = filter_angle(true['angle'], delay, 1 / second_rig.SAMPLE_RATE)
+    lag = np.max(np.abs(true['sensor'] - true['angle']))
+    assert lag > 5e-3                                     # the filter matters in this record
+    assert np.max(np.abs(through_model - true['sensor'])) < 0.02 * lag
