@@ -46,7 +46,7 @@ def _effects_of_kind() -> dict[str, tuple[str, str]]:
             for kind, parameter in effect.kernel_terms}
 
 
-def record(seed: int):
+def record(seed: int, excitation: str = 'mixed'):
     """(recording, second-rig record) of `seed` (module docstring)."""
     import numpy as np
 
@@ -59,16 +59,16 @@ def record(seed: int):
         rng = np.random.default_rng(seed + 7919)
         while not effects:
             effects = [name for name in second_rig.EFFECT_RANGES if rng.random() < 0.3]
-    rig_record = second_rig.draw(seed, effects=effects)
+    rig_record = second_rig.draw(seed, effects=effects, excitation_kind=excitation)
     return from_columns(rig_record.columns, source=f'second rig seed {seed}'), rig_record
 
 
-def run(seed: int, search: bool = True) -> dict:
+def run(seed: int, search: bool = True, excitation: str = 'mixed') -> dict:
     from threadpoolctl import threadpool_limits
 
     from aeropend_core.diagnosis.diagnose import diagnose
     kinds = _effects_of_kind()
-    recording, rig_record = record(seed)
+    recording, rig_record = record(seed, excitation)
     truth_effects = sorted({kinds[k][0] for k in rig_record.truth if k in kinds})
     truth = {name: value for name, value in rig_record.truth.items() if name in NOMINAL}
     truth.update({kinds[k][1]: value for k, value in rig_record.truth.items() if k in kinds})
@@ -79,7 +79,7 @@ def run(seed: int, search: bool = True) -> dict:
             told = diagnose(recording, effects=tuple(truth_effects), candidates=(), drift=False, discovery=False)
     except AeropendError as error:      # refused by the data-quality gate: counted apart, with the reason
         return {'seed': seed, 'psnr_db': round(rig_record.psnr_db, 1), 'true_effects': truth_effects,
-                'truth': truth, 'refused': str(error)[:300], 'verdict': None, 'named': [], 'confounded': [],
+                'excitation': excitation, 'truth': truth, 'refused': str(error)[:300], 'verdict': None, 'named': [], 'confounded': [],
                 'wrong': [], 'wrong_basin': [], 'z': {}, 'seconds': round(time.perf_counter() - started, 1)}
     with threadpool_limits(1):
         found = diagnose(recording) if search else None
@@ -97,7 +97,8 @@ def run(seed: int, search: bool = True) -> dict:
         else:
             z[name] = (estimate - value) / sigma
     return {'seed': seed, 'psnr_db': round(rig_record.psnr_db, 1), 'true_effects': truth_effects,
-            'truth': truth, 'verdict': found.verdict if found else None, 'named': named, 'confounded': confounded,
+            'excitation': excitation, 'truth': truth, 'verdict': found.verdict if found else None, 'named': named,
+            'confounded': confounded,
             'wrong': wrong,
             'wrong_basin': wrong if lag_true else [], 'told_verdict': told.verdict,
             'estimates': {name: values.get(name) for name in truth},
@@ -146,6 +147,8 @@ def main() -> None:
     parser.add_argument('--seed-base', type=int, default=SEED_BASE)
     parser.add_argument('--rows', metavar='PATH', default=None,
                         help='append one JSON line per record here as it finishes (a long run keeps what it did)')
+    parser.add_argument('--excitation', choices=('mixed', 'no_chirp'), default='mixed',
+                        help='mixed: steps, PRBS and a chirp (default); no_chirp: steps and PRBS only')
     parser.add_argument('--coverage-only', action='store_true',
                         help='only the fit told the true structure (coverage), not the full search (basins, false '
                         'alarms): ~10 times faster')
@@ -164,11 +167,11 @@ def main() -> None:
     started = time.perf_counter()
     rows = []
     for seed in range(args.seed_base, args.seed_base + args.records):
-        row = run(seed, search=not args.coverage_only)
+        row = run(seed, search=not args.coverage_only, excitation=args.excitation)
         rows.append(row)
         z = ' '.join(f'{k}={v:+.1f}' for k, v in row['z'].items() if v is not None)
         print(f'{seed} {row["psnr_db"]:4.1f} dB true {",".join(row["true_effects"]) or "-"}: '
-              f'{row["verdict"] or "(no search)"} '
+              f'{"REFUSED " + row["refused"][:120] if row.get("refused") else row["verdict"] or "(no search)"} '
               f'named {",".join(row["named"]) or "-"} confounded {",".join(row["confounded"]) or "-"} '
               f'wrong {",".join(row["wrong"]) or "-"} | z {z} | {row["seconds"]} s', flush=True)
         if args.rows:

@@ -223,12 +223,18 @@ def duty_cap(rig: PhysicalRig, highest: float = HIGHEST_ANGLE) -> float:
     return cap
 
 
-def excitation(duration: float, cap: float, rng: np.random.Generator, sample_rate: float = SAMPLE_RATE) -> np.ndarray:
+#: The blocks of :func:`excitation`: ``mixed`` (steps twice, PRBS, chirp) or ``no_chirp`` (steps twice, PRBS).
+EXCITATIONS = {'mixed': ('steps', 'prbs', 'chirp', 'steps'), 'no_chirp': ('steps', 'prbs', 'steps')}
+
+
+def excitation(duration: float, cap: float, rng: np.random.Generator, sample_rate: float = SAMPLE_RATE,
+               kind: str = 'mixed') -> np.ndarray:
     """A duty sequence [1] per sample: blocks of random steps (dwell 0.4-2.5 s, with rests at 0), a pseudo-random
-    binary stretch (0.1 s bits) and a linear chirp (0.1-2.5 Hz), in a random order, each 20-40 % of the record."""
+    binary stretch (0.1 s bits) and a linear chirp (0.1-2.5 Hz), in a random order, each 20-40 % of the record
+    (`kind`: :data:`EXCITATIONS`)."""
     count = int(round(duration * sample_rate))
     duty = np.zeros(count)
-    order = rng.permutation(['steps', 'prbs', 'chirp', 'steps'])
+    order = rng.permutation(list(EXCITATIONS[kind]))
     shares = rng.uniform(0.2, 0.4, len(order))
     edges = np.concatenate(([0], np.cumsum(shares / shares.sum() * count))).astype(int)
     for kind, start, stop in zip(order, edges[:-1], edges[1:]):
@@ -355,19 +361,20 @@ def draw_effects(rng: np.random.Generator, rig: PhysicalRig, names: list[str] | 
 
 
 def draw(seed: int, duration: float = 40.0, effects: list[str] | None = None, psnr_db: float | None = None,
-         sample_rate: float = SAMPLE_RATE) -> Record:
+         sample_rate: float = SAMPLE_RATE, excitation_kind: str = 'mixed') -> Record:
     """A record of a random rig (:func:`draw_rig`), with the effects `effects` (physical names of
-    :class:`RigEffects`; None: drawn at random, [] none), noise U(30, 60) dB unless given, :func:`excitation`."""
+    :class:`RigEffects`; None: drawn at random, [] none), noise U(30, 60) dB unless given, :func:`excitation` of
+    `excitation_kind`."""
     rng = np.random.default_rng(seed)
     rig = draw_rig(rng)
     chosen = draw_effects(rng, rig, effects)
     psnr = float(rng.uniform(30.0, 60.0)) if psnr_db is None else float(psnr_db)
     cap = duty_cap(rig)
-    duty = excitation(duration, cap, rng, sample_rate)
+    duty = excitation(duration, cap, rng, sample_rate, excitation_kind)
     true = integrate(duty, rig, chosen, sample_rate)
     measured = measure(true, chosen, psnr, rng)
     columns = {'t': np.arange(duty.size) / sample_rate, 'duty': duty, **measured}
-    return Record(columns, rig, chosen, psnr, seed, f'steps, PRBS and chirp, duty cap {cap:.2f}',
+    return Record(columns, rig, chosen, psnr, seed, f'{excitation_kind}, duty cap {cap:.2f}',
                   rig.lumped(chosen), true['angle'])
 
 
