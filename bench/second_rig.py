@@ -79,8 +79,9 @@ def run(seed: int, search: bool = True, excitation: str = 'mixed') -> dict:
             told = diagnose(recording, effects=tuple(truth_effects), candidates=(), drift=False, discovery=False)
     except AeropendError as error:      # refused by the data-quality gate: counted apart, with the reason
         return {'seed': seed, 'psnr_db': round(rig_record.psnr_db, 1), 'true_effects': truth_effects,
-                'excitation': excitation, 'truth': truth, 'refused': str(error)[:300], 'verdict': None, 'named': [], 'confounded': [],
-                'wrong': [], 'wrong_basin': [], 'z': {}, 'seconds': round(time.perf_counter() - started, 1)}
+                'excitation': excitation, 'truth': truth, 'refused': str(error)[:300], 'verdict': None, 'named': [],
+                'confounded': [], 'wrong': [], 'wrong_basin': [], 'z': {},
+                'seconds': round(time.perf_counter() - started, 1)}
     with threadpool_limits(1):
         found = diagnose(recording) if search else None
     named = [f.effect for f in found.found if not f.confounded_with] if found else []
