@@ -7,9 +7,9 @@ carry no effect (false alarms), the others each catalog effect with probability 
 thrust lag 0.05-0.3 s, the sizes in ``second_rig.EFFECT_RANGES``). Per record:
 
 * ``aeropend diagnose`` (in process, the full search): the effects named. A **wrong effect** is one named (not
-  marked confounded) that the record does not carry; named beside a true thrust lag or angle filter it is counted as
-  **from a wrong basin** too (the issue's "angle filter plus a shorter lag"). On effect-free records any verdict but
-  ``nothing_missing`` is a false alarm.
+  marked confounded) that the record does not carry; a lag or filter named wrongly beside the other one truly
+  present is counted as **from a wrong basin** too (the issue's "angle filter plus a shorter lag"). On effect-free
+  records any verdict but ``nothing_missing`` is a false alarm.
 * the fit told the true structure (``--add`` every true effect, no further search): every nominal and effect
   parameter against the truth mapped to the model's lumped coefficients (``PhysicalRig.lumped``, derivation in the
   module's docstring); coverage within 1 and 2 sigma (targets >= 60 % / >= 92 %).
