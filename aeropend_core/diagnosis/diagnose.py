@@ -60,6 +60,7 @@ from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the se
     CONFOUNDING_FACTOR, DEFAULT_EXPERIMENT, DISCOVERY_NOISE, MAX_EFFECTS, RETRY_NOISE, UNEXPLAINED_NOISE,
     UPRIGHT_WARNING, Found, VerdictFacts, _finite, catalog_stage, compare_stage, discovery_stage, drift_stage,
     excitation_advice, prepare_stage, rerun_on_corrected_input, separating_experiment, verdict_stage)
+from aeropend_core.diagnosis.state_map import StateMap, state_map
 from aeropend_core.diagnosis.verdicts import Verdict
 from aeropend_core.io.recording import Recording
 from aeropend_core.model.effects import catalog_scope
@@ -128,6 +129,12 @@ class Diagnosis:
         The discovery stage's result: terms outside the catalog (None when it did not run).
     motor_discovery : MotorDiscovery or None [-]
         The motor equation's discovery (None when the discovery stage was off).
+    state_map, state_map_selected : StateMap or None [-]
+        Where the model given, and the model with the selected set, fail in the state space: the missing angular
+        acceleration [rad/s^2] by angle band [rad], direction of motion and thrust (:mod:`.state_map`).
+    remainder : Remainder or None [-]
+        What the final model leaves unexplained: RMS beyond the noise [rad], correlation time [s], median
+        frequency [Hz] (:mod:`.remainder`).
     """
 
     effects: tuple[str, ...]
@@ -162,6 +169,10 @@ class Diagnosis:
     #: The motor equation's discovery (:class:`aeropend_core.diagnosis.motor_discovery.MotorDiscovery`; None when the
     #: discovery stage was off).
     motor_discovery: MotorDiscovery | None = None
+    #: Where the model fails in the state space (:class:`aeropend_core.diagnosis.state_map.StateMap`): the missing
+    #: acceleration of the model given, and of the model with the selected set (None when nothing was selected).
+    state_map: StateMap | None = None
+    state_map_selected: StateMap | None = None
 
     @property
     def message(self) -> str:
@@ -261,6 +272,9 @@ class Diagnosis:
             'regimes': current.evaluation.regimes,
             'worst_windows': current.evaluation.worst_windows,
             'residual_structure': self.residual_structure,
+            'state_map': {'model': self.state_map.to_dict() if self.state_map is not None else None,
+                          'with_selected': (self.state_map_selected.to_dict()
+                                            if self.state_map_selected is not None else None)},
             'seconds': round(self.seconds, 2),
             'warnings': [finding.to_dict() for finding in self.findings],
         }
@@ -363,6 +377,10 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
         prepared, compared, catalog, discovered = rerun.prepared, rerun.compared, rerun.catalog, rerun.discovered
     drifted = drift_stage(catalog, drift, say)
     decided = verdict_stage(catalog, discovered, drifted, input_corrected=rerun is not None)
+    say('mapping the missing acceleration over angle, direction of motion and thrust')
+    mapped = state_map(catalog.prep, catalog.current, prepared.effects)
+    mapped_selected = (state_map(catalog.prep, catalog.selected, tuple(catalog.model))
+                       if catalog.selected is not None else None)
     return check_diagnosis(Diagnosis(
         effects=prepared.effects, current=catalog.current, candidates=catalog.results,
         missing_effect=decided.missing, verdict=Verdict(decided.verdict), facts=decided.facts,
@@ -370,4 +388,4 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
         before=compared.before, residual_structure=list(decided.structure), prepared=catalog.prep,
         seconds=time.perf_counter() - started, found=list(catalog.found), selected=catalog.selected,
         drift=list(drifted.rows), fixed=prepared.held, fixed_from=prepared.held_from, discovery=discovered.pendulum,
-        motor_discovery=discovered.motor))
+        motor_discovery=discovered.motor, state_map=mapped, state_map_selected=mapped_selected))

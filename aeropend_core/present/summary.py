@@ -119,6 +119,8 @@ def format_summary(diagnosis: Diagnosis, source: str | None = None) -> str:
         lines.append('Note: ' + note)
     for row in diagnosis.residual_structure:
         lines.append(f'  residual vs {row["signature"]}: r = {row["correlation"]:+.2f}')
+    from aeropend_core.present.state_map_text import state_map_lines
+    lines += state_map_lines(diagnosis)
     if diagnosis.missing_effect:
         best = next(c for c in diagnosis.candidates if c.effect == diagnosis.missing_effect)
         lines.append('Why: ' + best.explanation)
