@@ -50,3 +50,11 @@ def high_thrust_loss(angle, angular_rate, thrust, local_loss_share, local_loss_k
                  replace=True)
 def falling_friction(angle, angular_rate, local_falling_level):
     return local_falling_level * np.clip(-angular_rate / 0.02, 0.0, 1.0)
+
+
+@register_effect('local_wavy_torque', 'a torque rippling with the angle (a bent shaft, a cable that winds on)',
+                 parameters=[EffectParameter('local_wavy_level', 'rad/s^2', 'level', 1.5, 0.0, 100.0),
+                             EffectParameter('local_wavy_phase', 'rad', 'phase', 0.0, -10.0, 10.0)], replace=True)
+def wavy_torque(angle, angular_rate, local_wavy_level, local_wavy_phase):
+    return -local_wavy_level * (np.sin(9.0 * angle + local_wavy_phase) + 0.6 * np.sin(17.0 * angle
+                                                                                   + 2.0 * local_wavy_phase))
