@@ -12,7 +12,8 @@ def _band(angle, centre, width):
     """1 inside [centre - width/2, centre + width/2] [rad], raised-cosine edges 1 deg wide, 0 outside."""
     edge = np.radians(1.0)
     distance = np.abs(angle - centre) - 0.5 * width
-    return np.where(distance <= -edge, 1.0, np.where(distance >= 0.0, 0.0, 0.5 * (1.0 - np.cos(np.pi * distance / edge))))
+    ramp = 0.5 * (1.0 - np.cos(np.pi * distance / edge))
+    return np.where(distance <= -edge, 1.0, np.where(distance >= 0.0, 0.0, ramp))
 
 
 @register_effect('local_band_torque', 'a torque only inside one band of angles (a cable touching a stop, a rub)',

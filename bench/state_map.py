@@ -1,8 +1,8 @@
 """Does the state-space map name the region a local effect acts in (issue #40 item 2; target >= 8 of 10)?
 
 Records (60 s, Latin-hypercube steps up to a duty cap that holds the rod below 80 deg, nominal parameters each moved by
-a random factor in [0.85, 1.15], PSNR drawn in 35-50 dB, 10-bit quantisation) with one effect outside the catalog confined to part of the state space
-(bench/local_effects.py):
+a random factor in [0.85, 1.15], PSNR drawn in 35-50 dB, 10-bit quantisation) with one effect outside the catalog
+confined to part of the state space (bench/local_effects.py):
 
 - 4 x a torque of 2-3 rad/s^2 inside a 10 deg band of angles centred in 15-50 deg: named when the map's angle region
   lies within +-5 deg of the band's edges;

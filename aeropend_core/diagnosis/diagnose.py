@@ -43,6 +43,7 @@ rebuilt with it: a set chosen on the uncorrected input is the motor term's shado
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -60,6 +61,7 @@ from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the se
     CONFOUNDING_FACTOR, DEFAULT_EXPERIMENT, DISCOVERY_NOISE, MAX_EFFECTS, RETRY_NOISE, UNEXPLAINED_NOISE,
     UPRIGHT_WARNING, Found, VerdictFacts, _finite, catalog_stage, compare_stage, discovery_stage, drift_stage,
     excitation_advice, prepare_stage, rerun_on_corrected_input, separating_experiment, verdict_stage)
+from aeropend_core.diagnosis.model_doubt import widen_for_remainder
 from aeropend_core.diagnosis.state_map import StateMap, state_map
 from aeropend_core.diagnosis.verdicts import Verdict
 from aeropend_core.io.recording import Recording
@@ -375,6 +377,9 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
     rerun = rerun_on_corrected_input(prepared, catalog, discovered, say)
     if rerun is not None:       # a proven motor term: the stages again on the thrust input rebuilt with it
         prepared, compared, catalog, discovered = rerun.prepared, rerun.compared, rerun.catalog, rerun.discovered
+    # beside a remainder the discovery stage refitted terms for, the selected effects' +- carry the model doubt
+    widened, doubt_notes = widen_for_remainder(list(catalog.found), discovered.pendulum)
+    catalog = dataclasses.replace(catalog, found=tuple(widened))
     drifted = drift_stage(catalog, drift, say)
     decided = verdict_stage(catalog, discovered, drifted, input_corrected=rerun is not None)
     say('mapping the missing acceleration over angle, direction of motion and thrust')
@@ -384,7 +389,7 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
     return check_diagnosis(Diagnosis(
         effects=prepared.effects, current=catalog.current, candidates=catalog.results,
         missing_effect=decided.missing, verdict=Verdict(decided.verdict), facts=decided.facts,
-        notes=([rerun.note] if rerun is not None else []) + list(decided.notes),
+        notes=([rerun.note] if rerun is not None else []) + list(decided.notes) + doubt_notes,
         before=compared.before, residual_structure=list(decided.structure), prepared=catalog.prep,
         seconds=time.perf_counter() - started, found=list(catalog.found), selected=catalog.selected,
         drift=list(drifted.rows), fixed=prepared.held, fixed_from=prepared.held_from, discovery=discovered.pendulum,

@@ -328,6 +328,9 @@ class DiscoveredTerm(TermEvidence):
     replaces: list[str] = field(default_factory=list)
     #: Other proven terms that explain about as much on this data (within the confounding factor): lookalikes.
     alternatives: list[str] = field(default_factory=list)
+    #: How far each parameter of the model [SI] moved when the term was refitted beside it (output error; empty when
+    #: it was not refitted or the refit gave no estimate): what the remainder the term stands for does to them.
+    parameter_shifts: dict[str, float] = field(default_factory=dict)
 
     @property
     def effect(self) -> str:
@@ -484,6 +487,8 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         lookalike = _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say)
         if lookalike is not None:
             found.insert(0, lookalike)
+        elif len(catalog_set) > 1:
+            found[:0] = _effect_lookalikes(prep, base, model, fixed, catalog_set, say)
     found.sort(key=lambda f: (f.status != 'proven', f.excess_after if math.isfinite(f.excess_after) else math.inf))
     if found and found[0].status == 'proven':
         # other proven terms that explain about as much: the data cannot tell them from the best (a quasi-static rig
@@ -532,13 +537,16 @@ def _against_catalog(prep, base, model, fixed, entry: DiscoveredTerm, effect: st
                          'on these states')
 
 
-def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say) -> DiscoveredTerm | None:
+def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say,
+                   may_replace: bool = False, tries: int = 1) -> DiscoveredTerm | None:
     """A term outside the catalog that explains the data as well as the catalog set the search chose.
 
     The discrepancy of the model *without* the set is screened (each term alone, weak form); the strongest term that
     is not the set's own (nor correlated beyond SPAN_CORRELATION with it on these states) is fitted in place of the
     set. It is returned as 'confounded' with the set when it is significant there, explains as much (within
-    CONFOUNDING_FACTOR), and neither adds anything significant on top of the other; else None.
+    CONFOUNDING_FACTOR), and neither adds anything significant on top of the other; with `may_replace`, as 'proven'
+    replacing the set when it adds to the set, the set adds nothing to it and it explains more; else None. The
+    `tries` strongest terms are fitted in turn until one qualifies.
     """
     segments = model_states(prep, without_set)
     if not segments:
@@ -560,10 +568,19 @@ def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say) -> D
         if term.expression in alone.coefficients:
             value, ranking, sigma = _screened(alone, term.expression)
             screened.append((_strength(value, ranking), term, value, sigma))
-    if not screened:
-        return None
-    _, term, value, sigma = max(screened, key=lambda row: row[0])
-    say(f'discovery: {term.expression} in place of {" + ".join(catalog_set)}')
+    screened.sort(key=lambda row: -row[0])
+    for _, term, value, sigma in screened[:tries]:
+        say(f'discovery: {term.expression} in place of {" + ".join(catalog_set)}')
+        entry = _swapped_in(prep, base, model, fixed, catalog_set, without_set, term, value, sigma, may_replace)
+        if entry is not None:
+            return entry
+    return None
+
+
+def _swapped_in(prep, base, model, fixed, catalog_set, without_set, term: Term, value: float, sigma: float,
+                may_replace: bool) -> DiscoveredTerm | None:
+    """`term` (screening value `value`, sigma `sigma`) fitted in place of `catalog_set` and judged
+    (:func:`_set_lookalike`)."""
     name = term_effect(term)
     parameter = f'{name}_coefficient'
     kept = tuple(n for n in model if n not in catalog_set)
@@ -573,22 +590,53 @@ def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say) -> D
     except InsufficientDataError:
         return None
     alone = assess(prep, without_set, swapped, name)
-    if (not alone.significant or assess(prep, swapped, both, catalog_set[0]).significant
-            or assess(prep, base, both, name).significant):
+    if not alone.significant or assess(prep, swapped, both, catalog_set[0]).significant:
         return None
     noise = prep.noise_rms
     term_error, set_error = excess_error(swapped.rms_error, noise), excess_error(base.rms_error, noise)
     floor = 0.2 * noise
-    if not (term_error <= CONFOUNDING_FACTOR * max(set_error, floor)
-            and set_error <= CONFOUNDING_FACTOR * max(term_error, floor)):
+    status, replaces = 'confounded', []
+    if assess(prep, base, both, name).significant:
+        if not may_replace or term_error > set_error:
+            return None
+        # the term adds to the set, the set adds nothing to the term, and in its place the term explains more:
+        # the effect was the term's shadow (an encoder harmonic read as an angle offset beside a friction)
+        status, replaces = 'proven', list(catalog_set)
+    elif not (term_error <= CONFOUNDING_FACTOR * max(set_error, floor)
+              and set_error <= CONFOUNDING_FACTOR * max(term_error, floor)):
         return None
-    return DiscoveredTerm(term=term, status='confounded', weak_coefficient=float(value), weak_sigma=float(sigma),
+    return DiscoveredTerm(term=term, status=status, replaces=replaces, weak_coefficient=float(value),
+                          weak_sigma=float(sigma),
                           weak_doubt=screening_doubt(excess_error(without_set.rms_error, noise), noise, 'mrad', 1e3),
                           value=alone.parameters.get(parameter, math.nan),
                           sigma=alone.standard_errors.get(parameter, math.nan), excess_before=alone.excess_before,
                           excess_after=term_error, share_removed=alone.share_removed, t_statistic=alone.t_statistic,
                           delta_bic=alone.delta_bic, dm_statistic=alone.dm_statistic,
-                          confounded_with=list(catalog_set))
+                          confounded_with=list(catalog_set) if status == 'confounded' else [])
+
+
+#: Terms fitted in place of one effect of a selected set (strongest screening first) before it is judged to have none.
+LOOKALIKE_TRIES = 3
+
+
+def _effect_lookalikes(prep, base, model, fixed, catalog_set, say) -> list[DiscoveredTerm]:
+    """Each effect of a selected set of two or more judged against the strongest term outside the catalog in its
+    place (:func:`_set_lookalike` on the model without that effect alone): the whole set's swap cannot see one
+    effect of it standing in for a remainder beside a real one (an angle offset of -0.008 rad, z = 14, named beside a
+    true dry friction for a torque rippling twice per turn)."""
+    found = []
+    for effect in catalog_set:
+        rest = tuple(n for n in model if n != effect)
+        try:
+            without = compare(prep, rest, start=base.parameters, fixed=dict(fixed),
+                              initial_states=base.fit.initial_states)
+        except InsufficientDataError:
+            continue
+        entry = _set_lookalike(prep, base, model, fixed, (effect,), without, say, may_replace=True,
+                               tries=LOOKALIKE_TRIES)
+        if entry is not None:
+            found.append(entry)
+    return found
 
 
 def _instead_of_set(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without_set,
@@ -652,6 +700,8 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
                          'gives no estimate and no evidence')
         return None
     candidate: Candidate = assess(prep, base, augmented, name)
+    entry.parameter_shifts = {k: float(augmented.parameters[k] - v) for k, v in base.parameters.items()
+                              if k in augmented.parameters and math.isfinite(augmented.parameters[k] - v)}
     entry.value = candidate.parameters.get(parameter, math.nan)
     entry.sigma = candidate.standard_errors.get(parameter, math.nan)
     entry.excess_after, entry.share_removed = candidate.excess_after, candidate.share_removed

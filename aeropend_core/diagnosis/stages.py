@@ -82,6 +82,8 @@ class Found:
     confounded_with: list[str] = field(default_factory=list)
     #: Share of the measurable error beyond the noise it removes (see :func:`beyond_spread`).
     share_measurable: float = float('nan')
+    #: Model doubt [SI] included in ``standard_errors`` (:mod:`aeropend_core.diagnosis.model_doubt`), by parameter.
+    model_doubt: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {'effect': self.effect, 'parameters': self.parameters, 'standard_errors': self.standard_errors,
@@ -89,7 +91,8 @@ class Found:
                 'error_beyond_noise_after': _finite(self.excess_after),
                 'share_of_error_removed': _finite(self.share_removed), 't_statistic': _finite(self.t_statistic),
                 'dm_statistic': _finite(self.dm_statistic), 'confounded_with': self.confounded_with,
-                'share_of_measurable_error_removed': _finite(self.share_measurable)}
+                'share_of_measurable_error_removed': _finite(self.share_measurable),
+                'model_doubt': self.model_doubt}
 
 
 # ---------------------------------------------------------------------------------------------------- prepare

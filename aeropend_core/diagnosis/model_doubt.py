@@ -1,0 +1,54 @@
+"""The ± of an effect named beside a remainder the catalog cannot write: the noise's spread and the model's doubt.
+
+A catalog effect's ± from the output-error fit is the spread the noise gives (HAC-inflated for correlated residuals).
+When the model with the selected set still misses the data beyond the noise, the discovery stage refits terms outside
+the catalog beside it; each such term stands for a shape the remainder may have, and the selected effects' parameters
+move when it is added (a ripple of the torque with the angle pulled a dry friction of 4.0 rad/s^2 to 3.88 +- 0.04,
+z = -3). Their largest move over the terms refitted is the parameter's *model doubt*; the ± reported is the noise's
+and the model doubt's in quadrature, and the doubt is said beside it (text and JSON), so that the ± keeps meaning what
+it says beside an unknown remainder.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+
+def widen_for_remainder(found: list, discovery) -> tuple[list, list[str]]:
+    """(the selected effects with their ± widened by the model doubt, a note per parameter widened).
+
+    Parameters
+    ----------
+    found : list of Found [-]
+        The selected set (parameters and 1σ, SI).
+    discovery : Discovery or None [-]
+        The discovery stage's result (its refitted terms carry ``parameter_shifts``).
+
+    Returns
+    -------
+    (list of Found, list of str)
+        ``Found.model_doubt`` holds the doubt [SI] of each widened parameter.
+    """
+    terms = [t for t in (discovery.terms if discovery is not None else []) if t.parameter_shifts]
+    if not terms or not found:
+        return list(found), []
+    widened, notes = [], []
+    for entry in found:
+        errors, doubt = dict(entry.standard_errors), {}
+        for name, sigma in entry.standard_errors.items():
+            moves = [(abs(t.parameter_shifts[name]), t.term.expression) for t in terms if name in t.parameter_shifts]
+            if not moves:
+                continue
+            move, expression = max(moves)
+            if math.isfinite(move) and math.isfinite(sigma) and move > sigma:
+                doubt[name] = move
+                errors[name] = math.hypot(sigma, move)
+                notes.append(f'{entry.effect}: the +- of {name} includes {move:.3g} of model doubt (beside the '
+                             f'noise\'s {sigma:.2g}): with the remainder the catalog cannot write modelled by '
+                             f'{expression} it moves by that much ({len(terms)} term(s) outside the catalog refitted '
+                             'beside the selected set); its value depends on what that remainder is')
+        widened.append(replace(entry, standard_errors=errors, model_doubt=doubt) if doubt else entry)
+    return widened, notes
+
+
+__all__ = ['widen_for_remainder']
