@@ -62,6 +62,7 @@ from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the se
     UPRIGHT_WARNING, Found, VerdictFacts, _finite, catalog_stage, compare_stage, discovery_stage, drift_stage,
     excitation_advice, prepare_stage, rerun_on_corrected_input, separating_experiment, verdict_stage)
 from aeropend_core.diagnosis.model_doubt import widen_for_remainder
+from aeropend_core.diagnosis.remainder import Remainder, remainder_of
 from aeropend_core.diagnosis.state_map import StateMap, state_map
 from aeropend_core.diagnosis.verdicts import Verdict
 from aeropend_core.io.recording import Recording
@@ -175,6 +176,9 @@ class Diagnosis:
     #: acceleration of the model given, and of the model with the selected set (None when nothing was selected).
     state_map: StateMap | None = None
     state_map_selected: StateMap | None = None
+    #: What the final model leaves unexplained: size, correlation time, spectrum
+    #: (:class:`aeropend_core.diagnosis.remainder.Remainder`).
+    remainder: Remainder | None = None
 
     @property
     def message(self) -> str:
@@ -277,6 +281,7 @@ class Diagnosis:
             'state_map': {'model': self.state_map.to_dict() if self.state_map is not None else None,
                           'with_selected': (self.state_map_selected.to_dict()
                                             if self.state_map_selected is not None else None)},
+            'remainder': self.remainder.to_dict() if self.remainder is not None else None,
             'seconds': round(self.seconds, 2),
             'warnings': [finding.to_dict() for finding in self.findings],
         }
@@ -393,4 +398,5 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
         before=compared.before, residual_structure=list(decided.structure), prepared=catalog.prep,
         seconds=time.perf_counter() - started, found=list(catalog.found), selected=catalog.selected,
         drift=list(drifted.rows), fixed=prepared.held, fixed_from=prepared.held_from, discovery=discovered.pendulum,
-        motor_discovery=discovered.motor, state_map=mapped, state_map_selected=mapped_selected))
+        motor_discovery=discovered.motor, state_map=mapped, state_map_selected=mapped_selected,
+        remainder=remainder_of(catalog.prep, catalog.final)))

@@ -121,6 +121,9 @@ def format_summary(diagnosis: Diagnosis, source: str | None = None) -> str:
         lines.append(f'  residual vs {row["signature"]}: r = {row["correlation"]:+.2f}')
     from aeropend_core.present.state_map_text import state_map_lines
     lines += state_map_lines(diagnosis)
+    remainder = getattr(diagnosis, 'remainder', None)
+    if remainder is not None and remainder.material:
+        lines.append(remainder.sentence())
     if diagnosis.missing_effect:
         best = next(c for c in diagnosis.candidates if c.effect == diagnosis.missing_effect)
         lines.append('Why: ' + best.explanation)
