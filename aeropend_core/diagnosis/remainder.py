@@ -48,7 +48,7 @@ class Remainder:
         size = f'{self.beyond_noise * 1e3:.2f} mrad RMS beyond the noise ({self.noise_rms * 1e3:.2f} mrad)'
         if not self.material:
             return f'What is left: {size}, within half the noise: nothing to chase.'
-        parts = []
+        parts = ['']
         if math.isfinite(self.correlation_time):
             parts.append(f'correlated over {self.correlation_time:.2g} s')
         if math.isfinite(self.median_frequency):
@@ -57,11 +57,15 @@ class Remainder:
         if math.isfinite(self.median_frequency):
             kind = (' -- slow: a torque or force the model lacks, or a drift' if self.median_frequency < 2.0 else
                     ' -- fast: look at the sensor (a filter, a lag, glitches) or the motor')
-        return f'What is left unexplained: {size}, ' + ', '.join(parts) + kind + '.'
+        return f'What is left unexplained: {size}' + ', '.join(parts) + kind + '.'
 
 
 def _stretches(index: np.ndarray) -> list[np.ndarray]:
-    breaks = np.flatnonzero(np.diff(index) != 1) + 1
+    """Runs of `index` at one stride (the held-out residuals are every STRIDE-th sample), each at least 64 long."""
+    if index.size < 2:
+        return []
+    stride = int(np.min(np.diff(index)))
+    breaks = np.flatnonzero(np.diff(index) != stride) + 1
     return [piece for piece in np.split(index, breaks) if piece.size >= 64]
 
 
@@ -72,9 +76,10 @@ def remainder_of(prep, comparison) -> Remainder:
     from aeropend_core.diagnosis.compare import excess_error
     noise = float(comparison.noise_rms)
     beyond = float(excess_error(comparison.rms_error, noise))
-    step = prep.sample_time
     residual = prep.angle - comparison.evaluation.simulated
-    pieces = [residual[p] for p in _stretches(np.asarray(prep.heldout.residual_index))]
+    stretches = _stretches(np.asarray(prep.heldout.residual_index))
+    step = prep.sample_time * (int(stretches[0][1] - stretches[0][0]) if stretches else 1)
+    pieces = [residual[p] for p in stretches]
     pieces = [p for p in pieces if np.all(np.isfinite(p))]
     if not pieces:
         return Remainder(beyond, noise, math.nan, math.nan)

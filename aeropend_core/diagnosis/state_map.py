@@ -222,6 +222,10 @@ def _judge(axis: str, bins: list[AxisBin], contiguous: bool) -> AxisVerdict:
     share = float(energy[region].sum() / energy.sum())
     cover = float(samples[region].sum() / samples.sum())
     localised = bool(share >= LOCAL_SHARE and cover <= MAX_COVER)
+    if axis == 'direction' and localised:
+        # both directions of motion clearly nonzero (of opposite signs: a friction or drag) is no one-way effect
+        moving = [b for b in bins if b.label in DIRECTIONS[:2] and b.label not in region]
+        localised = not any(abs(b.z) >= Z_EXTEND for b in moving)
     chosen = [b for b, inside in zip(bins, region) if inside]
     return AxisVerdict(axis, tuple(bins), localised, tuple(b.label for b in chosen), min(b.low for b in chosen),
                        max(b.high for b in chosen), share, cover)

@@ -45,14 +45,21 @@ def state_map_sentence(mapped: StateMap | None) -> str:
                 'or thrust range holds a missing acceleration beyond its uncertainty).')
     local = mapped.localised
     if not local:
-        return (f'Where it fails in the state space: spread over the states visited (missing acceleration '
+        text = (f'Where it fails in the state space: spread over the states visited (missing acceleration '
                 f'{mapped.rms_missing_acceleration:.2g} rad/s^2 RMS over the angle bands), not confined to one band of '
                 'angles, one direction of motion or one thrust range.')
+        opposing = mapped.axis('angle_opposing_motion')
+        if opposing is not None and opposing.bins:
+            against = [b for b in opposing.bins if b.z >= 3.0]
+            if len(against) >= 0.5 * len(opposing.bins):
+                text += (f' It opposes the motion in {len(against)} of {len(opposing.bins)} bands of angle: a '
+                         'friction or drag the model lacks.')
+        return text
     best = max(local, key=lambda a: a.share)
     others = [a for a in local if a is not best]
     text = (f'Where it fails in the state space: {_region(best)} ({_QUANTITY[best.axis]} {_size(best)}, '
-            f'{best.share * 100:.0f} % of it there); elsewhere within its uncertainty. Physically local there: '
-            f'{_LOCAL_CAUSES[best.axis]}.')
+            f'{best.share * 100:.0f} % of its mean square there, in {best.cover * 100:.0f} % of the samples). '
+            f'Physically local there: {_LOCAL_CAUSES[best.axis]}.')
     if others:
         text += ' Also confined: ' + '; '.join(_region(a) for a in others) + '.'
     return text
