@@ -1,9 +1,9 @@
 """The character of what a model leaves unexplained: its size beyond the noise, its correlation time and its spectrum.
 
-A real rig always leaves a remainder the catalog cannot write. Said beside the verdict, its character tells a user what
-kind of thing it is: a remainder of slow, long-correlated error (a correlation time of seconds, power below 1 Hz) is a
-missing torque or a drift; one of fast, short-correlated error near the sensor's bandwidth is a sensor effect; one within
-the noise is nothing to chase.
+A real rig always leaves a remainder the catalog cannot write. Said beside the verdict, its character tells a user
+what kind of thing it is: a remainder of slow, long-correlated error (a correlation time of seconds, power below 1 Hz)
+is a missing torque or a drift; one of fast, short-correlated error near the sensor's bandwidth is a sensor effect; one
+within the noise is nothing to chase.
 
 The held-out part's free-run residual (measured minus simulated angle) is used, stretch by stretch:
 
