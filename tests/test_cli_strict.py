@@ -203,3 +203,18 @@ def test_the_installed_command_answers_a_mistake_with_the_verbs_usage(tmp_path):
     assert result.stderr.startswith('usage: aeropend diagnose')
     assert result.stderr.strip().splitlines()[-1] == ('aeropend diagnose: error: unrecognized option --effect (did '
                                                       'you mean --add?); see aeropend diagnose --help')
+
+
+def test_monitor_json_gives_numbers_as_numbers():
+    """The diagnostic values ROS carries as text reach the JSON as numbers where they are numbers (issue #42 item 6:
+    they were all strings), and text stays text."""
+    from aeropend_ros.cli.monitor import _json_line
+
+    class Status:
+        level = 0
+        message = 'ok'
+    line = json.loads(json.dumps(_json_line(Status, {'window_seconds': '25.0', 'samples': '12250',
+                                                     'estimators': 'damping:output_error', 'odd': 'nan'},
+                                            None, lambda name: '')))
+    assert line['values']['window_seconds'] == 25.0 and line['values']['samples'] == 12250
+    assert line['values']['estimators'] == 'damping:output_error' and line['values']['odd'] == 'nan'

@@ -471,11 +471,20 @@ def _on_window(state: dict, values: dict, plot, args, parameter_unit) -> None:
         plot.save(args.plot_file)
 
 
+def _number(text: str) -> float | str:
+    """A diagnostic value as a number where it is one (ROS carries every value as text), else the text."""
+    try:
+        value = float(text)
+    except (TypeError, ValueError):
+        return text
+    return value if math.isfinite(value) else text
+
+
 def _json_line(status, values: dict, state: dict | None, parameter_unit) -> dict:
     """One JSON line: the status and, when it reports a window's result, that window's numbers."""
     line = {'time': time.time(), 'level': {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}.get(
         int.from_bytes(status.level, 'little') if isinstance(status.level, bytes) else int(status.level), 'UNKNOWN'),
-        'message': status.message, 'values': values}
+        'message': status.message, 'values': {name: _number(text) for name, text in values.items()}}
     if state is None:
         return line
     estimators = dict(part.split(':', 1) for part in values.get('estimators', '').split(',') if ':' in part)
