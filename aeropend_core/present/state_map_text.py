@@ -86,7 +86,7 @@ def _cells_svg(mapped: StateMap) -> str:
     bands = sorted({(c['angle_low'], c['angle_high']) for c in cells})
     scale = max(abs(c['mean_missing_acceleration']) for c in cells) or 1.0
     row_h, col_w, left, top = 18, 120, 90, 22
-    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{left + 2 * col_w + 10}" '
+    parts = [f'<svg width="{left + 2 * col_w + 10}" '
              f'height="{top + row_h * len(bands) + 10}" role="img" aria-label="missing acceleration map">',
              f'<text x="{left + col_w / 2}" y="14" text-anchor="middle" font-size="12">rising</text>',
              f'<text x="{left + 1.5 * col_w}" y="14" text-anchor="middle" font-size="12">falling</text>']
