@@ -52,7 +52,8 @@ def test_every_window_covering_a_forced_loss_is_flagged(monkeypatch):
                 after = [(s, t) for s, t in zip(node.sequence, node.stamps) if s > last_before]
             assert after, 'no sample after the stall'
             lost = node.samples_missed - missed_before
-            assert lost >= 150, f'the stall lost only {lost} samples'
+            stall_gap = after[0][0] - last_before - 1             # the samples the stall itself lost
+            assert stall_gap >= 150, f'the stall lost only {stall_gap} samples'
             loss = ((stamp_before - node.first_stamp_ns) * 1e-9, (after[0][1] - node.first_stamp_ns) * 1e-9)
             spin(14.0)                                   # windows past the loss come due and are computed
             deadline = time.monotonic() + 60
@@ -67,7 +68,9 @@ def test_every_window_covering_a_forced_loss_is_flagged(monkeypatch):
             if event.state == 'flagged':
                 assert 'lost_samples' in event.data and 'lost' in event.message, event
             if event.start_s < loss[0] and event.stop_s > loss[1]:       # the whole loss inside: every sample counted
-                assert event.lost_samples == lost, (lost, event)
+                # (a loaded machine can lose a few more samples while the node catches up after the stall: those may
+                # fall after the window's end, so the count lies between the stall's own gap and all samples missed)
+                assert stall_gap <= event.lost_samples <= lost, (stall_gap, lost, event)
         assert any(e.state == 'flagged' for e in computed), [(e.start_s, e.state) for e in covering]
         # a window entirely after the loss is not blamed for it
         later = [e for e in node.window_events if e.start_s > loss[1] + 0.1 and e.state not in ('skipped',)]
