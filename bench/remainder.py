@@ -21,14 +21,13 @@ import argparse
 import math
 import sys
 import time
-from multiprocessing import get_context
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from _common import add_json_argument, figure, write_json  # noqa: E402
+from _common import add_json_argument, figure, spawn_map, write_json  # noqa: E402
 
 SEED_BASE = 41_000
 CATALOG_EFFECTS = ('coulomb_friction', 'angle_offset', 'thrust_lag', 'dead_zone')
@@ -113,10 +112,7 @@ def main() -> None:
     if args.beside < 0 or args.alone < 0 or args.workers < 1:
         parser.error('--beside and --alone must be at least 0, --workers at least 1')
     jobs = [(index, args.beside) for index in range(args.beside + args.alone)]
-    started = time.perf_counter()
-    with get_context('spawn').Pool(args.workers) as pool:
-        rows = pool.map(run, jobs, chunksize=1)
-    wall = time.perf_counter() - started
+    rows, wall = spawn_map(run, jobs, args.workers)
     for r in rows:
         print(f'{r["seed"]:6d} {r["set"]:6s} {str(r["true_effect"]):17s} + {r["remainder"]:13s} '
               f'{"ok" if r["correct"] else "WRONG":5s} {r["verdict"]:15s} {",".join(r["named"]) or "-":30s} '

@@ -22,14 +22,13 @@ import argparse
 import math
 import sys
 import time
-from multiprocessing import get_context
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from _common import add_json_argument, figure, write_json  # noqa: E402
+from _common import add_json_argument, figure, spawn_map, write_json  # noqa: E402
 
 SEED_BASE = 40_400
 MOVED = ('armature_resistance', 'back_emf_constant', 'torque_constant', 'thrust_coefficient', 'gravity_stiffness',
@@ -132,10 +131,7 @@ def main() -> None:
     if args.clean < 0 or args.workers < 1:
         parser.error('--clean must be at least 0 and --workers at least 1')
     indices = list(range(len(KINDS) + args.clean))
-    started = time.perf_counter()
-    with get_context('spawn').Pool(args.workers) as pool:
-        rows = pool.map(run, indices, chunksize=1)
-    wall = time.perf_counter() - started
+    rows, wall = spawn_map(run, indices, args.workers)
     for r in rows:
         print(f'{r["seed"]:6d} {r["kind"]:17s} band {r["band_deg"]} {"NAMED" if r["correct"] else "missed":6s} '
               f'{r["localised"]}  [{r["verdict"]}: {",".join(r["named_effects"]) or "-"}]')

@@ -183,13 +183,17 @@ def _clustered_mean(values: np.ndarray, labels: np.ndarray, inside: np.ndarray) 
     return mean, math.sqrt(variance), n, visits
 
 
+def _visits_mean(values: np.ndarray, inside: np.ndarray) -> tuple[float, float, int, int]:
+    """:func:`_clustered_mean` of `values` where `inside`, each run of consecutive samples inside one visit."""
+    runs = np.cumsum(np.concatenate(([True], np.diff(inside.view(np.int8)) != 0)))
+    return _clustered_mean(values, runs, inside)
+
+
 def _bins(g, usable, classes: np.ndarray, labels: list[str], edges: list[tuple[float, float]]) -> list[AxisBin]:
     least = max(MIN_SAMPLES, int(MIN_SHARE * np.count_nonzero(usable)))
     out = []
     for value, (label, (low, high)) in enumerate(zip(labels, edges)):
-        inside = usable & (classes == value)
-        runs = np.cumsum(np.concatenate(([True], np.diff(inside.view(np.int8)) != 0)))
-        mean, sigma, n, visits = _clustered_mean(g, runs, inside)
+        mean, sigma, n, visits = _visits_mean(g, usable & (classes == value))
         if n >= least and visits >= MIN_VISITS and math.isfinite(sigma):
             out.append(AxisBin(label, low, high, n, visits, mean, sigma))
     return out
@@ -285,9 +289,7 @@ def state_map(prep, comparison, effects: tuple[str, ...] = ()) -> StateMap:
     cells = []
     for index, (label, (lo, hi)) in enumerate(zip(angle_labels, angle_edges)):
         for way, name in enumerate(DIRECTIONS[:2]):
-            inside = usable & (angle_class == index) & (direction == way)
-            runs = np.cumsum(np.concatenate(([True], np.diff(inside.view(np.int8)) != 0)))
-            mean, sigma, n, visits = _clustered_mean(g, runs, inside)
+            mean, sigma, n, visits = _visits_mean(g, usable & (angle_class == index) & (direction == way))
             if n >= MIN_SAMPLES and visits >= MIN_VISITS and math.isfinite(sigma):
                 cells.append({'angle_low': lo, 'angle_high': hi, 'direction': name, 'samples': n,
                               'mean_missing_acceleration': mean, 'standard_error': sigma})

@@ -72,8 +72,8 @@ def state_map_lines(diagnosis) -> list[str]:
     if given is not None:
         lines.append(state_map_sentence(given))
     if selected is not None:
-        lines.append('With ' + ' + '.join(selected.model_effects) + ': '
-                     + state_map_sentence(selected)[0].lower() + state_map_sentence(selected)[1:])
+        sentence = state_map_sentence(selected)
+        lines.append('With ' + ' + '.join(selected.model_effects) + ': ' + sentence[0].lower() + sentence[1:])
     return lines
 
 
