@@ -218,3 +218,26 @@ def test_monitor_json_gives_numbers_as_numbers():
                                             None, lambda name: '')))
     assert line['values']['window_seconds'] == 25.0 and line['values']['samples'] == 12250
     assert line['values']['estimators'] == 'damping:output_error' and line['values']['odd'] == 'nan'
+
+
+def test_verb_entry_points_equal_importlib_metadata():
+    """The fast scan of ``entry_points.txt`` finds exactly what ``importlib.metadata`` selects (issue #41: the
+    metadata of every installed distribution is no longer built for `aeropend --help`)."""
+    from importlib.metadata import entry_points
+
+    from aeropend_core.cli import VERB_GROUP, _verb_entry_points
+    expected = sorted((point.name, point.value) for point in entry_points(group=VERB_GROUP))
+    assert sorted((point.name, point.value) for point in _verb_entry_points()) == expected
+    assert {'run', 'monitor'} <= {name for name, _ in expected}
+
+
+def test_help_reads_no_distribution_metadata(capsys, monkeypatch):
+    """`aeropend --help` must not scan every distribution (``packages_distributions`` cost ~1 s with ROS wheels):
+    the version is read only when ``--version`` asks for it."""
+    import importlib.metadata
+
+    def refuse():
+        raise AssertionError('packages_distributions() called for --help')
+    monkeypatch.setattr(importlib.metadata, 'packages_distributions', refuse)
+    status, out, _ = call(capsys, '--help')
+    assert status == 0 and out.startswith('usage: aeropend')
