@@ -114,6 +114,7 @@ _PUBLIC = {
     'fit_weak_sindy': 'aeropend_core.wsindy.weak_form',
     'identify_pendulum': 'aeropend_core.identify.pendulum',
     'WeakSindyResult': 'aeropend_core.wsindy.weak_form',
+    'WeakSindyOptions': 'aeropend_core.wsindy.weak_form',
     'Comparison': 'aeropend_core.diagnosis.compare',
     'compare': 'aeropend_core.diagnosis.compare',
     'Diagnosis': 'aeropend_core.diagnosis.diagnose',

@@ -351,3 +351,20 @@ def test_removal_scoring_equals_one_solve_per_candidate():
         plain = selection._best_single_change(gram, rhs, support.copy(), candidates, False, *args[4:])
         assert fast[1] == plain[1], trial
         assert fast[0] == plain[0] and np.array_equal(fast[2], plain[2]), trial
+
+
+def test_options_are_held_once_and_an_unknown_one_is_named():
+    """The settings live in one WeakSindyOptions (issue #44); a call may change fields by keyword, and an unknown
+    setting is a clear error naming the known ones, not a TypeError deep inside."""
+    from aeropend_core.errors import AeropendError
+    from aeropend_core.wsindy import library
+    from aeropend_core.wsindy.weak_form import Equation, WeakSindyOptions, fit_weak_sindy
+    time = np.arange(0.0, 5.0, 0.002)
+    signals = {'x': np.exp(-2 * time)}
+    equation = [Equation('x', library.polynomial(['x'], degree=1))]
+    by_object = fit_weak_sindy(time, signals, equation, WeakSindyOptions(threshold=None, half_width=40))
+    by_keyword = fit_weak_sindy(time, signals, equation, threshold=None, half_width=40)
+    assert by_object['x'].coefficients == by_keyword['x'].coefficients
+    assert by_object['x'].half_width == 40 and by_object['x'].coefficients['x'] == pytest.approx(-2.0, rel=1e-3)
+    with pytest.raises(AeropendError, match=r"unknown weak SINDy option\(s\) \['treshold'\]"):
+        fit_weak_sindy(time, signals, equation, treshold=0.1)

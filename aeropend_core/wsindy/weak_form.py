@@ -54,6 +54,7 @@ The public entry point is :func:`fit_weak_sindy`; the candidate terms come from 
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import statistics
@@ -222,48 +223,12 @@ class WeakSindyResult:
 _BLAS: list = []
 
 
-def _single_threaded_blas(func):
-    """Run ``func`` with BLAS limited to one thread: the products here are small (tens of terms × a few hundred
-    rows), and on a 2-core machine a multithreaded BLAS spends more time synchronising than computing (44 ms vs
-    65-130 ms per 4-equation window). The controller is created on first use (after NumPy/SciPy loaded BLAS)."""
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        if not _BLAS:
-            _BLAS.append(ThreadpoolController())
-        with _BLAS[0].limit(limits=1, user_api='blas'):
-            return func(*args, **kwargs)
-    return wrapper
-
-
-@_single_threaded_blas
-def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
-                   half_width: int | Mapping[str, int] | None = None,
-                   stride: int | None = None,
-                   threshold: float | str | None = 'auto',
-                   ridge: float = 1e-6,
-                   alpha: float = 0.8,
-                   decay_tolerance: float = 1e-10,
-                   spectral_width: float = 1.0,
-                   min_half_width: int = 8,
-                   max_half_width: int = 1000,
-                   exclude=None,
-                   noise_std: Mapping[str, float] | None = None,
-                   irls_iterations: int = 1,
-                   bias_correction: bool = True,
-                   exhaustive_terms: int = 4,
-                   process_noise: bool = True,
-                   significance: float | None = None) -> WeakSindyResult:
-    """Identify sparse ODEs from uniformly sampled data with weak SINDy.
+@dataclass(frozen=True)
+class WeakSindyOptions:
+    """The settings of :func:`fit_weak_sindy`, held once (as pysindy's optimisers hold their hyper-parameters).
 
     Parameters
     ----------
-    time : ndarray, shape (n_samples,) [s]
-        Uniform sample times, or a sequence of such arrays, one per segment/experiment.
-    signals : mapping name -> ndarray, shape (n_samples,) [SI unit of each signal]
-        Or a sequence of mappings, one per segment; every name a term or target uses must be present. Segments
-        are fitted together.
-    equations : sequence of Equation [-]
-        What to identify (targets, derivative orders, candidate terms).
     half_width : int or mapping target -> int, optional [samples]
         Test-function half-width m (support 2m+1). Default (or targets missing from the mapping): chosen per
         equation from the target signal's spectrum (:func:`choose_support`, median over segments).
@@ -282,8 +247,6 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         Scale of the half-width chosen from the spectrum's corner (see :func:`choose_support`).
     min_half_width, max_half_width : int [samples]
         Bounds of the half-width chosen from the spectrum.
-    exclude : ndarray of bool, shape (n_samples,), or one per segment, optional [-]
-        Samples no test-function support may cover (e.g. transients the model does not describe).
     noise_std : mapping signal -> float, optional [unit of each signal]
         Measurement-noise standard deviation per signal, for the residual covariance. Signals not given are
         estimated from the data (:func:`estimate_noise_std`); give 0 for an exactly known signal.
@@ -312,6 +275,73 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
         With thresholding on, drop selected free terms whose |w|/σ_w is below the two-sided normal critical value
         at family-wise level ``significance`` over the J free candidates (Bonferroni: z = Φ⁻¹(1 − s/(2J)),
         2.99 for s = 0.05, J = 18), weakest first, refitting after each removal. None (default) skips the test.
+
+    Examples
+    --------
+    >>> from aeropend_core.wsindy.weak_form import WeakSindyOptions
+    >>> options = WeakSindyOptions(threshold=None)       # a plain GLS fit of every candidate
+    >>> options.replace(half_width=40).half_width, options.replace(half_width=40).threshold    # samples, -
+    (40, None)
+    """
+
+    half_width: int | Mapping[str, int] | None = None
+    stride: int | None = None
+    threshold: float | str | None = 'auto'
+    ridge: float = 1e-6
+    alpha: float = 0.8
+    decay_tolerance: float = 1e-10
+    spectral_width: float = 1.0
+    min_half_width: int = 8
+    max_half_width: int = 1000
+    noise_std: Mapping[str, float] | None = None
+    irls_iterations: int = 1
+    bias_correction: bool = True
+    exhaustive_terms: int = 4
+    process_noise: bool = True
+    significance: float | None = None
+
+    def replace(self, **changes) -> WeakSindyOptions:
+        """A copy with `changes`; an unknown setting is an :class:`AeropendError` naming the known ones."""
+        unknown = sorted(set(changes) - {f.name for f in dataclasses.fields(self)})
+        if unknown:
+            raise AeropendError(f'unknown weak SINDy option(s) {unknown}; the options are '
+                                f'{[f.name for f in dataclasses.fields(self)]}')
+        return dataclasses.replace(self, **changes) if changes else self
+
+
+def _single_threaded_blas(func):
+    """Run ``func`` with BLAS limited to one thread: the products here are small (tens of terms × a few hundred
+    rows), and on a 2-core machine a multithreaded BLAS spends more time synchronising than computing (44 ms vs
+    65-130 ms per 4-equation window). The controller is created on first use (after NumPy/SciPy loaded BLAS)."""
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        if not _BLAS:
+            _BLAS.append(ThreadpoolController())
+        with _BLAS[0].limit(limits=1, user_api='blas'):
+            return func(*args, **kwargs)
+    return wrapper
+
+
+@_single_threaded_blas
+def fit_weak_sindy(time, signals, equations: Sequence[Equation], options: WeakSindyOptions | None = None, *,
+                   exclude=None, **option_changes) -> WeakSindyResult:
+    """Identify sparse ODEs from uniformly sampled data with weak SINDy.
+
+    Parameters
+    ----------
+    time : ndarray, shape (n_samples,) [s]
+        Uniform sample times, or a sequence of such arrays, one per segment/experiment.
+    signals : mapping name -> ndarray, shape (n_samples,) [SI unit of each signal]
+        Or a sequence of mappings, one per segment; every name a term or target uses must be present. Segments
+        are fitted together.
+    equations : sequence of Equation [-]
+        What to identify (targets, derivative orders, candidate terms).
+    options : WeakSindyOptions, optional [-]
+        The method's settings (test functions, thresholding, noise model); default ``WeakSindyOptions()``.
+    exclude : ndarray of bool, shape (n_samples,), or one per segment, optional [-]
+        Samples no test-function support may cover (e.g. transients the model does not describe).
+    **option_changes : [-]
+        Fields of :class:`WeakSindyOptions` to change for this call (``threshold=None``, ``half_width=40``...).
 
     Returns
     -------
@@ -350,19 +380,13 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], *,
                                     f'(have {sorted(s)})')
 
     cache: dict = {}   # library columns, Jacobians and noise levels shared by the equations (terms keyed by name)
-    options = dict(half_width=half_width, stride=stride, threshold=threshold, ridge=ridge, alpha=alpha,
-                   decay_tolerance=decay_tolerance, spectral_width=spectral_width, min_half_width=min_half_width,
-                   max_half_width=max_half_width, noise_std=noise_std, irls_iterations=irls_iterations,
-                   bias_correction=bias_correction, exhaustive_terms=exhaustive_terms, process_noise=process_noise,
-                   significance=significance)
-
-    fits = [_fit_equation(eq, segments, excludes, dt, cache, **options) for eq in equations]
+    options = (options or WeakSindyOptions()).replace(**option_changes)
+    fits = [_fit_equation(eq, segments, excludes, dt, cache, options) for eq in equations]
     return WeakSindyResult(tuple(fits))
 
 
-def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, half_width, stride, threshold,
-                  ridge, alpha, decay_tolerance, spectral_width, min_half_width, max_half_width, noise_std,
-                  irls_iterations, bias_correction, exhaustive_terms, process_noise, significance) -> EquationFit:
+def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict,
+                  options: WeakSindyOptions) -> EquationFit:
     """One equation of :func:`fit_weak_sindy` (its parameters, same meaning): test functions, weak system,
     GLS passes with the noise model, term selection, significance guard."""
     targets = [s[eq.target] for _, s in segments]
@@ -371,16 +395,17 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
         raise InsufficientDataError(f'{eq.target!r} is constant: nothing to identify for {eq.name} '
                                     '(no excitation)')
     # --- test functions
+    half_width = options.half_width
     if half_width is None or (isinstance(half_width, Mapping) and eq.target not in half_width):
-        choices = [choose_support(x, eq.order, decay_tolerance, spectral_width, min_half_width,
-                                  max_half_width) for x in targets]
+        choices = [choose_support(x, eq.order, options.decay_tolerance, options.spectral_width,
+                                  options.min_half_width, options.max_half_width) for x in targets]
         m = int(statistics.median([c[0] for c in choices]))
     else:
         m = int(half_width[eq.target] if isinstance(half_width, Mapping) else half_width)
         if m < 2:
             raise AeropendError(f'half_width must be >= 2 samples, got {m}')
-    p = max(test_function_power(m, decay_tolerance), eq.order + 2)
-    s_ = int(stride or max(1, m // 4))
+    p = max(test_function_power(m, options.decay_tolerance), eq.order + 2)
+    s_ = int(options.stride or max(1, m // 4))
     max_order = max([eq.order] + [t.derivative_order for t in eq.terms])
     weights = kernel_derivatives(m, p, dt, max_order)
     hold_weights = kernel_hold(m, p, dt)
@@ -433,7 +458,7 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
         lhs = _weak_rows(s[eq.target][:, None], weights[eq.order], starts, even)[:, 0]
         gb[:, -1] = -lhs if eq.order % 2 else lhs
         b = gb[:, -1]
-        model = _noise_model(eq, s, starts, kernel_list, type_of, noise_std, cache, si, width, weights[0])
+        model = _noise_model(eq, s, starts, kernel_list, type_of, options.noise_std, cache, si, width, weights[0])
         systems.append((g, b, model, gb))
     n_rows = sum(len(sys_[1]) for sys_ in systems)
     if n_rows <= len(eq.terms):
@@ -442,16 +467,16 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
             'candidate terms; record longer windows or use fewer terms')
     keep = np.array([t_.name in eq.keep for t_ in eq.terms])
     w = None
-    for pass_ in range(irls_iterations + 1):
+    for pass_ in range(options.irls_iterations + 1):
         rows_a, rows_b = [], []
         # The first pass (target-only whitening) is not corrected: that whitening amplifies regressor noise
         # so much that the correction itself becomes unstable; it only supplies w for the full covariance.
-        correct = bias_correction and w is not None
+        correct = options.bias_correction and w is not None
         noise_gram = np.zeros((len(eq.terms), len(eq.terms))) if correct else None
         noise_rhs = np.zeros(len(eq.terms)) if correct else None
         bands = [_measurement_band(model, w) for _, _, model, _ in systems]
         process = 0.0
-        if process_noise and w is not None:
+        if options.process_noise and w is not None:
             # Method of moments: E‖b − Gw‖² = tr Σ_meas + q·tr(V Vᵀ); q > 0 when the model misses forces
             # (friction, cable...). Without it the whitening integrates the equation twice (second order)
             # and any unmodelled low-frequency force swamps the fit.
@@ -478,19 +503,20 @@ def _fit_equation(eq: Equation, segments, excludes, dt: float, cache: dict, *, h
         bw = rows_b[0] if len(rows_b) == 1 else np.concatenate(rows_b)
         # Earlier passes only supply w for the covariance: the greedy paths and the exhaustive search run in
         # the last one (with them in the first pass too, no support and no Kq error changed beyond noise).
-        last = pass_ == irls_iterations
-        w_n, lam, col, bnorm, ata, atb = _regress(a, bw, keep, threshold, ridge, alpha, noise_gram, noise_rhs,
-                                                  exhaustive_terms if last else 0, greedy=last)
+        last = pass_ == options.irls_iterations
+        w_n, lam, col, bnorm, ata, atb = _regress(a, bw, keep, options.threshold, options.ridge, options.alpha,
+                                                  noise_gram, noise_rhs, options.exhaustive_terms if last else 0,
+                                                  greedy=last)
         w = w_n * bnorm / col
     sel = np.flatnonzero(w_n)
     cov, resid_vec = _coefficient_covariance(a, bw, w, sel, col, noise_gram, ata)
-    if significance is not None and threshold is not None and sel.size:
+    if options.significance is not None and options.threshold is not None and sel.size:
         # Significance guard (backward elimination by t-statistic): a selected free term must differ from 0
         # at the family-wise level ``significance`` over the J free candidates (Bonferroni, two-sided normal
         # critical value). The loss-based selection cannot tell a real small term from the best of J noise
         # look-alikes (|t| ~ 2.5 at 40 dB); this test can, with a level chosen before seeing any data.
         free = int(np.count_nonzero(~keep & (col > 0)))
-        critical = float(special.ndtri(1.0 - significance / (2.0 * max(free, 1))))
+        critical = float(special.ndtri(1.0 - options.significance / (2.0 * max(free, 1))))
         gram_c = ata - (noise_gram if noise_gram is not None else 0.0)
         rhs_c = atb - (noise_rhs if noise_rhs is not None else 0.0)
         while sel.size:
