@@ -17,7 +17,7 @@ class BridgeControl:
         return P.encode_angle_calibration(self.calibration.angle_zero, self.calibration.angle_scale)
 
     def _start_upload(self) -> None:
-        """Send the gains as 13 coefficients; the reader thread checks the ACKs (_on_ack)."""
+        """Send the gains as 14 coefficients; the reader thread checks the ACKs (_on_ack)."""
         upload = GainsUpload(self.gains, self.sample_period)
         with self._control_lock:
             if not self._write(upload.start()):

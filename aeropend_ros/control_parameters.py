@@ -1,9 +1,9 @@
 """The closed loop's ROS parameters, shared by the nodes that run the law (the sim node and the serial bridge).
 
 The gains carry ros2_control ``pid_controller``'s names (``p``, ``i``, ``d``, ``i_clamp_*``, ``u_clamp_*``,
-``antiwindup``, ``tracking_time_constant``, ``feedforward_gain``) plus the derivative filter and the safety
-limits (:class:`aeropend_core.control.law.PidGains`). The nodes declare them themselves (so that ``--help``, which
-reads each node's own source, lists them); their names, help texts and the check live here once.
+``antiwindup``, ``tracking_time_constant``, ``feedforward_gain``) plus the derivative filter, the setpoint weight
+and the safety limits (:class:`aeropend_core.control.law.PidGains`). The nodes declare them themselves (so that
+``--help``, which reads each node's own source, lists them); their names, help texts and the check live here once.
 """
 from __future__ import annotations
 
@@ -28,13 +28,14 @@ GAIN_HELP = {
     'outputs [fraction]', 'antiwindup': 'back_calculation, conditional_integration or none',
     'tracking_time_constant': 'Tt of back-calculation [s] (0: sqrt(Ti Td))', 'feedforward_gain': 'weight of the '
     "model's static feedforward duty [-]", 'angle_min': 'safety trip below this measured angle [rad]',
-    'angle_max': 'safety trip above this measured angle [rad]'}
+    'angle_max': 'safety trip above this measured angle [rad]', 'setpoint_weight': 'b, the weight of the reference '
+    'in the proportional term p (b r - y) [-] (1: plain PID; below 1: a smaller kick at a reference step)'}
 
 #: The range of each numeric gain parameter (what rclpy enforces; PidGains checks their relations).
 GAIN_RANGES = {'p': (0.0, 100.0), 'i': (0.0, 1000.0), 'd': (0.0, 100.0), 'derivative_filter_time': (0.0, 10.0),
                'i_clamp_min': (-1.0, 1.0), 'i_clamp_max': (-1.0, 1.0), 'u_clamp_min': (0.0, 1.0),
                'u_clamp_max': (0.0, 1.0), 'tracking_time_constant': (0.0, 100.0), 'feedforward_gain': (0.0, 2.0),
-               'angle_min': (-math.pi, math.pi), 'angle_max': (-math.pi, math.pi)}
+               'angle_min': (-math.pi, math.pi), 'angle_max': (-math.pi, math.pi), 'setpoint_weight': (0.0, 1.0)}
 
 
 def gain_refusal(node_name: str, gains: PidGains, changed: dict) -> str | None:

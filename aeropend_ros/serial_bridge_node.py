@@ -25,22 +25,22 @@ sample rate and clock drift. When the port disappears (USB unplugged) the node k
 back, and logs how many samples the outage cost.
 
 Closed loop (``control_mode: closed_loop``; default ``open_loop`` is the behaviour above): the *firmware* runs the
-controller law (protocol version 2, docs/rig-link.md section 5) on the angle it samples, the duty applying from the
-next PWM period. The gains are parameters named as ros2_control's pid_controller (``p``, ``i``, ``d``,
+controller law (protocol version 2, docs/rig-link.md section 5) on the angle it samples, the duty applying from the next
+PWM period. The gains are parameters named as ros2_control's pid_controller (``p``, ``i``, ``d``,
 ``derivative_filter_time``, ``i_clamp_min``/``max``, ``u_clamp_min``/``max``, ``antiwindup``,
-``tracking_time_constant``, ``feedforward_gain``, ``angle_min``/``max``), as the sim node's, changeable at run time:
-a change is checked together (:meth:`PidGains.problems`; refused with the reason, nothing changed), then sent as 13
-SET_CONTROL_COEFFICIENT commands whose ACKs the reader thread checks (:class:`aeropend_core.rig.control_link.
-GainsUpload`; ``/diagnostics`` ``controller_gains`` says ``acknowledged``, ``sending`` or why the device refused).
-The gains, the angle calibration (``angle_zero``, ``angle_scale``) and, in closed loop, the last reference and the
-mode are sent again whenever the device (re)starts. The reference comes from ``aeropend/reference``
-(``std_msgs/Float64MultiArray``, ``data = [reference_rad, feedforward_duty]``; without the feedforward the nominal
-model's static duty), forwarded as SET_REFERENCE (a new reference also releases a latched angle trip). In closed
-loop duty commands are ignored and the heartbeat is REQUEST_STATUS (SET_DUTY would take the device back to open
-loop); each CONTROL_SAMPLE is published on ``aeropend/samples`` as usual and on ``aeropend/control``
+``tracking_time_constant``, ``feedforward_gain``, ``setpoint_weight``, ``angle_min``/``max``), as the sim node's,
+changeable at run time: a change is checked together (:meth:`PidGains.problems`; refused with the reason, nothing
+changed), then sent as 14 SET_CONTROL_COEFFICIENT commands whose ACKs the reader thread checks
+(:class:`aeropend_core.rig.control_link.GainsUpload`; ``/diagnostics`` ``controller_gains`` says ``acknowledged``,
+``sending`` or why the device refused). The gains, the angle calibration (``angle_zero``, ``angle_scale``) and, in
+closed loop, the last reference and the mode are sent again whenever the device (re)starts. The reference comes from
+``aeropend/reference`` (``std_msgs/Float64MultiArray``, ``data = [reference_rad, feedforward_duty]``; without the
+feedforward the nominal model's static duty), forwarded as SET_REFERENCE (a new reference also releases a latched angle
+trip). In closed loop duty commands are ignored and the heartbeat is REQUEST_STATUS (SET_DUTY would take the device back
+to open loop); each CONTROL_SAMPLE is published on ``aeropend/samples`` as usual and on ``aeropend/control``
 (``topics.CONTROL_NAMES``, the sample's stamp; ``duty`` the duty applied during the sample, ``unsaturated``,
-``integral`` and ``tripped`` the law's state after answering its angle). Setting ``control_mode`` to open_loop sets
-the duty to 0; setting closed_loop again restarts the law.
+``integral`` and ``tripped`` the law's state after answering its angle). Setting ``control_mode`` to open_loop sets the
+duty to 0; setting closed_loop again restarts the law.
 
 Run on the rig::
 

@@ -23,7 +23,7 @@ controller law (:class:`aeropend_core.control.law.PidController`) with the rig's
 to the law, whose duty is applied from sample k+1, capped by ``duty_limit``; duty commands are then ignored. Gains
 are parameters named as ros2_control's pid_controller (``p``, ``i``, ``d``, ``derivative_filter_time``,
 ``i_clamp_min``/``max``, ``u_clamp_min``/``max``, ``antiwindup``, ``tracking_time_constant``,
-``feedforward_gain``, ``angle_min``/``max``), changeable at run time (checked together by
+``feedforward_gain``, ``setpoint_weight``, ``angle_min``/``max``), changeable at run time (checked together by
 :meth:`PidGains.problems`; a refused change says why and leaves every gain as it was). The reference comes from
 ``aeropend/reference`` (``std_msgs/Float64MultiArray``, ``data = [reference_rad, feedforward_duty]``; without the
 feedforward the model's static duty) or from a schedule (``reference_file``, or :meth:`SimNode.play_schedule`)
@@ -383,7 +383,8 @@ class SimNode(Node):
             else {'source': 'nominal', 'sha256': model_hash(DEFAULT_PARAMETERS, {})}
         config = {'control_mode': 'closed_loop' if self.closed_loop else 'open_loop',
                   'gains': gains,
-                  'gains_sha256': hashlib.sha256(json.dumps(gains, sort_keys=True).encode()).hexdigest(),
+                  'gains_sha256': hashlib.sha256(json.dumps(self.gains.hashed_dict(),
+                                                            sort_keys=True).encode()).hexdigest(),
                   'model': model,
                   'controller_sha256': Controller(self.gains, controller.parameters, controller.effects).sha256
                   if controller is not None else None,

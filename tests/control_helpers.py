@@ -55,14 +55,17 @@ def check_refusals_before_gains(device: Device) -> None:
     assert (ack.command, ack.result, ack.value) == (P.SET_CONTROL_MODE, P.ACK_REFUSED, 0.0)   # coefficients unset
     ack = device.ack(P.encode_control_mode(2))
     assert (ack.result, ack.value) == (P.ACK_OUT_OF_RANGE, 0.0)
-    ack = device.ack(P.encode_coefficient(13, 1.0))
-    assert (ack.command, ack.index, ack.result, ack.value) == (P.SET_CONTROL_COEFFICIENT, 13, P.ACK_UNKNOWN_INDEX,
-                                                                0.0)
+    ack = device.ack(P.encode_coefficient(law.N_COEFFICIENTS, 1.0))                 # 14: no such coefficient
+    assert (ack.command, ack.index, ack.result, ack.value) == (P.SET_CONTROL_COEFFICIENT, law.N_COEFFICIENTS,
+                                                                P.ACK_UNKNOWN_INDEX, 0.0)
     for index, value in [(law.P, math.nan), (law.P, math.inf), (law.P, -1.0), (law.D_POLE, 1.0),
                          (law.U_MAX, 1.5), (law.U_MIN, -0.1), (law.AW_CODE, 3.0), (law.AW_CODE, 1.5),
-                         (law.ANGLE_MIN, 3.5), (law.ANGLE_MAX, -3.5), (law.I_TS, -math.inf)]:
+                         (law.ANGLE_MIN, 3.5), (law.ANGLE_MAX, -3.5), (law.I_TS, -math.inf),
+                         (law.SETPOINT_WEIGHT, 1.5), (law.SETPOINT_WEIGHT, -0.1), (law.SETPOINT_WEIGHT, math.nan)]:
         ack = device.ack(P.encode_coefficient(index, value))
         assert (ack.index, ack.result) == (index, P.ACK_OUT_OF_RANGE), (index, value, ack)
+        if index == law.SETPOINT_WEIGHT:
+            assert ack.value == 1.0                                        # b stays at its boot value, the plain PID
     for zero, scale in [(512.0, 0.0), (math.nan, 0.006), (512.0, math.inf)]:
         ack = device.ack(P.encode_angle_calibration(zero, scale))
         assert (ack.command, ack.result, ack.value) == (P.SET_ANGLE_CALIBRATION, P.ACK_OUT_OF_RANGE, 0.0)

@@ -172,6 +172,12 @@ def test_invalid_gains_are_refused_with_the_reason(sim, watcher):
     results = watcher.set(p=-1.0)                   # outside the parameter's declared range: rclpy says so
     assert not results[0].successful and 'p out of range' in results[0].reason, results[0].reason
     assert watcher.configs[-1]['gains']['p'] == 0.5
+    results = watcher.set(setpoint_weight=1.5)      # b outside [0, 1]
+    assert not results[0].successful and 'setpoint_weight out of range' in results[0].reason, results[0].reason
+    assert watcher.get('setpoint_weight') == 1.0
+    assert watcher.set(setpoint_weight=0.5)[0].successful          # accepted, applied, published
+    assert watcher.wait_for(lambda: watcher.configs[-1]['gains']['setpoint_weight'] == 0.5)
+    assert watcher.set(setpoint_weight=1.0)[0].successful
 
 
 def test_angle_trip_latches_duty_zero_until_reset(sim, watcher):

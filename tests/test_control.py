@@ -84,11 +84,103 @@ def test_law_compiled_by_numba_gives_the_same_duty_as_python():
     np.testing.assert_array_equal(state_py, state_nb)
 
 
+def _law_before_setpoint_weighting(c, state, reference, feedforward_duty, angle):
+    """law_step as it was before setpoint weighting (session 18), verbatim: the reference b = 1 must reproduce."""
+    if state[4] != 0.0:
+        return 0.0
+    if angle < c[11] or angle > c[12]:
+        state[4] = 1.0
+        state[5] = 0.0
+        return 0.0
+    error = reference - angle
+    if state[3] == 0.0:
+        state[1] = 0.0
+        state[3] = 1.0
+    else:
+        state[1] = c[2] * state[1] - c[3] * (angle - state[2])
+    state[2] = angle
+    unsaturated = c[10] * feedforward_duty + c[0] * error + state[0] + state[1]
+    duty = unsaturated
+    if duty > c[7]:
+        duty = c[7]
+    if duty < c[6]:
+        duty = c[6]
+    integral = state[0]
+    if c[8] == 1.0:
+        integral = integral + c[1] * error + c[9] * (duty - unsaturated)
+    elif c[8] == 2.0:
+        if not ((unsaturated > c[7] and error > 0.0) or (unsaturated < c[6] and error < 0.0)):
+            integral = integral + c[1] * error
+    else:
+        integral = integral + c[1] * error
+    if integral > c[5]:
+        integral = c[5]
+    if integral < c[4]:
+        integral = c[4]
+    state[0] = integral
+    state[5] = unsaturated
+    return duty
+
+
+def test_setpoint_weight_one_reproduces_the_law_before_it_bit_for_bit_on_the_shared_vectors():
+    from aeropend_core.control.law import SETPOINT_WEIGHT
+    from aeropend_core.testing.law_vectors import generate
+    vectors = generate(3000, seed=5)
+    ones = vectors.coefficients[:, SETPOINT_WEIGHT] == 1.0
+    assert 0.3 < ones.mean() < 0.9            # the vectors hold both b = 1 and b < 1
+    changed = 0
+    for k in range(vectors.count):
+        c = vectors.coefficients[vectors.set_index[k]]
+        args = (float(vectors.reference[k]), float(vectors.feedforward[k]), float(vectors.angle[k]))
+        new, old = vectors.state[k].copy(), vectors.state[k].copy()
+        duty_new, duty_old = law_step(c, new, *args), _law_before_setpoint_weighting(c, old, *args)
+        if c[SETPOINT_WEIGHT] == 1.0:
+            assert duty_new == duty_old and np.array_equal(new, old), k      # bit for bit
+        else:
+            changed += duty_new != duty_old
+    assert changed > 0.3 * np.sum(~ones[vectors.set_index])        # and b < 1 is another law
+
+
+def test_setpoint_weight_lowers_the_proportional_kick_of_a_step_by_p_one_minus_b_delta_r():
+    """Same history, same gains but b: at a reference step the duties differ by exactly p (1 - b) delta_r; the
+    integral (on r - y) and the derivative (on y) are the same in both."""
+    p, b, step = 1.3, 0.35, 0.4
+    duties = {}
+    for weight in (1.0, b):
+        controller = PidController(PidGains(p=p, i=0.8, d=0.05, setpoint_weight=weight, u_clamp_max=1.0,
+                                            i_clamp_min=-1.0, i_clamp_max=1.0))
+        before = [controller.step(0.3, 0.25, angle) for angle in (0.1, 0.12, 0.15)]
+        kick = controller.step(0.3 + step, 0.25, 0.17) - before[-1]
+        duties[weight] = (before, kick, controller.integral)
+    # before the step the weighted law is lower by p (1 - b) r, constant: the step adds p (1 - b) delta_r to it
+    assert np.allclose(np.subtract(duties[1.0][0], duties[b][0]), p * (1 - b) * 0.3, rtol=0, atol=1e-12)
+    assert duties[1.0][1] - duties[b][1] == pytest.approx(p * (1 - b) * step, rel=1e-9)
+    assert duties[1.0][2] == duties[b][2]                         # the integral does not see b
+
+
+def test_setpoint_weight_keeps_zero_steady_state_error_and_tames_the_overshoot():
+    """The nominal simulator, no noise: b < 1 still settles on the reference (the integral acts on r - y) and
+    overshoots less than b = 1 with the same fast integral."""
+    target = math.radians(40)
+    reference = np.concatenate([np.full(int(2 / TS), math.radians(20)), np.full(int(8 / TS), target)])
+    overshoot = {}
+    for weight in (1.0, 0.3):
+        gains = PidGains(p=1.0, i=1.5, d=0.08, setpoint_weight=weight, feedforward_gain=0.0, u_clamp_max=0.9,
+                         i_clamp_min=-1.0, i_clamp_max=1.0)
+        run = simulate_loop(gains, reference, duty_limit=0.9)
+        tail = run.truth['angle'][-int(1 / TS):]
+        assert abs(np.mean(tail) - target) < 1e-3, weight        # no steady-state error (1 mrad)
+        overshoot[weight] = np.max(run.truth['angle'][int(2 / TS):]) - target
+    assert overshoot[0.3] < overshoot[1.0], overshoot
+
+
 @pytest.mark.parametrize('changes, message', [({'p': -1.0}, 'p must be >= 0'),
                                               ({'u_clamp_max': 1.5}, 'u_clamp_max <= 1'),
                                               ({'antiwindup': 'clamp'}, 'antiwindup must be one of'),
                                               ({'i': float('nan')}, 'finite'),
-                                              ({'angle_min': 2.0}, 'angle_min')])
+                                              ({'angle_min': 2.0}, 'angle_min'),
+                                              ({'setpoint_weight': 1.2}, 'setpoint_weight must be between 0 and 1'),
+                                              ({'setpoint_weight': -0.1}, 'setpoint_weight must be between')])
 def test_bad_gains_are_refused_naming_the_problem(changes, message):
     with pytest.raises(AeropendError, match=message):
         PidGains(**changes)
@@ -226,6 +318,27 @@ def test_controller_file_round_trip_and_tamper_check(tmp_path, nominal_design):
     path.write_text(path.read_text().replace(f'p: {nominal_design.gains.p}', 'p: 9.0'))
     with pytest.raises(AeropendError, match='sha256 does not match'):
         Controller.load(path)
+
+
+def test_a_controller_file_without_setpoint_weight_loads_with_b_one_and_keeps_its_sha256(tmp_path):
+    import hashlib
+
+    import yaml
+    controller = Controller(PidGains(p=0.7, i=0.4), template=Template())
+    old = controller.to_dict()
+    del old['gains']['setpoint_weight']            # as written before setpoint weighting existed
+    old_gains = PidGains().as_dict() | {'p': 0.7, 'i': 0.4}
+    del old_gains['setpoint_weight']
+    old['sha256'] = hashlib.sha256(json.dumps({'gains': old_gains, 'model': controller.model_sha256},
+                                              sort_keys=True).encode()).hexdigest()
+    path = tmp_path / 'old.yaml'
+    path.write_text(yaml.safe_dump(old))
+    loaded = Controller.load(path)
+    assert loaded.gains.setpoint_weight == 1.0 and loaded.sha256 == old['sha256']
+    weighted = Controller(PidGains(p=0.7, i=0.4, setpoint_weight=0.5))
+    assert weighted.sha256 != loaded.sha256                       # b < 1 is part of the hash
+    weighted.write(path)
+    assert Controller.load(path).gains.setpoint_weight == 0.5
 
 
 @pytest.mark.slow

@@ -43,7 +43,7 @@ def test_emulator_runs_the_closed_loop_like_the_firmware():
         refusal_gains = law.PidGains(p=0.8, i=0.0, d=0.0, u_clamp_max=0.6, i_clamp_min=-0.2, i_clamp_max=0.2)
         send_gains(link, refusal_gains, decoder=device.decoder, messages=device.messages)
         check_refusals_after_gains(device)
-        gains = law.PidGains(u_clamp_max=0.6)
+        gains = law.PidGains(u_clamp_max=0.6, setpoint_weight=0.7)          # b < 1: the integral still settles it
         acks = send_gains(link, gains, decoder=device.decoder, messages=device.messages)
         coefficients = device_coefficients(gains)
         assert all(np.float32(a.value) == np.float32(coefficients[i]) for i, a in acks.items())
@@ -115,4 +115,4 @@ def test_emulator_runs_the_closed_loop_like_the_firmware():
         new = device.samples(20, P.SampleFrame)
         assert new[-1].duty_q16 == 0
         assert device.decoder.counters.corrupt == 0 and device.status().rx_bad_frames == 0
-        assert [a.result for a in emulator.acks].count(P.ACK_OK) >= 2 * 13     # two gain sets and the rest
+        assert [a.result for a in emulator.acks].count(P.ACK_OK) >= 2 * 14     # two gain sets and the rest

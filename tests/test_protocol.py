@@ -355,17 +355,19 @@ def test_gains_upload_checks_every_ack_and_orders_limits():
     upload = GainsUpload(gains)
     values = device_coefficients(gains)
     sent = P.FrameDecoder(accept_commands=True).feed(b'\x00' + upload.start())
-    assert [c.index for c in sent] == list(range(13))
+    assert [c.index for c in sent] == list(range(law.N_COEFFICIENTS)) and law.N_COEFFICIENTS == 14
     assert all(np.float32(c.value) == np.float32(values[c.index]) for c in sent)
     # The device still holds angle_max 1.75: angle_min 1.8 refused, resent once angle_max is in.
-    for index in range(13):
+    for index in range(law.N_COEFFICIENTS):
         if index == law.ANGLE_MIN:
             assert upload.accept(P.AckFrame(P.SET_CONTROL_COEFFICIENT, index, P.ACK_OUT_OF_RANGE, -0.35)) == b''
             continue
         resend = upload.accept(P.AckFrame(P.SET_CONTROL_COEFFICIENT, index, P.ACK_OK, float(values[index])))
         assert (resend != b'') == (index == law.ANGLE_MAX)
+        if index == law.ANGLE_MAX:
+            angle_min_again = resend
     assert not upload.done
-    assert P.decode_message(resend[1:-1]) == P.CoefficientCommand(law.ANGLE_MIN, np.float32(1.8))
+    assert P.decode_message(angle_min_again[1:-1]) == P.CoefficientCommand(law.ANGLE_MIN, np.float32(1.8))
     upload.accept(P.AckFrame(P.SET_CONTROL_COEFFICIENT, law.ANGLE_MIN, P.ACK_OK, float(values[law.ANGLE_MIN])))
     assert upload.done and upload.error is None
     # A wrong stored value or any other refusal is an error.

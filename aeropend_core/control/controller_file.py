@@ -3,7 +3,7 @@
 ::
 
     aeropend_controller: 1
-    gains: {p: 0.42, i: 0.9, d: 0.031, derivative_filter_time: 0.02, ...}   # PidGains
+    gains: {p: 0.42, i: 0.9, d: 0.031, derivative_filter_time: 0.02, ...}   # PidGains (setpoint_weight: 1 if absent)
     template: {settling: 2.0, overshoot: 10.0, error: 5.0, duty: 0.8}     # what it was designed for
     model:                                                                 # what it was designed on
       source: nominal                  # or the diagnosis/identify JSON it came from
@@ -69,8 +69,9 @@ class Controller:
 
     @property
     def sha256(self) -> str:
-        """Hash of the gains and the model (what makes the loop behave as it does)."""
-        content = {'gains': self.gains.as_dict(), 'model': self.model_sha256}
+        """Hash of the gains and the model (what makes the loop behave as it does); ``setpoint_weight`` 1 is left out
+        (:meth:`PidGains.hashed_dict`), so files written before it existed (which load with b = 1) keep theirs."""
+        content = {'gains': self.gains.hashed_dict(), 'model': self.model_sha256}
         return hashlib.sha256(json.dumps(content, sort_keys=True).encode()).hexdigest()
 
     def to_dict(self) -> dict:

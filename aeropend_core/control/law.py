@@ -7,20 +7,24 @@ closed-loop simulation of the design (:mod:`aeropend_core.control.loop`, :func:`
 At sample k (period Ts) with reference r [rad], feedforward duty u_ff (the duty that holds r under the model) and
 measured angle y [rad]::
 
-    e = r - y
+    e = r - y                              the error: the integral's (and conditional integration's)
     D = a_d D + (-b_d) (y - y_prev)        derivative on the measurement, first-order filter (backward Euler:
                                            a_d = Tf / (Tf + Ts), b_d = d / (Tf + Ts); stable for every Tf >= 0)
-    v = k_ff u_ff + p e + I + D            unsaturated output [duty]
+    v = k_ff u_ff + p (b r - y) + I + D    unsaturated output [duty]; b the setpoint weight (0..1)
     u = clamp(v, u_min, u_max)             the duty applied from sample k
     I = clamp(I + i Ts e + aw, i_min, i_max)   the integral for the next sample, with anti-windup aw:
         back_calculation:        aw = (Ts / Tt) (u - v)        (and i Ts e always)
         conditional_integration: i Ts e only when it does not push further into saturation
         none:                    aw = 0
 
+Setpoint weighting (Astrom & Hagglund): the proportional term acts on ``b r - y``; b = 1 is the plain PID, b < 1
+lowers the proportional kick of a reference step Δr by ``p (1 - b) Δr`` (less overshoot from a fast integral)
+while the integral still acts on ``r - y`` (no steady-state error). The derivative is on the measurement (c = 0).
 The derivative term is primed on the first sample (D = 0, no kick). Safety: a measured angle outside
 [angle_min, angle_max] sets the duty to 0 and *trips* the law (latched: duty 0, integral frozen) until it is reset.
 The names follow ros2_control's ``pid_controller`` (``p``, ``i``, ``d``, ``i_clamp_*``, ``u_clamp_*``,
-``antiwindup``, ``tracking_time_constant``, ``feedforward_gain``); ``derivative_filter_time`` is Tf.
+``antiwindup``, ``tracking_time_constant``, ``feedforward_gain``); ``derivative_filter_time`` is Tf and
+``setpoint_weight`` is b.
 """
 from __future__ import annotations
 
@@ -37,8 +41,9 @@ from aeropend_core.model.parameters import SAMPLE_TIME
 ANTIWINDUP = {'none': 0, 'back_calculation': 1, 'conditional_integration': 2}
 
 # Layout of the coefficient vector (law_step's first argument); the firmware stores the same numbers.
-P, I_TS, D_POLE, D_GAIN, I_MIN, I_MAX, U_MIN, U_MAX, AW_CODE, AW_GAIN, FF_GAIN, ANGLE_MIN, ANGLE_MAX = range(13)
-N_COEFFICIENTS = 13
+(P, I_TS, D_POLE, D_GAIN, I_MIN, I_MAX, U_MIN, U_MAX, AW_CODE, AW_GAIN, FF_GAIN, ANGLE_MIN, ANGLE_MAX,
+ SETPOINT_WEIGHT) = range(14)
+N_COEFFICIENTS = 14
 # Layout of the state vector (law_step's second argument, changed in place).
 INTEGRAL, DERIVATIVE, PREVIOUS_ANGLE, PRIMED, TRIPPED, UNSATURATED = range(6)
 N_STATE = 6
@@ -70,6 +75,8 @@ class PidGains:
         Weight of the model's static feedforward duty (1: all of it; 0: a plain PID).
     angle_min, angle_max : float [rad]
         Safety limits of the measured angle: outside them the duty is 0 until the law is reset.
+    setpoint_weight : float [1]
+        b, the weight of the reference in the proportional term ``p (b r - y)``, 0 <= b <= 1 (1: the plain PID).
     """
 
     p: float = 0.5
@@ -85,6 +92,7 @@ class PidGains:
     feedforward_gain: float = 1.0
     angle_min: float = -0.35
     angle_max: float = 1.75
+    setpoint_weight: float = 1.0
 
     def __post_init__(self) -> None:
         problems = self.problems()
@@ -111,6 +119,8 @@ class PidGains:
                          f'{self.u_clamp_min!r} .. {self.u_clamp_max!r}')
         if not self.i_clamp_min <= self.i_clamp_max:
             found.append(f'i_clamp_min ({self.i_clamp_min!r}) must not exceed i_clamp_max ({self.i_clamp_max!r})')
+        if not 0.0 <= self.setpoint_weight <= 1.0:
+            found.append(f'setpoint_weight must be between 0 and 1, got {self.setpoint_weight!r}')
         if not self.angle_min < self.angle_max:
             found.append(f'angle_min ({self.angle_min!r} rad) must be below angle_max ({self.angle_max!r} rad)')
         return found
@@ -122,6 +132,14 @@ class PidGains:
 
     def as_dict(self) -> dict[str, float | str]:
         return asdict(self)
+
+    def hashed_dict(self) -> dict[str, float | str]:
+        """What hashes of the gains cover: :meth:`as_dict` without ``setpoint_weight`` when it is 1 (the law before
+        setpoint weighting existed), so a controller file written before then keeps its sha256."""
+        values = asdict(self)
+        if values['setpoint_weight'] == 1.0:
+            del values['setpoint_weight']
+        return values
 
     @classmethod
     def from_mapping(cls, values: Mapping[str, object], source: str = 'gains') -> PidGains:
@@ -153,7 +171,7 @@ class PidGains:
         return math.sqrt(integral_time * derivative_time) if derivative_time > 0 else integral_time
 
     def coefficients(self, sample_time: float = SAMPLE_TIME) -> np.ndarray:
-        """The coefficient vector of :func:`law_step` at sample period `sample_time` [s] (shape (13,))."""
+        """The coefficient vector of :func:`law_step` at sample period `sample_time` [s] (shape (14,))."""
         if not sample_time > 0:
             raise AeropendError(f'sample_time must be positive, got {sample_time!r} s')
         c = np.zeros(N_COEFFICIENTS)
@@ -169,6 +187,7 @@ class PidGains:
         c[AW_GAIN] = sample_time / tracking if tracking > 0 else 0.0
         c[FF_GAIN] = self.feedforward_gain
         c[ANGLE_MIN], c[ANGLE_MAX] = self.angle_min, self.angle_max
+        c[SETPOINT_WEIGHT] = self.setpoint_weight
         return c
 
 
@@ -185,7 +204,7 @@ def law_step(c, state, reference, feedforward_duty, angle):
 
     Parameters
     ----------
-    c : ndarray, shape (13,)
+    c : ndarray, shape (14,)
         :meth:`PidGains.coefficients`.
     state : ndarray, shape (6,)
         integral [duty], derivative [duty], previous angle [rad], primed (0/1), tripped (0/1), last unsaturated
@@ -208,7 +227,7 @@ def law_step(c, state, reference, feedforward_duty, angle):
     else:
         state[1] = c[2] * state[1] - c[3] * (angle - state[2])
     state[2] = angle
-    unsaturated = c[10] * feedforward_duty + c[0] * error + state[0] + state[1]
+    unsaturated = c[10] * feedforward_duty + c[0] * (c[13] * reference - angle) + state[0] + state[1]
     duty = unsaturated
     if duty > c[7]:
         duty = c[7]

@@ -1,8 +1,9 @@
-"""Sending the controller's gains to the firmware: 13 SET_CONTROL_COEFFICIENT commands, every ACK checked.
+"""Sending the controller's gains to the firmware: 14 SET_CONTROL_COEFFICIENT commands, every ACK checked.
 
 :class:`GainsUpload` is the exchange as a small state machine (bytes to write, ACKs in), so that a node with its own
 reader thread (the serial bridge) can drive it; :func:`send_gains` runs it on a serial port (pyserial-like
-``write`` / ``read`` / ``in_waiting``) and returns when the device has acknowledged all 13 values.
+``write`` / ``read`` / ``in_waiting``) and returns when the device has acknowledged all 14 values (the setpoint
+weight too, though the device starts with b = 1: what runs is then exactly what was sent).
 
 The device checks each limit against its partner *as stored* (I_MIN <= I_MAX, U_MIN <= U_MAX, ANGLE_MIN < ANGLE_MAX;
 docstring of :mod:`aeropend_core.rig.protocol`), so a lower limit above the stored upper one is refused on the way
@@ -39,7 +40,7 @@ class ControlLinkError(P.ProtocolError):
 
 
 def device_coefficients(gains: PidGains, sample_time: float = P.SAMPLE_PERIOD) -> np.ndarray:
-    """The 13 coefficients of `gains` at the firmware's period, rounded to float32 as the device stores them."""
+    """The 14 coefficients of `gains` at the firmware's period, rounded to float32 as the device stores them."""
     return np.asarray(gains.coefficients(sample_time), dtype=np.float32).astype(np.float64)
 
 
@@ -64,7 +65,7 @@ class GainsUpload:
         return P.encode_coefficient(index, float(self.values[index]))
 
     def start(self) -> bytes:
-        """The 13 commands, in index order (each lower limit before its upper one)."""
+        """The 14 commands, in index order (each lower limit before its upper one)."""
         return b''.join(self.command(index) for index in range(N_COEFFICIENTS))
 
     @property

@@ -45,26 +45,27 @@ The firmware runs the controller law of :mod:`aeropend_core.control.law` (``law_
 from the next PWM period (clamped to the maximum duty). Open loop (the ``SET_DUTY`` behaviour above) is the mode at
 boot. Host -> device, float32 little-endian::
 
-    SET_CONTROL_COEFFICIENT (0x14)  u8 type | u8 index 0..12 | f32 value          (6 bytes)
+    SET_CONTROL_COEFFICIENT (0x14)  u8 type | u8 index 0..13 | f32 value          (6 bytes)
     SET_REFERENCE           (0x15)  u8 type | f32 reference [rad] | f32 feedforward duty [0..1]   (9 bytes)
     SET_CONTROL_MODE        (0x16)  u8 type | u16 mode (0 open loop, 1 closed loop)                (3 bytes)
     SET_ANGLE_CALIBRATION   (0x17)  u8 type | f32 zero [counts] | f32 scale [rad/count]           (9 bytes)
 
 The index is the coefficient layout of ``law.PidGains.coefficients`` (P, I_TS, D_POLE, D_GAIN, I_MIN, I_MAX, U_MIN,
-U_MAX, AW_CODE, AW_GAIN, FF_GAIN, ANGLE_MIN, ANGLE_MAX), computed on the host at :data:`SAMPLE_PERIOD`. The angle is
+U_MAX, AW_CODE, AW_GAIN, FF_GAIN, ANGLE_MIN, ANGLE_MAX, SETPOINT_WEIGHT), computed on the host at
+:data:`SAMPLE_PERIOD`; SETPOINT_WEIGHT (b, in [0, 1]) is 1 at boot (the plain PID) and need not be sent. The angle is
 ``(angle_counts - zero) * scale`` (defaults 0 counts and 2 pi / 1024 rad/count). The device answers *each* of these
 four commands with an ``ACK`` (type 0x03, 8 bytes)::
 
     u8 type | u8 command type | u8 index | u8 result | f32 value
 
-``index`` is the coefficient's (0 for the other commands); ``value`` is what the device holds after the command:
-the coefficient, the reference, the mode, the zero of the calibration (unchanged when refused; 0 for an unknown
-index). ``result``: ``ACK_OK`` 0; ``ACK_OUT_OF_RANGE`` 1 (a non-finite value; a negative gain; D_POLE outside
-[0, 1); AW_CODE not 0, 1 or 2; I_MIN > I_MAX, U_MIN/U_MAX outside 0 <= U_MIN <= U_MAX <= 1 or ANGLE_MIN >= ANGLE_MAX
-against the other limit as stored; a reference outside [ANGLE_MIN, ANGLE_MAX] or a feedforward outside [0, 1];
-a zero scale; a mode other than 0 or 1); ``ACK_UNKNOWN_INDEX`` 2; ``ACK_REFUSED`` 3 (closed loop before all 13
-coefficients have been set since boot; an angle calibration while the loop runs). A refused command does not feed
-the watchdog; an accepted one does.
+``index`` is the coefficient's (0 for the other commands); ``value`` is what the device holds after the command: the
+coefficient, the reference, the mode, the zero of the calibration (unchanged when refused; 0 for an unknown index).
+``result``: ``ACK_OK`` 0; ``ACK_OUT_OF_RANGE`` 1 (a non-finite value; a negative gain; D_POLE outside [0, 1); AW_CODE
+not 0, 1 or 2; SETPOINT_WEIGHT outside [0, 1]; I_MIN > I_MAX, U_MIN/U_MAX outside 0 <= U_MIN <= U_MAX <= 1 or ANGLE_MIN
+>= ANGLE_MAX against the other limit as stored; a reference outside [ANGLE_MIN, ANGLE_MAX] or a feedforward outside [0,
+1]; a zero scale; a mode other than 0 or 1); ``ACK_UNKNOWN_INDEX`` 2; ``ACK_REFUSED`` 3 (closed loop before the first 13
+coefficients have been set since boot; an angle calibration while the loop runs). A refused command does not feed the
+watchdog; an accepted one does.
 
 Safety: an angle outside [ANGLE_MIN, ANGLE_MAX] sets the duty to 0 and *trips* the law (``FLAG_LAW_TRIPPED``,
 latched) until the next accepted ``SET_REFERENCE`` or ``SET_CONTROL_MODE`` 1, which restart the law (integral 0,
@@ -192,7 +193,7 @@ MODE_CLOSED_LOOP = 1
 ACK_OK = 0             #: accepted and stored
 ACK_OUT_OF_RANGE = 1   #: a non-finite value or one outside its limits (module docstring)
 ACK_UNKNOWN_INDEX = 2  #: no coefficient with that index
-ACK_REFUSED = 3        #: not in this state: closed loop before all coefficients are set; calibration in closed loop
+ACK_REFUSED = 3        #: not in this state: closed loop before the gains (0..12) are set; calibration in closed loop
 ACK_RESULTS = {ACK_OK: 'ok', ACK_OUT_OF_RANGE: 'out of range', ACK_UNKNOWN_INDEX: 'unknown index',
                ACK_REFUSED: 'refused in this mode'}
 #: The device's angle calibration at boot: zero [counts] and scale [rad/count].

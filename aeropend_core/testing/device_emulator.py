@@ -200,8 +200,8 @@ class DeviceEmulator:
         # closed loop (the firmware's boot values)
         self.control_mode = P.MODE_OPEN_LOOP
         self.law_coefficients = np.zeros(law.N_COEFFICIENTS)
-        self.law_coefficients[[law.I_MIN, law.I_MAX, law.U_MIN, law.U_MAX, law.ANGLE_MIN, law.ANGLE_MAX]] = \
-            _f32([-1.0, 1.0, 0.0, 1.0, -3.14159265, 3.14159265])
+        self.law_coefficients[[law.I_MIN, law.I_MAX, law.U_MIN, law.U_MAX, law.ANGLE_MIN, law.ANGLE_MAX,
+                               law.SETPOINT_WEIGHT]] = _f32([-1.0, 1.0, 0.0, 1.0, -3.14159265, 3.14159265, 1.0])
         self.law_set = set()
         self.law_state = law.new_state()
         self.law_reference = 0.0
@@ -438,6 +438,8 @@ class DeviceEmulator:
             ok = value < c[law.ANGLE_MAX]
         elif index == law.ANGLE_MAX:
             ok = value > c[law.ANGLE_MIN]
+        elif index == law.SETPOINT_WEIGHT:
+            ok = 0.0 <= value <= 1.0
         else:
             ok = True
         return P.ACK_OK if ok else P.ACK_OUT_OF_RANGE
@@ -475,7 +477,7 @@ class DeviceEmulator:
                 self.commanded_q16 = 0
             elif command.value != P.MODE_CLOSED_LOOP:
                 result = P.ACK_OUT_OF_RANGE
-            elif len(self.law_set) < law.N_COEFFICIENTS:
+            elif not self.law_set >= set(range(law.SETPOINT_WEIGHT)):    # b may stay at its boot value 1
                 result = P.ACK_REFUSED
             else:
                 self._law_restart()

@@ -1,7 +1,8 @@
 """Shared test vectors of the controller law: the Python reference against the firmware's single-precision C.
 
 :func:`generate` draws seeded vectors of :func:`aeropend_core.control.law.law_step`: coefficients from realistic
-:class:`~aeropend_core.control.law.PidGains` (all three anti-windup codes, several vectors per gain set), states
+:class:`~aeropend_core.control.law.PidGains` (all three anti-windup codes; the setpoint weight b uniform in [0, 1]
+in :data:`WEIGHTED_SHARE` of the sets, b = 1 in the others; several vectors per gain set), states
 (unprimed, tripped, integrals at and inside their clamps), references, feedforward duties and angles (small steps,
 large errors that saturate the output on both sides, angles outside the safety window and exactly on its edges).
 Every input is a float32 value, so the C (``firmware/aeropend/aeropend_control.h``, run by
@@ -10,12 +11,14 @@ Every input is a float32 value, so the C (``firmware/aeropend/aeropend_control.h
 :func:`expected` runs the Python law; :func:`encode_input` / :func:`decode_output` speak law_vectors.c's binary
 records; :func:`compare` checks every output against the tolerance of :func:`tolerance`:
 
-    |C - Python| <= 8 * 2**-24 * M + 1e-7
+    |C - Python| <= 10 * 2**-24 * M + 1e-7
 
 where M is the sum of the magnitudes of the terms that make the output (recursively: the derivative's terms are in
 the unsaturated output's, whose terms are in the back-calculated integral's). Each float32 operation rounds by at
-most 2**-24 of its result, which is at most the sum of its terms' magnitudes; the law's longest chain has fewer
-than 8 operations, so 8 * 2**-24 * M bounds the accumulated rounding; 1e-7 covers results near zero.
+most 2**-24 of its result; a sum of terms computed through at most n operations each is off by at most
+n 2**-24 / (1 - n 2**-24) times the sum of their magnitudes. The law's deepest term goes through 9 operations
+(b r, minus y, times p and the three sums of the unsaturated output, then duty minus it, times Ts/Tt and the
+integral's last sum), so 10 * 2**-24 * M bounds the accumulated rounding; 1e-7 covers results near zero.
 The branches (trip, saturation high / low, conditional integration holding the integral) are compared exactly.
 bench code can reuse :func:`generate` for timing.
 """
@@ -28,7 +31,9 @@ import numpy as np
 
 from aeropend_core.control.law import (
     ANTIWINDUP,
+    N_COEFFICIENTS,
     N_STATE,
+    SETPOINT_WEIGHT,
     PidGains,
     law_step,
 )
@@ -42,8 +47,11 @@ FIRMWARE_SAMPLE_TIME = 64 * 510 / 16e6
 BRANCH_TRIPPED, BRANCH_HIGH, BRANCH_LOW, BRANCH_HELD = 1, 2, 4, 8
 #: Bytes of one answer of law_vectors.c: 7 float32 + the branch byte.
 OUTPUT_RECORD = 29
-#: Relative rounding allowance per unit of term magnitude (8 float32 roundings), and the absolute floor.
-RELATIVE = 8 * 2.0 ** -24
+#: Share of the gain sets whose setpoint weight b is drawn uniformly in [0, 1] (the others: b = 1, the plain PID).
+WEIGHTED_SHARE = 0.5
+#: Relative rounding allowance per unit of term magnitude (9 float32 roundings deep, module docstring), and the
+#: absolute floor.
+RELATIVE = 10 * 2.0 ** -24
 ABSOLUTE = 1e-7
 
 
@@ -56,7 +64,7 @@ def f32(values):
 class LawVectors:
     """Inputs of `count` law steps; ``coefficients[set_index[k]]`` is vector k's coefficient vector."""
 
-    coefficients: np.ndarray   #: (sets, 13)
+    coefficients: np.ndarray   #: (sets, 14)
     set_index: np.ndarray      #: (count,) int
     state: np.ndarray          #: (count, 6) the state before the step
     reference: np.ndarray      #: (count,)
@@ -85,7 +93,8 @@ def _random_gains(rng: np.random.Generator, antiwindup: str) -> PidGains:
         tracking_time_constant=float(rng.choice([0.0, rng.uniform(0.005, 1.0)])),
         feedforward_gain=float(rng.uniform(0.0, 1.2)),
         angle_min=float(rng.uniform(-0.6, -0.05)),
-        angle_max=float(rng.uniform(1.0, 2.0)))
+        angle_max=float(rng.uniform(1.0, 2.0)),
+        setpoint_weight=float(rng.uniform(0.0, 1.0)) if rng.random() < WEIGHTED_SHARE else 1.0)
 
 
 def generate(count: int = 10_000, seed: int = 0, per_set: int = 8,
@@ -164,8 +173,9 @@ def tolerance(vectors: LawVectors, duty: np.ndarray) -> np.ndarray:
     s = vectors.state
     r, ff, y = vectors.reference, vectors.feedforward, vectors.angle
     error = np.abs(r) + np.abs(y)
+    weighted_error = np.abs(c[:, SETPOINT_WEIGHT] * r) + np.abs(y)                  # b r - y, the proportional term's
     derivative = np.abs(c[:, 2] * s[:, 1]) + np.abs(c[:, 3]) * (np.abs(y) + np.abs(s[:, 2]))
-    unsaturated = np.abs(c[:, 10] * ff) + np.abs(c[:, 0]) * error + np.abs(s[:, 0]) + derivative
+    unsaturated = np.abs(c[:, 10] * ff) + np.abs(c[:, 0]) * weighted_error + np.abs(s[:, 0]) + derivative
     integral = np.abs(s[:, 0]) + np.abs(c[:, 1]) * error + np.abs(c[:, 9]) * (np.abs(duty) + unsaturated)
     magnitude = np.stack([unsaturated, integral, derivative, np.zeros_like(r), np.zeros_like(r),
                           np.zeros_like(r), unsaturated], axis=1)
@@ -178,7 +188,7 @@ def encode_input(vectors: LawVectors, timed: bool = False) -> bytes:
     out = bytearray()
     tag = b'T' if timed else b'V'
     current = -1
-    coefficient = struct.Struct('<c13f')
+    coefficient = struct.Struct(f'<c{N_COEFFICIENTS}f')
     vector = struct.Struct('<c9f')
     for k in range(vectors.count):
         index = int(vectors.set_index[k])
@@ -211,6 +221,7 @@ class Comparison:
     saturated_high: int
     saturated_low: int
     unprimed: int
+    weighted: int                  #: vectors whose setpoint weight b is below 1
     within_tolerance: int          #: vectors whose 7 outputs are all within tolerance
     worst_ratio: float             #: max over vectors and outputs of |C - Python| / tolerance
     max_error: float               #: max |C - Python| over all outputs
@@ -220,7 +231,8 @@ class Comparison:
         return (f'{self.count} vectors: {self.within_tolerance} within tolerance (worst |error| / tolerance '
                 f'{self.worst_ratio:.3g} at {self.worst}, max |error| {self.max_error:.3g}); branches agree on '
                 f'{self.branch_agreement}; {self.trips} trips, {self.held} held integrals, {self.saturated_high} / '
-                f'{self.saturated_low} saturated high / low, {self.unprimed} unprimed')
+                f'{self.saturated_low} saturated high / low, {self.unprimed} unprimed, {self.weighted} with a setpoint '
+                f'weight below 1')
 
 
 def compare(vectors: LawVectors, got: tuple[np.ndarray, np.ndarray, np.ndarray],
@@ -243,6 +255,7 @@ def compare(vectors: LawVectors, got: tuple[np.ndarray, np.ndarray, np.ndarray],
         saturated_high=int(np.sum(want[2] & BRANCH_HIGH != 0)),
         saturated_low=int(np.sum(want[2] & BRANCH_LOW != 0)),
         unprimed=int(np.sum((vectors.state[:, 3] == 0) & (vectors.state[:, 4] == 0))),
+        weighted=int(np.sum(vectors.coefficients[vectors.set_index, SETPOINT_WEIGHT] < 1.0)),
         within_tolerance=int(np.sum(np.all(ratio <= 1.0, axis=1))),
         worst_ratio=float(ratio.max()),
         max_error=float(error.max()),

@@ -29,11 +29,12 @@
  *   single-precision mirror of aeropend_core/control/law.py's law_step) runs in the main loop once per sample, on
  *   the angle just sampled, (angle_counts - zero) * rad_per_count (SET_ANGLE_CALIBRATION; defaults 0 counts and
  *   2 pi / 1024 rad/count). Its duty, clamped to the maximum duty, is handed over like a SET_DUTY but written to
- *   OCR1A at once, so it applies from the next PWM period (see control_step). The law (at most ~3,200 cycles of
- *   soft float, 0.2 ms, measured in simavr), the duty's PWM setting (~70 us) and the CONTROL_SAMPLE frame take well
- *   under the 2.04 ms period, so it runs in the main loop with interrupts enabled, never in an interrupt. The 13
+ *   OCR1A at once, so it applies from the next PWM period (see control_step). The law (at most ~3,500 cycles of
+ *   soft float, 0.22 ms, measured in simavr), the duty's PWM setting (~70 us) and the CONTROL_SAMPLE frame take well
+ *   under the 2.04 ms period, so it runs in the main loop with interrupts enabled, never in an interrupt. The 14
  *   coefficients come from the host (SET_CONTROL_COEFFICIENT, the layout of law.PidGains.coefficients at
- *   Ts = 2.04 ms); closed loop is refused until all 13 have been set since boot. Every new command is answered by
+ *   Ts = 2.04 ms); closed loop is refused until the first 13 have been set since boot (the 14th, the setpoint
+ *   weight b in [0, 1], starts at 1: the plain PID). Every new command is answered by
  *   an ACK with a result code; non-finite values and inconsistent limits are refused. Safety: an angle outside
  *   [ANGLE_MIN, ANGLE_MAX] -> duty 0, latched (FLAG_LAW_TRIPPED) until the next accepted SET_REFERENCE or
  *   SET_CONTROL_MODE 1 (both restart the law: integral 0, derivative unprimed); the watchdog as above; SET_DUTY
@@ -135,11 +136,13 @@ static volatile uint8_t status_due = 1;
 
 /* ---- closed loop (main loop only: commands and the law both run there) ---- */
 static uint8_t control_mode = AP_MODE_OPEN_LOOP;
-/* Coefficients until the host sets them: zero gains inside the widest limits (closed loop is refused until every
- * one has been set, law_set_mask == LAW_ALL_SET). */
-static float law_c[AP_N_COEFFICIENTS] = {0, 0, 0, 0, -1.0f, 1.0f, 0.0f, 1.0f, 0, 0, 0, -3.14159265f, 3.14159265f};
+/* Coefficients until the host sets them: zero gains inside the widest limits, setpoint weight 1 (the plain PID).
+ * Closed loop is refused until each of the 13 before SETPOINT_WEIGHT has been set (law_set_mask covers LAW_ALL_SET);
+ * the setpoint weight may be left at 1, so a host that sends only those 13 runs the law it knows. */
+static float law_c[AP_N_COEFFICIENTS] = {0, 0, 0, 0, -1.0f, 1.0f, 0.0f, 1.0f, 0, 0, 0, -3.14159265f, 3.14159265f,
+                                         1.0f};
 static uint16_t law_set_mask;
-#define LAW_ALL_SET ((1U << AP_N_COEFFICIENTS) - 1)
+#define LAW_ALL_SET ((1U << AP_C_SETPOINT_WEIGHT) - 1)
 static float law_s[AP_N_STATE];
 static float law_reference, law_feedforward;
 static float angle_zero_counts = 0.0f;
@@ -549,6 +552,9 @@ static uint8_t coefficient_result(uint8_t index, float v)
     case AP_C_ANGLE_MAX:
         ok = v > law_c[AP_C_ANGLE_MIN];
         break;
+    case AP_C_SETPOINT_WEIGHT:
+        ok = v >= 0.0f && v <= 1.0f;
+        break;
     default: /* FF_GAIN: any finite weight */
         ok = 1;
     }
@@ -611,7 +617,7 @@ static void handle_control_command(const uint8_t *payload)
             }
         } else if (mode != AP_MODE_CLOSED_LOOP) {
             result = AP_ACK_OUT_OF_RANGE;
-        } else if (law_set_mask != LAW_ALL_SET) {
+        } else if ((law_set_mask & LAW_ALL_SET) != LAW_ALL_SET) {
             result = AP_ACK_REFUSED;
         } else {
             law_restart();

@@ -5,12 +5,14 @@
  * Python law on shared vectors (aeropend_core/testing/law_vectors.py; tests/test_firmware_sim.py runs the host
  * build and the avr-gcc build in simavr on the same vectors).
  *
- * Coefficients c[13] (PidGains.coefficients(Ts) on the host, sent one by one with SET_CONTROL_COEFFICIENT):
- *   P, I_TS, D_POLE, D_GAIN, I_MIN, I_MAX, U_MIN, U_MAX, AW_CODE, AW_GAIN, FF_GAIN, ANGLE_MIN, ANGLE_MAX.
+ * Coefficients c[14] (PidGains.coefficients(Ts) on the host, sent one by one with SET_CONTROL_COEFFICIENT):
+ *   P, I_TS, D_POLE, D_GAIN, I_MIN, I_MAX, U_MIN, U_MAX, AW_CODE, AW_GAIN, FF_GAIN, ANGLE_MIN, ANGLE_MAX,
+ *   SETPOINT_WEIGHT (b: the proportional term is p (b r - y); 1 = the plain PID on the error).
  * State s[6], changed in place: INTEGRAL, DERIVATIVE, PREVIOUS_ANGLE, PRIMED, TRIPPED, UNSATURATED.
  *
  * Cost on the ATmega2560 (-Os, avr-libc soft float), measured in simavr on the shared vectors (law_vectors.c 'T'
- * records): median ~2,550 CPU cycles, at most ~3,150 (0.2 ms of the 2.04 ms period = 32,640 cycles).
+ * records): median ~2,800 CPU cycles, at most ~3,500 (0.22 ms, 11 % of the 2.04 ms period = 32,640 cycles; with the
+ * setpoint weight, session 19: before it ~2,550 and ~3,150).
  */
 #ifndef AEROPEND_CONTROL_H
 #define AEROPEND_CONTROL_H
@@ -28,7 +30,8 @@
 #define AP_C_FF_GAIN 10
 #define AP_C_ANGLE_MIN 11
 #define AP_C_ANGLE_MAX 12
-#define AP_N_COEFFICIENTS 13
+#define AP_C_SETPOINT_WEIGHT 13
+#define AP_N_COEFFICIENTS 14
 
 #define AP_S_INTEGRAL 0
 #define AP_S_DERIVATIVE 1
@@ -44,7 +47,7 @@
 #define AP_AW_CONDITIONAL_INTEGRATION 2
 
 /* One sample of the law: the duty [fraction] to apply from this sample; `s` is updated in place. */
-static inline float ap_law_step(const float c[13], float s[6], float reference, float feedforward, float angle)
+static inline float ap_law_step(const float c[14], float s[6], float reference, float feedforward, float angle)
 {
     if (s[4] != 0.0f)
         return 0.0f;
@@ -61,7 +64,7 @@ static inline float ap_law_step(const float c[13], float s[6], float reference, 
         s[1] = c[2] * s[1] - c[3] * (angle - s[2]);
     }
     s[2] = angle;
-    float unsaturated = c[10] * feedforward + c[0] * error + s[0] + s[1];
+    float unsaturated = c[10] * feedforward + c[0] * (c[13] * reference - angle) + s[0] + s[1];
     float duty = unsaturated;
     if (duty > c[7])
         duty = c[7];

@@ -24,7 +24,7 @@
 #define AP_MSG_ACK 0x03                 /* device -> host: u8 command, u8 index, u8 result, f32 value (8 bytes) */
 #define AP_MSG_CONTROL_SAMPLE 0x04      /* device -> host: SAMPLE's fields + f32 reference, feedforward,
                                            unsaturated, integral (30 bytes), every sample in closed loop */
-#define AP_CMD_SET_CONTROL_COEFFICIENT 0x14 /* host -> device: u8 index 0..12, f32 value (6 bytes) */
+#define AP_CMD_SET_CONTROL_COEFFICIENT 0x14 /* host -> device: u8 index 0..13, f32 value (6 bytes) */
 #define AP_CMD_SET_REFERENCE 0x15           /* host -> device: f32 reference rad, f32 feedforward duty (9 bytes) */
 #define AP_CMD_SET_CONTROL_MODE 0x16        /* host -> device: u16 0 open loop, 1 closed loop (3 bytes) */
 #define AP_CMD_SET_ANGLE_CALIBRATION 0x17   /* host -> device: f32 zero counts, f32 rad per count (9 bytes) */
