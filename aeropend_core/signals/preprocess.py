@@ -190,6 +190,21 @@ def detect_steps(armature_voltage: np.ndarray, sample_time: float, threshold: fl
     return np.unique(np.array(found, dtype=int))
 
 
+#: Smallest one-sample jump of Va [V] :func:`sharp_steps` keeps as a step of a continuously varying input.
+SHARP_STEP_VOLTS = 0.05
+
+
+def sharp_steps(armature_voltage: np.ndarray, step_indices: np.ndarray, floor: float = SHARP_STEP_VOLTS) -> np.ndarray:
+    """The steps of `step_indices` [samples] where Va [V] jumps within one sample by at least `floor` [V] and 8 noise
+    sigmas: the real steps of an input that otherwise varies continuously (a chirp, where :func:`detect_steps` splits
+    the smooth sweep into many levels), whose electrical transient the motor observer must not be fitted through."""
+    voltage = np.asarray(armature_voltage, dtype=float)
+    steps = np.asarray(step_indices, dtype=int)
+    steps = steps[(steps >= 1) & (steps < voltage.size)]
+    jump = np.abs(voltage[steps] - voltage[steps - 1])
+    return steps[jump >= max(floor, 8.0 * noise_rms(voltage))]
+
+
 @dataclass(frozen=True)
 class ConditionedInputs:
     """Va and Ia ready for the thrust term, plus what was done to them.
