@@ -36,8 +36,9 @@ from aeropend_core.model.effects import kernel_parameter
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
                                         initial_states_from_data)
 from aeropend_core.signals.motor import MotorFit, back_emf_ensemble, fit_motor
-from aeropend_core.signals.preprocess import (condition_inputs, noise_rms, piecewise_constant, sharp_steps,
-                                             step_switches, quantisation_bias_rms, quantisation_step)
+from aeropend_core.signals.preprocess import (condition_inputs, noise_rms, piecewise_constant, quantisation_bias_rms,
+                                             quantisation_step, sharp_steps, smooth_between_steps, step_switches,
+                                             bootstrap_blocks)
 from aeropend_core.io.recording import Recording
 
 if TYPE_CHECKING:       # annotations only (the motor discovery sits above this module)
@@ -252,8 +253,9 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
         # sample like the duty, with only its one-sample jumps as steps. There the measured Va - R Ia is no thrust
         # voltage: Ia lags Va by La/Ra ~ one sample, and a 0.1-2.5 Hz chirp left 11 % of the true back-EMF's swing
         # in it (thrust gain +12 %, Ra +3 %, z up to +19, bench/chirp_on_own_rig.py); the observer models La.
-        observed, observer_steps = ((stepped, conditioned.step_indices) if stepped is not None else
-                                    (voltage, sharp_steps(voltage, conditioned.step_indices)))
+        observer_steps = conditioned.step_indices if stepped is not None else sharp_steps(
+            voltage, conditioned.step_indices)
+        observed = stepped if stepped is not None else smooth_between_steps(voltage, observer_steps, sample_time)
         switch = step_switches(observer_steps, observed.size, sample_time)
         try:
             motor = fit_motor(observed, current, observer_steps, sample_time, switch)
@@ -263,13 +265,15 @@ def prepare(recording: Recording, train_fraction: float = TRAIN_FRACTION,
             # the observer's back-EMF is the thrust voltage; R is then 0 in the pendulum model
             thrust_voltage, thrust_current = motor.back_emf, np.zeros_like(current)
             ensemble, motor_errors = back_emf_ensemble(motor, observed, voltage, current, observer_steps,
-                                                       sample_time, with_errors=True)
+                                                       sample_time, with_errors=True,
+                                                       blocks=None if stepped is not None else
+                                                       bootstrap_blocks(observer_steps, voltage.size, sample_time))
             motor = replace(motor, standard_errors=motor_errors)
         else:
             motor = None
     valid = gaps.valid
     # the Va the observer ran on (a continuous input's as sampled), else the steps' medians, else the conditioned Va
-    observed_voltage = (voltage if motor is not None and stepped is None else
+    observed_voltage = (observed if motor is not None and stepped is None else
                         stepped if stepped is not None else conditioned.armature_voltage)
     prep = PreparedRecord(time=time, armature_voltage=voltage, armature_current=current, angle=angle,
                           sample_time=sample_time, voltage=thrust_voltage, current=thrust_current,

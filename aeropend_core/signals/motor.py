@@ -542,7 +542,7 @@ ENSEMBLE_SIZE = 16
 
 def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.ndarray, current: np.ndarray,
                       step_indices: np.ndarray, sample_time: float, count: int = ENSEMBLE_SIZE,
-                      seed: int = 0, with_errors: bool = False):
+                      seed: int = 0, with_errors: bool = False, blocks: np.ndarray | None = None):
     """Back-EMF changes [V] that the observer's own estimation error allows: shape (count, n), float32.
 
     The observer is fitted to noisy data (Ia's noise, per-level errors of the measured Va, an ADC that does not
@@ -577,6 +577,10 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
         Seed of the draws (the ensemble is reproducible).
     with_errors : bool [-]
         Also return the observer's standard errors (see Returns).
+    blocks : ndarray of int, optional [samples]
+        Where the bootstrap's intervals start, instead of `step_indices`: for a continuously varying Va, whose one
+        or two steps leave one or two intervals and a covariance of one or two scores (Ra's 1-sigma came out 1e-5 of
+        itself where its error was 2e-4).
 
     Returns
     -------
@@ -616,7 +620,7 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
     gram = np.array([[np.dot(jacobian[:, i].astype(float), jacobian[:, j]) for j in range(x.size)]
                      for i in range(x.size)])
     inverse = np.linalg.pinv(gram)
-    bounds = np.concatenate(([0], np.asarray(step_indices, dtype=int), [n]))
+    bounds = np.concatenate(([0], np.asarray(step_indices if blocks is None else blocks, dtype=int), [n]))
     block = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
     lengths = np.maximum(np.diff(bounds), 1)
     level_sigma = 1.2533 * noise_rms(np.asarray(measured_voltage, dtype=float)) / np.sqrt(lengths)
