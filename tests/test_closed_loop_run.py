@@ -34,10 +34,14 @@ def run_cli(arguments, env=None, timeout=240.0):
     return subprocess.run(AEROPEND + arguments, env=env, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
 
 
+#: The controller of the runs: the defaults with a setpoint weight, carried into the bag and the console.
+GAINS = PidGains(setpoint_weight=0.8)
+
+
 @pytest.fixture(scope='module')
 def files(tmp_path_factory):
     folder = tmp_path_factory.mktemp('closed_loop')
-    Controller(PidGains(), template=Template()).write(folder / 'gains.yaml')
+    Controller(GAINS, template=Template()).write(folder / 'gains.yaml')
     (folder / 'steps.yaml').write_text(SCHEDULE)
     return folder
 
@@ -59,6 +63,7 @@ def test_run_plays_the_schedule_and_judges_each_step(played):
     assert result.returncode == 0, output
     assert 'Traceback' not in output, output
     assert 'closed loop: controller' in result.stderr and 'steps.yaml' in result.stderr
+    assert 'setpoint weight b 0.8' in result.stderr, result.stderr
     assert '13 s of closed loop at 10x real time' in result.stderr, output
     assert 'no diagnosis at the end: the 13 s run is shorter' in result.stderr, output
     steps = STEP_LINE.findall(result.stdout)
@@ -81,6 +86,7 @@ def test_the_bag_holds_the_closed_loop_read_back_two_ways(played, files):
     gains_bytes = (files / 'gains.yaml').read_bytes()
     assert custom['aeropend.control_mode'] == 'closed_loop'
     assert custom['aeropend.controller_yaml'] == gains_bytes.decode()
+    assert yaml.safe_load(custom['aeropend.controller_yaml'])['gains']['setpoint_weight'] == 0.8
     assert custom['aeropend.controller_file_sha256'] == hashlib.sha256(gains_bytes).hexdigest()
     assert custom['aeropend.controller_sha256'] == Controller.load(files / 'gains.yaml').sha256
     schedule = read_schedule_file(files / 'steps.yaml')
@@ -109,7 +115,8 @@ def test_the_bag_holds_the_closed_loop_read_back_two_ways(played, files):
     assert np.array_equal(samples['angle'], data.angle) and np.array_equal(samples['duty'], data.duty)
     late = data.time > schedule.duration - 1.0
     assert abs(np.degrees(data.angle[late].mean()) - 30.0) < 3.0      # the last step held
-    assert data.configs and data.configs[0]['gains'] == PidGains().as_dict()
+    assert data.configs and data.configs[0]['gains'] == GAINS.as_dict()             # setpoint_weight 0.8 too
+    assert data.controller.gains.setpoint_weight == 0.8
     # an independent reader: rosbags
     from rosbags.highlevel import AnyReader
     control, configs = {}, []

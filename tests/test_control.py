@@ -320,6 +320,22 @@ def test_controller_file_round_trip_and_tamper_check(tmp_path, nominal_design):
         Controller.load(path)
 
 
+def test_the_check_predicts_with_the_setpoint_weight_and_says_it():
+    """A record of b = 0.5 (a fast integral that overshoots about 20 % with b = 1): the check's prediction runs the
+    same b (overshoot within 3 percentage points of the measured, not the ~20 % of b = 1), its text and JSON name b."""
+    schedule = ReferenceSchedule.steps_between([20, 40], hold=3.0, start_hold=1.0)
+    controller = Controller(PidGains(p=1.0, i=1.5, d=0.08, setpoint_weight=0.5), template=Template())
+    run = simulate_loop(controller.gains, schedule.reference(), FeedforwardMap(),
+                        noise=MeasurementNoise(psnr_db=None, quantise=True), duty_limit=0.8)
+    result = check_record(run.time, run.angle, run.duty, controller, schedule)
+    assert len(result.steps) == 2
+    for step in result.steps:
+        assert step.measured.overshoot < 5.0
+        assert abs(step.predicted.overshoot - step.measured.overshoot) <= 3.0, result.as_text()
+    assert 'setpoint weight b = 0.5' in result.as_text().splitlines()[1]
+    assert result.to_dict()['gains']['setpoint_weight'] == 0.5
+
+
 def test_a_controller_file_without_setpoint_weight_loads_with_b_one_and_keeps_its_sha256(tmp_path):
     import hashlib
 

@@ -125,9 +125,7 @@ def _print_design(result, model, predicted_only: bool = False) -> None:
     print(f'Operating point: {math.degrees(result.linearisation.angle):.1f} deg at duty '
           f'{result.linearisation.duty:.3f}; loop margins {result.gain_margin_db:.1f} dB, '
           f'{result.phase_margin_deg:.1f} deg (linearised)')
-    print(f'{"Closest gains" if predicted_only else "Gains"}: p = {gains.p:.4g} 1/rad, i = {gains.i:.4g} 1/(rad s), '
-          f'd = {gains.d:.4g} s/rad, derivative filter {gains.derivative_filter_time:g} s, duty '
-          f'{gains.u_clamp_min:g}..{gains.u_clamp_max:g}, {gains.antiwindup}, feedforward x{gains.feedforward_gain:g}')
+    print(f'{"Closest gains" if predicted_only else "Gains"}: {gains.text()}')
     print(f'Predicted steps (nonlinear model, discrete law, duty clamp, 10-bit angle with noise) against '
           f'{result.template.text()}:')
     for index, m in enumerate(result.metrics, start=1):

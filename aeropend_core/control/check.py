@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aeropend_core.control.controller_file import Controller
+from aeropend_core.control.law import PidGains
 from aeropend_core.control.loop import FeedforwardMap, simulate_loop
 from aeropend_core.control.metrics import StepMetrics, Template, noise_sigma, schedule_metrics
 from aeropend_core.control.reference import ReferenceSchedule
@@ -49,6 +50,7 @@ class CheckResult:
     predicted_angle: np.ndarray
     predicted_duty: np.ndarray
     notes: list[str] = field(default_factory=list)
+    gains: PidGains | None = None      #: the controller's, as checked (and predicted with)
 
     @property
     def met(self) -> bool:
@@ -66,11 +68,14 @@ class CheckResult:
 
     def to_dict(self) -> dict:
         return {'schema': 'aeropend.control_check/1', 'template': self.template.as_dict(), 'verdict': self.verdict,
+                'gains': self.gains.as_dict() if self.gains is not None else None,
                 'met': self.met, 'steps': [step.to_dict() for step in self.steps], 'notes': list(self.notes),
                 'units': {'angles': 'rad', 'times': 's', 'overshoot_and_error': '% of the step', 'duty': '1'}}
 
     def as_text(self) -> str:
         lines = [f'Template: {self.template.text()}']
+        if self.gains is not None:
+            lines.append(f'Controller: {self.gains.text()}')
         for step in self.steps:
             m, p = step.measured, step.predicted
             lines.append(f'step {step.index}: {math.degrees(m.initial):.1f} -> {math.degrees(m.target):.1f} deg '
@@ -158,4 +163,4 @@ def check_record(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, controll
     if not steps:
         raise AeropendError('no complete step in this record: nothing to check (the run ended before its first '
                             'step was held to the end)')
-    return CheckResult(template, steps, predicted.time, predicted.angle, predicted.duty, notes)
+    return CheckResult(template, steps, predicted.time, predicted.angle, predicted.duty, notes, controller.gains)

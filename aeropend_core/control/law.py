@@ -133,6 +133,19 @@ class PidGains:
     def as_dict(self) -> dict[str, float | str]:
         return asdict(self)
 
+    def text(self) -> str:
+        """The gains in one line (design's and check's text).
+
+        >>> PidGains(p=0.8, setpoint_weight=0.6).text()[:74]
+        'p = 0.8 1/rad, i = 0.5 1/(rad s), d = 0.05 s/rad, derivative filter 0.02 s'
+        >>> PidGains(p=0.8, setpoint_weight=0.6).text()[76:]
+        'setpoint weight b = 0.6, duty 0..0.8, back_calculation, feedforward x1'
+        """
+        return (f'p = {self.p:.4g} 1/rad, i = {self.i:.4g} 1/(rad s), d = {self.d:.4g} s/rad, derivative filter '
+                f'{self.derivative_filter_time:g} s, setpoint weight b = {self.setpoint_weight:.3g}, duty '
+                f'{self.u_clamp_min:g}..{self.u_clamp_max:g}, {self.antiwindup}, feedforward '
+                f'x{self.feedforward_gain:g}')
+
     def hashed_dict(self) -> dict[str, float | str]:
         """What hashes of the gains cover: :meth:`as_dict` without ``setpoint_weight`` when it is 1 (the law before
         setpoint weighting existed), so a controller file written before then keeps its sha256."""

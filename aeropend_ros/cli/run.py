@@ -355,7 +355,8 @@ def _run(args) -> int:
         if closed:          # said even with --quiet: which controller, and a schedule the user did not give
             gains = closed['controller'].gains
             print(f'aeropend run: closed loop: controller {closed["controller_path"]} (p {gains.p:g}, i {gains.i:g}, '
-                  f'd {gains.d:g}; model {closed["controller"].model_source}), reference '
+                  f'd {gains.d:g}, setpoint weight b {gains.setpoint_weight:g}; model '
+                  f'{closed["controller"].model_source}), reference '
                   f'{closed["reference_text"]}' + ('' if closed['reference_path'] else ' (no --reference given)')
                   + f'; duty capped at {args.duty_cap:g} (--duty-cap)'
                   + (f', below the controller\'s u_clamp_max {gains.u_clamp_max:g}'
