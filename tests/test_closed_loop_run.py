@@ -198,8 +198,10 @@ def test_run_closes_the_loop_on_the_rig_through_the_bridge(files, tmp_path):
     # the first change arrives the link's latency late (the emulator writes blocks of 10 samples: 5-20 ms); the
     # player measures it and sends the next ones that early (measured 2026-12-06: 1.0118 s, then 4.0087 s); the
     # record's sample times and the player's clock can differ by up to a sample, so a change can land one sample before
-    # the scheduled time (a fresh-clone run read 0.9996 s)
-    assert len(changes) == 2 and -SAMPLE_TIME <= changes[0] - 1.0 < 0.1 and abs(changes[1] - 4.0) < 0.1, changes
+    # the scheduled time (a fresh-clone run read 0.9996 s). The bound is the link's latency on a loaded machine, not an
+    # idle one's: at a load average of 16 the first change came 0.13 s late; 0.5 s is still a sixth of the 3 s hold
+    late = 0.5
+    assert len(changes) == 2 and -SAMPLE_TIME <= changes[0] - 1.0 < late and abs(changes[1] - 4.0) < late, changes
     assert abs(np.degrees(data.angle[(data.time > 6.0) & (data.time < 7.0)].mean()) - 35.0) < 3.0
 
 
