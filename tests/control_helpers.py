@@ -71,6 +71,24 @@ def check_refusals_before_gains(device: Device) -> None:
         assert (ack.command, ack.result, ack.value) == (P.SET_ANGLE_CALIBRATION, P.ACK_OUT_OF_RANGE, 0.0)
 
 
+def check_thirteen_coefficients_close_the_loop(device: Device, gains) -> None:
+    """A host that knows only the 13 coefficients before the setpoint weight (as before it existed) may close the
+    loop: the device's b stays at its boot value 1 (the plain PID). Then back to open loop (duty 0). For a device
+    at boot, in open loop, with `gains` inside the boot limits."""
+    from aeropend_core.control import law
+    from aeropend_core.rig.control_link import GainsUpload
+    upload = GainsUpload(gains)
+    for index in range(law.SETPOINT_WEIGHT):
+        ack = device.ack(upload.command(index))
+        assert (ack.index, ack.result) == (index, P.ACK_OK), ack
+    ack = device.ack(P.encode_control_mode(P.MODE_CLOSED_LOOP))
+    assert (ack.result, ack.value) == (P.ACK_OK, 1.0)
+    ack = device.ack(P.encode_coefficient(law.SETPOINT_WEIGHT, 2.0))          # refused: what it holds is 1
+    assert (ack.index, ack.result, ack.value) == (law.SETPOINT_WEIGHT, P.ACK_OUT_OF_RANGE, 1.0)
+    ack = device.ack(P.encode_control_mode(P.MODE_OPEN_LOOP))
+    assert (ack.result, ack.value) == (P.ACK_OK, 0.0)
+
+
 def check_refusals_after_gains(device: Device) -> None:
     """Limits refused against their stored partner, and references outside the window (gains of the tests: u in
     [0, 0.6], i in [-0.2, 0.2], angle in [-0.35, 1.75]; no reference stored yet)."""

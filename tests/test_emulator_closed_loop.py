@@ -15,7 +15,12 @@ from aeropend_core.control.feedforward import static_duty
 from aeropend_core.rig import protocol as P
 from aeropend_core.rig.control_link import device_coefficients, send_gains
 from aeropend_core.testing.device_emulator import DeviceEmulator
-from tests.control_helpers import Device, check_refusals_after_gains, check_refusals_before_gains
+from tests.control_helpers import (
+    Device,
+    check_refusals_after_gains,
+    check_refusals_before_gains,
+    check_thirteen_coefficients_close_the_loop,
+)
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -41,6 +46,7 @@ def test_emulator_runs_the_closed_loop_like_the_firmware():
         check_refusals_before_gains(device)
 
         refusal_gains = law.PidGains(p=0.8, i=0.0, d=0.0, u_clamp_max=0.6, i_clamp_min=-0.2, i_clamp_max=0.2)
+        check_thirteen_coefficients_close_the_loop(device, refusal_gains)   # b = 1 from boot: need not be sent
         send_gains(link, refusal_gains, decoder=device.decoder, messages=device.messages)
         check_refusals_after_gains(device)
         gains = law.PidGains(u_clamp_max=0.6, setpoint_weight=0.7)          # b < 1: the integral still settles it
@@ -60,8 +66,8 @@ def test_emulator_runs_the_closed_loop_like_the_firmware():
         # 4 s of closed loop: the law replayed on the reported angles gives the reported values and duties, and
         # the rod settles at the reference.
         keep_alive(device, 4.0)
-        closed_at = next(k for k, m in enumerate(device.messages) if isinstance(m, P.AckFrame)
-                         and m.command == P.SET_CONTROL_MODE and m.ok and m.value == 1.0)
+        closed_at = max(k for k, m in enumerate(device.messages) if isinstance(m, P.AckFrame)
+                        and m.command == P.SET_CONTROL_MODE and m.ok and m.value == 1.0)
         samples = [m for m in device.messages[closed_at:] if isinstance(m, P.ControlSampleFrame)]
         assert len(samples) > 1500
         sequences = [s.sequence for s in samples]

@@ -30,7 +30,12 @@ from tests.bridge_helpers import (
     build_firmware,
     poll,
 )
-from tests.control_helpers import Device, check_refusals_after_gains, check_refusals_before_gains
+from tests.control_helpers import (
+    Device,
+    check_refusals_after_gains,
+    check_refusals_before_gains,
+    check_thirteen_coefficients_close_the_loop,
+)
 from tests.ros_helpers import NodeProcess, own_context, private_domain_id, use_domain
 
 DOMAIN_ID = private_domain_id()
@@ -513,6 +518,7 @@ def test_closed_loop_commands_over_pty(build, tmp_path):
         gains = law.PidGains(p=0.8, i=0.0, d=0.0, u_clamp_min=0.0, u_clamp_max=0.6, i_clamp_min=-0.2,
                              i_clamp_max=0.2, antiwindup='conditional_integration', angle_min=-0.35,
                              angle_max=1.75)
+        check_thirteen_coefficients_close_the_loop(device, gains)     # b = 1 from boot: need not be sent
         acks = send_gains(link, gains, decoder=device.decoder, messages=device.messages)
         coefficients = device_coefficients(gains)
         assert sorted(acks) == list(range(law.N_COEFFICIENTS)) and law.N_COEFFICIENTS == 14
