@@ -142,8 +142,16 @@ class Watcher:
         self.control[int(msg.position[-1])] = list(msg.position)
 
     def wait_for(self, condition, timeout: float = 30.0) -> bool:
+        """Poll `condition` until true or `timeout` [s], handling every message that arrived between two polls (one
+        callback per poll fell behind ~1,000 telemetry messages/s on a loaded machine: the watcher's view then lagged
+        the device by seconds and its best-effort subscriptions dropped samples)."""
         from tests.ros_helpers import wait_for
-        return wait_for(condition, timeout, executor=self.executor)
+
+        def drained() -> bool:
+            for _ in range(500):
+                self.executor.spin_once(timeout_sec=0.0)
+            return condition()
+        return condition() or wait_for(drained, timeout, executor=self.executor)
 
     def set(self, **values):
         """``ros2 param set`` on the bridge (one request): the SetParametersResult list."""

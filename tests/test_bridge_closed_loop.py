@@ -75,9 +75,12 @@ def test_bridge_runs_the_device_closed_loop():
             # Open loop again: duty 0 on the device, plain samples, no more telemetry.
             assert watcher.set(control_mode='open_loop')[0].successful
             assert watcher.wait_for(lambda: emulator.control_mode == 0), bridge.output()
-            last = max(watcher.samples)
-            assert watcher.wait_for(lambda: max(watcher.samples) > last + 200)
-            assert watcher.samples[max(watcher.samples)].duty == 0.0
+            # samples already on their way when the mode changed may still carry the loop's duty: wait for the first
+            # duty 0, then every later sample must keep it
+            assert watcher.wait_for(lambda: watcher.samples[max(watcher.samples)].duty == 0.0), bridge.output()
+            first_zero = max(watcher.samples)
+            assert watcher.wait_for(lambda: max(watcher.samples) > first_zero + 200)
+            assert all(sample.duty == 0.0 for k, sample in watcher.samples.items() if k >= first_zero)
             assert max(watcher.control) < max(watcher.samples) - 100
         finally:
             output = bridge.output()
