@@ -24,6 +24,7 @@ PARENT = textwrap.dedent('''
     if __name__ == '__main__':
         pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
                                    initializer=_worker_start, initargs=(os.getpid(),))
+        pool.submit(os.getpid).result()     # a task has run, so the worker's initializer (prctl) is done
         pool.submit(time.sleep, 600)        # a window that takes long
         print('ready', flush=True)
         time.sleep(600)
@@ -65,10 +66,9 @@ def test_a_sigkilled_parent_leaves_no_worker_and_no_resource_tracker(tmp_path):
             children = descendants(parent.pid)
             time.sleep(0.2)
         assert len(children) >= 2, children
-        time.sleep(1.0)                                  # the worker is past its start-up (prctl done)
-        os.kill(parent.pid, signal.SIGKILL)
+        os.kill(parent.pid, signal.SIGKILL)             # 'ready' came after a task ran: the worker's prctl is done
         parent.wait(10)
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + 30.0              # gone at once when idle; the wait ends then
         while time.monotonic() < deadline and any(alive(pid) for pid in children):
             time.sleep(0.1)
         left = [pid for pid in children if alive(pid)]
