@@ -439,6 +439,18 @@ def test_simulate_runs_a_diagnosis_model_on_the_users_duty(tmp_path):
     assert bad.returncode == 2 and 'no "duty" column' in bad.stderr
 
 
+def test_a_diagnosis_that_names_an_effect_is_a_model_with_a_doubt():
+    """`diagnose --json` lists each found effect as an object: the model is read, and its doubt names the effect
+    (it was a TypeError)."""
+    from aeropend_core.control.model_source import model_from_dict
+    data = {'parameters': {'gravity_stiffness': 120.0, 'damping': 12.0, 'thrust_gain': 150.0},
+            'model_effects': [], 'verdict': 'missing_effect', 'missing_effect': 'thrust_lag',
+            'missing_effects': [{'effect': 'thrust_lag', 'parameters': {'time_constant': 0.15}}]}
+    model = model_from_dict(data, 'd.json')
+    assert model.effects == {} and model.parameters.gravity_stiffness == 120.0
+    assert any('missing_effect: thrust_lag' in doubt for doubt in model.doubts)
+
+
 def test_check_and_linearisation_pages_are_self_contained(tmp_path, nominal_design):
     from aeropend_core.control.report import check_report, linearisation_report
     controller = Controller(nominal_design.gains, template=Template())

@@ -76,7 +76,10 @@ def model_from_dict(data, source: str) -> ModelSource:
     doubts = []
     verdict = data.get('verdict')
     if verdict not in (None, 'nothing_missing'):
-        missing = ', '.join(data.get('missing_effects') or []) or str(data.get('missing_effect') or '')
+        # a diagnose JSON lists each found effect as an object ({'effect': name, ...}); the closed-loop one as a name
+        names = [str(entry.get('effect')) if isinstance(entry, dict) else str(entry)
+                 for entry in data.get('missing_effects') or []]
+        missing = ', '.join(names) or str(data.get('missing_effect') or '')
         doubts.append(f'this diagnosis says the model misses something ({verdict}{": " + missing if missing else ""}'
                       f'); a design on it inherits the miss: add it (--add) and diagnose again')
     for warning in data.get('parameter_warnings') or {}:
