@@ -138,6 +138,15 @@ def truth_refuses(parameters, effects) -> bool:
 
 
 def one_case(job) -> dict:
+    try:
+        return _one_case(job)
+    except Exception as error:          # a crash is a result: said in the table, not a lost run
+        import traceback
+        return {'case': job[0], 'seed': job[1], 'error': f'{type(error).__name__}: {error}',
+                'traceback': traceback.format_exc()}
+
+
+def _one_case(job) -> dict:
     case, seed, nominal_parameters = job
     warnings.simplefilter('ignore')
     rng = np.random.default_rng(SEED_BASE + 1000 * CASES.index(case) + seed)
@@ -227,6 +236,8 @@ def table(records: list[dict]) -> str:
              '| nominal-parameters design met | check says missed where predicted met | named (correct) | loop met '
              '| refused, correctly | predict: overshoot within 3 pp | predict: settling within 20 % | design s '
              '| s/seed |', '|' + '---|' * 14]
+    errors = [r for r in records if 'error' in r]
+    records = [r for r in records if 'error' not in r]
     for case in CASES:
         rows = [r for r in records if r['case'] == case]
         if not rows:
@@ -252,6 +263,7 @@ def table(records: list[dict]) -> str:
         lines.append(f'| {case} | {len(rows)} | {open_named} ({open_correct}) | {len(refused)} ({refused_correct}) | '
                      f'{nominal_met} | {old_met} | {said} | {named} ({correct}) | {loop_met} | {correctly} | '
                      f'{overshoot} | {settling} | {design_seconds:.1f} | {seconds:.0f} |')
+    lines += [f'\ncrashed: {r["case"]} seed {r["seed"]}: {r["error"]}' for r in errors]
     return '\n'.join(lines)
 
 
@@ -262,7 +274,12 @@ def main() -> int:
     parser.add_argument('--cases', default=','.join(CASES))
     parser.add_argument('--workers', type=int, default=1, help='processes (spawned) running seeds in parallel')
     parser.add_argument('--out', type=Path, default=None)
+    parser.add_argument('--table', type=Path, default=None, metavar='CASES.jsonl',
+                        help='only print the table of a (partial) run\'s cases.jsonl')
     args = parser.parse_args()
+    if args.table:
+        print(table([json.loads(line) for line in args.table.read_text().splitlines() if line.strip()]))
+        return 0
     warnings.simplefilter('ignore')
     started = time.perf_counter()
     nominal_design = design(TEMPLATE, AT, noise=MeasurementNoise(psnr_db=PSNR, quantise=True))
@@ -270,22 +287,37 @@ def main() -> int:
     print(f'nominal-parameters design in {time.perf_counter() - started:.1f} s: p {nominal.gains.p:.4g}, '
           f'i {nominal.gains.i:.4g}, d {nominal.gains.d:.4g}, Tf {nominal.gains.derivative_filter_time:.4g}',
           flush=True)
-    jobs = [(case, seed, nominal) for case in args.cases.split(',')
-            for seed in range(args.first_seed, args.first_seed + args.seeds)]
-    if args.workers > 1:
-        from multiprocessing import get_context
-        with get_context('spawn').Pool(args.workers) as pool:
-            records = pool.map(one_case, jobs, chunksize=1)
-    else:
-        records = [one_case(job) for job in jobs]
-    for record in records:
+    # seed-major: a run cut short has the same seeds of every case
+    jobs = [(case, seed, nominal) for seed in range(args.first_seed, args.first_seed + args.seeds)
+            for case in args.cases.split(',')]
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+    records = []
+
+    def done(record):          # each seed as it ends: a run cut short keeps what it finished (cases.jsonl)
+        records.append(record)
+        if 'error' in record:
+            print(f'{record["case"]:17s} seed {record["seed"]}: CRASHED {record["error"]}', flush=True)
+            return
         print(f'{record["case"]:17s} seed {record["seed"]}: open loop named {record["identified"]["missing_effect"]}, '
               f'nominal met {record["nominal"]["met"]} (nominal parameters {record["nominal_parameters"]["met"]}), '
               f'named {record["diagnosis"]["named"]}, loop {record["loop"].get("redesign", "")[:60]} met '
               f'{record["loop"].get("met")} ({record["seconds"]:.0f} s)', flush=True)
+        if args.out:
+            with open(args.out / 'cases.jsonl', 'a') as stream:
+                stream.write(json.dumps(finite_json(record)) + '\n')
+
+    if args.workers > 1:
+        from multiprocessing import get_context
+        with get_context('spawn').Pool(args.workers) as pool:
+            for record in pool.imap_unordered(one_case, jobs):
+                done(record)
+    else:
+        for job in jobs:
+            done(one_case(job))
+    records.sort(key=lambda r: (CASES.index(r['case']), r['seed']))
     print(table(records))
     if args.out:
-        args.out.mkdir(parents=True, exist_ok=True)
         payload = {'nominal_parameters_gains': nominal.gains.as_dict(), 'records': records}
         (args.out / 'cases.json').write_text(json.dumps(finite_json(payload), indent=1))
         (args.out / 'table.md').write_text(table(records) + '\n')

@@ -8,8 +8,12 @@
    template item to be met with a margin (``LINEAR_MARGIN``) and then the fastest settling.
 3. The result is predicted with the nonlinear model: the closed-loop simulation of the model with the law, the
    duty clamp, the sensor chain and its noise (:func:`aeropend_core.control.loop.simulate_loop`), on the design
-   schedule. When a prediction misses an item the linear margin is tightened and the search runs again (at most
-   ``ROUNDS`` times); when every round misses, the template is refused, naming the item and by how much.
+   schedule. Before it, a grid of p, i, d around the linear result is screened on the nonlinear model, the setpoint
+   weight b (``SETPOINT_WEIGHTS``) is chosen on the three best points, and Nelder-Mead refines p, i, d and Tf on
+   the model and on rigs whose thrust is off by the model's doubt (the schedule without its repeated last step;
+   the closed loops on threads: the compiled loop releases the GIL). When a prediction misses an item the margin
+   is tightened and the search runs again (at most ``ROUNDS`` times); when every round misses, the template is
+   refused, naming the item and by how much.
 """
 from __future__ import annotations
 
@@ -122,10 +126,20 @@ def duty_noise(gains: PidGains, angle_sigma: float, sample_time: float = SAMPLE_
     return float(angle_sigma * math.sqrt(gains.p ** 2 + b * b * 2.0 / (1.0 + a)))
 
 
-def _gains(log_gains, base: PidGains) -> PidGains:
-    p, i, d, filter_time = np.exp(log_gains)
+def _gains(log_gains, base: PidGains, reference_peak: float = 0.0) -> PidGains:
+    """Gains of a search point: log p, log i, log d, log Tf and, as a fifth entry, the setpoint weight b itself.
+
+    With b < 1 the proportional term p (b r - y) leaves p (1 - b) r [duty] for the integral to hold at rest: the
+    integral's upper clamp is raised by that amount at the highest reference `reference_peak` [rad] (the
+    anti-windup room above it stays the base's; at most 1, the ROS parameter's range)."""
+    p, i, d, filter_time = np.exp(log_gains[:4])
+    changes = {}
+    if len(log_gains) > 4:
+        weight = float(min(max(log_gains[4], 0.0), 1.0))
+        changes = {'setpoint_weight': weight,
+                   'i_clamp_max': min(1.0, base.i_clamp_max + float(p) * (1.0 - weight) * max(reference_peak, 0.0))}
     return base.replace(p=float(p), i=float(i), d=float(d),
-                        derivative_filter_time=float(min(max(filter_time, 1e-3), 0.3)))
+                        derivative_filter_time=float(min(max(filter_time, 1e-3), 0.3)), **changes)
 
 
 def _step_cost(metrics: StepMetrics, template: Template, margin: float) -> float:
@@ -177,7 +191,7 @@ THRUST_TOLERANCE = (0.8, 1.25)
 def _nonlinear_cost(log_gains, base: PidGains, template: Template, margin: float, schedule: ReferenceSchedule,
                     reference, feedforward_values, parameters, effects, noise, seed, sample_time, duty_cap,
                     angle_sigma, factors, pool=None):
-    gains = _gains(log_gains, base)
+    gains = _gains(log_gains, base, float(np.max(reference)))
 
     def one(factor):
         rig = parameters.scaled(lever_per_inertia=factor)
@@ -197,6 +211,9 @@ def _nonlinear_cost(log_gains, base: PidGains, template: Template, margin: float
     return cost
 
 
+#: Setpoint weights b the search tries (proportional on b r - y; 1: the plain PID): lower b, smaller proportional
+#: kick of a reference step, less overshoot from a fast integral.
+SETPOINT_WEIGHTS = (1.0, 0.65, 0.3)
 #: Threads that run the compiled closed loops side by side (it releases the GIL); at most the machine's cores.
 DESIGN_THREADS = 3
 
@@ -276,12 +293,19 @@ def _search(pool, linear_x, base, template, schedule, reference, feedforward, fe
             for i_scale in (0.1, 0.3, 1.0, 3.0) for d_scale in (0.3, 1.0, 3.0)]
     screen = list(pool.map(lambda point: cost(point, factors=(1.0,)), grid))
     order = sorted(range(len(grid)), key=lambda index: screen[index])
-    screened = [grid[index] for index in order[:3]]
+    # the setpoint weight b: fixed choices tried on the three best points, then held through Nelder-Mead
+    screened = [np.append(grid[index], weight) for index in order[:3] for weight in SETPOINT_WEIGHTS]
     begin = min(screened, key=cost)
+    weight = float(begin[4])
+
+    def weighted_cost(point, factors=factors, margin=margin):
+        return cost(np.append(point, weight), factors, margin)
+
+    begin = begin[:4]
     for _round in range(ROUNDS):
-        result = minimize(cost, begin, args=(factors, margin), method='Nelder-Mead',
+        result = minimize(weighted_cost, begin, args=(factors, margin), method='Nelder-Mead',
                           options={'xatol': 0.01, 'fatol': 1e-3, 'maxfev': 90})
-        gains = _gains(result.x, base)
+        gains = _gains(np.append(result.x, weight), base, float(np.max(reference)))
         gm, pm = margins(gains, lin, sample_time)
         predictions = list(pool.map(lambda offset: simulate_loop(
             gains, reference, feedforward, parameters, effects, noise, seed + offset, sample_time=sample_time,
