@@ -24,6 +24,7 @@ from pathlib import Path
 
 from aeropend_core.control import design as current
 from aeropend_core.control.metrics import Template
+from aeropend_core.errors import AeropendError
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS
 from aeropend_core.sim.noise import MeasurementNoise
 
@@ -33,8 +34,8 @@ MODELS = {
     'thrust_lag 0.15 s': (DEFAULT_PARAMETERS, {'thrust_lag': {'time_constant': 0.15}}),
     'coulomb_friction 4': (DEFAULT_PARAMETERS, {'coulomb_friction': {'friction_acceleration': 4.0}}),
     'dead_zone 0.6 V': (DEFAULT_PARAMETERS, {'dead_zone': {'threshold_voltage': 0.6}}),
-    'rig +-15 %': (DEFAULT_PARAMETERS.scaled(thrust_coefficient=0.85, gravity_stiffness=1.15, damping=0.85,
-                                             armature_resistance=1.15, lever_per_inertia=0.9), {}),
+    'rig +-15 %': (DEFAULT_PARAMETERS.scaled(thrust_coefficient=0.9, gravity_stiffness=1.1, damping=0.85,
+                                             armature_resistance=1.15, motor_inertia=1.15), {}),
 }
 
 
@@ -60,6 +61,8 @@ def one(module, parameters, effects) -> tuple[float, dict]:
                              for m in result.metrics]}
     except module.TemplateNotMet as refusal:
         outcome = {'refused': dict(refusal.misses)}
+    except AeropendError as refusal:
+        outcome = {'refused': {'model': str(refusal)}}
     return time.perf_counter() - started, outcome
 
 
