@@ -241,8 +241,8 @@ def predict_other(controller: Controller, parameters, effects, seed: int) -> dic
 def table(records: list[dict]) -> str:
     lines = ['| case | seeds | open loop named (correct) | design refused (correctly) | nominal met '
              '| nominal-parameters design met | check says missed where predicted met | named (correct) | loop met '
-             '| refused, correctly | predict: overshoot within 3 pp | predict: settling within 20 % | design s '
-             '| s/seed |', '|' + '---|' * 14]
+             '| refused, correctly | b < 1 chosen (met) | predict: overshoot within 3 pp '
+             '| predict: settling within 20 % | design s | s/seed |', '|' + '---|' * 15]
     errors = [r for r in records if 'error' in r]
     records = [r for r in records if 'error' not in r]
     for case in CASES:
@@ -262,6 +262,10 @@ def table(records: list[dict]) -> str:
         correct = sum(r['diagnosis']['named'] == truth_name for r in rows if r['diagnosis']['named'] is not None)
         loop_met = sum(bool(r['loop'].get('met')) for r in rows)
         correctly = sum(bool(r.get('truth_refuses')) and not r['loop'].get('met') for r in rows)
+        weighted = [(r['nominal']['met'] if stage == 'nominal_gains' else r['loop'].get('met'))
+                    for r in rows for stage, gains in (('nominal_gains', r.get('nominal_gains')),
+                                                       ('loop', r['loop'].get('gains')))
+                    if gains and gains.get('setpoint_weight', 1.0) < 1.0]
         steps = [s for r in rows for s in r.get('predict', {}).get('steps', [])]
         overshoot = f'{sum(s["overshoot_ok"] for s in steps)}/{len(steps)}'
         settling = f'{sum(s["settling_ok"] for s in steps)}/{len(steps)}'
@@ -269,6 +273,7 @@ def table(records: list[dict]) -> str:
         seconds = np.mean([r['seconds'] for r in rows])
         lines.append(f'| {case} | {len(rows)} | {open_named} ({open_correct}) | {len(refused)} ({refused_correct}) | '
                      f'{nominal_met} | {old_met} | {said} | {named} ({correct}) | {loop_met} | {correctly} | '
+                     f'{len(weighted)} ({sum(bool(m) for m in weighted)}) | '
                      f'{overshoot} | {settling} | {design_seconds:.1f} | {seconds:.0f} |')
     lines += [f'\ncrashed: {r["case"]} seed {r["seed"]}: {r["error"]}' for r in errors]
     return '\n'.join(lines)
