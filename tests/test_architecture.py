@@ -5,7 +5,8 @@
 - Library code (``aeropend_core`` outside ``cli``, ``aeropend_ros`` nodes) never imports the command line.
 - ``bench/`` and ``tests/`` do not import each other.
 - No library module is over 800 lines; every core folder is a package with a docstring.
-- The diagnosis imports nothing from ``present`` (typed results there, words here).
+- Only the result classes import ``present``, inside their presentation methods; ``present`` imports them for
+  annotations only (typed results there, words here).
 - Imports only point down: no circle in the import graph of ``aeropend_core`` and ``aeropend_ros``, every import
   statement counted (function-level and relative ones too).
 - Nothing in the repository points at files outside it.
@@ -249,9 +250,20 @@ def test_the_import_graph_sees_lazy_relative_and_ros_imports():
     assert circles == [['a', 'b', 'c', 'circle: a -> b -> c -> a']]
 
 
-def test_the_diagnosis_and_its_wording_import_no_circle():
-    """The verdict's wording lives in present/ and the diagnosis returns typed results: a present module the diagnosis
-    uses for its words must not lead back into the diagnosis (diagnose.py <-> summary.py was such a circle)."""
+#: The result classes that present themselves (``summary()``/``as_text()``/``as_html()``/``to_dict()``), by module:
+#: below the verbs, the only modules of the fits and data layers that import present/, and only in their methods.
+PRESENTING = {'aeropend_core.diagnosis.diagnose': 'Diagnosis', 'aeropend_core.diagnosis.compare': 'Comparison',
+              'aeropend_core.wsindy.weak_form': 'WeakSindyResult', 'aeropend_core.identify.record': 'Identification'}
+#: the layers checked by the test below (the others sit above present/ or import only its leaf json_output)
+RESULT_LAYERS = ('aeropend_core.diagnosis', 'aeropend_core.identify', 'aeropend_core.wsindy', 'aeropend_core.model',
+                 'aeropend_core.sim')
+
+
+def test_the_results_and_their_wording_import_no_circle():
+    """A result presents itself by importing its words from present/ when a method runs (python-control's
+    ``TimeResponseData.plot()``), so present/ imports the result classes for annotations only (``TYPE_CHECKING``):
+    no present module leads back, at run time, to a module that imports present/ (diagnose.py <-> summary.py was
+    such a circle)."""
     graph = core_import_graph()
 
     def reachable(start: str) -> set[str]:
@@ -264,24 +276,34 @@ def test_the_diagnosis_and_its_wording_import_no_circle():
         return seen
 
     circles = []
-    for module in sorted(m for m in graph if m.startswith('aeropend_core.diagnosis.')):
+    for module in sorted(m for m in graph if not m.startswith('aeropend_core.present')):
         for used in sorted(m for m in graph[module] if m.startswith('aeropend_core.present.')):
-            back = sorted(m for m in reachable(used) if m.startswith('aeropend_core.diagnosis.'))
-            if back:
-                circles.append(f'{module} -> {used} -> ... -> {", ".join(back)}')
-    assert not circles, 'import circles between the diagnosis and present/:\n' + '\n'.join(circles)
-    summary = graph['aeropend_core.present.summary']
-    assert 'aeropend_core.diagnosis.diagnose' in summary       # the check sees imports (present -> diagnosis is fine)
+            if module in reachable(used):
+                circles.append(f'{module} -> {used} -> ... -> {module}')
+    assert not circles, 'import circles between the results and present/:\n' + '\n'.join(circles)
+    assert 'aeropend_core.present.summary' in graph['aeropend_core.diagnosis.diagnose']     # the check sees imports
+    assert 'aeropend_core.diagnosis.diagnose' not in graph['aeropend_core.present.summary']  # TYPE_CHECKING only
 
 
-def test_the_diagnosis_imports_nothing_from_present():
-    """The diagnosis returns typed results (``Diagnosis.facts``); the verdict's words, the summary, the JSON's message
-    and the report are made in present/ only (``verdict_text.verdict_of``), so the diagnosis imports none of it."""
-    graph = core_import_graph()
-    offences = sorted(f'{module} imports {used}' for module, edges in graph.items()
-                      if module == 'aeropend_core.diagnosis' or module.startswith('aeropend_core.diagnosis.')
-                      for used in edges if used == 'aeropend_core.present' or used.startswith('aeropend_core.present.'))
-    assert not offences, 'the diagnosis imports present/:\n' + '\n'.join(offences)
+def test_only_the_result_classes_import_present_and_only_in_their_methods():
+    """The diagnosis's stages return typed results (``Diagnosis.facts``); the words are made in present/ only
+    (``verdict_text.verdict_of``). In the fits and data layers only the modules of the result classes import
+    present/, and only inside a function (a method): importing a result loads nothing of present/."""
+    graph = import_graph('aeropend_core')
+    offences = []
+    for module, edges in sorted(graph.items()):
+        if not module.startswith(RESULT_LAYERS):
+            continue
+        used = sorted(m for m in edges if m == 'aeropend_core.present' or m.startswith('aeropend_core.present.'))
+        if used and module not in PRESENTING:
+            offences.append(f'{module} imports {", ".join(used)} (only {sorted(PRESENTING)} may)')
+        elif used:
+            path = ROOT / (module.replace('.', '/') + '.py')
+            tree = ast.parse(path.read_text(encoding='utf-8'))
+            offences += [f'{module}:{node.lineno} imports present/ at module level (import it in the method)'
+                         for node in tree.body if isinstance(node, (ast.Import, ast.ImportFrom))
+                         and 'aeropend_core.present' in ast.unparse(node)]
+    assert not offences, '\n'.join(offences)
     assert 'aeropend_core.present.verdict_text' in graph['aeropend_core.present.summary']     # the check sees imports
 
 

@@ -222,8 +222,7 @@ def save_beside_bag(diagnosis, bag_folder) -> list[str]:
 
     from aeropend_core.present.json_output import write_json
     from aeropend_core.present.report import write_report
-    from aeropend_core.present.verdict_text import diagnosis_dict
     folder = Path(bag_folder)
     json_path, report_path = (folder.with_name(folder.name + suffix) for suffix in ('.diagnosis.json', '.report.html'))
-    write_json(str(json_path), diagnosis_dict(diagnosis))
+    write_json(str(json_path), diagnosis.to_dict())
     return [str(json_path), str(write_report(diagnosis, str(report_path), source=str(folder)))]

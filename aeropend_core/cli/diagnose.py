@@ -162,8 +162,7 @@ def main(args: argparse.Namespace) -> int:
                       'samples_start_s': float(records[0].time[0]), 'samples_stop_s': float(records[0].time[-1])}
     if args.json:
         from aeropend_core.present.json_output import write_json
-        from aeropend_core.present.verdict_text import diagnosis_dict
-        out = diagnosis_dict(diagnosis)
+        out = diagnosis.to_dict()
         if time_range:
             out['time_range'] = time_range
         if validation is not None:
@@ -173,8 +172,7 @@ def main(args: argparse.Namespace) -> int:
         if time_range:
             print(f'time range: samples from {time_range["samples_start_s"]:g} s to {time_range["samples_stop_s"]:g} s '
                   f'of {" + ".join(args.data)} (--start/--stop)')
-        from aeropend_core.present.summary import format_summary
-        print(format_summary(diagnosis))
+        print(diagnosis.as_text())
         if validation is not None:
             model = ' + '.join(('nominal', *validation.effects))
             print(f'validation on {args.validate} ({validation.duration:.1f} s, model {model}, unchanged): fit '

@@ -235,9 +235,46 @@ class Diagnosis:
             estimators['armature_resistance'] = 'motor_observer'
         return estimators
 
+    # ---- the result presents itself: each method imports its words from present/ when called (present/ imports
+    # this class for annotations only, so the import graph has no circle; docs/architecture.md)
+    def summary(self) -> dict:
+        """The diagnosis on one screen: verdict, plain sentence, model, held-out fit and errors.
+
+        Returns
+        -------
+        dict
+            ``verdict`` and ``plain`` [-], ``model`` [-], ``fit_percent`` [%], ``rms_error_rad``,
+            ``noise_rms_rad``, ``error_beyond_noise_rad`` [rad], ``missing_effects`` and ``add`` [-] (the
+            effects to add on the command line), ``parameters`` (SI) with ``standard_errors`` (1 sigma, SI).
+            The package example (:mod:`aeropend_core`) runs it.
+        """
+        from aeropend_core.present.verdict_text import diagnosis_summary
+        return diagnosis_summary(self)
+
+    def as_text(self, source: str | None = None) -> str:
+        """What ``aeropend diagnose`` prints (the text summary; `source`, the record's name, goes into the next
+        command the verdict suggests). The package example (:mod:`aeropend_core`) runs it."""
+        from aeropend_core.present.summary import format_summary
+        return format_summary(self, source)
+
+    def as_html(self, source: str | None = None, validation=None) -> str:
+        """The self-contained HTML report (one page, plots and data embedded, no external link) as a string;
+        :func:`aeropend_core.present.report.write_report` writes it to a file. `validation`: a
+        :class:`~aeropend_core.diagnosis.validation.Validation` on a second record (its own section). The package
+        example (:mod:`aeropend_core`) runs it."""
+        from aeropend_core.present.report import render_report
+        return render_report(self, source, validation)
+
     def to_dict(self) -> dict:
-        """The machine-readable numbers of ``aeropend diagnose --json`` (the verdict's words are added by
-        :func:`aeropend_core.present.verdict_text.diagnosis_dict`)."""
+        """Exactly what ``aeropend diagnose --json`` prints (one record, no ``--start``/``--stop``/``--validate``):
+        :meth:`numbers_dict` with the verdict's ``plain`` sentence and its ``message`` after ``verdict``. Plain
+        Python types; NaN where a number is unknown (the CLI writes it as null). The package example runs it."""
+        from aeropend_core.present.verdict_text import diagnosis_dict
+        return diagnosis_dict(self)
+
+    def numbers_dict(self) -> dict:
+        """The machine-readable numbers of the diagnosis without the verdict's words (:meth:`to_dict` adds them;
+        ``aeropend run --json``'s ``diagnosis`` is this)."""
         current = self.current
         result = {
             'schema': DIAGNOSIS_SCHEMA,

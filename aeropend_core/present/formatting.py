@@ -3,6 +3,8 @@ pixel columns and smoothing (the plots themselves: :mod:`aeropend_core.present.s
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import html
 import math
 from collections.abc import Iterable, Sequence
@@ -10,10 +12,12 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, excess_error
-from aeropend_core.diagnosis.diagnose import (Candidate,
-                                    Diagnosis)
+from aeropend_core.diagnosis.candidates import Candidate
 from aeropend_core.model.effects import find_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+
+if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
+    from aeropend_core.diagnosis.diagnose import Diagnosis
 
 
 #: Pixel columns of a full-width plot (about the SVG's plotting width, :mod:`aeropend_core.present.svgplot`): a line

@@ -11,15 +11,19 @@ Each function returns an HTML fragment; figures are inline SVG (:mod:`aeropend_c
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from aeropend_core.diagnosis.diagnose import Diagnosis
 from aeropend_core.diagnosis.output_error import STRIDE
 from aeropend_core.diagnosis.validation import (Validation, prediction_points, residual_correlations,
                                                 simulation_band)
 from aeropend_core.present.formatting import (BEFORE, CANDIDATE, CURRENT, HELDOUT_SHADE, MEASURED, NOISE_SHADE, _esc,
                                               _finite_trace, _model_name, _mrad, _num, envelope)
 from aeropend_core.present.svgplot import Figure
+
+if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
+    from aeropend_core.diagnosis.diagnose import Diagnosis
 
 #: Points of a residual scatter drawn at most (strided); the binned mean uses every sample.
 SCATTER_POINTS = 1500

@@ -7,6 +7,8 @@ them for :func:`aeropend_core.present.report.render_report`. Figures are inline 
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import base64
 import gzip
 import math
@@ -14,9 +16,12 @@ import math
 import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison
-from aeropend_core.diagnosis.diagnose import Candidate, Diagnosis
+from aeropend_core.diagnosis.candidates import Candidate
 from aeropend_core.model.effects import CATALOG
 from aeropend_core.present.formatting import _esc, _model_name, _sig, _unit_and_meaning
+
+if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
+    from aeropend_core.diagnosis.diagnose import Diagnosis
 
 #: |correlation| above which two parameters are hard to tell apart from this record (highlighted).
 STRONG_CORRELATION = 0.9

@@ -3,12 +3,14 @@ regime and the candidate ranking, each as inline SVG (:mod:`aeropend_core.presen
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import math
 
 import numpy as np
 
 from aeropend_core.diagnosis.compare import excess_error
-from aeropend_core.diagnosis.diagnose import BIC_MARGIN, MATERIAL, Candidate, Diagnosis
+from aeropend_core.diagnosis.candidates import BIC_MARGIN, MATERIAL, Candidate
 from aeropend_core.present.formatting import (
     BEFORE,
     CANDIDATE,
@@ -24,6 +26,9 @@ from aeropend_core.present.formatting import (
     _running_mean,
 )
 from aeropend_core.present.svgplot import TICK_FONT, Figure
+
+if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
+    from aeropend_core.diagnosis.diagnose import Diagnosis
 
 
 def _segment_starts(diagnosis: Diagnosis) -> list[int]:

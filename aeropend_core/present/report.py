@@ -16,6 +16,8 @@ safe to call from a library, a CLI or a thread.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import datetime
 import math
 import re
@@ -24,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison
-from aeropend_core.diagnosis.diagnose import (BIC_MARGIN, DM_MIN, MATERIAL, T_MIN, UNEXPLAINED_NOISE, Candidate,
-                                              Diagnosis)
+from aeropend_core.diagnosis.candidates import BIC_MARGIN, DM_MIN, MATERIAL, T_MIN, Candidate
+from aeropend_core.diagnosis.thresholds import UNEXPLAINED_NOISE
 from aeropend_core.diagnosis.validation import Validation
 from aeropend_core.errors import AeropendError
 from aeropend_core.signals.reduced import MAP_PARAMETERS
@@ -59,6 +61,9 @@ from aeropend_core.present.plots import (
     _plot_overlay,
     _plot_regimes,
 )
+
+if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
+    from aeropend_core.diagnosis.diagnose import Diagnosis
 
 
 CSS = """

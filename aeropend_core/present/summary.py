@@ -1,12 +1,16 @@
 """The text report of a diagnosis, printed by ``aeropend diagnose`` (units stated on every number)."""
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from aeropend_core.diagnosis.compare import excess_error
-from aeropend_core.diagnosis.diagnose import Diagnosis
 from aeropend_core.present.verdict_text import size_text, verdict_of
 from aeropend_core.model.effects import find_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.signals.reduced import MAP_PARAMETERS
+
+if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
+    from aeropend_core.diagnosis.diagnose import Diagnosis
 
 
 def format_summary(diagnosis: Diagnosis, source: str | None = None) -> str:

@@ -191,12 +191,12 @@ def diagnosis_dict(diagnosis) -> dict:
     Returns
     -------
     dict
-        ``diagnosis.to_dict()`` with ``plain`` (:func:`~aeropend_core.present.plain_verdict.plain_verdict`) and
+        ``diagnosis.numbers_dict()`` with ``plain`` (:func:`~aeropend_core.present.plain_verdict.plain_verdict`) and
         ``message`` (:func:`verdict_of`) inserted after ``verdict``.
     """
     from aeropend_core.present.plain_verdict import plain_verdict
     out = {}
-    for key, value in diagnosis.to_dict().items():
+    for key, value in diagnosis.numbers_dict().items():
         out[key] = value
         if key == 'verdict':
             out['plain'] = plain_verdict(diagnosis)
@@ -204,4 +204,35 @@ def diagnosis_dict(diagnosis) -> dict:
     return out
 
 
-__all__ = ['size_text', 'verdict_message', 'verdict_of', 'diagnosis_dict']
+def diagnosis_summary(diagnosis) -> dict:
+    """A diagnosis on one screen (:meth:`~aeropend_core.diagnosis.diagnose.Diagnosis.summary`).
+
+    Parameters
+    ----------
+    diagnosis : Diagnosis [-]
+        A finished diagnosis.
+
+    Returns
+    -------
+    dict
+        ``verdict``, ``plain``, ``model``, ``fit_percent`` [%], ``rms_error_rad``, ``noise_rms_rad``,
+        ``error_beyond_noise_rad`` [rad], ``missing_effects``, ``add``, the reported ``parameters`` with their
+        ``standard_errors`` (SI, 1 sigma; NaN where not estimated) and their doubts: ``parameters_doubt`` (the
+        model misses the data: every parameter biased), ``parameter_warnings`` (failed physical checks) and
+        ``parameter_doubts``. The full record is :meth:`~aeropend_core.diagnosis.diagnose.Diagnosis.to_dict`.
+    """
+    from aeropend_core.diagnosis.checks import misfit_doubt
+    from aeropend_core.present.plain_verdict import plain_verdict
+    current = diagnosis.current
+    return {'verdict': str(diagnosis.verdict), 'plain': plain_verdict(diagnosis),
+            'model': ' + '.join(('nominal', *diagnosis.effects)),
+            'fit_percent': current.fit_percent, 'rms_error_rad': current.rms_error,
+            'noise_rms_rad': current.noise_rms, 'error_beyond_noise_rad': current.evaluation.excess_error,
+            'missing_effects': diagnosis.missing_effects, 'add': [f.effect for f in diagnosis.found
+                                                                  if not f.confounded_with],
+            'parameters': diagnosis.reported_parameters(current),
+            'standard_errors': diagnosis.reported_errors(current), 'parameters_doubt': misfit_doubt(diagnosis),
+            'parameter_warnings': diagnosis.parameter_warnings, 'parameter_doubts': diagnosis.parameter_doubts}
+
+
+__all__ = ['size_text', 'verdict_message', 'verdict_of', 'diagnosis_dict', 'diagnosis_summary']

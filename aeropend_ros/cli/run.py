@@ -761,7 +761,7 @@ def _diagnose(bag_folder, memory, args, interrupted: bool) -> int:
         write_run_json(args.json, {'schema': 'aeropend.run/1',
                                    'recording': str(bag_folder) if bag_folder is not None else None,
                                    'samples': len(recording), 'interrupted': interrupted,
-                                   'diagnosis': diagnosis.to_dict(),
+                                   'diagnosis': diagnosis.numbers_dict(),
                                    **({'closed_loop_steps': args.closed_loop_steps}
                                       if getattr(args, 'closed_loop_steps', None) is not None else {})})
     print(_next_step(diagnosis, bag_folder, args))
