@@ -674,6 +674,29 @@ class Comparison:
     def noise_rms(self) -> float:
         return self.evaluation.noise_rms
 
+    # the result presents itself (words in present/results_text.py, imported when called; the package example runs
+    # these)
+    def summary(self) -> dict:
+        """Model, fit [%], RMS error, noise and error beyond it [rad], doubts (:func:`~aeropend_core.present.
+        results_text.comparison_summary`)."""
+        from aeropend_core.present.results_text import comparison_summary
+        return comparison_summary(self)
+
+    def as_text(self) -> str:
+        """The model, its held-out fit, parameters (SI, +- 1 sigma), error by regime [mrad] and doubts, as text."""
+        from aeropend_core.present.results_text import comparison_text
+        return comparison_text(self)
+
+    def as_html(self) -> str:
+        """A self-contained HTML fragment (``<section>``): summary line, doubts, parameter table (SI)."""
+        from aeropend_core.present.results_text import comparison_html
+        return comparison_html(self)
+
+    def to_dict(self) -> dict:
+        """The numbers (errors [rad], parameters SI with 1-sigma and units, regimes, doubts; NaN where unknown)."""
+        from aeropend_core.present.results_text import comparison_dict
+        return comparison_dict(self)
+
 
 def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
             start: dict[str, float] | None = None, fixed: dict[str, float] | None = None,

@@ -216,7 +216,30 @@ class WeakSindyResult:
         return {eq.name: dict(eq.standard_errors) for eq in self.equations}
 
     def format(self) -> str:
+        """The equations, one a line: ``lhs = (c ± σ)·term + ...`` (:meth:`as_text`)."""
         return '\n'.join(eq.format() for eq in self.equations)
+
+    # the result presents itself (words in present/results_text.py, imported when called; the package example runs
+    # these)
+    def summary(self) -> dict:
+        """Per equation: the terms kept, the relative residual [-], the weak equations used [-]."""
+        from aeropend_core.present.results_text import weak_sindy_summary
+        return weak_sindy_summary(self)
+
+    def as_text(self) -> str:
+        """The equations with their coefficients ± 1σ, one a line (as :meth:`format`)."""
+        return self.format()
+
+    def as_html(self) -> str:
+        """The equations as a self-contained HTML fragment (``<section>``, text escaped)."""
+        from aeropend_core.present.results_text import text_html
+        return text_html(self.format(), 'Weak SINDy: identified equations', 'aeropend-weak-sindy')
+
+    def to_dict(self) -> dict:
+        """Per equation: coefficients and 1σ ((lhs unit) / (term unit)), candidates, threshold, residual [-],
+        test functions' half-width [samples] and power [-]."""
+        from aeropend_core.present.results_text import weak_sindy_dict
+        return weak_sindy_dict(self)
 
 
 # ------------------------------------------------------------------------------------------------- main API
