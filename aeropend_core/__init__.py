@@ -8,7 +8,7 @@ Folders follow the data flow, from a recording to a verdict:
 ``model``          rig parameters in SI (:class:`RigParameters`) and the catalog of physical effects
 ``sim``            the rig simulator (:func:`simulate`, :class:`RigSimulator`), excitation, noise injection
 ``wsindy``         weak SINDy split by role: library, test functions, quadrature, GLS noise model, selection
-``identify``       the rig equations from recordings with weak SINDy (:func:`identify_pendulum`)
+``identify``       the rig equations with weak SINDy (:func:`identify_pendulum`, :func:`identify_record`)
 ``diagnosis``      output error, :func:`compare`, :func:`diagnose` and the per-window online analysis
 ``present``        text, JSON and the HTML report (:func:`write_report`)
 ``rig``            the hardware side without ROS: frame protocol, sample clock, calibration
@@ -54,6 +54,20 @@ True
 >>> result = fit_weak_sindy(time, {'x': np.exp(-2 * time)}, [Equation('x', library.polynomial(['x'], degree=1))])
 >>> isinstance(result, WeakSindyResult), round(result['x'].coefficients['x'], 2)               # 1/s
 (True, -2.0)
+>>> result.summary()['dx/dt']['terms'], result.as_text().startswith('dx/dt = (-2'), set(result.to_dict()['dx/dt'])
+(['x'], True, {...'coefficients'...})
+>>> result.as_html().startswith('<section class="aeropend-weak-sindy">')
+True
+
+What ``aeropend identify`` prints, as one call whose result presents itself (its ``as_text()`` and ``to_dict()``
+are the verb's text and ``--json``):
+
+>>> from aeropend_core import Identification, identify_record
+>>> identification = identify_record(recording, weak_only=True, source='run.csv')
+>>> isinstance(identification, Identification), identification.as_text().splitlines()[0]
+(True, 'run.csv: 9800 samples (20 s), model pendulum')
+>>> identification.to_dict()['estimator'], identification.summary()['verdict'] == identification.verdict
+('weak_sindy', True)
 
 Compare the nominal model with the data, diagnose what is missing, write the report:
 
@@ -61,9 +75,27 @@ Compare the nominal model with the data, diagnose what is missing, write the rep
 >>> comparison = compare(recording)            # fitted on the training part, judged on the held-out part
 >>> isinstance(comparison, Comparison), 0 < comparison.fit_percent <= 100    # held-out fit, %
 (True, True)
+>>> comparison.summary()['model'], comparison.to_dict()['fit_percent'] == comparison.fit_percent
+('nominal', True)
+>>> 'Parameters (SI, +- 1 sigma):' in comparison.as_text(), comparison.as_html().startswith('<section')
+(True, True)
 >>> diagnosis = diagnose(recording, drift=False)
 >>> isinstance(diagnosis, Diagnosis), diagnosis.verdict in set(Verdict)
 (True, True)
+
+The diagnosis presents itself: a short dict, what ``aeropend diagnose`` prints, its ``--json`` object, the report:
+
+>>> diagnosis.summary()['model'], diagnosis.summary()['verdict'] == diagnosis.verdict
+('nominal', True)
+>>> text = diagnosis.as_text()
+>>> text.splitlines()[1], sum(line.startswith('Verdict: ') for line in text.splitlines())
+('Model: nominal', 1)
+>>> document = diagnosis.to_dict()
+>>> document['schema'], list(document).index('plain') == list(document).index('verdict') + 1
+('aeropend.diagnosis/1', True)
+>>> page = diagnosis.as_html(source='run.csv')
+>>> page.startswith('<!DOCTYPE html>'), 'http://' in page
+(True, False)
 >>> with tempfile.TemporaryDirectory() as folder:
 ...     write_report(diagnosis, Path(folder) / 'report.html').stat().st_size > 10_000    # bytes
 True
@@ -113,6 +145,8 @@ _PUBLIC = {
     'Equation': 'aeropend_core.wsindy.weak_form',
     'fit_weak_sindy': 'aeropend_core.wsindy.weak_form',
     'identify_pendulum': 'aeropend_core.identify.pendulum',
+    'identify_record': 'aeropend_core.identify.record',
+    'Identification': 'aeropend_core.identify.record',
     'WeakSindyResult': 'aeropend_core.wsindy.weak_form',
     'WeakSindyOptions': 'aeropend_core.wsindy.weak_form',
     'Comparison': 'aeropend_core.diagnosis.compare',

@@ -1,5 +1,5 @@
 """The weak-form identify's error per sample rate over several seeds (issue #21: the size its rate warning states,
-``aeropend_core.cli.identify.WEAK_FORM_RATE_BIAS``).
+``aeropend_core.identify.record.WEAK_FORM_RATE_BIAS``).
 
 Records as in bench/rate_sweep.py (default rig, Latin hypercube, 40 dB, 10-bit, 30 s), one per seed, decimated by
 keeping every Nth sample, through :func:`aeropend_core.identify.pendulum.identify_pendulum` as ``aeropend identify``
