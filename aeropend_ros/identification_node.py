@@ -282,7 +282,8 @@ class IdentificationNode(Node):
         except AeropendError as error:
             raise ParameterError(f'{self.get_name()}: parameter effects: {error}; fix -p "effects:=[\'NAME\']" or '
                                  'the params file') from None
-        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_on_set_parameters_callback(self._validate_parameters)      # check only
+        self.add_post_set_parameters_callback(self._apply_parameters)       # then apply
 
         self.lock = threading.Lock()
         self.sequence: list[int] = []
@@ -366,17 +367,19 @@ class IdentificationNode(Node):
         return float(self.get_parameter('hop_s').value)
 
     def _validate_parameters(self, parameters) -> SetParametersResult:
-        """Reject unknown effect names (with the reason); apply valid effects from the next window."""
-        for parameter in parameters:
-            if parameter.name == 'effects':
-                try:
-                    effects = check_effect_names(list(parameter.value or []))
-                except AeropendError as error:
-                    return SetParametersResult(successful=False, reason=f'effects: {error}; the model is unchanged')
-                self.effects = effects
-                self._ensure_parameter_publishers(effects)
-                self.get_logger().info(f'model effects now {list(effects) or "none"} (from the next window)')
+        """Reject unknown effect names (with the reason); change nothing (:meth:`_apply_parameters` applies)."""
+        try:
+            [check_effect_names(list(p.value or [])) for p in parameters if p.name == 'effects']
+        except AeropendError as error:
+            return SetParametersResult(successful=False, reason=f'effects: {error}; the model is unchanged')
         return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters) -> None:
+        """Apply a set every check accepted: new effects from the next window."""
+        for effects in [check_effect_names(list(p.value or [])) for p in parameters if p.name == 'effects']:
+            self.effects = effects
+            self._ensure_parameter_publishers(effects)
+            self.get_logger().info(f'model effects now {list(effects) or "none"} (from the next window)')
 
     # --------------------------------------------------------------------------------------------- samples
     def _take_samples(self) -> None:

@@ -60,7 +60,6 @@ ensure_ros_environment()
 
 import rclpy
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-from rcl_interfaces.msg import SetParametersResult
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -205,7 +204,7 @@ class RecorderNode(Node):
         self._discovery_timer = self.create_timer(get('discovery_period').value, self._discover)
         self._poll_timer = self.create_timer(get('poll_period').value, self._poll)
         self._diagnostics_timer = self.create_timer(get('diagnostics_period').value, self._publish_diagnostics)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)     # validated by the declared ranges
         self.get_logger().info(f'recording to {self.writer.folder} (topics {sorted(self._topics_wanted)}'
                                f'{", regex " + self._include.pattern if self._include else ""})')
         self._discover()
@@ -243,7 +242,10 @@ class RecorderNode(Node):
         declare(self, 'diagnostics_period', 1.0, 'seconds between /diagnostics messages', low=0.05, high=60.0)
         check_unknown_overrides(self)
 
-    def _on_set_parameters(self, params) -> SetParametersResult:
+    def _apply_parameters(self, params) -> None:
+        """Apply the periods of a set every check accepted (the ranges declared with each parameter, and
+        :func:`aeropend_ros._node_util.declare`'s run-time check, validate before; nothing is changed by a set that
+        one of them refuses)."""
         for param in params:
             if param.name == 'discovery_period':
                 self._discovery_timer.timer_period_ns = int(param.value * 1e9)
@@ -251,7 +253,6 @@ class RecorderNode(Node):
                 self._poll_timer.timer_period_ns = int(param.value * 1e9)
             elif param.name == 'diagnostics_period':
                 self._diagnostics_timer.timer_period_ns = int(param.value * 1e9)
-        return SetParametersResult(successful=True)
 
     # -- discovery and subscriptions -------------------------------------------------------------------------------
     def _wants(self, topic: str) -> bool:
