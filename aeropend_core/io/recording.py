@@ -43,6 +43,15 @@ class Recording:
         Where it came from (file path), for messages.
     findings : tuple of aeropend_core.signals.quality.Finding [-]
         What the reader and the data-quality gate found and repaired (empty: clean, or not checked yet).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from aeropend_core import Recording, from_columns
+    >>> time = np.arange(0.0, 1.0, 0.002)                                                        # s
+    >>> recording = from_columns({'t': time, 'duty': np.full(time.size, 0.5), 'angle': 0.1 * time}, source='made up')
+    >>> isinstance(recording, Recording), len(recording), sorted(recording.signals)
+    (True, 500, ['angle', 'duty'])
     """
 
     time: np.ndarray
@@ -94,6 +103,19 @@ def from_columns(columns: Mapping[str, np.ndarray], source: str = '', findings: 
     ------
     AeropendError
         A required column is missing, or a column's length differs from ``t``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from aeropend_core import AeropendError, from_columns
+    >>> time = np.arange(0.0, 1.0, 0.002)                                                        # s
+    >>> float(from_columns({'t': time, 'duty': np.full(time.size, 0.5), 'angle': 0.1 * time}).signal('angle')[-1])
+    0.0998
+    >>> try:
+    ...     from_columns({'t': time, 'duty': np.full(time.size, 0.5)})                            # no angle
+    ... except AeropendError as error:
+    ...     'angle' in str(error)
+    True
     """
     missing = [c for c in REQUIRED_COLUMNS if c not in columns]
     if not any(c in columns for c in INPUT_COLUMNS):
@@ -314,6 +336,19 @@ def load_recording(path: str | Path, sample_time: float | None = SAMPLE_TIME) ->
     ------
     AeropendError
         Unreadable files, and data the gate refuses (:class:`~aeropend_core.signals.quality.DataQualityError`).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import numpy as np
+    >>> from aeropend_core import load_recording, simulate
+    >>> from aeropend_core.io.recording import write_csv
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     write_csv(str(Path(folder) / 'run.csv'), simulate(np.full(980, 0.5), seed=1).columns(with_truth=False))
+    ...     recording = load_recording(Path(folder) / 'run.csv')
+    >>> len(recording), 'armature_current' in recording.signals                    # samples at 490 Hz
+    (980, True)
     """
     from aeropend_core.signals.quality import check_recording
     path = Path(path)

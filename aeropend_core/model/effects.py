@@ -80,6 +80,13 @@ class EffectParameter:
     scale : float, optional [unit]
         The magnitude of a meaningful change for the optimiser (its variable is scaled by max(|value|, 0.1 scale);
         default 1).
+
+    Examples
+    --------
+    >>> from aeropend_core import EffectParameter
+    >>> stiffness = EffectParameter('cubic_k', '1/s^2', 'cubic spring per inertia', 5.0)
+    >>> stiffness.unit, stiffness.typical, stiffness.lower <= stiffness.typical <= stiffness.upper
+    ('1/s^2', 5.0, True)
     """
 
     name: str
@@ -293,6 +300,20 @@ def register_effect(name: str, description: str, *, parameters: list[EffectParam
     -------
     callable
         The decorator; it returns the function unchanged.
+
+    Examples
+    --------
+    >>> from aeropend_core import EffectParameter, catalog_scope, register_effect
+    >>> from aeropend_core.model.effects import CATALOG
+    >>> with catalog_scope():                                   # registered for this block only
+    ...     @register_effect('cubic_spring', 'a hardening spring',
+    ...                      parameters=[EffectParameter('cubic_k', '1/s^2', 'cubic spring per inertia', 5.0)])
+    ...     def cubic_spring(angle, angular_rate, cubic_k):     # rad, rad/s, 1/s^2 -> rad/s^2
+    ...         return -cubic_k * angle ** 3
+    ...     'cubic_spring' in CATALOG
+    True
+    >>> 'cubic_spring' in CATALOG
+    False
     """
 
     def decorator(function: Callable) -> Callable:

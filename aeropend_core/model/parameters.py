@@ -65,6 +65,15 @@ class RigParameters:
         k0, k1 of eq (8).
     duty_voltage_k2, duty_voltage_k3 : float, dimensionless
         k2, k3 of eq (8) (duty as a fraction 0..1).
+
+    Examples
+    --------
+    >>> from aeropend_core import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
+    >>> rig = RigParameters(armature_resistance=2.0)                 # ohm; every other value the calibrated default
+    >>> rig.armature_resistance, rig.back_emf_constant == DEFAULT_PARAMETERS.back_emf_constant
+    (2.0, True)
+    >>> round(1.0 / SAMPLE_TIME)                                     # Hz: the rig's sample rate
+    490
     """
 
     # --- electrical, measured in the paper (section 3.6) -----------------------------------------------------

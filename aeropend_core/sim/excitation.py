@@ -111,6 +111,13 @@ def lhc_schedule(duration: float, n_strata: int = DEFAULT_STRATA,
     -------
     StepSchedule
         Amplitudes (duty fractions), dwells [s] and the unit-cube design points.
+
+    Examples
+    --------
+    >>> from aeropend_core import lhc_schedule
+    >>> duty = lhc_schedule(20, seed=4).duty(duration=20)            # duty (fraction 0..1) per sample at 490 Hz
+    >>> len(duty), bool(0.0 <= duty.min() and duty.max() <= 1.0)
+    (9800, True)
     """
     if not duration > 0:
         raise AeropendError(f'duration must be positive, got {duration!r} s')

@@ -102,6 +102,14 @@ class Equation:
         Derivative order of the left-hand side (1 for first-order systems, 2 for the pendulum from the angle).
     keep : sequence of str [-]
         Names of terms never thresholded away (known structure); others are subject to MSTLS.
+
+    Examples
+    --------
+    >>> from aeropend_core import Equation
+    >>> from aeropend_core.wsindy import library
+    >>> equation = Equation('x', library.polynomial(['x'], degree=1))     # dx/dt = c0 + c1 x
+    >>> equation.name
+    'dx/dt'
     """
 
     target: str
@@ -195,6 +203,18 @@ class WeakSindyResult:
     ----------
     equations : tuple of EquationFit [-]
         One per requested equation: coefficients in (left-hand side unit) / (term unit), with 1σ.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from aeropend_core import Equation, fit_weak_sindy
+    >>> from aeropend_core.wsindy import library
+    >>> time = np.arange(0.0, 5.0, 0.002)                                                     # s
+    >>> result = fit_weak_sindy(time, {'x': np.exp(-2 * time)}, [Equation('x', library.polynomial(['x'], degree=1))])
+    >>> result.summary()['dx/dt']['terms'], round(result.to_dict()['dx/dt']['coefficients']['x'], 2)     # 1/s
+    (['x'], -2.0)
+    >>> result.as_text() == result.format(), result.as_html().startswith('<section')
+    (True, True)
     """
 
     equations: tuple[EquationFit, ...]
@@ -379,6 +399,16 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], options: WeakSi
         usable test functions than candidate terms.
     AeropendError
         Missing signals, non-uniform sampling, bad options.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from aeropend_core import Equation, fit_weak_sindy
+    >>> from aeropend_core.wsindy import library
+    >>> time = np.arange(0.0, 5.0, 0.002)                                # s; x = exp(-2 t), so dx/dt = -2 x
+    >>> result = fit_weak_sindy(time, {'x': np.exp(-2 * time)}, [Equation('x', library.polynomial(['x'], degree=1))])
+    >>> round(result['x'].coefficient('x'), 2), result['x'].standard_errors['x'] < 0.01           # 1/s
+    (-2.0, True)
     """
     equations = list(equations)
     if not equations:
