@@ -66,7 +66,6 @@ from __future__ import annotations
 import math
 import multiprocessing
 import os
-import threading
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
@@ -90,6 +89,8 @@ from aeropend_core.model.parameters import SAMPLE_TIME
 from aeropend_core.signals.quality import DataQualityError, check_recording
 from aeropend_ros import topics
 from aeropend_core.diagnosis.compare import MAX_LOST_FRACTION as _OFFLINE_MAX_LOST_FRACTION
+from aeropend_core.diagnosis.sample_windows import (  # noqa: F401  (re-exported: the stream's rules)
+    REJECTIONS, STABLE_AFTER_RESTART, STAMP_JUMP_TOLERANCE, SampleWindows)
 from aeropend_core.diagnosis.online import (TREND_PARAMETERS, ParameterTrends, WindowResult, analyze_window,
                                             trend_message, trend_text)
 from aeropend_core.model.effects import parameter_unit
@@ -110,22 +111,6 @@ MAX_LOST_FRACTION = _OFFLINE_MAX_LOST_FRACTION
 QUEUE_DEPTH = 10000
 #: Period [s] of the timer that takes the waiting samples in one batch.
 POLL_PERIOD_S = 0.02
-#: Largest believable mismatch between a stamp step and the sequence step times Ts: 0.1 s + 5 % of the step.
-STAMP_JUMP_TOLERANCE = (0.1, 0.05)
-#: Samples in order (counter +1.., stamps as expected) after a restart that end the restart condition: until then
-#: further restarts are counted, not reported again (two interleaved sources never give two in a row).
-STABLE_AFTER_RESTART = 50
-#: Why a received sample is rejected (not buffered; it counts as lost, filled like one if the window still has
-#: enough samples) -> the words used on /diagnostics and in the log.
-REJECTIONS = {
-    'not_finite': 'not finite (NaN/inf angle, voltage or current)',
-    'duplicate': 'duplicated (same sequence number as the previous sample)',
-    'out_of_order': 'out of order (older sequence number and stamp than the previous sample)',
-    'stamp_not_increasing': 'non-monotonic stamp (sequence number advanced, stamp did not)',
-    'unreadable': 'unreadable (not an aeropend sample, or its sequence number is not a whole number)',
-}
-
-
 @dataclass(frozen=True)
 class WindowEvent:
     """What became of one window, in the order the windows ended (``aeropend run`` prints one line per event).
@@ -261,8 +246,18 @@ def _warm_up() -> None:
     import aeropend_core.signals.preprocess  # noqa: F401
 
 
+def _of_stream(name: str) -> property:
+    """A read-only view of the stream's attribute `name` (:class:`SampleWindows`), kept on the node for callers."""
+    return property(lambda node: getattr(node.stream, name), doc=f"The stream's ``{name}`` (SampleWindows).")
+
+
 class IdentificationNode(Node):
     """Sliding-window identification of the rig from the sample stream."""
+
+    lock, sequence, stamps, signals = (_of_stream(n) for n in ('lock', 'sequence', 'stamps', 'signals'))
+    first_stamp_ns, samples_received, samples_missed = (_of_stream(n) for n in ('first_stamp_ns', 'samples_received',
+                                                                                 'samples_missed'))
+    rejected, restarts, windows_due = (_of_stream(n) for n in ('rejected', 'restarts', 'windows_due'))
 
     def __init__(self, node_name: str = 'identification_node', **kwargs) -> None:
         super().__init__(node_name, **kwargs)
@@ -285,13 +280,9 @@ class IdentificationNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)      # check only
         self.add_post_set_parameters_callback(self._apply_parameters)       # then apply
 
-        self.lock = threading.Lock()
-        self.sequence: list[int] = []
-        self.stamps: list[int] = []
-        self.signals: dict[str, list[float]] = {'armature_voltage': [], 'armature_current': [], 'angle': []}
-        self.last_window_end_ns: int | None = None
-        #: Stamp of the first sample received [ns] (origin of the run's relative times).
-        self.first_stamp_ns: int | None = None
+        #: The samples buffered and cut into windows, the counts of received, missed and rejected samples and of
+        #: restarts (:class:`aeropend_core.diagnosis.sample_windows.SampleWindows`, plain Python, tested without ROS).
+        self.stream = SampleWindows(self.sample_time)
         # The analysis runs in a worker *process* (spawned: no fork of the DDS threads): a worker thread would
         # hold the GIL for most of a window's fit and starve the executor, which then drops samples.
         self.worker = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context('spawn'),
@@ -300,30 +291,15 @@ class IdentificationNode(Node):
         self.windows_done = 0
         self.windows_skipped = 0
         self.windows_submitted = 0
-        #: Windows that came due (each gets one WindowEvent: published, withheld, refused, skipped or failed).
-        self.windows_due = 0
-        #: Samples received since the start, and samples missed (gaps in the sequence counter between them).
-        self.samples_received = 0
-        self.samples_missed = 0
-        #: Rejected samples by reason (REJECTIONS), since the start; and the counts at the last window / status.
-        self.rejected = dict.fromkeys(REJECTIONS, 0)
+        #: The rejected-sample counts at the last window and at the last status (what changed is said).
         self._rejected_at_window = dict(self.rejected)
         self._rejected_at_status = dict(self.rejected)
-        #: Source restarts and stamp jumps (the buffer was cleared), since the start.
-        self.restarts = 0
-        #: The kind of restart that began the current restart condition ('counter' or 'stamps'); None once
-        #: STABLE_AFTER_RESTART samples in a row arrive in order: restarts while it lasts (e.g. two sources with
-        #: different counters interleaving, ~1000 restarts/s) are counted, not reported again.
-        self._restart_condition: str | None = None
-        self._in_order_since_restart = 0
-        self._restarts_at_condition = 0
         self.last_result: WindowResult | None = None
         #: The drift test over the windows (the nominal parameters' trend, windows that do not overlap); restarted
-        #: when the stream restarts (``_generation`` counts the restarts: a window from before one is not added),
+        #: when the stream restarts (``stream.generation`` counts them: a window from before one is not added),
         #: the model's effects or the window length change.
         self.trends = ParameterTrends(self._window_s())
         self._trend_key: tuple | None = None
-        self._generation = 0
         #: Ends [s] of the trended windows whose data were repaired, filled or warned about (said with a drift).
         self._flagged_stops: set[float] = set()
         #: Publishers of /aeropend/parameters/<name> (and .../weak_sindy/<name>), created as names appear.
@@ -396,77 +372,28 @@ class IdentificationNode(Node):
         try:
             sample = self.parser.parse(data)
         except (ValueError, OverflowError) as error:
-            self._reject('unreadable', str(error))
+            self._say_rejected(self.stream.reject('unreadable', str(error)))
             return
-        if not (math.isfinite(sample.angle) and math.isfinite(sample.armature_voltage)
-                and math.isfinite(sample.armature_current)):
-            self._reject('not_finite', f'sample {sample.sequence}')
+        arrival = self.stream.add(sample.sequence, sample.stamp_ns, sample.armature_voltage, sample.armature_current,
+                                  sample.angle)
+        if arrival.rejected:
+            self._say_rejected(arrival)
             return
-        if self.first_stamp_ns is None:
-            self.first_stamp_ns = sample.stamp_ns
-        stable_again = False
-        with self.lock:
-            if self.sequence:
-                last_sequence, last_stamp = self.sequence[-1], self.stamps[-1]
-                if sample.sequence == last_sequence:
-                    self._reject('duplicate', f'sample {sample.sequence}')
-                    return
-                if sample.sequence < last_sequence:
-                    if sample.stamp_ns <= last_stamp:
-                        self._reject('out_of_order', f'sample {sample.sequence} after {last_sequence}')
-                        return
-                    self._restart(f'sample counter went back from {last_sequence} to {sample.sequence} with a '
-                                  'later stamp: the source restarted (or two sources share the topic)', 'counter')
-                elif sample.stamp_ns <= last_stamp:
-                    self._reject('stamp_not_increasing', f'sample {sample.sequence} stamped '
-                                 f'{(sample.stamp_ns - last_stamp) * 1e-9:+.6f} s after sample {last_sequence}')
-                    return
-                else:
-                    expected = (sample.sequence - last_sequence) * self.sample_time
-                    step = (sample.stamp_ns - last_stamp) * 1e-9
-                    if abs(step - expected) > STAMP_JUMP_TOLERANCE[0] + STAMP_JUMP_TOLERANCE[1] * expected:
-                        self._restart(f'stamps jumped by {step:.3f} s over {sample.sequence - last_sequence} '
-                                      f'sample(s) (expected {expected:.3f} s): the clock of the source jumped',
-                                      'stamps')
-                    else:
-                        self.samples_missed += sample.sequence - last_sequence - 1
-                        self._in_order_since_restart += 1
-                        if self._restart_condition and self._in_order_since_restart >= STABLE_AFTER_RESTART:
-                            self._restart_condition = None
-                            stable_again = True
-            self.samples_received += 1
-            self.sequence.append(sample.sequence)
-            self.stamps.append(sample.stamp_ns)
-            self.signals['armature_voltage'].append(sample.armature_voltage)
-            self.signals['armature_current'].append(sample.armature_current)
-            self.signals['angle'].append(sample.angle)
-        if stable_again:                         # the end of a restart condition is a change too: say so once
-            self._report(f'samples in order again after {self.restarts - self._restarts_at_condition} restart(s); '
+        if arrival.restart:
+            message = f'{arrival.restart}; buffer cleared, windows start again'
+            self.get_logger().warning(message, throttle_duration_sec=5.0)
+            if arrival.new_condition:      # one WARN per condition: restarts while it lasts are only counted
+                self._report(message, DiagnosticStatus.WARN, {}, effects=self.effects)
+                self.notices.append(message)
+        if arrival.stable_again:                 # the end of a restart condition is a change too: say so once
+            self._report(f'samples in order again after {arrival.restarts_in_condition} restart(s); '
                          'windows start from here', DiagnosticStatus.OK, {}, effects=self.effects)
         self._maybe_start_window(sample.stamp_ns)
 
-    def _reject(self, reason: str, detail: str) -> None:
-        """Count and log a sample that is not buffered (see REJECTIONS); /diagnostics reports the counts."""
-        self.rejected[reason] += 1
-        self.get_logger().warning(f'sample rejected, {REJECTIONS[reason]}: {detail}', throttle_duration_sec=5.0)
-
-    def _restart(self, why: str, kind: str) -> None:
-        """The stream restarted (counter back, or stamps jumped): start the windows again from this sample.
-
-        /diagnostics gets one WARN per condition change: while restarts keep coming (of either ``kind``, 'counter'
-        or 'stamps'; fewer than STABLE_AFTER_RESTART samples in order between them), they are counted
-        (``restarts``) and logged (throttled), not reported again.
-        """
-        self.restarts += 1
-        self._in_order_since_restart = 0
-        self._clear()
-        message = f'{why}; buffer cleared, windows start again'
-        self.get_logger().warning(message, throttle_duration_sec=5.0)
-        if self._restart_condition is None:     # two interleaved sources alternate the kinds: one condition
-            self._restart_condition = kind
-            self._restarts_at_condition = self.restarts - 1
-            self._report(message, DiagnosticStatus.WARN, {}, effects=self.effects)
-            self.notices.append(message)
+    def _say_rejected(self, arrival) -> None:
+        """Log a sample the stream did not buffer (counted there, see REJECTIONS); /diagnostics reports the counts."""
+        self.get_logger().warning(f'sample rejected, {REJECTIONS[arrival.rejected]}: {arrival.detail}',
+                                  throttle_duration_sec=5.0)
 
     @staticmethod
     def _rejected_text(now: dict[str, int], before: dict[str, int]) -> tuple[int, str]:
@@ -474,37 +401,12 @@ class IdentificationNode(Node):
         changes = {key: now[key] - before[key] for key in now if now[key] > before[key]}
         return sum(changes.values()), ', '.join(f'{count} {REJECTIONS[key]}' for key, count in changes.items())
 
-    def _clear(self) -> None:
-        self._generation += 1                 # the drift test starts again with the new stream
-        self.sequence.clear()
-        self.stamps.clear()
-        for values in self.signals.values():
-            values.clear()
-        self.last_window_end_ns = None
-
     def _maybe_start_window(self, now_ns: int) -> None:
-        window_ns = int(self._window_s() * 1e9)
-        hop_ns = int(self._hop_s() * 1e9)
-        with self.lock:
-            first_ns = self.stamps[0]
-            if now_ns - first_ns < window_ns:
-                return
-            if self.last_window_end_ns is not None and now_ns - self.last_window_end_ns < hop_ns:
-                return
-            self.last_window_end_ns = now_ns
-            self.windows_due += 1
-            keep_from = int(np.searchsorted(np.asarray(self.stamps), now_ns - window_ns, side='right'))
-            snapshot = {'sequence': np.array(self.sequence[keep_from:], dtype=np.int64),
-                        'stamp_ns': np.array(self.stamps[keep_from:], dtype=np.int64)}
-            snapshot.update({k: np.array(v[keep_from:]) for k, v in self.signals.items()})
-            # Keep one window of history (the next window overlaps this one by window - hop).
-            drop = max(0, keep_from - 1)
-            if drop:
-                del self.sequence[:drop], self.stamps[:drop]
-                for values in self.signals.values():
-                    del values[:drop]
+        snapshot = self.stream.due_window(now_ns, self._window_s(), self._hop_s())
+        if snapshot is None:
+            return
         if self.pending is not None and not self.pending.done():
-            self._skip_window(now_ns, window_ns)
+            self._skip_window(now_ns, int(self._window_s() * 1e9))
             return
         self._submit(snapshot, self.effects, float(self.get_parameter('holdout_fraction').value))
 
@@ -590,7 +492,7 @@ class IdentificationNode(Node):
         self.pending = self.worker.submit(_analyze_in_worker, time, snapshot['armature_voltage'],
                                           snapshot['armature_current'], snapshot['angle'], effects, holdout_fraction,
                                           sequence=sequence, sample_time=self.sample_time)
-        trend_key = (self._generation, tuple(effects), self._window_s())
+        trend_key = (self.stream.generation, tuple(effects), self._window_s())
         self.pending.add_done_callback(lambda future: self._on_result(future, stop_ns, health, effects, start_s,
                                                                       findings, trend_key, span))
 
@@ -685,7 +587,7 @@ class IdentificationNode(Node):
         """Add the window to the drift test; returns ``({name: trend row}, drift sentence or '')``. A drift tested
         on windows whose data were repaired or filled says how many."""
         values = {name: result.parameters[name] for name in TREND_PARAMETERS if name in result.parameters}
-        if trend_key is None or trend_key[0] != self._generation:
+        if trend_key is None or trend_key[0] != self.stream.generation:
             return {}, ''             # a window from before the stream restarted: published, not trended
         if trend_key != self._trend_key:
             self.trends.reset(trend_key[2])
@@ -762,8 +664,7 @@ class IdentificationNode(Node):
         self.diagnostics_publisher.publish(array)
 
     def _on_status_timer(self) -> None:
-        with self.lock:
-            buffered = (self.stamps[-1] - self.stamps[0]) * 1e-9 if len(self.stamps) > 1 else 0.0
+        buffered = self.stream.buffered_span()
         rejected, rejected_text = self._rejected_text(self.rejected, self._rejected_at_status)
         self._rejected_at_status = dict(self.rejected)
         if rejected:       # said at once, not only with the next window (which may never come)
@@ -782,8 +683,7 @@ class IdentificationNode(Node):
 
     def buffered_seconds(self) -> float:
         """Acquisition time [s] spanned by the samples buffered now (before the first window: how far it is)."""
-        with self.lock:
-            return (self.stamps[-1] - self.stamps[0]) * 1e-9 + SAMPLE_TIME if self.stamps else 0.0
+        return self.stream.buffered_span() + SAMPLE_TIME if self.stream.stamps else 0.0
 
     def destroy_node(self) -> None:
         self.worker.shutdown(wait=True, cancel_futures=True)
