@@ -91,3 +91,33 @@ def test_two_records_give_byte_identical_text_and_json_in_either_order_and_leave
         assert first[name]['catalog_unchanged'] and second[name]['catalog_unchanged'], name
         assert first[name]['text'] == second[name]['text'], name
         assert first[name]['json'] == second[name]['json'], name
+
+
+def test_the_experiment_loop_leaves_no_lookalike_term_in_the_catalog(monkeypatch):
+    """The experiment loop's design registers a discovered lookalike term (``confounded_models``) for the design's
+    simulations only: after the loop the catalog holds what it held before (the loop's rounds scripted)."""
+    from types import SimpleNamespace
+
+    from aeropend_core.diagnosis import experiment_design, experiment_loop
+    from aeropend_core.diagnosis.discovery import term_effect
+    from aeropend_core.diagnosis.experiment_design import DesignRefused
+    from aeropend_core.diagnosis.experiment_loop import LoopBudget, Played, until_decided
+    before = set(CATALOG)
+    registered = []
+
+    def confounded_models(diagnosis):
+        registered.append(term_effect('thrust*angular_rate'))       # as the lookalike branch does
+        return ['catalog set', 'lookalike']
+
+    def design_experiment(models, noise_rms, **options):
+        assert registered[-1] in CATALOG                            # there while the design simulates it
+        raise DesignRefused('scripted: no schedule')
+
+    monkeypatch.setattr(experiment_loop, 'diagnose_records', lambda records, options: SimpleNamespace(
+        verdict='confounded', noise_rms=0.004, found=[], prepared=SimpleNamespace(angle_step=0.0)))
+    monkeypatch.setattr(experiment_design, 'confounded_models', confounded_models)
+    monkeypatch.setattr(experiment_design, 'design_experiment', design_experiment)
+    outcome = until_decided(lambda design, schedule: Played(object(), 'bag 1', 'x', 21.0),
+                            LoopBudget(max_runs=3, max_seconds=300.0, design_seconds=20.0))
+    assert outcome.verdict == 'refused' and registered and registered[0].startswith('term_')
+    assert set(CATALOG) == before, sorted(set(CATALOG) - before)

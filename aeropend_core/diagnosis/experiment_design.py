@@ -725,6 +725,13 @@ def confounded_models(diagnosis) -> list[CompetingModel]:
     ------
     DesignRefused
         The diagnosis reports no confounded pair of effects nor a lookalike term, or carries no prepared record.
+
+    Notes
+    -----
+    A lookalike term is registered in the catalog as a ``term_*`` effect, which the design's simulations of the
+    returned models need: call this and :func:`design_experiment` inside one
+    :func:`~aeropend_core.model.effects.catalog_scope` (``experiment_loop.run_loop`` does), so the term is gone
+    afterwards and the next analysis in the process sees the catalog it would have seen without it.
     """
     pair = next(((f.effect, f.confounded_with[0]) for f in diagnosis.found if f.confounded_with), None)
     lookalike = None if pair is not None else next(

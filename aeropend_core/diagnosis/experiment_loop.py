@@ -225,6 +225,7 @@ def until_decided(play: Callable, budget: LoopBudget = LoopBudget(), diagnose_op
         Every round and why the loop stopped.
     """
     from aeropend_core.diagnosis.experiment_design import DesignRefused, confounded_models, design_experiment
+    from aeropend_core.model.effects import catalog_scope
     say = say or (lambda message: None)
     outcome = LoopOutcome()
     records: list = []
@@ -263,10 +264,11 @@ def until_decided(play: Callable, budget: LoopBudget = LoopBudget(), diagnose_op
         say('designing the experiment that separates the confounded effects')
         started = time.perf_counter()
         try:
-            models = confounded_models(diagnosis)
-            design = design_experiment(models, diagnosis.noise_rms, duration=budget.design_seconds,
-                                       duty_limit=budget.duty_limit, angle_limit=budget.angle_limit,
-                                       seed=seed + len(records), **dict(design_options or {}))
+            with catalog_scope():       # a lookalike term registered for the design is gone with it (issue #44)
+                models = confounded_models(diagnosis)
+                design = design_experiment(models, diagnosis.noise_rms, duration=budget.design_seconds,
+                                           duty_limit=budget.duty_limit, angle_limit=budget.angle_limit,
+                                           seed=seed + len(records), **dict(design_options or {}))
         except DesignRefused as error:
             outcome.verdict = 'refused'
             outcome.refused = outcome.ending = f'no experiment designed: {error}'
