@@ -274,6 +274,12 @@ def identify_record(recording: Recording, *, model: str = 'pendulum', effects: S
         Called with each message for standard error as it arises, and whether it is a warning (said also when
         quiet) or a note; the result keeps them in ``notes`` too.
 
+    Returns
+    -------
+    Identification
+        The fit with its checks; ``as_text()`` and ``to_dict()`` are what ``aeropend identify`` and ``--json``
+        print.
+
     Raises
     ------
     AeropendError
