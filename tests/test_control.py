@@ -464,3 +464,10 @@ def test_check_and_linearisation_pages_are_self_contained(tmp_path, nominal_desi
         assert 'http://' not in page.replace('http://www.w3.org/2000/svg', '') and 'https://' not in page
     assert page.count('<figure') == 2                        # step response, Bode
     assert check_report(result, run.time, run.angle, run.duty, None, 's').count('<figure') == len(result.steps)
+    # the result presents itself (issue #44): its short form agrees with its record, its fragment is its text
+    summary, fragment = result.summary(), result.as_html()
+    assert summary['verdict'] == result.to_dict()['verdict'] and summary['steps'] == len(result.steps)
+    assert summary['missed'] == {s['step']: sorted(s['measured_misses']) for s in result.to_dict()['steps']
+                                 if s['measured_misses']}
+    assert fragment.startswith('<section class="aeropend-control-check">') and 'Verdict: ' in fragment
+    assert 'http://' not in fragment and '<script' not in fragment

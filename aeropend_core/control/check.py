@@ -44,6 +44,10 @@ class StepCheck:
 
 @dataclass
 class CheckResult:
+    """The check of a closed-loop record (:func:`check_record`): each step measured and predicted against the
+    template; it presents itself (``summary()``, ``as_text()``, ``as_html()``, ``to_dict()``), tested in
+    tests/test_control.py."""
+
     template: Template
     steps: list[StepCheck]
     predicted_time: np.ndarray
@@ -66,13 +70,32 @@ class CheckResult:
             return 'misses the template where the model predicted it would meet it'
         return 'misses the template, as the model predicted'
 
+    def summary(self) -> dict:
+        """The check on one screen: ``verdict`` and ``met`` [-], ``steps`` [-], per step the template's items the
+        record ``missed`` and those the model predicted missed (``predicted_missed``), and the ``notes`` (a run cut
+        short, ...)."""
+        return {'verdict': self.verdict, 'met': self.met, 'steps': len(self.steps),
+                'missed': {step.index: sorted(step.measured_misses) for step in self.steps if step.measured_misses},
+                'predicted_missed': {step.index: sorted(step.predicted_misses) for step in self.steps
+                                     if step.predicted_misses}, 'notes': list(self.notes)}
+
+    def as_html(self) -> str:
+        """:meth:`as_text` as a self-contained HTML fragment (``<section>``, escaped); the page with the plots is
+        :func:`aeropend_core.control.report.check_report`."""
+        from aeropend_core.present.results_text import text_html
+        return text_html(self.as_text(), 'aeropend control check', 'aeropend-control-check')
+
     def to_dict(self) -> dict:
+        """The ``aeropend control check --json`` object less the record's name and the controller's SHA-256 (the
+        verb adds those); angles [rad], times [s], overshoot and error [% of the step]."""
         return {'schema': 'aeropend.control_check/1', 'template': self.template.as_dict(), 'verdict': self.verdict,
                 'gains': self.gains.as_dict() if self.gains is not None else None,
                 'met': self.met, 'steps': [step.to_dict() for step in self.steps], 'notes': list(self.notes),
                 'units': {'angles': 'rad', 'times': 's', 'overshoot_and_error': '% of the step', 'duty': '1'}}
 
     def as_text(self) -> str:
+        """What ``aeropend control check`` prints: per step the measured and predicted metrics against the template
+        (deg, s, %), the verdict, the next step and the notes."""
         lines = [f'Template: {self.template.text()}']
         if self.gains is not None:
             lines.append(f'Controller: {self.gains.text()}')
