@@ -102,6 +102,13 @@ def rate_warning(recording: Recording) -> str:
             'the tolerances of docs/log-import.md')
 
 
+def angle_filter_effect() -> str:
+    """The name of the catalog's built-in angle filter (its measurement filter): the effect a calibration file's
+    ``angle_filter_delay`` [s] holds, and the key of the filter's note in ``aeropend identify --json``."""
+    from aeropend_core.model.effects import CATALOG, MEASUREMENT_FILTER
+    return next(name for name, effect in CATALOG.items() if effect.builtin and effect.kind == MEASUREMENT_FILTER)
+
+
 def flag_lines(text: str, warnings: dict[str, str]) -> str:
     """`text` with each failing parameter's warning at the end of its line (``  name = value ...``)."""
     lines = []
@@ -201,7 +208,7 @@ class Identification:
             'units': {k: parameter_unit_of(k) for k in fit.parameters},
             'estimator': 'weak_sindy',
             'gaps': {'count': len(self.pieces) - 1, 'pieces': len(self.pieces)},
-            'angle_filter': self.filter_note,
+            angle_filter_effect(): self.filter_note,
             'samples': len(recording),
             'test_function_half_width': {eq.name: eq.half_width for eq in fit.result.equations},
             'warnings': findings_to_json(recording.findings),
@@ -353,7 +360,8 @@ def identify_record(recording: Recording, *, model: str = 'pendulum', effects: S
     if model == 'pendulum' and not weak_only:
         # one answer per record: the weak form scored as diagnose scores, and compared with the output-error fit
         from aeropend_core.diagnosis.agreement import cross_check
-        fixed = {'angle_filter': chain.angle_filter_delay} if chain is not None and chain.angle_filter_delay else {}
+        fixed = ({angle_filter_effect(): chain.angle_filter_delay} if chain is not None and chain.angle_filter_delay
+                 else {})
         try:
             check = cross_check(recording, fit, tuple(effects) + tuple(fixed), source, fixed)
         except AeropendError as error:       # too short or too flat for the output-error fit: say so, keep the fit
@@ -390,4 +398,5 @@ def _identify_reduced(recording, effects, source, say, notes) -> Identification:
 
 
 __all__ = ['Identification', 'identify_record', 'pieces_between_gaps', 'short_pieces', 'rate_warning', 'flag_lines',
+           'angle_filter_effect',
            'WEAK_FORM_LOW_RATE_TIME', 'WEAK_FORM_RATE_BIAS', 'MODELS']
