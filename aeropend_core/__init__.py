@@ -123,6 +123,11 @@ from __future__ import annotations
 
 import importlib
 
+from aeropend_core.kernel_cache import check_kernel_cache
+
+# numba checks a cached kernel against its own file only; a change in a module it calls must clear the cache too
+check_kernel_cache()
+
 #: public name -> module that defines it
 _PUBLIC = {
     'AeropendError': 'aeropend_core.errors',

@@ -4,7 +4,8 @@ Without this the first identification window after a fresh set-up spends 10-20 s
 skips the windows that come due meanwhile. The kernels are compiled by running the real entry points once on a
 short simulated record (every catalog effect is tried by the diagnosis, so every kernel variant is built);
 numba keeps the machine code in ``__pycache__`` next to each module and reloads it in ~1 s.
-Re-running is cheap (everything loads from the cache); the cache is rebuilt when a module's source changes.
+Re-running is cheap (everything loads from the cache); a kernel is rebuilt when its module's source changes, or
+(aeropend_core.kernel_cache) a module it is compiled from.
 """
 from __future__ import annotations
 
