@@ -25,11 +25,13 @@ from tests.control_helpers import (
 pytestmark = pytest.mark.timeout(120)
 
 
-def keep_alive(device: Device, seconds: float) -> list:
-    """Read for `seconds`, sending REQUEST_STATUS every 0.1 s (the bridge's closed-loop keep-alive)."""
+def keep_alive(device: Device, seconds: float, samples: int = 0) -> list:
+    """Read for `seconds` and until `samples` control samples came (a loaded machine paces the emulator late; at most
+    60 s more), sending REQUEST_STATUS every 0.1 s (the bridge's closed-loop keep-alive)."""
     new = []
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
+    end, limit = time.monotonic() + seconds, time.monotonic() + seconds + 60.0
+    while time.monotonic() < end or (sum(isinstance(m, P.ControlSampleFrame) for m in new) < samples
+                                     and time.monotonic() < limit):
         device.link.write(P.encode_command(P.REQUEST_STATUS))
         new += device.read(0.1)
     return new
@@ -65,7 +67,7 @@ def test_emulator_runs_the_closed_loop_like_the_firmware():
 
         # 4 s of closed loop: the law replayed on the reported angles gives the reported values and duties, and
         # the rod settles at the reference.
-        keep_alive(device, 4.0)
+        keep_alive(device, 4.0, samples=1600)
         closed_at = max(k for k, m in enumerate(device.messages) if isinstance(m, P.AckFrame)
                         and m.command == P.SET_CONTROL_MODE and m.ok and m.value == 1.0)
         samples = [m for m in device.messages[closed_at:] if isinstance(m, P.ControlSampleFrame)]
@@ -92,7 +94,7 @@ def test_emulator_runs_the_closed_loop_like_the_firmware():
         tripped = [m for m in new if m.tripped]
         assert tripped and all(m.duty_q16 == 0 for m in tripped[2:]) and tripped[-1].unsaturated == 0.0
         assert device.ack(P.encode_coefficient(law.ANGLE_MAX, 1.75)).ok
-        new = [m for m in keep_alive(device, 0.5) if isinstance(m, P.ControlSampleFrame)]
+        new = [m for m in keep_alive(device, 0.5, samples=150) if isinstance(m, P.ControlSampleFrame)]
         assert len(new) > 100 and all(m.tripped and m.duty_q16 == 0 for m in new)
         assert device.status().flags & P.FLAG_LAW_TRIPPED
         assert device.ack(P.encode_reference(reference, feedforward)).ok
