@@ -31,6 +31,7 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.diagnosis import MIN_DURATION  # noqa: F401 - the shortest record [s], also read from here
 from aeropend_core.diagnosis.basins import PROFILED, search_lag_basins
 from aeropend_core.diagnosis.map_profile import profile_motor_map
+from aeropend_core.diagnosis.threshold_profile import REFIT_ITERATIONS, threshold_profile
 from aeropend_core.diagnosis.gaps import MAX_LOST_FRACTION, SHORTEST_PIECE, Gaps, split_at_gaps  # noqa: F401
 from aeropend_core.model.effects import kernel_parameter
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
@@ -727,7 +728,7 @@ def compare(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
     prep = recording if isinstance(recording, PreparedRecord) else prepare(recording)
     fit = fit_model(prep, effects, start, fixed=fixed, initial_states=initial_states)
     if 'threshold_interval' in fit.extra:
-        fit = _place_threshold_among_heldout_levels(prep, fit)
+        fit = _profile_threshold(prep, _place_threshold_among_heldout_levels(prep, fit), initial_states)
     return Comparison(tuple(effects), fit, evaluate(prep, fit))
 
 
@@ -761,6 +762,25 @@ def _place_threshold_among_heldout_levels(prep: PreparedRecord, fit: OutputError
     chosen.extra = {**fit.extra, 'threshold_interval': (a, b), 'threshold_interval_training': (low, high)}
     chosen.standard_errors = {**fit.standard_errors, gate: (b - a) / math.sqrt(12.0)}
     return chosen
+
+
+def _profile_threshold(prep: PreparedRecord, fit: OutputErrorFit, initial_states: np.ndarray | None) -> OutputErrorFit:
+    """`fit` with its threshold's 1σ from a profile of the training cost (:mod:`threshold_profile`: the level
+    spacing is no bound on a continuous input) and the threshold's doubt carried into the other parameters."""
+    gate = fit.structure.gate_parameter
+    held = {name: value for name, value in fit.parameters.items() if name not in fit.free_names and name != gate}
+
+    def refit(threshold: float) -> OutputErrorFit:
+        return fit_output_error(prep.train, fit.structure, fit.parameters, fixed={**held, gate: threshold},
+                                max_iterations=REFIT_ITERATIONS, initial_states=initial_states)
+    profile = threshold_profile(refit, fit, gate, 0.0, float(np.max(prep.gate_voltage[:prep.split])))
+    errors = dict(fit.standard_errors)
+    errors[gate] = max(errors.get(gate, 0.0), profile['sigma'])
+    for name, spread in profile['spread'].items():
+        if name in errors and math.isfinite(errors[name]):
+            errors[name] = math.hypot(errors[name], spread)
+    profile['conditional_errors'] = dict(fit.standard_errors)     # the level-spacing rule, the threshold held
+    return replace(fit, standard_errors=errors, extra={**fit.extra, 'threshold_profile': profile})
 
 
 __all__ = ['PreparedRecord', 'Comparison', 'Evaluation', 'prepare', 'compare', 'fit_model', 'evaluate',

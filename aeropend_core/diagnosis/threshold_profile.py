@@ -1,0 +1,120 @@
+"""The ± of a dead zone's threshold from a profile of the training cost, not from the spacing of the input levels.
+
+A threshold is not a smooth parameter: the model's output changes only where an input sample crosses it, so the
+Jacobian's standard error (the curvature at the optimum) does not exist, and the rule "uniform between the two
+adjacent training input levels" (``(high - low) / sqrt(12)``) holds only when the input is held at a few levels and
+moving the threshold across one of them changes the fit by much more than the noise. On a continuous input (a
+chirp, every sample a new level) that interval is ~1e-4 V wide while the fit can barely tell thresholds 0.1-0.7 V
+apart (issue 40 item 3: on the second simulator 1 of 17 thresholds was within its 2σ).
+
+So the threshold is profiled: refitted with the threshold held at values stepping outward from the estimate on each
+side (every other parameter free, warm-started from the best fit), the training cost turned into a likelihood-ratio
+statistic with the effective number of independent residuals the project uses for correlated residuals (as the
+BIC in :mod:`aeropend_core.diagnosis.candidates`): ``Δχ² = n_eff ln(rms(t)² / rms²)``. The points where it reaches
+the chi-square(1) 95 % quantile (3.84, bisected) bound a ~2σ interval; the threshold's 1σ is the larger of the two
+distances to them divided by 1.96, and never smaller than the level-spacing rule. A side that never reaches it before
+0 V or the top of the input is as wide as that bound. The other parameters' values at those points say how far the
+threshold's doubt carries into them (an angle offset or the thrust gain move with it): half their shift across the
+interval is added in quadrature to their (conditional, threshold held) standard errors.
+
+Below :mod:`aeropend_core.diagnosis.compare`, which hands in the refit (as for :mod:`map_profile`).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+#: Chi-square(1) quantile bounding the profile interval, and the normal quantile of the same level (its 1σ).
+PROFILE_CHI2 = 3.841
+PROFILE_Z = 1.960
+#: First step [V] away from the estimate, the factor of each next step, and the bisections of a crossing.
+FIRST_STEP = 0.04
+STEP_FACTOR = 2.0
+BISECTIONS = 2
+#: Residual evaluations of each warm-started refit (the full fit's default is 60).
+REFIT_ITERATIONS = 30
+
+
+def profile_statistic(rms: float, best_rms: float, effective: float) -> float:
+    """Likelihood-ratio statistic [-] of a fit with training RMS `rms` [rad] against the best one's `best_rms` [rad],
+    `effective` independent residuals (Gaussian errors of unknown variance). Infinite for a failed fit."""
+    if not (math.isfinite(rms) and rms > 0 and best_rms > 0):
+        return math.inf
+    return max(float(effective * math.log(rms ** 2 / best_rms ** 2)), 0.0)
+
+
+def _crossing(refit: Callable, threshold: float, bound: float, direction: float, best_rms: float,
+              effective: float, limit: float) -> tuple[float, object | None]:
+    """Distance [V] from `threshold` to where the statistic reaches `limit` going `direction` (+1/-1), at most to
+    `bound`, and the fit at the nearest point at or beyond it (None if none was fitted)."""
+    room = abs(bound - threshold)
+    inside, step = 0.0, min(FIRST_STEP, room)
+    outside, outside_fit = None, None
+    while step > 0:
+        fit = refit(threshold + direction * step)
+        if fit is not None and profile_statistic(fit.residual_rms, best_rms, effective) >= limit:
+            outside, outside_fit = step, fit
+            break
+        inside = step
+        if step >= room:
+            return room, fit
+        step = min(step * STEP_FACTOR, room)
+    for _ in range(BISECTIONS):
+        middle = 0.5 * (inside + outside)
+        fit = refit(threshold + direction * middle)
+        if fit is not None and profile_statistic(fit.residual_rms, best_rms, effective) >= limit:
+            outside, outside_fit = middle, fit
+        else:
+            inside = middle
+    return 0.5 * (inside + outside), outside_fit
+
+
+def threshold_profile(refit: Callable, fit, gate: str, lower: float, upper: float) -> dict:
+    """The profile interval of `fit`'s threshold `gate` [V] and what it means for every parameter's 1σ.
+
+    Parameters
+    ----------
+    refit : callable
+        ``refit(threshold [V]) -> OutputErrorFit or None``: the training fit with the threshold held there.
+    fit : OutputErrorFit
+        The best fit (its ``residual_rms`` [rad], ``effective_samples`` [-], ``parameters`` [SI]).
+    gate : str
+        The threshold parameter's name.
+    lower, upper : float [V]
+        The threshold's range (0 V and the top of the input: beyond, the data cannot bound it).
+
+    Returns
+    -------
+    dict
+        ``interval`` (low, high) [V] where the statistic stays below :data:`PROFILE_CHI2`, ``sigma`` [V] (larger
+        distance / 1.96), ``spread`` {parameter: half its largest shift across the interval / 1.96} [SI], and
+        ``refits`` [-].
+    """
+    threshold = float(fit.parameters[gate])
+    effective = max(float(getattr(fit, 'effective_samples', 0.0) or fit.n_residuals), 2.0)
+    calls = []
+
+    def counted(value: float):
+        calls.append(value)
+        try:
+            return refit(float(value))
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+            return None
+
+    below, fit_below = _crossing(counted, threshold, lower, -1.0, fit.residual_rms, effective, PROFILE_CHI2)
+    above, fit_above = _crossing(counted, threshold, upper, +1.0, fit.residual_rms, effective, PROFILE_CHI2)
+    spread = {}
+    for name, value in fit.parameters.items():
+        if name == gate:
+            continue
+        shifts = [abs(other.parameters[name] - value) for other in (fit_below, fit_above)
+                  if other is not None and math.isfinite(other.parameters.get(name, math.nan))]
+        if shifts:
+            spread[name] = max(shifts) / PROFILE_Z
+    return {'interval': (threshold - below, threshold + above), 'sigma': max(below, above) / PROFILE_Z,
+            'spread': spread, 'refits': len(calls)}
+
+
+__all__ = ['PROFILE_CHI2', 'profile_statistic', 'threshold_profile']
