@@ -14,8 +14,9 @@ BIC in :mod:`aeropend_core.diagnosis.candidates`): ``Δχ² = n_eff ln(rms(t)² 
 the chi-square(1) 95 % quantile (3.84, bisected) bound a ~2σ interval; the threshold's 1σ is the larger of the two
 distances to them divided by 1.96, and never smaller than the level-spacing rule. A side that never reaches it before
 0 V or the top of the input is as wide as that bound. The other parameters' values at those points say how far the
-threshold's doubt carries into them (an angle offset or the thrust gain move with it): half their shift across the
-interval is added in quadrature to their (conditional, threshold held) standard errors.
+threshold's doubt carries into them (an angle offset or the thrust gain move with it): their larger shift from the
+estimate to either end of the interval, / 1.96, is added in quadrature to their (conditional, threshold held)
+standard errors.
 
 Below :mod:`aeropend_core.diagnosis.compare`, which hands in the refit (as for :mod:`map_profile`).
 """
@@ -33,6 +34,8 @@ PROFILE_Z = 1.960
 FIRST_STEP = 0.04
 STEP_FACTOR = 2.0
 BISECTIONS = 2
+#: Smallest step [V] tried inward: below it the level-spacing rule (or the refit's own resolution) bounds the ±.
+SMALLEST_STEP = 0.0025
 #: Residual evaluations of each warm-started refit (the full fit's default is 60).
 REFIT_ITERATIONS = 30
 
@@ -46,29 +49,56 @@ def profile_statistic(rms: float, best_rms: float, effective: float) -> float:
 
 
 def _crossing(refit: Callable, threshold: float, bound: float, direction: float, best_rms: float,
-              effective: float, limit: float) -> tuple[float, object | None]:
+              effective: float, limit: float) -> tuple[float, object | None, float]:
     """Distance [V] from `threshold` to where the statistic reaches `limit` going `direction` (+1/-1), at most to
-    `bound`, and the fit at the nearest point at or beyond it (None if none was fitted)."""
+    `bound`, and a converged fit near the crossing (the nearest inside it, else the nearest beyond it; None if
+    neither converged) with its distance [V].
+
+    Steps of :data:`FIRST_STEP`, doubled outward until the limit is passed (halved inward while the first is
+    already past it, down to :data:`SMALLEST_STEP`), then bisected; the crossing is interpolated linearly in the
+    square root of the statistic (exact for a smooth, quadratic profile, inside the bracket for a jagged one).
+    """
     room = abs(bound - threshold)
-    inside, step = 0.0, min(FIRST_STEP, room)
-    outside, outside_fit = None, None
-    while step > 0:
+    if room <= 0:
+        return 0.0, None, 0.0
+
+    def statistic(step: float):
         fit = refit(threshold + direction * step)
-        if fit is not None and profile_statistic(fit.residual_rms, best_rms, effective) >= limit:
-            outside, outside_fit = step, fit
-            break
-        inside = step
-        if step >= room:
-            return room, fit
-        step = min(step * STEP_FACTOR, room)
+        return (profile_statistic(fit.residual_rms, best_rms, effective) if fit is not None else math.inf), fit
+
+    step = min(FIRST_STEP, room)
+    value, fit = statistic(step)
+    inside, inside_value, inside_fit = 0.0, 0.0, None
+    if value >= limit:
+        while step / STEP_FACTOR >= SMALLEST_STEP:
+            smaller, smaller_fit = statistic(step / STEP_FACTOR)
+            if smaller < limit:
+                inside, inside_value, inside_fit = step / STEP_FACTOR, smaller, smaller_fit
+                break
+            step, value, fit = step / STEP_FACTOR, smaller, smaller_fit
+    else:
+        while value < limit:
+            inside, inside_value, inside_fit = step, value, fit
+            if step >= room:
+                return room, fit, room
+            step = min(step * STEP_FACTOR, room)
+            value, fit = statistic(step)
+    outside, outside_value, outside_fit = step, value, fit
     for _ in range(BISECTIONS):
         middle = 0.5 * (inside + outside)
-        fit = refit(threshold + direction * middle)
-        if fit is not None and profile_statistic(fit.residual_rms, best_rms, effective) >= limit:
-            outside, outside_fit = middle, fit
+        value, fit = statistic(middle)
+        if value >= limit:
+            outside, outside_value, outside_fit = middle, value, fit
         else:
-            inside = middle
-    return 0.5 * (inside + outside), outside_fit
+            inside, inside_value, inside_fit = middle, value, fit
+    # the parameters are read from a fit that converged (a finite statistic), the nearer one inside first
+    nearest = ((inside_fit, inside) if inside_fit is not None else
+               (outside_fit, outside) if math.isfinite(outside_value) else (None, 0.0))
+    if not math.isfinite(outside_value):
+        return outside, *nearest
+    low, high, target = math.sqrt(inside_value), math.sqrt(outside_value), math.sqrt(limit)
+    share = (target - low) / (high - low) if high > low else 1.0
+    return inside + min(max(share, 0.0), 1.0) * (outside - inside), *nearest
 
 
 def threshold_profile(refit: Callable, fit, gate: str, lower: float, upper: float) -> dict:
@@ -89,7 +119,7 @@ def threshold_profile(refit: Callable, fit, gate: str, lower: float, upper: floa
     -------
     dict
         ``interval`` (low, high) [V] where the statistic stays below :data:`PROFILE_CHI2`, ``sigma`` [V] (larger
-        distance / 1.96), ``spread`` {parameter: half its largest shift across the interval / 1.96} [SI], and
+        distance / 1.96), ``spread`` {parameter: its larger shift to an end of the interval / 1.96} [SI], and
         ``refits`` [-].
     """
     threshold = float(fit.parameters[gate])
@@ -103,14 +133,17 @@ def threshold_profile(refit: Callable, fit, gate: str, lower: float, upper: floa
         except (ValueError, FloatingPointError, np.linalg.LinAlgError):
             return None
 
-    below, fit_below = _crossing(counted, threshold, lower, -1.0, fit.residual_rms, effective, PROFILE_CHI2)
-    above, fit_above = _crossing(counted, threshold, upper, +1.0, fit.residual_rms, effective, PROFILE_CHI2)
+    sides = [_crossing(counted, threshold, bound, direction, fit.residual_rms, effective, PROFILE_CHI2)
+             for bound, direction in ((lower, -1.0), (upper, +1.0))]
+    (below, _, _), (above, _, _) = sides
     spread = {}
     for name, value in fit.parameters.items():
         if name == gate:
             continue
-        shifts = [abs(other.parameters[name] - value) for other in (fit_below, fit_above)
-                  if other is not None and math.isfinite(other.parameters.get(name, math.nan))]
+        # the shift at the point fitted, scaled linearly back to the crossing
+        shifts = [abs(other.parameters[name] - value) * crossing / distance
+                  for crossing, other, distance in sides
+                  if other is not None and distance > 0 and math.isfinite(other.parameters.get(name, math.nan))]
         if shifts:
             spread[name] = max(shifts) / PROFILE_Z
     return {'interval': (threshold - below, threshold + above), 'sigma': max(below, above) / PROFILE_Z,
