@@ -83,3 +83,17 @@ def test_a_dead_zone_under_a_chirp_has_its_truth_within_two_sigma_and_a_useful_s
     assert level_rule < sigma < 0.1
     low, high = fit.extra['threshold_profile']['interval']
     assert low < estimate < high
+
+
+def test_a_threshold_of_another_basin_that_fits_as_well_widens_the_interval():
+    """The refits see only the estimate's basin; a threshold simulated before the fit (an RMS at or above its
+    profile) within the limit is inside however far it lies, and one beyond the limit changes nothing."""
+    refit, best = _quadratic_refit(0.05, 0.01), _best(0.05)
+    alone = threshold_profile(refit, best, 'threshold_voltage', 0.0, 2.0)
+    near_rms = BEST_RMS * math.exp(1.0 / (2 * EFFECTIVE))         # statistic 1 at 0.7 V
+    far_rms = BEST_RMS * math.exp(9.0 / (2 * EFFECTIVE))          # statistic 9 at 1.5 V
+    both = threshold_profile(refit, best, 'threshold_voltage', 0.0, 2.0,
+                             ranking=[(0.7, near_rms), (1.5, far_rms)])
+    assert alone['interval'][1] < 0.1
+    assert both['interval'][1] == pytest.approx(0.7)
+    assert both['sigma'] == pytest.approx(0.65 / 1.96)

@@ -412,6 +412,7 @@ def fit_model(prep: PreparedRecord, effects: Sequence[str] = (), start: dict[str
     low = float(levels[levels < threshold].max()) if np.any(levels < threshold) else 0.0
     high = float(levels[levels > threshold].min()) if np.any(levels > threshold) else threshold
     best.extra['threshold_interval'] = (low, high)
+    best.extra['threshold_ranking'] = [(threshold, score) for score, threshold, _ in ranked]   # [V], [rad]
     # Anywhere between the two levels fits equally: a uniform uncertainty over that interval.
     best.standard_errors[gate] = (high - low) / math.sqrt(12.0)
     return best
@@ -773,9 +774,11 @@ def _profile_threshold(prep: PreparedRecord, fit: OutputErrorFit, initial_states
     def refit(threshold: float) -> OutputErrorFit:
         return fit_output_error(prep.train, fit.structure, fit.parameters, fixed={**held, gate: threshold},
                                 max_iterations=REFIT_ITERATIONS, initial_states=initial_states)
-    profile = threshold_profile(refit, fit, gate, 0.0, float(np.max(prep.gate_voltage[:prep.split])))
+    profile = threshold_profile(refit, fit, gate, 0.0, float(np.max(prep.gate_voltage[:prep.split])),
+                                ranking=fit.extra.get('threshold_ranking', ()))
     errors = dict(fit.standard_errors)
-    errors[gate] = max(errors.get(gate, 0.0), profile['sigma'])
+    level_rule = errors.get(gate, math.nan)
+    errors[gate] = max(level_rule, profile['sigma']) if math.isfinite(level_rule) else profile['sigma']
     for name, spread in profile['spread'].items():
         if name in errors and math.isfinite(errors[name]):
             errors[name] = math.hypot(errors[name], spread)
