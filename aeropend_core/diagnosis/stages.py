@@ -233,8 +233,8 @@ def _interchangeable(prep: PreparedRecord, model: tuple[str, ...], best: Candida
                        fixed=dict(fixed))
     except InsufficientDataError:
         return True
-    rival_over_best = assess(prep, best.comparison, both, rival.effect)
-    best_over_rival = assess(prep, rival.comparison, both, best.effect)
+    rival_over_best = assess(prep, best.comparison, both, rival.effect, True)
+    best_over_rival = assess(prep, rival.comparison, both, best.effect, True)
     return not rival_over_best.significant and not best_over_rival.significant
 
 
@@ -264,8 +264,8 @@ def _judge_pair(prep: PreparedRecord, model: tuple[str, ...], final: Comparison,
         both = compare(prep, model + (rival,), start=final.parameters, fixed=dict(fixed))
     except InsufficientDataError:
         return 'interchangeable', None
-    chosen_adds = assess(prep, swapped, _holding(both, final), chosen).significant
-    rival_adds = assess(prep, final, _holding(both, swapped), rival).significant
+    chosen_adds = assess(prep, swapped, _holding(both, final), chosen, True).significant
+    rival_adds = assess(prep, final, _holding(both, swapped), rival, True).significant
     if chosen_adds and rival_adds:
         return 'both', swapped
     if chosen_adds or rival_adds:
@@ -350,7 +350,7 @@ def catalog_stage(prepared: Prepared, compared: Compared, say: Say) -> CatalogRe
                 reduced = compare(search, reduced_model, start=base.parameters, fixed=dict(held))
             except InsufficientDataError:
                 continue
-            if not assess(search, reduced, base, earlier.effect).significant:
+            if not assess(search, reduced, base, earlier.effect, True).significant:
                 notes.append(f'{earlier.effect} was dropped again: with {best.effect} in the model it adds nothing '
                              f'significant.')
                 model, base = reduced_model, reduced
@@ -371,7 +371,7 @@ def catalog_stage(prepared: Prepared, compared: Compared, say: Say) -> CatalogRe
                 steps.append((rival, []))
             elif verdict == 'rival':
                 # the evidence of the rival in the chosen one's place, against the model that holds the chosen one
-                steps.append((assess(search, base, swapped, rival_name), []))
+                steps.append((assess(search, base, swapped, rival_name, True), []))
                 model, base = swapped.effects, swapped
                 notes.append(f'{chosen.effect} was replaced by {rival_name}: judged against each other on the '
                              f'final model, the data prefer {rival_name}.')
