@@ -169,7 +169,8 @@ def modelled_evidence(prep, base, augmented, added: int) -> ModelledEvidence | N
     n = min(b.count, c.count)
     delta_bic = float(n * math.log(max(c.innovation_ms, 1e-300) / max(b.innovation_ms, 1e-300))
                       + (added + c.order - b.order) * math.log(n))
-    dm, _ = diebold_mariano(eb, ec) if eb.size else (math.nan, math.nan)
+    # (a simulation that runs away on the held-out part leaves no finite stretch: no held-out evidence)
+    dm, _ = diebold_mariano(eb, ec) if eb.size and eb.size == ec.size else (math.nan, math.nan)
     share = float(1.0 - c.innovation_ms / b.innovation_ms) if b.innovation_ms > 0 else math.nan
     return ModelledEvidence(delta_bic, float(dm), b.order, c.order, share)
 
