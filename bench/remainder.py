@@ -110,11 +110,14 @@ def main() -> None:
     parser.add_argument('--alone', type=int, default=40)
     parser.add_argument('--workers', type=int, default=1)
     parser.add_argument('--seed-base', type=int, default=SEED_BASE, help='first seed (reported: %(default)s)')
+    parser.add_argument('--part', choices=('all', 'beside', 'alone'), default='all',
+                        help='run only one set (the same records as in the whole run)')
     add_json_argument(parser)
     args = parser.parse_args()
     if args.beside < 0 or args.alone < 0 or args.workers < 1:
         parser.error('--beside and --alone must be at least 0, --workers at least 1')
-    jobs = [(index, args.beside, args.seed_base) for index in range(args.beside + args.alone)]
+    jobs = [(index, args.beside, args.seed_base) for index in range(args.beside + args.alone)
+            if args.part == 'all' or (index < args.beside) == (args.part == 'beside')]
     rows, wall = spawn_map(run, jobs, args.workers)
     for r in rows:
         print(f'{r["seed"]:6d} {r["set"]:6s} {str(r["true_effect"]):17s} + {r["remainder"]:13s} '
