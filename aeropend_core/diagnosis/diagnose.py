@@ -61,7 +61,7 @@ from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the se
     CONFOUNDING_FACTOR, DEFAULT_EXPERIMENT, DISCOVERY_NOISE, MAX_EFFECTS, RETRY_NOISE, UNEXPLAINED_NOISE,
     UPRIGHT_WARNING, Found, VerdictFacts, _finite, catalog_stage, compare_stage, discovery_stage, drift_stage,
     excitation_advice, prepare_stage, rerun_on_corrected_input, separating_experiment, verdict_stage)
-from aeropend_core.diagnosis.model_doubt import widen_for_remainder
+from aeropend_core.diagnosis.model_doubt import beyond_doubt, widen_for_remainder
 from aeropend_core.diagnosis.remainder import Remainder, remainder_of
 from aeropend_core.diagnosis.state_map import StateMap, state_map
 from aeropend_core.diagnosis.verdicts import Verdict
@@ -421,6 +421,9 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
         prepared, compared, catalog, discovered = rerun.prepared, rerun.compared, rerun.catalog, rerun.discovered
     # beside a remainder the discovery stage refitted terms for, the selected effects' +- carry the model doubt
     widened, doubt_notes = widen_for_remainder(list(catalog.found), discovered.pendulum)
+    if catalog.remainder:       # beside a remainder: an effect the doubt puts within T_MIN sigma of zero is not named
+        widened, unnamed = beyond_doubt(widened, T_MIN)
+        doubt_notes += unnamed
     catalog = dataclasses.replace(catalog, found=tuple(widened))
     drifted = drift_stage(catalog, drift, say)
     decided = verdict_stage(catalog, discovered, drifted, input_corrected=rerun is not None)

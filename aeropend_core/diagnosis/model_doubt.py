@@ -51,4 +51,41 @@ def widen_for_remainder(found: list, discovery) -> tuple[list, list[str]]:
     return widened, notes
 
 
-__all__ = ['widen_for_remainder']
+def beyond_doubt(found: list, t_min: float) -> tuple[list, list[str]]:
+    """(the effects still named, a note per effect no longer named) once the ± carries the model doubt.
+
+    An effect is named when its parameter is at least `t_min` standard errors from zero (the catalog search's rule);
+    with the model doubt in its ± (:func:`widen_for_remainder`) an effect that only stands in for part of the
+    remainder falls below that: its value depends on what the remainder is, so it is not named as present (an angle
+    offset of 0.024 +- 0.019 rad, all but 0.005 of it doubt, read for a thrust loss above a knee).
+
+    Parameters
+    ----------
+    found : list of Found [-]
+        The selected set, its ± widened (``Found.model_doubt`` [SI] set where it was).
+    t_min : float [-]
+        Standard errors from zero a parameter must be.
+
+    Returns
+    -------
+    (list of Found, list of str)
+    """
+    kept, notes = [], []
+    for entry in found:
+        doubted = {name: (abs(entry.parameters[name]) / entry.standard_errors[name])
+                   for name in getattr(entry, 'model_doubt', {}) or {}
+                   if name in entry.parameters and entry.standard_errors.get(name, 0.0) > 0}
+        weak = {name: t for name, t in doubted.items() if t < t_min}
+        if not weak:
+            kept.append(entry)
+            continue
+        name, t = min(weak.items(), key=lambda item: item[1])
+        notes.append(f'{entry.effect} is not named: significant against the noise and against the remainder '
+                     f'modelled as a disturbance, but with the model doubt in its +- its {name} = '
+                     f'{entry.parameters[name]:.3g} +- {entry.standard_errors[name]:.2g} is {t:.1f} standard errors '
+                     f'from zero (fewer than {t_min:g}): it may only stand in for part of the remainder the catalog '
+                     'cannot write')
+    return kept, notes
+
+
+__all__ = ['beyond_doubt', 'widen_for_remainder']

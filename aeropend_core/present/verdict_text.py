@@ -102,10 +102,11 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
         message = (f'present beside a remainder outside the catalog: {sizes}; judged against that remainder '
                    f'modelled as a disturbance, {"they hold" if len(found) > 1 else "it holds"}. '
                    f'{"Together they explain" if len(found) > 1 else "It explains"} {max(explained, 0.0) * 100:.0f} % '
-                   f'of the mean-square error beyond the noise, with {excess_final * 1e3:.2f} mrad beyond the noise ({noise_text}) left '
-                   f'unexplained, that no catalog effect explains (outside the catalog). The residual '
-                   f'correlates most with {structure[0]["signature"]} (r = {structure[0]["correlation"]:+.2f}); '
-                   'consider writing an effect with that signature (aeropend_core.model.effects.register_effect).')
+                   f'of the mean-square error beyond the noise, with {excess_final * 1e3:.2f} mrad beyond the noise '
+                   f'({noise_text}) left unexplained, that no catalog effect explains (outside the catalog). The '
+                   f'residual correlates most with {structure[0]["signature"]} '
+                   f'(r = {structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
+                   '(aeropend_core.model.effects.register_effect).')
     elif verdict == 'confounded' and unsure:
         parts = [f'one of {", ".join([f.effect] + list(f.confounded_with))}' for f in unsure]
         message = (f'{" and ".join(parts)} is missing, but this data cannot tell which; see notes.'
