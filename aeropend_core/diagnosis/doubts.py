@@ -132,6 +132,12 @@ def near_miss_notes(candidates: Iterable, current, prep) -> list[str]:
     for candidate in candidates:
         if candidate.significant or candidate.comparison is None or not candidate.parameters:
             continue
+        if getattr(candidate, 'lost_to_remainder', False) and candidate.modelled is not None:
+            notes.append(f'{candidate.effect} is not named: against white noise it would be significant (training '
+                         f'BIC {candidate.delta_bic:+.0f}, held-out Diebold-Mariano {candidate.dm_statistic:+.1f}), '
+                         f'but not {candidate.modelled.sentence()}: what it removes, the remainder\'s own past '
+                         'predicts (it imitates part of a remainder the catalog cannot write).')
+            continue
         if not (candidate.t_statistic >= T_MIN and candidate.dm_statistic >= DM_MIN
                 and math.isfinite(candidate.delta_bic)):
             continue
