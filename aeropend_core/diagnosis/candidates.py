@@ -44,7 +44,7 @@ NOISE_ESTIMATE_VARIANCE = 4.62
 #: remainder too (:mod:`aeropend_core.diagnosis.disturbance`) ...
 REMAINDER_NOISE = 0.5
 #: ... where it must lower the innovations' BIC by BIC_MARGIN and predict the held-out innovations better, with a
-#: Diebold-Mariano statistic of at least this.
+#: Diebold-Mariano statistic of at least this (or DM_WEAK when it removes MAJOR_SHARE of their mean square).
 MODELLED_DM = 2.33
 #: An effect parameter correlated beyond this with a nominal parameter is not separable from it in this data.
 CORRELATION_LIMIT = 0.97
@@ -215,7 +215,8 @@ def assess(prep: PreparedRecord, base: Comparison, augmented: Comparison, name: 
     modelled, lost = None, False
     if modelled_remainder and significant and excess_after > REMAINDER_NOISE * noise:
         modelled = modelled_evidence(prep, base, augmented, added)
-        if modelled is not None and modelled.candidate_order > 0 and not modelled.holds(BIC_MARGIN, MODELLED_DM):
+        if (modelled is not None and modelled.candidate_order > 0
+                and not modelled.holds(BIC_MARGIN, MODELLED_DM, DM_WEAK, MAJOR_SHARE)):
             significant, lost = False, True
     evidence = _regime_evidence(base, augmented)
     candidate = Candidate(name, augmented, values, errors, delta_bic, excess_before, excess_after, significant,

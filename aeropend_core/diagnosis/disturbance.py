@@ -17,7 +17,8 @@ over the noise model):
 * the innovations' mean square is the model's score; the evidence for a candidate over its base is the BIC change
   ``n log(s2_candidate / s2_base) + (k_added + p_candidate - p_base) log n`` on the training part (n innovations,
   white by construction), and a Diebold--Mariano statistic on the held-out part's innovations (each model filtered
-  by its own training filter).
+  by its own training filter), judged as the catalog judges the output error (DM >= 2.33, or >= 1 when it removes
+  half of the held-out innovations' mean square).
 
 An effect that holds against its own modelled remainder explains something the remainder's disturbance model cannot
 predict from the past residual; a look-alike whose gain lies in what a low-order filter predicts anyway loses it.
@@ -140,17 +141,24 @@ class ModelledEvidence:
     base_order: int
     candidate_order: int
     share_removed: float
+    #: Share of the base model's held-out innovation mean square the candidate removes [-].
+    heldout_share: float = math.nan
 
-    def holds(self, bic_margin: float, dm_min: float) -> bool:
+    def holds(self, bic_margin: float, dm_min: float, dm_weak: float, major_share: float) -> bool:
         """True when the candidate lowers the innovations' BIC by more than `bic_margin` and predicts the held-out
-        innovations better (DM at least `dm_min`)."""
-        return bool(self.delta_bic < -bic_margin and self.dm_statistic >= dm_min)
+        innovations better: DM at least `dm_min`, or at least `dm_weak` when it removes at least `major_share` of
+        their mean square (the catalog's held-out rule, on the innovations: a short held-out part holds few
+        independent pieces of evidence)."""
+        predictive = self.dm_statistic >= dm_min or (self.dm_statistic >= dm_weak
+                                                     and self.heldout_share >= major_share)
+        return bool(self.delta_bic < -bic_margin and predictive)
 
     def sentence(self) -> str:
         return (f'against a modelled remainder (AR({self.candidate_order}) disturbance of {DECIMATED_STEP * 1e3:.0f} '
                 f'ms blocks; the base model\'s AR({self.base_order})): innovations BIC {self.delta_bic:+.1f}, '
                 f'held-out Diebold-Mariano {self.dm_statistic:+.1f}, '
-                f'{self.share_removed * 100:.0f} % of the innovation variance removed')
+                f'{self.share_removed * 100:.0f} % of the innovation variance removed (held out: '
+                f'{self.heldout_share * 100:.0f} %)')
 
 
 def modelled_evidence(prep, base, augmented, added: int) -> ModelledEvidence | None:
@@ -172,7 +180,9 @@ def modelled_evidence(prep, base, augmented, added: int) -> ModelledEvidence | N
     # (a simulation that runs away on the held-out part leaves no finite stretch: no held-out evidence)
     dm, _ = diebold_mariano(eb, ec) if eb.size and eb.size == ec.size else (math.nan, math.nan)
     share = float(1.0 - c.innovation_ms / b.innovation_ms) if b.innovation_ms > 0 else math.nan
-    return ModelledEvidence(delta_bic, float(dm), b.order, c.order, share)
+    held_ms = float(np.mean(eb ** 2)) if math.isfinite(dm) else 0.0
+    held_share = float(1.0 - np.mean(ec ** 2) / held_ms) if held_ms > 0 else math.nan
+    return ModelledEvidence(delta_bic, float(dm), b.order, c.order, share, held_share)
 
 
 __all__ = ['DECIMATED_STEP', 'Disturbance', 'ModelledEvidence', 'decimated_pieces', 'fit_disturbance',
