@@ -147,10 +147,12 @@ def test_a_runs_diagnosis_is_saved_beside_its_bag(tmp_path, monkeypatch):
         return Path(path)
 
     import aeropend_core.present.report as report
-    import aeropend_core.present.verdict_text as verdict_text
     monkeypatch.setattr(report, 'write_report', fake_report)
-    monkeypatch.setattr(verdict_text, 'diagnosis_dict', lambda d: {'schema': 'aeropend.diagnosis/1', 'x': math.nan})
-    paths = _checks.save_beside_bag(object(), bag)
+
+    class Stub:               # a Diagnosis presents itself as --json prints it (Diagnosis.to_dict)
+        def to_dict(self):
+            return {'schema': 'aeropend.diagnosis/1', 'x': math.nan}
+    paths = _checks.save_beside_bag(Stub(), bag)
     assert paths == [str(tmp_path / 'aeropend_20261206_210000.diagnosis.json'),
                      str(tmp_path / 'aeropend_20261206_210000.report.html')]
     assert json.loads(Path(paths[0]).read_text()) == {'schema': 'aeropend.diagnosis/1', 'x': None}
@@ -237,7 +239,9 @@ def test_the_diagnosis_json_names_its_schema():
     from aeropend_core.diagnosis.diagnose import DIAGNOSIS_SCHEMA, Diagnosis
     import inspect
     assert DIAGNOSIS_SCHEMA == 'aeropend.diagnosis/1'
-    assert "'schema': DIAGNOSIS_SCHEMA" in inspect.getsource(Diagnosis.to_dict)
+    # to_dict (what --json prints) is numbers_dict with the verdict's words; the schema is its first key
+    assert "'schema': DIAGNOSIS_SCHEMA" in inspect.getsource(Diagnosis.numbers_dict)
+    assert 'diagnosis_dict(self)' in inspect.getsource(Diagnosis.to_dict)
 
 
 @pytest.mark.slow
