@@ -97,3 +97,16 @@ def test_a_threshold_of_another_basin_that_fits_as_well_widens_the_interval():
     assert alone['interval'][1] < 0.1
     assert both['interval'][1] == pytest.approx(0.7)
     assert both['sigma'] == pytest.approx(0.65 / 1.96)
+
+
+def test_a_refit_that_stops_short_of_the_optimum_is_not_read_as_a_rise():
+    """Every warm-started refit ends 0.5 % above the best fit's RMS (statistic ~4 everywhere at n_eff 400): the
+    same refit at the estimate is the reference, so the interval is the profile's own, not the estimate alone."""
+    quadratic = _quadratic_refit(0.6, 0.05)
+
+    def short(threshold: float):
+        fit = quadratic(threshold)
+        return SimpleNamespace(residual_rms=fit.residual_rms * 1.005, parameters=fit.parameters)
+    profile = threshold_profile(short, _best(0.6), 'threshold_voltage', 0.0, 2.0)
+    assert profile_statistic(BEST_RMS * 1.005, BEST_RMS, EFFECTIVE) > PROFILE_CHI2
+    assert profile['sigma'] == pytest.approx(0.05, rel=0.15)
