@@ -15,7 +15,8 @@ thrust lag 0.05-0.3 s, the sizes in ``second_rig.EFFECT_RANGES``). Per record:
   module's docstring); coverage within 1 and 2 sigma (targets >= 60 % / >= 92 %).
 
 Run:  nice -n 19 .venv/bin/python bench/second_rig.py [--records 20] [--seed-base 40000] [--rows PATH.jsonl]
-      [--coverage-only] [--json PATH]   (one record after the other on one core; ~15-40 s of CPU per record)
+      [--coverage-only] [--with-effect friction_torque] [--json PATH]
+      (one record after the other on one core; ~15-40 s of CPU per record)
       nice -n 19 .venv/bin/python bench/second_rig.py --summarise ROWS.jsonl [...]   (the table of saved rows)
 """
 from __future__ import annotations
@@ -46,20 +47,26 @@ def _effects_of_kind() -> dict[str, tuple[str, str]]:
             for kind, parameter in effect.kernel_terms}
 
 
-def record(seed: int, excitation: str = 'mixed'):
-    """(recording, second-rig record) of `seed` (module docstring)."""
+def drawn_effects(seed: int) -> list[str]:
+    """The second rig's effects (its own names, ``second_rig.EFFECT_RANGES``) that `seed`'s record carries."""
     import numpy as np
 
-    from aeropend_core.io.recording import from_columns
     from aeropend_core.testing import second_rig
     effects = None
     if seed % 4 == 0:
-        effects = []
-    else:
-        rng = np.random.default_rng(seed + 7919)
-        while not effects:
-            effects = [name for name in second_rig.EFFECT_RANGES if rng.random() < 0.3]
-    rig_record = second_rig.draw(seed, effects=effects, excitation_kind=excitation)
+        return []
+    rng = np.random.default_rng(seed + 7919)
+    while not effects:
+        effects = [name for name in second_rig.EFFECT_RANGES if rng.random() < 0.3]
+    return effects
+
+
+def record(seed: int, excitation: str = 'mixed'):
+    """(recording, second-rig record) of `seed` (module docstring)."""
+
+    from aeropend_core.io.recording import from_columns
+    from aeropend_core.testing import second_rig
+    rig_record = second_rig.draw(seed, effects=drawn_effects(seed), excitation_kind=excitation)
     return from_columns(rig_record.columns, source=f'second rig seed {seed}'), rig_record
 
 
@@ -103,6 +110,9 @@ def run(seed: int, search: bool = True, excitation: str = 'mixed') -> dict:
             'told_verdict': told.verdict,
             'estimates': {name: values.get(name) for name in truth},
             'sigmas': {name: errors.get(name) for name in truth}, 'z': z,
+            # the friction law's shape doubt included in the sigmas (aeropend_core.diagnosis.friction_doubt)
+            'friction_law_doubt': {name: move for name, move in
+                                   told.current.fit.extra.get('friction_law_doubt', {}).items() if name in truth},
             'seconds': round(time.perf_counter() - started, 1)}
 
 
@@ -163,6 +173,9 @@ def main() -> None:
     parser.add_argument('--coverage-only', action='store_true',
                         help='only the fit told the true structure (coverage), not the full search (basins, false '
                         'alarms): ~10 times faster')
+    parser.add_argument('--with-effect', metavar='RIG_EFFECT', default=None,
+                        help='run only the seeds whose record carries this effect of the second rig (its own name, '
+                        'e.g. friction_torque); --records counts the seeds looked at, not those run')
     parser.add_argument('--summarise', metavar='JSONL', nargs='+', default=None,
                         help='print the table of rows already written by --rows (no new records)')
     add_json_argument(parser)
@@ -178,6 +191,8 @@ def main() -> None:
     started = time.perf_counter()
     rows = []
     for seed in range(args.seed_base, args.seed_base + args.records):
+        if args.with_effect and args.with_effect not in drawn_effects(seed):
+            continue
         row = run(seed, search=not args.coverage_only, excitation=args.excitation)
         rows.append(row)
         z = ' '.join(f'{k}={v:+.1f}' for k, v in row['z'].items() if v is not None)

@@ -116,6 +116,7 @@ def run(seed: int) -> dict:
     from threadpoolctl import threadpool_limits
 
     from aeropend_core.diagnosis.compare import compare, prepare
+    from aeropend_core.diagnosis.friction_doubt import widen_for_friction_shape
     recording, truth, row = record(seed)
     started = time.perf_counter()
     try:
@@ -123,6 +124,9 @@ def run(seed: int) -> dict:
             prep = prepare(recording)
             effects = () if row['effect'] == CLEAN else (row['effect'],)
             comparison = compare(prep, effects)
+            noise_errors = dict(comparison.fit.standard_errors)
+            # as the diagnosis reports it: with dry friction, the +- carry the friction law's shape doubt
+            comparison, _ = widen_for_friction_shape(prep, comparison)
             values = dict(comparison.parameters)
             errors = dict(comparison.fit.standard_errors)
             if prep.motor is not None:
@@ -143,6 +147,8 @@ def run(seed: int) -> dict:
         estimate, sigma = float(values[name]), float(errors.get(name, float('nan')))
         z = (estimate - true) / sigma if sigma > 0 else float('nan')
         row['parameters'][name] = {'truth': true, 'estimate': estimate, 'sigma': sigma, 'z': z}
+        if name in comparison.fit.extra.get('friction_law_doubt', {}):     # the noise's sigma alone, for before/after
+            row['parameters'][name]['sigma_noise'] = noise_errors[name]
     return row
 
 
@@ -252,6 +258,8 @@ def main() -> None:
     parser.add_argument('--seed-base', type=int, default=SEED_BASE)
     parser.add_argument('--quick', action='store_true', help='24 records of 60 s only (a few minutes)')
     parser.add_argument('--out', default=None, help='folder for coverage.md and records.json')
+    parser.add_argument('--kind', default=None, help='only the records whose effect has this kernel kind '
+                        '(e.g. rate_sign: dry friction)')
     parser.add_argument('--from-log', metavar='LOG', help='make the tables from the lines of a stopped run instead')
     add_json_argument(parser)
     args = parser.parse_args()
@@ -266,6 +274,10 @@ def main() -> None:
     if count < 1 or args.workers < 1 or args.seed_base < 0:
         parser.error('--records and --workers must be at least 1 and --seed-base at least 0')
     seeds = [args.seed_base + k for k in range(count * 2) if not (args.quick and k % 5 == 4)][:count]
+    if args.kind:       # only the seeds whose effect has this kernel kind (still among the first `count`)
+        from aeropend_core.model.effects import CATALOG
+        seeds = [s for s in seeds if any(kind == args.kind for kind, _ in
+                                         getattr(CATALOG.get(_draws(s)[1]), 'kernel_terms', ()))]
     started = time.perf_counter()
     with get_context('spawn').Pool(args.workers) as pool:
         rows = []

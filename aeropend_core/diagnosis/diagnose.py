@@ -61,12 +61,13 @@ from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the se
     CONFOUNDING_FACTOR, DEFAULT_EXPERIMENT, DISCOVERY_NOISE, MAX_EFFECTS, RETRY_NOISE, UNEXPLAINED_NOISE,
     UPRIGHT_WARNING, Found, VerdictFacts, _finite, catalog_stage, compare_stage, discovery_stage, drift_stage,
     excitation_advice, prepare_stage, rerun_on_corrected_input, separating_experiment, verdict_stage)
+from aeropend_core.diagnosis.friction_doubt import widen_for_friction_shape, widen_found
 from aeropend_core.diagnosis.model_doubt import beyond_doubt, widen_for_remainder
 from aeropend_core.diagnosis.remainder import Remainder, remainder_of
 from aeropend_core.diagnosis.state_map import StateMap, state_map
 from aeropend_core.diagnosis.verdicts import Verdict
 from aeropend_core.io.recording import Recording
-from aeropend_core.model.effects import catalog_scope
+from aeropend_core.model.effects import catalog_scope, kernel_parameter
 
 #: The ``schema`` key of a diagnosis's JSON (``aeropend diagnose --json``, ``aeropend run --json``'s
 #: ``diagnosis``, the ``.diagnosis.json`` saved beside a bag): its name and version, raised when a key changes
@@ -408,6 +409,19 @@ def diagnose(recording: Recording | PreparedRecord, effects: Sequence[str] = (),
         return _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from, discovery)
 
 
+def _widen_for_friction_shape(catalog, say):
+    """(`catalog` with the current and selected models' ± widened by the dry-friction law's doubt, the notes):
+    :mod:`aeropend_core.diagnosis.friction_doubt`, two refits per model that has dry friction."""
+    if not any(kernel_parameter(c.effects, 'rate_sign') for c in (catalog.current, catalog.selected) if c):
+        return catalog, []
+    say('refitting with the dry-friction law\'s shape varied (its doubt joins the +-)')
+    current, notes = widen_for_friction_shape(catalog.prep, catalog.current)
+    selected, selected_notes = (current, []) if catalog.selected is catalog.current else \
+        widen_for_friction_shape(catalog.prep, catalog.selected)
+    return dataclasses.replace(
+        catalog, current=current, selected=selected, final=selected if selected is not None else current,
+        found=tuple(widen_found(list(catalog.found), selected))), notes + selected_notes
+
 def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from, discovery) -> Diagnosis:
     """The stages of :func:`diagnose` (same arguments), run in order."""
     started = time.perf_counter()
@@ -419,11 +433,14 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
     rerun = rerun_on_corrected_input(prepared, catalog, discovered, say)
     if rerun is not None:       # a proven motor term: the stages again on the thrust input rebuilt with it
         prepared, compared, catalog, discovered = rerun.prepared, rerun.compared, rerun.catalog, rerun.discovered
+    # with dry friction in the model, every +- carries how far the parameters move with the friction law's shape
+    catalog, friction_notes = _widen_for_friction_shape(catalog, say)
     # beside a remainder the discovery stage refitted terms for, the selected effects' +- carry the model doubt
     widened, doubt_notes = widen_for_remainder(list(catalog.found), discovered.pendulum)
     if catalog.remainder:       # beside a remainder: an effect the doubt puts within T_MIN sigma of zero is not named
         widened, unnamed = beyond_doubt(widened, T_MIN)
         doubt_notes += unnamed
+    doubt_notes = friction_notes + doubt_notes
     catalog = dataclasses.replace(catalog, found=tuple(widened))
     drifted = drift_stage(catalog, drift, say)
     decided = verdict_stage(catalog, discovered, drifted, input_corrected=rerun is not None)

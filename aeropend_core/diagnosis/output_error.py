@@ -68,16 +68,17 @@ _F1, _F2, _F3, _I1 = numba.float64[::1], numba.float64[:, ::1], numba.float64[:,
 # One explicit signature (C-contiguous arrays; :func:`_run_kernel` converts): the users' term comes in as a
 # first-class function of one fixed type, so this kernel is compiled once and cached for every user effect.
 @numba.njit(numba.void(_F2, _F1, _F1, _F1, _I1, _I1, _F3, numba.float64, numba.boolean, numba.boolean, _F2,
-                       numba.int64, numba.int64, EXTRA_TYPE, numba.boolean), cache=True, nogil=True)
+                       numba.int64, numba.int64, EXTRA_TYPE, numba.boolean, numba.float64), cache=True, nogil=True)
 def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, initial, sample_time, lag_on, gate_on,
-                     out, term_code, term_column, extra, extra_on):
+                     out, term_code, term_column, extra, extra_on, friction_smoothing):
     """RK4 free-run of every parameter row over every segment; writes predicted measured angle into `out`.
 
     Row columns: the nominal parameters, then the kernel kinds in ``KERNEL_KINDS`` order (rate_sign, rate_square,
     angle_linear, measured_offset, thrust_lag_time, thrust_threshold); a discovered term `term_code`
     (:mod:`aeropend_core.diagnosis.term_kernel`, -1: none) enters with the coefficient in column `term_column`;
     with `extra_on`, the users' effects enter as ``extra(angle, rate, thrust, row)``
-    (:mod:`aeropend_core.diagnosis.user_kernel`)."""
+    (:mod:`aeropend_core.diagnosis.user_kernel`); dry friction's sign is smoothed over `friction_smoothing`
+    [rad/s] (the catalog's FRICTION_SMOOTHING but in the refits of :mod:`aeropend_core.diagnosis.friction_doubt`)."""
     h = STRIDE * sample_time
     n_rows = theta.shape[0]
     for row in range(n_rows):
@@ -91,7 +92,7 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
         offset = theta[row, 7]
         tau = max(theta[row, 8], MIN_TIME_CONSTANT)
         vth = theta[row, 9]
-        smooth = max(FRICTION_SMOOTHING, fc * h / FRICTION_STABILITY)
+        smooth = max(friction_smoothing, fc * h / FRICTION_STABILITY)
         c = theta[row, term_column] if term_code >= 0 else 0.0
         for s in range(seg_start.shape[0]):
             start = seg_start[s]
@@ -186,17 +187,18 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
 
 
 def _simulate_numpy(theta, voltage, current, gate_signal, seg_start, seg_stop, initial, sample_time, lag_on, gate_on,
-                    out, user_terms):
+                    out, user_terms, friction_smoothing=FRICTION_SMOOTHING):
     """The kernel's scheme in numpy, vectorised over parameter rows; also runs users' pendulum effects.
 
     `user_terms` is a list of ``(function, {parameter name: column})``; a function with a ``thrust`` keyword also gets
-    the thrust's angular acceleration [rad/s^2] (:func:`aeropend_core.model.effects.wants_thrust`).
+    the thrust's angular acceleration [rad/s^2] (:func:`aeropend_core.model.effects.wants_thrust`); dry friction's
+    sign is smoothed over `friction_smoothing` [rad/s] as in the kernel.
     """
     h = STRIDE * sample_time
     a, b, k, r, fc, cd, kc, offset = (theta[:, c] for c in range(8))
     tau = np.maximum(theta[:, 8], MIN_TIME_CONSTANT)
     vth = theta[:, 9]
-    smooth = np.maximum(FRICTION_SMOOTHING, fc * h / FRICTION_STABILITY)
+    smooth = np.maximum(friction_smoothing, fc * h / FRICTION_STABILITY)
 
     def gate(idx):
         return np.where(gate_signal[idx] < vth, 0.0, 1.0) if gate_on else 1.0
@@ -250,6 +252,9 @@ class Structure:
     """Which effects the pendulum model has, and how their parameters map onto the simulation row."""
 
     effects: tuple[str, ...] = ()
+    #: Rate over which dry friction's sign is smoothed [rad/s]: the catalog's law, varied only to measure how much
+    #: the parameters depend on the law's shape (:mod:`aeropend_core.diagnosis.friction_doubt`).
+    friction_smoothing: float = FRICTION_SMOOTHING
 
     def __post_init__(self) -> None:
         for name in self.effects:
@@ -407,7 +412,8 @@ class SegmentedData:
             _run_kernel(self, structure, rows, voltage, initial, out, extra=extra)
         elif terms:         # a user's effect numba cannot compile (said once, aeropend_core.diagnosis.user_kernel)
             _simulate_numpy(rows, voltage, self.current, self.gate_signal, self.seg_start, self.seg_stop, initial,
-                            self.sample_time, structure.lag_on, structure.gate_on, out, terms)
+                            self.sample_time, structure.lag_on, structure.gate_on, out, terms,
+                            structure.friction_smoothing)
         else:
             _run_kernel(self, structure, rows, voltage, initial, out)
         if structure.filter_on:
@@ -437,7 +443,7 @@ def _run_kernel(data: SegmentedData, structure: Structure, rows: np.ndarray, vol
                      np.ascontiguousarray(data.seg_start, dtype=np.int64),
                      np.ascontiguousarray(data.seg_stop, dtype=np.int64), f(initial), float(data.sample_time),
                      bool(structure.lag_on), bool(structure.gate_on), out, int(term_code), int(term_column),
-                     no_extra if extra is None else extra, extra is not None)
+                     no_extra if extra is None else extra, extra is not None, float(structure.friction_smoothing))
 
 
 @dataclass

@@ -82,9 +82,11 @@ def comparison_dict(comparison: Comparison) -> dict:
         ``model_effects``; ``fit_percent`` [%]; ``rms_error``, ``noise_rms``, ``error_beyond_noise``,
         ``prediction_rms_error`` [rad]; ``prediction_horizon`` [s]; ``parameters`` and ``standard_errors`` (SI,
         1 sigma, HAC) with ``units``; ``regimes`` and ``worst_windows`` (errors [rad], times [s]); ``diverged``,
-        ``fit_converged`` and ``doubts``.
+        ``fit_converged`` and ``doubts``; with dry friction in a diagnosis's model, ``friction_law_doubt`` (the
+        part of each ± from the friction law's shape, SI; :mod:`aeropend_core.diagnosis.friction_doubt`).
     """
     evaluation, fit = comparison.evaluation, comparison.fit
+    shape = {'friction_law_doubt': dict(fit.extra['friction_law_doubt'])} if 'friction_law_doubt' in fit.extra else {}
     return {'model_effects': list(comparison.effects), 'fit_percent': evaluation.fit_percent,
             'fit_definition': 'held-out free-run simulation of the angle, NRMSE fit % as MATLAB compare',
             'rms_error': evaluation.rms_error, 'noise_rms': evaluation.noise_rms,
@@ -93,7 +95,8 @@ def comparison_dict(comparison: Comparison) -> dict:
             'parameters': dict(fit.parameters), 'standard_errors': dict(fit.standard_errors),
             'units': {name: _unit(name) for name in fit.parameters}, 'estimator': 'output_error',
             'regimes': evaluation.regimes, 'worst_windows': evaluation.worst_windows,
-            'diverged': bool(evaluation.diverged), 'fit_converged': bool(fit.success), 'doubts': _doubts(comparison)}
+            'diverged': bool(evaluation.diverged), 'fit_converged': bool(fit.success), 'doubts': _doubts(comparison),
+            **shape}
 
 
 def comparison_text(comparison: Comparison) -> str:
