@@ -48,7 +48,9 @@ def test_the_map_names_the_band_of_angles_a_local_torque_acts_in(band_torque):
     assert all(b.mean < 0 for b in inside if abs(b.z) >= 4)      # the torque pulls down: the model lacks -2.5 there
     sentence = state_map_sentence(mapped)
     assert f'between {math.degrees(angle.low):.0f} and {math.degrees(angle.high):.0f} deg' in sentence
-    assert 'rad/s^2' in sentence and 'at these angles' in sentence
+    # the band is named; since the motor observer runs on every record (session 19) the middle thrust tercile, which
+    # this band's steady states share, can lead the sentence (93 % of its axis), the band then 'Also confined'
+    assert 'rad/s^2' in sentence and ('at these angles' in sentence or 'Also confined: between' in sentence), sentence
     document = mapped.to_dict()
     assert json.loads(json.dumps(document))['axes'][0]['localised'] is True
     assert document['unit'] == 'rad/s^2'
