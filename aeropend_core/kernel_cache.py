@@ -89,6 +89,15 @@ def _cached_kernels_of(module: str) -> list[str]:
     return [os.path.join(folder, name) for name in names if name.startswith(stem) and name.endswith(('.nbi', '.nbc'))]
 
 
+def _read_stamp(path: str) -> dict:
+    """The last check's stamp ({} when there is none or it is unreadable)."""
+    try:
+        with open(path, encoding='utf-8') as file:
+            return json.load(file)
+    except (OSError, ValueError):
+        return {}
+
+
 def check_kernel_cache(package: str = PACKAGE) -> bool:
     """Delete the package's cached numba kernels when their sources changed since the last check.
 
@@ -106,22 +115,13 @@ def check_kernel_cache(package: str = PACKAGE) -> bool:
     stamp_path = os.path.join(cache, STAMP_NAME)
     try:
         stat_key = _stat_key(package, _python_files(package))
-        try:
-            with open(stamp_path, encoding='utf-8') as file:
-                stamp = json.load(file)
-        except (OSError, ValueError):
-            stamp = {}
-        if stamp.get('stat') == stat_key:
+        if _read_stamp(stamp_path).get('stat') == stat_key:
             return False
         os.makedirs(cache, exist_ok=True)
         import fcntl
         with open(os.path.join(cache, STAMP_NAME + '.lock'), 'w') as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)        # one process clears; the others then read its stamp
-            try:
-                with open(stamp_path, encoding='utf-8') as file:
-                    stamp = json.load(file)
-            except (OSError, ValueError):
-                stamp = {}
+            stamp = _read_stamp(stamp_path)            # another process may have checked meanwhile
             if stamp.get('stat') == stat_key:
                 return False
             dependencies = kernel_dependencies(package)
