@@ -60,6 +60,8 @@ code                        severity     when
 ``angle_zero``              warning      the rod at rest with no thrust reads more than 20 deg from 0
 ``held_samples``            warning      a signal changes only every L samples (a slower sensor)
 ``stuck_sensor``            refused      a signal frozen at one value while the input steps
+``rod_held``                warning      the angle frozen so, but entered from rest and left without a jump
+                                         by a quantised encoder, the current live: a rod held still
 ``noisy_signal``            warning /    PSNR of the angle or current below 17 dB (warning) or 12 dB (refused)
                             refused
 ==========================  ===========  ===================================================================

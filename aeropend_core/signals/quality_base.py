@@ -72,6 +72,14 @@ STUCK_SECONDS = 0.5
 STUCK_RESPONSE = 0.25
 
 
+#: A frozen angle is read as a rod at rest (not a stuck sensor) when the reading within this time [s] before and
+#: after the frozen span stays within ROD_HELD_COUNTS encoder counts of the frozen value (no jump at the thaw).
+ROD_HELD_WINDOW = 0.02
+
+
+ROD_HELD_COUNTS = 2
+
+
 #: Peak signal-to-noise ratios [dB] below which a measured signal is refused / said to be very noisy.
 MIN_PSNR_DB = 12.0
 

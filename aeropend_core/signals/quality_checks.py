@@ -21,6 +21,8 @@ from aeropend_core.signals.quality_base import (
     PRECISION_FRACTION,
     RATE_TOLERANCE,
     REST_ANGLE_LIMIT,
+    ROD_HELD_COUNTS,
+    ROD_HELD_WINDOW,
     STUCK_RESPONSE,
     STUCK_SECONDS,
     WARN_PSNR_DB,
@@ -686,7 +688,9 @@ def _check_held(gate: _Gate, name: str) -> None:
 
 
 def _check_stuck(gate: _Gate, name: str, driver: str, sample_time: float) -> None:
-    """A signal frozen at one value for STUCK_SECONDS or more while its driver (the input) steps."""
+    """A signal frozen at one value for STUCK_SECONDS or more while its driver (the input) steps. A frozen angle
+    the rod can explain (:func:`_rod_held`: held by dry friction or below the thrust that moves it) is said, not
+    refused."""
     if name not in gate.signals or driver not in gate.signals:
         return
     values, drive = gate.signals[name], gate.signals[driver]
@@ -701,12 +705,55 @@ def _check_stuck(gate: _Gate, name: str, driver: str, sample_time: float) -> Non
     minimum = max(int(STUCK_SECONDS / sample_time), 20)
     response = int(STUCK_RESPONSE / sample_time)
     long_enough = stops - starts + 1 >= minimum + response        # the runs worth a look, found at once
+    held = []
     for first, last in zip(starts[long_enough], stops[long_enough]):
         moved = float(np.ptp(smooth[first:last + 1 - response]))   # an input change the sensor had time to see
-        if moved > 0.2 * span:
-            gate.add('stuck_sensor', 'refused', f'{name!r} is stuck at {values[first]:.6g} for '
-                     f'{(last - first) * sample_time:.3g} s ({gate.at(first, last)}) while {driver!r} changes by '
-                     f'{moved:.3g}: the sensor froze; {gate.cut_hint}', gate.span(first, last), last - first + 1)
+        if moved <= 0.2 * span:
+            continue
+        if name == 'angle' and _rod_held(gate, first, last, sample_time):
+            held.append((first, last, moved))
+            continue
+        gate.add('stuck_sensor', 'refused', f'{name!r} is stuck at {values[first]:.6g} for '
+                 f'{(last - first) * sample_time:.3g} s ({gate.at(first, last)}) while {driver!r} changes by '
+                 f'{moved:.3g}: the sensor froze; {gate.cut_hint}', gate.span(first, last), last - first + 1)
+    if held:
+        first, last, moved = max(held, key=lambda run: run[1] - run[0])
+        gate.add('rod_held', 'warning', f'{name!r} holds one value in {len(held)} span(s) of '
+                 f'{STUCK_SECONDS + STUCK_RESPONSE:g} s or more while {driver!r} changes (longest '
+                 f'{(last - first) * sample_time:.3g} s, {gate.at(first, last)}, {driver!r} changing by {moved:.3g}), '
+                 'but the rod enters each span from rest and leaves it from the same count, and the current '
+                 'follows the input: read as a rod held still (dry friction, or a thrust below what moves it), '
+                 'not a frozen sensor; if the rod did move there, the sensor froze: cut the record around it',
+                 gate.span(first, last), sum(stop - start + 1 for start, stop, _ in held))
+
+
+def _rod_held(gate: _Gate, first: int, last: int, sample_time: float) -> bool:
+    """Whether the angle frozen over samples first..last (inclusive) is a rod at rest rather than a stuck sensor.
+
+    A still rod under a quantised encoder whose noise is below one count reads one value: the reading then enters
+    the span from rest and leaves it without a jump (within ROD_HELD_COUNTS counts over ROD_HELD_WINDOW s on each
+    side; a record that starts at rest has no side before), while a frozen sensor thaws with a jump to wherever
+    the rod went. Required besides: the angle is quantised (its steps are whole multiples of one count), the span
+    ends before the record does (a sensor frozen to the end cannot be told from a held rod: refused) and the
+    current, where recorded, is not frozen with it."""
+    angle = gate.signals['angle']
+    window = max(int(round(ROD_HELD_WINDOW / sample_time)), 3)
+    if last + window >= angle.size:                    # no thaw to look at
+        return False
+    steps = np.abs(np.diff(angle))
+    steps = steps[steps > 0]
+    if steps.size < 20:
+        return False
+    count = float(np.min(steps))
+    ratio = steps / count
+    if count <= 0 or np.mean(np.abs(ratio - np.round(ratio)) < 0.01) < 0.99:
+        return False                                     # not a quantised reading: a still rod would show noise
+    current = gate.signals.get('armature_current')
+    if current is not None and np.ptp(current[first:last + 1]) <= 0:
+        return False
+    value = angle[first]
+    sides = np.concatenate((angle[max(first - window, 0):first], angle[last + 1:last + 1 + window]))
+    return bool(np.max(np.abs(sides - value)) <= (ROD_HELD_COUNTS + 0.01) * count)
 
 
 def _offset_effect() -> str:
