@@ -773,7 +773,8 @@ def _profile_threshold(prep: PreparedRecord, fit: OutputErrorFit, initial_states
 
     def refit(threshold: float) -> OutputErrorFit:
         return fit_output_error(prep.train, fit.structure, fit.parameters, fixed={**held, gate: threshold},
-                                max_iterations=REFIT_ITERATIONS, initial_states=initial_states)
+                                max_iterations=REFIT_ITERATIONS, initial_states=initial_states,
+                                covariance=False)      # the profile reads the cost and the parameters, no sigma
     profile = threshold_profile(refit, fit, gate, 0.0, float(np.max(prep.gate_voltage[:prep.split])),
                                 ranking=fit.extra.get('threshold_ranking', ()))
     errors = dict(fit.standard_errors)

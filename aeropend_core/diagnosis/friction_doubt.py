@@ -58,7 +58,8 @@ def friction_shape_shifts(prep: PreparedRecord, fit: OutputErrorFit
         # the width the kernel actually uses (its stability floor, Fc h / FRICTION_STABILITY)
         rates.append(max(rate, abs(fit.parameters[friction]) * step / FRICTION_STABILITY))
         refit = fit_output_error(prep.train, replace(structure, friction_smoothing=rate), dict(fit.parameters),
-                                 fixed=held, max_iterations=REFIT_ITERATIONS, initial_states=fit.initial_states)
+                                 fixed=held, max_iterations=REFIT_ITERATIONS, initial_states=fit.initial_states,
+                                 covariance=False)      # the cost and the parameters are read, no sigma
         changes.append(refit.residual_rms / fit.residual_rms - 1.0)
         for name in fit.free_names:
             if name in held:

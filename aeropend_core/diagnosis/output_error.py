@@ -22,6 +22,7 @@ Integration: classical RK4 with step 2 Ts, so the input at the half step is an a
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -35,6 +36,7 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import (FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, find_parameter, get_effect,
                                          kernel_parameter, wants_thrust)
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.diagnosis.sensitivity import EXACT_COLUMNS, sensitivity_kernel
 from aeropend_core.diagnosis.term_kernel import term_value
 from aeropend_core.diagnosis.user_kernel import EXTRA_TYPE, compiled_user_terms, no_extra
 from aeropend_core.model.sensor_filter import filter_angle
@@ -504,11 +506,13 @@ def _default_scale(name: str, value: float) -> float:
 #: Above this many multiple-shooting segments the Jacobian is kept sparse and the trust-region steps use LSMR
 #: (a 60 s record has ~6 training segments: the exact dense solver, as before).
 SPARSE_SEGMENTS = 12
+#: Optimiser scale of a segment's initial angle [rad] and rate [rad/s].
+IC_SCALE = np.array([0.1, 1.0])
 
 
 def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str, float],
                      fixed: dict[str, float] | None = None, max_iterations: int = 60,
-                     initial_states: np.ndarray | None = None) -> OutputErrorFit:
+                     initial_states: np.ndarray | None = None, covariance: bool = True) -> OutputErrorFit:
     """Fit the parameters of `structure` and the segments' initial states to the measured angle.
 
     Parameters
@@ -525,6 +529,10 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
         Starting (angle, rate) per segment, e.g. a related model's fitted ones on the same segments. Used on the
         long-record (sparse) path only, where re-converging hundreds of initial states from the data's line fits
         costs most of a fit's iterations; short records always start from the data (their results unchanged).
+    covariance : bool
+        False: the parameters and the residuals only, for a refit whose standard errors nobody reads (a profile's
+        or a doubt's refits read the cost and the parameters): ``standard_errors`` and ``correlation`` are NaN,
+        and the simulations of the input ensemble's spread (one per member) are not run.
     """
     fixed = dict(fixed or {})
     names = structure.parameter_names
@@ -539,7 +547,7 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     offset_name = structure.offset_parameter
     initial0 = initial_states_from_data(data, start.get(offset_name, fixed.get(offset_name, 0.0)) if offset_name
                                         else 0.0)
-    ic_scale = np.array([0.1, 1.0])
+    ic_scale = IC_SCALE
     z0 = np.concatenate([x0, (initial0 / ic_scale).ravel()])
     base_values = {n: fixed.get(n, start.get(n)) for n in names}
     residual_index = data.residual_index
@@ -569,21 +577,38 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
             cache[key] = _bounded(data.simulate(structure, rows, initials)[0, residual_index] - measured)
         return cache[key]
 
+    exact = exact_columns(structure, free)
+
     def jacobian(z):
         r0 = residuals(z)
-        step = 1e-6 * np.maximum(np.abs(z), 1.0)
-        perturbed = [z.copy() for _ in range(n_free + 2)]
-        for i in range(n_free):
-            perturbed[i][i] += step[i]
-        # one row perturbs every segment's initial angle, one every initial rate: segments are independent
-        ic_angle = n_free + 2 * np.arange(n_seg)
-        perturbed[n_free][ic_angle] += step[ic_angle]
-        perturbed[n_free + 1][ic_angle + 1] += step[ic_angle + 1]
-        rows, initials = rows_for(perturbed)
-        predictions = _bounded(data.simulate(structure, rows, initials)[:, residual_index] - measured)
         seg = data.segment_of_residual
-        dense = ((predictions[:n_free] - r0) / step[:n_free, None]).T            # (residuals, parameters)
-        initial = [(predictions[n_free + j] - r0) / step[n_free + 2 * seg + j] for j in range(2)]
+        if exact is not None:
+            # exact sensitivities in one pass (aeropend_core.diagnosis.sensitivity); differences for the rest
+            rows, initials = rows_for([z])
+            dense, initial = _exact_jacobian(data, structure, rows[0], initials[0], exact, scale, measured)
+            differenced = [i for i in range(n_free) if exact[i] < 0]
+            if differenced:
+                step = 1e-6 * np.maximum(np.abs(z), 1.0)
+                perturbed = [z.copy() for _ in differenced]
+                for row, i in enumerate(differenced):
+                    perturbed[row][i] += step[i]
+                rows, initials = rows_for(perturbed)
+                predictions = _bounded(data.simulate(structure, rows, initials)[:, residual_index] - measured)
+                for row, i in enumerate(differenced):
+                    dense[:, i] = (predictions[row] - r0) / step[i]
+        else:
+            step = 1e-6 * np.maximum(np.abs(z), 1.0)
+            perturbed = [z.copy() for _ in range(n_free + 2)]
+            for i in range(n_free):
+                perturbed[i][i] += step[i]
+            # one row perturbs every segment's initial angle, one every initial rate: segments are independent
+            ic_angle = n_free + 2 * np.arange(n_seg)
+            perturbed[n_free][ic_angle] += step[ic_angle]
+            perturbed[n_free + 1][ic_angle + 1] += step[ic_angle + 1]
+            rows, initials = rows_for(perturbed)
+            predictions = _bounded(data.simulate(structure, rows, initials)[:, residual_index] - measured)
+            dense = ((predictions[:n_free] - r0) / step[:n_free, None]).T            # (residuals, parameters)
+            initial = [(predictions[n_free + j] - r0) / step[n_free + 2 * seg + j] for j in range(2)]
         if sparse_jacobian:
             # [parameters | block-diagonal initial states]: a segment's initial state moves only its residuals
             m = len(r0)
@@ -627,6 +652,13 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     effective = effective_samples(r)
     jac = result.jac
     p = jac.shape[1]
+    if not covariance:
+        nothing = np.full((n_free, n_free), np.nan)
+        return OutputErrorFit(structure=structure, parameters={name: float(values[name]) for name in names},
+                              standard_errors=dict.fromkeys(names, float('nan')), initial_states=initial,
+                              residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg, free_names=free,
+                              correlation=nothing, effective_samples=effective, success=bool(result.success),
+                              message=str(result.message), residuals=r)
     try:
         # sandwich covariance with block sums of the scores within segments: honest under correlated residuals
         covariance_z = hac_covariance(jac, r, data.segment_of_residual) * n / max(n - p, 1)
@@ -652,6 +684,56 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
                           initial_states=initial, residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg,
                           free_names=free, correlation=correlation, effective_samples=effective,
                           success=bool(result.success), message=str(result.message), residuals=r)
+
+
+#: Set AEROPEND_JACOBIAN=differences to fit with forward-difference Jacobians only (the method before exact
+#: sensitivities; for comparisons).
+JACOBIAN_VARIABLE = 'AEROPEND_JACOBIAN'
+
+
+def exact_columns(structure: Structure, free: Sequence[str]) -> np.ndarray | None:
+    """Row column of each free parameter whose derivative the sensitivity kernel gives exactly, -1 for one it
+    does not (differenced); None where the whole Jacobian is differenced (users' effects, discovered terms, a
+    sensor low-pass, or ``AEROPEND_JACOBIAN=differences``)."""
+    if os.environ.get(JACOBIAN_VARIABLE, '').strip().lower() == 'differences':
+        return None
+    if structure.user_terms() or structure.filter_on:
+        return None
+    columns = {**NOMINAL_COLUMNS, **structure.kernel_columns()}
+    return np.array([columns[name] if columns.get(name, -1) in EXACT_COLUMNS else -1 for name in free],
+                    dtype=np.int64)
+
+
+def _exact_jacobian(data: SegmentedData, structure: Structure, row: np.ndarray, initial: np.ndarray,
+                    exact: np.ndarray, scale: np.ndarray, measured: np.ndarray) -> tuple[np.ndarray, list]:
+    """(d residual / d free parameter (scaled), [d residual / d initial angle, d residual / d initial rate (scaled)])
+    from one pass of :func:`aeropend_core.diagnosis.sensitivity.sensitivity_kernel`; columns of differenced
+    parameters are left zero. Rows where the residual is clipped (a diverging trial) have zero derivative, as the
+    clipped residual has."""
+    tracked = np.array(sorted({int(c) for c in exact if c >= 0}), dtype=np.int64)
+    n = len(data.angle)
+    out = np.full((1, n), np.nan)
+    d_columns = np.zeros((n, len(tracked)))
+    d_initial = np.zeros((n, 2))
+    f = np.ascontiguousarray
+    sensitivity_kernel(f(row, dtype=np.float64), f(data.voltage, dtype=np.float64),
+                       f(data.current, dtype=np.float64), f(data.gate_signal, dtype=np.float64),
+                       f(data.seg_start, dtype=np.int64), f(data.seg_stop, dtype=np.int64),
+                       f(initial, dtype=np.float64), float(data.sample_time), bool(structure.lag_on),
+                       bool(structure.gate_on), float(structure.friction_smoothing), float(MIN_TIME_CONSTANT),
+                       float(FRICTION_STABILITY), float(STRIDE), tracked, out, d_columns, d_initial)
+    index = data.residual_index
+    raw = out[0, index] - measured
+    inside = np.isfinite(raw) & (np.abs(raw) < DIVERGED_RESIDUAL)
+    position = {int(c): j for j, c in enumerate(tracked)}
+    dense = np.zeros((len(index), len(exact)))
+    for i, column in enumerate(exact):
+        if column >= 0:
+            dense[:, i] = d_columns[index, position[int(column)]] * scale[i]
+    initial_columns = [d_initial[index, j] * IC_SCALE[j] for j in range(2)]
+    dense = np.where(inside[:, None] & np.isfinite(dense), dense, 0.0)
+    initial_columns = [np.where(inside & np.isfinite(c), c, 0.0) for c in initial_columns]
+    return dense, initial_columns
 
 
 #: A simulation that diverges (unstable parameter trial) is scored as this many radians off, so the optimiser

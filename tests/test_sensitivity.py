@@ -1,0 +1,112 @@
+"""Exact sensitivities of the output-error simulation (aeropend_core.diagnosis.sensitivity, issue 41): the kernel's
+derivatives equal central differences of the simulation itself, and a fit with them gives the fit with forward
+differences (the method before) to stated tolerances."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aeropend_core.diagnosis import output_error as oe
+from aeropend_core.diagnosis.sensitivity import sensitivity_kernel
+
+TS = 1.0 / 490.0
+
+
+def _inputs(n=3000, seed=3):
+    rng = np.random.default_rng(seed)
+    voltage = np.repeat(rng.uniform(0.3, 2.4, n // 150 + 1), 150)[:n]
+    current = 0.2 * voltage + 0.01 * rng.standard_normal(n)
+    return voltage, current
+
+
+def _simulate(theta, voltage, current, segments, initial, lag_on, gate_on):
+    out = np.full((1, len(voltage)), np.nan)
+    starts = np.array([s for s, _ in segments], dtype=np.int64)
+    stops = np.array([e for _, e in segments], dtype=np.int64)
+    oe._simulate_kernel(np.ascontiguousarray(theta[None, :]), voltage, current, voltage, starts, stops,
+                        np.ascontiguousarray(initial[None]), TS, lag_on, gate_on, out, -1, 0, oe.no_extra, False,
+                        oe.FRICTION_SMOOTHING)
+    return out[0]
+
+
+def _sensitivities(theta, voltage, current, segments, initial, lag_on, gate_on, columns):
+    n = len(voltage)
+    out = np.full((1, n), np.nan)
+    d_columns = np.zeros((n, len(columns)))
+    d_initial = np.zeros((n, 2))
+    sensitivity_kernel(theta, voltage, current, voltage, np.array([s for s, _ in segments], dtype=np.int64),
+                       np.array([e for _, e in segments], dtype=np.int64), np.ascontiguousarray(initial), TS,
+                       lag_on, gate_on, oe.FRICTION_SMOOTHING, oe.MIN_TIME_CONSTANT, oe.FRICTION_STABILITY,
+                       float(oe.STRIDE), np.array(columns, dtype=np.int64), out, d_columns, d_initial)
+    return out[0], d_columns, d_initial
+
+
+@pytest.mark.parametrize('lag_on, gate_on, friction', [(False, False, 0.5), (True, True, 0.5),
+                                                       (True, False, 20.0), (False, True, 20.0)])
+def test_the_sensitivities_are_the_derivative_of_the_discrete_simulation(lag_on, gate_on, friction):
+    """Every smooth column (gravity, damping, thrust gain, resistance, dry friction in both of its smoothing
+    regimes, drag, angle term, offset, lag time) and both initial states against central differences of the
+    simulation kernel: largest error within 1e-5 of the column's largest derivative (central differences of
+    relative step 1e-5 are good to ~1e-8 here; a missing term of the chain rule is off by 1e-2 to 1)."""
+    voltage, current = _inputs()
+    segments = [(0, 1500), (1500, 3000)]
+    theta = np.array([40.0, 1.2, 30.0, 0.9, friction, 0.3, 0.5, 0.02, 0.05, 0.6])
+    initial = np.array([[0.3, -0.5], [0.1, 0.8]])
+    columns = list(range(9))
+    out, d_columns, d_initial = _sensitivities(theta, voltage, current, segments, initial, lag_on, gate_on, columns)
+    index = np.isfinite(out)
+    assert np.allclose(out[index], _simulate(theta, voltage, current, segments, initial, lag_on, gate_on)[index],
+                       rtol=0, atol=1e-12)
+    for c in columns:
+        step = 1e-5 * max(abs(theta[c]), 1.0)
+        up, down = theta.copy(), theta.copy()
+        up[c] += step
+        down[c] -= step
+        numeric = (_simulate(up, voltage, current, segments, initial, lag_on, gate_on)
+                   - _simulate(down, voltage, current, segments, initial, lag_on, gate_on))[index] / (2 * step)
+        exact = d_columns[index, c]
+        assert np.max(np.abs(exact - numeric)) <= 1e-5 * max(np.max(np.abs(numeric)), 1e-9), c
+    for j in range(2):
+        step = 1e-6
+        up, down = initial.copy(), initial.copy()
+        up[:, j] += step
+        down[:, j] -= step
+        numeric = (_simulate(theta, voltage, current, segments, up, lag_on, gate_on)
+                   - _simulate(theta, voltage, current, segments, down, lag_on, gate_on))[index] / (2 * step)
+        assert np.max(np.abs(d_initial[index, j] - numeric)) <= 1e-5 * np.max(np.abs(numeric)), j
+
+
+def test_the_fits_jacobian_with_sensitivities_is_the_differenced_one(monkeypatch):
+    """The Jacobian the optimiser gets (the nominal model: exact columns) against the forward differences it got
+    before, at the same point: within 1e-4 of each column's size (forward differences of
+    relative step 1e-6 carry ~1e-6 truncation and rounding)."""
+    voltage, current = _inputs(4000, seed=8)
+    n = len(voltage)
+    data = oe.SegmentedData(voltage, current, np.zeros(n), [(0, 2000), (2000, 4000)], TS)
+    names = [name for name in oe.Structure(()).parameter_names]
+    start = {'gravity_stiffness': 40.0, 'damping': 1.0, 'thrust_gain': 30.0, 'armature_resistance': 0.9}
+    structure = oe.Structure(())
+    truth_rows = structure.row(start)[None, :]
+    data.angle = np.nan_to_num(data.simulate(structure, truth_rows, np.array([[[0.2, 0.0], [0.1, 0.3]]]))[0])
+    captured = {}
+
+    def capture(method):
+        def spy(fun, x0, jac, **kwargs):
+            captured[method] = jac(x0)
+            raise _Stop
+        return spy
+
+    for method in ('exact', 'differences'):
+        monkeypatch.setenv(oe.JACOBIAN_VARIABLE, method)
+        monkeypatch.setattr(oe, 'least_squares', capture(method))
+        with pytest.raises(_Stop):
+            oe.fit_output_error(data, structure, {**start, 'damping': 1.3}, fixed={})
+    exact, differenced = captured['exact'], captured['differences']
+    assert exact.shape == differenced.shape == (len(data.residual_index), len(names) + 4)
+    for c in range(exact.shape[1]):
+        size = np.max(np.abs(differenced[:, c]))
+        assert np.max(np.abs(exact[:, c] - differenced[:, c])) <= 1e-4 * size, c
+
+
+class _Stop(Exception):
+    pass
