@@ -36,6 +36,7 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import (FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, find_parameter, get_effect,
                                          kernel_parameter, wants_thrust)
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.diagnosis.parallel import map_in_order, workers_for
 from aeropend_core.diagnosis.sensitivity import EXACT_COLUMNS, sensitivity_kernel
 from aeropend_core.diagnosis.term_kernel import term_value
 from aeropend_core.diagnosis.user_kernel import EXTRA_TYPE, compiled_user_terms, no_extra
@@ -667,8 +668,13 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     if data.voltage_ensemble is not None and len(data.voltage_ensemble) > 1:
         # the thrust input is itself an estimate: add the spread its estimation error causes in the parameters
         rows, initials = rows_for([result.x])
-        changes = [_bounded(data.simulate(structure, rows, initials, data.voltage + member)[0, residual_index]
-                            - measured) - r for member in data.voltage_ensemble]
+
+        def change(member):
+            return _bounded(data.simulate(structure, rows, initials, data.voltage + member)[0, residual_index]
+                            - measured) - r
+        # one simulation per member, independent: side by side on the cores (serial inside a round's worker and
+        # for long records; the same numbers either way)
+        changes = map_in_order(change, data.voltage_ensemble, workers_for(len(data.angle)))
         covariance_z = covariance_z + input_covariance(jac, np.array(changes))
     if data.held_bias_rms > 0 and data.hold_starts is not None:
         blocks = np.searchsorted(np.asarray(data.hold_starts), residual_index, side='right')
