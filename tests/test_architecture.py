@@ -5,10 +5,10 @@
 - Library code (``aeropend_core`` outside ``cli``, ``aeropend_ros`` nodes) never imports the command line.
 - ``bench/`` and ``tests/`` do not import each other.
 - No library module is over 800 lines; every core folder is a package with a docstring.
-- Only the result classes import ``present``, inside their presentation methods; ``present`` imports them for
-  annotations only (typed results there, words here).
+- Only the result classes import ``present``, inside their presentation methods; ``present`` does not import them,
+  not even for annotations (it reads them through ``typing.Protocol`` types: typed results there, words here).
 - Imports only point down: no circle in the import graph of ``aeropend_core`` and ``aeropend_ros``, every import
-  statement counted (function-level and relative ones too).
+  statement counted (function-level, relative and ``if TYPE_CHECKING:`` ones too).
 - Nothing in the repository points at files outside it.
 - The second truth simulator (``aeropend_core/testing/second_rig.py``) imports only numpy, scipy and the standard
   library: nothing of the model code it is meant to test (model, sim, signals, diagnosis, ...).
@@ -148,18 +148,10 @@ def test_public_api_is_importable_and_listed():
         aeropend_core.no_such_name  # noqa: B018
 
 
-def _type_checking_nodes(tree: ast.AST) -> set[int]:
-    """Ids of the nodes under ``if TYPE_CHECKING:`` (imports for annotations only: never run)."""
-    skipped: set[int] = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.If) and 'TYPE_CHECKING' in ast.unparse(node.test):
-            skipped.update(id(inner) for statement in node.body for inner in ast.walk(statement))
-    return skipped
-
-
 def import_graph(*packages: str) -> dict[str, dict[str, int]]:
     """Module -> {module of the same packages it imports: line}, for every ``import`` and ``from ... import`` anywhere
-    in the module (function-level and relative ones included; those under ``if TYPE_CHECKING:`` left out).
+    in the module (function-level, relative and ``if TYPE_CHECKING:`` ones included: an annotation's import is an
+    edge a reader follows too).
 
     ``from package import name`` points at the submodule ``package.name`` when there is one, else at ``package``.
     """
@@ -168,11 +160,8 @@ def import_graph(*packages: str) -> dict[str, dict[str, int]]:
     for name, path in files.items():
         package = name if path.name == '__init__.py' else name.rpartition('.')[0]
         tree = ast.parse(path.read_text(encoding='utf-8'))
-        skipped = _type_checking_nodes(tree)
         edges = graph.setdefault(name, {})
         for node in ast.walk(tree):
-            if id(node) in skipped:
-                continue
             targets = []
             if isinstance(node, ast.ImportFrom):
                 if node.level:
@@ -245,7 +234,8 @@ def test_the_import_graph_sees_lazy_relative_and_ros_imports():
     graph = import_graph('aeropend_core', 'aeropend_ros')
     assert 'aeropend_core.stats' in graph['aeropend_core.signals.motor']            # inside fit_motor's helper
     assert 'aeropend_ros.cli.run_json' in graph['aeropend_ros.cli.experiment_loop']     # inside a function
-    assert 'aeropend_core.io.recording' not in graph['aeropend_core.signals.quality_base']   # TYPE_CHECKING only
+    assert 'aeropend_core.io.samples' in graph['aeropend_core.signals.quality_base']     # the type it annotates with
+    assert 'aeropend_core.diagnosis.discovery' in graph['aeropend_core.diagnosis.diagnose']  # under TYPE_CHECKING
     circles = import_circles({'a': {'b': 1}, 'b': {'c': 2}, 'c': {'a': 3}, 'd': {'a': 4}})
     assert circles == [['a', 'b', 'c', 'circle: a -> b -> c -> a']]
 
@@ -261,8 +251,8 @@ RESULT_LAYERS = ('aeropend_core.diagnosis', 'aeropend_core.identify', 'aeropend_
 
 def test_the_results_and_their_wording_import_no_circle():
     """A result presents itself by importing its words from present/ when a method runs (python-control's
-    ``TimeResponseData.plot()``), so present/ imports the result classes for annotations only (``TYPE_CHECKING``):
-    no present module leads back, at run time, to a module that imports present/ (diagnose.py <-> summary.py was
+    ``TimeResponseData.plot()``), so present/ does not import the result classes, not even for annotations:
+    no present module leads back, by any import, to a module that imports present/ (diagnose.py <-> summary.py was
     such a circle)."""
     graph = core_import_graph()
 
@@ -282,7 +272,7 @@ def test_the_results_and_their_wording_import_no_circle():
                 circles.append(f'{module} -> {used} -> ... -> {module}')
     assert not circles, 'import circles between the results and present/:\n' + '\n'.join(circles)
     assert 'aeropend_core.present.summary' in graph['aeropend_core.diagnosis.diagnose']     # the check sees imports
-    assert 'aeropend_core.diagnosis.diagnose' not in graph['aeropend_core.present.summary']  # TYPE_CHECKING only
+    assert 'aeropend_core.diagnosis.diagnose' not in graph['aeropend_core.present.summary']  # a Protocol instead
 
 
 def test_only_the_result_classes_import_present_and_only_in_their_methods():

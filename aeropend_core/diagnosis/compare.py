@@ -22,7 +22,6 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property, partial
-from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.signal import savgol_filter
@@ -40,10 +39,8 @@ from aeropend_core.signals.motor import MotorFit, back_emf_ensemble, fit_motor
 from aeropend_core.signals.preprocess import (condition_inputs, noise_rms, piecewise_constant, quantisation_bias_rms,
                                              quantisation_step, sharp_steps, smooth_between_steps, step_switches,
                                              bootstrap_blocks)
+from aeropend_core.diagnosis.motor_terms import AddedMotorTerm
 from aeropend_core.io.recording import Recording
-
-if TYPE_CHECKING:       # annotations only (the motor discovery sits above this module)
-    from aeropend_core.diagnosis.motor_discovery import AddedMotorTerm
 
 #: Fraction of the record used for training; the rest is held out.
 TRAIN_FRACTION = 0.75

@@ -3,7 +3,6 @@ pixel columns and smoothing (the plots themselves: :mod:`aeropend_core.present.s
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
 
 import html
 import math
@@ -15,9 +14,8 @@ from aeropend_core.diagnosis.compare import Comparison, excess_error
 from aeropend_core.diagnosis.candidates import Candidate
 from aeropend_core.model.effects import find_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.present.result_types import DiagnosisLike
 
-if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
-    from aeropend_core.diagnosis.diagnose import Diagnosis
 
 
 #: Pixel columns of a full-width plot (about the SVG's plotting width, :mod:`aeropend_core.present.svgplot`): a line
@@ -158,7 +156,7 @@ def _running_mean(values: np.ndarray, width: int) -> np.ndarray:
     return out
 
 
-def _best_candidate(diagnosis: Diagnosis) -> Candidate | None:
+def _best_candidate(diagnosis: DiagnosisLike) -> Candidate | None:
     for candidate in diagnosis.candidates:
         if candidate.comparison is not None:
             return candidate

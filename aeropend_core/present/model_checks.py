@@ -11,7 +11,6 @@ Each function returns an HTML fragment; figures are inline SVG (:mod:`aeropend_c
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,9 +20,8 @@ from aeropend_core.diagnosis.validation import (Validation, prediction_points, r
 from aeropend_core.present.formatting import (BEFORE, CANDIDATE, CURRENT, HELDOUT_SHADE, MEASURED, NOISE_SHADE, _esc,
                                               _finite_trace, _model_name, _mrad, _num, envelope)
 from aeropend_core.present.svgplot import Figure
+from aeropend_core.present.result_types import DiagnosisLike
 
-if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
-    from aeropend_core.diagnosis.diagnose import Diagnosis
 
 #: Points of a residual scatter drawn at most (strided); the binned mean uses every sample.
 SCATTER_POINTS = 1500
@@ -35,7 +33,7 @@ SCATTER_BINS = 40
 SPECTRUM_MAX_HZ = 25.0
 
 
-def _band_figure(diagnosis: Diagnosis) -> tuple[str, str]:
+def _band_figure(diagnosis: DiagnosisLike) -> tuple[str, str]:
     prep = diagnosis.prepared
     band = simulation_band(prep, diagnosis.current)
     predicted_index, predicted = prediction_points(prep, diagnosis.current)
@@ -76,7 +74,7 @@ def _band_figure(diagnosis: Diagnosis) -> tuple[str, str]:
     return figure.html('held-out simulation with a 2 sigma band and k-step predictions'), band.method
 
 
-def band_section(diagnosis: Diagnosis) -> str:
+def band_section(diagnosis: DiagnosisLike) -> str:
     """The held-out simulation with its +-2 sigma band and the k-step predictions as points."""
     plot, method = _band_figure(diagnosis)
     evaluation = diagnosis.current.evaluation
@@ -107,7 +105,7 @@ def _binned_mean(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return centres[enough], sums[enough] / counts[enough]
 
 
-def scatter_section(diagnosis: Diagnosis) -> str:
+def scatter_section(diagnosis: DiagnosisLike) -> str:
     """Residual vs rate, angle and thrust input, with the binned mean (whole record where simulated)."""
     prep = diagnosis.prepared
     simulated = diagnosis.current.evaluation.simulated
@@ -161,7 +159,7 @@ def _decimated(lags: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.nda
     return envelope(lags, values, columns=350)
 
 
-def correlation_section(diagnosis: Diagnosis, best) -> str:
+def correlation_section(diagnosis: DiagnosisLike, best) -> str:
     """Residual autocorrelation and cross-correlation with the thrust input to 5 s, and the residual spectrum."""
     from scipy.signal import welch
 
@@ -225,7 +223,7 @@ def correlation_section(diagnosis: Diagnosis, best) -> str:
 
 # -- validation record --------------------------------------------------------------------------------------------
 
-def validation_section(diagnosis: Diagnosis, validation: Validation) -> str:
+def validation_section(diagnosis: DiagnosisLike, validation: Validation) -> str:
     """The fitted model on the validation record: numbers and the measured vs simulated angle."""
     figure = Figure(370)
     top, bottom = figure.grid(2, 1, height_ratios=[2.2, 1])

@@ -7,7 +7,6 @@ them for :func:`aeropend_core.present.report.render_report`. Figures are inline 
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
 
 import base64
 import gzip
@@ -19,9 +18,8 @@ from aeropend_core.diagnosis.compare import Comparison
 from aeropend_core.diagnosis.candidates import Candidate
 from aeropend_core.model.effects import CATALOG
 from aeropend_core.present.formatting import _esc, _model_name, _sig, _unit_and_meaning
+from aeropend_core.present.result_types import DiagnosisLike
 
-if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
-    from aeropend_core.diagnosis.diagnose import Diagnosis
 
 #: |correlation| above which two parameters are hard to tell apart from this record (highlighted).
 STRONG_CORRELATION = 0.9
@@ -32,7 +30,7 @@ CSV_SUFFIX = '_traces.csv'
 
 # -- motor observer -------------------------------------------------------------------------------------------------
 
-def observer_traces(diagnosis: Diagnosis) -> dict[str, np.ndarray | None]:
+def observer_traces(diagnosis: DiagnosisLike) -> dict[str, np.ndarray | None]:
     """The motor-observer quantities over the whole record.
 
     Returns
@@ -67,7 +65,7 @@ def observer_traces(diagnosis: Diagnosis) -> dict[str, np.ndarray | None]:
     return {'model_current': current, 'thrust_voltage': thrust_voltage, 'measured_emf': measured}
 
 
-def observer_section(diagnosis: Diagnosis) -> str:
+def observer_section(diagnosis: DiagnosisLike) -> str:
     """Measured Ia vs the observer's model current, and the back-EMF used for the thrust."""
     prep = diagnosis.prepared
     motor = prep.motor
@@ -98,7 +96,7 @@ def observer_section(diagnosis: Diagnosis) -> str:
             + '</section>')
 
 
-def _observer_plot(diagnosis: Diagnosis, traces: dict) -> str:
+def _observer_plot(diagnosis: DiagnosisLike, traces: dict) -> str:
     from aeropend_core.present.formatting import HELDOUT_SHADE, MEASURED, _finite_trace
     from aeropend_core.present.svgplot import Figure
     prep = diagnosis.prepared
@@ -156,7 +154,7 @@ def equation_html(comparison: Comparison, observer: bool) -> str:
             + '</div>')
 
 
-def equation_section(diagnosis: Diagnosis, best: Candidate | None) -> str:
+def equation_section(diagnosis: DiagnosisLike, best: Candidate | None) -> str:
     observer = diagnosis.prepared.motor is not None
     parts = ['<section id="equation"><h2>The identified equation</h2><p class="caption">The model as given '
              f'(<b>{_esc(_model_name(diagnosis.effects))}</b>), fitted by output error on the training part; y is the '
@@ -201,7 +199,7 @@ def correlation_table(comparison: Comparison) -> str:
     return '<table class="correlation" style="width:auto">' + head + ''.join(rows) + '</table>'
 
 
-def correlation_section(diagnosis: Diagnosis, best: Candidate | None) -> str:
+def correlation_section(diagnosis: DiagnosisLike, best: Candidate | None) -> str:
     names = list(diagnosis.current.fit.free_names)
     matrix = np.asarray(diagnosis.current.fit.correlation, dtype=float)
     strong = [(names[i], names[j], matrix[i, j]) for i in range(len(names)) for j in range(i + 1, len(names))
@@ -223,7 +221,7 @@ def correlation_section(diagnosis: Diagnosis, best: Candidate | None) -> str:
 
 # -- CSV export -----------------------------------------------------------------------------------------------------
 
-def traces_csv(diagnosis: Diagnosis, best: Candidate | None) -> str:
+def traces_csv(diagnosis: DiagnosisLike, best: Candidate | None) -> str:
     """Every sample of the record and of the models as CSV text (SI units; empty field = not simulated there)."""
     prep = diagnosis.prepared
     traces = observer_traces(diagnosis)
@@ -275,7 +273,7 @@ function aeropendDownloadCsv(name) {
 </script>"""
 
 
-def csv_section(diagnosis: Diagnosis, best: Candidate | None, file_stem: str = 'aeropend') -> str:
+def csv_section(diagnosis: DiagnosisLike, best: Candidate | None, file_stem: str = 'aeropend') -> str:
     """A download button for the traces as CSV (embedded gzip-compressed in the page; no server, no network)."""
     text = traces_csv(diagnosis, best)
     columns = text.split('\n', 1)[0].split(',')
@@ -293,7 +291,7 @@ def csv_section(diagnosis: Diagnosis, best: Candidate | None, file_stem: str = '
             + '</section>')
 
 
-def model_sections(diagnosis: Diagnosis, best: Candidate | None, file_stem: str) -> list[str]:
+def model_sections(diagnosis: DiagnosisLike, best: Candidate | None, file_stem: str) -> list[str]:
     """The sections of this module in page order."""
     return [observer_section(diagnosis), equation_section(diagnosis, best),
             correlation_section(diagnosis, best), csv_section(diagnosis, best, file_stem)]

@@ -3,7 +3,6 @@ regime and the candidate ranking, each as inline SVG (:mod:`aeropend_core.presen
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
 
 import math
 
@@ -26,18 +25,17 @@ from aeropend_core.present.formatting import (
     _running_mean,
 )
 from aeropend_core.present.svgplot import TICK_FONT, Figure
-
-if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
-    from aeropend_core.diagnosis.diagnose import Diagnosis
+from aeropend_core.present.result_types import DiagnosisLike
 
 
-def _segment_starts(diagnosis: Diagnosis) -> list[int]:
+
+def _segment_starts(diagnosis: DiagnosisLike) -> list[int]:
     prep = diagnosis.prepared
     starts = [a for a, _ in getattr(prep.train, 'segments', [])]
     return starts + [prep.split]
 
 
-def _overlay_traces(diagnosis: Diagnosis, best: Candidate | None) -> list[tuple[str, np.ndarray, str, str, float]]:
+def _overlay_traces(diagnosis: DiagnosisLike, best: Candidate | None) -> list[tuple[str, np.ndarray, str, str, float]]:
     """(label, simulated angle [rad], colour, line style, width) of every model drawn on the overlays."""
     traces = []
     if diagnosis.before is not None:
@@ -52,7 +50,7 @@ def _overlay_traces(diagnosis: Diagnosis, best: Candidate | None) -> list[tuple[
     return traces
 
 
-def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
+def _plot_overlay(diagnosis: DiagnosisLike, best: Candidate | None) -> str:
     prep = diagnosis.prepared
     time = prep.time
     breaks = _segment_starts(diagnosis)
@@ -81,7 +79,7 @@ def _plot_overlay(diagnosis: Diagnosis, best: Candidate | None) -> str:
     return figure.html('measured and simulated angle over the whole record')
 
 
-def _plot_error(diagnosis: Diagnosis, best: Candidate | None) -> str:
+def _plot_error(diagnosis: DiagnosisLike, best: Candidate | None) -> str:
     prep = diagnosis.prepared
     time = prep.time
     breaks = _segment_starts(diagnosis)
@@ -130,7 +128,7 @@ def _regime_excess(regimes: dict, name: str, noise: float) -> float:
     return excess_error(rms, noise) if np.isfinite(rms) else float('nan')
 
 
-def _plot_regimes(diagnosis: Diagnosis, best: Candidate | None) -> str:
+def _plot_regimes(diagnosis: DiagnosisLike, best: Candidate | None) -> str:
     current = diagnosis.current.evaluation.regimes
     noise = diagnosis.noise_rms
     names = sorted(current, key=lambda name: _regime_excess(current, name, noise))
@@ -172,7 +170,7 @@ SELECTED = '#e66101'
 REDUNDANT = '#a6d96a'
 
 
-def _candidate_status(diagnosis: Diagnosis, candidate: Candidate) -> tuple[str, str]:
+def _candidate_status(diagnosis: DiagnosisLike, candidate: Candidate) -> tuple[str, str]:
     """(colour, tag) of a candidate on the chart: selected, significant alone but not selected, or not."""
     if candidate.effect in diagnosis.missing_effects:
         return SELECTED, 'SELECTED'
@@ -181,7 +179,7 @@ def _candidate_status(diagnosis: Diagnosis, candidate: Candidate) -> tuple[str, 
     return '#9e9e9e', 'not significant'
 
 
-def candidate_chart_rows(diagnosis: Diagnosis) -> list[dict]:
+def candidate_chart_rows(diagnosis: DiagnosisLike) -> list[dict]:
     """The rows of the candidate chart, top to bottom.
 
     Returns
@@ -215,7 +213,7 @@ def candidate_chart_rows(diagnosis: Diagnosis) -> list[dict]:
     return rows
 
 
-def _plot_candidates(diagnosis: Diagnosis) -> str | None:
+def _plot_candidates(diagnosis: DiagnosisLike) -> str | None:
     """Held-out error beyond the noise: the reference models as bars, each candidate as an arrow from the model it
     was added to (the model as given) to where adding it takes the error; the selected set highlighted."""
     rows = candidate_chart_rows(diagnosis)

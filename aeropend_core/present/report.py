@@ -16,7 +16,6 @@ safe to call from a library, a CLI or a thread.
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
 
 import datetime
 import math
@@ -61,9 +60,8 @@ from aeropend_core.present.plots import (
     _plot_overlay,
     _plot_regimes,
 )
+from aeropend_core.present.result_types import DiagnosisLike
 
-if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
-    from aeropend_core.diagnosis.diagnose import Diagnosis
 
 
 CSS = """
@@ -129,7 +127,7 @@ button { font-size: 14px; padding: 6px 14px; border-radius: 4px; border: 1px sol
 """
 
 
-def _noise_limited_fit(diagnosis: Diagnosis) -> float:
+def _noise_limited_fit(diagnosis: DiagnosisLike) -> float:
     """Fit % a perfect model would reach at this noise: 100 (1 - noise / std of the held-out angle)."""
     prep = diagnosis.prepared
     index = prep.heldout.residual_index
@@ -137,7 +135,7 @@ def _noise_limited_fit(diagnosis: Diagnosis) -> float:
     return 100.0 * (1.0 - diagnosis.noise_rms / spread) if spread > 0 else float('nan')
 
 
-def _verdict_html(diagnosis: Diagnosis, source: str | None = None) -> str:
+def _verdict_html(diagnosis: DiagnosisLike, source: str | None = None) -> str:
     title = VERDICT_TITLES.get(diagnosis.verdict, diagnosis.verdict).format(
         missing=', '.join(diagnosis.missing_effects) or diagnosis.missing_effect)
     css = VERDICT_CLASSES.get(diagnosis.verdict, 'warn')
@@ -176,7 +174,7 @@ def _plain(text: str) -> str:
     return re.sub(r'(?<![\w.])[+-]?inf(?![\w])', 'unbounded', text)
 
 
-def _quality_html(diagnosis: Diagnosis) -> str:
+def _quality_html(diagnosis: DiagnosisLike) -> str:
     """The data-quality gate's findings, above the verdict: every repair and warning the numbers depend on."""
     findings = diagnosis.findings
     if not findings:
@@ -201,7 +199,7 @@ def _card(label: str, value: str, hint: str, key: str = '', was: str = '') -> st
             f'</div>{was_html}<div class="hint">{hint}</div></div>')
 
 
-def _cards_html(diagnosis: Diagnosis) -> str:
+def _cards_html(diagnosis: DiagnosisLike) -> str:
     current, before = diagnosis.current, diagnosis.before
     evaluation = current.evaluation
     prep = diagnosis.prepared
@@ -247,7 +245,7 @@ def _observer_meaning(name: str, motor, meaning: str) -> str:
     return meaning
 
 
-def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
+def _parameter_rows(comparison: Comparison, diagnosis: DiagnosisLike) -> str:
     rows = []
     motor = diagnosis.prepared.motor if diagnosis.prepared is not None else None
     errors = diagnosis.reported_errors(comparison)
@@ -284,7 +282,7 @@ def _parameter_rows(comparison: Comparison, diagnosis: Diagnosis) -> str:
             '</th><th>meaning</th></tr>' + ''.join(rows) + '</table>')
 
 
-def _worst_windows_html(diagnosis: Diagnosis) -> str:
+def _worst_windows_html(diagnosis: DiagnosisLike) -> str:
     rows = []
     for rank, window in enumerate(diagnosis.current.evaluation.worst_windows, 1):
         rows.append(f'<tr><td>#{rank}</td><td class="num">{window["start"]:.1f} &ndash; {window["stop"]:.1f}</td>'
@@ -296,7 +294,7 @@ def _worst_windows_html(diagnosis: Diagnosis) -> str:
             'doing</th></tr>' + ''.join(rows) + '</table>')
 
 
-def _regime_table(diagnosis: Diagnosis, best: Candidate | None) -> str:
+def _regime_table(diagnosis: DiagnosisLike, best: Candidate | None) -> str:
     current = diagnosis.current.evaluation.regimes
     before = diagnosis.before.evaluation.regimes if diagnosis.before is not None else None
     after = best.comparison.evaluation.regimes if best is not None else None
@@ -335,7 +333,7 @@ def _parameters_with_sigma(candidate: Candidate) -> str:
     return '<br>'.join(parts) or '&mdash;'
 
 
-def _candidates_table(diagnosis: Diagnosis) -> str:
+def _candidates_table(diagnosis: DiagnosisLike) -> str:
     rows = []
     from aeropend_core.diagnosis.doubts import chain_confusions
     # the pairs the notes call indistinguishable are named in the column too (never a dash beside such a note)
@@ -378,7 +376,7 @@ def _candidates_table(diagnosis: Diagnosis) -> str:
     return '<table id="candidate-table">' + head + ''.join(rows) + '</table>'
 
 
-def _before_after_html(diagnosis: Diagnosis) -> str:
+def _before_after_html(diagnosis: DiagnosisLike) -> str:
     before, current = diagnosis.before, diagnosis.current
     noise = diagnosis.noise_rms
 
@@ -432,7 +430,7 @@ def _before_after_html(diagnosis: Diagnosis) -> str:
             '<th>unit</th><th>change</th><th>meaning</th></tr>' + ''.join(moves) + '</table>')
 
 
-def _structure_html(diagnosis: Diagnosis) -> str:
+def _structure_html(diagnosis: DiagnosisLike) -> str:
     rows = []
     for row in diagnosis.residual_structure:
         r = float(row['correlation'])
@@ -445,7 +443,7 @@ def _structure_html(diagnosis: Diagnosis) -> str:
             '<th>r</th><th>|r|</th></tr>' + ''.join(rows) + '</table>')
 
 
-def render_report(diagnosis: Diagnosis, source: str | None = None, validation: Validation | None = None) -> str:
+def render_report(diagnosis: DiagnosisLike, source: str | None = None, validation: Validation | None = None) -> str:
     """The report as one HTML string (see :func:`write_report`)."""
     if diagnosis.prepared is None:
         raise AeropendError('this diagnosis carries no prepared recording; run diagnose() on a recording to '
@@ -580,7 +578,7 @@ def render_report(diagnosis: Diagnosis, source: str | None = None, validation: V
             + '\n'.join(sections) + f'</main>{ZOOM_SCRIPT}</body></html>\n')
 
 
-def write_report(diagnosis: Diagnosis, path: str | Path, source: str | None = None,
+def write_report(diagnosis: DiagnosisLike, path: str | Path, source: str | None = None,
                  validation: Validation | None = None) -> Path:
     """Write the diagnosis as one self-contained HTML file (plots and data embedded) and return its path.
 

@@ -3,22 +3,74 @@
 and any result's text as an HTML fragment (:func:`text_html`).
 
 The result classes call these from their ``summary()``/``as_text()``/``as_html()``/``to_dict()`` methods, importing
-this module when a method runs; so this module imports them for annotations only (under ``TYPE_CHECKING``) and
-nothing of ``diagnosis`` or ``wsindy`` at run time: the import graph keeps pointing down (docs/architecture.md).
+this module when a method runs; so this module does not import them, not even for annotations: it states the
+attributes it reads as structural types (:class:`ComparisonLike`, :class:`WeakSindyLike`, ``typing.Protocol``),
+which the result classes meet, and the import graph points one way (docs/architecture.md).
 Angles in rad, errors in mrad where the text says so, parameters SI.
 """
 from __future__ import annotations
 
 import html
 import math
-from typing import TYPE_CHECKING
+from collections.abc import Mapping, Sequence
+from typing import Protocol
 
 from aeropend_core.model.effects import find_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 
-if TYPE_CHECKING:       # annotations only: the results import this module to present themselves
-    from aeropend_core.diagnosis.compare import Comparison
-    from aeropend_core.wsindy.weak_form import WeakSindyResult
+
+class _EvaluationLike(Protocol):
+    """What the words read of a held-out evaluation (:class:`~aeropend_core.diagnosis.compare.Evaluation`)."""
+
+    fit_percent: float             #: NRMSE fit [%]
+    rms_error: float               #: free-run RMS error [rad]
+    noise_rms: float               #: measurement noise RMS [rad]
+    prediction_rms: float          #: RMS error of the short-horizon prediction [rad]
+    prediction_horizon: float      #: its horizon [s]
+    regimes: dict                  #: error by regime (errors [rad], fractions [-])
+    worst_windows: list            #: the worst windows (times [s], errors [rad])
+    diverged: bool                 #: the fitted model's simulation diverged
+
+
+class _FitLike(Protocol):
+    """What the words read of an output-error fit (:class:`~aeropend_core.diagnosis.output_error.OutputErrorFit`)."""
+
+    parameters: Mapping[str, float]        #: fitted values, SI
+    standard_errors: Mapping[str, float]   #: their 1-sigma, SI
+    extra: Mapping                         #: further doubts by name (``friction_law_doubt``)
+    success: bool                          #: the fit converged
+    message: str                           #: the optimiser's message
+
+
+class ComparisonLike(Protocol):
+    """What the words read of a model comparison (:class:`aeropend_core.diagnosis.compare.Comparison` meets it)."""
+
+    effects: tuple[str, ...]       #: the effects added to the nominal model
+    evaluation: _EvaluationLike
+    fit: _FitLike
+
+
+class _EquationLike(Protocol):
+    """What the words read of one identified equation (:class:`aeropend_core.wsindy.weak_form.EquationFit`)."""
+
+    name: str                              #: its left-hand side
+    selected: Sequence[str]                #: the terms kept
+    coefficients: Mapping[str, float]      #: (left-hand side unit) / (term unit)
+    standard_errors: Mapping[str, float]   #: their 1-sigma, same units
+    candidates: Sequence[str]              #: the library
+    threshold: float                       #: the sparsity threshold [-]
+    residual: float                        #: relative whitened residual [-]
+    half_width: int                        #: test functions' half-width [samples]
+    power: int                             #: test functions' power [-]
+    n_test_functions: int                  #: weak equations used [-]
+
+
+class WeakSindyLike(Protocol):
+    """What the words read of a weak SINDy result (:class:`aeropend_core.wsindy.weak_form.WeakSindyResult` meets
+    it)."""
+
+    @property
+    def equations(self) -> Sequence[_EquationLike]: ...
 
 
 def text_html(text: str, title: str, css_class: str) -> str:
@@ -50,7 +102,7 @@ def _excess(rms: float, noise: float) -> float:
     return math.sqrt(max(rms ** 2 - noise ** 2, 0.0))
 
 
-def _doubts(comparison: Comparison) -> list[str]:
+def _doubts(comparison: ComparisonLike) -> list[str]:
     """What makes the comparison's numbers doubtful, said beside them: a simulation that diverged, a fit that did
     not converge."""
     doubts = []
@@ -62,7 +114,7 @@ def _doubts(comparison: Comparison) -> list[str]:
     return doubts
 
 
-def comparison_summary(comparison: Comparison) -> dict:
+def comparison_summary(comparison: ComparisonLike) -> dict:
     """A comparison on one screen: ``model`` [-], ``fit_percent`` [%], ``rms_error_rad``, ``noise_rms_rad``,
     ``error_beyond_noise_rad`` [rad] and ``doubts`` (list of str: a diverged simulation, a fit that did not
     converge)."""
@@ -73,7 +125,7 @@ def comparison_summary(comparison: Comparison) -> dict:
             'doubts': _doubts(comparison)}
 
 
-def comparison_dict(comparison: Comparison) -> dict:
+def comparison_dict(comparison: ComparisonLike) -> dict:
     """A comparison's numbers as plain types (NaN where unknown; :func:`~.json_output.finite_json` makes it JSON).
 
     Returns
@@ -99,7 +151,7 @@ def comparison_dict(comparison: Comparison) -> dict:
             **shape}
 
 
-def comparison_text(comparison: Comparison) -> str:
+def comparison_text(comparison: ComparisonLike) -> str:
     """A comparison as text: the model, its held-out fit and errors [mrad], the parameters (SI, +- 1 sigma), the
     error by regime and the doubts (one ``Doubt:`` line each)."""
     evaluation, fit = comparison.evaluation, comparison.fit
@@ -122,7 +174,7 @@ def comparison_text(comparison: Comparison) -> str:
     return '\n'.join(lines)
 
 
-def comparison_html(comparison: Comparison) -> str:
+def comparison_html(comparison: ComparisonLike) -> str:
     """A comparison as a self-contained HTML fragment: a ``<section>`` with its summary line and a parameter table
     (SI, +- 1 sigma), its doubts first; no external link, no script."""
     evaluation, fit = comparison.evaluation, comparison.fit
@@ -139,14 +191,14 @@ def comparison_html(comparison: Comparison) -> str:
             f'{rows}</table></section>\n')
 
 
-def weak_sindy_summary(result: WeakSindyResult) -> dict:
+def weak_sindy_summary(result: WeakSindyLike) -> dict:
     """A weak SINDy result on one screen: per equation (its left-hand side) the terms kept [-], the relative
     whitened residual [-] and the number of weak equations used [-]."""
     return {eq.name: {'terms': list(eq.selected), 'residual': eq.residual, 'test_functions': eq.n_test_functions}
             for eq in result.equations}
 
 
-def weak_sindy_dict(result: WeakSindyResult) -> dict:
+def weak_sindy_dict(result: WeakSindyLike) -> dict:
     """A weak SINDy result's numbers: per equation the coefficients and their 1-sigma standard errors (units
     (left-hand side unit) / (term unit)), the candidates, the threshold, the residual [-] and the test functions'
     half-width [samples] and power [-]."""

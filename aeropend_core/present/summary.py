@@ -1,19 +1,17 @@
 """The text report of a diagnosis, printed by ``aeropend diagnose`` (units stated on every number)."""
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
 
 from aeropend_core.diagnosis.compare import excess_error
 from aeropend_core.present.verdict_text import size_text, verdict_of
 from aeropend_core.model.effects import find_parameter
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.signals.reduced import MAP_PARAMETERS
-
-if TYPE_CHECKING:       # annotations only: the result imports this module to present itself
-    from aeropend_core.diagnosis.diagnose import Diagnosis
+from aeropend_core.present.result_types import DiagnosisLike
 
 
-def format_summary(diagnosis: Diagnosis, source: str | None = None) -> str:
+
+def format_summary(diagnosis: DiagnosisLike, source: str | None = None) -> str:
     """The text report printed by ``aeropend diagnose``: the verdict in two layers, one plain sentence
     (:func:`~aeropend_core.present.plain_verdict.plain_verdict`; `source`, the record's name, goes into its next
     command) and the evidence (:func:`~aeropend_core.present.verdict_text.verdict_of`)."""

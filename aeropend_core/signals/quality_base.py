@@ -7,14 +7,11 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from aeropend_core.errors import AeropendError
-
-if TYPE_CHECKING:       # for the annotation only: io/ calls the gate when it loads a file
-    from aeropend_core.io.recording import Recording
+from aeropend_core.io.samples import Recording
 
 
 #: Finding severities, mildest first.
