@@ -99,6 +99,8 @@ def run(arguments: tuple[int, int, int]) -> dict:
                correct=(true in present and set(present) <= {true}) if true else not present,
                z=z, remaining_mrad=round(excess_error(found.final.rms_error, found.final.noise_rms) * 1e3, 2),
                noise_mrad=round(found.noise_rms * 1e3, 2), message=verdict_of(found)[:400],
+               unnamed=[note.split(':')[0] + (': confounded with a term' if 'confounded' in note else ': model doubt')
+                        for note in found.notes if ' is not named: ' in note],
                seconds=round(time.perf_counter() - started, 1))
     row['effects'] = {k: v for k, v in row['effects'].items()}
     return row
@@ -112,12 +114,14 @@ def main() -> None:
     parser.add_argument('--seed-base', type=int, default=SEED_BASE, help='first seed (reported: %(default)s)')
     parser.add_argument('--part', choices=('all', 'beside', 'alone'), default='all',
                         help='run only one set (the same records as in the whole run)')
+    parser.add_argument('--only', type=int, nargs='*', help='run only these record indices (development)')
     add_json_argument(parser)
     args = parser.parse_args()
     if args.beside < 0 or args.alone < 0 or args.workers < 1:
         parser.error('--beside and --alone must be at least 0, --workers at least 1')
     jobs = [(index, args.beside, args.seed_base) for index in range(args.beside + args.alone)
-            if args.part == 'all' or (index < args.beside) == (args.part == 'beside')]
+            if (args.part == 'all' or (index < args.beside) == (args.part == 'beside'))
+            and (not args.only or index in args.only)]
     from multiprocessing import get_context
     started = time.perf_counter()
     rows = []
@@ -127,7 +131,8 @@ def main() -> None:
             print(f'{r["seed"]:6d} {r["set"]:6s} {str(r["true_effect"]):17s} + {r["remainder"]:13s} '
                   f'{"ok" if r["correct"] else "WRONG":5s} {r["verdict"]:15s} {",".join(r["named"]) or "-":30s} '
                   f'z={r["z"]} left {r["remaining_mrad"]} mrad (noise {r["noise_mrad"]}) '
-                  f'lost to the remainder: {",".join(r["lost_to_remainder"]) or "-"}', flush=True)
+                  f'lost to the remainder: {",".join(r["lost_to_remainder"]) or "-"}; not named: '
+                  f'{"; ".join(r["unnamed"]) or "-"}', flush=True)
     wall = time.perf_counter() - started
     beside = [r for r in rows if r['set'] == 'beside']
     alone = [r for r in rows if r['set'] == 'alone']

@@ -62,7 +62,7 @@ from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the se
     UPRIGHT_WARNING, Found, VerdictFacts, _finite, catalog_stage, compare_stage, discovery_stage, drift_stage,
     excitation_advice, prepare_stage, rerun_on_corrected_input, separating_experiment, verdict_stage)
 from aeropend_core.diagnosis.friction_doubt import widen_for_friction_shape, widen_found
-from aeropend_core.diagnosis.model_doubt import beyond_doubt, widen_for_remainder
+from aeropend_core.diagnosis.model_doubt import beside_lookalikes, beyond_doubt, widen_for_remainder
 from aeropend_core.diagnosis.remainder import Remainder, remainder_of
 from aeropend_core.diagnosis.state_map import StateMap, state_map
 from aeropend_core.diagnosis.verdicts import Verdict
@@ -439,7 +439,8 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
     widened, doubt_notes = widen_for_remainder(list(catalog.found), discovered.pendulum)
     if catalog.remainder:       # beside a remainder: an effect the doubt puts within T_MIN sigma of zero is not named
         widened, unnamed = beyond_doubt(widened, T_MIN)
-        doubt_notes += unnamed
+        widened, confounded = beside_lookalikes(widened, discovered.pendulum)
+        doubt_notes += unnamed + confounded
     doubt_notes = friction_notes + doubt_notes
     catalog = dataclasses.replace(catalog, found=tuple(widened))
     drifted = drift_stage(catalog, drift, say)

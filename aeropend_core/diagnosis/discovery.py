@@ -36,7 +36,7 @@ from scipy.signal import lfilter
 
 from aeropend_core.diagnosis.candidates import Candidate, assess
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error
-from aeropend_core.diagnosis.evidence import TermEvidence, finite_or_none, screening_doubt
+from aeropend_core.diagnosis.evidence import TermEvidence, differing_parameters, finite_or_none, screening_doubt
 from aeropend_core.diagnosis.output_error import STRIDE
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import (CATALOG, FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, Effect, EffectParameter,
@@ -331,6 +331,9 @@ class DiscoveredTerm(TermEvidence):
     #: How far each parameter of the model [SI] moved when the term was refitted beside it (output error; empty when
     #: it was not refitted or the refit gave no estimate): what the remainder the term stands for does to them.
     parameter_shifts: dict[str, float] = field(default_factory=dict)
+    #: When confounded: the parameters the two explanations share and disagree on by more than their combined +-
+    #: (name -> (value with the set, its sigma, value with the term, its sigma) [SI]).
+    differing: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
 
     @property
     def effect(self) -> str:
@@ -354,6 +357,9 @@ class DiscoveredTerm(TermEvidence):
                 **self.evidence_dict(),
                 'catalog_effect': self.catalog_effect, 'confounded_with': self.confounded_with,
                 'replaces': self.replaces, 'alternatives': self.alternatives,
+                'differing_parameters': {name: {'with_catalog_set': a, 'with_catalog_set_sigma': sa,
+                                                'with_term': b, 'with_term_sigma': sb}
+                                         for name, (a, sa, b, sb) in self.differing.items()},
                 'why_not_proven': self.why_not, 'add': self.add}
 
 
@@ -612,7 +618,15 @@ def _swapped_in(prep, base, model, fixed, catalog_set, without_set, term: Term, 
                           sigma=alone.standard_errors.get(parameter, math.nan), excess_before=alone.excess_before,
                           excess_after=term_error, share_removed=alone.share_removed, t_statistic=alone.t_statistic,
                           delta_bic=alone.delta_bic, dm_statistic=alone.dm_statistic,
-                          confounded_with=list(catalog_set) if status == 'confounded' else [])
+                          confounded_with=list(catalog_set) if status == 'confounded' else [],
+                          differing=_differing(base, swapped) if status == 'confounded' else {})
+
+
+def _differing(with_set: Comparison, with_term: Comparison) -> dict[str, tuple[float, float, float, float]]:
+    """The parameters the catalog set's fit and the term's fit in its place share and disagree on
+    (:func:`~aeropend_core.diagnosis.evidence.differing_parameters`)."""
+    return differing_parameters(with_set.parameters, with_set.fit.standard_errors, with_term.parameters,
+                                with_term.fit.standard_errors)
 
 
 #: Terms fitted in place of one effect of a selected set (strongest screening first) before it is judged to have none.
@@ -661,6 +675,7 @@ def _instead_of_set(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set
     if term_error <= CONFOUNDING_FACTOR * max(set_error, floor) and set_error <= CONFOUNDING_FACTOR * max(term_error,
                                                                                                         floor):
         entry.status, entry.confounded_with, entry.why_not = 'confounded', list(catalog_set), ''
+        entry.differing = _differing(base, swapped)
         entry.value = alone.parameters.get(parameter, math.nan)
         entry.sigma = alone.standard_errors.get(parameter, math.nan)
         entry.excess_before, entry.excess_after = alone.excess_before, term_error
@@ -737,6 +752,7 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
         if alone <= CONFOUNDING_FACTOR * max(chosen, floor) and chosen <= CONFOUNDING_FACTOR * max(alone, floor):
             entry.status = 'confounded'         # they explain the data equally
             entry.confounded_with = list(catalog_set)
+            entry.differing = _differing(base, swapped)
         else:
             entry.replaces = list(catalog_set)  # the term explains more, and with it the set adds nothing
     return augmented

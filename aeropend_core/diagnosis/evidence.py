@@ -116,7 +116,45 @@ def screening_doubt(excess: float, noise: float, unit: str, scale: float) -> str
             'rank the terms, and a refit by output error gives a term\'s estimate')
 
 
-__all__ = ['TermEvidence', 'finite_or_none', 'screening_doubt', 't_statistic_words', 'share_words']
+#: Two explanations' values of one parameter differ when they are further apart than this many combined standard
+#: errors sqrt(sa^2 + sb^2) (each +- covers its truth within 2 sigma ~95 % of the time).
+DIFFER_SIGMA = 2.0
+
+
+def differing_parameters(first: dict, first_errors: dict, second: dict, second_errors: dict,
+                         limit: float = DIFFER_SIGMA) -> dict[str, tuple[float, float, float, float]]:
+    """The parameters two fitted explanations of one record share and disagree on.
+
+    Where a catalog set and a term outside the catalog explain a record alike (confounded), the nominal parameters
+    still differ between the two fits (a cable torque of 50 1/s^2 beside gravity halved); a user must know which
+    values hang on the choice.
+
+    Parameters
+    ----------
+    first, first_errors, second, second_errors : dict of str -> float [SI]
+        Each fit's parameters and 1-sigma.
+    limit : float [-]
+        Combined standard errors beyond which two values differ (:data:`DIFFER_SIGMA`).
+
+    Returns
+    -------
+    dict of str -> (float, float, float, float)
+        Per differing parameter: (first value, its sigma, second value, its sigma) [SI], largest separation first.
+    """
+    rows = []
+    for name in first.keys() & second.keys():
+        a, b = first[name], second[name]
+        sa, sb = first_errors.get(name, math.nan), second_errors.get(name, math.nan)
+        if not all(math.isfinite(v) for v in (a, b, sa, sb)):
+            continue
+        combined = math.hypot(sa, sb)
+        if combined > 0 and abs(a - b) > limit * combined:
+            rows.append((abs(a - b) / combined, name, (float(a), float(sa), float(b), float(sb))))
+    return {name: values for _, name, values in sorted(rows, reverse=True)}
+
+
+__all__ = ['DIFFER_SIGMA', 'TermEvidence', 'differing_parameters', 'finite_or_none', 'screening_doubt',
+           't_statistic_words', 'share_words']
 
 
 def t_statistic_words(t_statistic: float) -> str:

@@ -10,6 +10,17 @@ import math
 import shlex
 
 
+def differing_text(term) -> str:
+    """The parameters a confounded term's fit and the catalog set's disagree on, as one sentence ('' when none):
+    which values hang on the choice between the two explanations."""
+    differing = getattr(term, 'differing', None) or {}
+    if not differing:
+        return ''
+    parts = [f'{name} {a:.4g} +- {sa:.2g} with {" + ".join(term.confounded_with)}, {b:.4g} +- {sb:.2g} with the term'
+             for name, (a, sa, b, sb) in differing.items()]
+    return (f' The two explanations differ in {"; ".join(parts)} (more than their combined +-): '
+            f'{"this value depends" if len(parts) == 1 else "these values depend"} on which one is true.')
+
 
 def _coefficient(term) -> tuple[float, float]:
     """The term's output-error coefficient and σ [its unit], or the weak form's when it was not refitted."""
@@ -76,7 +87,8 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
         best = confounded[0]
         lookalike = (f'The term {term_text(best)} ({best.term.reading}) explains the data as well as '
                      f'{" + ".join(best.confounded_with)} ({best.excess_after * 1e3:.2f} mrad beyond the noise): this '
-                     f'data cannot tell them apart; {separating_experiment(best.term.expression)}.')
+                     f'data cannot tell them apart; {separating_experiment(best.term.expression)}.'
+                     + differing_text(best))
     proven = [t for t in discovery.terms if t.status == 'proven']
     if proven and proven[0].excess_after > explained_below:
         best = proven[0]
@@ -436,5 +448,5 @@ def _numpy_expression(expression: str) -> str:
     return code if code != '1' else '1.0 + 0.0 * angle'      # a float for a float (numba compiles it)
 
 
-__all__ = ['separating_experiment', 'term_text', 'discovery_sentence', 'motor_term_text', 'motor_sentence',
-           'motor_lines', 'motor_html', 'discovery_lines', 'discovery_html', 'effect_module_text']
+__all__ = ['differing_text', 'separating_experiment', 'term_text', 'discovery_sentence', 'motor_term_text',
+           'motor_sentence', 'motor_lines', 'motor_html', 'discovery_lines', 'discovery_html', 'effect_module_text']
