@@ -199,9 +199,13 @@ def test_run_closes_the_loop_on_the_rig_through_the_bridge(files, tmp_path):
     # player measures it and sends the next ones that early (measured 2026-12-06: 1.0118 s, then 4.0087 s); the
     # record's sample times and the player's clock can differ by up to a sample, so a change can land one sample before
     # the scheduled time (a fresh-clone run read 0.9996 s). The bound is the link's latency on a loaded machine, not an
-    # idle one's: at a load average of 16 the first change came 0.13 s late; 0.5 s is still a sixth of the 3 s hold
-    late = 0.5
-    assert len(changes) == 2 and -SAMPLE_TIME <= changes[0] - 1.0 < late and abs(changes[1] - 4.0) < late, changes
+    # idle one's: at a load average of 16 the first change came 0.13 s late, at 19 0.53 s (with a third of the
+    # telemetry lost by the recorder's best-effort subscription, so a change is seen at the next sample that has it).
+    # Half the 3 s hold still tells a schedule played on the device's clock from a step missed or played out of turn
+    late = 1.5
+    assert len(changes) == 2 and -SAMPLE_TIME <= changes[0] - 1.0 < late and abs(changes[1] - 4.0) < late, (
+        f'reference changes at {changes} s; {len(data)} samples, {data.samples_without_control} without telemetry; '
+        f'run output:\n{output[-3000:]}')
     assert abs(np.degrees(data.angle[(data.time > 6.0) & (data.time < 7.0)].mean()) - 35.0) < 3.0
 
 
