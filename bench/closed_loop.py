@@ -40,6 +40,7 @@ import numpy as np
 from aeropend_core.control.check import check_record
 from aeropend_core.control.controller_file import Controller
 from aeropend_core.control.design import TemplateNotMet, design
+from aeropend_core.control.hold_doubt import HoldDoubt, hold_doubt
 from aeropend_core.control.loop import FeedforwardMap, simulate_loop
 from aeropend_core.control.loop_diagnosis import diagnose_loop
 from aeropend_core.control.metrics import Template, schedule_metrics
@@ -57,8 +58,8 @@ from aeropend_core.sim.simulate import simulate
 TEMPLATE = Template()
 AT = math.radians(40)
 PSNR = 40.0
-#: fresh seeds (s17 used 90000+)
-SEED_BASE = 91_000
+#: fresh seeds (s17 used 90000+, s19 91000+; s20 developed on 95000+ and reports 96000+); --seed-base
+SEED_BASE = 96_000
 CASES = ('clean', 'thrust_lag', 'dead_zone', 'coulomb_friction', 'angle_offset')
 #: parameters scaled by U(0.85, 1.15) in the truth (eq (8)'s fit and the gear are kept: they are measured)
 SCALED = ('armature_resistance', 'armature_inductance', 'back_emf_constant', 'torque_constant', 'motor_inertia',
@@ -112,7 +113,10 @@ def identify_open_loop(parameters, effects, seed: int) -> dict:
     started = time.perf_counter()
     found = diagnose(from_columns(columns))
     data = finite_json(found.to_dict())
-    return {key: data.get(key) for key in ('verdict', 'missing_effect', 'missing_effects', 'model_effects',
+    model = model_from_dict(data, 'open-loop diagnosis')
+    doubt = hold_doubt(columns['t'], columns['angle'], columns['duty'], model.parameters, model.effects)
+    held = {'hold_doubt': None if doubt is None else {'factors': list(doubt.factors), 'tolerance': doubt.tolerance}}
+    return held | {key: data.get(key) for key in ('verdict', 'missing_effect', 'missing_effects', 'model_effects',
                                            'parameters', 'standard_errors', 'noise_rms', 'parameter_warnings',
                                            'warnings')} | {'seconds': time.perf_counter() - started,
                                                            'max_duty': max_duty}
@@ -154,9 +158,9 @@ def one_case(job) -> dict:
 
 
 def _one_case(job) -> dict:
-    case, seed, nominal_parameters = job
+    case, seed, nominal_parameters, seed_base, use_hold_doubt = job
     warnings.simplefilter('ignore')
-    rng = np.random.default_rng(SEED_BASE + 1000 * CASES.index(case) + seed)
+    rng = np.random.default_rng(seed_base + 1000 * CASES.index(case) + seed)
     parameters, effects = truth_of(case, rng)
     record = {'case': case, 'seed': seed, 'truth_effects': effects,
               'truth_scales': {name: getattr(parameters, name) / getattr(DEFAULT_PARAMETERS, name) for name in SCALED}}
@@ -165,9 +169,14 @@ def _one_case(job) -> dict:
     run = run_on_truth(nominal_parameters, nominal_parameters.schedule, parameters, effects, seed)
     record['nominal_parameters'] = judged(nominal_parameters, nominal_parameters.schedule, run, seed)
     # 1. identify the rig open loop; 2. design on the identified model (the nominal structure, no hidden effect).
-    identified = identify_open_loop(parameters, effects, SEED_BASE + 100 * seed + CASES.index(case))
+    identified = identify_open_loop(parameters, effects, seed_base + 100 * seed + CASES.index(case))
     record['identified'] = identified
     model = model_from_dict(identified, 'open-loop diagnosis')
+    record['fit_thrust_tolerance'] = model.thrust_tolerance
+    if use_hold_doubt:    # `control design --record`: the record's rests
+        held = identified['hold_doubt']
+        model = model.with_hold_doubt(None if held is None else HoldDoubt(tuple(held['factors']), (),
+                                                                          tuple(held['tolerance'])))
     record['identified_thrust_tolerance'] = model.thrust_tolerance
     design_started = time.perf_counter()
     nominal, outcome, refused_items = design_on(model, 'open-loop diagnosis')
@@ -193,6 +202,16 @@ def _one_case(job) -> dict:
         record['seconds'] = time.perf_counter() - started
         return record
     added = tuple(first['add'])
+    record['loop_path'] = f'closed-loop diagnosis named {added[0]}' if added else 'closed-loop diagnosis named nothing'
+    # What the tool tells the user: where the closed-loop record cannot separate effects ("confounded ... an
+    # open-loop segment would separate them") or names nothing, the open-loop record's diagnosis names the effect.
+    open_named = identified.get('missing_effect')
+    if open_named and (not added or first['confounded_with']) and (open_named,) != added:
+        added = (open_named,)
+        record['loop_path'] = (f'open-loop diagnosis named {open_named} (the closed-loop one '
+                               + (f'confounded {first["missing_effect"]} with {", ".join(first["confounded_with"])})'
+                                  if first['confounded_with'] else 'named nothing)'))
+    record['loop_added'] = list(added)
     diagnosis = loop_diagnosis(nominal, run, added) if added else first
     record['diagnosis']['after_add'] = diagnosis['verdict']
     record['diagnosis']['parameters'] = diagnosis['parameters']
@@ -283,6 +302,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--seeds', type=int, default=10)
     parser.add_argument('--first-seed', type=int, default=0, help='first seed index (default 0)')
+    parser.add_argument('--seed-base', type=int, default=SEED_BASE,
+                        help=f'seed of case 0 seed 0 (default {SEED_BASE}: the reported seeds; develop on others)')
+    parser.add_argument('--no-hold-doubt', action='store_true',
+                        help='design on the identified model with the fit\'s thrust doubt alone (the s19 flow)')
     parser.add_argument('--cases', default=','.join(CASES))
     parser.add_argument('--workers', type=int, default=1, help='processes (spawned) running seeds in parallel')
     parser.add_argument('--out', type=Path, default=None)
@@ -300,7 +323,8 @@ def main() -> int:
           f'i {nominal.gains.i:.4g}, d {nominal.gains.d:.4g}, Tf {nominal.gains.derivative_filter_time:.4g}',
           flush=True)
     # seed-major: a run cut short has the same seeds of every case
-    jobs = [(case, seed, nominal) for seed in range(args.first_seed, args.first_seed + args.seeds)
+    jobs = [(case, seed, nominal, args.seed_base, not args.no_hold_doubt)
+            for seed in range(args.first_seed, args.first_seed + args.seeds)
             for case in args.cases.split(',')]
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)

@@ -6,6 +6,7 @@ nominal Kq and Kw and scales L/J so that the product equals the fitted gain (the
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -30,6 +31,23 @@ class ModelSource:
     #: the rig's thrust relative to this model's that a design must tolerate: +-2 sigma of the fitted thrust gain
     #: (at least +-5 %, at most +-15 %); a nominal model -20 % to +25 %
     thrust_tolerance: tuple[float, float] = (0.8, 1.25)
+
+    def with_hold_doubt(self, doubt) -> ModelSource:
+        """This model with its thrust tolerance widened to the doubt of the open-loop record's rests (a
+        :class:`~aeropend_core.control.hold_doubt.HoldDoubt`, or None: no rests found, said as a doubt)."""
+        from aeropend_core.control.hold_doubt import widened
+        if doubt is None:
+            return dataclasses.replace(self, doubts=(*self.doubts, 'the record has too few rests (constant-duty '
+                                                     'holds above 10 deg) to check the feedforward: the thrust '
+                                                     'doubt is the fit\'s alone'))
+        tolerance, beyond = widened(self.thrust_tolerance, doubt)
+        said = (f'the feedforward checked on the record: the rig\'s thrust at its rests is '
+                f'{doubt.tolerance[0]:.3f}-{doubt.tolerance[1]:.3f} x the model\'s (mean +-2 sd of '
+                f'{len(doubt.factors)} rests); the design tolerates {tolerance[0]:.3f}-{tolerance[1]:.3f} x')
+        if beyond:
+            said += (' (wider than the nominal model\'s 0.8-1.25: the identified model\'s thrust map is off there; '
+                     'the design may refuse)')
+        return dataclasses.replace(self, thrust_tolerance=tolerance, doubts=(*self.doubts, said))
 
 
 def load_model(path: str | os.PathLike | None) -> ModelSource:
