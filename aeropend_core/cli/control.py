@@ -35,6 +35,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     design = sub.add_parser('design', help='gains for a template on the nominal or an identified model')
     design.add_argument('--model', metavar='DIAGNOSIS.json', default=None,
                         help='design on the model of an `aeropend diagnose/identify --json` file (default: nominal)')
+    design.add_argument('--record', metavar='OPEN_LOOP', default=None,
+                        help='the open-loop record (bag or CSV) the --model was identified on: the duty that held '
+                             'the rod still at its rests sets the thrust doubt the design tolerates (docs/control.md'
+                             '#the-thrust-doubt-of-an-identified-model)')
     design.add_argument('--template', default='settling=2,overshoot=10,error=5,duty=0.8',
                         help='items: settling [s], overshoot [%%], error [%% of the step], duty [fraction]')
     design.add_argument('--at', type=_angle, default=math.radians(40), metavar='ANGLE',
@@ -87,6 +91,15 @@ def _design(args) -> int:
     from aeropend_core.control.model_source import load_model
     from aeropend_core.control.reference import ReferenceSchedule, design_schedule
     model = load_model(args.model)
+    if args.record:
+        if args.model is None:
+            raise AeropendError('--record checks an identified model\'s feedforward: give the --model it was '
+                                'identified as (aeropend diagnose RECORD --json model.json)')
+        from aeropend_core.control.hold_doubt import hold_doubt
+        from aeropend_core.io.recording import load_recording
+        recording = load_recording(args.record)
+        model = model.with_hold_doubt(hold_doubt(recording.time, recording.signal('angle'),
+                                                 recording.signal('duty'), model.parameters, model.effects))
     if args.reference:
         from aeropend_core.io.inputs import load_yaml
         schedule = ReferenceSchedule.from_mapping(load_yaml(args.reference, 'reference schedule'), args.reference)

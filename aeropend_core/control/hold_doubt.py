@@ -39,11 +39,6 @@ class HoldDoubt:
     angles: tuple[float, ...]
     tolerance: tuple[float, float]
 
-    def text(self) -> str:
-        return (f'{len(self.factors)} rests of the open-loop record: the rig\'s thrust is {np.mean(self.factors):.3f} x '
-                f'the model\'s (sd {np.std(self.factors, ddof=1):.3f}); the design tolerates '
-                f'{self.tolerance[0]:.3f}-{self.tolerance[1]:.3f} x')
-
 
 def rests(time, angle, duty, min_hold: float = MIN_HOLD, window: float = REST_WINDOW):
     """(mean angle [rad], duty) of the last `window` seconds of every constant-duty hold longer than `min_hold`

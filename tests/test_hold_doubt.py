@@ -1,0 +1,48 @@
+"""The thrust doubt of an identified model from the rests of its open-loop record (control.hold_doubt)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from aeropend_core.control.hold_doubt import hold_doubt, rests, widened
+from aeropend_core.control.model_source import ModelSource
+from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME
+from aeropend_core.sim.excitation import lhc_schedule
+from aeropend_core.sim.noise import MeasurementNoise
+from aeropend_core.sim.simulate import simulate
+
+
+def _record(rig, seed=3, psnr=40.0):
+    duty = lhc_schedule(40.0, duty_range=(0.0, 0.6), duty_cap=0.6, seed=seed).duty(SAMPLE_TIME, 40.0)
+    columns = simulate(duty, rig, None, noise=MeasurementNoise(psnr, True), seed=seed).columns(with_truth=False)
+    return columns['t'], columns['angle'], columns['duty']
+
+
+@pytest.mark.parametrize('factor', [0.9, 1.12])
+def test_the_rests_measure_a_thrust_the_model_gets_wrong(factor):
+    # known truth: the rig's L/J is `factor` x the model's, 40 dB and the 10-bit angle
+    rig = DEFAULT_PARAMETERS.scaled(lever_per_inertia=factor)
+    doubt = hold_doubt(*_record(rig), DEFAULT_PARAMETERS)
+    assert doubt is not None and len(doubt.factors) >= 8
+    assert abs(np.mean(doubt.factors) - factor) < 0.02 * factor          # the bias is measured within 2 %
+    assert doubt.tolerance[0] < factor < doubt.tolerance[1]
+    # the design's tolerance is widened to hold it; the fit's own doubt is kept
+    tolerance, beyond = widened((0.95, 1.05), doubt)
+    assert tolerance[0] <= min(0.95, factor) and tolerance[1] >= max(1.05, factor) and not beyond
+
+
+def test_a_right_model_keeps_a_narrow_doubt():
+    doubt = hold_doubt(*_record(DEFAULT_PARAMETERS, seed=5), DEFAULT_PARAMETERS)
+    assert doubt is not None
+    assert 0.97 < doubt.tolerance[0] and doubt.tolerance[1] < 1.03
+
+
+def test_a_record_without_rests_says_so():
+    time = np.arange(0.0, 5.0, SAMPLE_TIME)
+    duty = 0.4 + 0.2 * np.sin(2 * math.pi * 3.0 * time)                  # never constant: no hold
+    assert rests(time, np.zeros_like(time), duty) == []
+    assert hold_doubt(time, np.zeros_like(time), duty, DEFAULT_PARAMETERS) is None
+    model = ModelSource(thrust_tolerance=(0.95, 1.05)).with_hold_doubt(None)
+    assert model.thrust_tolerance == (0.95, 1.05) and 'too few rests' in model.doubts[-1]
