@@ -46,3 +46,15 @@ def test_a_record_without_rests_says_so():
     assert hold_doubt(time, np.zeros_like(time), duty, DEFAULT_PARAMETERS) is None
     model = ModelSource(thrust_tolerance=(0.95, 1.05)).with_hold_doubt(None)
     assert model.thrust_tolerance == (0.95, 1.05) and 'too few rests' in model.doubts[-1]
+
+
+def test_cli_record_needs_the_model_it_checks(tmp_path):
+    import subprocess
+    import sys
+    time, angle, duty = _record(DEFAULT_PARAMETERS)
+    path = tmp_path / 'open.csv'
+    np.savetxt(path, np.column_stack([time, duty, angle]), delimiter=',', header='t,duty,angle', comments='')
+    command = [sys.executable, '-c', 'from aeropend_core.cli import main; raise SystemExit(main())', 'control',
+               'design', '--record', str(path), '-o', str(tmp_path / 'g.yaml')]
+    bad = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert bad.returncode != 0 and '--model' in bad.stderr and 'Traceback' not in bad.stderr
