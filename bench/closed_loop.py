@@ -99,11 +99,12 @@ def loop_diagnosis(controller: Controller, run, add=()) -> dict:
     return diagnosis.numbers_dict()
 
 
-def identify_open_loop(parameters, effects, seed: int) -> dict:
+def identify_open_loop(parameters, effects, seed: int) -> tuple[dict, dict]:
     """The user's first step on the rig: the open-loop excitation `aeropend simulate` plays (60 s Latin-hypercube
     duty up to 0.7) on the truth, 40 dB and the 10-bit angle, diagnosed as `aeropend diagnose` does. A rig strong
     enough to swing the rod past 85 deg at duty 0.7 is excited again with the top duty 0.1 lower (what the
-    diagnosis's note asks: "keep the duty steps below the level that holds the rod at ~85 deg")."""
+    diagnosis's note asks: "keep the duty steps below the level that holds the rod at ~85 deg"). Returns the
+    diagnosis's numbers and the record's columns (its rests check every model designed on: `--record`)."""
     for max_duty in (0.7, 0.6, 0.5, 0.4):
         duty = lhc_schedule(60.0, duty_range=(0.0, max_duty), duty_cap=max_duty, seed=seed).duty(SAMPLE_TIME, 60.0)
         trajectory = simulate(duty, parameters, effects or None, noise=MeasurementNoise(PSNR, True), seed=seed)
@@ -116,10 +117,11 @@ def identify_open_loop(parameters, effects, seed: int) -> dict:
     model = model_from_dict(data, 'open-loop diagnosis')
     doubt = hold_doubt(columns['t'], columns['angle'], columns['duty'], model.parameters, model.effects)
     held = {'hold_doubt': None if doubt is None else {'factors': list(doubt.factors), 'tolerance': doubt.tolerance}}
-    return held | {key: data.get(key) for key in ('verdict', 'missing_effect', 'missing_effects', 'model_effects',
-                                           'parameters', 'standard_errors', 'noise_rms', 'parameter_warnings',
-                                           'warnings')} | {'seconds': time.perf_counter() - started,
-                                                           'max_duty': max_duty}
+    keys = ('verdict', 'missing_effect', 'missing_effects', 'model_effects', 'parameters', 'standard_errors',
+            'noise_rms', 'parameter_warnings', 'warnings')
+    numbers = held | {key: data.get(key) for key in keys} | {'seconds': time.perf_counter() - started,
+                                                              'max_duty': max_duty}
+    return numbers, columns
 
 
 def design_on(model, name: str) -> tuple[Controller | None, str, dict]:
@@ -169,7 +171,7 @@ def _one_case(job) -> dict:
     run = run_on_truth(nominal_parameters, nominal_parameters.schedule, parameters, effects, seed)
     record['nominal_parameters'] = judged(nominal_parameters, nominal_parameters.schedule, run, seed)
     # 1. identify the rig open loop; 2. design on the identified model (the nominal structure, no hidden effect).
-    identified = identify_open_loop(parameters, effects, seed_base + 100 * seed + CASES.index(case))
+    identified, open_loop = identify_open_loop(parameters, effects, seed_base + 100 * seed + CASES.index(case))
     record['identified'] = identified
     model = model_from_dict(identified, 'open-loop diagnosis')
     record['fit_thrust_tolerance'] = model.thrust_tolerance
@@ -217,6 +219,10 @@ def _one_case(job) -> dict:
     record['diagnosis']['parameters'] = diagnosis['parameters']
     record['diagnosis']['standard_errors'] = diagnosis['standard_errors']
     base = model_from_dict({**diagnosis, 'parameters': {**diagnosis['parameters']}}, 'loop diagnosis')
+    record['loop_fit_thrust_tolerance'] = base.thrust_tolerance
+    if use_hold_doubt:      # `control design --model loop.json --record OPEN_LOOP`: the same rests check this model
+        base = base.with_hold_doubt(hold_doubt(open_loop['t'], open_loop['angle'], open_loop['duty'],
+                                               base.parameters, base.effects))
     model_parameters = base.parameters
     try:
         noise_db = min(80.0, 20 * math.log10((math.pi / 2) / max(diagnosis['noise_rms'], 1e-9)))
@@ -261,7 +267,8 @@ def table(records: list[dict]) -> str:
     lines = ['| case | seeds | open loop named (correct) | design refused (correctly) | nominal met '
              '| nominal-parameters design met | check says missed where predicted met | named (correct) | loop met '
              '| refused, correctly | b < 1 chosen (met) | predict: overshoot within 3 pp '
-             '| predict: settling within 20 % | design s | s/seed |', '|' + '---|' * 15]
+             '| predict: settling within 20 % | loop added the open-loop name | design s | s/seed |',
+             '|' + '---|' * 16]
     errors = [r for r in records if 'error' in r]
     records = [r for r in records if 'error' not in r]
     for case in CASES:
@@ -288,13 +295,26 @@ def table(records: list[dict]) -> str:
         steps = [s for r in rows for s in r.get('predict', {}).get('steps', [])]
         overshoot = f'{sum(s["overshoot_ok"] for s in steps)}/{len(steps)}'
         settling = f'{sum(s["settling_ok"] for s in steps)}/{len(steps)}'
+        open_path = sum(r.get('loop_path', '').startswith('open-loop') for r in rows)
         design_seconds = np.median([r['design_seconds'] for r in rows])
         seconds = np.mean([r['seconds'] for r in rows])
         lines.append(f'| {case} | {len(rows)} | {open_named} ({open_correct}) | {len(refused)} ({refused_correct}) | '
                      f'{nominal_met} | {old_met} | {said} | {named} ({correct}) | {loop_met} | {correctly} | '
                      f'{len(weighted)} ({sum(bool(m) for m in weighted)}) | '
-                     f'{overshoot} | {settling} | {design_seconds:.1f} | {seconds:.0f} |')
+                     f'{overshoot} | {settling} | {open_path} | {design_seconds:.1f} | {seconds:.0f} |')
     lines += [f'\ncrashed: {r["case"]} seed {r["seed"]}: {r["error"]}' for r in errors]
+    lines += ['', 'Path of each seed (thrust tolerance of the first design: the fit\'s, then with the record\'s '
+              'rests):', '']
+    for r in records:
+        fit, used = r.get('fit_thrust_tolerance'), r.get('identified_thrust_tolerance')
+        tolerance = (f'{fit[0]:.3f}-{fit[1]:.3f} -> {used[0]:.3f}-{used[1]:.3f}' if fit and used else '-')
+        gains = r.get('nominal_gains') or {}
+        after = ('met' if r['loop'].get('met') else 'missed') if r['loop'].get('redesign') == 'designed' else (
+            r['loop'].get('redesign', '')[:50])
+        lines.append(f'- {r["case"]} {r["seed"]}: tolerance {tolerance}, i {gains.get("i", math.nan):.3g}; nominal '
+                     f'{"met" if r["nominal"]["met"] else "missed"}; '
+                     + (f'{r.get("loop_path", "")}, added {r.get("loop_added")}, redesign {after}'
+                        if not r['nominal']['met'] else 'no redesign'))
     return '\n'.join(lines)
 
 
