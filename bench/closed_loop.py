@@ -305,7 +305,7 @@ def table(records: list[dict]) -> str:
     lines += [f'\ncrashed: {r["case"]} seed {r["seed"]}: {r["error"]}' for r in errors]
     lines += ['', 'Path of each seed (thrust tolerance of the first design: the fit\'s, then with the record\'s '
               'rests):', '']
-    for r in records:
+    for r in sorted(records, key=lambda r: (CASES.index(r['case']), r['seed'])):
         fit, used = r.get('fit_thrust_tolerance'), r.get('identified_thrust_tolerance')
         tolerance = (f'{fit[0]:.3f}-{fit[1]:.3f} -> {used[0]:.3f}-{used[1]:.3f}' if fit and used else '-')
         gains = r.get('nominal_gains') or {}
