@@ -96,7 +96,7 @@ def judged(controller: Controller, schedule: ReferenceSchedule, run, seed: int) 
 def loop_diagnosis(controller: Controller, run, add=()) -> dict:
     diagnosis = diagnose_loop(run.time, run.angle, run.duty, run.reference, run.feedforward, controller.gains,
                               controller.gains.u_clamp_max, controller.parameters, add=add)
-    return diagnosis.numbers_dict()
+    return diagnosis.to_dict()
 
 
 def identify_open_loop(parameters, effects, seed: int) -> tuple[dict, dict]:
