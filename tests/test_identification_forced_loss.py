@@ -60,6 +60,7 @@ def test_every_window_covering_a_forced_loss_is_flagged(monkeypatch):
             while time.monotonic() < deadline and node.pending is not None and not node.pending.done():
                 spin(0.2)
             spin(0.5)
+            missed_in_all = node.samples_missed - missed_before   # the stall's, and any lost while catching up
         covering = [e for e in node.window_events if e.start_s < loss[1] and e.stop_s > loss[0]]
         computed = [e for e in covering if e.state != "skipped"]
         assert computed, [(e.start_s, e.stop_s, e.state) for e in node.window_events]
@@ -68,9 +69,10 @@ def test_every_window_covering_a_forced_loss_is_flagged(monkeypatch):
             if event.state == 'flagged':
                 assert 'lost_samples' in event.data and 'lost' in event.message, event
             if event.start_s < loss[0] and event.stop_s > loss[1]:       # the whole loss inside: every sample counted
-                # (a loaded machine can lose a few more samples while the node catches up after the stall: those may
-                # fall after the window's end, so the count lies between the stall's own gap and all samples missed)
-                assert stall_gap <= event.lost_samples <= lost, (stall_gap, lost, event)
+                # (the node can lose more samples while it catches up after the stall, even on an idle machine: a
+                # second gap of 47 samples inside the same window was seen; so the count lies between the stall's
+                # own gap and every sample missed from the stall to the end)
+                assert stall_gap <= event.lost_samples <= missed_in_all, (stall_gap, lost, missed_in_all, event)
         assert any(e.state == 'flagged' for e in computed), [(e.start_s, e.state) for e in covering]
         # a window entirely after the loss is not blamed for it
         later = [e for e in node.window_events if e.start_s > loss[1] + 0.1 and e.state not in ('skipped',)]
