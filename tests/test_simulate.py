@@ -1,4 +1,6 @@
 """Physics of the simulator against independent results: equilibria, small-angle analytic response, energy."""
+import warnings
+
 import numpy as np
 import pytest
 
@@ -127,3 +129,14 @@ def test_a_long_rest_in_small_blocks_stays_finite(method):
     for _ in range(420):                                   # 420 s of rest in 1 s blocks
         block = simulator.run(np.zeros(490))
         assert np.all(np.isfinite(block.angle)) and np.all(np.isfinite(simulator.state))
+
+
+def test_a_simulation_that_diverges_is_refused_with_a_reason_not_a_math_error(scoped_catalog):
+    """A softening cubic torque of 40 1/(s^2 rad^2) sends the rod off to infinity: the simulator says the equation
+    diverged, from when, with which effects, and what to do, instead of the integrator's bare 'math domain error'."""
+    from aeropend_core.diagnosis.discovery import VOCABULARY, term_effect
+    name = term_effect(next(t for t in VOCABULARY if t.expression == 'angle^3'))
+    with pytest.raises(AeropendError, match=r'diverged .* t = 0\.000 s.*term_angle_cube.*make an effect smaller'), \
+            np.errstate(all='ignore'), warnings.catch_warnings():
+        warnings.simplefilter('ignore', RuntimeWarning)
+        simulate(np.full(2000, 0.7), effects={name: 40.0})

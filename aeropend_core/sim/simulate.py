@@ -258,11 +258,14 @@ class RigSimulator:
             if stop <= start:
                 continue
             t_eval = np.arange(start, stop + 1) * ts
-            solution = solve_ivp(self._rhs_factory(float(voltage[start])), (t_eval[0], t_eval[-1]), state,
-                                 method='LSODA', t_eval=t_eval, rtol=1e-6, atol=self._atol,
-                                 first_step=min(ts / 20, 1e-4))
-            if not solution.success:
-                raise RuntimeError(f'simulation failed at t = {t_eval[0]:.3f} s: {solution.message}')
+            try:
+                solution = solve_ivp(self._rhs_factory(float(voltage[start])), (t_eval[0], t_eval[-1]), state,
+                                     method='LSODA', t_eval=t_eval, rtol=1e-6, atol=self._atol,
+                                     first_step=min(ts / 20, 1e-4))
+            except (ValueError, OverflowError, ZeroDivisionError):   # math.sin(inf): the state left every bound
+                raise AeropendError(_diverged(t_eval[0], self.effects)) from None
+            if not solution.success or not np.all(np.isfinite(solution.y)):
+                raise AeropendError(_diverged(t_eval[0], self.effects, solution.message))
             states[start:stop] = solution.y[:, :-1].T
             state = _flush_denormals(solution.y[:, -1])
         self.state = np.array(state, dtype=float)
@@ -282,6 +285,9 @@ class RigSimulator:
         final = _rig_kernel(np.array(self._constants, dtype=float), voltage, gate, state, self.sample_time,
                             c['rate_sign'], c['rate_square'], c['angle_linear'],
                             self._lag_time_constant, FRICTION_SMOOTHING, states)
+        if not np.all(np.isfinite(states)):
+            first = int(np.flatnonzero(~np.all(np.isfinite(states), axis=1))[0])
+            raise AeropendError(_diverged((self.sample_index + first) * self.sample_time, self.effects))
         self.state = _flush_denormals(final[:len(self.state)])
         time = (self.sample_index + np.arange(n)) * self.sample_time
         self.sample_index += n
@@ -307,6 +313,16 @@ class RigSimulator:
         if self.noise is not None:
             measured = apply_measurement_noise(measured, self.noise, self.rng)
         return Trajectory(time=time, duty=duty.copy(), truth=truth, sample_time=self.sample_time, **measured)
+
+
+def _diverged(time: float, effects, reason: str = '') -> str:
+    """The message for a simulation whose state left every bound (an unstable equation), from `time` [s] on."""
+    sizes = '; '.join(f'{name} ' + ', '.join(f'{k} = {v:g}' for k, v in dict(values).items())
+                      for name, values in dict(effects).items()) or 'none'
+    detail = f' ({reason})' if reason else ''
+    return (f'the simulation diverged in the stretch starting at t = {time:.3f} s{detail}: the rod\'s equation is '
+            f'unstable with these parameters and effects (effects: {sizes}); make an effect smaller or change its '
+            'sign, or lower the duty')
 
 
 def _flush_denormals(state: np.ndarray) -> np.ndarray:
