@@ -271,7 +271,9 @@ class SimNode(Node):
         """Publishers, the reference subscription and the law (called once the simulator exists)."""
         from aeropend_core.control.loop import ClosedLoopSimulation
         self.control_publisher = self.create_publisher(JointState, topics.CONTROL, topics.samples_qos())
-        self.config_publisher = self.create_publisher(String, topics.CONTROLLER_CONFIG, controller_config_qos())
+        # aeropend/controller is advertised when there is a configuration to say (closed loop, a schedule, new gains):
+        # an open-loop run has none, and a recorder would otherwise report a topic it was not asked to record
+        self.config_publisher = None
         self.create_subscription(Float64MultiArray, topics.REFERENCE, self._on_reference, reference_qos())
         self.loop = ClosedLoopSimulation(self.gains, self.feedforward_map, sample_time=self.sample_time)
         self.loop.simulator = self.simulator        # one simulated rig, whichever mode drives it
@@ -400,6 +402,8 @@ class SimNode(Node):
         import yaml
         if not hasattr(self, 'config_publisher'):
             return
+        if self.config_publisher is None:
+            self.config_publisher = self.create_publisher(String, topics.CONTROLLER_CONFIG, controller_config_qos())
         self.config_publisher.publish(String(data=yaml.safe_dump(self.controller_config(), sort_keys=False)))
 
     def _publish_closed_loop(self, count: int) -> None:
