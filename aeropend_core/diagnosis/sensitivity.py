@@ -85,6 +85,15 @@ def _stage(y, w, f, u, du, sy, sw, sf, cols, m, a, b, fc, cd, kc, tau, tau_free,
     return w, dw, df
 
 
+@numba.njit(cache=True, nogil=True, inline='always')
+def _stage_point(sy, sw, sf, ky, kw, kf, step, m, ty, tw, tf):
+    """The sensitivities at an RK4 stage point: (ty, tw, tf) = (sy, sw, sf) + step * (ky, kw, kf), first m."""
+    for c in range(m):
+        ty[c] = sy[c] + step * ky[c]
+        tw[c] = sw[c] + step * kw[c]
+        tf[c] = sf[c] + step * kf[c]
+
+
 @numba.njit(numba.void(_F1, _F1, _F1, _F1, _I1, _I1, _F2, numba.float64, numba.boolean, numba.boolean,
                        numba.float64, numba.float64, numba.float64, numba.float64, _I1, _F2, _F2, _F2),
             cache=True, nogil=True)
@@ -215,28 +224,19 @@ def sensitivity_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop
                 du2[c] = _thrust_derivative(track[c], k, e2, current[i + 2], g_second)
             dy1, dw1, df1 = _stage(y, w, f, u0, du0, sy, sw, sf, track, m, a, b, fc, cd, kc, tau, tau_free, smooth,
                                    stiff_friction, lag_on, k1y, k1w, k1f)
-            for c in range(m):
-                ty[c] = sy[c] + 0.5 * h * k1y[c]
-                tw[c] = sw[c] + 0.5 * h * k1w[c]
-                tf[c] = sf[c] + 0.5 * h * k1f[c]
+            _stage_point(sy, sw, sf, k1y, k1w, k1f, 0.5 * h, m, ty, tw, tf)
             y2 = y + 0.5 * h * dy1
             w2 = w + 0.5 * h * dw1
             f2 = f + 0.5 * h * df1
             dy2, dw2, df2 = _stage(y2, w2, f2, u1, du1, ty, tw, tf, track, m, a, b, fc, cd, kc, tau, tau_free,
                                    smooth, stiff_friction, lag_on, k2y, k2w, k2f)
-            for c in range(m):
-                ty[c] = sy[c] + 0.5 * h * k2y[c]
-                tw[c] = sw[c] + 0.5 * h * k2w[c]
-                tf[c] = sf[c] + 0.5 * h * k2f[c]
+            _stage_point(sy, sw, sf, k2y, k2w, k2f, 0.5 * h, m, ty, tw, tf)
             y3 = y + 0.5 * h * dy2
             w3 = w + 0.5 * h * dw2
             f3 = f + 0.5 * h * df2
             dy3, dw3, df3 = _stage(y3, w3, f3, u1, du1, ty, tw, tf, track, m, a, b, fc, cd, kc, tau, tau_free,
                                    smooth, stiff_friction, lag_on, k3y, k3w, k3f)
-            for c in range(m):
-                ty[c] = sy[c] + h * k3y[c]
-                tw[c] = sw[c] + h * k3w[c]
-                tf[c] = sf[c] + h * k3f[c]
+            _stage_point(sy, sw, sf, k3y, k3w, k3f, h, m, ty, tw, tf)
             y4 = y + h * dy3
             w4 = w + h * dw3
             f4 = f + h * df3
