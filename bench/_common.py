@@ -302,12 +302,17 @@ def machine_info() -> dict:
             'python': platform.python_version(), 'ros_distro': os.environ.get('ROS_DISTRO'), 'versions': versions}
 
 
-def spawn_map(function: Callable, jobs: list, workers: int) -> tuple[list, float]:
-    """(`function` applied to each job on `workers` spawned processes, in order; the wall time [s] it took)."""
+def spawn_map(function: Callable, jobs: list, workers: int, each: Callable | None = None) -> tuple[list, float]:
+    """(`function` applied to each job on `workers` spawned processes, in order; the wall time [s] it took).
+    `each`, when given, is called with every row as it arrives (a long run shows its progress)."""
     import time
     from multiprocessing import get_context
     started = time.perf_counter()
+    rows = []
     with get_context('spawn').Pool(workers) as pool:
-        rows = pool.map(function, jobs, chunksize=1)
+        for row in pool.imap(function, jobs, chunksize=1):
+            rows.append(row)
+            if each is not None:
+                each(row)
     return rows, time.perf_counter() - started
 

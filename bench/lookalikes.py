@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from _common import add_json_argument, figure, write_json  # noqa: E402
+from _common import add_json_argument, figure, spawn_map, write_json  # noqa: E402
 
 SEED_BASE = 43_000
 #: (catalog effect, its parameter's range [SI], term expression, the term's coefficient range [term unit])
@@ -134,18 +134,14 @@ def main() -> None:
         parser.error('--records and --workers must be at least 1')
     indices = args.only if args.only else range(2 * args.records * len(PAIRS))
     jobs = [(index, args.records, args.seed_base) for index in indices]
-    from multiprocessing import get_context
-    started = time.perf_counter()
-    rows = []
-    with get_context('spawn').Pool(args.workers) as pool:
-        for r in pool.imap(run, jobs, chunksize=1):
-            rows.append(r)
-            print(f'{r["seed"]:6d} {r["pair"]:26s} truth {r["truth"]:13s} {r["true_value"]:+.4g} '
-                  f'{r["verdict"]:15s} named {",".join(r["pinned"]) or "-":20s} proven {",".join(r["proven"]) or "-"} '
-                  f'confounded {"yes" if r["confounded"] else "no"} ({"; ".join(r["confounded_terms"]) or "-"}) '
-                  f'true named {"yes" if r["true_named"] else "no"} WRONG {",".join(r["wrong_named"]) or "-"} '
-                  f'differ {",".join(r["differing"]) or "-"} {r["seconds"]} s', flush=True)
-    wall = time.perf_counter() - started
+
+    def say(r: dict) -> None:       # each record's line as it finishes (a long run shows progress)
+        print(f'{r["seed"]:6d} {r["pair"]:26s} truth {r["truth"]:13s} {r["true_value"]:+.4g} '
+              f'{r["verdict"]:15s} named {",".join(r["pinned"]) or "-":20s} proven {",".join(r["proven"]) or "-"} '
+              f'confounded {"yes" if r["confounded"] else "no"} ({"; ".join(r["confounded_terms"]) or "-"}) '
+              f'true named {"yes" if r["true_named"] else "no"} WRONG {",".join(r["wrong_named"]) or "-"} '
+              f'differ {",".join(r["differing"]) or "-"} {r["seconds"]} s', flush=True)
+    rows, wall = spawn_map(run, jobs, args.workers, say)
     for side in ('catalog effect true', 'term true'):
         part = [r for r in rows if (r['truth'] == r['effect']) == (side == 'catalog effect true')]
         print(f'{side}: {len(part)} records; confounded said {sum(r["confounded"] for r in part)}; the true one named '

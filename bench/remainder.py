@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from _common import add_json_argument, figure, write_json  # noqa: E402
+from _common import add_json_argument, figure, spawn_map, write_json  # noqa: E402
 
 SEED_BASE = 41_000
 CATALOG_EFFECTS = ('coulomb_friction', 'angle_offset', 'thrust_lag', 'dead_zone')
@@ -122,18 +122,14 @@ def main() -> None:
     jobs = [(index, args.beside, args.seed_base) for index in range(args.beside + args.alone)
             if (args.part == 'all' or (index < args.beside) == (args.part == 'beside'))
             and (not args.only or index in args.only)]
-    from multiprocessing import get_context
-    started = time.perf_counter()
-    rows = []
-    with get_context('spawn').Pool(args.workers) as pool:
-        for r in pool.imap(run, jobs, chunksize=1):     # each record's line as it finishes (a long run shows progress)
-            rows.append(r)
-            print(f'{r["seed"]:6d} {r["set"]:6s} {str(r["true_effect"]):17s} + {r["remainder"]:13s} '
-                  f'{"ok" if r["correct"] else "WRONG":5s} {r["verdict"]:15s} {",".join(r["named"]) or "-":30s} '
-                  f'z={r["z"]} left {r["remaining_mrad"]} mrad (noise {r["noise_mrad"]}) '
-                  f'lost to the remainder: {",".join(r["lost_to_remainder"]) or "-"}; not named: '
-                  f'{"; ".join(r["unnamed"]) or "-"}', flush=True)
-    wall = time.perf_counter() - started
+
+    def say(r: dict) -> None:       # each record's line as it finishes (a long run shows progress)
+        print(f'{r["seed"]:6d} {r["set"]:6s} {str(r["true_effect"]):17s} + {r["remainder"]:13s} '
+              f'{"ok" if r["correct"] else "WRONG":5s} {r["verdict"]:15s} {",".join(r["named"]) or "-":30s} '
+              f'z={r["z"]} left {r["remaining_mrad"]} mrad (noise {r["noise_mrad"]}) '
+              f'lost to the remainder: {",".join(r["lost_to_remainder"]) or "-"}; not named: '
+              f'{"; ".join(r["unnamed"]) or "-"}', flush=True)
+    rows, wall = spawn_map(run, jobs, args.workers, say)
     beside = [r for r in rows if r['set'] == 'beside']
     alone = [r for r in rows if r['set'] == 'alone']
     hits = sum(r['correct'] for r in beside)
