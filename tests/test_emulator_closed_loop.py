@@ -44,7 +44,7 @@ def test_emulator_runs_the_closed_loop_like_the_firmware():
         device = Device(link)
         status = device.status()
         assert status.protocol_version == 2 and not status.flags & P.FLAG_CLOSED_LOOP
-        link.write(P.encode_command(P.SET_WATCHDOG, 2.0))
+        link.write(P.encode_command(P.SET_WATCHDOG, 30.0))
         check_refusals_before_gains(device)
 
         refusal_gains = law.PidGains(p=0.8, i=0.0, d=0.0, u_clamp_max=0.6, i_clamp_min=-0.2, i_clamp_max=0.2)

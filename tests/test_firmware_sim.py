@@ -517,7 +517,7 @@ def test_closed_loop_commands_over_pty(build, tmp_path):
         status = next(m for m in boot if isinstance(m, P.StatusFrame))
         assert status.protocol_version == 2 == P.PROTOCOL_VERSION
         assert not status.flags & P.FLAG_CLOSED_LOOP
-        link.write(P.encode_command(P.SET_WATCHDOG, 2.0))    # a loaded test machine must not trip it by accident
+        link.write(P.encode_command(P.SET_WATCHDOG, 30.0))    # 30 s: a loaded machine (load 16) must not trip it
 
         check_refusals_before_gains(device)                   # each refusal code
         samples = device.samples(3, P.SampleFrame)            # still open loop: plain SAMPLEs, duty 0
@@ -623,7 +623,7 @@ def test_closed_loop_commands_over_pty(build, tmp_path):
         assert len(cut) > 10 and all(m.duty_q16 == 0 for m in cut[1:])
         status_reply = [m for m in new if isinstance(m, P.StatusFrame)][-1]    # the SET_WATCHDOG's STATUS
         assert cut[0].sequence - status_reply.sequence == pytest.approx(0.1 / P.SAMPLE_PERIOD, abs=8)
-        link.write(P.encode_command(P.SET_WATCHDOG, 2.0) + P.encode_command(P.REQUEST_STATUS))
+        link.write(P.encode_command(P.SET_WATCHDOG, 30.0) + P.encode_command(P.REQUEST_STATUS))
         new = device.samples(20)
         assert all(m.flags & P.FLAG_WATCHDOG_TRIPPED and m.duty_q16 == 0 for m in new[5:])
         ack = device.ack(P.encode_reference(0.3, feedforward))
@@ -678,7 +678,7 @@ def test_firmware_law_replayed_over_pty(build, tmp_path, firmware, options):
             serial.Serial(str(tmp_path / 'ttyMEGA'), 250000, timeout=0.02) as link:
         device = Device(link)
         device.read(5.0, until=lambda ms: any(isinstance(m, P.StatusFrame) for m in ms))
-        link.write(P.encode_command(P.SET_WATCHDOG, 2.0))
+        link.write(P.encode_command(P.SET_WATCHDOG, 30.0))
         send_gains(link, gains, decoder=device.decoder, messages=device.messages)
         assert device.ack(P.encode_angle_calibration(512.0, 2 * math.pi / 1024)).ok
         assert device.ack(P.encode_reference(0.5, 0.2)).ok
