@@ -451,6 +451,52 @@ def test_a_diagnosis_that_names_an_effect_is_a_model_with_a_doubt():
     assert any('missing_effect: thrust_lag' in doubt for doubt in model.doubts)
 
 
+def test_a_diagnosis_model_takes_the_motor_its_observer_fitted():
+    """A rig whose motor constants are off by up to 23 % (test_signals' moved rig, 42.8 dB): the diagnosis fits the
+    thrust gain on the back-EMF of its motor observer, so the model to design on must carry that motor. With the
+    observer's motor the model's static thrust at duty 0.3-0.7 is within 1.5 % of the rig's and its motor time
+    constant within 3 % (the observer's rates are within 1-3 %); with the nominal motor (what the model took
+    before) the static thrust is off by more than twice as much somewhere (3.7 % here): a miss the design's thrust
+    doubt had to carry."""
+    from aeropend_core.control.model_source import model_from_dict
+    from aeropend_core.signals.motor import fit_motor
+    from aeropend_core.signals.preprocess import detect_steps, piecewise_constant
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.simulate import simulate
+    moved = DEFAULT_PARAMETERS.scaled(armature_resistance=0.9344, armature_inductance=0.8972,
+                                      back_emf_constant=1.0515, torque_constant=0.885, motor_inertia=0.9072,
+                                      motor_friction=0.7724, propeller_torque_coefficient=1.0673,
+                                      thrust_coefficient=1.2105, gravity_stiffness=0.8946, damping=0.9099,
+                                      lever_per_inertia=1.1154)
+    duty = lhc_schedule(60.0, duty_range=(0.0, 0.7), duty_cap=0.7, seed=9006).duty(duration=60.0)
+    record = simulate(duty, parameters=moved, noise=MeasurementNoise(42.77, True), seed=9007)
+    steps = detect_steps(record.armature_voltage, record.sample_time)
+    observer = fit_motor(piecewise_constant(record.armature_voltage, steps), record.armature_current, steps,
+                         record.sample_time).parameters
+    # the thrust gain and Ra as the diagnosis reports them (the true product, the observer's Rm)
+    fitted = {'gravity_stiffness': moved.gravity_stiffness, 'damping': moved.damping,
+              'armature_resistance': observer['motor_resistance'],
+              'thrust_gain': moved.lever_per_inertia * moved.thrust_voltage_coefficient}
+    with_motor = model_from_dict({'parameters': fitted, 'motor_observer': observer}, 'd.json').parameters
+    nominal_motor = model_from_dict({'parameters': fitted}, 'd.json').parameters
+
+    def time_constant(parameters, duty):
+        speed = parameters.steady_state(parameters.voltage_from_duty(duty))['motor_speed']
+        slope = (parameters.torque_constant * parameters.back_emf_constant / parameters.armature_resistance
+                 + parameters.motor_friction + 2 * parameters.propeller_torque_coefficient / parameters.gear_ratio ** 3
+                 * speed)
+        return parameters.motor_inertia / slope
+
+    worst, worst_nominal = 0.0, 0.0
+    for level in (0.3, 0.5, 0.7):
+        truth = rest_thrust_torque(level, moved)
+        assert rest_thrust_torque(level, with_motor) == pytest.approx(truth, rel=0.015), level
+        assert time_constant(with_motor, level) == pytest.approx(time_constant(moved, level), rel=0.03), level
+        worst = max(worst, abs(rest_thrust_torque(level, with_motor) / truth - 1.0))
+        worst_nominal = max(worst_nominal, abs(rest_thrust_torque(level, nominal_motor) / truth - 1.0))
+    assert worst_nominal > 2.0 * worst
+
+
 def test_check_and_linearisation_pages_are_self_contained(tmp_path, nominal_design):
     from aeropend_core.control.report import check_report, linearisation_report
     controller = Controller(nominal_design.gains, template=Template())

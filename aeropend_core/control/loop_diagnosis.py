@@ -33,6 +33,7 @@ from scipy.optimize import least_squares
 from aeropend_core.control.law import PidGains, law_step, new_state
 from aeropend_core.control.loop import simulate_loop
 from aeropend_core.control.metrics import noise_sigma
+from aeropend_core.control.model_source import motor_rates
 from aeropend_core.errors import AeropendError
 from aeropend_core.model.effects import CATALOG, get_effect, resolve_effects
 from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigParameters
@@ -123,6 +124,8 @@ class LoopDiagnosis:
                 'missing_effect': self.named, 'missing_effects': [self.named] if self.named else [],
                 'add': [self.named] if self.named else [], 'model_effects': list(self.added),
                 'parameters': parameters, 'standard_errors': _reported_sigmas(self.base),
+                # the controller model's motor (held in the fit): a design on this JSON keeps it
+                'motor_observer': motor_rates(self.base.parameters),
                 'with_missing_effect': ({'parameters': _reported(model), 'standard_errors': _reported_sigmas(model)}
                                         if self.named else None),
                 'noise_rms': self.noise_rms, 'rms_error': self.base.test_rms,
@@ -184,7 +187,7 @@ class LoopDiagnosis:
 def _reported(fit: LoopFit) -> dict[str, float]:
     """A diagnosis JSON's parameter names (what `control design --model` reads): thrust as the lumped gain."""
     values = {'gravity_stiffness': fit.parameters.gravity_stiffness, 'damping': fit.parameters.damping,
-              'thrust_gain': fit.parameters.thrust_gain}
+              'thrust_gain': fit.parameters.thrust_gain, 'armature_resistance': fit.parameters.armature_resistance}
     values.update({name: value for name, value in fit.values.items() if name not in BASE_PARAMETERS})
     return values
 

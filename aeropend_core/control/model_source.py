@@ -3,6 +3,12 @@ JSON (its fitted pendulum parameters, its armature resistance and the effects it
 
 A diagnosis fits the thrust as one gain, (L/J) Kq (N2/(N1 Kw))^2 [rad/s^2/V^2]; the model here keeps the motor's
 nominal Kq and Kw and scales L/J so that the product equals the fitted gain (the loop only sees the product).
+
+The thrust the diagnosis fitted that gain on is the square of the back-EMF its motor observer
+(:mod:`aeropend_core.signals.motor`) computed from Va, fitted to the measured Ia: de/dt = p1 (Va - e) - p2 e -
+p3 e|e|, Ia = (Va - e)/Rm. The model takes that motor too (the JSON's ``motor_observer``): with Kw and Kt kept,
+Jm = Kw Kt/(p1 Rm), F = p2 Jm, Kd = p3 Jm Kw (N1/N2)^3 and La = tau_e Rm, so that the simulated motor's speed, its
+lag and its static map from Va are the rig's that the fit saw, not the nominal motor's.
 """
 from __future__ import annotations
 
@@ -73,7 +79,8 @@ def model_from_dict(data, source: str) -> ModelSource:
     for name in ('gravity_stiffness', 'damping', 'armature_resistance'):
         if _number(fitted.get(name)):
             changes[name] = float(fitted[name])
-    parameters = DEFAULT_PARAMETERS.replace(**changes)
+    parameters = DEFAULT_PARAMETERS.replace(**changes, **observer_motor(data.get('motor_observer'),
+                                                                        changes.get('armature_resistance')))
     if _number(fitted.get('thrust_gain')) and fitted['thrust_gain'] > 0:
         parameters = parameters.replace(lever_per_inertia=float(fitted['thrust_gain'])
                                         / parameters.thrust_voltage_coefficient)
@@ -114,6 +121,42 @@ def model_from_dict(data, source: str) -> ModelSource:
         relative = min(0.15, max(0.05, 2.0 * float(sigma) / float(gain)))
         tolerance = (1.0 - relative, 1.0 + relative)
     return ModelSource(parameters, effects, source, tuple(doubts), psnr, tolerance)
+
+
+def observer_motor(observer, resistance: float | None = None) -> dict[str, float]:
+    """The rig's motor constants (Jm [kg m^2], F [N m s/rad], Kd [N m s^2], La [H]) that make the simulator's motor
+    the diagnosis's motor observer (`observer`: its ``motor_drive_rate`` p1 [1/s], ``motor_friction_rate`` p2
+    [1/s], ``motor_drag_rate`` p3 [1/(V s)], ``motor_resistance`` Rm [ohm] and, when fitted,
+    ``electrical_time_constant`` [s]), with the nominal Kw and Kt; {} when there is none or a value is not usable.
+    `resistance` [ohm]: the model's Ra when it is given apart (the diagnosis reports the observer's Rm as Ra)."""
+    if not isinstance(observer, dict):
+        return {}
+    drive, friction, drag = (observer.get(key) for key in ('motor_drive_rate', 'motor_friction_rate',
+                                                             'motor_drag_rate'))
+    rm = observer.get('motor_resistance') if resistance is None else resistance
+    if not all(_number(value) for value in (drive, friction, drag, rm)) or drive <= 0 or rm <= 0 or \
+            friction < 0 or drag <= 0:
+        return {}
+    base = DEFAULT_PARAMETERS
+    inertia = base.back_emf_constant * base.torque_constant / (drive * rm)
+    motor = {'motor_inertia': inertia, 'motor_friction': friction * inertia,
+             'propeller_torque_coefficient': drag * inertia * base.back_emf_constant * base.gear_ratio ** 3}
+    tau = observer.get('electrical_time_constant')
+    if _number(tau) and tau > 0:
+        motor['armature_inductance'] = tau * rm
+    return motor
+
+
+def motor_rates(parameters: RigParameters) -> dict[str, float]:
+    """The motor of `parameters` as an observer's numbers (the inverse of :func:`observer_motor`, same names and
+    units): what a closed-loop diagnosis's JSON carries so that a design on it keeps its controller model's motor."""
+    p = parameters
+    return {'motor_drive_rate': p.back_emf_constant * p.torque_constant / (p.motor_inertia * p.armature_resistance),
+            'motor_friction_rate': p.motor_friction / p.motor_inertia,
+            'motor_drag_rate': p.propeller_torque_coefficient / p.gear_ratio ** 3 / (p.motor_inertia
+                                                                                     * p.back_emf_constant),
+            'motor_resistance': p.armature_resistance,
+            'electrical_time_constant': p.armature_inductance / p.armature_resistance}
 
 
 def _number(value) -> bool:
