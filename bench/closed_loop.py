@@ -8,20 +8,26 @@ friction, angle offset), on fresh seeds:
   random size, 40 dB angle noise on the stream's full scale and the rig's 10-bit angle;
 * ``identified``: what a user does first: the open-loop excitation ``aeropend simulate`` plays (60 s Latin-hypercube
   duty up to 0.7) on the truth, 40 dB, diagnosed as ``aeropend diagnose`` does (:func:`diagnose`: the nominal
-  structure's fit; whether it already names the hidden effect is recorded, the design does not use it);
-* ``nominal``: the design on that identified model (``control design --model DIAGNOSIS.json``: its parameters, its
-  noise, its thrust doubt; 40 deg, settling <= 2 s, overshoot <= 10 %, error <= 5 %, duty <= 0.8) run on the truth
-  (the compiled closed loop: the same law and simulator the sim node runs) over its design schedule;
-  ``control check`` (:func:`check_record`) judges it. A refusal is checked against the design on the *true* model
-  (its parameters and hidden effect, no thrust doubt): when that refuses too, the seed is "refused, correctly";
+  structure's fit; whether it already names the hidden effect is recorded);
+* ``structure``: the design on that nominal-structure model (``control design --model DIAGNOSIS.json --record``:
+  its parameters, its motor observer, its noise, its thrust doubt; 40 deg, settling <= 2 s, overshoot <= 10 %,
+  error <= 5 %, duty <= 0.8) run on the truth (the compiled closed loop: the same law and simulator the sim node
+  runs) over its design schedule, judged by ``control check`` (:func:`check_record`): does the check say so where
+  it really misses?
+* ``nominal`` (the user's first design): where the open-loop diagnosis names effects, the design on the model with
+  them added (``aeropend diagnose OPEN_LOOP --add NAME --json M.json``, then ``control design --model M.json
+  --record OPEN_LOOP``), else the structure's design; run on the truth and checked. A refusal is checked against
+  the design on the *true* model (its parameters and hidden effect, no thrust doubt): when that refuses too, the
+  seed is "refused, correctly"; ``path`` says which model each seed's first design was on;
 * ``nominal_parameters``: the old column, the design on the nominal parameters (no identification), run and judged;
-* ``loop``: the closed-loop diagnosis of that record (:func:`diagnose_loop`), the named effect added
-  (``--add``), the diagnosis again with it, the design on that model (its measured noise), the new gains run on the
-  truth and checked;
-* ``predict``: after the loop, a different controller (the redesign's gains x 0.7 on p and d, other steps:
-  25 -> 50 -> 30 deg) predicted on the diagnosed model and measured on the truth: overshoot and settling compared.
+* ``loop``: where the first design missed, the closed-loop diagnosis of its record (:func:`diagnose_loop`, with
+  the first model's effects added), the named effect added (``--add``), the diagnosis again with it, the design on
+  that model (its measured noise), the new gains run on the truth and checked;
+* ``predict``: on the model the loop ended on (the first one where it met), a different controller (its gains x
+  0.7 on p and d, other steps: 25 -> 50 -> 30 deg) predicted on that model and measured on the truth: overshoot and
+  settling compared.
 
-    nice -n 10 python bench/closed_loop.py --seeds 10 --out bench/results/2026-12-07-s19-closed-loop
+    nice -n 10 python bench/closed_loop.py --seeds 10 --workers 2 --out bench/results/2026-12-07-s21-closed-loop
     python bench/closed_loop.py --seeds 2 --cases clean,thrust_lag        # a quick look
 
 Writes ``cases.json`` (every record) and prints the table; the README in the results folder is written from it.
@@ -358,10 +364,12 @@ def table(records: list[dict]) -> str:
                      f'{named} ({correct}) | {loop_met} | {correctly} | '
                      f'{overshoot} | {settling} | {design_seconds:.1f} | {seconds:.0f} |')
     lines += [f'\ncrashed: {r["case"]} seed {r["seed"]}: {r["error"]}' for r in errors]
-    lines += ['', 'Path of each seed (thrust tolerance of the first design: the fit\'s, then with the record\'s '
-              'rests):', '']
+    lines += ['', 'Path of each seed (thrust tolerance: the nominal structure\'s fit, then the first design\'s with '
+              'the record\'s rests):', '']
     for r in sorted(records, key=lambda r: (CASES.index(r['case']), r['seed'])):
         fit, used = r.get('fit_thrust_tolerance'), r.get('identified_thrust_tolerance')
+        if r.get('first_model'):        # the first design's model: the one with the open-loop name added
+            used = r['first_model']['thrust_tolerance']
         tolerance = (f'{fit[0]:.3f}-{fit[1]:.3f} -> {used[0]:.3f}-{used[1]:.3f}' if fit and used else '-')
         gains = r.get('nominal_gains') or {}
         after = ('met' if r['loop'].get('met') else 'missed') if r['loop'].get('redesign') == 'designed' else (
