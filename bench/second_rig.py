@@ -61,21 +61,22 @@ def drawn_effects(seed: int) -> list[str]:
     return effects
 
 
-def record(seed: int, excitation: str = 'mixed'):
-    """(recording, second-rig record) of `seed` (module docstring)."""
+def record(seed: int, excitation: str = 'mixed', inputs_psnr: float | None = None):
+    """(recording, second-rig record) of `seed` (module docstring); Va and Ia at `inputs_psnr` [dB] if given."""
 
     from aeropend_core.io.recording import from_columns
     from aeropend_core.testing import second_rig
-    rig_record = second_rig.draw(seed, effects=drawn_effects(seed), excitation_kind=excitation)
+    rig_record = second_rig.draw(seed, effects=drawn_effects(seed), excitation_kind=excitation,
+                                 inputs_psnr_db=inputs_psnr)
     return from_columns(rig_record.columns, source=f'second rig seed {seed}'), rig_record
 
 
-def run(seed: int, search: bool = True, excitation: str = 'mixed') -> dict:
+def run(seed: int, search: bool = True, excitation: str = 'mixed', inputs_psnr: float | None = None) -> dict:
     from threadpoolctl import threadpool_limits
 
     from aeropend_core.diagnosis.diagnose import diagnose
     kinds = _effects_of_kind()
-    recording, rig_record = record(seed, excitation)
+    recording, rig_record = record(seed, excitation, inputs_psnr)
     truth_effects = sorted({kinds[k][0] for k in rig_record.truth if k in kinds})
     truth = {name: value for name, value in rig_record.truth.items() if name in NOMINAL}
     truth.update({kinds[k][1]: value for k, value in rig_record.truth.items() if k in kinds})
@@ -105,6 +106,10 @@ def run(seed: int, search: bool = True, excitation: str = 'mixed') -> dict:
             z[name] = (estimate - value) / sigma
     return {'seed': seed, 'psnr_db': round(rig_record.psnr_db, 1), 'true_effects': truth_effects,
             'excitation': excitation, 'truth': truth, 'verdict': found.verdict if found else None, 'named': named,
+            **({'inputs_psnr_db': inputs_psnr,
+                'observer': told.prepared.motor is not None and (
+                    'kept_against_fallback' if told.prepared.motor.kept_against_fallback else 'kept')
+                or 'dropped'} if inputs_psnr is not None else {}),
             'confounded': confounded,
             'wrong': wrong,
             'told_verdict': told.verdict,
@@ -176,6 +181,9 @@ def main() -> None:
     parser.add_argument('--with-effect', metavar='RIG_EFFECT', default=None,
                         help='run only the seeds whose record carries this effect of the second rig (its own name, '
                         'e.g. friction_torque); --records counts the seeds looked at, not those run')
+    parser.add_argument('--inputs-psnr', metavar='DB', type=float, default=None,
+                        help='measure Va and Ia at this PSNR [dB] (the angle at the drawn one): a clean current '
+                        'sense beside a noisy encoder, where the motor observer was once dropped')
     parser.add_argument('--summarise', metavar='JSONL', nargs='+', default=None,
                         help='print the table of rows already written by --rows (no new records)')
     add_json_argument(parser)
@@ -193,13 +201,14 @@ def main() -> None:
     for seed in range(args.seed_base, args.seed_base + args.records):
         if args.with_effect and args.with_effect not in drawn_effects(seed):
             continue
-        row = run(seed, search=not args.coverage_only, excitation=args.excitation)
+        row = run(seed, search=not args.coverage_only, excitation=args.excitation, inputs_psnr=args.inputs_psnr)
         rows.append(row)
         z = ' '.join(f'{k}={v:+.1f}' for k, v in row['z'].items() if v is not None)
         print(f'{seed} {row["psnr_db"]:4.1f} dB true {",".join(row["true_effects"]) or "-"}: '
               f'{"REFUSED " + row["refused"][:120] if row.get("refused") else row["verdict"] or "(no search)"} '
               f'named {",".join(row["named"]) or "-"} confounded {",".join(row["confounded"]) or "-"} '
-              f'wrong {",".join(row["wrong"]) or "-"} | z {z} | {row["seconds"]} s', flush=True)
+              f'wrong {",".join(row["wrong"]) or "-"} | z {z} | {row["seconds"]} s'
+              + (f' | observer {row["observer"]}' if 'observer' in row else ''), flush=True)
         if args.rows:
             with open(args.rows, 'a', encoding='utf-8') as handle:
                 handle.write(json.dumps(row) + '\n')

@@ -17,7 +17,9 @@ while the motor speeds up biases Rm by ~1 % and the thrust by ~2 %; the refineme
 better (it nests the quasi-static model: it is dropped only when that one explains Ia significantly better on the
 samples it was fitted to, a Diebold-Mariano test; comparing raw RMS there favoured the quasi-static model by its
 in-sample optimism). The model's e(t) is then a noise-free thrust input. If the model cannot explain Ia to within
-its noise, the caller falls back to the measured Va - R Ia.
+its noise, the caller falls back to the measured Va - R Ia, unless the observer's thrust voltage is still the better
+one: its error bound (R x the current's error beyond the noise) at most half the fallback's own error (La dIa/dt and
+R x the noise, by the fitted model; :attr:`MotorFit.kept_against_fallback`).
 """
 from __future__ import annotations
 
@@ -199,10 +201,37 @@ class MotorFit:
     #: interval] (see :func:`fit_motor`; None: held over whole intervals).
     switch: np.ndarray | None = field(default=None, repr=False, compare=False)
 
+    #: RMS [V] of the error the fallback thrust voltage Va - R Ia would carry, by this observer's own model: its
+    #: La dIa/dt (Va - R Ia - e of the fitted model) and R times the current's noise; NaN where not computed (the
+    #: quasi-static model, whose fallback has no La term to weigh).
+    fallback_voltage_error: float = math.nan
+
+    @property
+    def voltage_error_bound(self) -> float:
+        """Largest thrust-voltage error [V] the observer's current misfit allows: R times the current's RMS error
+        beyond its noise (as if all of it came from a wrong back-EMF; a misfit in the electrical transients moves
+        the back-EMF far less)."""
+        excess = math.sqrt(max(self.current_rms_error ** 2 - self.current_noise_rms ** 2, 0.0))
+        return float(self.parameters.get('motor_resistance', math.nan)) * excess
+
+    @property
+    def kept_against_fallback(self) -> bool:
+        """True when the current's error exceeds 1.5x its noise but the observer's thrust voltage is still the
+        better one: its error bound (:attr:`voltage_error_bound`) at most :data:`FALLBACK_MARGIN` times the
+        fallback's (:attr:`fallback_voltage_error`). On a clean current channel (Va, Ia at 70 dB, the angle at
+        45 dB) the observer's small model error is many times the current's tiny noise, yet 8x below the La dIa/dt
+        error of Va - R Ia, which bent the fit (the angle filter's delay at its bound with z +5; bench/results/
+        2026-12-07-s21-observer)."""
+        if self.current_rms_error <= 1.5 * self.current_noise_rms + 1e-4:
+            return False
+        bound, fallback = self.voltage_error_bound, self.fallback_voltage_error
+        return bool(math.isfinite(bound) and math.isfinite(fallback) and bound <= FALLBACK_MARGIN * fallback)
+
     @property
     def adequate(self) -> bool:
-        """True when the model explains Ia to within 1.5x its noise (else use the measured Va - R Ia)."""
-        return self.current_rms_error <= 1.5 * self.current_noise_rms + 1e-4
+        """True when the model explains Ia to within 1.5x its noise, or when its thrust voltage is the better one
+        anyway (:attr:`kept_against_fallback`); else use the measured Va - R Ia."""
+        return self.current_rms_error <= 1.5 * self.current_noise_rms + 1e-4 or self.kept_against_fallback
 
 
 def held_switches(switch: np.ndarray | None, n: int) -> np.ndarray:
@@ -514,9 +543,12 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
     statistic, _ = diebold_mariano(refined_error, quasi_static_error)
     if np.isfinite(statistic) and statistic > REFINEMENT_REJECT:
         return None
+    # what the fallback Va - R Ia would carry instead, by this model: La dIa/dt (= Va - R Ia - e) and R x the noise
+    inductive = (voltage - x[0] * fitted_current[0] - emf[0])[use]
+    fallback = math.sqrt(float(np.mean(inductive ** 2)) + (x[0] * start.current_noise_rms) ** 2)
     return MotorFit(parameters=_parameters('inductance', x), back_emf=emf[0], current_rms_error=error_on_keep,
                     current_noise_rms=start.current_noise_rms, solution=tuple(float(v) for v in x), kind='inductance',
-                    switch=switch)
+                    switch=switch, fallback_voltage_error=fallback)
 
 
 def _predict(kind: str, x: np.ndarray, voltage: np.ndarray, sample_time: float,
@@ -533,6 +565,12 @@ def _predict(kind: str, x: np.ndarray, voltage: np.ndarray, sample_time: float,
     # the initial back-EMF as a 1-D array of one row (a (1, 1) slice made the kernel's state an array: TypingError)
     emf = _simulate(x[None, :3], voltage, x[4:5], sample_time, switch)[0]
     return (voltage - emf) / x[3], emf
+
+
+#: The observer whose current misfits beyond 1.5x the noise is still kept when its thrust-voltage error bound is at
+#: most this share of the fallback's (:attr:`MotorFit.kept_against_fallback`): a margin of 2 for the bound's and the
+#: fallback's estimates both coming from the observer's fit.
+FALLBACK_MARGIN = 0.5
 
 
 #: Members of the back-EMF ensemble (:func:`back_emf_ensemble`): the standard errors it adds are known to about

@@ -361,10 +361,12 @@ def draw_effects(rng: np.random.Generator, rig: PhysicalRig, names: list[str] | 
 
 
 def draw(seed: int, duration: float = 40.0, effects: list[str] | None = None, psnr_db: float | None = None,
-         sample_rate: float = SAMPLE_RATE, excitation_kind: str = 'mixed') -> Record:
+         sample_rate: float = SAMPLE_RATE, excitation_kind: str = 'mixed',
+         inputs_psnr_db: float | None = None) -> Record:
     """A record of a random rig (:func:`draw_rig`), with the effects `effects` (physical names of
     :class:`RigEffects`; None: drawn at random, [] none), noise U(30, 60) dB unless given, :func:`excitation` of
-    `excitation_kind`."""
+    `excitation_kind`. With `inputs_psnr_db` [dB], Va and Ia are measured at that PSNR instead (their own noise
+    draw; a clean current sense beside a noisy encoder), the angle as without it."""
     rng = np.random.default_rng(seed)
     rig = draw_rig(rng)
     chosen = draw_effects(rng, rig, effects)
@@ -373,6 +375,9 @@ def draw(seed: int, duration: float = 40.0, effects: list[str] | None = None, ps
     duty = excitation(duration, cap, rng, sample_rate, excitation_kind)
     true = integrate(duty, rig, chosen, sample_rate)
     measured = measure(true, chosen, psnr, rng)
+    if inputs_psnr_db is not None:
+        inputs = measure(true, chosen, float(inputs_psnr_db), np.random.default_rng(seed + 104_729))
+        measured.update({name: inputs[name] for name in ('armature_voltage', 'armature_current')})
     columns = {'t': np.arange(duty.size) / sample_rate, 'duty': duty, **measured}
     return Record(columns, rig, chosen, psnr, seed, f'{excitation_kind}, duty cap {cap:.2f}',
                   rig.lumped(chosen), true['angle'])
