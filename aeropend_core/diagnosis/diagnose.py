@@ -334,6 +334,10 @@ class Diagnosis:
             result['motor_observer'] = motor.parameters
             result['signal_errors']['armature_current'] = {'rms_error': _finite(motor.current_rms_error),
                                                            'unit': 'A', 'noise_rms': _finite(motor.current_noise_rms)}
+            if motor.kept_against_fallback:     # beyond 1.5x the noise, kept as the better thrust voltage
+                result['signal_errors']['armature_current']['kept_against_fallback'] = {
+                    'observer_voltage_error_bound': _finite(motor.voltage_error_bound),
+                    'fallback_voltage_error': _finite(motor.fallback_voltage_error), 'unit': 'V'}
         if self.before is not None:
             result['before'] = {
                 'model_effects': list(self.before.effects),

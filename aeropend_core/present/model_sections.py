@@ -90,7 +90,11 @@ def observer_section(diagnosis: DiagnosisLike) -> str:
                 'back-EMF used for the thrust (blue) against <code>Va &minus; Rm&middot;Ia</code> from the samples '
                 f'(grey). Fitted: {values}. Current RMS error {motor.current_rms_error * 1e3:.2f} mA against a noise '
                 f'of {motor.current_noise_rms * 1e3:.2f} mA ({ratio:.2f}&times;; the observer is used below '
-                '1.5&times;).</p>')
+                '1.5&times;' + (f', and above it while its thrust voltage is off by at most half of what '
+                                f'<code>Va &minus; R&middot;Ia</code> carries: here '
+                                f'{motor.voltage_error_bound * 1e3:.2f} mV against '
+                                f'{motor.fallback_voltage_error * 1e3:.2f} mV'
+                                if motor.kept_against_fallback else '') + ').</p>')
     figure = _observer_plot(diagnosis, traces)
     return ('<section id="observer"><h2>Motor observer: armature current and back-EMF</h2>' + text + figure
             + '</section>')

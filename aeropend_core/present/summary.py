@@ -29,7 +29,10 @@ def format_summary(diagnosis: DiagnosisLike, source: str | None = None) -> str:
     if diagnosis.prepared is not None and diagnosis.prepared.motor is not None:
         motor = diagnosis.prepared.motor
         lines.append(f'Armature current by the motor observer: RMS error {motor.current_rms_error * 1e3:.2f} mA, '
-                     f'current noise {motor.current_noise_rms * 1e3:.2f} mA')
+                     f'current noise {motor.current_noise_rms * 1e3:.2f} mA'
+                     + (f' (beyond 1.5x the noise, kept: its thrust voltage is off by at most '
+                        f'{motor.voltage_error_bound * 1e3:.2f} mV, Va - R Ia by '
+                        f'{motor.fallback_voltage_error * 1e3:.2f} mV)' if motor.kept_against_fallback else ''))
     prep = diagnosis.prepared
     if prep is not None and prep.reduced and prep.motor_map:
         lines.append('Reduced model (no period-average armature current): thrust k e|e| with T de/dt = Va - e - q e|e| '
