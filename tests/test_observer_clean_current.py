@@ -11,8 +11,6 @@ voltage is the better one, and the fit told the true structure comes out within 
 from __future__ import annotations
 
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,10 +19,12 @@ from aeropend_core.diagnosis.compare import compare, prepare
 from aeropend_core.io.recording import from_columns
 from aeropend_core.signals import motor
 from aeropend_core.signals.motor import MotorFit
+from aeropend_core.model.effects import CATALOG
 from aeropend_core.testing import second_rig
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'bench'))
-import second_rig as bench  # noqa: E402
+#: The second rig's effects on seed 48047 as bench/second_rig.py draws them, and its nominal parameters checked
+EFFECTS_48047 = ['inflow_time_constant', 'filter_rc']
+NOMINAL = ('gravity_stiffness', 'damping', 'thrust_gain')
 
 
 def _fit(error: float, noise: float, fallback: float, resistance: float = 1.0) -> MotorFit:
@@ -48,10 +48,11 @@ def test_the_rule_weighs_the_observer_against_its_fallback():
 def _told_fit(rule_margin: float, monkeypatch):
     monkeypatch.setattr(motor, 'FALLBACK_MARGIN', rule_margin)
     seed = 48047
-    record = second_rig.draw(seed, effects=bench.drawn_effects(seed), inputs_psnr_db=70.0)
-    kinds = bench._effects_of_kind()
+    record = second_rig.draw(seed, effects=EFFECTS_48047, inputs_psnr_db=70.0)
+    kinds = {kind: (name, parameter) for name, effect in CATALOG.items() if effect.builtin
+             for kind, parameter in effect.kernel_terms}
     truth = {kinds[k][1]: v for k, v in record.truth.items() if k in kinds}
-    truth.update({k: v for k, v in record.truth.items() if k in bench.NOMINAL and k != 'armature_resistance'})
+    truth.update({k: v for k, v in record.truth.items() if k in NOMINAL})
     effects = sorted({kinds[k][0] for k in record.truth if k in kinds})
     prep = prepare(from_columns(record.columns, source=f'second rig seed {seed}, Va and Ia at 70 dB'))
     return prep, compare(prep, effects).fit, truth
