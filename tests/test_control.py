@@ -230,6 +230,19 @@ def test_metrics_of_a_known_second_order_step():
     assert m.misses(Template(settling=0.5, overshoot=10, error=5, duty=0.8)) .keys() == {'settling', 'overshoot'}
 
 
+def test_the_metrics_smoothing_is_scipys_uniform_filter_without_scipy():
+    """moving_mean (numpy, no scipy import in `control check`) equals scipy.ndimage's uniform_filter1d with
+    mode='nearest' within 1e-9 of the signal on odd, even, 1 and longer-than-the-signal windows."""
+    from scipy.ndimage import uniform_filter1d
+
+    from aeropend_core.control.metrics import moving_mean
+    rng = np.random.default_rng(5)
+    for n, window in ((200, 5), (3000, 12), (7, 10), (50, 1), (10, 2)):
+        values = np.cumsum(rng.normal(size=n)) + 0.7
+        np.testing.assert_allclose(moving_mean(values, window), uniform_filter1d(values, window, mode='nearest'),
+                                   rtol=0, atol=1e-9)
+
+
 def test_template_parsing_refuses_mistakes():
     assert Template.parse('settling=2,overshoot=10,error=5,duty=0.8') == Template()
     for text, message in [('settle=2', 'unknown item'), ('duty=80', 'fraction'), ('overshoot=x', 'not a number')]:

@@ -17,7 +17,6 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy.signal import cont2discrete, lfilter, lfilter_zi, lfiltic
 
 #: The rig's RC values (R1 = R2 [ohm], C1 = C2 [F]) and the filter delay they give [s].
 RIG_RESISTANCE = 4.7e3
@@ -36,7 +35,8 @@ def cutoff_frequency(delay: float) -> float:
 @functools.lru_cache(maxsize=256)
 def coefficients(delay: float, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Discrete (b, a) of the ladder with DC delay `delay` [s], first-order hold at `step` [s]."""
-    tau = delay / 3.0
+    from scipy.signal import cont2discrete      # here: scipy.signal takes ~0.3-1 s to import, most users never
+    tau = delay / 3.0                          # filter (`control check` on a nominal model)
     b, a, _ = cont2discrete(([1.0], [tau * tau, 3.0 * tau, 1.0]), step, method='foh')
     b = np.atleast_1d(np.squeeze(b))
     return b / a[0], a / a[0]
@@ -51,6 +51,7 @@ def filter_angle(angle: np.ndarray, delay: float, step: float, rate: float = 0.0
     angle = np.asarray(angle, dtype=float)
     if not delay >= MIN_DELAY or angle.size == 0:
         return angle.copy()
+    from scipy.signal import lfilter, lfiltic
     b, a = coefficients(float(delay), float(step))
     order = max(len(a), len(b)) - 1
     past = np.arange(1, order + 1) * step
@@ -71,6 +72,7 @@ class StreamingFilter:
         angle = np.asarray(angle, dtype=float)
         if angle.size == 0:
             return angle.copy()
+        from scipy.signal import lfilter, lfilter_zi
         if self.state is None:
             self.state = lfilter_zi(self.b, self.a) * angle[0]
         out, self.state = lfilter(self.b, self.a, angle, zi=self.state)
