@@ -15,7 +15,13 @@ import math
 import numpy as np
 import pytest
 
+from threadpoolctl import threadpool_limits
+
+from aeropend_core.diagnosis.candidates import assess
 from aeropend_core.diagnosis.compare import compare, prepare
+from aeropend_core.diagnosis.diagnose import diagnose
+from aeropend_core.diagnosis.checks import DOES_NOT_FIT
+from aeropend_core.identify.plausibility import pinned_at_bound
 from aeropend_core.io.recording import from_columns
 from aeropend_core.signals import motor
 from aeropend_core.signals.motor import MotorFit
@@ -71,9 +77,30 @@ def test_a_clean_current_keeps_the_observer_and_the_fit_holds_the_truth(monkeypa
     assert fit.parameters['filter_delay'] + 2 * fit.standard_errors['filter_delay'] < 0.05
 
 
+def test_a_parameter_on_a_bound_of_its_range_is_pinned():
+    assert pinned_at_bound('filter_delay', 0.05) and pinned_at_bound('filter_delay', 0.05 - 1e-9)
+    assert not pinned_at_bound('filter_delay', 0.049) and not pinned_at_bound('filter_delay', 0.0)
+    assert not pinned_at_bound('gravity_stiffness', 1e9) and not pinned_at_bound('filter_delay', math.nan)
+
+
 @pytest.mark.slow
-def test_the_old_rule_dropped_it_and_the_filter_went_to_its_bound(monkeypatch):
-    """The case before the fix (the rule with no fallback margin): the observer dropped, the filter at 50 ms."""
-    prep, fit, truth = _told_fit(0.0, monkeypatch)
-    assert prep.motor is None
-    assert fit.parameters['filter_delay'] == pytest.approx(0.05, abs=1e-6)
+def test_the_old_rule_put_the_filter_on_its_bound_which_carries_no_finite_sigma(monkeypatch):
+    """The case before the fix (the rule with no fallback margin): the observer dropped, the filter's delay on its
+    50 ms bound. It is said at its bound, its reported sigma is infinite (no finite z), the verdict says the model
+    does not fit, and as a candidate it is not significant."""
+    monkeypatch.setattr(motor, 'FALLBACK_MARGIN', 0.0)
+    record = second_rig.draw(48047, effects=EFFECTS_48047, inputs_psnr_db=70.0)
+    recording = from_columns(record.columns, source='second rig seed 48047, Va and Ia at 70 dB')
+    with threadpool_limits(1):
+        told = diagnose(recording, effects=('angle_filter', 'thrust_lag'), candidates=(), drift=False,
+                        discovery=False)
+    assert told.prepared.motor is None
+    assert told.current.parameters['filter_delay'] == pytest.approx(0.05, abs=1e-6)
+    assert math.isinf(told.reported_errors(told.current)['filter_delay'])
+    assert 'at the bound' in told.parameter_warnings['filter_delay']
+    assert told.verdict == DOES_NOT_FIT
+    # as a candidate beside the lag: pinned at its upper bound, so its t statistic is 0
+    with threadpool_limits(1):
+        lag_only = compare(told.prepared, ['thrust_lag'])
+        candidate = assess(told.prepared, lag_only, told.current, 'angle_filter')
+    assert candidate.t_statistic == 0.0

@@ -181,9 +181,11 @@ def assess(prep: PreparedRecord, base: Comparison, augmented: Comparison, name: 
     if gate in values:   # profiled, no standard error: a threshold inside the data's range counts
         t_statistic = math.inf if values[gate] > 0.0 else 0.0
     else:
-        # a parameter pinned at a positive lower bound of the fit (the smallest lag the integrator takes) is "off"
-        lower = dict(zip(values, _bounds(tuple(values))[0]))
-        ratios = [0.0 if lower[k] > 0 and v <= lower[k] * (1 + 1e-6) else abs(v) / s
+        # a parameter pinned at a positive lower bound of the fit (the smallest lag the integrator takes) is "off";
+        # one pinned at its upper bound is not determined (a filter delay at 50 ms, +- 3 ms): not significant either
+        lower, upper = (dict(zip(values, b)) for b in _bounds(tuple(values)))
+        ratios = [0.0 if (lower[k] > 0 and v <= lower[k] * (1 + 1e-6))
+                  or upper[k] - v < 1e-6 * (upper[k] - lower[k]) else abs(v) / s
                   for k, v, s in ((k, values[k], errors.get(k, float('nan'))) for k in values)
                   if np.isfinite(s) and s > 0]
         t_statistic = min(ratios) if ratios else 0.0

@@ -219,6 +219,10 @@ class Diagnosis:
             from aeropend_core.diagnosis.reduced_fit import reduced_parameters
             return reduced_parameters(prep, comparison)[0 if values else 1]
         out = dict(comparison.parameters if values else comparison.fit.standard_errors)
+        if not values:      # a parameter on a bound of its range is not determined: no finite sigma to claim
+            from aeropend_core.identify.plausibility import pinned_at_bound
+            out.update({name: math.inf for name, value in comparison.parameters.items()
+                        if name in out and pinned_at_bound(name, value)})
         if prep is not None and prep.motor is not None:     # a value from the motor observer carries the observer's σ
             out['armature_resistance'] = (prep.motor.parameters if values else prep.motor.standard_errors).get(
                 'motor_resistance', math.nan)

@@ -208,6 +208,23 @@ def check_premise(independent: FreeOscillation, thrust_time_constant: float | No
     return replace(independent, informative=False, reason=reason, premise=premise)
 
 
+def pinned_at_bound(name: str, value: float) -> bool:
+    """True when the effect parameter `name` sits on a bound of its catalog range (within 1e-6 of the span; a
+    lower bound of 0, the effect absent, does not count; before session 21 such a parameter was not checked at its
+    upper bound either): the data want it beyond the range, its value is not determined and a 1-sigma from the
+    fit's curvature there means nothing (a filter delay on its 50 ms bound came out +- 3 ms, z +5 against the
+    truth, unsaid; bench/results/2026-12-07-s21-observer)."""
+    from aeropend_core.model.effects import find_parameter
+    found = find_parameter(name)
+    if found is None or value is None or not math.isfinite(value):
+        return False
+    record = found[1]
+    span = record.upper - record.lower
+    if not record.lower <= value <= record.upper:
+        return False
+    return bool((record.lower != 0.0 and value - record.lower < 1e-6 * span) or record.upper - value < 1e-6 * span)
+
+
 def check_parameters(parameters: Mapping[str, float], standard_errors: Mapping[str, float] | None = None,
                      independent: FreeOscillation | None = None,
                      fitted: set[str] | None = None) -> dict[str, str]:
@@ -247,10 +264,9 @@ def check_parameters(parameters: Mapping[str, float], standard_errors: Mapping[s
         if found is None:
             continue
         record = found[1]
-        span = record.upper - record.lower
         if value < record.lower or value > record.upper:
             warnings[name] = f'outside its physical range [{record.lower:g}, {record.upper:g}] {record.unit}'
-        elif record.lower != 0.0 and min(value - record.lower, record.upper - value) < 1e-6 * span:
+        elif pinned_at_bound(name, value):
             warnings[name] = f'at the bound of its range [{record.lower:g}, {record.upper:g}] {record.unit}: not ' \
                              'determined by this data'
     if independent is not None and independent.informative:
