@@ -61,10 +61,14 @@ class Remainder:
 
 
 def _stretches(index: np.ndarray) -> list[np.ndarray]:
-    """Runs of `index` at one stride (the held-out residuals are every STRIDE-th sample), each at least 64 long."""
+    """Runs of `index` at one stride (the held-out residuals are every STRIDE-th sample), each at least 64 long.
+
+    The stride is the most common step, not the smallest: one short step where two pieces of the held-out part
+    meet made the smallest step 1, cut every run to one sample and left the correlation time NaN."""
     if index.size < 2:
         return []
-    stride = int(np.min(np.diff(index)))
+    values, counts = np.unique(np.diff(index), return_counts=True)
+    stride = int(values[np.argmax(counts)])
     breaks = np.flatnonzero(np.diff(index) != stride) + 1
     return [piece for piece in np.split(index, breaks) if piece.size >= 64]
 
