@@ -368,3 +368,61 @@ def test_options_are_held_once_and_an_unknown_one_is_named():
     assert by_object['x'].half_width == 40 and by_object['x'].coefficients['x'] == pytest.approx(-2.0, rel=1e-3)
     with pytest.raises(AeropendError, match=r"unknown weak SINDy option\(s\) \['treshold'\]"):
         fit_weak_sindy(time, signals, equation, treshold=0.1)
+
+
+def test_blocked_weak_rows_equal_the_sliding_window_rows():
+    """The blocked quadrature (data cut into blocks of the stride; the padding past the record's end is written
+    as zeros, not pre-filled, and must be: the kernel's zero padding times uninitialised memory could be 0·NaN)
+    gives the rows of the plain sliding-window product, including supports whose blocks reach past the end; and
+    the noise model's blocked window dots do the same for several channels."""
+    from aeropend_core.wsindy.noise_model import _window_dots
+    from aeropend_core.wsindy.quadrature import _weak_rows
+    rng = np.random.default_rng(11)
+    for n, width, step, ncol in ((500, 41, 10, 3), (333, 25, 7, 1), (97, 13, 4, 5)):
+        columns = rng.standard_normal((n, ncol))
+        weights = rng.standard_normal(width)
+        count = (n - width) // step + 1
+        starts = np.arange(count) * step + (n - width - (count - 1) * step)   # the last support ends at n
+        expected = _weak_rows(columns, weights, starts, 0)                     # step 0: sliding-window path
+        assert not np.array_equal(expected, np.zeros_like(expected))
+        np.testing.assert_allclose(_weak_rows(columns, weights, starts, step), expected, rtol=1e-12,
+                                   atol=1e-12 * np.max(np.abs(expected)))
+        kernels = rng.standard_normal((ncol, 2, width))
+        first = int(starts[0])
+        dots = _window_dots(np.ascontiguousarray(columns.T), kernels, first, step, count)
+        direct = np.array([[sum(kernels[c, k] @ columns[s:s + width, c] for c in range(ncol)) for k in range(2)]
+                           for s in starts])
+        np.testing.assert_allclose(dots, direct, rtol=1e-12, atol=1e-12 * np.max(np.abs(direct)))
+
+
+def test_sandwich_block_sums_are_those_of_add_at():
+    """The reported (sandwich) covariance sums the scores per block with bincount: the same additions in the same
+    order as np.add.at, so the covariance is the one the unbuffered scatter gave, bit for bit."""
+    from aeropend_core.wsindy.noise_model import _bartlett_width, _sandwich_covariance
+    rng = np.random.default_rng(5)
+    rows, j = 900, 6
+    a = rng.standard_normal((rows, j))
+    resid = np.convolve(rng.standard_normal(rows + 9), np.ones(10) / 10, mode='valid')   # correlated rows
+    sel = np.array([0, 2, 3, 5])
+    groups = np.repeat([0, 1, 2], [300, 450, 150])
+    bread = np.linalg.inv(a[:, sel].T @ a[:, sel])
+    sigma2 = float(resid @ resid) / (rows - sel.size)
+    got = _sandwich_covariance(a, resid, sel, sigma2 * bread, groups)
+    # the former implementation, written out
+    scores = a[:, sel] * resid[:, None]
+    width = _bartlett_width(resid)
+    assert width > 1
+    meat = np.zeros((sel.size, sel.size))
+    shifts = (0, width // 2)
+    for shift in shifts:
+        block = np.empty(rows, dtype=np.int64)
+        label, start = 0, 0
+        for stop in [*(np.flatnonzero(np.diff(groups)) + 1), rows]:
+            block[start:stop] = label + (np.arange(stop - start) + shift) // width
+            label = int(block[stop - 1]) + 1
+            start = stop
+        sums = np.zeros((label, sel.size))
+        np.add.at(sums, block, scores)
+        meat += sums.T @ sums
+    expected = (sigma2 * bread / sigma2) @ (meat / len(shifts)) @ (sigma2 * bread / sigma2) * rows / (rows - sel.size)
+    assert np.array_equal(got, expected)

@@ -113,8 +113,8 @@ def _sandwich_covariance(a, resid_vec, sel, covariance, groups):
             block[start:stop] = label + (np.arange(stop - start) + shift) // width
             label = int(block[stop - 1]) + 1
             start = stop
-        sums = np.zeros((label, sel.size))
-        np.add.at(sums, block, scores)
+        # per column, the scores summed in row order (np.add.at's order, bit for bit) by one bincount each
+        sums = np.column_stack([np.bincount(block, weights=scores[:, j], minlength=label) for j in range(sel.size)])
         meat += sums.T @ sums
     return bread @ (meat / len(shifts)) @ bread * rows / dof
 
@@ -238,9 +238,10 @@ def _window_dots(columns: np.ndarray, kernels: np.ndarray, first: int, step: int
     q = -(-width // step)
     n_blocks = count - 1 + q
     # blocks[b, ch, σ] = columns[ch, first + b·step + σ] (zero past the end): one copy, padding included
-    blocks = np.zeros((n_blocks, c, step))
+    blocks = np.empty((n_blocks, c, step))            # every element written below: no zero fill of the whole
     full = min(n_blocks, (columns.shape[1] - first) // step)
     blocks[:full] = columns[:, first:first + full * step].reshape(c, full, step).transpose(1, 0, 2)
+    blocks[full:] = 0.0
     tail = columns[:, first + full * step:first + n_blocks * step]
     if tail.shape[1]:
         blocks[full, :, :tail.shape[1]] = tail

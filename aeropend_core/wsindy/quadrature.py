@@ -77,9 +77,10 @@ def _weak_rows(columns: np.ndarray, weights: np.ndarray, starts: np.ndarray, ste
     first = int(starts[0])
     n_col = columns.shape[1]
     # by_phase[σ, b, c] = data[first + b·step + σ, c] (zero past the end): one copy, padding included
-    by_phase = np.zeros((step, n_blocks, n_col))
+    by_phase = np.empty((step, n_blocks, n_col))      # every element written below: no zero fill of the whole
     full = min(n_blocks, (len(columns) - first) // step)
     by_phase[:, :full] = columns[first:first + full * step].reshape(full, step, n_col).transpose(1, 0, 2)
+    by_phase[:, full:] = 0.0
     tail = columns[first + full * step:first + n_blocks * step]
     if len(tail):
         by_phase[:len(tail), full] = tail
