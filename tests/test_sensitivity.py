@@ -155,3 +155,31 @@ def test_a_parameter_the_output_does_not_move_gets_an_infinite_sigma_not_a_zero_
     assert blind_columns(sparse.csr_array(jacobian), 3).tolist() == [False, True, False]
     assert blind_columns(np.zeros((3, 2)), 2).tolist() == [True, True]
     assert blind_columns(jacobian * 1e-20, 4).tolist() == [False, True, False, False]   # relative, not absolute
+
+
+@pytest.mark.parametrize('effects, segments', [((), [(5000, 6200)]), (('thrust_lag',), [(5000, 6200), (7000, 7900)]),
+                                               (('thrust_lag',), [(30, 1200)]), (('coulomb_friction',), [(0, 900)])])
+def test_the_jacobian_of_a_stretch_is_the_one_computed_over_the_whole_record(effects, segments, monkeypatch):
+    """The sensitivity kernel runs on the window of the record the segments (and the lag's run-in) cover, not on
+    the whole record: a few seconds of a long record (the drift test's stretches) give the Jacobian the whole-record
+    arrays gave, bit for bit, with and without a lag, and when the run-in reaches the record's start."""
+    voltage, current = _inputs(9000, seed=4)
+    n = len(voltage)
+    data = oe.SegmentedData(voltage, current, np.zeros(n), segments, TS)
+    structure = oe.Structure(effects)
+    values = {'gravity_stiffness': 40.0, 'damping': 1.0, 'thrust_gain': 30.0, 'armature_resistance': 0.9,
+              'time_constant': 0.3, 'friction_acceleration': 2.0}
+    row = structure.row(values)
+    initial = np.array([[0.2, 0.1]] * len(segments))
+    exact = np.array([c if c < 9 else -1 for c in range(len(row))][:len(row)], dtype=np.int64)
+    scale = np.ones(len(exact))
+    measured = np.zeros(len(data.residual_index))
+    lo, hi = oe._kernel_window(data, structure, row)
+    assert hi == segments[-1][1] and (lo > 0) == (segments[0][0] > 1000)
+    windowed = oe._exact_jacobian(data, structure, row, initial, exact, scale, measured)
+    monkeypatch.setattr(oe, '_kernel_window', lambda *_args: (0, n))
+    whole = oe._exact_jacobian(data, structure, row, initial, exact, scale, measured)
+    assert np.any(windowed[0] != 0.0)
+    assert np.array_equal(windowed[0], whole[0])
+    for mine, theirs in zip(windowed[1], whole[1]):
+        assert np.array_equal(mine, theirs)

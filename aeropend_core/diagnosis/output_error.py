@@ -723,6 +723,14 @@ def exact_columns(structure: Structure, free: Sequence[str]) -> np.ndarray | Non
                     dtype=np.int64)
 
 
+def _kernel_window(data: SegmentedData, structure: Structure, row: np.ndarray) -> tuple[int, int]:
+    """[lo, hi) [samples] the kernels read: the first segment's start less the lag's run-in (5 time constants + 2
+    samples; lo >= 0) to the last stop."""
+    steps = 5.0 * max(float(row[KIND_COLUMNS['thrust_lag_time']]), MIN_TIME_CONSTANT) / data.sample_time
+    run_in = (int(steps) + 2 if math.isfinite(steps) else len(data.angle)) if structure.lag_on else 0
+    return max(int(np.min(data.seg_start)) - run_in, 0), int(np.max(data.seg_stop))
+
+
 def _exact_jacobian(data: SegmentedData, structure: Structure, row: np.ndarray, initial: np.ndarray,
                     exact: np.ndarray, scale: np.ndarray, measured: np.ndarray) -> tuple[np.ndarray, list]:
     """(d residual / d free parameter (scaled), [d residual / d initial angle, d residual / d initial rate (scaled)])
@@ -730,18 +738,20 @@ def _exact_jacobian(data: SegmentedData, structure: Structure, row: np.ndarray, 
     parameters are left zero. Rows where the residual is clipped (a diverging trial) have zero derivative, as the
     clipped residual has."""
     tracked = np.array(sorted({int(c) for c in exact if c >= 0}), dtype=np.int64)
-    n = len(data.angle)
+    # on the window its segments cover: a drift stretch of a long record fills no arrays of the record's length
+    lo, hi = _kernel_window(data, structure, row)
+    n = hi - lo
     out = np.full((1, n), np.nan)
     d_columns = np.zeros((n, len(tracked)))
     d_initial = np.zeros((n, 2))
     f = np.ascontiguousarray
-    sensitivity_kernel(f(row, dtype=np.float64), f(data.voltage, dtype=np.float64),
-                       f(data.current, dtype=np.float64), f(data.gate_signal, dtype=np.float64),
-                       f(data.seg_start, dtype=np.int64), f(data.seg_stop, dtype=np.int64),
+    sensitivity_kernel(f(row, dtype=np.float64), f(data.voltage[lo:hi], dtype=np.float64),
+                       f(data.current[lo:hi], dtype=np.float64), f(data.gate_signal[lo:hi], dtype=np.float64),
+                       f(data.seg_start - lo, dtype=np.int64), f(data.seg_stop - lo, dtype=np.int64),
                        f(initial, dtype=np.float64), float(data.sample_time), bool(structure.lag_on),
                        bool(structure.gate_on), float(structure.friction_smoothing), float(MIN_TIME_CONSTANT),
                        float(FRICTION_STABILITY), float(STRIDE), tracked, out, d_columns, d_initial)
-    index = data.residual_index
+    index = data.residual_index - lo
     raw = out[0, index] - measured
     inside = np.isfinite(raw) & (np.abs(raw) < DIVERGED_RESIDUAL)
     position = {int(c): j for j, c in enumerate(tracked)}
