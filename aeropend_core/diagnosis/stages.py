@@ -429,15 +429,30 @@ class Discovered:
 
 
 def pendulum_discovery(prepared: Prepared, catalog: CatalogResult, say: Say):
-    """The pendulum equation's discovery when the best set leaves error beyond the noise or is suspect (else None)."""
+    """The pendulum equation's discovery when the best set leaves error beyond the noise or is suspect. Where effects
+    were named and no remainder is left, each is also put beside the vocabulary's best imitator in its place
+    (:func:`aeropend_core.diagnosis.lookalike_check.named_lookalikes`) when the discovery did not run or found no term
+    proven or confounded: the discovery's own screening ranks by the discrepancy's weak form, where a cable's cubic
+    look-alike ranked fifth. None when nothing ran or was found."""
     found, steps = catalog.found, catalog.steps
     suspect = any(f.confounded_with for f in found) or any(n for c, _ in steps for n in c.confounded_with)
-    if not (catalog.excess_final > DISCOVERY_NOISE * catalog.reference or suspect):
-        return None
-    from aeropend_core.diagnosis.discovery import discover
     catalog_set = tuple(f.effect for f in found)
-    return discover(catalog.prep, catalog.final, catalog.model, prepared.held, catalog_set,
-                    catalog.current if catalog_set else None, say)
+    discovery = None
+    if catalog.excess_final > DISCOVERY_NOISE * catalog.reference or suspect:
+        from aeropend_core.diagnosis.discovery import discover
+        discovery = discover(catalog.prep, catalog.final, catalog.model, prepared.held, catalog_set,
+                             catalog.current if catalog_set else None, say)
+    if not catalog_set or catalog.remainder or (discovery is not None and any(
+            t.status in ('proven', 'confounded') for t in discovery.terms)):
+        return discovery
+    from aeropend_core.diagnosis.lookalike_check import named_lookalikes
+    say('discovery: each effect named beside the best imitator outside the catalog in its place')
+    beside = named_lookalikes(catalog.prep, catalog.final, catalog.current, catalog.model, prepared.held, catalog_set,
+                              say)
+    if beside is None or discovery is None:
+        return beside if beside is not None else discovery
+    discovery.terms[:0] = beside.terms
+    return discovery
 
 
 def discovery_stage(prepared: Prepared, catalog: CatalogResult, enabled: bool, say: Say) -> Discovered:
@@ -614,6 +629,19 @@ def _series_twins(found) -> list[str]:
     return notes
 
 
+def _term_twins(found, discovery) -> None:
+    """Mark each found effect that a term outside the catalog is confounded with (it explains the record as well in
+    the effect's place, and neither adds to the other) as confounded with that term's effect name (in place): the
+    effect is then said as one of the two, not named with confidence; the discovery stage's sentence says the term,
+    the parameters the two disagree on and the experiment that separates them."""
+    for term in (discovery.terms if discovery is not None else ()):
+        if term.status != 'confounded':
+            continue
+        for f in found:
+            if f.effect in term.confounded_with and term.effect not in f.confounded_with:
+                f.confounded_with.append(term.effect)
+
+
 def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drifted,
                   input_corrected: bool = False) -> Decided:
     """Decide the verdict from the stages' results (the words: :mod:`aeropend_core.present.verdict_text`);
@@ -632,6 +660,8 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
     proven = [t for t in proven if t.excess_after <= UNEXPLAINED_NOISE * reference]
     if reduced:
         notes += _series_twins(found)
+    if not remainder:
+        _term_twins(found, found_terms)
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]
     missing = pinned[0].effect if pinned else None
@@ -649,8 +679,8 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
         verdict = 'confounded'
         for f in unsure:
             for other in f.confounded_with:
-                if reduced and REDUCED_TWINS.get(f.effect) == other:
-                    continue            # said by _series_twins
+                if (reduced and REDUCED_TWINS.get(f.effect) == other) or other.startswith('term_'):
+                    continue            # said by _series_twins, or a term said by the discovery sentence
                 notes.append(f'{f.effect} and {other} are interchangeable on this data (adding either makes the other '
                              f'insignificant); {separating_experiment(f.effect, other)}.')
     elif found:
