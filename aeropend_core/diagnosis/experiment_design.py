@@ -733,9 +733,7 @@ def confounded_models(diagnosis) -> list[CompetingModel]:
     :func:`~aeropend_core.model.effects.catalog_scope` (``experiment_loop.run_loop`` does), so the term is gone
     afterwards and the next analysis in the process sees the catalog it would have seen without it.
     """
-    # a found effect confounded with a discovered term (``term_*``) is the lookalike case below, with its coefficient
-    pair = next(((f.effect, other) for f in diagnosis.found for other in f.confounded_with[:1]
-                 if not other.startswith('term_')), None)
+    pair = next(((f.effect, f.confounded_with[0]) for f in diagnosis.found if f.confounded_with), None)
     lookalike = None if pair is not None else next(
         (t for t in getattr(getattr(diagnosis, 'discovery', None), 'terms', ()) if t.status == 'confounded'), None)
     if (pair is None and lookalike is None) or diagnosis.prepared is None:

@@ -629,19 +629,6 @@ def _series_twins(found) -> list[str]:
     return notes
 
 
-def _term_twins(found, discovery) -> None:
-    """Mark each found effect that a term outside the catalog is confounded with (it explains the record as well in
-    the effect's place, and neither adds to the other) as confounded with that term's effect name (in place): the
-    effect is then said as one of the two, not named with confidence; the discovery stage's sentence says the term,
-    the parameters the two disagree on and the experiment that separates them."""
-    for term in (discovery.terms if discovery is not None else ()):
-        if term.status != 'confounded':
-            continue
-        for f in found:
-            if f.effect in term.confounded_with and term.effect not in f.confounded_with:
-                f.confounded_with.append(term.effect)
-
-
 def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drifted,
                   input_corrected: bool = False) -> Decided:
     """Decide the verdict from the stages' results (the words: :mod:`aeropend_core.present.verdict_text`);
@@ -660,8 +647,6 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
     proven = [t for t in proven if t.excess_after <= UNEXPLAINED_NOISE * reference]
     if reduced:
         notes += _series_twins(found)
-    if not remainder:
-        _term_twins(found, found_terms)
     pinned = [f for f in found if not f.confounded_with]
     unsure = [f for f in found if f.confounded_with]
     missing = pinned[0].effect if pinned else None
@@ -679,8 +664,8 @@ def verdict_stage(catalog: CatalogResult, discovered: Discovered, drifted: Drift
         verdict = 'confounded'
         for f in unsure:
             for other in f.confounded_with:
-                if (reduced and REDUCED_TWINS.get(f.effect) == other) or other.startswith('term_'):
-                    continue            # said by _series_twins, or a term said by the discovery sentence
+                if reduced and REDUCED_TWINS.get(f.effect) == other:
+                    continue            # said by _series_twins
                 notes.append(f'{f.effect} and {other} are interchangeable on this data (adding either makes the other '
                              f'insignificant); {separating_experiment(f.effect, other)}.')
     elif found:

@@ -108,15 +108,8 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
                    f'(r = {structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
                    '(aeropend_core.model.effects.register_effect).')
     elif verdict == 'confounded' and unsure:
-        terms = {t.effect: t for t in (discovery.terms if discovery is not None else ())}
-        # a twin outside the catalog (a discovered term in the effect's place): the effect's size and the term said
-        parts = [f'one of {", ".join([f.effect] + [c for c in f.confounded_with if c not in terms])}'
-                 if not any(c in terms for c in f.confounded_with) else
-                 f'{size_text(f)} or, in its place, the term outside the catalog '
-                 f'{" or ".join(terms[c].term.expression for c in f.confounded_with if c in terms)}'
-                 for f in unsure]
-        message = (f'{" and ".join(parts)} is missing, but this data cannot tell which; see '
-                   f'{"below" if any(c in terms for f in unsure for c in f.confounded_with) else "notes"}.'
+        parts = [f'one of {", ".join([f.effect] + list(f.confounded_with))}' for f in unsure]
+        message = (f'{" and ".join(parts)} is missing, but this data cannot tell which; see notes.'
                    + (f' Also missing, with confidence: {"; ".join(size_text(f) for f in pinned)}. Add them '
                       f'({" ".join("--add " + f.effect for f in pinned)}).' if pinned else ''))
     elif verdict in ('effect_found', 'confounded'):
