@@ -1,6 +1,7 @@
 """A named catalog effect beside the vocabulary's best imitator in its place (issue #40, "a look-alike absorbed with
 confidence"; aeropend_core/diagnosis/lookalike_check.py): where the two explain a record alike the verdict says
-confounded, both named, with the parameters they differ in; where nothing imitates the effect it stays named.
+confounded, the effect still named but not with confidence, the term beside it, the parameters they differ in and the
+experiment that separates them; where nothing imitates the effect it stays named with confidence.
 
 Known truth: at these angles a cable spring -Kc y beside gravity -g sin y is gravity (g + Kc) and a cubic
 -Kc y^3 / 6 (Taylor), so a hardening cubic c y^3 is read by the catalog as a cable of ~ -6 c with gravity lowered by
@@ -12,9 +13,10 @@ import pytest
 from aeropend_core.diagnosis.diagnose import diagnose
 from aeropend_core.diagnosis.discovery import DiscoveredTerm, Discovery, find_term, term_effect
 from aeropend_core.diagnosis.lookalike_check import imitators
-from aeropend_core.diagnosis.stages import Found, _term_twins
+from aeropend_core.diagnosis.stages import Found
 from aeropend_core.io.recording import from_columns
 from aeropend_core.model.effects import catalog_scope
+from aeropend_core.present.plain_verdict import plain_verdict
 from aeropend_core.present.verdict_text import verdict_message, verdict_of
 from aeropend_core.sim.excitation import lhc_schedule
 from aeropend_core.sim.noise import MeasurementNoise
@@ -60,23 +62,23 @@ def test_the_best_imitator_of_a_cable_beside_gravity_is_the_cubic():
     assert imitators([], 'cable_torque') == []
 
 
-def test_an_effect_a_term_is_confounded_with_is_marked_and_said_with_its_size_and_the_term():
+def test_an_effect_a_term_explains_as_well_is_said_not_with_confidence_with_the_term_and_what_differs():
     found = [Found('cable_torque', {'cable_stiffness': 30.0}, {'cable_stiffness': 0.7}, 0.02, 0.001, 0.9, 40.0,
-                   9.0), Found('coulomb_friction', {'friction_acceleration': 4.0}, {'friction_acceleration': 0.1},
-                               0.02, 0.001, 0.5, 40.0, 9.0)]
+                   9.0)]
     term = DiscoveredTerm(term=find_term('angle^3'), status='confounded', weak_coefficient=0.0, weak_sigma=np.nan,
                           value=-5.0, sigma=0.1, excess_after=0.001, confounded_with=['cable_torque'],
                           differing={'gravity_stiffness': (108.0, 1.0, 138.0, 0.7)})
-    _term_twins(found, Discovery([term]))
-    assert found[0].confounded_with == ['term_angle_cube'] and found[1].confounded_with == []
-    _term_twins(found, Discovery([term]))                           # idempotent
-    assert found[0].confounded_with == ['term_angle_cube']
     text = verdict_message('confounded', found=found, noise_rms=0.01, excess_current=0.03, excess_final=0.001,
                            within_noise=0.005, discovery=Discovery([term]))
-    assert text.startswith('cable_torque (cable_stiffness = 30 +- 0.7 1/s^2'), text
-    assert 'or, in its place, the term outside the catalog angle^3' in text and 'cannot tell which' in text
+    assert text.startswith('missing effect: cable_torque (cable_stiffness = 30 +- 0.7 1/s^2'), text
+    assert ('Not with confidence: cable_torque or, in its place, the term outside the catalog angle^3, explains the '
+            'record as well, and this data cannot tell which') in text and 'Add it' not in text
     assert 'gravity_stiffness 108 +- 1 with cable_torque, 138 +- 0.7 with the term' in text
     assert '(70-85 deg)' in text                                     # the experiment that separates them
+    # without the look-alike: named with confidence, as before
+    plain = verdict_message('effect_found', found=found, noise_rms=0.01, excess_current=0.03, excess_final=0.001,
+                            within_noise=0.005)
+    assert 'Add it (--add cable_torque):' in plain and 'Not with confidence' not in plain
 
 
 # ---------------------------------------------------------------------------------------------------- known truth
@@ -85,36 +87,37 @@ def test_a_hardening_cubic_is_not_named_as_a_cable_with_confidence():
     truth = -5.0
     result = diagnose(_record({'term angle^3': truth}, seed=43103))
     found = {f.effect: f for f in result.found}
-    document = result.to_dict()
-    assert 'cable_torque' not in document['add'], document['add']       # failed before: named, 'effect_found'
     term = _lookalike(result, 'cable_torque')
-    assert 'cable_torque' in found and term is not None, (result.verdict, verdict_of(result))
-    assert result.verdict == 'confounded' and found['cable_torque'].confounded_with == ['term_angle_cube']
+    # failed before: 'effect_found', "missing effect: cable_torque ... Add it", the cubic never tried
+    assert result.verdict == 'confounded' and term is not None, verdict_of(result)
+    assert term.term.expression == 'angle^3'
     # both explanations, and the Taylor mapping between them (stated tolerance)
     assert term.value == pytest.approx(truth, rel=MAPPING_TOLERANCE)
     assert found['cable_torque'].parameters['cable_stiffness'] == pytest.approx(-6 * truth, rel=MAPPING_TOLERANCE)
     with_set, _, with_term, _ = term.differing['gravity_stiffness']
     assert with_term - with_set == pytest.approx(found['cable_torque'].parameters['cable_stiffness'],
                                                  rel=MAPPING_TOLERANCE)
-    entry = next(t for t in document['discovery']['terms'] if t['status'] == 'confounded')
-    assert 'gravity_stiffness' in entry['differing_parameters']
+    entry = next(t for t in result.to_dict()['discovery']['terms'] if t['status'] == 'confounded')
+    assert 'gravity_stiffness' in entry['differing_parameters'] and entry['confounded_with'] == ['cable_torque']
     text = verdict_of(result)
-    assert 'angle^3' in text and 'gravity_stiffness' in text and 'cannot tell' in text
+    assert 'Not with confidence: cable_torque or, in its place, the term outside the catalog angle^3' in text, text
+    assert 'gravity_stiffness' in text and 'Add it' not in text
+    assert plain_verdict(result).startswith('One of cable_torque or, in its place, the term outside the catalog '
+                                            'angle^3 is missing')
 
 
 @pytest.mark.slow
-def test_a_cable_a_cubic_imitates_is_named_as_one_of_the_two():
+def test_a_cable_a_cubic_imitates_stays_named_and_the_cubic_is_said_beside_it():
     truth = 30.0
     result = diagnose(_record({'cable_torque': truth}, seed=43100))
-    found = {f.effect: f for f in result.found}
-    assert list(found) == ['cable_torque'], verdict_of(result)          # the name is kept
-    cable = found['cable_torque']
+    assert result.missing_effect == 'cable_torque' and result.to_dict()['add'] == ['cable_torque']
+    cable = result.found[0]
     # within 3 of its stated sigma (24.4 +- 2.6 for 30 on this 40 s record: the cable shares gravity's column)
     assert abs(cable.parameters['cable_stiffness'] - truth) < 3 * cable.standard_errors['cable_stiffness']
     term = _lookalike(result, 'cable_torque')       # failed before: the discovery's screening ranked it fifth
     assert term is not None and term.term.expression == 'angle^3', verdict_of(result)
     assert term.value == pytest.approx(-cable.parameters['cable_stiffness'] / 6, rel=MAPPING_TOLERANCE)
-    assert result.verdict == 'confounded' and 'cable_torque (cable_stiffness = ' in verdict_of(result)
+    assert result.verdict == 'confounded' and 'Not with confidence: cable_torque or' in verdict_of(result)
 
 
 @pytest.mark.slow
@@ -124,3 +127,4 @@ def test_an_offset_nothing_imitates_stays_named_with_confidence():
     assert result.verdict == 'effect_found' and result.to_dict()['add'] == ['angle_offset'], verdict_of(result)
     assert result.found[0].parameters['angle_offset'] == pytest.approx(truth, rel=0.1)
     assert _lookalike(result, 'angle_offset') is None
+    assert 'Not with confidence' not in verdict_of(result)

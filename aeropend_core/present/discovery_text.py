@@ -22,6 +22,25 @@ def differing_text(term) -> str:
             f'{"this value depends" if len(parts) == 1 else "these values depend"} on which one is true.')
 
 
+def lookalike_terms(discovery) -> dict[str, list]:
+    """{catalog effect: the discovered terms confounded with it} ({} when none): a term outside the catalog that
+    explains the record as well in the effect's place, neither adding anything significant to the other."""
+    twins: dict[str, list] = {}
+    for term in (discovery.terms if discovery is not None else ()):
+        if term.status == 'confounded':
+            for effect in term.confounded_with:
+                twins.setdefault(effect, []).append(term)
+    return twins
+
+
+def lookalike_clause(discovery) -> str:
+    """'EFFECT or, in its place, the term outside the catalog EXPRESSION' for each named effect a discovered term is
+    confounded with, joined ('' when none)."""
+    return '; '.join(f'{effect} or, in its place, the term outside the catalog '
+                     f'{" or ".join(t.term.expression for t in terms)}'
+                     for effect, terms in lookalike_terms(discovery).items())
+
+
 def _coefficient(term) -> tuple[float, float]:
     """The term's output-error coefficient and σ [its unit], or the weak form's when it was not refitted."""
     return term.coefficient()
@@ -448,5 +467,6 @@ def _numpy_expression(expression: str) -> str:
     return code if code != '1' else '1.0 + 0.0 * angle'      # a float for a float (numba compiles it)
 
 
-__all__ = ['differing_text', 'separating_experiment', 'term_text', 'discovery_sentence', 'motor_term_text',
+__all__ = ['differing_text', 'lookalike_terms', 'lookalike_clause',
+           'separating_experiment', 'term_text', 'discovery_sentence', 'motor_term_text',
            'motor_sentence', 'motor_lines', 'motor_html', 'discovery_lines', 'discovery_html', 'effect_module_text']

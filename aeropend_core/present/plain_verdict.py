@@ -11,6 +11,7 @@ from __future__ import annotations
 import shlex
 
 from aeropend_core.model.effects import get_effect
+from aeropend_core.present.discovery_text import lookalike_clause
 
 
 def _what(found) -> str:
@@ -70,6 +71,14 @@ def plain_verdict(diagnosis, source: str | None = None, report: bool = False) ->
                 f'{facts.excess_current * 1e3:.2f} to {facts.excess_final * 1e3:.2f} mrad), but this record cannot '
                 'tell which. Next: record the experiment that separates them (aeropend run --until-decided, or '
                 'the notes below).')
+    alike = lookalike_clause(facts.discovery) if verdict == 'confounded' else ''
+    if alike and facts.found:
+        command = _next_command(source, given + [f.effect for f in facts.found], report)
+        return (f'One of {alike} is missing (with {", ".join(f.effect for f in facts.found)} the error beyond the '
+                f'{noise} noise falls from {facts.excess_current * 1e3:.2f} to {facts.excess_final * 1e3:.2f} mrad, '
+                'and the term in its place explains the record as well), but this record cannot tell which. Next: '
+                'record the experiment that separates them (aeropend run --until-decided, or the discovery section '
+                f'below); until then the catalog\'s effect is the model to use: {command}.' + rate)
     if verdict in ('effect_found', 'confounded') and facts.found:
         what = '; '.join(_what(f) for f in facts.found)
         command = _next_command(source, given + [f.effect for f in facts.found], report)

@@ -12,7 +12,7 @@ import math
 from collections.abc import Sequence
 
 from aeropend_core.model.effects import get_effect
-from aeropend_core.present.discovery_text import discovery_sentence, motor_sentence
+from aeropend_core.present.discovery_text import discovery_sentence, lookalike_clause, motor_sentence
 
 
 def size_text(found) -> str:
@@ -115,9 +115,13 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
     elif verdict in ('effect_found', 'confounded'):
         # 'confounded' without an unsure catalog effect: a discovered term explains the data as well as the set
         label = 'missing effect' if len(found) == 1 else 'missing effects'
-        message = (f'{label}: {sizes}. Add {"it" if len(found) == 1 else "them"} '
-                   f'({" ".join("--add " + f.effect for f in found)}): the held-out error beyond the noise falls '
-                   f'from {excess_current * 1e3:.2f} to {excess_final * 1e3:.2f} mrad.'
+        alike = lookalike_clause(discovery) if verdict == 'confounded' else ''
+        them = "it" if len(found) == 1 else "them"
+        message = (f'{label}: {sizes}. '
+                   + (f'Not with confidence: {alike}, explains the record as well, and this data cannot tell which '
+                      f'(below). With {them} ' if alike else f'Add {them} ')
+                   + f'({" ".join("--add " + f.effect for f in found)}){"" if alike else ":"} the held-out error '
+                   f'beyond the noise falls from {excess_current * 1e3:.2f} to {excess_final * 1e3:.2f} mrad.'
                    + (' Significant, within the noise: small, but the data support it strongly.'
                       if excess_current <= within_noise else ''))
     elif verdict == 'nothing_missing':
