@@ -19,7 +19,9 @@ def differing_text(term) -> str:
     parts = [f'{name} {a:.4g} +- {sa:.2g} with {" + ".join(term.confounded_with)}, {b:.4g} +- {sb:.2g} with the term'
              for name, (a, sa, b, sb) in differing.items()]
     return (f' The two explanations differ in {"; ".join(parts)} (more than their combined +-): '
-            f'{"this value depends" if len(parts) == 1 else "these values depend"} on which one is true.')
+            f'{"this value depends" if len(parts) == 1 else "these values depend"} on which one is true, and '
+            f'{"it" if len(parts) == 1 else "they"}, measured independently of this record (a nominal parameter '
+            'from the rig\'s masses and lengths, or a calibration), would decide between them.')
 
 
 def lookalike_terms(discovery) -> dict[str, list]:
