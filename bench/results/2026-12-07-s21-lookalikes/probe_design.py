@@ -1,5 +1,10 @@
-"""Does the project's experiment-design code separate the cable from its cubic look-alike? (a 40 s cable record)"""
-import sys, time
+"""Does the project's experiment-design code separate the cable from its cubic look-alike? (a 40 s cable record)
+
+Run (repository root):  nice -n 10 .venv/bin/python bench/results/2026-12-07-s21-lookalikes/probe_design.py cable 43100
+"""
+import sys
+import time
+
 sys.path.insert(0, 'tests')
 from test_lookalike_check import _record
 from aeropend_core.diagnosis.diagnose import diagnose
