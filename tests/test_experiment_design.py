@@ -373,7 +373,15 @@ def test_the_loop_decides_a_confounded_first_record():
     assert first.verdict == 'confounded', verdict_of(first)
     assert {first.found[0].effect, *first.found[0].confounded_with} == {'cable_torque', 'angle_offset'}
     assert outcome.rounds[0].design.schedule.steps[:, 0].max() <= 0.7
-    assert last.verdict == 'effect_found' and [f.effect for f in last.found] == ['cable_torque'], verdict_of(last)
+    # the catalog pair is decided: the cable alone among catalog effects. Since session 21 a named effect is put
+    # beside the vocabulary's best imitator (diagnosis/lookalike_check.py): a hardening cubic with gravity raised
+    # explains this record as well (the design code separates the two by ~0.002x the noise within the rig's
+    # limits), so the verdict may stay 'confounded' through that term alone, the cable still named
+    assert [f.effect for f in last.found] == ['cable_torque'] and not last.found[0].confounded_with, verdict_of(last)
+    alike = [t for t in (last.discovery.terms if last.discovery is not None else []) if t.status == 'confounded']
+    assert last.verdict == 'effect_found' or (last.verdict == 'confounded' and alike
+                                              and all(t.confounded_with == ['cable_torque'] for t in alike)), \
+        verdict_of(last)
     found = last.found[0]
     assert abs(found.parameters['cable_stiffness'] - 30.0) < 3 * found.standard_errors['cable_stiffness']
 
