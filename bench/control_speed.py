@@ -3,8 +3,9 @@ imports, numba's cache, the work, the output), this tree against a baseline tree
 
 Each tree runs under the same interpreter with ``PYTHONPATH`` set to it (a ``git archive`` of the baseline commit,
 e.g. ``git archive 9232bd8 | tar -x -C /tmp/base``). One untimed run of each command warms each tree's numba cache;
-then the trees alternate, ``--repeats`` times, and the median wall time is reported with the load average (1 min)
-before each run. Commands:
+then the trees alternate, ``--repeats`` times, and the median wall and CPU times (user + system of the process, all
+threads: less sensitive to the machine's load than the wall) are reported with the load average (1 min) before each
+run. Commands:
 
 * ``control design --at 40deg -o gains.yaml --json d.json`` (the nominal model; the course template);
 * ``control check BAG --design GAINS.yaml --json c.json`` on ``--bag`` (a closed-loop record of ~60 s).
@@ -19,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -30,14 +32,19 @@ ROOT = Path(__file__).resolve().parent.parent
 CLI = 'import sys; from aeropend_core.cli import main; sys.exit(main())'
 
 
-def run(tree: Path, arguments: list[str]) -> tuple[float, float, subprocess.CompletedProcess]:
-    """(wall seconds, 1-min load average before, the process) of `aeropend ARGUMENTS` on `tree`'s code."""
+def run(tree: Path, arguments: list[str]) -> tuple[float, float, float, subprocess.CompletedProcess]:
+    """(wall seconds, CPU seconds (user + system, all threads), 1-min load average before, the process) of
+    `aeropend ARGUMENTS` on `tree`'s code."""
     env = {**os.environ, 'PYTHONPATH': str(tree)}
     load = os.getloadavg()[0]
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
     done = subprocess.run([sys.executable, '-c', CLI, *arguments], env=env, cwd=tree, capture_output=True,
                           text=True, timeout=900)
-    return time.perf_counter() - started, load, done
+    wall = time.perf_counter() - started
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return wall, cpu, load, done
 
 
 def design_summary(path: Path) -> str:
@@ -70,28 +77,33 @@ def main() -> int:
     }
     for name, command in commands.items():          # warm each tree's numba cache
         for label, tree in trees.items():
-            seconds, _, done = run(tree, command(label))
+            seconds, _, _, done = run(tree, command(label))
             if done.returncode != 0:
                 print(f'{label} {name} failed ({done.returncode}): {done.stderr[-800:]}', file=sys.stderr)
                 return 1
             print(f'warm-up {label} {name}: {seconds:.2f} s', flush=True)
-    print('| command | base s (median) | new s (median) | new / base | load 1 min (min-max) | base runs | new runs |')
-    print('|---|---|---|---|---|---|---|')
+    print('| command | base s (median) | new s (median) | new / base | base CPU s | new CPU s | CPU new / base '
+          '| load 1 min (min-max) | base runs s | new runs s |')
+    print('|---|---|---|---|---|---|---|---|---|---|')
     rows = {}
     for name, command in commands.items():
         times = {label: [] for label in trees}
+        cpus = {label: [] for label in trees}
         loads = []
         for _ in range(args.repeats):
             for label, tree in trees.items():
-                seconds, load, done = run(tree, command(label))
+                seconds, cpu, load, done = run(tree, command(label))
                 if done.returncode != 0:
                     print(f'{label} {name} failed: {done.stderr[-800:]}', file=sys.stderr)
                     return 1
                 times[label].append(seconds)
+                cpus[label].append(cpu)
                 loads.append(load)
         base, new = statistics.median(times['base']), statistics.median(times['new'])
-        rows[name] = {'base': times['base'], 'new': times['new'], 'loads': loads}
-        print(f'| {name} | {base:.2f} | {new:.2f} | {new / base:.2f} | {min(loads):.1f}-{max(loads):.1f} | '
+        cpu_base, cpu_new = statistics.median(cpus['base']), statistics.median(cpus['new'])
+        rows[name] = {'base': times['base'], 'new': times['new'], 'cpu': cpus, 'loads': loads}
+        print(f'| {name} | {base:.2f} | {new:.2f} | {new / base:.2f} | {cpu_base:.2f} | {cpu_new:.2f} | '
+              f'{cpu_new / cpu_base:.2f} | {min(loads):.1f}-{max(loads):.1f} | '
               f'{", ".join(f"{t:.2f}" for t in times["base"])} | {", ".join(f"{t:.2f}" for t in times["new"])} |',
               flush=True)
     for label in trees:
