@@ -202,8 +202,11 @@ def test_run_closes_the_loop_on_the_rig_through_the_bridge(files, tmp_path):
     # idle one's: at a load average of 16 the first change came 0.13 s late, at 19 0.53 s (with a third of the
     # telemetry lost by the recorder's best-effort subscription, so a change is seen at the next sample that has it).
     # Half the 3 s hold still tells a schedule played on the device's clock from a step missed or played out of turn
-    late = 1.5
-    assert len(changes) == 2 and -SAMPLE_TIME <= changes[0] - 1.0 < late and abs(changes[1] - 4.0) < late, (
+    # Early: beside a one-core busy loop the first change read 0.967 s (33 ms early, a third of the telemetry lost):
+    # the bridge's sample stamps (its clock model) and the player's start stamp are two host-clock estimates that
+    # a loaded host pulls apart by tens of ms; a step played early by the device would be a whole hold off.
+    late, early = 1.5, 0.1
+    assert len(changes) == 2 and -max(SAMPLE_TIME, early) <= changes[0] - 1.0 < late and abs(changes[1] - 4.0) < late, (
         f'reference changes at {changes} s; {len(data)} samples, {data.samples_without_control} without telemetry; '
         f'run output:\n{output[-3000:]}')
     assert abs(np.degrees(data.angle[(data.time > 6.0) & (data.time < 7.0)].mean()) - 35.0) < 3.0

@@ -111,6 +111,7 @@ def test_a_device_clock_outside_tolerance_is_a_fault_with_its_number(rate_error,
     assert raised is not None and raised <= within
     assert clock.rate_fault
     assert clock.rate_error == pytest.approx(rate_error, abs=max(1e-3, clock.rate_error_bound))
+    assert clock.rate_error_bound >= 0.0     # a ± said next to the number is never negative (was -0.00 % at -0.5)
     assert clock.host_steps == []
 
 

@@ -309,7 +309,9 @@ class SampleClock:
         if span >= self.min_span * self.window and len(sequences) >= 2:
             self._raw_slope = _bounded(_hull_slope(sequences, times), self.nominal_period)
             low, high = _feasible_slopes(sequences, times, self._raw_slope)
-            self._raw_bound = max(high - self._raw_slope, self._raw_slope - low) / self.nominal_period
+            # the distance to the farther feasible slope: never negative, also when the slope is clamped to its
+            # bounds and every feasible slope lies beyond them (a device twice as fast said '± -0.00 %')
+            self._raw_bound = max(abs(high - self._raw_slope), abs(self._raw_slope - low)) / self.nominal_period
             self.rate_verified = True
             return
         first_sequence, first_time = self._first_point
