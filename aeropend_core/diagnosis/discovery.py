@@ -633,6 +633,16 @@ def _differing(with_set: Comparison, with_term: Comparison) -> dict[str, tuple[f
 LOOKALIKE_TRIES = 3
 
 
+def model_without(prep: PreparedRecord, fitted: Comparison, model: tuple[str, ...], fixed: Mapping[str, float],
+                  effect: str) -> Comparison | None:
+    """`model` without `effect`, refitted from `fitted`'s parameters and initial states (None: too little data)."""
+    rest = tuple(n for n in model if n != effect)
+    try:
+        return compare(prep, rest, start=fitted.parameters, fixed=dict(fixed), initial_states=fitted.fit.initial_states)
+    except InsufficientDataError:
+        return None
+
+
 def _effect_lookalikes(prep, base, model, fixed, catalog_set, say) -> list[DiscoveredTerm]:
     """Each effect of a selected set of two or more judged against the strongest term outside the catalog in its
     place (:func:`_set_lookalike` on the model without that effect alone): the whole set's swap cannot see one
@@ -640,11 +650,8 @@ def _effect_lookalikes(prep, base, model, fixed, catalog_set, say) -> list[Disco
     true dry friction for a torque rippling twice per turn)."""
     found = []
     for effect in catalog_set:
-        rest = tuple(n for n in model if n != effect)
-        try:
-            without = compare(prep, rest, start=base.parameters, fixed=dict(fixed),
-                              initial_states=base.fit.initial_states)
-        except InsufficientDataError:
+        without = model_without(prep, base, model, fixed, effect)
+        if without is None:
             continue
         entry = _set_lookalike(prep, base, model, fixed, (effect,), without, say, may_replace=True,
                                tries=LOOKALIKE_TRIES)

@@ -30,10 +30,9 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare
+from aeropend_core.diagnosis.compare import Comparison, PreparedRecord
 from aeropend_core.diagnosis.discovery import (SPAN_CORRELATION, VOCABULARY, Discovery, DiscoveredTerm, Term,
-                                               _columns, _set_lookalike, _swapped_in, model_states)
-from aeropend_core.errors import InsufficientDataError
+                                               _columns, _set_lookalike, _swapped_in, model_states, model_without)
 from aeropend_core.model.effects import CATALOG
 
 #: What :attr:`Discovery.note` says when only this check ran.
@@ -136,14 +135,9 @@ def named_lookalikes(prep: PreparedRecord, final: Comparison, without_set: Compa
     """
     found: list[DiscoveredTerm] = []
     for effect in catalog_set:
-        without = without_set
-        if len(catalog_set) > 1:
-            rest = tuple(n for n in model if n != effect)
-            try:
-                without = compare(prep, rest, start=final.parameters, fixed=dict(fixed),
-                                  initial_states=final.fit.initial_states)
-            except InsufficientDataError:
-                continue
+        without = without_set if len(catalog_set) == 1 else model_without(prep, final, model, fixed, effect)
+        if without is None:
+            continue
         entry = _beside(prep, final, without, model, fixed, effect, say)
         if entry is not None:
             found.append(entry)
