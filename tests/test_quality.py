@@ -339,3 +339,34 @@ def test_sensor_read_slower_than_the_log_is_said(clean):
     report = gate({**clean, 'angle': held})
     assert ('held_samples', 'warning') in [(f.code, f.severity) for f in report.findings]
     assert 'every 5 samples (98 Hz)' in next(f.message for f in report.findings if f.code == 'held_samples')
+
+
+def _clean_ramp_then_step(glitches: dict[int, float]) -> dict[str, np.ndarray]:
+    """A 20 s record whose Va rises on a clean ramp (70 dB) and steps to 0 V at t = 12 s, with `glitches`
+    (sample -> added volts); the duty follows Va, the angle is a slow sine."""
+    rng = np.random.default_rng(7)
+    time = np.arange(0.0, 20.0, SAMPLE_TIME)
+    voltage = np.where(time < 12.0, 0.2 * time, 0.0) + rng.normal(0.0, 3e-4, time.size)
+    for sample, volts in glitches.items():
+        voltage[sample] += volts
+    return {'t': time, 'duty': np.clip(voltage / 12.0, 0.0, 1.0), 'armature_voltage': voltage,
+            'armature_current': 0.04 * voltage + rng.normal(0.0, 1e-3, time.size),
+            'angle': 0.3 * np.sin(0.5 * time) + rng.normal(0.0, 1e-3, time.size)}
+
+
+def test_the_last_sample_of_a_clean_ramp_before_a_step_is_kept():
+    """The second rig's chirp ended at 1.088 V and stepped to 0 V: the median of seven put its last two samples
+    194 robust sigmas off, and the gate 'repaired' two true samples. One side's straight line predicts them."""
+    columns = _clean_ramp_then_step({})
+    report = check_recording(from_columns(columns))
+    assert not [f for f in report.findings if f.code == 'outlier'], report.findings
+
+
+@pytest.mark.parametrize('glitch_samples', [(3000,), (3000, 3001)], ids=['single', 'double'])
+def test_a_glitch_of_one_or_two_samples_on_a_ramp_is_still_repaired(glitch_samples):
+    columns = _clean_ramp_then_step({k: 0.5 for k in glitch_samples})
+    report = check_recording(from_columns(columns))
+    outliers = [f for f in report.findings if f.code == 'outlier']
+    assert outliers and outliers[0].count == len(glitch_samples), report.findings
+    repaired = report.recording
+    assert np.max(np.abs(repaired.signals['armature_voltage'][2995:3006] - 0.2 * repaired.time[2995:3006])) < 0.01

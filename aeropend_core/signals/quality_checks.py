@@ -353,6 +353,11 @@ def _check_outliers(gate: _Gate, name: str) -> None:
         curvature = np.zeros_like(values)
         curvature[1:-1] = values[1:-1] - 0.5 * (values[:-2] + values[2:])
         bad &= np.abs(curvature) > 2.0 * quantum
+    if bad.any():
+        # The last sample of a ramp before a step (a clean Va ending a chirp at 1.088 V and stepping to 0) is far
+        # from the median of seven, yet on the straight line of the samples before it: a sample that one side's
+        # smooth run predicts is the edge of a step, not an isolated glitch.
+        bad &= ~_continues_one_side(values, threshold)
     if name == 'armature_current' and bad.any():
         # the current's kick at a step is physics, not a glitch (when it stays within a few times the current's
         # own range: a 50 A spike next to a step is still a glitch)
@@ -370,6 +375,24 @@ def _check_outliers(gate: _Gate, name: str) -> None:
     gate.add('outlier', 'repaired', f'{count} isolated outlier(s) in {name!r} (worst {values[worst]:.4g} at '
              f'{gate.at(worst)}, {abs(deviation[worst]) / max(sigma, 1e-300):.3g} robust sigmas off its neighbours) '
              'replaced by linear interpolation', gate.span(first, last), count)
+
+
+def _continues_one_side(values: np.ndarray, tolerance: float) -> np.ndarray:
+    """Mask of the samples that the straight line through the three samples on one side of them predicts within
+    `tolerance` (the unit of `values`), where those three are themselves smooth (second difference within
+    `tolerance`): a glitch of one or two samples never is, since its own neighbours break the side's line."""
+    n = values.size
+    left_predicted = np.full(n, np.inf)
+    right_predicted = np.full(n, np.inf)
+    if n < 7:
+        return np.zeros(n, dtype=bool)
+    with np.errstate(over='ignore', invalid='ignore'):
+        a, b, c = values[:-3], values[1:-2], values[2:-1]          # samples k-3, k-2, k-1 for k = 3 .. n-1
+        # least-squares line through offsets -3, -2, -1 evaluated at 0
+        left_predicted[3:] = np.where(np.abs(a - 2 * b + c) <= tolerance, (4 * c + b - 2 * a) / 3, np.inf)
+        d, e, f = values[1:-2], values[2:-1], values[3:]           # samples k+1, k+2, k+3 for k = 0 .. n-4
+        right_predicted[:-3] = np.where(np.abs(d - 2 * e + f) <= tolerance, (4 * d + e - 2 * f) / 3, np.inf)
+        return (np.abs(values - left_predicted) <= tolerance) | (np.abs(values - right_predicted) <= tolerance)
 
 
 #: Time after a step of the input (duty or Va) in which the armature current's kick is physics, not an outlier [s]
