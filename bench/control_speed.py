@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import resource
 import statistics
@@ -108,6 +109,12 @@ def main() -> int:
               flush=True)
     for label in trees:
         print(f'{label} design: {design_summary(scratch / f"{label}-design.json")}')
+    gains = {label: json.loads((scratch / f'{label}-design.json').read_text()).get('gains') or {} for label in trees}
+    numbers = [key for key, value in gains['base'].items() if isinstance(value, float)]
+    worst = max((abs(gains['new'].get(key, math.nan) - gains['base'][key]) / max(abs(gains['base'][key]), 1e-12)
+                 for key in numbers), default=math.nan)
+    print(f'design gains, largest relative difference new vs base: {worst:.3g} ({len(numbers)} numbers)')
+    for label in trees:
         check = json.loads((scratch / f'{label}-check.json').read_text())
         print(f'{label} check: {check.get("verdict")}')
     (scratch / 'times.json').write_text(json.dumps(rows, indent=1))

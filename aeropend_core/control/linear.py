@@ -60,6 +60,19 @@ class Linearisation:
         import control
         return control.ss2tf(self.state_space())
 
+    def zero_order_hold(self, sample_time: float = SAMPLE_TIME) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Ad, Bd, C) of the zero-order-hold discretisation at `sample_time` [s], without latency: the matrix
+        exponential of [[A, B], [0, 0]] Ts, as python-control's ``c2d(..., 'zoh')`` (scipy's cont2discrete) computes
+        it, without importing python-control (~1.5 s of CPU at `control design`'s start)."""
+        from scipy.linalg import expm
+        n, m = self.B.shape
+        block = np.zeros((n + m, n + m))
+        block[:n, :n] = self.A
+        block[:n, n:] = self.B
+        exponential = expm(block * sample_time)
+        return (np.ascontiguousarray(exponential[:n, :n]), np.ascontiguousarray(exponential[:n, n:]),
+                np.ascontiguousarray(self.C))
+
     def discrete(self, sample_time: float = SAMPLE_TIME, latency: bool = True):
         """Zero-order-hold discretisation, times z^-1 for one sample of latency (``latency``)."""
         import control
