@@ -100,7 +100,9 @@ def run(arguments: tuple[int, int, int]) -> dict:
                z=z, remaining_mrad=round(excess_error(found.final.rms_error, found.final.noise_rms) * 1e3, 2),
                noise_mrad=round(found.noise_rms * 1e3, 2), message=verdict_of(found)[:400],
                unnamed=[note.split(':')[0] + (': confounded with a term' if 'confounded' in note else ': model doubt')
-                        for note in found.notes if ' is not named: ' in note],
+                        for note in found.notes if ' is not named: ' in note]
+               + [note.split(' is named although')[0] + ': named by the joint refits'
+                  for note in found.notes if ' is named although the model doubt' in note],
                seconds=round(time.perf_counter() - started, 1))
     row['effects'] = {k: v for k, v in row['effects'].items()}
     return row

@@ -446,7 +446,7 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
     # beside a remainder the discovery stage refitted terms for, the selected effects' +- carry the model doubt
     widened, doubt_notes = widen_for_remainder(list(catalog.found), discovered.pendulum)
     if catalog.remainder:       # beside a remainder: an effect the doubt puts within T_MIN sigma of zero is not named
-        widened, unnamed = beyond_doubt(widened, T_MIN)
+        widened, unnamed = beyond_doubt(widened, T_MIN, discovered.pendulum)
         widened, confounded = beside_lookalikes(widened, discovered.pendulum)
         doubt_notes += unnamed + confounded
     doubt_notes = friction_notes + doubt_notes

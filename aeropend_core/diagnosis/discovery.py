@@ -331,6 +331,9 @@ class DiscoveredTerm(TermEvidence):
     #: How far each parameter of the model [SI] moved when the term was refitted beside it (output error; empty when
     #: it was not refitted or the refit gave no estimate): what the remainder the term stands for does to them.
     parameter_shifts: dict[str, float] = field(default_factory=dict)
+    #: The 1-sigma [SI] of each parameter of the model in that refit (the term beside it): with
+    #: ``parameter_shifts``, an effect's evidence against the remainder modelled by the term.
+    parameter_sigmas: dict[str, float] = field(default_factory=dict)
     #: When confounded: the parameters the two explanations share and disagree on by more than their combined +-
     #: (name -> (value with the set, its sigma, value with the term, its sigma) [SI]).
     differing: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)
@@ -724,6 +727,7 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
     candidate: Candidate = assess(prep, base, augmented, name)
     entry.parameter_shifts = {k: float(augmented.parameters[k] - v) for k, v in base.parameters.items()
                               if k in augmented.parameters and math.isfinite(augmented.parameters[k] - v)}
+    entry.parameter_sigmas = {k: float(augmented.fit.standard_errors.get(k, math.nan)) for k in entry.parameter_shifts}
     entry.value = candidate.parameters.get(parameter, math.nan)
     entry.sigma = candidate.standard_errors.get(parameter, math.nan)
     entry.excess_after, entry.share_removed = candidate.excess_after, candidate.share_removed

@@ -51,13 +51,37 @@ def widen_for_remainder(found: list, discovery) -> tuple[list, list[str]]:
     return widened, notes
 
 
-def beyond_doubt(found: list, t_min: float) -> tuple[list, list[str]]:
+def joint_evidence(entry, name: str, discovery) -> tuple[float, str] | None:
+    """The smallest t-statistic [-] of `entry`'s parameter `name` over the refits with one term outside the catalog
+    beside the selected set (the effect and a model of the remainder fitted together), and that term; None when no
+    term was refitted or one refit gave no finite 1-sigma. A refit that puts the parameter on the other side of zero
+    counts as t = 0 (the effect's sign depends on what the remainder is)."""
+    terms = [t for t in (discovery.terms if discovery is not None else []) if name in t.parameter_shifts]
+    if not terms or name not in entry.parameters:
+        return None
+    value, worst = entry.parameters[name], None
+    for term in terms:
+        joint = value + term.parameter_shifts[name]
+        sigma = getattr(term, 'parameter_sigmas', {}).get(name, math.nan)
+        if not (math.isfinite(joint) and math.isfinite(sigma) and sigma > 0):
+            return None
+        t = abs(joint) / sigma if joint * value > 0 else 0.0
+        if worst is None or t < worst[0]:
+            worst = (t, term.term.expression)
+    return worst
+
+
+def beyond_doubt(found: list, t_min: float, discovery=None) -> tuple[list, list[str]]:
     """(the effects still named, a note per effect no longer named) once the ± carries the model doubt.
 
-    An effect is named when its parameter is at least `t_min` standard errors from zero (the catalog search's rule);
-    with the model doubt in its ± (:func:`widen_for_remainder`) an effect that only stands in for part of the
-    remainder falls below that: its value depends on what the remainder is, so it is not named as present (an angle
-    offset of 0.024 +- 0.019 rad, all but 0.005 of it doubt, read for a thrust loss above a knee).
+    An effect is named when its parameter is at least `t_min` standard errors from zero (the catalog search's rule).
+    With the model doubt in its ± (:func:`widen_for_remainder`) an effect that only stands in for part of the
+    remainder falls below that: its value depends on what the remainder is (an angle offset of 0.024 +- 0.019 rad,
+    all but 0.005 of it doubt, read for a thrust loss above a knee). Such an effect is still named when it holds in
+    every refit with a term outside the catalog beside it (:func:`joint_evidence`): fitted together with each model
+    of the remainder the discovery stage tried, its parameter stays at least `t_min` of that fit's standard errors
+    from zero, on the same side (an angle offset of -0.023 +- 0.0009 rad that a ripple term moves to -0.033 +-
+    0.0007: the remainder changes its size, not its presence). Its ± keeps the doubt.
 
     Parameters
     ----------
@@ -65,10 +89,14 @@ def beyond_doubt(found: list, t_min: float) -> tuple[list, list[str]]:
         The selected set, its ± widened (``Found.model_doubt`` [SI] set where it was).
     t_min : float [-]
         Standard errors from zero a parameter must be.
+    discovery : Discovery or None [-]
+        The discovery stage's result (its refitted terms' ``parameter_shifts`` and ``parameter_sigmas``); None:
+        the doubt alone decides.
 
     Returns
     -------
     (list of Found, list of str)
+        The notes also say which effects are named by the joint refits.
     """
     kept, notes = [], []
     for entry in found:
@@ -79,12 +107,24 @@ def beyond_doubt(found: list, t_min: float) -> tuple[list, list[str]]:
         if not weak:
             kept.append(entry)
             continue
+        joint = {name: joint_evidence(entry, name, discovery) for name in weak}
+        if all(j is not None and j[0] >= t_min for j in joint.values()):
+            kept.append(entry)
+            name, (t_joint, expression) = min(joint.items(), key=lambda item: item[1][0])
+            notes.append(f'{entry.effect} is named although the model doubt widens its +-: fitted together with each '
+                         f'term outside the catalog refitted beside it (a model of the remainder), its {name} stays '
+                         f'on the same side of zero and at least {t_min:g} of that fit\'s standard errors from it '
+                         f'(the least: {t_joint:.1f} with {expression}); the remainder changes its size, not its '
+                         'presence')
+            continue
         name, t = min(weak.items(), key=lambda item: item[1])
         notes.append(f'{entry.effect} is not named: significant against the noise and against the remainder '
                      f'modelled as a disturbance, but with the model doubt in its +- its {name} = '
                      f'{entry.parameters[name]:.3g} +- {entry.standard_errors[name]:.2g} is {t:.1f} standard errors '
-                     f'from zero (fewer than {t_min:g}): it may only stand in for part of the remainder the catalog '
-                     'cannot write')
+                     f'from zero (fewer than {t_min:g}), and fitted together with a term outside the catalog '
+                     + (f'({joint[name][1]}) it is {joint[name][0]:.1f} of that fit\'s standard errors from zero'
+                        if joint.get(name) is not None else 'it was not judged')
+                     + ': it may only stand in for part of the remainder the catalog cannot write')
     return kept, notes
 
 

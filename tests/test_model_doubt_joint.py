@@ -1,0 +1,73 @@
+"""The model-doubt rule beside a remainder judged by the joint refits (issue #40): an effect whose ± the doubt widens
+is still named when, fitted together with each term outside the catalog that models the remainder, it stays on the
+same side of zero and T_MIN of that fit's standard errors from it; not named when a refit pulls it to or across zero.
+
+Known truth: the numbers are those of a development record (seed 62005 of bench/remainder.py: a true angle offset of
+-0.0223 rad beside a torque rippling with the angle), and two made-up refits that take the offset away.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from aeropend_core.diagnosis.candidates import T_MIN
+from aeropend_core.diagnosis.model_doubt import beyond_doubt, joint_evidence, widen_for_remainder
+from aeropend_core.diagnosis.stages import Found
+
+
+@dataclass
+class _Term:
+    expression: str
+
+
+@dataclass
+class _Refit:
+    term: _Term
+    parameter_shifts: dict
+    parameter_sigmas: dict
+    status: str = 'not_proven'
+
+
+@dataclass
+class _Discovery:
+    terms: list = field(default_factory=list)
+
+
+def _offset() -> Found:
+    return Found('angle_offset', {'angle_offset': -0.02315}, {'angle_offset': 0.00086}, 0.0, 0.0, 0.5, 27.0, 5.0)
+
+
+def _refits(*extra) -> _Discovery:
+    return _Discovery([_Refit(_Term('sqrt(abs(thrust))*angular_rate'), {'angle_offset': -0.00015},
+                              {'angle_offset': 0.00087}),
+                       _Refit(_Term('sin(3*angle)'), {'angle_offset': -0.00935}, {'angle_offset': 0.00066}),
+                       *extra])
+
+
+def test_an_offset_the_remainder_moves_away_from_zero_stays_named_with_the_doubt_in_its_pm():
+    discovery = _refits()
+    widened, _ = widen_for_remainder([_offset()], discovery)
+    assert widened[0].model_doubt['angle_offset'] > 0.009
+    assert abs(widened[0].parameters['angle_offset']) / widened[0].standard_errors['angle_offset'] < T_MIN
+    assert not beyond_doubt(widened, T_MIN)[0]          # the doubt alone (the rule before): not named
+    kept, notes = beyond_doubt(widened, T_MIN, discovery)
+    assert [f.effect for f in kept] == ['angle_offset']
+    assert kept[0].standard_errors['angle_offset'] > 0.009      # the ± keeps the doubt
+    assert 'is named although the model doubt' in notes[0] and 'sqrt(abs(thrust))*angular_rate' in notes[0]
+    t, expression = joint_evidence(widened[0], 'angle_offset', discovery)
+    assert expression == 'sqrt(abs(thrust))*angular_rate' and 25 < t < 28
+
+
+def test_an_offset_a_refit_pulls_to_zero_or_across_it_is_not_named():
+    for shift in (0.0215, 0.03):        # to -0.0017 (t 1.9), across zero to +0.0069 (t 0: the sign flips)
+        discovery = _refits(_Refit(_Term('thrust^2'), {'angle_offset': shift}, {'angle_offset': 0.0009}))
+        widened, _ = widen_for_remainder([_offset()], discovery)
+        kept, notes = beyond_doubt(widened, T_MIN, discovery)
+        assert not kept
+        assert 'is not named' in notes[0] and 'thrust^2' in notes[0]
+
+
+def test_a_refit_without_a_standard_error_leaves_the_doubt_to_decide():
+    discovery = _refits(_Refit(_Term('thrust^2'), {'angle_offset': -0.01}, {'angle_offset': float('nan')}))
+    widened, _ = widen_for_remainder([_offset()], discovery)
+    kept, notes = beyond_doubt(widened, T_MIN, discovery)
+    assert not kept and 'it was not judged' in notes[0]
