@@ -71,17 +71,35 @@ def joint_evidence(entry, name: str, discovery) -> tuple[float, str] | None:
     return worst
 
 
+#: Statuses of a refitted term that the data support as part of the remainder (the catalog's evidence).
+SUPPORTED = ('proven',)
+
+
+def supported_doubt(entry, name: str, discovery) -> tuple[float, str] | None:
+    """(the largest move [SI] of `entry`'s parameter `name` over the refitted terms the data support as part of the
+    remainder (status in :data:`SUPPORTED`), that term), or None when no such term moved it."""
+    moves = [(abs(t.parameter_shifts[name]), t.term.expression)
+             for t in (discovery.terms if discovery is not None else [])
+             if t.status in SUPPORTED and name in t.parameter_shifts and math.isfinite(t.parameter_shifts[name])]
+    return max(moves) if moves else None
+
+
 def beyond_doubt(found: list, t_min: float, discovery=None) -> tuple[list, list[str]]:
     """(the effects still named, a note per effect no longer named) once the ± carries the model doubt.
 
     An effect is named when its parameter is at least `t_min` standard errors from zero (the catalog search's rule).
     With the model doubt in its ± (:func:`widen_for_remainder`) an effect that only stands in for part of the
     remainder falls below that: its value depends on what the remainder is (an angle offset of 0.024 +- 0.019 rad,
-    all but 0.005 of it doubt, read for a thrust loss above a knee). Such an effect is still named when it holds in
-    every refit with a term outside the catalog beside it (:func:`joint_evidence`): fitted together with each model
-    of the remainder the discovery stage tried, its parameter stays at least `t_min` of that fit's standard errors
-    from zero, on the same side (an angle offset of -0.023 +- 0.0009 rad that a ripple term moves to -0.033 +-
-    0.0007: the remainder changes its size, not its presence). Its ± keeps the doubt.
+    all but 0.005 of it doubt, read for a thrust loss above a knee, where the term thrust^2, proven, takes most of it).
+
+    With `discovery`, presence is judged against the remainder as the data model it: only the terms the discovery
+    stage *proved* (significant by the catalog's evidence beside the set) are a model of the remainder. The effect
+    is named when (1) with the doubt from those terms alone in its ± it is at least `t_min` standard errors from
+    zero, and (2) fitted together with every term refitted beside it (:func:`joint_evidence`) it stays on the same
+    side of zero and `t_min` of that fit's standard errors from it. A term the data do not support widens the ±
+    (the ± reported keeps every term's doubt) but does not take the effect away (an angle offset of -0.023 +- 0.0009
+    rad that an unproven ripple term moves to -0.033 +- 0.0007: the remainder's shape changes its size, not its
+    presence).
 
     Parameters
     ----------
@@ -90,40 +108,55 @@ def beyond_doubt(found: list, t_min: float, discovery=None) -> tuple[list, list[
     t_min : float [-]
         Standard errors from zero a parameter must be.
     discovery : Discovery or None [-]
-        The discovery stage's result (its refitted terms' ``parameter_shifts`` and ``parameter_sigmas``); None:
-        the doubt alone decides.
+        The discovery stage's result (its refitted terms' status, ``parameter_shifts`` and ``parameter_sigmas``);
+        None: the doubt alone decides.
 
     Returns
     -------
     (list of Found, list of str)
-        The notes also say which effects are named by the joint refits.
+        The notes also say which effects are named by the joint judgement.
     """
     kept, notes = [], []
     for entry in found:
+        doubt = getattr(entry, 'model_doubt', {}) or {}
         doubted = {name: (abs(entry.parameters[name]) / entry.standard_errors[name])
-                   for name in getattr(entry, 'model_doubt', {}) or {}
-                   if name in entry.parameters and entry.standard_errors.get(name, 0.0) > 0}
+                   for name in doubt if name in entry.parameters and entry.standard_errors.get(name, 0.0) > 0}
         weak = {name: t for name, t in doubted.items() if t < t_min}
         if not weak:
             kept.append(entry)
             continue
-        joint = {name: joint_evidence(entry, name, discovery) for name in weak}
-        if all(j is not None and j[0] >= t_min for j in joint.values()):
+        reasons = {}
+        for name in weak:
+            noise_sigma = math.sqrt(max(entry.standard_errors[name] ** 2 - doubt[name] ** 2, 0.0))
+            proven = supported_doubt(entry, name, discovery) if discovery is not None else None
+            against = (abs(entry.parameters[name]) / math.hypot(noise_sigma, proven[0])
+                       if proven is not None else math.inf)
+            joint = joint_evidence(entry, name, discovery)
+            if discovery is None:
+                reasons[name] = ''
+            elif against < t_min:
+                reasons[name] = (f'the term {proven[1]}, proven as part of the remainder, moves it by '
+                                 f'{proven[0]:.3g} (with that doubt alone it is {against:.1f} standard errors from '
+                                 'zero)')
+            elif joint is None or joint[0] < t_min:
+                reasons[name] = ('fitted together with a term outside the catalog '
+                                 + (f'({joint[1]}) it is {joint[0]:.1f} of that fit\'s standard errors from zero'
+                                    if joint is not None else 'it could not be judged (no finite standard error)'))
+        if not reasons:
             kept.append(entry)
-            name, (t_joint, expression) = min(joint.items(), key=lambda item: item[1][0])
-            notes.append(f'{entry.effect} is named although the model doubt widens its +-: fitted together with each '
-                         f'term outside the catalog refitted beside it (a model of the remainder), its {name} stays '
-                         f'on the same side of zero and at least {t_min:g} of that fit\'s standard errors from it '
-                         f'(the least: {t_joint:.1f} with {expression}); the remainder changes its size, not its '
-                         'presence')
+            name = min(weak, key=weak.get)
+            joint = joint_evidence(entry, name, discovery)
+            notes.append(f'{entry.effect} is named although the model doubt widens its +-: no term proven as part '
+                         f'of the remainder takes it within {t_min:g} standard errors of zero, and fitted together '
+                         f'with each term outside the catalog refitted beside it its {name} stays on the same side of '
+                         f'zero and at least {t_min:g} of that fit\'s standard errors from it (the least: '
+                         f'{joint[0]:.1f} with {joint[1]}); the remainder\'s shape changes its size, not its presence')
             continue
-        name, t = min(weak.items(), key=lambda item: item[1])
+        name = min(reasons, key=lambda n: weak[n])
         notes.append(f'{entry.effect} is not named: significant against the noise and against the remainder '
                      f'modelled as a disturbance, but with the model doubt in its +- its {name} = '
-                     f'{entry.parameters[name]:.3g} +- {entry.standard_errors[name]:.2g} is {t:.1f} standard errors '
-                     f'from zero (fewer than {t_min:g}), and fitted together with a term outside the catalog '
-                     + (f'({joint[name][1]}) it is {joint[name][0]:.1f} of that fit\'s standard errors from zero'
-                        if joint.get(name) is not None else 'it was not judged')
+                     f'{entry.parameters[name]:.3g} +- {entry.standard_errors[name]:.2g} is {weak[name]:.1f} standard '
+                     f'errors from zero (fewer than {t_min:g})' + (f', and {reasons[name]}' if reasons[name] else '')
                      + ': it may only stand in for part of the remainder the catalog cannot write')
     return kept, notes
 
