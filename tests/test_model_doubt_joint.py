@@ -88,3 +88,15 @@ def test_an_offset_a_proven_term_takes_most_of_is_not_named():
     kept, notes = beyond_doubt(widened, T_MIN, discovery)
     assert not kept
     assert 'proven as part of the remainder' in notes[0] and 'thrust^2' in notes[0]
+
+
+def test_the_verdict_beside_a_remainder_says_the_share_explained_what_is_left_and_its_character():
+    from aeropend_core.diagnosis.remainder import Remainder
+    from aeropend_core.present.verdict_text import verdict_message
+    offset = Found('angle_offset', {'angle_offset': -0.02315}, {'angle_offset': 0.0094}, 0.02, 0.01, 0.75, 27.0, 5.0)
+    words = dict(found=[offset], noise_rms=0.005, excess_current=0.02, excess_final=0.01, within_noise=0.0025,
+                 structure=[{'signature': 'sin(angle)', 'correlation': 0.4}])
+    text = verdict_message('unexplained', **words, remainder=Remainder(0.01, 0.005, 0.42, 0.8))
+    assert 'present beside a remainder' in text and 'It explains 75 %' in text and '10.00 mrad beyond the noise' in text
+    assert 'correlated over 0.42 s' in text and 'below 0.8 Hz (slow' in text
+    assert 'correlated over' not in verdict_message('unexplained', **words)

@@ -42,7 +42,7 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
                     within_noise: float, structure: Sequence[dict] = (), drift_text: str = '',
                     heldout_only: Sequence = (), heldout_advice: str = '', discovery=None,
                     explained_below: float = math.inf, reduced_rate_hz: float | None = None, motor=None,
-                    motor_input_corrected: bool = False, low_rate_hz: float | None = None) -> str:
+                    motor_input_corrected: bool = False, low_rate_hz: float | None = None, remainder=None) -> str:
     """The verdict's message for `verdict` (the diagnosis's decision), numbers in mrad and SI units.
 
     Parameters
@@ -81,6 +81,10 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
     low_rate_hz : float, optional [Hz]
         The sample rate of a record below the rig's: a remainder (``'unexplained'``, full model) or a named effect
         is said to be less sure there.
+    remainder : Remainder, optional [-]
+        What the selected set leaves (:class:`aeropend_core.diagnosis.remainder.Remainder`): its character (the
+        correlation time [s], the median frequency [Hz] of its power beyond the noise) is said beside a set named
+        beside it.
 
     Returns
     -------
@@ -103,7 +107,8 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
                    f'modelled as a disturbance, {"they hold" if len(found) > 1 else "it holds"}. '
                    f'{"Together they explain" if len(found) > 1 else "It explains"} {max(explained, 0.0) * 100:.0f} % '
                    f'of the mean-square error beyond the noise, with {excess_final * 1e3:.2f} mrad beyond the noise '
-                   f'({noise_text}) left unexplained, that no catalog effect explains (outside the catalog). The '
+                   f'({noise_text}) left unexplained, that no catalog effect explains (outside the catalog)'
+                   f'{remainder_character(remainder)}. The '
                    f'residual correlates most with {structure[0]["signature"]} '
                    f'(r = {structure[0]["correlation"]:+.2f}); consider writing an effect with that signature '
                    '(aeropend_core.model.effects.register_effect).')
@@ -165,6 +170,21 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
     return message
 
 
+def remainder_character(remainder) -> str:
+    """The remainder's character for the verdict: ``'; the remainder is correlated over 0.4 s, half its power
+    beyond the noise below 0.8 Hz (slow: ...)'``, or '' when `remainder` (a Remainder or None) has neither number."""
+    if remainder is None:
+        return ''
+    parts = []
+    if math.isfinite(remainder.correlation_time):
+        parts.append(f'correlated over {remainder.correlation_time:.2g} s')
+    if math.isfinite(remainder.median_frequency):
+        parts.append(f'half its power beyond the noise below {remainder.median_frequency:.2g} Hz'
+                     + (' (slow: a torque or force the model lacks)' if remainder.median_frequency < 2.0 else
+                        ' (fast: the sensor or the motor)'))
+    return ('; the remainder is ' + ', '.join(parts)) if parts else ''
+
+
 def verdict_of(diagnosis) -> str:
     """The verdict's message of a diagnosis (what ``aeropend diagnose`` prints after "Verdict:").
 
@@ -185,7 +205,7 @@ def verdict_of(diagnosis) -> str:
         drift_text=facts.drift_text, heldout_only=facts.heldout_only, heldout_advice=facts.heldout_advice,
         discovery=facts.discovery, explained_below=facts.explained_below, reduced_rate_hz=facts.reduced_rate_hz,
         motor=facts.motor, motor_input_corrected=facts.motor_input_corrected,
-        low_rate_hz=facts.low_rate_hz)
+        low_rate_hz=facts.low_rate_hz, remainder=getattr(diagnosis, 'remainder', None))
 
 
 def diagnosis_dict(diagnosis) -> dict:
