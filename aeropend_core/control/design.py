@@ -91,6 +91,9 @@ class Design:
     gain_margin_db: float
     phase_margin_deg: float
     notes: list[str] = field(default_factory=list)
+    #: The template's items missed [their units] by the prediction on rigs at the edges of the thrust doubt, per
+    #: factor of the model's thrust (an empty dict: met there); empty when not predicted (a refused design).
+    tolerance_misses: dict[float, dict[str, float]] = field(default_factory=dict)
 
     def misses(self, share: float = 1.0) -> dict[str, float]:
         """The worst miss of each template item over the predicted steps (empty: every item met); `share` < 1
@@ -110,7 +113,11 @@ class Design:
                 'operating_angle': self.linearisation.angle,
                 'operating_duty': self.linearisation.duty, 'gain_margin_db': self.gain_margin_db,
                 'phase_margin_deg': self.phase_margin_deg,
-                'predicted_steps': [metrics.as_dict() for metrics in self.metrics], 'notes': list(self.notes)}
+                'predicted_steps': [metrics.as_dict() for metrics in self.metrics], 'notes': list(self.notes),
+                'thrust_edge_misses': [{'thrust_factor': factor, 'misses': {item: (None if math.isinf(amount)
+                                                                                   else amount)
+                                                                            for item, amount in worst.items()}}
+                                       for factor, worst in self.tolerance_misses.items()]}
 
 
 def _plant(lin: Linearisation, sample_time: float):
@@ -322,22 +329,56 @@ def _search(pool, linear_x, base, template, schedule, reference, feedforward, fe
             candidate = worst
         if best is None or _badness(candidate) < _badness(best):
             best = candidate
-        tolerance_note = (f'designed to meet the template also on rigs whose thrust is {thrust_tolerance[0]:g}-'
-                          f'{thrust_tolerance[1]:g} x the model\'s')
         if not candidate.misses(ACCEPT_SHARE):
-            candidate.notes.append(tolerance_note)
-            return candidate
+            return _with_tolerance_predictions(candidate, pool, reference, feedforward, parameters, effects, noise,
+                                               seed, sample_time, duty_cap, thrust_tolerance)
         if thin is None and not candidate.misses():
             thin = candidate
         margin *= 0.85
         begin = result.x
     if thin is not None:
-        thin.notes += [tolerance_note, f'the prediction meets the template with less than '
-                                       f'{100 * (1 - ACCEPT_SHARE):.0f} % to spare on some item: a rig\'s noise or a '
-                                       'small model error can tip it over']
-        return thin
+        thin.notes.append(f'the prediction meets the template with less than {100 * (1 - ACCEPT_SHARE):.0f} % to '
+                          'spare on some item: a rig\'s noise or a small model error can tip it over')
+        return _with_tolerance_predictions(thin, pool, reference, feedforward, parameters, effects, noise, seed,
+                                           sample_time, duty_cap, thrust_tolerance)
     misses = best.misses()
     raise TemplateNotMet(best, misses)
+
+
+def _with_tolerance_predictions(candidate: Design, pool, reference, feedforward, parameters, effects, noise, seed,
+                                sample_time, duty_cap, thrust_tolerance) -> Design:
+    """`candidate` with its gains predicted on the rigs at the edges of the thrust tolerance (the model's
+    feedforward, the whole schedule, the design's seed) and a note saying what that prediction shows: the search
+    weighs those rigs in its cost, but only the model's own prediction decides a round, so a design can meet on the
+    model and miss at an edge (s22: the nominal design missed the error by 2.3 % at 0.8 x and the overshoot by up
+    to 2 pp at 1.25 x, where the note said it was designed to meet there)."""
+    def one(factor):
+        run = simulate_loop(candidate.gains, reference, feedforward, parameters.scaled(lever_per_inertia=factor),
+                            effects, noise, seed, sample_time=sample_time, duty_limit=duty_cap)
+        worst: dict[str, float] = {}
+        for metrics in schedule_metrics(run.time, run.angle, run.duty, candidate.schedule):
+            for item, amount in metrics.misses(candidate.template).items():
+                worst[item] = max(worst.get(item, -math.inf), amount)
+        return factor, worst
+
+    edges = list(pool.map(one, thrust_tolerance))
+    candidate.tolerance_misses = {factor: worst for factor, worst in edges}
+    span = f'{thrust_tolerance[0]:g}-{thrust_tolerance[1]:g} x the model\'s'
+    missed = [(factor, worst) for factor, worst in edges if worst]
+    if not missed:
+        candidate.notes.append(f'predicted to meet the template also on rigs whose thrust is {span} (the edges '
+                               'checked)')
+        return candidate
+    parts = []
+    for factor, worst in missed:
+        items = ', '.join(f'{item} by ' + ('a step that never settles' if math.isinf(amount) else
+                                           f'{amount:.3g} {Template.UNITS[item]}') for item, amount in worst.items())
+        parts.append(f'at {factor:g} x it misses {items}')
+    candidate.notes.append(f'the thrust doubt is {span}; the prediction on the rigs at its edges: '
+                           + '; '.join(parts) + ': a rig whose thrust is that far from the model\'s may miss the '
+                           'template (a model checked on its record\'s rests narrows the doubt: control design '
+                           '--record)')
+    return candidate
 
 
 def search_schedule(schedule: ReferenceSchedule) -> ReferenceSchedule:
