@@ -238,6 +238,7 @@ def _one_case(job) -> dict:
         record['structure_gains'] = structure.gains.as_dict()
         run = run_on_truth(structure, structure.schedule, parameters, effects, seed)
         record['structure'] = judged(structure, structure.schedule, run, seed)
+        record['structure']['thrust_edge_misses'] = structure.design.get('thrust_edge_misses')
     # The user's first design: where the open-loop diagnosis names effects, `aeropend diagnose --add` them (its
     # model: the nominal structure with them added, fitted on the same record) and design on that model.
     added_first = open_loop_names(identified)
@@ -261,6 +262,7 @@ def _one_case(job) -> dict:
         record['seconds'] = time.perf_counter() - started
         return record
     record['nominal_gains'] = nominal.gains.as_dict()
+    record['nominal_thrust_edge_misses'] = nominal.design.get('thrust_edge_misses')
     if nominal is structure:
         record['nominal'] = record['structure']
     else:
@@ -313,6 +315,7 @@ def _one_case(job) -> dict:
                                 redesign.summary())
         again = run_on_truth(controller, controller.schedule, parameters, effects, seed + 500)
         record['loop'] = {'redesign': 'designed', 'gains': controller.gains.as_dict(),
+                          'thrust_edge_misses': redesign.summary()['thrust_edge_misses'],
                           **judged(controller, controller.schedule, again, seed + 500)}
         record['predict'] = predict_other(controller, parameters, effects, seed)
     except (TemplateNotMet, AeropendError) as refusal:

@@ -361,6 +361,8 @@ def _with_tolerance_predictions(candidate: Design, pool, reference, feedforward,
                 worst[item] = max(worst.get(item, -math.inf), amount)
         return factor, worst
 
+    if all(factor == 1.0 for factor in thrust_tolerance):      # no doubt: the model's own prediction is all
+        return candidate
     edges = list(pool.map(one, thrust_tolerance))
     candidate.tolerance_misses = {factor: worst for factor, worst in edges}
     span = f'{thrust_tolerance[0]:g}-{thrust_tolerance[1]:g} x the model\'s'
