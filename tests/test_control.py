@@ -514,8 +514,12 @@ def test_a_diagnosis_model_takes_the_motor_its_observer_fitted():
     fitted = {'gravity_stiffness': moved.gravity_stiffness, 'damping': moved.damping,
               'armature_resistance': observer['motor_resistance'],
               'thrust_gain': moved.lever_per_inertia * moved.thrust_voltage_coefficient}
-    with_motor = model_from_dict({'parameters': fitted, 'motor_observer': observer}, 'd.json').parameters
-    nominal_motor = model_from_dict({'parameters': fitted}, 'd.json').parameters
+    with_motor_model = model_from_dict({'parameters': fitted, 'motor_observer': observer}, 'd.json')
+    nominal_motor_model = model_from_dict({'parameters': fitted}, 'd.json')
+    with_motor, nominal_motor = with_motor_model.parameters, nominal_motor_model.parameters
+    # a model without the motor fit (an identify JSON) says that its motor is the nominal rig's
+    assert not any('no motor fit' in doubt for doubt in with_motor_model.doubts)
+    assert any('no motor fit' in doubt and 'nominal' in doubt for doubt in nominal_motor_model.doubts)
 
     def time_constant(parameters, duty):
         speed = parameters.steady_state(parameters.voltage_from_duty(duty))['motor_speed']

@@ -111,6 +111,13 @@ def model_from_dict(data, source: str) -> ModelSource:
         doubts.append(f'parameter {warning} failed a physical check in the diagnosis')
     if data.get('warnings'):
         doubts.append(f'the diagnosed record had {len(data["warnings"])} data warning(s)')
+    if not isinstance(data.get('motor_observer'), dict):
+        # `identify --json` fits the thrust on Va - R Ia, with no motor observer: the motor's speed, its lag and its
+        # static map from Va stay the nominal rig's under the fitted thrust gain (11 % off in static thrust on a rig
+        # whose motor constants were 15 % off, s21)
+        doubts.append('the model carries no motor fit (no "motor_observer": an identify JSON, or a record without the '
+                      'current): the motor\'s inertia, friction, drag and inductance are the nominal rig\'s; a design '
+                      'on `aeropend diagnose --json` of the same record keeps the fitted motor')
     psnr = 50.0
     if _number(data.get('noise_rms')) and data['noise_rms'] > 0:
         psnr = min(80.0, 20.0 * math.log10((math.pi / 2) / float(data['noise_rms'])))

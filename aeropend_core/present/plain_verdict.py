@@ -10,8 +10,23 @@ from __future__ import annotations
 
 import shlex
 
-from aeropend_core.model.effects import get_effect
+from aeropend_core.model.effects import get_effect, parameter_unit
 from aeropend_core.present.discovery_text import lookalike_clause
+
+
+def _decide_lookalike(discovery) -> str:
+    """What decides between a catalog effect and a term outside the catalog that explains a record as well: an
+    independent measurement of a parameter their fits disagree on, when there is one, before any new record (a
+    cable spring and a hardening cubic stay alike at every rest the rig reaches, yet disagree in gravity by the
+    cable's size)."""
+    terms = [t for t in (discovery.terms if discovery is not None else ()) if t.status == 'confounded']
+    differing = dict(getattr(terms[0], 'differing', None) or {}) if terms else {}
+    experiment = 'record an experiment that may separate them (aeropend run --until-decided)'
+    if not differing:
+        return experiment
+    name, (with_set, _, with_term, _) = next(iter(differing.items()))
+    return (f'measure {name} independently ({with_set:.4g} with the catalog effect, {with_term:.4g} '
+            f'{parameter_unit(name)} with the term), or {experiment}')
 
 
 def _what(found) -> str:
@@ -77,8 +92,8 @@ def plain_verdict(diagnosis, source: str | None = None, report: bool = False) ->
         return (f'One of {alike} is missing (with {", ".join(f.effect for f in facts.found)} the error beyond the '
                 f'{noise} noise falls from {facts.excess_current * 1e3:.2f} to {facts.excess_final * 1e3:.2f} mrad, '
                 'and the term in its place explains the record as well), but this record cannot tell which. Next: '
-                'record the experiment that separates them (aeropend run --until-decided, or the discovery section '
-                f'below); until then the catalog\'s effect is the model to use: {command}.' + rate)
+                f'{_decide_lookalike(facts.discovery)}; until then the catalog\'s effect is the model to use: '
+                f'{command}.' + rate)
     if verdict in ('effect_found', 'confounded') and facts.found:
         what = '; '.join(_what(f) for f in facts.found)
         command = _next_command(source, given + [f.effect for f in facts.found], report)
