@@ -84,6 +84,23 @@ def supported_doubt(entry, name: str, discovery) -> tuple[float, str] | None:
     return max(moves) if moves else None
 
 
+def _joint_words(entry, name: str, doubt: float, discovery) -> str:
+    """What the remainder as the data model it does to `entry`'s parameter `name` (`doubt` [SI] its model doubt):
+    the proven terms' doubt and the weakest joint refit, in words ('' without `discovery`)."""
+    if discovery is None:
+        return ''
+    value = abs(entry.parameters[name])
+    noise_sigma = math.sqrt(max(entry.standard_errors[name] ** 2 - doubt ** 2, 0.0))
+    proven = supported_doubt(entry, name, discovery)
+    joint = joint_evidence(entry, name, discovery)
+    words = ([f'the term {proven[1]}, proven as part of the remainder, moves it by {proven[0]:.3g} '
+              f'({value / math.hypot(noise_sigma, proven[0]):.1f} standard errors from zero with that doubt alone)']
+             if proven is not None else ['no term proven as part of the remainder moves it'])
+    words.append(f'fitted together with {joint[1]} it is {joint[0]:.1f} of that fit\'s standard errors from zero (the '
+                 'weakest joint refit)' if joint is not None else 'a joint refit gave no finite standard error')
+    return '; ' + ', and '.join(words)
+
+
 def beyond_doubt(found: list, t_min: float, discovery=None) -> tuple[list, list[str]]:
     """(the effects still named, a note per effect no longer named) once the ± carries the model doubt.
 
@@ -92,14 +109,13 @@ def beyond_doubt(found: list, t_min: float, discovery=None) -> tuple[list, list[
     remainder falls below that: its value depends on what the remainder is (an angle offset of 0.024 +- 0.019 rad,
     all but 0.005 of it doubt, read for a thrust loss above a knee, where the term thrust^2, proven, takes most of it).
 
-    With `discovery`, presence is judged against the remainder as the data model it: only the terms the discovery
-    stage *proved* (significant by the catalog's evidence beside the set) are a model of the remainder. The effect
-    is named when (1) with the doubt from those terms alone in its ± it is at least `t_min` standard errors from
-    zero, and (2) fitted together with every term refitted beside it (:func:`joint_evidence`) it stays on the same
-    side of zero and `t_min` of that fit's standard errors from it. A term the data do not support widens the ±
-    (the ± reported keeps every term's doubt) but does not take the effect away (an angle offset of -0.023 +- 0.0009
-    rad that an unproven ripple term moves to -0.033 +- 0.0007: the remainder's shape changes its size, not its
-    presence).
+    With `discovery`, the note also says what the remainder as the data model it does to the effect: the doubt from
+    the terms the discovery stage *proved* alone, and the weakest joint refit (:func:`joint_evidence`: the effect
+    fitted together with each term refitted beside it). These are said, not decided on: naming an effect whenever
+    no proven term takes it within `t_min` standard errors of zero and every joint refit keeps it `t_min` of that
+    fit's standard errors from zero on its side named a cable torque for a thrust loss above a knee alone
+    (bench/remainder.py seed 41042) and rescued no catalog effect beside a remainder on the reported records
+    (bench/results/2026-12-07-s22-remainder/), so it is not the rule.
 
     Parameters
     ----------
@@ -109,12 +125,12 @@ def beyond_doubt(found: list, t_min: float, discovery=None) -> tuple[list, list[
         Standard errors from zero a parameter must be.
     discovery : Discovery or None [-]
         The discovery stage's result (its refitted terms' status, ``parameter_shifts`` and ``parameter_sigmas``);
-        None: the doubt alone decides.
+        None: the notes give the doubt only. The doubt decides either way.
 
     Returns
     -------
     (list of Found, list of str)
-        The notes also say which effects are named by the joint judgement.
+        With `discovery`, each note also gives the proven terms' doubt and the weakest joint refit.
     """
     kept, notes = [], []
     for entry in found:
@@ -125,38 +141,11 @@ def beyond_doubt(found: list, t_min: float, discovery=None) -> tuple[list, list[
         if not weak:
             kept.append(entry)
             continue
-        reasons = {}
-        for name in weak:
-            noise_sigma = math.sqrt(max(entry.standard_errors[name] ** 2 - doubt[name] ** 2, 0.0))
-            proven = supported_doubt(entry, name, discovery) if discovery is not None else None
-            against = (abs(entry.parameters[name]) / math.hypot(noise_sigma, proven[0])
-                       if proven is not None else math.inf)
-            joint = joint_evidence(entry, name, discovery)
-            if discovery is None:
-                reasons[name] = ''
-            elif against < t_min:
-                reasons[name] = (f'the term {proven[1]}, proven as part of the remainder, moves it by '
-                                 f'{proven[0]:.3g} (with that doubt alone it is {against:.1f} standard errors from '
-                                 'zero)')
-            elif joint is None or joint[0] < t_min:
-                reasons[name] = ('fitted together with a term outside the catalog '
-                                 + (f'({joint[1]}) it is {joint[0]:.1f} of that fit\'s standard errors from zero'
-                                    if joint is not None else 'it could not be judged (no finite standard error)'))
-        if not reasons:
-            kept.append(entry)
-            name = min(weak, key=weak.get)
-            joint = joint_evidence(entry, name, discovery)
-            notes.append(f'{entry.effect} is named although the model doubt widens its +-: no term proven as part '
-                         f'of the remainder takes it within {t_min:g} standard errors of zero, and fitted together '
-                         f'with each term outside the catalog refitted beside it its {name} stays on the same side of '
-                         f'zero and at least {t_min:g} of that fit\'s standard errors from it (the least: '
-                         f'{joint[0]:.1f} with {joint[1]}); the remainder\'s shape changes its size, not its presence')
-            continue
-        name = min(reasons, key=lambda n: weak[n])
+        name = min(weak, key=weak.get)
         notes.append(f'{entry.effect} is not named: significant against the noise and against the remainder '
                      f'modelled as a disturbance, but with the model doubt in its +- its {name} = '
                      f'{entry.parameters[name]:.3g} +- {entry.standard_errors[name]:.2g} is {weak[name]:.1f} standard '
-                     f'errors from zero (fewer than {t_min:g})' + (f', and {reasons[name]}' if reasons[name] else '')
+                     f'errors from zero (fewer than {t_min:g})' + _joint_words(entry, name, doubt[name], discovery)
                      + ': it may only stand in for part of the remainder the catalog cannot write')
     return kept, notes
 
