@@ -58,3 +58,29 @@ def test_cli_record_needs_the_model_it_checks(tmp_path):
                'design', '--record', str(path), '-o', str(tmp_path / 'g.yaml')]
     bad = subprocess.run(command, capture_output=True, text=True, timeout=120)
     assert bad.returncode != 0 and '--model' in bad.stderr and 'Traceback' not in bad.stderr
+
+
+def _friction_record(rig, effects, seed):
+    duty = lhc_schedule(60.0, duty_range=(0.0, 0.6), duty_cap=0.6, seed=seed).duty(SAMPLE_TIME, 60.0)
+    columns = simulate(duty, rig, effects, noise=MeasurementNoise(40.0, True), seed=seed).columns(with_truth=False)
+    return columns['t'], columns['angle'], columns['duty']
+
+
+@pytest.mark.parametrize('seed', [3, 8])
+def test_a_dry_friction_band_is_not_read_as_a_thrust_doubt(seed):
+    """Known truth: the model is the rig (Coulomb friction 5 rad/s^2 included). A rest anywhere inside the band the
+    friction holds is consistent with the model's thrust: the doubt stays narrow (s22: 0.81-1.22 on an identified
+    model with the friction right, and the first design refused a template the rig can meet)."""
+    friction = {'coulomb_friction': {'friction_acceleration': 5.0}}
+    doubt = hold_doubt(*_friction_record(DEFAULT_PARAMETERS, friction, seed), DEFAULT_PARAMETERS, friction)
+    assert doubt is not None and len(doubt.factors) >= 8
+    assert 0.96 < doubt.tolerance[0] and doubt.tolerance[1] < 1.04
+
+
+def test_a_thrust_error_beyond_the_friction_band_still_shows():
+    """Known truth: the rig's thrust is 0.85 x the model's, both with the friction: every rest needs more thrust
+    than the band explains."""
+    friction = {'coulomb_friction': {'friction_acceleration': 5.0}}
+    rig = DEFAULT_PARAMETERS.scaled(lever_per_inertia=0.85)
+    doubt = hold_doubt(*_friction_record(rig, friction, 3), DEFAULT_PARAMETERS, friction)
+    assert doubt is not None and doubt.tolerance[0] < 0.95

@@ -7,7 +7,9 @@ the pendulum effects, :func:`holding_torque`) over the thrust the model gives at
 (:func:`rest_thrust_torque`) is the factor by which the rig's thrust differs from the model's there. Their spread
 over the rests (mean +-2 standard deviations) is how far the feedforward can be off: it carries what the fit's
 standard error does not, the motor constants the fit kept at their nominal values (only the thrust product and R
-are fitted), a thrust map of the wrong shape (a dead zone), and the band a dry friction holds the rod in.
+are fitted), a thrust map of the wrong shape (a dead zone), and the band a dry friction holds the rod in. A model
+with the dry friction accepts every rest inside its band (the factor nearest 1 within it): the band is then the
+model's, not a doubt of its thrust (s22: a model with the friction right had 0.81-1.22 from the band alone).
 """
 from __future__ import annotations
 
@@ -69,7 +71,11 @@ def hold_doubt(time, angle, duty, parameters: RigParameters,
     """The rig-to-model thrust factor at every rest of an open-loop record (`time` [s], measured `angle` [rad],
     `duty` [fraction]); None when fewer than ``MIN_RESTS`` rests above ``MIN_ANGLE`` are found."""
     effects = resolve_effects(effects)
-    offset = kernel_coefficients(effects)['measured_offset']
+    coefficients = kernel_coefficients(effects)
+    offset = coefficients['measured_offset']
+    # a dry friction of the model holds the rod anywhere its torque covers: a rest needs the holding torque within
+    # +- the friction [rad/s^2], and any thrust factor inside that band agrees with the model (the one nearest 1)
+    band = abs(float(coefficients['rate_sign']))
     factors, angles = [], []
     for measured, held in rests(time, angle, duty):
         true_angle = measured - offset
@@ -78,7 +84,8 @@ def hold_doubt(time, angle, duty, parameters: RigParameters,
         given = rest_thrust_torque(held, parameters, effects)
         if given <= 0.0:
             continue
-        factors.append(holding_torque(true_angle, parameters, effects) / given)
+        needed = holding_torque(true_angle, parameters, effects)
+        factors.append(min(max(1.0, (needed - band) / given), (needed + band) / given))
         angles.append(measured)
     if len(factors) < MIN_RESTS:
         return None
