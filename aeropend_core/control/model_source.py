@@ -47,8 +47,7 @@ class ModelSource:
                                                      'holds above 10 deg) to check the feedforward: the thrust '
                                                      'doubt is the fit\'s alone'))
         tolerance, beyond = widened(self.thrust_tolerance, doubt)
-        band = (', each within the band the model\'s dry friction holds the rod in'
-                if getattr(doubt, 'within_friction_band', False) else '')
+        band = ', each within the band the model\'s dry friction holds the rod in' if doubt.within_friction_band else ''
         said = (f'the feedforward checked on the record: the rig\'s thrust at its rests is '
                 f'{doubt.tolerance[0]:.3f}-{doubt.tolerance[1]:.3f} x the model\'s (mean +-2 sd of '
                 f'{len(doubt.factors)} rests{band}); the design tolerates {tolerance[0]:.3f}-{tolerance[1]:.3f} x')

@@ -11,7 +11,7 @@ from __future__ import annotations
 import shlex
 
 from aeropend_core.model.effects import get_effect, parameter_unit
-from aeropend_core.present.discovery_text import lookalike_clause
+from aeropend_core.present.discovery_text import lookalike_clause, lookalike_terms
 
 
 def _decide_lookalike(discovery) -> str:
@@ -19,8 +19,8 @@ def _decide_lookalike(discovery) -> str:
     independent measurement of a parameter their fits disagree on, when there is one, before any new record (a
     cable spring and a hardening cubic stay alike at every rest the rig reaches, yet disagree in gravity by the
     cable's size)."""
-    terms = [t for t in (discovery.terms if discovery is not None else ()) if t.status == 'confounded']
-    differing = dict(getattr(terms[0], 'differing', None) or {}) if terms else {}
+    twins = lookalike_terms(discovery)         # the terms lookalike_clause names, in its order
+    differing = dict(getattr(next(iter(twins.values()))[0], 'differing', None) or {}) if twins else {}
     experiment = 'record an experiment that may separate them (aeropend run --until-decided)'
     if not differing:
         return experiment
