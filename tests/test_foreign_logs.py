@@ -227,9 +227,9 @@ def test_a_discovered_terms_refit_that_stops_short_of_the_model_without_it_is_re
             return True
         return False
     monkeypatch.setattr(discovery, '_short_of_nested', counted)
-    # seed 701: two refits restart here. Seed 708 did until s22, but only because the quality gate 'repaired' the
-    # current's true kick at the first duty step (1.19 A) as an outlier; the gate now keeps it, and no refit falls
-    # short on that log.
+    # seed 701: two refits restart here. Seed 708 did until s22, but only because the quality gate 'repaired' a
+    # true sample of the current's decay after a duty step to 0 at 45.03 s (its message named the kept 1.19 A kick
+    # at 1.03 s instead, fixed in s23); the gate now keeps it, and no refit falls short on that log.
     log = generate(ForeignLogSpec(seed=701, duration=72.0, current='average', current_offset_counts=200.0))
     (tmp_path / 'log.csv').write_text(log.text)
     (tmp_path / 'profile.yaml').write_text(yaml.safe_dump(log.profile))

@@ -370,3 +370,19 @@ def test_a_glitch_of_one_or_two_samples_on_a_ramp_is_still_repaired(glitch_sampl
     assert outliers and outliers[0].count == len(glitch_samples), report.findings
     repaired = report.recording
     assert np.max(np.abs(repaired.signals['armature_voltage'][2995:3006] - 0.2 * repaired.time[2995:3006])) < 0.01
+
+
+def test_the_repaired_outlier_named_is_one_that_was_repaired_not_a_kept_current_kick():
+    """The message named the sample furthest from its running median among all samples: on a 22.3 Hz log it said
+    'worst 1.191 at t = 1.03 s' (the current's kick at the first duty step, which the gate keeps) while the sample
+    it repaired was at 45.03 s. It names the worst of the repaired samples."""
+    columns = _clean_ramp_then_step({})
+    step = int(np.flatnonzero(np.diff(columns['duty']) < -0.05)[0]) + 1
+    current = columns['armature_current'].copy()
+    current[step] += 0.25          # the kick at the step: physics, kept (within 3x the current's range)
+    current[3000] += 0.15          # a glitch on the ramp: repaired
+    report = check_recording(from_columns({**columns, 'armature_current': current}))
+    outliers = [f for f in report.findings if f.code == 'outlier' and 'armature_current' in f.message]
+    assert len(outliers) == 1 and outliers[0].count == 1, report.findings
+    assert f't = {3000 * SAMPLE_TIME:.4f} s' in outliers[0].message, outliers[0].message
+    assert report.recording.signals['armature_current'][step] == pytest.approx(current[step])

@@ -366,7 +366,8 @@ def _check_outliers(gate: _Gate, name: str) -> None:
         return
     count = int(bad.sum())
     first, last = int(np.flatnonzero(bad)[0]), int(np.flatnonzero(bad)[-1])
-    worst = int(np.argmax(np.abs(deviation)))
+    # the worst of the samples flagged, not of all: a kept current kick may lie further off than any glitch
+    worst = int(np.flatnonzero(bad)[np.argmax(np.abs(deviation[bad]))])
     if count > MAX_REPAIRED_FRACTION * values.size:
         gate.add('outlier', 'refused', f'{count} samples of {name!r} lie far from their neighbours (more than '
                  f'{threshold:.3g} off the running median; worst {values[worst]:.4g} at {gate.at(worst)}): too many to '
