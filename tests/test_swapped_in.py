@@ -23,7 +23,7 @@ ERRORS = [(0.0110, 0.0111), (0.0110, 0.0200), (0.0200, 0.0110)]
 
 
 def _comparison(rms, parameters):
-    fit = SimpleNamespace(standard_errors={k: 0.1 for k in parameters}, initial_states=None)
+    fit = SimpleNamespace(standard_errors={k: 0.1 for k in parameters}, initial_states=None, success=True)
     return SimpleNamespace(rms_error=rms, parameters=dict(parameters), fit=fit)
 
 

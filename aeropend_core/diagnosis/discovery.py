@@ -373,6 +373,8 @@ class Discovery:
     terms: list[DiscoveredTerm]
     selected: tuple[str, ...] = ()
     note: str = ''
+    #: Look-alike judgements resting on an output-error fit stopped at its evaluation cap (:func:`_swapped_in`).
+    at_cap: list[dict] = field(default_factory=list)
 
     @property
     def proven(self) -> list[DiscoveredTerm]:
@@ -380,7 +382,8 @@ class Discovery:
 
     def to_dict(self) -> dict:
         return {'weak_form_selected': list(self.selected), 'note': self.note,
-                'terms': [t.to_dict() for t in self.terms]}
+                'terms': [t.to_dict() for t in self.terms],
+                **({'fits_stopped_at_cap': self.at_cap} if self.at_cap else {})}     # said where it happens
 
 
 def _span(term: Term, segments, model_effects: tuple[str, ...]) -> str | None:
@@ -492,12 +495,13 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         lookalike = _span(term, segments, model) if entry.status == 'proven' else None
         if lookalike:
             _against_catalog(prep, base, model, fixed, entry, lookalike)
+    at_cap: list[dict] = []
     if catalog_set and without_set is not None and not any(f.status in ('proven', 'confounded') for f in found):
-        lookalike = _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say)
+        lookalike = _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say, at_cap=at_cap)
         if lookalike is not None:
             found.insert(0, lookalike)
         elif len(catalog_set) > 1:
-            found[:0] = _effect_lookalikes(prep, base, model, fixed, catalog_set, say)
+            found[:0] = _effect_lookalikes(prep, base, model, fixed, catalog_set, say, at_cap)
     found.sort(key=lambda f: (f.status != 'proven', f.excess_after if math.isfinite(f.excess_after) else math.inf))
     if found and found[0].status == 'proven':
         # other proven terms that explain about as much: the data cannot tell them from the best (a quasi-static rig
@@ -506,7 +510,7 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         floor = max(best.excess_after, 0.2 * prep.noise_rms)
         best.alternatives = [f.term.expression for f in found[1:] if f.status == 'proven'
                              and f.excess_after <= CONFOUNDING_FACTOR * floor]
-    return Discovery(found, selected=tuple(name for name, _ in chosen))
+    return Discovery(found, selected=tuple(name for name, _ in chosen), at_cap=at_cap)
 
 
 #: A refit with one term more whose training residual RMS exceeds the base's by more than this factor has not
@@ -547,7 +551,7 @@ def _against_catalog(prep, base, model, fixed, entry: DiscoveredTerm, effect: st
 
 
 def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say,
-                   may_replace: bool = False, tries: int = 1) -> DiscoveredTerm | None:
+                   may_replace: bool = False, tries: int = 1, at_cap: list[dict] | None = None) -> DiscoveredTerm | None:
     """A term outside the catalog that explains the data as well as the catalog set the search chose.
 
     The discrepancy of the model *without* the set is screened (each term alone, weak form); the strongest term that
@@ -580,16 +584,17 @@ def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say,
     screened.sort(key=lambda row: -row[0])
     for _, term, value, sigma in screened[:tries]:
         say(f'discovery: {term.expression} in place of {" + ".join(catalog_set)}')
-        entry = _swapped_in(prep, base, model, fixed, catalog_set, without_set, term, value, sigma, may_replace)
+        entry = _swapped_in(prep, base, model, fixed, catalog_set, without_set, term, value, sigma, may_replace, at_cap)
         if entry is not None:
             return entry
     return None
 
 
 def _swapped_in(prep, base, model, fixed, catalog_set, without_set, term: Term, value: float, sigma: float,
-                may_replace: bool) -> DiscoveredTerm | None:
+                may_replace: bool, at_cap: list[dict] | None = None) -> DiscoveredTerm | None:
     """`term` (screening value `value`, sigma `sigma`) fitted in place of `catalog_set` and judged
-    (:func:`_set_lookalike`)."""
+    (:func:`_set_lookalike`). A judgement resting on a fit stopped at its evaluation cap (scipy's status 0, the one
+    unsuccessful end of 'trf') is appended to `at_cap`: term, set, which fit, errors beyond the noise [rad]."""
     name = term_effect(term)
     parameter = f'{name}_coefficient'
     kept = tuple(n for n in model if n not in catalog_set)
@@ -597,11 +602,15 @@ def _swapped_in(prep, base, model, fixed, catalog_set, without_set, term: Term, 
         swapped = compare(prep, kept + (name,), start={**without_set.parameters, parameter: value}, fixed=dict(fixed))
     except InsufficientDataError:
         return None
+    noise = prep.noise_rms
+    term_error, set_error = excess_error(swapped.rms_error, noise), excess_error(base.rms_error, noise)
+    capped = {'term': term.expression, 'in_place_of': list(catalog_set), 'term_excess_error': term_error,
+              'set_excess_error': set_error}
+    if at_cap is not None and not swapped.fit.success:
+        at_cap.append({**capped, 'fit': 'term in place of the set'})
     alone = assess(prep, without_set, swapped, name)
     if not alone.significant:
         return None
-    noise = prep.noise_rms
-    term_error, set_error = excess_error(swapped.rms_error, noise), excess_error(base.rms_error, noise)
     floor = 0.2 * noise
     alike = (term_error <= CONFOUNDING_FACTOR * max(set_error, floor)
              and set_error <= CONFOUNDING_FACTOR * max(term_error, floor))
@@ -613,6 +622,8 @@ def _swapped_in(prep, base, model, fixed, catalog_set, without_set, term: Term, 
         both = compare(prep, model + (name,), start={**base.parameters, **swapped.parameters}, fixed=dict(fixed))
     except InsufficientDataError:
         return None
+    if at_cap is not None and not both.fit.success:
+        at_cap.append({**capped, 'fit': 'term beside the set'})
     if assess(prep, swapped, both, catalog_set[0]).significant:
         return None
     status, replaces = 'confounded', []
@@ -656,7 +667,7 @@ def model_without(prep: PreparedRecord, fitted: Comparison, model: tuple[str, ..
         return None
 
 
-def _effect_lookalikes(prep, base, model, fixed, catalog_set, say) -> list[DiscoveredTerm]:
+def _effect_lookalikes(prep, base, model, fixed, catalog_set, say, at_cap=None) -> list[DiscoveredTerm]:
     """Each effect of a selected set of two or more judged against the strongest term outside the catalog in its
     place (:func:`_set_lookalike` on the model without that effect alone): the whole set's swap cannot see one
     effect of it standing in for a remainder beside a real one (an angle offset of -0.008 rad, z = 14, named beside a
@@ -667,7 +678,7 @@ def _effect_lookalikes(prep, base, model, fixed, catalog_set, say) -> list[Disco
         if without is None:
             continue
         entry = _set_lookalike(prep, base, model, fixed, (effect,), without, say, may_replace=True,
-                               tries=LOOKALIKE_TRIES)
+                               tries=LOOKALIKE_TRIES, at_cap=at_cap)
         if entry is not None:
             found.append(entry)
     return found

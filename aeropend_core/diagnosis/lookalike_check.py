@@ -91,17 +91,19 @@ def imitators(segments: list[dict], effect: str) -> list[tuple[float, Term]]:
     return ranked
 
 
-def _beside(prep, final, without, model, fixed, effect, say) -> DiscoveredTerm | None:
+def _beside(prep, final, without, model, fixed, effect, say, at_cap: list[dict]) -> DiscoveredTerm | None:
     """The best imitator of `effect` fitted in its place (:func:`imitators`; the weak-form screening's strongest term
-    for an effect the vocabulary has no column for), as a confounded term, or None."""
+    for an effect the vocabulary has no column for), as a confounded term, or None. Fits stopped at their evaluation
+    cap are appended to `at_cap`."""
     ranked = imitators(model_states(prep, without), effect)
     if not ranked:
-        entry = _set_lookalike(prep, final, model, fixed, (effect,), without, say, may_replace=False, tries=1)
+        entry = _set_lookalike(prep, final, model, fixed, (effect,), without, say, may_replace=False, tries=1,
+                               at_cap=at_cap)
         return entry if entry is not None and entry.status == 'confounded' else None
     share, term = ranked[0]
     say(f'discovery: {term.expression} in place of {effect} (it writes {share * 100:.0f} % of its column beyond the '
         'nominal ones)')
-    entry = _swapped_in(prep, final, model, fixed, (effect,), without, term, 0.0, math.nan, False)
+    entry = _swapped_in(prep, final, model, fixed, (effect,), without, term, 0.0, math.nan, False, at_cap)
     return entry if entry is not None and entry.status == 'confounded' else None
 
 
@@ -130,18 +132,21 @@ def named_lookalikes(prep: PreparedRecord, final: Comparison, without_set: Compa
     Returns
     -------
     Discovery or None
-        Its terms are the look-alikes found, status ``'confounded'`` with ``confounded_with`` the effect (None when
-        no effect has one, or nothing was selected).
+        Its terms are the look-alikes found, status ``'confounded'`` with ``confounded_with`` the effect; its
+        ``at_cap`` the judgements that rest on a fit stopped at its evaluation cap (said, never silently: a fit let
+        run on could bring an imitator's error closer). None when no effect has a look-alike and every fit finished,
+        or nothing was selected.
     """
     found: list[DiscoveredTerm] = []
+    at_cap: list[dict] = []
     for effect in catalog_set:
         without = without_set if len(catalog_set) == 1 else model_without(prep, final, model, fixed, effect)
         if without is None:
             continue
-        entry = _beside(prep, final, without, model, fixed, effect, say)
+        entry = _beside(prep, final, without, model, fixed, effect, say, at_cap)
         if entry is not None:
             found.append(entry)
-    return Discovery(found, note=NOTE) if found else None
+    return Discovery(found, note=NOTE, at_cap=at_cap) if found or at_cap else None
 
 
 __all__ = ['NOTE', 'imitators', 'named_lookalikes']

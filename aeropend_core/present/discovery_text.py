@@ -24,6 +24,21 @@ def differing_text(term) -> str:
             'from the rig\'s masses and lengths, or a calibration), would decide between them.')
 
 
+def at_cap_sentences(discovery) -> list[str]:
+    """One sentence per look-alike judgement that rests on an output-error fit stopped at its evaluation cap (the
+    discovery's ``at_cap``; empty when every fit finished): a fit run on could lower the term's error and change the
+    judgement, so the check's "no look-alike" is not settled there."""
+    sentences = []
+    for row in (getattr(discovery, 'at_cap', None) or []) if discovery is not None else []:
+        named = ' + '.join(row['in_place_of'])
+        sentences.append(
+            f'The look-alike judgement of {row["term"]} against {named} rests on a fit ({row["fit"]}) stopped at its '
+            f'evaluation cap, not converged ({row["term_excess_error"] * 1e3:.2f} mrad beyond the noise with the '
+            f'term, {row["set_excess_error"] * 1e3:.2f} with {named}): a finished fit could bring the two closer, so '
+            'whether the term imitates it is not settled by this check.')
+    return sentences
+
+
 def lookalike_terms(discovery) -> dict[str, list]:
     """{catalog effect: the discovered terms confounded with it} ({} when none): a term outside the catalog that
     explains the record as well in the effect's place, neither adding anything significant to the other."""
@@ -102,6 +117,12 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
     """
     if discovery is None:
         return ''
+    capped = ' '.join(at_cap_sentences(discovery))
+    return ' '.join(part for part in (_found_sentence(discovery, noise_rms, explained_below), capped) if part)
+
+
+def _found_sentence(discovery, noise_rms: float, explained_below: float) -> str:
+    """:func:`discovery_sentence` without the evaluation-cap sentences."""
     confounded = [t for t in discovery.terms if t.status == 'confounded']
     lookalike = ''
     if confounded:
@@ -317,6 +338,7 @@ def discovery_html(discovery, noise_rms: float, source: str | None = None) -> st
              'lookalikes are named.</p>']
     if discovery.note:
         parts.append(f'<p>{esc(discovery.note)}</p>')
+    parts.extend(f'<p>{esc(sentence)}</p>' for sentence in at_cap_sentences(discovery))
     for term in [t for t in discovery.terms if t.status == 'proven']:
         fall = (f'{_html_number(term.excess_before, 2, 1e3)} &rarr; <b>{_html_number(term.excess_after, 2, 1e3)}'
                 f'</b>&nbsp;mrad')
@@ -417,8 +439,11 @@ def discovery_lines(discovery) -> list[str]:
     lines = ['Discovery (sparse regression of the discrepancy, terms refitted by output error):']
     if discovery.note:
         lines.append(f'  {discovery.note}')
+    lines.extend(f'  {sentence}' for sentence in at_cap_sentences(discovery))
     if not discovery.terms:
-        lines.append('  no term of the vocabulary stands out from the noise')
+        capped = getattr(discovery, 'at_cap', None)
+        lines.append('  no look-alike found by finished fits' if capped else
+                     '  no term of the vocabulary stands out from the noise')
     for term in discovery.terms:
         after = (f', beyond noise {term.excess_before * 1e3:.2f} -> {term.excess_after * 1e3:.2f} mrad, t = '
                  f'{term.t_statistic:.1f}, dBIC {term.delta_bic:+.1f}, DM {term.dm_statistic:+.1f}'
