@@ -31,7 +31,8 @@ import math
 from collections.abc import Callable
 
 import numpy as np
-from scipy.signal import savgol_filter
+
+from aeropend_core.signals.filters import first_order_lag, savgol_filter
 
 #: Time constants [s] of the equation-error profile (log grid over the catalog's useful range).
 LAG_GRID = np.geomspace(0.005, 2.0, 36)
@@ -77,7 +78,6 @@ def lag_profile(prep, values: dict[str, float], grid: np.ndarray = LAG_GRID,
     coefficients : ndarray, shape (len(grid), 3)
         gravity_stiffness [1/s^2], damping [1/s] and thrust_gain [rad/s^2/V^2] fitted at each.
     """
-    from scipy.signal import lfilter
     window = prep.smoothing_window
     stop = prep.split
     y = prep.smoothed_angle[:stop]
@@ -91,7 +91,7 @@ def lag_profile(prep, values: dict[str, float], grid: np.ndarray = LAG_GRID,
     for i, value in enumerate(grid):
         if kind == 'thrust_lag_time':
             decay = math.exp(-prep.sample_time / value)
-            lagged = lfilter([1.0 - decay], [1.0, -decay], thrust, zi=[decay * thrust[0]])[0]
+            lagged = first_order_lag(thrust, decay)
             regressors = np.column_stack([-np.sin(y), -dy, savgol_filter(lagged, window, 3)])[keep]
         else:
             regressors = np.column_stack([-np.sin(y - value), -dy, thrust])[keep]

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property, partial
 
 import numpy as np
-from scipy.signal import savgol_filter
 
+from aeropend_core.signals.filters import savgol_filter
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.diagnosis import MIN_DURATION  # noqa: F401 - the shortest record [s], also read from here
 from aeropend_core.diagnosis.basins import PROFILED, search_lag_basins

@@ -32,13 +32,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import lfilter
 
 from aeropend_core.diagnosis.candidates import Candidate, assess
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord, compare, excess_error
 from aeropend_core.diagnosis.evidence import TermEvidence, differing_parameters, finite_or_none, screening_doubt
 from aeropend_core.diagnosis.output_error import STRIDE
 from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.signals.filters import first_order_lag
 from aeropend_core.model.effects import (CATALOG, FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, Effect, EffectParameter,
                                          add_effect)
 
@@ -269,7 +269,7 @@ def model_states(prep: PreparedRecord, comparison: Comparison) -> list[dict[str,
 
 def _lagged(signal: np.ndarray, time_constant: float, sample_time: float) -> np.ndarray:
     decay = math.exp(-sample_time / time_constant)
-    return lfilter([1.0 - decay], [1.0, -decay], signal, zi=[decay * signal[0]])[0]
+    return first_order_lag(signal, decay)
 
 
 def _columns(term: Term, segment: Mapping[str, np.ndarray]) -> np.ndarray:
@@ -550,8 +550,8 @@ def _against_catalog(prep, base, model, fixed, entry: DiscoveredTerm, effect: st
                          'on these states')
 
 
-def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say,
-                   may_replace: bool = False, tries: int = 1, at_cap: list[dict] | None = None) -> DiscoveredTerm | None:
+def _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say, may_replace: bool = False,
+                   tries: int = 1, at_cap: list[dict] | None = None) -> DiscoveredTerm | None:
     """A term outside the catalog that explains the data as well as the catalog set the search chose.
 
     The discrepancy of the model *without* the set is screened (each term alone, weak form); the strongest term that

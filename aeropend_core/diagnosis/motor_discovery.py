@@ -41,7 +41,6 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.signal import lfilter
 from threadpoolctl import threadpool_limits
 
 from aeropend_core.diagnosis.candidates import BIC_MARGIN, DM_MIN, DM_WEAK, MAJOR_SHARE, MATERIAL, T_MIN
@@ -49,6 +48,7 @@ from aeropend_core.diagnosis.compare import PreparedRecord, excess_error
 from aeropend_core.diagnosis.evidence import TermEvidence, finite_or_none, screening_doubt
 from aeropend_core.diagnosis.motor_terms import MOTOR_VOCABULARY, AddedMotorTerm, MotorTerm
 from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.signals.filters import first_order_lag
 from aeropend_core.stats import diebold_mariano, effective_samples, hac_covariance, input_covariance
 
 #: Time constant [s] of the dissipated-power proxy (the winding's thermal lag; tens of seconds for a small motor).
@@ -226,7 +226,7 @@ def motor_term_of(text: str) -> MotorTerm:
 
 def _lagged(signal: np.ndarray, time_constant: float, sample_time: float) -> np.ndarray:
     decay = math.exp(-sample_time / time_constant)
-    return lfilter([1.0 - decay], [1.0, -decay], signal, zi=[decay * signal[0]])[0]
+    return first_order_lag(signal, decay)
 
 
 def _starting_observer(prep: PreparedRecord):

@@ -7,10 +7,10 @@ within the noise is nothing to chase.
 
 The held-out part's free-run residual (measured minus simulated angle) is used, stretch by stretch:
 
-* ``correlation_time`` [s]: the lag at which its autocorrelation (scipy.signal.correlate, averaged over stretches
+* ``correlation_time`` [s]: the lag at which its autocorrelation (as scipy.signal.correlate, averaged over stretches
   weighted by length) first falls below 1/e;
 * ``median_frequency`` [Hz]: the frequency below which half of the power beyond the white-noise floor lies (Welch's
-  periodogram, scipy.signal.welch, with the noise RMS's flat spectrum removed);
+  periodogram as scipy.signal.welch gives it, with the noise RMS's flat spectrum removed);
 * ``beyond_noise`` [rad]: the RMS error beyond the noise.
 """
 from __future__ import annotations
@@ -75,9 +75,8 @@ def _stretches(index: np.ndarray) -> list[np.ndarray]:
 
 def remainder_of(prep, comparison) -> Remainder:
     """The :class:`Remainder` of `comparison` on `prep`'s held-out part."""
-    from scipy.signal import correlate, welch
-
     from aeropend_core.diagnosis.compare import excess_error
+    from aeropend_core.signals.filters import autocorrelation, welch_density
     noise = float(comparison.noise_rms)
     beyond = float(excess_error(comparison.rms_error, noise))
     residual = prep.angle - comparison.evaluation.simulated
@@ -94,14 +93,14 @@ def remainder_of(prep, comparison) -> Remainder:
     segment = min(longest, int(8.0 / step))
     for piece in pieces:
         centred = piece - piece.mean()
-        full = correlate(centred, centred, mode='full', method='fft')[centred.size - 1:]
+        full = autocorrelation(centred)[centred.size - 1:]
         if full[0] <= 0:
             continue
         count = min(lags, full.size)
         acf[:count] += piece.size * full[:count] / full[0]
         weight += piece.size
         if piece.size >= segment:
-            frequencies, power = welch(centred, fs=1.0 / step, nperseg=segment)
+            frequencies, power = welch_density(centred, 1.0 / step, segment)
             spectra.append(power)
     correlation_time = math.nan
     if weight > 0:

@@ -141,7 +141,7 @@ def _filled(simulated: np.ndarray, longest: int = 4) -> np.ndarray:
 def missing_acceleration(prep, comparison) -> tuple[np.ndarray, np.ndarray]:
     """(g [rad/s^2] per sample, mask of the samples where it is defined): module docstring's formula on each stretch
     of consecutive samples with a finite simulation (the training segments and the held-out part)."""
-    from scipy.signal import savgol_filter
+    from aeropend_core.signals.filters import savgol_filter
     simulated = _filled(comparison.evaluation.simulated)
     residual = prep.angle - simulated
     parameters = comparison.parameters

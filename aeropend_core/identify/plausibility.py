@@ -125,8 +125,7 @@ def free_oscillation(time: np.ndarray, angle: np.ndarray, input_signal: np.ndarr
     FreeOscillation
         Medians, quartiles and whether the estimate is informative.
     """
-    from scipy.signal import savgol_filter
-
+    from aeropend_core.signals.filters import savgol_filter
     from aeropend_core.signals.preprocess import detect_steps
     time, angle = np.asarray(time, dtype=float), np.asarray(angle, dtype=float)
     nan = float('nan')

@@ -10,7 +10,8 @@ The filter is parameterised by its delay ``d`` [s] because that is what the pend
 cut-off any 2nd-order low-pass acts as a delay of d (a Butterworth with cut-off f_c has d = sqrt(2)/(2 pi f_c)),
 so the number transfers between filter shapes. This module is the one implementation used by the simulator
 (sampled at Ts) and by the output-error kernel (sampled at its integration step): the filter is discretised
-with a first-order hold (the angle is smooth between samples) and run with :func:`scipy.signal.lfilter`.
+with a first-order hold (the angle is smooth between samples) and run as :func:`scipy.signal.lfilter` does
+(:mod:`aeropend_core.signals.filters`: scipy.signal's numbers without importing it).
 """
 from __future__ import annotations
 
@@ -35,9 +36,9 @@ def cutoff_frequency(delay: float) -> float:
 @functools.lru_cache(maxsize=256)
 def coefficients(delay: float, step: float) -> tuple[np.ndarray, np.ndarray]:
     """Discrete (b, a) of the ladder with DC delay `delay` [s], first-order hold at `step` [s]."""
-    from scipy.signal import cont2discrete      # here: scipy.signal takes ~0.3-1 s to import, most users never
-    tau = delay / 3.0                          # filter (`control check` on a nominal model)
-    b, a, _ = cont2discrete(([1.0], [tau * tau, 3.0 * tau, 1.0]), step, method='foh')
+    from aeropend_core.signals.filters import foh_transfer_function   # scipy.signal's cont2discrete, bit for bit,
+    tau = delay / 3.0                                                 # without its ~0.3-1 s import (issue 41)
+    b, a = foh_transfer_function([1.0], [tau * tau, 3.0 * tau, 1.0], step)
     b = np.atleast_1d(np.squeeze(b))
     return b / a[0], a / a[0]
 
@@ -51,7 +52,7 @@ def filter_angle(angle: np.ndarray, delay: float, step: float, rate: float = 0.0
     angle = np.asarray(angle, dtype=float)
     if not delay >= MIN_DELAY or angle.size == 0:
         return angle.copy()
-    from scipy.signal import lfilter, lfiltic
+    from aeropend_core.signals.filters import lfilter, lfiltic
     b, a = coefficients(float(delay), float(step))
     order = max(len(a), len(b)) - 1
     past = np.arange(1, order + 1) * step
@@ -72,7 +73,7 @@ class StreamingFilter:
         angle = np.asarray(angle, dtype=float)
         if angle.size == 0:
             return angle.copy()
-        from scipy.signal import lfilter, lfilter_zi
+        from aeropend_core.signals.filters import lfilter, lfilter_zi
         if self.state is None:
             self.state = lfilter_zi(self.b, self.a) * angle[0]
         out, self.state = lfilter(self.b, self.a, angle, zi=self.state)

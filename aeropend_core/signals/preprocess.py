@@ -18,7 +18,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import butter, savgol_filter, sosfiltfilt
+
+from aeropend_core.signals.filters import butter_lowpass_sos, savgol_filter, sosfiltfilt
 
 #: Time after a step of Va bridged by interpolation [s]: ~10 ms ~ 5 La/Ra (5 samples at the rig's 490 Hz).
 STEP_SETTLING_TIME = 5.0 / 490.0
@@ -321,7 +322,7 @@ def condition_inputs(armature_voltage: np.ndarray, armature_current: np.ndarray,
     cutoff_hz = INPUT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz
     nyquist = 0.5 / sample_time
     if cutoff_hz < nyquist and voltage.size > 60:
-        sos = butter(2, cutoff_hz / nyquist, output='sos')
+        sos = butter_lowpass_sos(cutoff_hz / nyquist)
         voltage = sosfiltfilt(sos, voltage)
         current = sosfiltfilt(sos, current)
     return ConditionedInputs(voltage, current, steps)
