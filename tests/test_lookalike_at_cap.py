@@ -88,6 +88,7 @@ def test_the_check_says_when_its_no_lookalike_rests_on_a_fit_at_its_cap(monkeypa
     for text in ('\n'.join(discovery_lines(found)), discovery_sentence(found, 0.005), discovery_html(found, 0.005)):
         assert 'evaluation cap' in text and 'coulomb_friction' in text and '4.52 mrad' in text and '1.81' in text
     assert 'no term of the vocabulary stands out' not in '\n'.join(discovery_lines(found))
+    assert 'sparse regression' not in discovery_sentence(found, 0.005)     # the discovery stage did not run
 
 
 def test_the_check_stays_silent_when_every_fit_finished(monkeypatch):

@@ -118,6 +118,8 @@ def discovery_sentence(discovery, noise_rms: float, explained_below: float = mat
     if discovery is None:
         return ''
     capped = ' '.join(at_cap_sentences(discovery))
+    if capped and not discovery.terms and discovery.note:
+        return capped               # the look-alike check alone (the discovery stage did not run): its fits' doubt
     return ' '.join(part for part in (_found_sentence(discovery, noise_rms, explained_below), capped) if part)
 
 
@@ -441,8 +443,8 @@ def discovery_lines(discovery) -> list[str]:
         lines.append(f'  {discovery.note}')
     lines.extend(f'  {sentence}' for sentence in at_cap_sentences(discovery))
     if not discovery.terms:
-        capped = getattr(discovery, 'at_cap', None)
-        lines.append('  no look-alike found by finished fits' if capped else
+        alone = getattr(discovery, 'at_cap', None) and discovery.note      # the look-alike check alone
+        lines.append('  no look-alike found by finished fits' if alone else
                      '  no term of the vocabulary stands out from the noise')
     for term in discovery.terms:
         after = (f', beyond noise {term.excess_before * 1e3:.2f} -> {term.excess_after * 1e3:.2f} mrad, t = '
