@@ -13,10 +13,11 @@ Defined once, for predicted and measured transients alike (docs/control.md):
   a step that never enters the band reports its hold (not settled);
 * **peak duty** = the largest duty during the step (fraction 0..1).
 
-Overshoot, rise and settling are read on the angle averaged over a centred 50 ms window (``SMOOTHING_TIME``): on the
-rig's 10-bit angle at 40 dB the raw samples' noise alone (0.9 deg) would put a 3-sigma excursion in every hold of
-a few seconds and read as overshoot; the window is ten times shorter than the pendulum's period (0.55 s) and takes
-about 1 % off a peak. The noise sigma of the band is that of the averaged angle.
+Overshoot, rise and settling are read on the angle averaged over a centred 50 ms window (``SMOOTHING_TIME``, cut
+to the samples the step has at its two ends): on the rig's 10-bit angle at 40 dB the raw samples' noise alone
+(0.9 deg) would put a 3-sigma excursion in every hold of a few seconds and read as overshoot; the window is ten
+times shorter than the pendulum's period (0.55 s) and takes about 1 % off a peak. The noise sigma of the band is
+that of the averaged angle.
 
 python-control's ``step_info`` takes the band and the rise limits as fractions of the final value, not of the step,
 and has no ``yinit``: it is not used here.
@@ -137,13 +138,26 @@ class StepMetrics:
         return asdict(self)
 
 
-def moving_mean(values: np.ndarray, window: int) -> np.ndarray:
-    """The mean over `window` samples around each sample, the ends held (scipy.ndimage's ``uniform_filter1d`` with
-    ``mode='nearest'``: samples i - window//2 .. i + (window - 1)//2), in the unit of `values`; numpy only (scipy's
-    ndimage cost ~0.2-0.5 s of import in `control check`)."""
+def moving_mean(values: np.ndarray, window: int, ends: str = 'nearest') -> np.ndarray:
+    """The mean over `window` samples around each sample (samples i - window//2 .. i + (window - 1)//2), in the
+    unit of `values`; numpy only (scipy's ndimage cost ~0.2-0.5 s of import in `control check`).
+
+    `ends`: ``'nearest'``, the ends held (scipy.ndimage's ``uniform_filter1d`` with ``mode='nearest'``: the last
+    sample weighs window//2 + 1 of the window in the last mean); ``'shrink'``, the window cut at the ends (the mean
+    of the samples there are), what the step metrics read: with the ends held, one noisy sample at a hold's end
+    moved the last smoothed value by half its noise and read as "not settled" (s23)."""
     values = np.asarray(values, dtype=float)
     if window <= 1 or values.size == 0:
         return values.copy()
+    if ends == 'shrink':
+        n = values.size
+        sums = np.concatenate(([0.0], np.cumsum(values)))
+        index = np.arange(n)
+        low = np.maximum(index - window // 2, 0)
+        high = np.minimum(index + (window - 1) // 2 + 1, n)
+        return (sums[high] - sums[low]) / (high - low)
+    if ends != 'nearest':
+        raise ValueError(f"ends must be 'nearest' or 'shrink', got {ends!r}")
     padded = np.concatenate((np.full(window // 2, values[0]), values, np.full((window - 1) // 2, values[-1])))
     sums = np.cumsum(np.concatenate(([0.0], padded)))
     return (sums[window:] - sums[:-window]) / window
@@ -183,7 +197,7 @@ def step_metrics(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, start: f
     sample_time = float(np.median(np.diff(time))) if time.size > 1 else 0.0
     window = max(1, int(round(SMOOTHING_TIME / sample_time))) if sample_time > 0 else 1
     raw = y
-    y = moving_mean(raw, window)
+    y = moving_mean(raw, window, ends='shrink')
     tail = t >= (1.0 - FINAL_SHARE) * hold
     if tail.sum() < 2:
         tail = np.zeros_like(t, dtype=bool)
