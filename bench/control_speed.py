@@ -67,6 +67,7 @@ def main() -> int:
     parser.add_argument('--bag', type=Path, required=True, help='closed-loop bag for `control check`')
     parser.add_argument('--gains', type=Path, required=True, help='the controller file the bag ran')
     parser.add_argument('--repeats', type=int, default=3)
+    parser.add_argument('--only', choices=('design', 'check'), default=None, help='time one command only')
     args = parser.parse_args()
     trees = {'base': args.baseline_tree.resolve(), 'new': ROOT}
     scratch = Path(tempfile.mkdtemp(prefix='control-speed-'))
@@ -76,6 +77,8 @@ def main() -> int:
         'check': lambda label: ['control', 'check', str(args.bag.resolve()), '--design', str(args.gains.resolve()),
                                 '--json', str(scratch / f'{label}-check.json')],
     }
+    if args.only:
+        commands = {args.only: commands[args.only]}
     for name, command in commands.items():          # warm each tree's numba cache
         for label, tree in trees.items():
             seconds, _, _, done = run(tree, command(label))
@@ -107,16 +110,19 @@ def main() -> int:
               f'{cpu_new / cpu_base:.2f} | {min(loads):.1f}-{max(loads):.1f} | '
               f'{", ".join(f"{t:.2f}" for t in times["base"])} | {", ".join(f"{t:.2f}" for t in times["new"])} |',
               flush=True)
-    for label in trees:
-        print(f'{label} design: {design_summary(scratch / f"{label}-design.json")}')
-    gains = {label: json.loads((scratch / f'{label}-design.json').read_text()).get('gains') or {} for label in trees}
-    numbers = [key for key, value in gains['base'].items() if isinstance(value, float)]
-    worst = max((abs(gains['new'].get(key, math.nan) - gains['base'][key]) / max(abs(gains['base'][key]), 1e-12)
-                 for key in numbers), default=math.nan)
-    print(f'design gains, largest relative difference new vs base: {worst:.3g} ({len(numbers)} numbers)')
-    for label in trees:
-        check = json.loads((scratch / f'{label}-check.json').read_text())
-        print(f'{label} check: {check.get("verdict")}')
+    if 'design' in commands:
+        for label in trees:
+            print(f'{label} design: {design_summary(scratch / f"{label}-design.json")}')
+        gains = {label: json.loads((scratch / f'{label}-design.json').read_text()).get('gains') or {}
+                 for label in trees}
+        numbers = [key for key, value in gains['base'].items() if isinstance(value, float)]
+        worst = max((abs(gains['new'].get(key, math.nan) - gains['base'][key]) / max(abs(gains['base'][key]), 1e-12)
+                     for key in numbers), default=math.nan)
+        print(f'design gains, largest relative difference new vs base: {worst:.3g} ({len(numbers)} numbers)')
+    if 'check' in commands:
+        for label in trees:
+            check = json.loads((scratch / f'{label}-check.json').read_text())
+            print(f'{label} check: {check.get("verdict")}')
     (scratch / 'times.json').write_text(json.dumps(rows, indent=1))
     print(f'(files in {scratch})')
     return 0

@@ -75,3 +75,21 @@ def test_the_check_gives_the_predicted_settling_range_over_noise_draws_and_a_run
     result = check_record(lagged.time, lagged.angle, lagged.duty, controller, schedule, seed=7)
     assert not all(step.settling_in_range for step in result.steps)
     assert 'noise draws of the model' in result.as_text()
+
+
+def test_the_feedforward_taken_once_per_reference_value_gives_the_loop_of_the_per_sample_feedforward():
+    """The compiled loop now calls the feedforward once per distinct reference value (a schedule holds a few) instead
+    of once per sample: the same record, bit for bit, as the per-sample values passed as an array."""
+    from aeropend_core.control.loop import FeedforwardMap, simulate_loop
+    from aeropend_core.control.reference import ReferenceSchedule
+    from aeropend_core.sim.noise import MeasurementNoise
+
+    reference = ReferenceSchedule.steps_between([25, 50, 30], hold=1.0, start_hold=0.5).reference()
+    feedforward = FeedforwardMap(effects={'dead_zone': {'threshold_voltage': 0.7}})
+    per_sample = np.array([feedforward(float(value)) for value in reference])
+    noise = MeasurementNoise(psnr_db=40.0, quantise=True)
+    once = simulate_loop(_gains(), reference, feedforward, noise=noise, seed=3, duty_limit=0.8)
+    each = simulate_loop(_gains(), reference, per_sample, noise=noise, seed=3, duty_limit=0.8)
+    np.testing.assert_array_equal(once.feedforward, per_sample)
+    np.testing.assert_array_equal(once.angle, each.angle)
+    np.testing.assert_array_equal(once.duty, each.duty)

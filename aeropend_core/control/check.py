@@ -15,6 +15,7 @@ n draws with probability (n - 1)/(n + 1), 19 in 21 for n = 20.
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -194,11 +195,21 @@ def settling_ranges(gains: PidGains, reference: np.ndarray, feedforward: np.ndar
     model, one per seed of `seeds` (plus the metrics `first` of one run already made): each judged by the same
     :func:`~aeropend_core.control.metrics.schedule_metrics`. `reference` [rad] and `feedforward` [duty] per sample.
     A draw that does not settle counts as its hold."""
+    def one(seed):          # the compiled loop releases the GIL: two draws at a time on two cores
+        run = simulate_loop(gains, reference, feedforward, parameters, effects, noise, seed, sample_time=sample_time,
+                            duty_limit=duty_limit)
+        return schedule_metrics(run.time, run.angle, run.duty, schedule)
+
+    seeds = list(seeds)
+    workers = min(2, os.cpu_count() or 1, len(seeds))
+    if workers > 1:
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(workers) as pool:
+            drawn = list(pool.map(one, seeds))
+    else:
+        drawn = [one(seed) for seed in seeds]
     per_step: dict[float, list[StepMetrics]] = {}
-    for metrics in [first or []] + [
-            schedule_metrics(run.time, run.angle, run.duty, schedule)
-            for run in (simulate_loop(gains, reference, feedforward, parameters, effects, noise, seed,
-                                      sample_time=sample_time, duty_limit=duty_limit) for seed in seeds)]:
+    for metrics in [first or []] + drawn:
         for m in metrics:
             per_step.setdefault(round(m.start, 6), []).append(m)
     return {start: (min(m.settling_time for m in ms), max(m.settling_time for m in ms), len(ms),

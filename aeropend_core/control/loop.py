@@ -229,8 +229,9 @@ def _simulate_compiled(gains, reference, feedforward, parameters, effects, noise
                           p.motor_inertia, p.motor_friction, p.propeller_torque_coefficient, p.gear_ratio,
                           p.thrust_coefficient, p.gravity_stiffness, p.damping, p.lever_per_inertia])
     voltage_fit = np.array([p.duty_voltage_k0, p.duty_voltage_k1, p.duty_voltage_k2, p.duty_voltage_k3])
-    if callable(feedforward):
-        feedforward_values = np.array([feedforward(value) for value in reference])
+    if callable(feedforward):       # once per distinct reference value (a schedule holds a few), not per sample
+        values, where = np.unique(reference, return_inverse=True)
+        feedforward_values = np.array([feedforward(value) for value in values], dtype=float)[where.reshape(-1)]
     else:                   # the feedforward played, sample by sample (a record's telemetry)
         feedforward_values = np.ascontiguousarray(feedforward, dtype=float)
         if feedforward_values.shape != reference.shape:
