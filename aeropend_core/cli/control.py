@@ -58,6 +58,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     check.add_argument('--json', nargs='?', const='-', default=None, metavar='FILE', help='the check as JSON')
     check.add_argument('--report', metavar='FILE.html', default=None,
                        help='measured and predicted transients overlaid, step by step (one self-contained page)')
+    check.add_argument('--draws', type=int, default=19, metavar='N',
+                       help='more noise draws of the model for the predicted settling\'s range (default 19; 0: none; '
+                            'docs/control.md#the-predicted-settling-is-a-range)')
     linear = sub.add_parser('linearise', help='the model linearised at an angle: state space, transfer function')
     linear.add_argument('model', nargs='?', default=None, metavar='MODEL.json',
                         help='an `aeropend diagnose --json` file (default: the nominal model)')
@@ -163,6 +166,8 @@ def _check(args) -> int:
     from aeropend_core.cli._checks import check_json_target
     check_json_target(args.json)
     _check_page(args.report)
+    if not 0 <= args.draws <= 1000:
+        raise AeropendError(f'--draws must be 0..1000 noise draws, got {args.draws}')
     from aeropend_core.control.controller_file import Controller
     from aeropend_core.control.record import load_closed_loop
     data = load_closed_loop(args.record)
@@ -175,7 +180,8 @@ def _check(args) -> int:
     cap = getattr(data, 'duty_limit', math.nan)
     from aeropend_core.control.check import check_record         # numba: once the record is read
     result = check_record(data.time, data.angle, data.duty, controller, data.schedule,
-                          duty_limit=min(cap, controller.gains.u_clamp_max) if math.isfinite(cap) else None)
+                          duty_limit=min(cap, controller.gains.u_clamp_max) if math.isfinite(cap) else None,
+                          draws=args.draws)
     if not getattr(data, 'complete', True):
         result.notes.insert(0, 'the run was cut short: its schedule did not play to the end')
     print(result.as_text())
