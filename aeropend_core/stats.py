@@ -14,6 +14,8 @@ misfit into "overwhelming" significance. Three tools here account for it:
 * :func:`hac_covariance` -- the sandwich covariance of least-squares parameters, ``B M B`` with ``B = (J'J)^-1``
   and ``M`` the long-run covariance of the scores ``J_t r_t`` (block sums within segments), so that a parameter's
   t-statistic is honest under correlated residuals;
+* :func:`remainder_covariance` -- the same sandwich where the residual carries a slow remainder beside white noise
+  (autocorrelation ``share * phi**k``, :func:`slow_remainder`): its meat modelled as ``J' S J``;
 * :func:`input_covariance` -- the parameters' covariance caused by an estimated input (the motor observer's
   back-EMF), from an ensemble of input changes as large as its estimation error, added to the sandwich;
 * :func:`held_bias_covariance` -- the same for a measurement bias held over input intervals (an angle ADC that
