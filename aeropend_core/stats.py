@@ -264,11 +264,13 @@ def slow_remainder(residuals: np.ndarray, groups: np.ndarray | None = None, most
 
 
 def _ar1_correlation_times(x: np.ndarray, phi: float) -> np.ndarray:
-    """``Phi @ x`` for the correlation matrix ``Phi[i, j] = phi**|i-j|`` (a forward and a backward AR(1) filter)."""
-    from scipy.signal import lfilter
-    forward = lfilter([1.0], [1.0, -phi], x, axis=0)
-    backward = lfilter([1.0], [1.0, -phi], x[::-1], axis=0)[::-1]
-    return forward + backward - x
+    """``Phi @ x`` for the correlation matrix ``Phi[i, j] = phi**|i-j|`` (rows of `x`): an FFT convolution with the
+    kernel ``phi**|k|`` over every lag the rows span (exact, no truncation; numpy only)."""
+    m = x.shape[0]
+    kernel = phi ** np.abs(np.arange(-(m - 1), m))
+    size = 1 << int(math.ceil(math.log2(3 * m)))
+    product = np.fft.rfft(x, size, axis=0) * np.fft.rfft(kernel, size)[:, None]
+    return np.fft.irfft(product, size, axis=0)[m - 1:2 * m - 1]
 
 
 def remainder_covariance(jacobian, residuals: np.ndarray, groups: np.ndarray | None = None,

@@ -125,3 +125,12 @@ def test_a_fit_on_the_second_simulator_says_its_slow_remainder_in_text_and_json(
     assert 0 < remainder['share'] < 1 and remainder['correlation_time'] > 0.05       # [s]: slow, not the noise
     assert 'slow remainder' in comparison_text(told.current)
     assert comparison_dict(told.current)['remainder_covariance']['modelled'] is True
+
+
+def test_the_correlation_product_is_the_matrix_product():
+    from aeropend_core.stats import _ar1_correlation_times
+    rng = np.random.default_rng(5)
+    x = rng.normal(size=(37, 3))
+    phi = 0.93
+    matrix = phi ** np.abs(np.subtract.outer(np.arange(37), np.arange(37)))
+    assert np.allclose(_ar1_correlation_times(x, phi), matrix @ x, atol=1e-12)
