@@ -297,8 +297,9 @@ def remainder_covariance(jacobian, residuals: np.ndarray, groups: np.ndarray | N
     -------
     covariance : ndarray, shape (p, p)
     remainder : dict
-        ``share`` [-], ``correlation_time`` [s], ``t_statistic`` [-] of :func:`slow_remainder`, and ``modelled``
-        (bool): whether the covariance counts it.
+        ``share`` [-], ``correlation_time`` [s], ``t_statistic`` [-] of :func:`slow_remainder`, ``modelled``
+        (bool): whether the covariance counts it, and where it does ``widening`` [-]: each parameter's sigma over
+        its block-sum (HAC) sigma, in column order.
     """
     from scipy import sparse
     r = np.asarray(residuals, dtype=float)
@@ -327,8 +328,11 @@ def remainder_covariance(jacobian, residuals: np.ndarray, groups: np.ndarray | N
     with np.errstate(invalid='ignore', divide='ignore'):
         ratio = np.diag(hac) / np.diag(modelled)
     widen = np.sqrt(np.where(np.isfinite(ratio) & (ratio > 1.0), ratio, 1.0))
-    remainder['modelled'] = True
-    return modelled * np.outer(widen, widen), remainder
+    covariance = modelled * np.outer(widen, widen)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        widening = np.sqrt(np.diag(covariance) / np.diag(hac))
+    remainder.update(modelled=True, widening=[float(w) if np.isfinite(w) else 1.0 for w in widening])
+    return covariance, remainder
 
 
 def diebold_mariano(error_reference: np.ndarray, error_candidate: np.ndarray) -> tuple[float, float]:

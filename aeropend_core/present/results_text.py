@@ -149,7 +149,8 @@ def comparison_dict(comparison: ComparisonLike) -> dict:
     evaluation, fit = comparison.evaluation, comparison.fit
     shape = {'friction_law_doubt': dict(fit.extra['friction_law_doubt'])} if 'friction_law_doubt' in fit.extra else {}
     if 'remainder_covariance' in fit.extra:
-        shape['remainder_covariance'] = dict(fit.extra['remainder_covariance'])
+        shape['remainder_covariance'] = {key: value for key, value in fit.extra['remainder_covariance'].items()
+                                         if key != 'widening'}
     return {'model_effects': list(comparison.effects), 'fit_percent': evaluation.fit_percent,
             'fit_definition': 'held-out free-run simulation of the angle, NRMSE fit % as MATLAB compare',
             'rms_error': evaluation.rms_error, 'noise_rms': evaluation.noise_rms,
