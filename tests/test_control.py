@@ -346,6 +346,39 @@ def test_an_impossible_template_is_refused_naming_the_item():
         design(Template(settling=0.2, overshoot=None, error=None, duty=None), math.radians(40))
 
 
+def test_a_design_every_round_missed_is_kept_when_half_its_noise_draws_meet_and_refused_when_fewer(nominal_design):
+    """Truth: the nominal design's gains on the model's ten noise draws (seeds 0-9), their worst overshoot each.
+    With the overshoot limit between the 5th and 6th smallest, 5 of 10 draws meet: the design is kept, its
+    prediction the median draw (which meets), the note giving the count; between the 4th and 5th, 4 of 10: refused
+    (None). (s23: at 40 dB on full scale the nominal model's design was refused by 1.1 pp of overshoot on the worse
+    of two draws, while 7 of 10 draws of the same gains meet.)"""
+    import dataclasses
+    from concurrent.futures import ThreadPoolExecutor
+
+    from aeropend_core.control.design import NOISE_EDGE_DRAWS, _at_the_noise_edge
+    noise = MeasurementNoise(psnr_db=50.0, quantise=True)
+    reference = nominal_design.schedule.reference(None, SAMPLE_TIME)
+    feedforward = FeedforwardMap(DEFAULT_PARAMETERS, {})
+    overshoots = []
+    for seed in range(NOISE_EDGE_DRAWS):
+        run = simulate_loop(nominal_design.gains, reference, feedforward, DEFAULT_PARAMETERS, {}, noise, seed,
+                            sample_time=SAMPLE_TIME, duty_limit=0.8)
+        overshoots.append(max(m.overshoot for m in schedule_metrics(run.time, run.angle, run.duty,
+                                                                    nominal_design.schedule)))
+    ordered = sorted(overshoots)
+    with ThreadPoolExecutor(2) as pool:
+        for limit, kept in ((0.5 * (ordered[4] + ordered[5]), True), (0.5 * (ordered[3] + ordered[4]), False)):
+            template = Template(settling=None, overshoot=limit, error=None, duty=None)
+            candidate = dataclasses.replace(nominal_design, template=template, notes=[])
+            result = _at_the_noise_edge(candidate, pool, reference, feedforward, DEFAULT_PARAMETERS, {}, noise, 0,
+                                        SAMPLE_TIME, 0.8)
+            if not kept:
+                assert result is None
+                continue
+            assert result is not None and not result.misses(), overshoots
+            assert any(f'meets it in 5 of {NOISE_EDGE_DRAWS} noise draws' in note for note in result.notes)
+
+
 def test_controller_file_round_trip_and_tamper_check(tmp_path, nominal_design):
     controller = Controller(nominal_design.gains, effects={'thrust_lag': {'time_constant': 0.1}},
                             template=Template())
