@@ -14,8 +14,6 @@ misfit into "overwhelming" significance. Three tools here account for it:
 * :func:`hac_covariance` -- the sandwich covariance of least-squares parameters, ``B M B`` with ``B = (J'J)^-1``
   and ``M`` the long-run covariance of the scores ``J_t r_t`` (block sums within segments), so that a parameter's
   t-statistic is honest under correlated residuals;
-* :func:`remainder_covariance` -- the same sandwich where the residual carries a slow remainder beside white noise
-  (autocorrelation ``share * phi**k``, :func:`slow_remainder`): its meat modelled as ``J' S J``;
 * :func:`input_covariance` -- the parameters' covariance caused by an estimated input (the motor observer's
   back-EMF), from an ensemble of input changes as large as its estimation error, added to the sandwich;
 * :func:`held_bias_covariance` -- the same for a measurement bias held over input intervals (an angle ADC that
@@ -203,138 +201,6 @@ def held_bias_covariance(jacobian: np.ndarray, blocks: np.ndarray, bias_rms: flo
     return bread @ (sums.T @ sums) @ bread * bias_rms ** 2
 
 
-#: t-statistic of the slow remainder's share of the residual variance above which the covariance models it
-SLOW_REMAINDER_T = 3.0
-
-
-def _spans(n: int, groups: np.ndarray | None) -> list[tuple[int, int]]:
-    """(start, stop) of each run of equal labels in `groups` (one span of `n` without groups)."""
-    groups = np.zeros(n, dtype=int) if groups is None else np.asarray(groups)
-    bounds = np.concatenate(([0], np.flatnonzero(np.diff(groups)) + 1, [n]))
-    return [(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
-
-
-def slow_remainder(residuals: np.ndarray, groups: np.ndarray | None = None, most_lags: int = 500) -> dict:
-    """The residual as white noise plus a slow first-order (AR(1)) remainder, fitted to its autocorrelation.
-
-    A model that misses a little (another simulator, a real rig) leaves a residual that is mostly white
-    measurement noise plus a small smooth misfit lasting seconds. Its autocorrelation is then about
-    ``share * phi**k`` at every lag ``k >= 1``: small at lag 1, yet still there at lag 100. Andrews' AR(1) rule
-    (:func:`bandwidth`) reads only the lag-1 value and picks blocks far shorter than the misfit's correlation, so
-    the sandwich under-counts it. Here the autocorrelation at lags 1 .. `most_lags` (pooled within `groups`, at most
-    a quarter of the shortest group) is fitted by least squares over a grid of correlation lengths.
-
-    Returns
-    -------
-    dict
-        ``share`` [-]: the remainder's share of the residual variance; ``correlation_samples`` [samples]: its
-        correlation length ``-1/ln(phi)``; ``t_statistic`` [-]: share over its standard error under white noise
-        (``1/sqrt(n sum phi^2k)``); ``phi`` [-].
-    """
-    r = np.asarray(residuals, dtype=float)
-    n = r.size
-    spans = _spans(n, groups)
-    shortest = min(b - a for a, b in spans)
-    lags = int(max(4, min(most_lags, shortest // 4)))
-    sums, pairs = np.zeros(lags + 1), np.zeros(lags + 1)
-    for a, b in spans:
-        x = r[a:b] - r[a:b].mean()
-        spectrum = np.fft.rfft(x, 2 * x.size)
-        sums += np.fft.irfft(spectrum * np.conj(spectrum))[:lags + 1]
-        pairs += x.size - np.arange(lags + 1)
-    if not sums[0] > 0:
-        return {'share': 0.0, 'phi': 0.0, 'correlation_samples': 0.0, 't_statistic': 0.0}
-    acf = (sums[1:] / pairs[1:]) / (sums[0] / pairs[0])     # the mean of the products at each lag
-    k = np.arange(1, lags + 1)
-    # each group's mean removed lowers every lag's product by about the same amount: a constant beside phi**k
-    best = (0.0, 0.0, float(np.sum((acf - acf.mean()) ** 2)), 0.0)
-    for length in np.geomspace(1.0, 4.0 * lags, 80):
-        phi = math.exp(-1.0 / length)
-        basis = np.column_stack([phi ** k, np.ones(lags)])
-        (share, _), *_ = np.linalg.lstsq(basis, acf, rcond=None)
-        if share <= 0:
-            continue
-        misfit = float(np.sum((acf - basis @ np.linalg.lstsq(basis, acf, rcond=None)[0]) ** 2))
-        if misfit < best[2]:
-            centred = basis[:, 0] - basis[:, 0].mean()
-            best = (float(share), phi, misfit, float(share) * math.sqrt(float(centred @ centred) * n))
-    share, phi, _, t = best
-    return {'share': min(share, 1.0), 'phi': phi, 'correlation_samples': -1.0 / math.log(phi) if phi > 0 else 0.0,
-            't_statistic': t}
-
-
-def _ar1_correlation_times(x: np.ndarray, phi: float) -> np.ndarray:
-    """``Phi @ x`` for the correlation matrix ``Phi[i, j] = phi**|i-j|`` (rows of `x`): an FFT convolution with the
-    kernel ``phi**|k|`` over every lag the rows span (exact, no truncation; numpy only)."""
-    m = x.shape[0]
-    kernel = phi ** np.abs(np.arange(-(m - 1), m))
-    size = 1 << int(math.ceil(math.log2(3 * m)))
-    product = np.fft.rfft(x, size, axis=0) * np.fft.rfft(kernel, size)[:, None]
-    return np.fft.irfft(product, size, axis=0)[m - 1:2 * m - 1]
-
-
-def remainder_covariance(jacobian, residuals: np.ndarray, groups: np.ndarray | None = None,
-                         sample_spacing: float = 1.0) -> tuple[np.ndarray, dict]:
-    """Sandwich covariance of least-squares parameters that counts a slow remainder in the residual.
-
-    First :func:`hac_covariance`. Then the residual is fitted as white noise plus a slow AR(1) remainder
-    (:func:`slow_remainder`); where the remainder is significant (t >= :data:`SLOW_REMAINDER_T`) the meat is the
-    modelled one, ``J' S J`` with ``S = var(r) ((1 - share) I + share Phi)`` within each group (independent
-    groups), so a misfit correlated over hundreds of samples is counted as such. Each parameter keeps the larger
-    of its two variances (the modelled covariance scaled by ``D S D``, ``D`` >= 1 diagonal, so it stays positive
-    semi-definite).
-
-    Parameters
-    ----------
-    jacobian : ndarray or scipy.sparse matrix, shape (n, p)
-    residuals : ndarray, shape (n,)
-    groups : ndarray of int, shape (n,), optional
-        Independent groups (multiple-shooting segments).
-    sample_spacing : float
-        Time between residuals [s], for the correlation time reported.
-
-    Returns
-    -------
-    covariance : ndarray, shape (p, p)
-    remainder : dict
-        ``share`` [-], ``correlation_time`` [s], ``t_statistic`` [-] of :func:`slow_remainder`, ``modelled``
-        (bool): whether the covariance counts it, and where it does ``widening`` [-]: each parameter's sigma over
-        its block-sum (HAC) sigma, in column order.
-    """
-    from scipy import sparse
-    r = np.asarray(residuals, dtype=float)
-    try:
-        hac = hac_covariance(jacobian, r, groups)
-    except np.linalg.LinAlgError:  # pragma: no cover - pinv rarely fails
-        p = jacobian.shape[1]
-        return np.full((p, p), np.nan), {'modelled': False}
-    fitted = slow_remainder(r, groups)
-    remainder = {'share': fitted['share'], 'correlation_time': fitted['correlation_samples'] * sample_spacing,
-                 't_statistic': fitted['t_statistic'], 'modelled': False}
-    if not (fitted['t_statistic'] >= SLOW_REMAINDER_T and 0.0 < fitted['phi'] < 1.0):
-        return hac, remainder
-    share, phi = fitted['share'], fitted['phi']
-    jacobian, is_sparse, bread = _jacobian_and_bread(jacobian)
-    p = jacobian.shape[1]
-    meat = np.zeros((p, p))
-    for a, b in _spans(r.size, groups):
-        block = jacobian[a:b]
-        block = block.toarray() if sparse.issparse(block) else np.asarray(block)
-        columns = np.flatnonzero(np.any(block != 0, axis=0))
-        dense = block[:, columns]
-        correlated = (1.0 - share) * dense + share * _ar1_correlation_times(dense, phi)
-        meat[np.ix_(columns, columns)] += dense.T @ correlated
-    modelled = bread @ meat @ bread * float(np.mean(r ** 2))
-    with np.errstate(invalid='ignore', divide='ignore'):
-        ratio = np.diag(hac) / np.diag(modelled)
-    widen = np.sqrt(np.where(np.isfinite(ratio) & (ratio > 1.0), ratio, 1.0))
-    covariance = modelled * np.outer(widen, widen)
-    with np.errstate(invalid='ignore', divide='ignore'):
-        widening = np.sqrt(np.diag(covariance) / np.diag(hac))
-    remainder.update(modelled=True, widening=[float(w) if np.isfinite(w) else 1.0 for w in widening])
-    return covariance, remainder
-
-
 def diebold_mariano(error_reference: np.ndarray, error_candidate: np.ndarray) -> tuple[float, float]:
     """Diebold--Mariano statistic for "the candidate predicts better" and the mean squared-error gain.
 
@@ -368,5 +234,4 @@ def diebold_mariano(error_reference: np.ndarray, error_candidate: np.ndarray) ->
 
 
 __all__ = ['bandwidth', 'long_run_variance', 'effective_samples', 'hac_covariance', 'input_covariance',
-           'held_bias_covariance', 'diebold_mariano', 'slow_remainder', 'remainder_covariance',
-           'SLOW_REMAINDER_T']
+           'held_bias_covariance', 'diebold_mariano']

@@ -208,14 +208,7 @@ def cross_check(recording, weak_fit, effects: Sequence[str] = (), data: str = 'F
     if prep.motor is not None:
         output_values['armature_resistance'] = prep.motor.parameters['motor_resistance']
         output_errors['armature_resistance'] = prep.motor.standard_errors.get('motor_resistance', math.nan)
-    # the agreement tests the model's own hypothesis, under which the residual holds no slow remainder: each
-    # output-error sigma is taken without the remainder's widening (aeropend_core.stats.remainder_covariance)
-    widening = comparison.fit.extra.get('remainder_covariance', {}).get('widening') or []
-    null_errors = dict(output_errors)
-    observer = {'armature_resistance'} if prep.motor is not None else set()     # its sigma is the observer's
-    null_errors.update({name: output_errors[name] / factor for name, factor in zip(comparison.fit.free_names, widening)
-                        if name in output_errors and name not in observer})
-    agreement = compare_estimators(weak_fit.parameters, weak_fit.standard_errors, output_values, null_errors,
+    agreement = compare_estimators(weak_fit.parameters, weak_fit.standard_errors, output_values, output_errors,
                                    effects, data)
     return CrossCheck(score, rms, plain.noise_rms, excess_error(rms, plain.noise_rms), output_values, output_errors,
                       agreement, comparison.fit_percent, excess_error(comparison.rms_error, comparison.noise_rms))

@@ -41,7 +41,7 @@ from aeropend_core.diagnosis.sensitivity import EXACT_COLUMNS, sensitivity_kerne
 from aeropend_core.diagnosis.term_kernel import term_value
 from aeropend_core.diagnosis.user_kernel import EXTRA_TYPE, compiled_user_terms, no_extra
 from aeropend_core.model.sensor_filter import filter_angle
-from aeropend_core.stats import effective_samples, held_bias_covariance, input_covariance, remainder_covariance
+from aeropend_core.stats import effective_samples, hac_covariance, held_bias_covariance, input_covariance
 
 #: Column of each nominal parameter, then of each kernel kind, in the kernel's parameter row.
 NOMINAL_COLUMNS = {name: column for column, name in enumerate(NOMINAL_PARAMETERS)}
@@ -660,10 +660,11 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
                               residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg, free_names=free,
                               correlation=nothing, effective_samples=effective, success=bool(result.success),
                               message=str(result.message), residuals=r)
-    # sandwich covariance, honest under correlated residuals: block sums of the scores within segments, or the
-    # residual modelled as noise plus a slow remainder where it carries one (stats.remainder_covariance)
-    covariance_z, remainder = remainder_covariance(jac, r, data.segment_of_residual, STRIDE * data.sample_time)
-    covariance_z = covariance_z * n / max(n - p, 1)
+    try:
+        # sandwich covariance with block sums of the scores within segments: honest under correlated residuals
+        covariance_z = hac_covariance(jac, r, data.segment_of_residual) * n / max(n - p, 1)
+    except np.linalg.LinAlgError:  # pragma: no cover - pinv rarely fails
+        covariance_z = np.full((p, p), np.nan)
     if data.voltage_ensemble is not None and len(data.voltage_ensemble) > 1:
         # the thrust input is itself an estimate: add the spread its estimation error causes in the parameters
         rows, initials = rows_for([result.x])
@@ -692,8 +693,7 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     return OutputErrorFit(structure=structure, parameters=parameters, standard_errors=errors,
                           initial_states=initial, residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg,
                           free_names=free, correlation=correlation, effective_samples=effective,
-                          success=bool(result.success), message=str(result.message), residuals=r,
-                          extra={'remainder_covariance': remainder})
+                          success=bool(result.success), message=str(result.message), residuals=r)
 
 
 def blind_columns(jacobian, n_columns: int) -> np.ndarray:

@@ -104,19 +104,13 @@ def _excess(rms: float, noise: float) -> float:
 
 def _doubts(comparison: ComparisonLike) -> list[str]:
     """What makes the comparison's numbers doubtful, said beside them: a simulation that diverged, a fit that did
-    not converge, a residual with a slow remainder the ± had to count."""
+    not converge."""
     doubts = []
     if comparison.evaluation.diverged:
         doubts.append('the fitted model\'s simulation diverges on this input: its parameters are not estimates')
     if not comparison.fit.success:
         doubts.append(f'the output-error fit did not converge ({comparison.fit.message or "no message"}): the '
                       'parameters and their sigmas are doubtful')
-    remainder = getattr(comparison.fit, 'extra', {}).get('remainder_covariance', {})
-    if remainder.get('modelled'):
-        doubts.append(f'the residual is not only noise: a slow remainder ({100 * remainder["share"]:.0f} % of its '
-                      f'variance, correlated over {remainder["correlation_time"]:.2g} s) the model does not '
-                      'write; the +- count it as correlated noise (widened), but a misfit can also bias the '
-                      'parameters beyond them')
     return doubts
 
 
@@ -141,16 +135,10 @@ def comparison_dict(comparison: ComparisonLike) -> dict:
         ``prediction_rms_error`` [rad]; ``prediction_horizon`` [s]; ``parameters`` and ``standard_errors`` (SI,
         1 sigma, HAC) with ``units``; ``regimes`` and ``worst_windows`` (errors [rad], times [s]); ``diverged``,
         ``fit_converged`` and ``doubts``; with dry friction in a diagnosis's model, ``friction_law_doubt`` (the
-        part of each ± from the friction law's shape, SI; :mod:`aeropend_core.diagnosis.friction_doubt`);
-        ``remainder_covariance``: the residual's slow remainder (``share`` [-], ``correlation_time`` [s],
-        ``t_statistic`` [-]) and whether the ± count it (``modelled``;
-        :func:`aeropend_core.stats.remainder_covariance`).
+        part of each ± from the friction law's shape, SI; :mod:`aeropend_core.diagnosis.friction_doubt`).
     """
     evaluation, fit = comparison.evaluation, comparison.fit
     shape = {'friction_law_doubt': dict(fit.extra['friction_law_doubt'])} if 'friction_law_doubt' in fit.extra else {}
-    if 'remainder_covariance' in fit.extra:
-        shape['remainder_covariance'] = {key: value for key, value in fit.extra['remainder_covariance'].items()
-                                         if key != 'widening'}
     return {'model_effects': list(comparison.effects), 'fit_percent': evaluation.fit_percent,
             'fit_definition': 'held-out free-run simulation of the angle, NRMSE fit % as MATLAB compare',
             'rms_error': evaluation.rms_error, 'noise_rms': evaluation.noise_rms,
