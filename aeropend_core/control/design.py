@@ -30,7 +30,7 @@ import numpy as np
 
 from aeropend_core.control.law import PidGains, law_step
 from aeropend_core.control.linear import Linearisation, linearise
-from aeropend_core.control.loop import ClosedLoopRecord, FeedforwardMap, simulate_loop
+from aeropend_core.control.loop import ClosedLoopRecord, FeedforwardMap, feedforward_per_sample, simulate_loop
 from aeropend_core.control.metrics import StepMetrics, Template, schedule_metrics
 from aeropend_core.control.nelder_mead import nelder_mead
 from aeropend_core.control.reference import ReferenceSchedule, design_schedule
@@ -274,7 +274,7 @@ def design(template: Template, angle: float, parameters: RigParameters = DEFAULT
     # point, on the model and on rigs whose thrust is off by the tolerance (both on the schedule without its
     # repeated steps, :func:`search_schedule`); 4. the prediction on the whole schedule with the design's seed and
     # another.
-    feedforward_values = np.array([feedforward(value) for value in reference])
+    feedforward_values = feedforward_per_sample(feedforward, reference)
     factors = (1.0, *thrust_tolerance)
 
     pool = ThreadPoolExecutor(max_workers=max(1, min(DESIGN_THREADS, os.cpu_count() or 1)))

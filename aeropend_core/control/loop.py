@@ -204,6 +204,13 @@ class ClosedLoopSimulation:
         return ClosedLoopRecord(time=times, reference=reference.copy(), truth=truth, **out)
 
 
+def feedforward_per_sample(feedforward, reference: np.ndarray) -> np.ndarray:
+    """The duty [fraction] `feedforward` gives each sample of `reference` [rad], evaluated once per distinct
+    reference value (a schedule holds a few), not per sample."""
+    values, where = np.unique(reference, return_inverse=True)
+    return np.array([feedforward(value) for value in values], dtype=float)[where.reshape(-1)]
+
+
 def _simulate_compiled(gains, reference, feedforward, parameters, effects, noise, seed, initial_angle, sample_time,
                        duty_limit) -> ClosedLoopRecord:
     n = reference.size
@@ -229,9 +236,8 @@ def _simulate_compiled(gains, reference, feedforward, parameters, effects, noise
                           p.motor_inertia, p.motor_friction, p.propeller_torque_coefficient, p.gear_ratio,
                           p.thrust_coefficient, p.gravity_stiffness, p.damping, p.lever_per_inertia])
     voltage_fit = np.array([p.duty_voltage_k0, p.duty_voltage_k1, p.duty_voltage_k2, p.duty_voltage_k3])
-    if callable(feedforward):       # once per distinct reference value (a schedule holds a few), not per sample
-        values, where = np.unique(reference, return_inverse=True)
-        feedforward_values = np.array([feedforward(value) for value in values], dtype=float)[where.reshape(-1)]
+    if callable(feedforward):
+        feedforward_values = feedforward_per_sample(feedforward, reference)
     else:                   # the feedforward played, sample by sample (a record's telemetry)
         feedforward_values = np.ascontiguousarray(feedforward, dtype=float)
         if feedforward_values.shape != reference.shape:
