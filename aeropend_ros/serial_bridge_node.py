@@ -194,6 +194,7 @@ class SerialBridgeNode(BridgeControl, Node):
         self._last_sequence: int | None = None
         self._last_flags = 0
         self._last_arrival = None
+        self._delay_bound: float | None = None    # of the read being handled [s] (see _handle_bytes)
         self._disconnected_at: float | None = None
         self._diag_previous = (time.monotonic(), 0, 0, 0)
         self.connected = False
@@ -339,10 +340,17 @@ class SerialBridgeNode(BridgeControl, Node):
                 logger.info(f'opened {self.port}; writing nothing until the device talks (an Arduino resets when '
                             'its port opens; its bootloader must not receive bytes for ~1 s)')
             try:
+                # When the port was last found drained [s, monotonic]: every byte of a read arrived after it, so the
+                # newest sample in a read waited on this host at most since then (the sample clock's delay bound).
+                drained_at = time.monotonic()
                 while not self._stop.is_set():
-                    data = link.read(max(1, min(link.in_waiting, 65536)))
+                    checked_at = time.monotonic()
+                    waiting = link.in_waiting
+                    data = link.read(max(1, min(waiting, 65536)))
                     if data:
-                        self._handle_bytes(data)
+                        self._handle_bytes(data, time.monotonic() - drained_at)
+                    if waiting <= 65536:
+                        drained_at = checked_at
             except (serial.SerialException, OSError, TypeError) as error:
                 # TypeError: pyserial's read on a closed fd during shutdown.
                 if not self._stop.is_set():
@@ -401,7 +409,9 @@ class SerialBridgeNode(BridgeControl, Node):
                                       'was written to it): is firmware/aeropend uploaded, the baud rate '
                                       f'{self.baud}, the right port?')
 
-    def _handle_bytes(self, data: bytes) -> None:
+    def _handle_bytes(self, data: bytes, delay_bound: float | None = None) -> None:
+        """Decode a read; `delay_bound` [s]: the longest its newest byte can have waited on this host."""
+        self._delay_bound = delay_bound
         now_ns = self.get_clock().now().nanoseconds
         arrival = (now_ns - self._epoch_ns) * 1e-9
         messages = self.decoder.feed(data)
@@ -494,14 +504,14 @@ class SerialBridgeNode(BridgeControl, Node):
             return
         clock = self.clock_model
         if clock.observed < PRIME_ARRIVALS or self._priming:
-            clock.observe(max(frame.sequence for frame in run), arrival)
+            clock.observe(max(frame.sequence for frame in run), arrival, self._delay_bound)
             self._priming.extend(run)
             if clock.observed < PRIME_ARRIVALS:
                 return
             run, self._priming = self._priming, []
             stamps = clock.place([frame.sequence for frame in run])
         else:
-            stamps = clock.stamp_many([frame.sequence for frame in run], arrival)
+            stamps = clock.stamp_many([frame.sequence for frame in run], arrival, self._delay_bound)
         self._report_clock()
         if self._clock_withholds():
             # The device's clock is outside its tolerance: its stamps and its sample spacing are not what the data

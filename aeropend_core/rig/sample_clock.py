@@ -162,16 +162,16 @@ class SampleClock:
         """
         return self.stamp_many([sequence], arrival)[0]
 
-    def stamp_many(self, sequences, arrival: float) -> list[float]:
+    def stamp_many(self, sequences, arrival: float, delay_bound: float | None = None) -> list[float]:
         """Stamps of several samples that arrived together (one read), in the order given.
 
         The newest of them had the least delay, so it alone updates the envelope; the others are placed on the
         line by their sequence numbers (a backlog read at once is spread over the times it was acquired, not
-        piled up at the arrival time).
+        piled up at the arrival time). `delay_bound`: see :meth:`observe`.
         """
         if not len(sequences):
             return []
-        self.observe(max(sequences), arrival)
+        self.observe(max(sequences), arrival, delay_bound)
         return self.place(sequences)
 
     def envelope_arrival(self, sequence: int) -> float | None:
@@ -184,8 +184,13 @@ class SampleClock:
             return None
         return self._reference + self._anchor + self._period * sequence
 
-    def observe(self, sequence: int, arrival: float) -> None:
-        """Update the envelope with one arrival (the newest sample of a read) without stamping anything."""
+    def observe(self, sequence: int, arrival: float, delay_bound: float | None = None) -> None:
+        """Update the envelope with one arrival (the newest sample of a read) without stamping anything.
+
+        `delay_bound` [s]: the longest the sample can have waited on the host before this arrival, when the reader
+        knows it (the time since it last found the port drained: a reader that fell behind on a loaded host knows
+        its backlog waited). The rate's uncertainty then covers minima that came late; None: not known.
+        """
         if self._reference is None:
             self._reference = self._stamp_reference = arrival
             self._anchor = -sequence * self._period
@@ -198,7 +203,7 @@ class SampleClock:
         # Window minimum of the arrival relative to a line of the current period (fixed within a window).
         key = relative - self._slope * sequence
         if self._window_best is None or key < self._window_best[2]:
-            self._window_best = (sequence, relative, key)
+            self._window_best = (sequence, relative, key, 0.0 if delay_bound is None else float(delay_bound))
         if sequence - self._window_start >= self.window:
             self._close_window(sequence)
             self._window_start = sequence
@@ -277,15 +282,15 @@ class SampleClock:
 
     def _close_window(self, now: int) -> None:
         """Add the window's minimum, refit the line and steer towards it over the next window (from sequence `now`)."""
-        sequence, relative, _ = self._window_best
+        sequence, relative, _, delay_bound = self._window_best
         self._window_best = None
-        self._minima.append((sequence, relative))
+        self._minima.append((sequence, relative, delay_bound))
         points = np.array(self._minima, dtype=float)
-        sequences, times = points[:, 0], points[:, 1]
+        sequences, times, delay_bounds = points[:, 0], points[:, 1], points[:, 2]
         slope = self._slope
         # The stamping line is fitted in host time measured from `_reference` (host steps taken out); the relative
         # times of the minima are on the same timeline.
-        self._measure_rate(sequences, times)
+        self._measure_rate(sequences, times, delay_bounds)
         if sequences[-1] - sequences[0] >= self.min_span * self.window:
             low = self.nominal_period * (1.0 - self.max_drift)
             high = self.nominal_period * (1.0 + self.max_drift)
@@ -302,13 +307,13 @@ class SampleClock:
         self._period = slope + correction / self.window
         self._anchor = current - self._period * now
 
-    def _measure_rate(self, sequences: np.ndarray, times: np.ndarray) -> None:
+    def _measure_rate(self, sequences: np.ndarray, times: np.ndarray, delay_bounds: np.ndarray) -> None:
         """Unclamped rate of the device clock: the hull slope once ``min_span`` windows are in, before that a
         coarse slope from the first arrival to the newest window minimum (gross errors only)."""
         span = sequences[-1] - sequences[0]
         if span >= self.min_span * self.window and len(sequences) >= 2:
             self._raw_slope = _bounded(_hull_slope(sequences, times), self.nominal_period)
-            low, high = _feasible_slopes(sequences, times, self._raw_slope)
+            low, high = _feasible_slopes(sequences, times, self._raw_slope, delay_bounds)
             # the distance to the farther feasible slope: never negative, also when the slope is clamped to its
             # bounds and every feasible slope lies beyond them (a device twice as fast said '± -0.00 %')
             self._raw_bound = max(abs(high - self._raw_slope), abs(self._raw_slope - low)) / self.nominal_period
@@ -343,23 +348,29 @@ def _bounded(period: float, nominal: float) -> float:
     return min(RATE_BOUNDS[1] * nominal, max(RATE_BOUNDS[0] * nominal, period))
 
 
-def _feasible_slopes(x: np.ndarray, y: np.ndarray, slope: float) -> tuple[float, float]:
+def _feasible_slopes(x: np.ndarray, y: np.ndarray, slope: float,
+                     delay_bounds: np.ndarray | None = None) -> tuple[float, float]:
     """Range of line slopes [s per sample] consistent with the window minima (x sequences, y times [s]).
 
     Each minimum lies above the true line (an arrival is never before its acquisition) by a delay of at most J;
     J is taken as the largest height of the minima above the lowest line of `slope` (at least HULL_JITTER, so
-    `slope` itself is always in the range). Every pair of minima then bounds the slope: (dy - J)/dx <= s <=
-    (dy + J)/dx; the range is the intersection (the longest pairs decide: about +-2J/span).
+    `slope` itself is always in the range), or the minimum's own `delay_bounds` [s] where the reader knows a larger
+    one (it had fallen behind: a delay that grows over the span looks like a slower clock, and only the reader can
+    tell). Every pair of minima then bounds the slope: (dy - J_j)/dx <= s <= (dy + J_i)/dx; the range is the
+    intersection (the longest pairs decide: about +-2J/span).
     """
     heights = y - slope * x
-    jitter = max(HULL_JITTER, float(np.max(heights) - np.min(heights)))
+    jitter = np.full(len(x), max(HULL_JITTER, float(np.max(heights) - np.min(heights))))
+    if delay_bounds is not None:
+        jitter = np.maximum(jitter, delay_bounds)
     i, j = np.triu_indices(len(x), k=1)
     dx = x[j] - x[i]
     dy = y[j] - y[i]
     keep = dx > 0
     if not np.any(keep):
         return -np.inf, np.inf
-    return float(np.max((dy[keep] - jitter) / dx[keep])), float(np.min((dy[keep] + jitter) / dx[keep]))
+    return (float(np.max((dy[keep] - jitter[j][keep]) / dx[keep])),
+            float(np.min((dy[keep] + jitter[i][keep]) / dx[keep])))
 
 
 def _hull_slope(x: np.ndarray, y: np.ndarray) -> float:

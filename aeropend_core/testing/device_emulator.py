@@ -155,6 +155,9 @@ class DeviceEmulator:
         self._sent = 0
         self._lost = 0
         self.bytes_written = 0
+        #: Largest delay [s] of a write's newest sample behind its schedule: a real board's UART sends on time, this
+        #: Python thread can write late on a loaded host, and a reader cannot tell that from a slower clock.
+        self.write_lateness_max = 0.0
         self._lock = threading.RLock()
         self._faults = _Faults()
         self._master = -1
@@ -391,6 +394,7 @@ class DeviceEmulator:
                 self._read_commands()
                 n = due - produced
                 self._emit_samples(n)
+                self.write_lateness_max = max(self.write_lateness_max, time.monotonic() - start - due * period)
             produced = due
 
     def _read_commands(self) -> None:
