@@ -184,16 +184,46 @@ def design_on(model, name: str) -> tuple[Controller | None, str, dict]:
             {})
 
 
-def truth_refuses(parameters, effects) -> bool:
-    """Whether the design on the *true* model (its parameters and hidden effect, 40 dB, no thrust doubt) refuses:
-    then no gains of the search meet the template on the rig itself, and a refusal on an identified model is
-    correct."""
+def truth_refuses(parameters, effects, thrust_tolerance: tuple[float, float] = (1.0, 1.0)) -> bool:
+    """Whether the design on the *true* model (its parameters and hidden effect, 40 dB) refuses under
+    `thrust_tolerance` (default none: s21-s23's criterion): then no gains of the search meet the template on the rig
+    itself (with that doubt), and a refusal on an identified model is correct."""
     try:
         design(TEMPLATE, AT, parameters, effects, noise=MeasurementNoise(psnr_db=PSNR, quantise=True),
-               thrust_tolerance=(1.0, 1.0))
+               thrust_tolerance=tuple(thrust_tolerance))
     except (TemplateNotMet, AeropendError):
         return True
     return False
+
+
+def judge_refusal(record: dict, parameters, effects, thrust_tolerance) -> None:
+    """A refusal judged twice into `record`: ``truth_refuses`` (the truth designed with no thrust doubt, the s21-s23
+    column) and ``truth_refuses_like_for_like`` (the truth designed under the same doubt, `thrust_tolerance`, as the
+    refused model's design: a refusal the truth shares under that doubt is correct; s23 dead zone 4 at 93000)."""
+    record['truth_refuses'] = truth_refuses(parameters, effects)
+    record['refused_thrust_tolerance'] = list(thrust_tolerance)
+    if tuple(thrust_tolerance) == (1.0, 1.0):
+        record['truth_refuses_like_for_like'] = record['truth_refuses']
+    else:
+        record['truth_refuses_like_for_like'] = truth_refuses(parameters, effects, thrust_tolerance)
+
+
+def refused_correctly(record: dict, like_for_like: bool) -> bool | None:
+    """Whether `record`'s refusal (first design or redesign) is correct: the truth's design refuses too, with no
+    doubt (`like_for_like` False: the old column) or under the refused design's doubt (True); None when the row
+    has no such judgement (a row written before s24 has no like-for-like one)."""
+    key = 'truth_refuses_like_for_like' if like_for_like else 'truth_refuses'
+    return None if record.get(key) is None else bool(record[key])
+
+
+def _correct_refusals(rows: list[dict]) -> str:
+    """The table's cell: refusals correct with no doubt; under the same doubt ('?' for rows never judged so)."""
+    cells = []
+    for like_for_like in (False, True):
+        judged_rows = [refused_correctly(r, like_for_like) for r in rows]
+        unjudged = sum(verdict is None for verdict in judged_rows)
+        cells.append(f'{sum(bool(verdict) for verdict in judged_rows)}' + (f' (+{unjudged} ?)' if unjudged else ''))
+    return '; '.join(cells)
 
 
 def one_case(job) -> dict:
@@ -256,7 +286,7 @@ def _one_case(job) -> dict:
         record['nominal_design'] = record['structure_design']
     if nominal is None:
         record['refused_items'] = refused_items
-        record['truth_refuses'] = truth_refuses(parameters, effects)
+        judge_refusal(record, parameters, effects, model.thrust_tolerance)
         record['nominal'] = {'met': False, 'verdict': 'not run: the design refused', 'refused': True}
         record['diagnosis'] = {'verdict': None, 'named': None, 'confounded_with': []}
         record['loop'] = {'redesign': 'not run: the first design refused', 'met': False}
@@ -321,7 +351,7 @@ def _one_case(job) -> dict:
         record['predict'] = predict_other(controller, parameters, effects, seed)
     except (TemplateNotMet, AeropendError) as refusal:
         record['loop'] = {'redesign': f'refused: {refusal}', 'met': False}
-        record['truth_refuses'] = truth_refuses(parameters, effects)
+        judge_refusal(record, parameters, effects, base.thrust_tolerance)
     record['seconds'] = time.perf_counter() - started
     return record
 
@@ -356,7 +386,8 @@ def predict_other(controller: Controller, parameters, effects, seed: int) -> dic
 def table(records: list[dict]) -> str:
     lines = ['| case | seeds | open loop named (correct) | first design on the model with it added '
              '| nominal structure met | nominal structure missed (check said missed) | first design refused '
-             '(correctly) | first design met | closed-loop named (correct) | loop met | refused, correctly '
+             '(correctly: truth with no doubt; under the same doubt) | first design met | closed-loop named (correct) '
+             '| loop met | refused, correctly (no doubt; same doubt) '
              '| predict: overshoot within 3 pp | predict: settling within 20 % | predict: settling in 20-draw range '
              '| design s | s/seed |',
              '|' + '---|' * 16]
@@ -376,12 +407,13 @@ def table(records: list[dict]) -> str:
         structure_missed = [r for r in ran if not r['structure']['met']]
         said = sum(not r['structure']['verdict'].startswith('meets') for r in structure_missed)
         refused = [r for r in rows if r['nominal'].get('refused')]
-        refused_correct = sum(bool(r.get('truth_refuses')) for r in refused)
+        refused_correct = _correct_refusals(refused)
         nominal_met = sum(r['nominal']['met'] for r in rows)
         named = sum(r['diagnosis']['named'] is not None for r in rows)
         correct = sum(r['diagnosis']['named'] == truth_name for r in rows if r['diagnosis']['named'] is not None)
         loop_met = sum(bool(r['loop'].get('met')) for r in rows)
-        correctly = sum(bool(r.get('truth_refuses')) and not r['loop'].get('met') for r in rows)
+        correctly = _correct_refusals([r for r in rows if not r['loop'].get('met') and (
+            r['nominal'].get('refused') or str(r['loop'].get('redesign', '')).startswith('refused'))])
         steps = [s for r in rows for s in r.get('predict', {}).get('steps', [])]
         overshoot = f'{sum(s["overshoot_ok"] for s in steps)}/{len(steps)}'
         settling = f'{sum(s["settling_ok"] for s in steps)}/{len(steps)}'
