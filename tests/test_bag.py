@@ -158,6 +158,19 @@ def test_round_trip_with_two_independent_readers(tmp_path):
     np.testing.assert_array_equal(single['angle'], ours['angle'])
 
 
+def test_other_topics_are_read_in_the_samples_pass_as_read_messages_gives_them(tmp_path):
+    """read_samples(..., others=): a closed-loop record's control telemetry comes out of the one pass over the file,
+    the same bytes in the same order as read_messages gives them (s24: load_closed_loop read the file twice)."""
+    n = 2000
+    folder = tmp_path / 'run1'
+    write_bag(folder, n, chunk_size=16 * 1024).finish()
+    duty: list[bytes] = []
+    ours = read_samples(folder, others={DUTY: duty})
+    assert duty == [message.data for message in read_messages(folder, [DUTY])]
+    assert len(duty) == len(range(0, n, 49)) and duty[1] == cdr_float64(49 / n)
+    np.testing.assert_array_equal(ours['angle'], read_samples(folder)['angle'])
+
+
 def test_file_follows_rosbag2_conventions(tmp_path):
     folder = tmp_path / 'conv'
     write_bag(folder, 200).finish()

@@ -164,9 +164,7 @@ def load_closed_loop(path: str | os.PathLike) -> ClosedLoopData:
     AeropendError
         Not a bag, no samples, or no control telemetry (the bag holds no closed loop).
     """
-    import warnings
-
-    from aeropend_core.io.bag import bag_files, bag_topics, read_messages, read_samples
+    from aeropend_core.io.bag import bag_files, bag_topics, read_samples
     path = Path(path)
     from aeropend_core.io.bag import bag_information
     info = bag_information(path)
@@ -184,18 +182,13 @@ def load_closed_loop(path: str | os.PathLike) -> ClosedLoopData:
                             'gains.yaml --reference steps.yaml`')
     config_topic = _one_topic(topics, CONTROLLER_CONFIG_TOPIC, path)
     samples_topic = control_topic[:-len('control')] + 'samples'
-    wanted = [control_topic] + ([config_topic] if config_topic else [])
-    control_datas, config_texts = [], []
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore')           # read_samples below says what a damaged bag lost, once
-        for message in read_messages(target, wanted, on_incomplete='ignore'):
-            if message.topic == control_topic:
-                control_datas.append(message.data)
-            else:
-                config_texts.append(message.data)
+    # one pass over the file: the samples, and the control telemetry and configuration messages beside them
+    control_datas: list[bytes] = []
+    config_texts: list[bytes] = []
+    others = {control_topic: control_datas, **({config_topic: config_texts} if config_topic else {})}
+    samples = read_samples(target, samples_topic, others=others)
     if not control_datas:
         raise AeropendError(f'{path} holds no closed loop: {control_topic} has no message')
-    samples = read_samples(target, samples_topic)
     control_stamps, control = _decode_joint_states(control_datas, CONTROL_NAMES, f'{control_topic} in {path}')
     control_sequence = control[:, CONTROL_NAMES.index('sequence')].astype(np.int64)
     order = np.argsort(control_sequence, kind='stable')

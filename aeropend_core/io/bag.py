@@ -437,7 +437,8 @@ def _refuse_empty(path, topic: str, found: list[BagDamage]) -> None:
 
 
 def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomplete: str = 'warn',
-                 damage: list[SampleDamage] | None = None) -> dict[str, np.ndarray]:
+                 damage: list[SampleDamage] | None = None,
+                 others: dict[str, list[bytes]] | None = None) -> dict[str, np.ndarray]:
     """Acquisition samples of a recording as arrays (the JointState messages of ``/aeropend/samples``).
 
     Chunks are read in time order (their start log time; valid MCAP files may hold them in any order), past
@@ -459,6 +460,9 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     damage
         When given, receives a :class:`SampleDamage` for every problem found (notes included): the lost span
         [s] and sample count of each damaged chunk or cut.
+    others
+        Topic -> list: the raw CDR bytes of each message on these other topics are appended to its list, in file
+        order, in the same pass over the file (a closed-loop record's control telemetry: one read, not two).
 
     Returns
     -------
@@ -480,7 +484,13 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
     found: list[BagDamage] = []
     with warnings.catch_warnings(record=True) as cut:
         warnings.simplefilter('always')
-        for chunk, kept, names in _filtered_chunks(path, [topic], on_incomplete, found):
+        for chunk, kept, names in _filtered_chunks(path, [topic, *(others or {})], on_incomplete, found):
+            if others:
+                for m in kept:
+                    other = others.get(names[m.channel_id][0])
+                    if other is not None and names[m.channel_id][0] != topic:
+                        other.append(m.data)
+                kept = [m for m in kept if names[m.channel_id][0] == topic]
             if not kept:
                 continue
             wrong = {names[m.channel_id][1] for m in kept} - {_JOINT_STATE}
@@ -494,7 +504,7 @@ def read_samples(path: str | os.PathLike, topic: str = _SAMPLES_TOPIC, on_incomp
         topics = bag_topics(path)
         rigs = sorted(t for t in topics if t.endswith(_SAMPLES_TOPIC) and t != _SAMPLES_TOPIC)
         if topic == _SAMPLES_TOPIC and len(rigs) == 1:        # the bag of one rig in its namespace
-            return read_samples(path, rigs[0], on_incomplete, damage)
+            return read_samples(path, rigs[0], on_incomplete, damage, others)
         if topic == _SAMPLES_TOPIC and len(rigs) > 1:
             raise AeropendError(f'{path} holds the samples of several rigs ({", ".join(rigs)}), not one: record '
                                 'each rig with its own recorder (aeropend run --rig NAME, or a recorder_node in '
