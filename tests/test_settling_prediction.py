@@ -93,3 +93,42 @@ def test_the_feedforward_taken_once_per_reference_value_gives_the_loop_of_the_pe
     np.testing.assert_array_equal(once.feedforward, per_sample)
     np.testing.assert_array_equal(once.angle, each.angle)
     np.testing.assert_array_equal(once.duty, each.duty)
+
+
+def test_the_shared_noise_draws_give_each_seeds_run_and_the_checks_ranges_of_those_seeds():
+    """loop.noise_draws (s24: the one helper behind the design's noise edge and the check's range) gives, in seed
+    order and on threads, what one simulate_loop and schedule_metrics per seed give; settling_ranges over the same
+    seeds is their shortest and longest settling, draw count and unsettled count."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from aeropend_core.control.check import settling_ranges
+    from aeropend_core.control.loop import FeedforwardMap, feedforward_per_sample, noise_draws, simulate_loop
+    from aeropend_core.control.metrics import schedule_metrics
+    from aeropend_core.control.reference import ReferenceSchedule
+    from aeropend_core.sim.noise import MeasurementNoise
+
+    schedule = ReferenceSchedule.steps_between([25, 45], hold=2.0, start_hold=1.0)
+    reference = schedule.reference()
+    feedforward = feedforward_per_sample(FeedforwardMap(), reference)
+    noise = MeasurementNoise(psnr_db=40.0, quantise=True)
+    seeds = [11, 3, 7, 5]
+    alone = []
+    for seed in seeds:
+        run = simulate_loop(_gains(), reference, feedforward, noise=noise, seed=seed, duty_limit=0.8)
+        alone.append((run, schedule_metrics(run.time, run.angle, run.duty, schedule)))
+    from aeropend_core.model.parameters import DEFAULT_PARAMETERS
+    with ThreadPoolExecutor(2) as pool:
+        shared = noise_draws(_gains(), reference, feedforward, DEFAULT_PARAMETERS, {}, noise, seeds, schedule,
+                             duty_limit=0.8, pool=pool)
+    assert len(shared) == len(seeds)
+    for (run, metrics), (run_alone, metrics_alone) in zip(shared, alone):
+        np.testing.assert_array_equal(run.angle, run_alone.angle)
+        assert [m.settling_time for m in metrics] == [m.settling_time for m in metrics_alone]
+    ranges = settling_ranges(_gains(), reference, feedforward, DEFAULT_PARAMETERS, {}, noise, schedule, seeds,
+                             duty_limit=0.8)
+    assert len(ranges) == 2
+    for index, (start, (low, high, draws, unsettled)) in enumerate(sorted(ranges.items())):
+        times = [metrics[index].settling_time for _run, metrics in alone]
+        assert math.isclose(start, round(alone[0][1][index].start, 6))
+        assert (low, high, draws) == (min(times), max(times), len(seeds))
+        assert unsettled == sum(not metrics[index].settled for _run, metrics in alone)

@@ -15,14 +15,13 @@ n draws with probability (n - 1)/(n + 1), 19 in 21 for n = 20.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from aeropend_core.control.controller_file import Controller
 from aeropend_core.control.law import PidGains
-from aeropend_core.control.loop import FeedforwardMap, simulate_loop
+from aeropend_core.control.loop import FeedforwardMap, noise_draws, simulate_loop
 from aeropend_core.control.metrics import StepMetrics, Template, noise_sigma, schedule_metrics
 from aeropend_core.control.reference import ReferenceSchedule
 from aeropend_core.errors import AeropendError
@@ -195,19 +194,8 @@ def settling_ranges(gains: PidGains, reference: np.ndarray, feedforward: np.ndar
     model, one per seed of `seeds` (plus the metrics `first` of one run already made): each judged by the same
     :func:`~aeropend_core.control.metrics.schedule_metrics`. `reference` [rad] and `feedforward` [duty] per sample.
     A draw that does not settle counts as its hold."""
-    def one(seed):          # the compiled loop releases the GIL: two draws at a time on two cores
-        run = simulate_loop(gains, reference, feedforward, parameters, effects, noise, seed, sample_time=sample_time,
-                            duty_limit=duty_limit)
-        return schedule_metrics(run.time, run.angle, run.duty, schedule)
-
-    seeds = list(seeds)
-    workers = min(2, os.cpu_count() or 1, len(seeds))
-    if workers > 1:
-        from concurrent.futures import ThreadPoolExecutor
-        with ThreadPoolExecutor(workers) as pool:
-            drawn = list(pool.map(one, seeds))
-    else:
-        drawn = [one(seed) for seed in seeds]
+    drawn = [metrics for _run, metrics in noise_draws(gains, reference, feedforward, parameters, effects, noise, seeds,
+                                                      schedule, sample_time, duty_limit)]
     per_step: dict[float, list[StepMetrics]] = {}
     for metrics in [first or []] + drawn:
         for m in metrics:

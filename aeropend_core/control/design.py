@@ -30,7 +30,8 @@ import numpy as np
 
 from aeropend_core.control.law import PidGains, law_step
 from aeropend_core.control.linear import Linearisation, linearise
-from aeropend_core.control.loop import ClosedLoopRecord, FeedforwardMap, feedforward_per_sample, simulate_loop
+from aeropend_core.control.loop import (ClosedLoopRecord, FeedforwardMap, feedforward_per_sample, noise_draws,
+                                        simulate_loop)
 from aeropend_core.control.metrics import StepMetrics, Template, schedule_metrics
 from aeropend_core.control.nelder_mead import nelder_mead
 from aeropend_core.control.reference import ReferenceSchedule, design_schedule
@@ -366,12 +367,10 @@ def _at_the_noise_edge(candidate: Design, pool, reference, feedforward, paramete
     noise, not the model's limit. An item no draw settles on is never at the noise's edge."""
     if noise is None or not noise.psnr_db or any(math.isinf(amount) for amount in candidate.misses().values()):
         return None
-    runs = list(pool.map(lambda offset: simulate_loop(
-        candidate.gains, reference, feedforward, parameters, effects, noise, seed + offset, sample_time=sample_time,
-        duty_limit=duty_cap), range(NOISE_EDGE_DRAWS)))
-    draws = [dataclasses.replace(candidate, predicted=run, metrics=schedule_metrics(run.time, run.angle, run.duty,
-                                                                                    candidate.schedule),
-                                 notes=list(candidate.notes)) for run in runs]
+    draws = [dataclasses.replace(candidate, predicted=run, metrics=metrics, notes=list(candidate.notes))
+             for run, metrics in noise_draws(candidate.gains, reference, feedforward, parameters, effects, noise,
+                                             range(seed, seed + NOISE_EDGE_DRAWS), candidate.schedule, sample_time,
+                                             duty_cap, pool=pool)]
     met = sum(not draw.misses() for draw in draws)
     if 2 * met < len(draws):
         return None

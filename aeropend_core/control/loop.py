@@ -14,6 +14,7 @@ static duty of the model the controller was designed on, not of the simulated tr
 """
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
@@ -283,3 +284,31 @@ def simulate_loop(gains: PidGains, reference: np.ndarray, feedforward: Callable[
     simulation = ClosedLoopSimulation(gains, feedforward, parameters, effects, noise, seed, initial_angle,
                                       sample_time, duty_limit)
     return simulation.advance(reference)
+
+
+def noise_draws(gains: PidGains, reference: np.ndarray, feedforward, parameters: RigParameters, effects,
+                noise: MeasurementNoise | None, seeds, schedule, sample_time: float = SAMPLE_TIME,
+                duty_limit: float = 1.0, pool=None, workers: int = 2) -> list:
+    """(run, its per-step metrics) of the closed loop on the model, one per seed of `seeds` (noise draws), in
+    seed order: the one helper behind the design's noise-edge judgement and the check's settling range.
+
+    `reference` [rad per sample]; `feedforward` [duty per sample, or a function of the reference]; `schedule` the
+    :class:`~aeropend_core.control.reference.ReferenceSchedule` the metrics read
+    (:func:`~aeropend_core.control.metrics.schedule_metrics`, the judgement of a record). The compiled loop
+    releases the GIL: the draws run on `pool`'s threads, else on up to `workers` threads of their own."""
+    from aeropend_core.control.metrics import schedule_metrics
+
+    def one(seed):
+        run = simulate_loop(gains, reference, feedforward, parameters, effects, noise, seed, sample_time=sample_time,
+                            duty_limit=duty_limit)
+        return run, schedule_metrics(run.time, run.angle, run.duty, schedule)
+
+    seeds = list(seeds)
+    if pool is not None:
+        return list(pool.map(one, seeds))
+    workers = min(workers, os.cpu_count() or 1, len(seeds))
+    if workers <= 1:
+        return [one(seed) for seed in seeds]
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(workers) as threads:
+        return list(threads.map(one, seeds))
