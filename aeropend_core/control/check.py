@@ -21,7 +21,7 @@ import numpy as np
 
 from aeropend_core.control.controller_file import Controller
 from aeropend_core.control.law import PidGains
-from aeropend_core.control.loop import FeedforwardMap, noise_draws, simulate_loop
+from aeropend_core.control.loop import FeedforwardMap, feedforward_per_sample, noise_draws
 from aeropend_core.control.metrics import StepMetrics, Template, noise_sigma, schedule_metrics
 from aeropend_core.control.reference import ReferenceSchedule
 from aeropend_core.errors import AeropendError
@@ -196,8 +196,13 @@ def settling_ranges(gains: PidGains, reference: np.ndarray, feedforward: np.ndar
     A draw that does not settle counts as its hold."""
     drawn = [metrics for _run, metrics in noise_draws(gains, reference, feedforward, parameters, effects, noise, seeds,
                                                       schedule, sample_time, duty_limit)]
+    return _ranges([first or []] + drawn)
+
+
+def _ranges(drawn: list[list[StepMetrics]]) -> dict:
+    """:func:`settling_ranges`' answer from the per-step metrics of each draw."""
     per_step: dict[float, list[StepMetrics]] = {}
-    for metrics in [first or []] + drawn:
+    for metrics in drawn:
         for m in metrics:
             per_step.setdefault(round(m.start, 6), []).append(m)
     return {start: (min(m.settling_time for m in ms), max(m.settling_time for m in ms), len(ms),
@@ -227,19 +232,21 @@ def check_record(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, controll
     noise = MeasurementNoise(psnr_db=psnr, quantise=True, signals=('angle',))
     n = int(round(schedule.duration / sample_time))
     cap = duty_limit if duty_limit is not None else controller.gains.u_clamp_max
-    predicted = simulate_loop(controller.gains, schedule.reference(n, sample_time),
-                              FeedforwardMap(controller.parameters, controller.effects), controller.parameters,
-                              controller.effects, noise, seed, sample_time=sample_time, duty_limit=cap)
-    predicted_metrics = schedule_metrics(predicted.time, predicted.angle, predicted.duty, schedule)
-    by_start = {round(m.start, 6): m for m in predicted_metrics}
     from aeropend_core.model.effects import get_effect, resolve_effects
     if draws > 0 and not all(get_effect(name).compiled for name in resolve_effects(controller.effects)):
         notes.append('the predicted settling\'s range over noise draws is not given: the model has an effect outside '
                      'the compiled closed loop (each draw would take ~30 us a sample)')
         draws = 0
-    ranges = settling_ranges(controller.gains, predicted.reference, predicted.feedforward, controller.parameters,
-                             controller.effects, noise, schedule, range(seed + 1, seed + 1 + draws),
-                             predicted_metrics, sample_time, cap) if draws > 0 else {}
+    # the prediction (seed) and the range's draws (seed + 1 .. seed + draws) side by side on two threads
+    reference = schedule.reference(n, sample_time)
+    feedforward = FeedforwardMap(controller.parameters, controller.effects)
+    if draws > 0:
+        feedforward = feedforward_per_sample(feedforward, reference)
+    runs = noise_draws(controller.gains, reference, feedforward, controller.parameters, controller.effects, noise,
+                       range(seed, seed + 1 + draws), schedule, sample_time, cap)
+    predicted, predicted_metrics = runs[0]
+    by_start = {round(m.start, 6): m for m in predicted_metrics}
+    ranges = _ranges([metrics for _run, metrics in runs]) if draws > 0 else {}
     steps = []
     for index, m in enumerate(measured, start=1):
         p = by_start.get(round(m.start, 6))
