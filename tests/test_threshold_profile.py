@@ -3,12 +3,14 @@ the spacing of the input levels (every sample a new one) gave ~1e-4 V for errors
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from aeropend_core.diagnosis.threshold_profile import PROFILE_CHI2, profile_statistic, threshold_profile
+from aeropend_core.diagnosis.threshold_profile import (PROFILE_CHI2, once_per_gate_pattern, profile_statistic,
+                                                       threshold_profile)
 
 EFFECTIVE = 400.0
 BEST_RMS = 0.002
@@ -110,3 +112,52 @@ def test_a_refit_that_stops_short_of_the_optimum_is_not_read_as_a_rise():
     profile = threshold_profile(short, _best(0.6), 'threshold_voltage', 0.0, 2.0)
     assert profile_statistic(BEST_RMS * 1.005, BEST_RMS, EFFECTIVE) > PROFILE_CHI2
     assert profile['sigma'] == pytest.approx(0.05, rel=0.15)
+
+
+@dataclass
+class _Fit:
+    residual_rms: float
+    parameters: dict
+
+
+def test_a_refit_runs_once_per_pattern_of_gated_samples():
+    """Thresholds between the same two input levels gate the same samples: one refit, returned with each one's
+    threshold; a threshold across a level refits; a failed refit stays failed."""
+    calls = []
+
+    def refit(threshold: float):
+        calls.append(threshold)
+        if threshold > 0.5:
+            return None
+        return _Fit(residual_rms=0.01 + threshold, parameters={'threshold_voltage': threshold, 'angle_offset': 0.02})
+    cached = once_per_gate_pattern(refit, np.array([0.0, 0.2, 0.4, 0.2, 0.6]), 'threshold_voltage')
+    first, second = cached(0.05), cached(0.15)
+    assert calls == [0.05]
+    assert second.parameters == {'threshold_voltage': 0.15, 'angle_offset': 0.02}
+    assert second.residual_rms == first.residual_rms and first.parameters['threshold_voltage'] == 0.05
+    assert cached(0.25).parameters['threshold_voltage'] == 0.25 and calls == [0.05, 0.25]
+    assert cached(0.55) is None and cached(0.58) is None and calls == [0.05, 0.25, 0.55]
+
+
+def test_two_thresholds_that_gate_the_same_samples_give_the_same_fit_bit_for_bit():
+    """The premise of once_per_gate_pattern on the real fit: a 24 s staircase record with a dead zone, refitted with
+    the threshold held at two values between the same two input levels, from the same start."""
+    from aeropend_core.diagnosis.compare import fit_model, prepare
+    from aeropend_core.diagnosis.output_error import fit_output_error
+    from aeropend_core.io.recording import from_columns
+    from aeropend_core.model.parameters import DEFAULT_PARAMETERS as rig
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.sim.simulate import simulate
+    levels = np.repeat([0.0, 0.35, 0.2, 0.45, 0.3, 0.25] * 2, int(2 * 490))
+    trajectory = simulate(levels, rig, effects={'dead_zone': 0.3}, noise=MeasurementNoise(45.0, True), seed=5)
+    prep = prepare(from_columns(trajectory.columns(with_truth=False)))
+    fit = fit_model(prep, ('dead_zone',))
+    gated = np.sort(np.unique(prep.train.gate_signal))
+    below = gated[np.searchsorted(gated, fit.parameters['threshold_voltage']) - 1]
+    above = gated[np.searchsorted(gated, fit.parameters['threshold_voltage'])]
+    a, b = below + 0.3 * (above - below), below + 0.7 * (above - below)
+    refits = [fit_output_error(prep.train, fit.structure, fit.parameters, fixed={'armature_resistance':
+              fit.parameters['armature_resistance'], 'threshold_voltage': t}, max_iterations=30, covariance=False)
+              for t in (a, b)]
+    assert np.array_equal(refits[0].residuals, refits[1].residuals)
+    assert all(refits[0].parameters[n] == refits[1].parameters[n] for n in fit.parameters if n != 'threshold_voltage')

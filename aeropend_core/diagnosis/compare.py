@@ -30,7 +30,7 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.diagnosis import MIN_DURATION  # noqa: F401 - the shortest record [s], also read from here
 from aeropend_core.diagnosis.basins import PROFILED, search_lag_basins
 from aeropend_core.diagnosis.map_profile import profile_motor_map
-from aeropend_core.diagnosis.threshold_profile import REFIT_ITERATIONS, threshold_profile
+from aeropend_core.diagnosis.threshold_profile import REFIT_ITERATIONS, once_per_gate_pattern, threshold_profile
 from aeropend_core.diagnosis.gaps import MAX_LOST_FRACTION, SHORTEST_PIECE, Gaps, split_at_gaps  # noqa: F401
 from aeropend_core.model.effects import kernel_parameter
 from aeropend_core.diagnosis.output_error import (STRIDE, OutputErrorFit, SegmentedData, Structure, fit_output_error,
@@ -772,6 +772,7 @@ def _profile_threshold(prep: PreparedRecord, fit: OutputErrorFit, initial_states
         return fit_output_error(prep.train, fit.structure, fit.parameters, fixed={**held, gate: threshold},
                                 max_iterations=REFIT_ITERATIONS, initial_states=initial_states,
                                 covariance=False)      # the profile reads the cost and the parameters, no sigma
+    refit = once_per_gate_pattern(refit, prep.train.gate_signal, gate)
     profile = threshold_profile(refit, fit, gate, 0.0, float(np.max(prep.gate_voltage[:prep.split])),
                                 ranking=fit.extra.get('threshold_ranking', ()))
     errors = dict(fit.standard_errors)

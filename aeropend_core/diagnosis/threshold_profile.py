@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -165,4 +166,22 @@ def threshold_profile(refit: Callable, fit, gate: str, lower: float, upper: floa
             'spread': spread, 'refits': len(calls)}
 
 
-__all__ = ['PROFILE_CHI2', 'profile_statistic', 'threshold_profile']
+def once_per_gate_pattern(refit: Callable, gate_signal: np.ndarray, gate: str) -> Callable:
+    """`refit` run once per pattern of gated samples: the threshold [V] enters the fit only through the comparisons
+    ``gate_signal < threshold`` (the simulation and sensitivity kernels), so two thresholds that gate the same
+    samples of `gate_signal` [V] give the same fit from the same start, bit for bit. The later one is the first
+    one's fit with `gate` set to it. Between two held input levels every threshold gates the same samples.
+    """
+    fits = {}
+
+    def cached(threshold: float):
+        key = np.packbits(np.asarray(gate_signal) < threshold).tobytes()
+        if key not in fits:
+            fits[key] = refit(threshold)
+            return fits[key]
+        fit = fits[key]
+        return None if fit is None else replace(fit, parameters={**fit.parameters, gate: float(threshold)})
+    return cached
+
+
+__all__ = ['PROFILE_CHI2', 'once_per_gate_pattern', 'profile_statistic', 'threshold_profile']
