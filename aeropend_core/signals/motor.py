@@ -305,15 +305,21 @@ def fit_motor(voltage: np.ndarray, current: np.ndarray, step_indices: np.ndarray
         emf = _simulate(rows[:, :3], voltage, rows[:, 4], sample_time, switch)
         return (voltage[None, :] - emf) / rows[:, 3:4]
 
+    last = {}     # the model at the point the optimiser evaluated last: its Jacobian there starts from it
+
     def residuals(x):
-        return _bounded(model_current((x * scale)[None, :])[0, keep] - measured)
+        modelled = model_current((x * scale)[None, :])[0]
+        last.clear()
+        last[x.tobytes()] = modelled
+        return _bounded(modelled[keep] - measured)
 
     def jacobian(x):
         step = 1e-6 * np.maximum(np.abs(x), 1.0)
         rows = np.tile(x, (len(x) + 1, 1))
         rows[1:] += np.diag(step)
         # one row at a time (the same numbers): a 1-hour record's rows and their temporaries would take ~0.7 GB
-        base = _bounded(model_current(rows[:1] * scale)[0, keep])
+        modelled = last.get(x.tobytes())
+        base = _bounded((model_current(rows[:1] * scale)[0] if modelled is None else modelled)[keep])
         jac = np.empty((base.size, len(x)))
         for i in range(len(x)):
             jac[:, i] = (_bounded(model_current(rows[i + 1:i + 2] * scale)[0, keep]) - base) / step[i]
@@ -485,15 +491,23 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
                       out_current, out_emf, switch)
         return out_current, out_emf
 
+    last = {}     # the model at the point the optimiser evaluated last, with the step positions it used
+
     def residuals(z):
-        return _bounded(model((z * scale)[None, :])[0][0, use] - measured)
+        modelled = model((z * scale)[None, :])[0][0]
+        last.clear()
+        last[z.tobytes()] = (switch, modelled)
+        return _bounded(modelled[use] - measured)
 
     def jacobian(z):
         step = 1e-6 * np.maximum(np.abs(z), 1.0)
         rows = np.tile(z, (len(z) + 1, 1))
         rows[1:] += np.diag(step)
         # one row at a time (the same numbers): memory of two records' length, not two per parameter
-        base = _bounded(model(rows[:1] * scale)[0][0, use])
+        held, modelled = last.get(z.tobytes(), (None, None))
+        if modelled is None or held is not switch:
+            modelled = model(rows[:1] * scale)[0][0]
+        base = _bounded(modelled[use])
         jac = np.empty((base.size, len(z)))
         for i in range(len(z)):
             jac[:, i] = (_bounded(model(rows[i + 1:i + 2] * scale)[0][0, use]) - base) / step[i]
