@@ -505,7 +505,7 @@ def _heldout_simulation(prep: PreparedRecord, fit: OutputErrorFit) -> np.ndarray
     head_data = SegmentedData(prep.voltage, prep.current, prep.angle,
                               [(a, min(b, a + head)) for a, b in prep.heldout.segments], prep.sample_time,
                               prep.gate_voltage, prep.valid)
-    ic_fit = fit_output_error(head_data, structure, fixed, fixed=fixed, max_iterations=30)
+    ic_fit = fit_output_error(head_data, structure, fixed, fixed=fixed, max_iterations=30, covariance=False)  # states
     return prep.heldout.simulate(structure, structure.row(fit.parameters)[None],
                                  ic_fit.initial_states[None])[0]
 

@@ -18,6 +18,7 @@ import numpy as np
 from scipy import special
 
 from aeropend_core.diagnosis.output_error import SegmentedData, fit_output_error
+from aeropend_core.diagnosis.parallel import map_in_order, workers_for
 from aeropend_core.errors import InsufficientDataError
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 
@@ -106,13 +107,14 @@ def drift_test(prep, comparison) -> list[dict]:
     parameters = dict(comparison.parameters)
     held = {k: v for k, v in parameters.items() if k not in DRIFT_PARAMETERS}
     times, fitted = [], {name: [] for name in DRIFT_PARAMETERS}
-    for start, stop in bounds:
-        pieces = _clean_pieces(start, stop, valid)
-        if not pieces:
-            continue
-        data = SegmentedData(prep.voltage, prep.current, prep.angle, pieces, prep.sample_time, prep.gate_voltage,
+    stretches = [(start, stop, pieces) for start, stop in bounds if (pieces := _clean_pieces(start, stop, valid))]
+
+    def fit_stretch(stretch):
+        # the parameters are read, not their sigma; the stretches are independent: side by side on the cores
+        data = SegmentedData(prep.voltage, prep.current, prep.angle, stretch[2], prep.sample_time, prep.gate_voltage,
                              valid)
-        fit = fit_output_error(data, structure, parameters, fixed=held, max_iterations=20)
+        return fit_output_error(data, structure, parameters, fixed=held, max_iterations=20, covariance=False)
+    for (start, stop, _), fit in zip(stretches, map_in_order(fit_stretch, stretches, workers_for(n))):
         times.append(float(prep.time[(start + stop - 1) // 2]))
         for name in DRIFT_PARAMETERS:
             fitted[name].append(fit.parameters[name])

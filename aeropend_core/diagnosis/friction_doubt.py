@@ -22,6 +22,7 @@ import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord
 from aeropend_core.diagnosis.output_error import FRICTION_STABILITY, STRIDE, OutputErrorFit, fit_output_error
+from aeropend_core.diagnosis.parallel import map_in_order, workers_for
 from aeropend_core.model.effects import FRICTION_SMOOTHING, kernel_parameter
 
 #: The smoothing rate is varied by this factor both ways (w0 / 2 and 2 w0): 5 and 20 mrad/s around the catalog's 10.
@@ -54,12 +55,16 @@ def friction_shape_shifts(prep: PreparedRecord, fit: OutputErrorFit
     step = STRIDE * prep.train.sample_time
     moves: dict[str, float] = {}
     rates, changes = [], []
-    for rate in (structure.friction_smoothing / FACTOR, structure.friction_smoothing * FACTOR):
+    smoothings = (structure.friction_smoothing / FACTOR, structure.friction_smoothing * FACTOR)
+
+    def refit_with(rate: float) -> OutputErrorFit:
+        return fit_output_error(prep.train, replace(structure, friction_smoothing=rate), dict(fit.parameters),
+                                fixed=held, max_iterations=REFIT_ITERATIONS, initial_states=fit.initial_states,
+                                covariance=False)      # the cost and the parameters are read, no sigma
+    # the two refits are independent: side by side on the cores (the same numbers)
+    for rate, refit in zip(smoothings, map_in_order(refit_with, smoothings, workers_for(len(prep.angle)))):
         # the width the kernel actually uses (its stability floor, Fc h / FRICTION_STABILITY)
         rates.append(max(rate, abs(fit.parameters[friction]) * step / FRICTION_STABILITY))
-        refit = fit_output_error(prep.train, replace(structure, friction_smoothing=rate), dict(fit.parameters),
-                                 fixed=held, max_iterations=REFIT_ITERATIONS, initial_states=fit.initial_states,
-                                 covariance=False)      # the cost and the parameters are read, no sigma
         changes.append(refit.residual_rms / fit.residual_rms - 1.0)
         for name in fit.free_names:
             if name in held:
