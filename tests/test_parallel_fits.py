@@ -99,3 +99,44 @@ def test_the_diagnosis_is_the_same_with_one_and_two_workers(hidden, named, monke
         np.testing.assert_equal(one.standard_errors, two.standard_errors)
         np.testing.assert_equal(one.delta_bic, two.delta_bic)
     np.testing.assert_equal(serial[1], parallel[1])           # everything the JSON says, exactly
+
+
+def test_a_kernel_split_over_threads_by_segments_gives_the_numbers_of_one_call(monkeypatch):
+    """A long record's fits run one after the other; their kernels run chunks of the segments on threads
+    (parallel.in_segment_chunks). The simulation (two rows, lag and gate on) and the exact Jacobian with 3 workers
+    equal those of one worker bit for bit, and the segments went to the threads in 3 chunks."""
+    from aeropend_core.diagnosis import output_error as oe
+    rng = np.random.default_rng(7)
+    n = 40_000
+    voltage = np.repeat(rng.uniform(0.3, 2.4, n // 150 + 1), 150)[:n]
+    current = 0.2 * voltage + 0.01 * rng.standard_normal(n)
+    angle = 0.01 * rng.standard_normal(n)
+    segments = [(start, start + length) for start, length in zip(range(0, n, 4000), rng.integers(2000, 4000, 10))]
+    data = oe.SegmentedData(voltage, current, angle, segments, 1.0 / 490.0)
+    structure = oe.Structure(('coulomb_friction', 'thrust_lag', 'dead_zone'))
+    values = {'gravity_stiffness': 40.0, 'damping': 1.2, 'thrust_gain': 30.0, 'armature_resistance': 0.9,
+              'friction_acceleration': 0.5, 'time_constant': 0.05, 'threshold_voltage': 0.6}
+    rows = np.array([structure.row(values), structure.row({**values, 'damping': 1.5})])
+    initial = rng.normal(0.0, 0.3, (2, len(data.segments), 2))
+    exact = oe.exact_columns(structure, tuple(values))
+    chunks = []
+    kernel = oe._simulate_kernel
+
+    def spying(*args):
+        chunks.append((threading.current_thread().name, len(args[4])))
+        return kernel(*args)
+    monkeypatch.setattr(oe, '_simulate_kernel', spying)
+    results = {}
+    for workers in (1, 3):
+        monkeypatch.setenv(WORKERS_VARIABLE, str(workers))
+        chunks.clear()
+        simulated = data.simulate(structure, rows, initial)
+        jacobian = oe._exact_jacobian(data, structure, rows[0], initial[0], exact, np.ones(len(exact)),
+                                      angle[data.residual_index])
+        results[workers] = (simulated, jacobian[0], jacobian[1], list(chunks))
+    np.testing.assert_array_equal(results[1][0], results[3][0])
+    np.testing.assert_array_equal(results[1][1], results[3][1])
+    np.testing.assert_array_equal(results[1][2], results[3][2])
+    assert results[1][3] == [(threading.current_thread().name, len(data.segments))]      # one call, in this thread
+    assert len(results[3][3]) == 3 and all(name.startswith('aeropend-kernel') for name, _ in results[3][3])
+    assert sum(count for _, count in results[3][3]) == len(data.segments)

@@ -36,7 +36,7 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import (FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, find_parameter, get_effect,
                                          kernel_parameter, wants_thrust)
 from aeropend_core.model.names import NOMINAL_PARAMETERS
-from aeropend_core.diagnosis.parallel import map_in_order, workers_for
+from aeropend_core.diagnosis.parallel import in_segment_chunks, map_in_order, workers_for
 from aeropend_core.diagnosis.sensitivity import EXACT_COLUMNS, sensitivity_kernel
 from aeropend_core.diagnosis.term_kernel import term_value
 from aeropend_core.diagnosis.user_kernel import EXTRA_TYPE, compiled_user_terms, no_extra
@@ -435,18 +435,18 @@ class SegmentedData:
 
 
 def _run_kernel(data: SegmentedData, structure: Structure, rows: np.ndarray, voltage: np.ndarray,
-                initial: np.ndarray, out: np.ndarray, term_code: int = -1, term_column: int = 0,
-                extra=None) -> None:
+                initial: np.ndarray, out: np.ndarray, term_code: int = -1, term_column: int = 0, extra=None) -> None:
     """:func:`_simulate_kernel` with its arguments in the types of its one signature (C-contiguous float64 and
-    int64 arrays); writes into `out` [rad], which must be C-contiguous float64."""
-    def f(values):
-        return np.ascontiguousarray(values, dtype=np.float64)
-
-    _simulate_kernel(f(rows), f(voltage), f(data.current), f(data.gate_signal),
-                     np.ascontiguousarray(data.seg_start, dtype=np.int64),
-                     np.ascontiguousarray(data.seg_stop, dtype=np.int64), f(initial), float(data.sample_time),
-                     bool(structure.lag_on), bool(structure.gate_on), out, int(term_code), int(term_column),
-                     no_extra if extra is None else extra, extra is not None, float(structure.friction_smoothing))
+    int64 arrays); writes into `out` [rad] (C-contiguous float64). Segments split over threads but users' effects."""
+    f = np.ascontiguousarray
+    rows, voltage, current, gate = (f(x, dtype=np.float64) for x in (rows, voltage, data.current, data.gate_signal))
+    start, stop, initial = f(data.seg_start, dtype=np.int64), f(data.seg_stop, dtype=np.int64), f(initial, dtype=float)
+    def run(a, b):
+        _simulate_kernel(rows, voltage, current, gate, start[a:b], stop[a:b], f(initial[:, a:b]),
+                         float(data.sample_time), bool(structure.lag_on), bool(structure.gate_on), out, int(term_code),
+                         int(term_column), no_extra if extra is None else extra, extra is not None,
+                         float(structure.friction_smoothing))
+    in_segment_chunks(run, start, stop) if extra is None else run(0, len(start))
 
 
 @dataclass
@@ -745,12 +745,12 @@ def _exact_jacobian(data: SegmentedData, structure: Structure, row: np.ndarray, 
     d_columns = np.zeros((n, len(tracked)))
     d_initial = np.zeros((n, 2))
     f = np.ascontiguousarray
-    sensitivity_kernel(f(row, dtype=np.float64), f(data.voltage[lo:hi], dtype=np.float64),
-                       f(data.current[lo:hi], dtype=np.float64), f(data.gate_signal[lo:hi], dtype=np.float64),
-                       f(data.seg_start - lo, dtype=np.int64), f(data.seg_stop - lo, dtype=np.int64),
-                       f(initial, dtype=np.float64), float(data.sample_time), bool(structure.lag_on),
-                       bool(structure.gate_on), float(structure.friction_smoothing), float(MIN_TIME_CONSTANT),
-                       float(FRICTION_STABILITY), float(STRIDE), tracked, out, d_columns, d_initial)
+    args = [f(x, dtype=np.float64) for x in (row, data.voltage[lo:hi], data.current[lo:hi], data.gate_signal[lo:hi])]
+    start, stop, initial = f(data.seg_start - lo, dtype=np.int64), f(data.seg_stop - lo, dtype=np.int64), f(initial)
+    in_segment_chunks(lambda a, b: sensitivity_kernel(
+        *args, start[a:b], stop[a:b], f(initial[a:b], dtype=np.float64), float(data.sample_time),
+        bool(structure.lag_on), bool(structure.gate_on), float(structure.friction_smoothing), float(MIN_TIME_CONSTANT),
+        float(FRICTION_STABILITY), float(STRIDE), tracked, out, d_columns, d_initial), start, stop)
     index = data.residual_index - lo
     raw = out[0, index] - measured
     inside = np.isfinite(raw) & (np.abs(raw) < DIVERGED_RESIDUAL)

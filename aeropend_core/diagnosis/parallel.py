@@ -102,6 +102,47 @@ def map_in_order(function: Callable[[Item], Result], items: Iterable[Item], work
         pool.shutdown(wait=True, cancel_futures=True)
 
 
+#: Fewest samples a compiled kernel's call must cover before its segments are split over threads (below, starting
+#: the threads costs more than the split saves).
+SPLIT_MIN_SAMPLES = 8_000
+_kernel_pool = None
+
+
+def in_segment_chunks(call: Callable, seg_start, seg_stop) -> None:
+    """``call(first, last)`` for contiguous chunks ``[first, last)`` of the segments, one chunk per worker thread,
+    as balanced in samples as whole segments allow; one call over all of them with one worker, inside a worker of
+    :func:`map_in_order` (the cores are taken) or for a short simulation.
+
+    For a compiled kernel (``nogil``) that simulates each segment from its own initial state and writes only that
+    segment's samples: the numbers are those of one call whatever the chunks. A long record's fits run one after
+    the other (:data:`PARALLEL_MAX_SAMPLES`), so without this its kernels used one core of the machine's.
+    """
+    global _kernel_pool
+    count = len(seg_start)
+    lengths = [int(b) - int(a) for a, b in zip(seg_start, seg_stop)]
+    workers = min(default_workers(), count)
+    if workers <= 1 or sum(lengths) < SPLIT_MIN_SAMPLES or threading.current_thread().name.startswith(_THREAD_PREFIX):
+        call(0, count)
+        return
+    edges, done, total = [0], 0, sum(lengths)
+    for index, length in enumerate(lengths[:-1]):
+        done += length
+        if done * workers >= total * len(edges) and len(edges) < workers:
+            edges.append(index + 1)
+    edges.append(count)
+    from concurrent.futures import ThreadPoolExecutor
+    try:
+        if _kernel_pool is None:
+            _kernel_pool = ThreadPoolExecutor(max_workers=default_workers(), thread_name_prefix='aeropend-kernel')
+        futures = [_kernel_pool.submit(call, a, b) for a, b in zip(edges[:-1], edges[1:])]
+    except RuntimeError:                     # cannot start a thread: one call, the same numbers
+        call(0, count)
+        return
+    for error in [future.exception() for future in futures]:      # every chunk finished before anything is raised
+        if error is not None:
+            raise error
+
+
 def locked(say: Callable[[str], None]) -> Callable[[str], None]:
     """`say` made safe to call from several workers (one message at a time)."""
     lock = threading.Lock()
