@@ -41,8 +41,12 @@ from aeropend_core.sim.simulate import simulate
 ROOT = Path(__file__).resolve().parents[1]
 HIDDEN = {'coulomb_friction': 4.0}
 CLI = 'import sys; from aeropend_core.cli import main; sys.exit(main())'
-#: The thread-count variables aeropend_core.blas respects: unset, as in a user's shell.
-THREAD_VARIABLES = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'BLIS_NUM_THREADS')
+#: The thread-count variables aeropend_core.blas respects: unset, as in a user's shell. Also unset: the switch that
+#: stops Python writing bytecode (set where the project's sessions run). With it every run compiled all of
+#: aeropend_core's modules from source (81 on the diagnose path), which a user's installation does once; the
+#: warm-up now writes each tree's bytecode, as a user's first run does.
+UNSET_VARIABLES = ('OPENBLAS_NUM_THREADS', 'OMP_NUM_THREADS', 'MKL_NUM_THREADS', 'BLIS_NUM_THREADS',
+                    'PYTHONDONTWRITEBYTECODE')
 
 
 def base_tree(commit: str, path: Path | None) -> Path:
@@ -56,7 +60,7 @@ def base_tree(commit: str, path: Path | None) -> Path:
 
 def run(tree: Path, argv: list[str], cwd: Path) -> tuple[float, float, int, str]:
     """(wall time [s], peak RSS [MB], exit status, standard error) of `aeropend ARGV` from `tree`, fresh process."""
-    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
+    env = {k: v for k, v in os.environ.items() if k not in UNSET_VARIABLES}
     env['PYTHONPATH'] = str(tree)
     start = time.perf_counter()
     child = subprocess.Popen([sys.executable, '-c', CLI, *argv], cwd=cwd, env=env, stdout=subprocess.DEVNULL,
