@@ -64,6 +64,7 @@ from aeropend_core.diagnosis.stages import (  # noqa: F401  (re-exported: the se
 from aeropend_core.diagnosis.friction_doubt import widen_for_friction_shape, widen_found
 from aeropend_core.diagnosis.model_doubt import beside_lookalikes, beyond_doubt, widen_for_remainder
 from aeropend_core.diagnosis.remainder import Remainder, remainder_of
+from aeropend_core.diagnosis.remainder_doubt import remainder_dict, widen_for_slow_remainder
 from aeropend_core.diagnosis.state_map import StateMap, state_map
 from aeropend_core.diagnosis.verdicts import Verdict
 from aeropend_core.io.recording import Recording
@@ -324,6 +325,7 @@ class Diagnosis:
                           'with_selected': (self.state_map_selected.to_dict()
                                             if self.state_map_selected is not None else None)},
             'remainder': self.remainder.to_dict() if self.remainder is not None else None,
+            'slow_remainder': {'model': remainder_dict(current), 'with_selected': remainder_dict(self.selected)},
             'seconds': round(self.seconds, 2),
             'warnings': [finding.to_dict() for finding in self.findings],
         }
@@ -453,6 +455,10 @@ def _diagnose(recording, effects, candidates, progress, fixed, drift, fixed_from
     catalog = dataclasses.replace(catalog, found=tuple(widened))
     drifted = drift_stage(catalog, drift, say)
     decided = verdict_stage(catalog, discovered, drifted, input_corrected=rerun is not None)
+    # after every decision, the reported +- count a slow remainder of the residual (a note says so)
+    catalog, slow_notes = widen_for_slow_remainder(catalog)
+    decided = dataclasses.replace(decided, facts=dataclasses.replace(decided.facts, found=tuple(catalog.found)))
+    doubt_notes = doubt_notes + slow_notes
     say('mapping the missing acceleration over angle, direction of motion and thrust')
     mapped = state_map(catalog.prep, catalog.current, prepared.effects)
     mapped_selected = (state_map(catalog.prep, catalog.selected, tuple(catalog.model))

@@ -41,7 +41,8 @@ from aeropend_core.diagnosis.sensitivity import EXACT_COLUMNS, sensitivity_kerne
 from aeropend_core.diagnosis.term_kernel import term_value
 from aeropend_core.diagnosis.user_kernel import EXTRA_TYPE, compiled_user_terms, no_extra
 from aeropend_core.model.sensor_filter import filter_angle
-from aeropend_core.stats import effective_samples, hac_covariance, held_bias_covariance, input_covariance
+from aeropend_core.diagnosis.slow_remainder import named_remainder, sandwich_and_remainder
+from aeropend_core.stats import effective_samples, held_bias_covariance, input_covariance
 
 #: Column of each nominal parameter, then of each kernel kind, in the kernel's parameter row.
 NOMINAL_COLUMNS = {name: column for column, name in enumerate(NOMINAL_PARAMETERS)}
@@ -660,11 +661,9 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
                               residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg, free_names=free,
                               correlation=nothing, effective_samples=effective, success=bool(result.success),
                               message=str(result.message), residuals=r)
-    try:
-        # sandwich covariance with block sums of the scores within segments: honest under correlated residuals
-        covariance_z = hac_covariance(jac, r, data.segment_of_residual) * n / max(n - p, 1)
-    except np.linalg.LinAlgError:  # pragma: no cover - pinv rarely fails
-        covariance_z = np.full((p, p), np.nan)
+    # block-sum sandwich (correlated residuals); a slow remainder's extra variance only for the reported +-
+    covariance_z, remainder = sandwich_and_remainder(jac, r, data.segment_of_residual, STRIDE * data.sample_time)
+    covariance_z = covariance_z * n / max(n - p, 1)
     if data.voltage_ensemble is not None and len(data.voltage_ensemble) > 1:
         # the thrust input is itself an estimate: add the spread its estimation error causes in the parameters
         rows, initials = rows_for([result.x])
@@ -693,7 +692,8 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
     return OutputErrorFit(structure=structure, parameters=parameters, standard_errors=errors,
                           initial_states=initial, residual_rms=rms, n_residuals=n, n_free=n_free + 2 * n_seg,
                           free_names=free, correlation=correlation, effective_samples=effective,
-                          success=bool(result.success), message=str(result.message), residuals=r)
+                          success=bool(result.success), message=str(result.message), residuals=r,
+                          extra={'slow_remainder': named_remainder(remainder, free, scale, n / max(n - p, 1))})
 
 
 def blind_columns(jacobian, n_columns: int) -> np.ndarray:

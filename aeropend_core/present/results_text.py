@@ -104,13 +104,18 @@ def _excess(rms: float, noise: float) -> float:
 
 def _doubts(comparison: ComparisonLike) -> list[str]:
     """What makes the comparison's numbers doubtful, said beside them: a simulation that diverged, a fit that did
-    not converge."""
+    not converge, +- widened by a slow remainder of the residual."""
     doubts = []
     if comparison.evaluation.diverged:
         doubts.append('the fitted model\'s simulation diverges on this input: its parameters are not estimates')
     if not comparison.fit.success:
         doubts.append(f'the output-error fit did not converge ({comparison.fit.message or "no message"}): the '
                       'parameters and their sigmas are doubtful')
+    remainder = comparison.fit.extra.get('slow_remainder', {})
+    if 'widening' in remainder:
+        doubts.append(f'the residual is not only noise: a slow remainder ({remainder["share"]:.0%} of its variance, '
+                      f'correlated over {remainder["correlation_time"]:.2g} s) the model does not write; the +- '
+                      'count it as correlated noise (widened), but a misfit can also bias the parameters beyond them')
     return doubts
 
 
@@ -135,10 +140,16 @@ def comparison_dict(comparison: ComparisonLike) -> dict:
         ``prediction_rms_error`` [rad]; ``prediction_horizon`` [s]; ``parameters`` and ``standard_errors`` (SI,
         1 sigma, HAC) with ``units``; ``regimes`` and ``worst_windows`` (errors [rad], times [s]); ``diverged``,
         ``fit_converged`` and ``doubts``; with dry friction in a diagnosis's model, ``friction_law_doubt`` (the
-        part of each ± from the friction law's shape, SI; :mod:`aeropend_core.diagnosis.friction_doubt`).
+        part of each ± from the friction law's shape, SI; :mod:`aeropend_core.diagnosis.friction_doubt`); where a
+        diagnosis widened the ± by a slow remainder of the residual, ``slow_remainder`` (``share`` [-],
+        ``correlation_time`` [s], ``t_statistic`` [-], ``widening``: each sigma over the block-sum one [-];
+        :mod:`aeropend_core.diagnosis.remainder_doubt`).
     """
     evaluation, fit = comparison.evaluation, comparison.fit
     shape = {'friction_law_doubt': dict(fit.extra['friction_law_doubt'])} if 'friction_law_doubt' in fit.extra else {}
+    remainder = fit.extra.get('slow_remainder', {})
+    if 'widening' in remainder:
+        shape['slow_remainder'] = {k: remainder[k] for k in ('share', 'correlation_time', 't_statistic', 'widening')}
     return {'model_effects': list(comparison.effects), 'fit_percent': evaluation.fit_percent,
             'fit_definition': 'held-out free-run simulation of the angle, NRMSE fit % as MATLAB compare',
             'rms_error': evaluation.rms_error, 'noise_rms': evaluation.noise_rms,
