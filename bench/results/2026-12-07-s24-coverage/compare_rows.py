@@ -24,8 +24,8 @@ for name in names:
         return (sum(z <= 1 for z in finite) / n, sum(z <= 2 for z in finite) / n,
                 math.sqrt(sum(z * z for z in finite) / max(len(finite), 1)))
     b, a = stats([p[0] for p in pairs]), stats([p[1] for p in pairs])
-    print(f'| {name} | {len(pairs)} | {100 * b[0]:.0f} % → {100 * a[0]:.0f} % | {100 * b[1]:.0f} % → {100 * a[1]:.0f} % '
-          f'| {b[2]:.2f} → {a[2]:.2f} |')
+    print(f'| {name} | {len(pairs)} | {100 * b[0]:.0f} % → {100 * a[0]:.0f} % '
+          f'| {100 * b[1]:.0f} % → {100 * a[1]:.0f} % | {b[2]:.2f} → {a[2]:.2f} |')
 print()
 for s in seeds:
     zb = {k: round(v, 1) for k, v in before[s]['z'].items() if v is not None and abs(v) > 2}

@@ -5,7 +5,7 @@ import sys
 import numpy as np
 
 from aeropend_core.diagnosis import candidates as cand_mod
-from aeropend_core.diagnosis import discovery as disc_mod
+from aeropend_core.diagnosis import discovery as disc_mod  # noqa: F401 (loaded before assess is patched)
 from aeropend_core.diagnosis.diagnose import diagnose
 from aeropend_core.io.recording import from_columns
 from aeropend_core.model.effects import MEASUREMENT, EffectParameter, catalog_scope, register_effect
