@@ -140,3 +140,27 @@ def test_a_kernel_split_over_threads_by_segments_gives_the_numbers_of_one_call(m
     assert results[1][3] == [(threading.current_thread().name, len(data.segments))]      # one call, in this thread
     assert len(results[3][3]) == 3 and all(name.startswith('aeropend-kernel') for name, _ in results[3][3])
     assert sum(count for _, count in results[3][3]) == len(data.segments)
+
+
+@pytest.mark.skipif(not hasattr(__import__('os'), 'fork'), reason='fork only')
+def test_a_forked_child_runs_split_kernels_on_threads_of_its_own(monkeypatch):
+    """The kernel threads' pool is the parent's; a forked child has none of its threads, and could wait for
+    chunks nobody runs (when the parent's threads were all idle): the child forgets the pool and starts its own."""
+    import os
+    import signal
+
+    from aeropend_core.diagnosis import parallel
+    monkeypatch.setenv(WORKERS_VARIABLE, '2')
+    seen = []
+    parallel.in_segment_chunks(lambda a, b: seen.append((a, b)), [0, 5000], [5000, 10000])   # the pool exists
+    assert sorted(seen) == [(0, 1), (1, 2)]
+    pid = os.fork()
+    if pid == 0:           # the child: exit 0 only if it forgot the parent's pool and its own split call finishes
+        forgotten = parallel._kernel_pool is None
+        signal.alarm(30)                             # a child left waiting is killed (status non-zero), not hung
+        try:
+            parallel.in_segment_chunks(lambda a, b: None, [0, 5000], [5000, 10000])
+        finally:
+            os._exit(0 if forgotten and parallel._kernel_pool is not None else 1)
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == 0

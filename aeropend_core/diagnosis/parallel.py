@@ -108,6 +108,15 @@ SPLIT_MIN_SAMPLES = 8_000
 _kernel_pool = None
 
 
+def _forget_kernel_pool() -> None:
+    global _kernel_pool
+    _kernel_pool = None      # a forked child has none of the pool's threads: it starts its own
+
+
+if hasattr(os, 'register_at_fork'):
+    os.register_at_fork(after_in_child=_forget_kernel_pool)
+
+
 def in_segment_chunks(call: Callable, seg_start, seg_stop) -> None:
     """``call(first, last)`` for contiguous chunks ``[first, last)`` of the segments, one chunk per worker thread,
     as balanced in samples as whole segments allow; one call over all of them with one worker, inside a worker of
