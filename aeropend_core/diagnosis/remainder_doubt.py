@@ -57,9 +57,10 @@ def _note(comparison, growth: dict) -> str:
     model = ' + '.join(comparison.effects) or 'the nominal model'
     return (f'{model}: the residual is not only noise: a slow remainder ({remainder["share"]:.0%} of its variance, '
             f'correlated over {remainder["correlation_time"]:.2g} s, t = {remainder["t_statistic"]:.1f}) that the '
-            f'model does not write; the reported +- count it as correlated noise ({widens}). Which effects are named '
-            'or confounded was decided without it (on the model\'s own hypothesis of white noise beside the effects); '
-            'such a misfit can also bias the parameters beyond their +-')
+            f'model does not write; the +- of the model\'s parameters and of the named effects count it as '
+            f'correlated noise ({widens}; a term the discovery stage proposes keeps its white-noise +-, a lower '
+            'bound). Which effects are named or confounded was decided without it (on the model\'s own hypothesis of '
+            'white noise beside the effects); such a misfit can also bias the parameters beyond their +-')
 
 
 def widen_for_slow_remainder(catalog):
