@@ -82,7 +82,10 @@ def source_of(tree: Path, cwd: Path) -> str:
 def answer(path: Path) -> dict:
     """Verdict, named effect and the friction estimate +- 1 sigma of a diagnosis JSON."""
     data = json.loads(path.read_text())
-    friction = next((c for c in data['candidates'] if c['effect'] == 'coulomb_friction'), None)
+    # the verdict's entry first: its +- carries the doubts the verdict states (the friction law's among them); the
+    # candidate table's is the white-noise evidence sigma, narrower
+    named = [e for e in data.get('missing_effects') or [] if isinstance(e, dict)]
+    friction = next((c for c in named + data['candidates'] if c.get('effect') == 'coulomb_friction'), None)
     value = friction['parameters'].get('friction_acceleration') if friction else None
     sigma = friction['standard_errors'].get('friction_acceleration') if friction else None
     return {'verdict': data['verdict'], 'missing_effect': data['missing_effect'], 'friction': value,
