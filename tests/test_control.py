@@ -496,6 +496,28 @@ def test_closed_loop_diagnosis_of_a_clean_rig_names_nothing():
     assert result.verdict == 'nothing_missing', result.as_text()
 
 
+@pytest.mark.slow
+def test_a_closed_loop_threshold_is_reported_without_a_local_sigma():
+    """A dead zone (0.9 V) in a loop held at 30-50 deg: the fit's cost steps in the threshold, so the local
+    least-squares sigma is no doubt (s24: 1.196 +- 0.0099 V for 0.933 V). It is not reported (null in JSON, "not
+    given" in text, a note says why); the thrust gain keeps its sigma; the decisions still read the local one."""
+    from aeropend_core.control.loop_diagnosis import diagnose_loop
+    from aeropend_core.present.json_output import finite_json
+    gains = PidGains(p=1.2074, i=0.129, d=0.1255, derivative_filter_time=0.02, u_clamp_max=0.8)
+    schedule = ReferenceSchedule.steps_between([30, 50, 40], hold=5.0)
+    run = simulate_loop(gains, schedule.reference(), FeedforwardMap(), effects={'dead_zone': 0.9},
+                        noise=MeasurementNoise(psnr_db=40, quantise=True), seed=24, duty_limit=0.7)
+    result = diagnose_loop(run.time, run.angle, run.duty, run.reference, run.feedforward, gains, 0.7,
+                           add=('dead_zone',), candidates=('dead_zone',))
+    assert 'threshold_voltage' in result.base.sigmas          # the fit has one (the decisions read it) ...
+    data = finite_json(result.to_dict())
+    assert data['standard_errors']['threshold_voltage'] is None          # ... the report does not give it
+    assert data['standard_errors']['thrust_gain'] is not None
+    text = result.as_text()
+    assert 'threshold_voltage = ' in text and '(+- not given: see the notes)' in text
+    assert any(note.startswith('threshold_voltage: no +- is given') for note in result.notes), result.notes
+
+
 def test_replay_check_catches_a_controller_other_than_the_declared_one():
     from aeropend_core.control.loop_diagnosis import replay
     gains, run = _closed_loop_record({}, seed=23)
