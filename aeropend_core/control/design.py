@@ -369,9 +369,10 @@ def _search(pool, linear_x, base, template, schedule, reference, feedforward, fe
     raise TemplateNotMet(best, misses)
 
 
-def _missed_text(misses: Mapping[str, float]) -> str:
-    return ', '.join(f'{item} missed by ' + ('a step that never settles' if math.isinf(amount) else
-                                            f'{amount:.3g} {Template.UNITS[item]}') for item, amount in misses.items())
+def _missed_text(misses: Mapping[str, float], by: str = 'missed by') -> str:
+    """'overshoot missed by 0.116 %, ...' for a prediction's misses (item: amount in the template's unit)."""
+    return ', '.join(f'{item} {by} ' + ('a step that never settles' if math.isinf(amount) else
+                                       f'{amount:.3g} {Template.UNITS[item]}') for item, amount in misses.items())
 
 
 #: Noise draws of the model (the search's two among them) that judge a design every round of the search missed.
@@ -432,9 +433,7 @@ def _with_tolerance_predictions(candidate: Design, pool, reference, feedforward,
         return candidate
     parts = []
     for factor, worst in missed:
-        items = ', '.join(f'{item} by ' + ('a step that never settles' if math.isinf(amount) else
-                                           f'{amount:.3g} {Template.UNITS[item]}') for item, amount in worst.items())
-        parts.append(f'at {factor:g} x it misses {items}')
+        parts.append(f'at {factor:g} x it misses {_missed_text(worst, by="by")}')
     candidate.notes.append(f'the thrust doubt is {span}; the prediction on the rigs at its edges: '
                            + '; '.join(parts) + ': a rig whose thrust is that far from the model\'s may miss the '
                            'template (a model checked on its record\'s rests narrows the doubt: control design '
