@@ -194,7 +194,6 @@ class SerialBridgeNode(BridgeControl, Node):
         self._last_sequence: int | None = None
         self._last_flags = 0
         self._last_arrival = None
-        self._delay_bound: float | None = None    # of the read being handled [s] (see _handle_bytes)
         self._disconnected_at: float | None = None
         self._diag_previous = (time.monotonic(), 0, 0, 0)
         self.connected = False
@@ -411,7 +410,6 @@ class SerialBridgeNode(BridgeControl, Node):
 
     def _handle_bytes(self, data: bytes, delay_bound: float | None = None) -> None:
         """Decode a read; `delay_bound` [s]: the longest its newest byte can have waited on this host."""
-        self._delay_bound = delay_bound
         now_ns = self.get_clock().now().nanoseconds
         arrival = (now_ns - self._epoch_ns) * 1e-9
         messages = self.decoder.feed(data)
@@ -432,12 +430,12 @@ class SerialBridgeNode(BridgeControl, Node):
         run: list[P.SampleFrame] = []         # samples since the last device reset in this read
         for index, item in enumerate(checked):
             if self._check_sequence(item, arrival, checked, index):   # the device restarted: stamp the old run
-                self._publish_run(run, arrival)
+                self._publish_run(run, arrival, delay_bound)
                 self._flush_priming()
                 run = []
                 self.clock_model.reset()
             run.append(item.frame)
-        self._publish_run(run, arrival)
+        self._publish_run(run, arrival, delay_bound)
 
     def _report_withheld(self) -> None:
         """Log newly withheld implausible frames (throttled); /diagnostics carries the counts."""
@@ -494,24 +492,25 @@ class SerialBridgeNode(BridgeControl, Node):
         self._last_arrival = arrival
         return reset
 
-    def _publish_run(self, run: list[P.SampleFrame], arrival: float) -> None:
+    def _publish_run(self, run: list[P.SampleFrame], arrival: float, delay_bound: float | None = None) -> None:
         """Stamp samples that arrived together (acquisition times by sequence number) and publish them.
 
         After a (re)start of the clock the first ``PRIME_ARRIVALS`` reads are held back (~0.1 s) until the
         arrival envelope has seen several reads: the first stamps are then as good as the later ones.
+        `delay_bound` [s]: the read's bound on its bytes' wait (:meth:`SampleClock.observe`).
         """
         if not run:
             return
         clock = self.clock_model
         if clock.observed < PRIME_ARRIVALS or self._priming:
-            clock.observe(max(frame.sequence for frame in run), arrival, self._delay_bound)
+            clock.observe(max(frame.sequence for frame in run), arrival, delay_bound)
             self._priming.extend(run)
             if clock.observed < PRIME_ARRIVALS:
                 return
             run, self._priming = self._priming, []
             stamps = clock.place([frame.sequence for frame in run])
         else:
-            stamps = clock.stamp_many([frame.sequence for frame in run], arrival, self._delay_bound)
+            stamps = clock.stamp_many([frame.sequence for frame in run], arrival, delay_bound)
         self._report_clock()
         if self._clock_withholds():
             # The device's clock is outside its tolerance: its stamps and its sample spacing are not what the data
