@@ -109,6 +109,11 @@ def test_emulator_runs_the_closed_loop_like_the_firmware():
         assert len(cut) > 30 and all(m.duty_q16 == 0 for m in cut[1:])
         new = [m for m in keep_alive(device, 0.3) if isinstance(m, P.ControlSampleFrame)]
         assert all(m.flags & P.FLAG_WATCHDOG_TRIPPED and m.duty_q16 == 0 for m in new)
+        # Neither does a new timeout; a new reference does. The long timeout keeps a loaded machine's pause of
+        # more than 0.3 s between two keep-alives from tripping it again while the restart is read.
+        link.write(P.encode_command(P.SET_WATCHDOG, 30.0))
+        new = [m for m in keep_alive(device, 0.2) if isinstance(m, P.ControlSampleFrame)]
+        assert all(m.flags & P.FLAG_WATCHDOG_TRIPPED and m.duty_q16 == 0 for m in new)
         assert device.ack(P.encode_reference(reference, feedforward)).ok
         new = [m for m in keep_alive(device, 0.2) if isinstance(m, P.ControlSampleFrame)]
         assert not new[-1].flags & P.FLAG_WATCHDOG_TRIPPED and new[-1].duty_q16 > 0
