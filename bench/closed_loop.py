@@ -104,7 +104,8 @@ def judged(controller: Controller, schedule: ReferenceSchedule, run, seed: int) 
 
 def loop_diagnosis(controller: Controller, run, add=()) -> dict:
     diagnosis = diagnose_loop(run.time, run.angle, run.duty, run.reference, run.feedforward, controller.gains,
-                              controller.gains.u_clamp_max, controller.parameters, add=add)
+                              controller.gains.u_clamp_max, controller.parameters, add=add,
+                              model_effects=controller.effects)
     return diagnosis.to_dict()
 
 

@@ -292,7 +292,7 @@ def diagnose_closed_loop(args, data) -> int:
         keep = np.arange(len(data)) < cut
     result = diagnose_loop(data.time[keep], data.angle[keep], data.duty[keep], data.reference[keep],
                            data.feedforward[keep], data.controller.gains, cap, data.controller.parameters,
-                           add=tuple(args.add))
+                           add=tuple(args.add), model_effects=data.controller.effects)
     if cap_note:
         result.notes.append(cap_note)
     if not data.complete:

@@ -22,7 +22,10 @@ so each model is simulated *in closed loop* from the logged reference and compar
 The ± of each parameter is the local least-squares standard error, inflated by the residual's correlation length.
 A threshold that gates samples (the dead zone's) gets none in what is reported: the cost steps where it gates a sample,
 so its local standard error measures no doubt (a fit of 1.196 ± 0.0099 V for a 0.933 V truth, s24); the decisions
-still read it.
+still read it. Where the controller's model already holds that threshold (an added effect with its value, from the
+open-loop diagnosis), the fits **hold** it there (:data:`HELD_NOTE`): the simulation from the reference leaves out the
+measurement noise the law feeds back, and where that noise moves the duty across the gate the noise-free loop is
+biased (s25: on that record the true parameters fit best near 1.1 V noise-free, at 0.93 V with the noise in the loop).
 """
 from __future__ import annotations
 
@@ -94,6 +97,8 @@ class LoopFit:
     beyond_noise: float
     n_parameters: int
     delta_bic: float = 0.0
+    #: effect parameters held at a given value, not fitted (:data:`HELD_NOTE`)
+    held: dict[str, float] = field(default_factory=dict)
 
     @property
     def name(self) -> str:
@@ -213,6 +218,8 @@ def _shown_sigmas(fit: LoopFit) -> dict[str, float]:
 
 
 def _pm(fit: LoopFit, name: str) -> str:
+    if name in fit.held:
+        return '(held at the controller model\'s value: see the notes)'
     sigma = _shown_sigmas(fit).get(name, math.nan)
     return f'+- {sigma:.2g}' if math.isfinite(sigma) else '(+- not given: see the notes)'
 
@@ -222,6 +229,29 @@ STEP_COST_NOTE = ('{names}: no +- is given: in closed loop the fit\'s cost steps
                   'at 30-50 deg one fit gave 1.196 +- 0.0099 V for a 0.933 V truth); a loop held away from the '
                   'threshold trades it against the thrust gain: an open-loop record with steps through the '
                   'threshold decides it')
+
+
+#: Said when a gating threshold is held at the controller model's value (s25, bench/results/2026-12-07-s25-loop).
+HELD_NOTE = ('{names}: held at the controller model\'s value ({values}; its doubt is that model\'s, from the record '
+             'it was identified on), not fitted here: the closed loop is simulated from the reference without the '
+             'measurement noise the law feeds back, and that noise moves the duty across the threshold: the '
+             'noise-free loop fits it biased (on a simulated 0.933 V dead zone the true parameters fit best near '
+             '1.1 V noise-free, at the truth with the noise in the loop; the free fit gave 1.196 V); the gravity and '
+             'thrust gain fitted beside it share that bias, more with a large derivative gain (a loop at 40 dB '
+             'with d = 0.13: both x1.37, their ratio 4.5 % off, the local +- far smaller)')
+
+
+def _held_values(effects: Mapping[str, Mapping[str, float]], add: Sequence[str]) -> dict[str, dict[str, float]]:
+    """The gating thresholds (:data:`STEP_COST_TERMS`) of the added effects whose value the controller's model
+    gives: {effect: {parameter: value}}."""
+    held = {}
+    for name in add:
+        values = effects.get(name) or {}
+        for kind, parameter in get_effect(name).kernel_terms:
+            value = values.get(parameter)
+            if kind in STEP_COST_TERMS and value is not None and math.isfinite(float(value)):
+                held.setdefault(name, {})[parameter] = float(value)
+    return held
 
 
 def _reported_sigmas(fit: LoopFit) -> dict[str, float]:
@@ -273,7 +303,11 @@ class _Problem:
                             self.initial_angle, self.sample_time, self.duty_limit, method='compiled')
         return run.angle
 
-    def fit(self, effects: Mapping[str, Mapping[str, float]], noise: float) -> LoopFit:
+    def fit(self, effects: Mapping[str, Mapping[str, float]], noise: float,
+            held: Mapping[str, Mapping[str, float]] | None = None) -> LoopFit:
+        """Fit the free pendulum parameters and `effects`' parameters, those in `held` ({effect: {parameter:
+        value}}) kept at their value."""
+        held = {name: dict(values) for name, values in (held or {}).items() if name in effects}
         effects = resolve_effects({name: {parameter.name: values.get(parameter.name, parameter.start_value)
                                           for parameter in get_effect(name).parameters}
                                    for name, values in effects.items()})
@@ -287,6 +321,8 @@ class _Problem:
         for effect_name, values in effects.items():
             effect = get_effect(effect_name)
             for parameter in effect.parameters:
+                if parameter.name in held.get(effect_name, {}):
+                    continue
                 names.append(parameter.name)
                 start = values[parameter.name]
                 low, high = parameter.lower, min(parameter.upper, 1e6)
@@ -305,7 +341,7 @@ class _Problem:
 
         def model(x):
             parameters = self.parameters.replace(**dict(zip(self.free, x[:n_free])))
-            chosen = {name: {} for name in effects}
+            chosen = {name: dict(held.get(name, {})) for name in effects}
             for (effect_name, parameter_name), value in zip(effect_slots, x[n_free:]):
                 chosen[effect_name][parameter_name] = float(value)
             return parameters, chosen
@@ -338,8 +374,11 @@ class _Problem:
         except (np.linalg.LinAlgError, ValueError):
             sigmas = dict.fromkeys(names, math.nan)
         values = dict(zip(names, map(float, result.x)))
+        held_values = {parameter: value for values_ in held.values() for parameter, value in values_.items()}
+        values.update(held_values)
+        sigmas.update(dict.fromkeys(held_values, math.nan))
         beyond = math.sqrt(max(0.0, test_rms ** 2 - noise ** 2))
-        return LoopFit(chosen, parameters, values, sigmas, rss, test_rms, beyond, len(names))
+        return LoopFit(chosen, parameters, values, sigmas, rss, test_rms, beyond, len(names), held=held_values)
 
 
 #: What the +- of a closed-loop fit has been measured to mean (bench/closed_loop.py, 2026-12-06): said with every
@@ -375,9 +414,12 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
                   feedforward: np.ndarray, gains: PidGains, duty_limit: float,
                   parameters: RigParameters = DEFAULT_PARAMETERS, add: Sequence[str] = (),
                   candidates: Sequence[str] | None = None, sample_time: float = SAMPLE_TIME,
-                  free: Sequence[str] = DEFAULT_FREE) -> LoopDiagnosis:
+                  free: Sequence[str] = DEFAULT_FREE,
+                  model_effects: Mapping[str, Mapping[str, float]] | None = None) -> LoopDiagnosis:
     """Diagnose a closed-loop record (arrays of shape (n,): time [s], measured angle [rad], applied duty, reference
-    [rad], the feedforward played [duty]); `gains` the law that ran, `duty_limit` the duty cap it ran under."""
+    [rad], the feedforward played [duty]); `gains` the law that ran, `duty_limit` the duty cap it ran under;
+    `model_effects` the effects of the model the controller was designed on ({effect: {parameter: value}}, SI): an
+    added effect's gating threshold found there is held at its value (:data:`HELD_NOTE`)."""
     angle = np.asarray(angle, dtype=float)
     if angle.size < int(10.0 / sample_time):
         raise AeropendError(f'the closed-loop record has {angle.size * sample_time:.1f} s; the closed-loop '
@@ -394,14 +436,15 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
     noise = noise_sigma(angle)
     problem = _Problem(gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free)
     base_effects = {name: {} for name in add}
-    base = problem.fit(base_effects, noise)
+    held = _held_values(model_effects or {}, add)
+    base = problem.fit(base_effects, noise, held)
     fits = []
     n_effective = problem.split / _correlation_length(
         problem.simulate(base.parameters, base.effects)[:problem.split] - angle[:problem.split])
     for name in tried:
         if name in add:
             continue
-        fit = problem.fit({**base_effects, name: {}}, noise)
+        fit = problem.fit({**base_effects, name: {}}, noise, held)
         fit.delta_bic = float(n_effective * math.log(max(fit.train_rss, 1e-300) / max(base.train_rss, 1e-300))
                               + (fit.n_parameters - base.n_parameters) * math.log(max(n_effective, 2.0)))
         fits.append(fit)
@@ -436,7 +479,11 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
                  'loop holds still (the static thrust map near one angle) are less sure than in an open-loop '
                  'record of the same length')
     notes.append(COVERAGE_NOTE)
-    gated = sorted(set().union(*(_step_cost_parameters(fit) for fit in (base, *fits))))
+    if held:
+        names = [parameter for values in held.values() for parameter in values]
+        notes.append(HELD_NOTE.format(names=', '.join(names), values=', '.join(
+            f'{parameter} = {value:.4g}' for values in held.values() for parameter, value in values.items())))
+    gated = sorted(set().union(*(_step_cost_parameters(fit) for fit in (base, *fits))) - set(base.held))
     if gated:
         notes.append(STEP_COST_NOTE.format(names=', '.join(gated)))
     return LoopDiagnosis(base, fits, noise, max_error, mismatches, tuple(add), verdict, named, confounded, notes)
