@@ -36,7 +36,9 @@ CLI = 'import sys; from aeropend_core.cli import main; sys.exit(main())'
 def run(tree: Path, arguments: list[str]) -> tuple[float, float, float, subprocess.CompletedProcess]:
     """(wall seconds, CPU seconds (user + system, all threads), 1-min load average before, the process) of
     `aeropend ARGUMENTS` on `tree`'s code."""
-    env = {**os.environ, 'PYTHONPATH': str(tree)}
+    # without PYTHONDONTWRITEBYTECODE (the sessions' shell sets it): a user's installation compiles its modules once,
+    # not at every run (as bench_speed.py); the warm-up writes both trees' bytecode
+    env = {**{k: v for k, v in os.environ.items() if k != 'PYTHONDONTWRITEBYTECODE'}, 'PYTHONPATH': str(tree)}
     load = os.getloadavg()[0]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()

@@ -371,8 +371,8 @@ def _joint_state_layout(data: bytes) -> tuple[list[str], int, int] | None:
 @functools.lru_cache(maxsize=1)
 def _joint_state_decoder():
     """The rosbags CDR deserialiser of JointState (for messages the vectorised path does not take)."""
-    from rosbags.typesys import Stores, get_typestore
-    store = get_typestore(Stores.ROS2_JAZZY)
+    from aeropend_core.io.bag import joint_state_store
+    store = joint_state_store()
     return lambda data: store.deserialize_cdr(data, 'sensor_msgs/msg/JointState')
 
 
