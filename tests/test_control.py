@@ -341,6 +341,32 @@ def test_compiled_closed_loop_equals_the_streaming_simulator_sample_by_sample(ef
         np.testing.assert_allclose(getattr(compiled, name), getattr(streaming, name), rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize('effects', [{}, {'angle_filter': 0.0141, 'dead_zone': 0.6, 'coulomb_friction': 2.0,
+                                         'thrust_lag': 0.12, 'angle_offset': 0.03}])
+def test_loops_stepped_together_equal_each_loop_alone_bit_for_bit(effects):
+    """simulate_loops (s25: the check's draws and the design's rigs in one compiled call, their arithmetic
+    interleaved) gives each loop exactly what simulate_loop gives it alone: other gains, rigs and seeds side by side,
+    noise and quantisation on, one loop saturating (p 6) and one tripping (an angle limit it crosses)."""
+    from aeropend_core.control.loop import simulate_loops
+    schedule = ReferenceSchedule.steps_between([20, 50, 35], hold=1.5, start_hold=0.5)
+    reference = schedule.reference()
+    noise = MeasurementNoise(psnr_db=45.0, quantise=True)
+    runs = [(PidGains(p=1.2, i=0.6, d=0.15), DEFAULT_PARAMETERS, 3),
+            (PidGains(p=6.0, i=2.0, d=0.4), DEFAULT_PARAMETERS.scaled(lever_per_inertia=0.8), 4),
+            (PidGains(p=0.5, i=0.3, d=0.05, setpoint_weight=0.5), DEFAULT_PARAMETERS.scaled(lever_per_inertia=1.25), 3),
+            (PidGains(p=1.2, i=0.6, d=0.15, angle_max=math.radians(40)), DEFAULT_PARAMETERS, 9)]
+    together = simulate_loops(runs, reference, FeedforwardMap(), effects, noise, duty_limit=0.8)
+    assert together[3].tripped.any() and together[1].duty.max() == 0.8
+    for (gains, parameters, seed), run in zip(runs, together):
+        alone = simulate_loop(gains, reference, FeedforwardMap(), parameters, effects, noise, seed, duty_limit=0.8,
+                              method='compiled')
+        for name in ('angle', 'duty', 'armature_current', 'armature_voltage', 'integral', 'unsaturated', 'tripped',
+                     'feedforward'):
+            np.testing.assert_array_equal(getattr(run, name), getattr(alone, name), err_msg=name)
+        for name in alone.truth:
+            np.testing.assert_array_equal(run.truth[name], alone.truth[name], err_msg=name)
+
+
 def test_an_impossible_template_is_refused_naming_the_item():
     with pytest.raises(TemplateNotMet, match=r'settling: predicted .* against 0.2 s'):
         design(Template(settling=0.2, overshoot=None, error=None, duty=None), math.radians(40))

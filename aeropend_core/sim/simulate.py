@@ -27,6 +27,31 @@ from aeropend_core.sim.noise import MeasurementNoise, apply_measurement_noise
 SUBSTEPS = 8
 
 
+@numba.njit(cache=True, nogil=True, inline='always')
+def _rig_rates(constants, row, va, g, current, speed, angle, rate, lagged, rate_sign, rate_square, angle_linear,
+               lag_time_constant, smoothing):
+    """The rig's state derivative (dIa/dt, dw1/dt, dy/dt, dW/dt, d lagged thrust/dt) at one state under the armature
+    voltage `va` [V] and the thrust gate `g` (0/1): the one copy of the physics that :func:`_rig_kernel` and the
+    closed loop's batched kernel (:mod:`aeropend_core.control.loop`) integrate. `constants` (m, 12): rigs, this
+    one's in `row` (a row, not a view of it: no reference counting per call); the rest as :func:`_rig_kernel`'s."""
+    c = constants
+    ra, la, kw, kt, jm, fr, kd, gear, kq, grav, damp, lever = (c[row, 0], c[row, 1], c[row, 2], c[row, 3], c[row, 4],
+                                                               c[row, 5], c[row, 6], c[row, 7], c[row, 8], c[row, 9],
+                                                               c[row, 10], c[row, 11])
+    lag = lag_time_constant > 0.0
+    prop = speed / gear
+    prop_sq = prop * abs(prop)
+    thrust_now = g * kq * prop_sq
+    thrust = lagged if lag else thrust_now
+    return ((va - ra * current - kw * speed) / la,
+            (kt * current - fr * speed - kd * prop_sq / gear) / jm,
+            rate,
+            (-grav * math.sin(angle) - damp * rate + lever * thrust
+             - rate_sign * math.tanh(rate / smoothing) - rate_square * rate * abs(rate)
+             - angle_linear * angle),
+            (thrust_now - lagged) / lag_time_constant if lag else 0.0)
+
+
 @numba.njit(cache=True, nogil=True)
 def _rig_kernel(constants, voltage, gate, state, sample_time, rate_sign, rate_square, angle_linear,
                 lag_time_constant, smoothing, states_out):
@@ -37,15 +62,11 @@ def _rig_kernel(constants, voltage, gate, state, sample_time, rate_sign, rate_sq
     -rate_sign tanh(W/smoothing), -rate_square W|W|, -angle_linear y; lag_time_constant 0 = no lag.
     Writes the state at the start of each sample into states_out (n, 5); returns the final state.
     """
-    ra, la, kw, kt, jm, fr, kd, gear, kq, grav, damp, lever = (constants[0], constants[1], constants[2],
-                                                               constants[3], constants[4], constants[5],
-                                                               constants[6], constants[7], constants[8],
-                                                               constants[9], constants[10], constants[11])
     h = sample_time / SUBSTEPS
+    table = constants.reshape((1, constants.shape[0]))
     x = state.copy()
     k = np.empty((4, 5))
     xt = np.empty(5)
-    lag = lag_time_constant > 0.0
     for i in range(voltage.shape[0]):
         for j in range(5):
             states_out[i, j] = x[j]
@@ -60,18 +81,9 @@ def _rig_kernel(constants, voltage, gate, state, sample_time, rate_sign, rate_sq
                     factor = h if stage == 3 else 0.5 * h
                     for j in range(5):
                         xt[j] = x[j] + factor * k[stage - 1, j]
-                current, speed, angle, rate, lagged = xt[0], xt[1], xt[2], xt[3], xt[4]
-                prop = speed / gear
-                prop_sq = prop * abs(prop)
-                thrust_now = g * kq * prop_sq
-                thrust = lagged if lag else thrust_now
-                k[stage, 0] = (va - ra * current - kw * speed) / la
-                k[stage, 1] = (kt * current - fr * speed - kd * prop_sq / gear) / jm
-                k[stage, 2] = rate
-                k[stage, 3] = (-grav * math.sin(angle) - damp * rate + lever * thrust
-                               - rate_sign * math.tanh(rate / smoothing) - rate_square * rate * abs(rate)
-                               - angle_linear * angle)
-                k[stage, 4] = (thrust_now - lagged) / lag_time_constant if lag else 0.0
+                k[stage, 0], k[stage, 1], k[stage, 2], k[stage, 3], k[stage, 4] = _rig_rates(
+                    table, 0, va, g, xt[0], xt[1], xt[2], xt[3], xt[4], rate_sign, rate_square, angle_linear,
+                    lag_time_constant, smoothing)
             for j in range(5):
                 x[j] += h / 6.0 * (k[0, j] + 2.0 * k[1, j] + 2.0 * k[2, j] + k[3, j])
     return x
