@@ -116,7 +116,16 @@ def test_a_yaml_nested_100000_deep_is_refused_in_one_line(tmp_path, capsys, temp
     assert 'nests more than' in err and 'bug' not in err and len(err.strip().splitlines()) == 1, err
 
 
-def test_yaml_limits_aliases_and_size():
+@pytest.mark.parametrize('libyaml', [True, False], ids=['libyaml', 'pyyaml'])
+def test_yaml_limits_aliases_and_size(libyaml, monkeypatch):
+    """The same limits whichever parser reads the events (s25: libyaml's where there is one, PyYAML's else and
+    where libyaml refuses a text)."""
+    import yaml
+    if not libyaml:
+        monkeypatch.delattr(yaml, 'CSafeLoader', raising=False)
+    deep = 'a: ' + '[' * (inputs.YAML_MAX_DEPTH + 5) + ']' * (inputs.YAML_MAX_DEPTH + 5) + '\n'
+    with pytest.raises(AeropendError, match='nests more than'):
+        inputs.check_yaml_text(deep)
     bomb = 'a: &a [x, x]\n' + ''.join(f'{chr(98 + k)}: &{chr(98 + k)} [*{chr(97 + k)}, *{chr(97 + k)}]\n'
                                       for k in range(20)) + 'z: [' + ', '.join(['*a'] * 300) + ']\n'
     with pytest.raises(AeropendError, match='aliases'):

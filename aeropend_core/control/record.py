@@ -249,7 +249,10 @@ def _safe_yaml(text: str, where: str):
 
     from aeropend_core.io.inputs import check_yaml_text
     check_yaml_text(text, where)
-    return yaml.safe_load(text)
+    try:                        # libyaml's parser (~15x faster; the same safe constructor), PyYAML's where it refuses
+        return yaml.load(text, Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))  # noqa: S506 - a safe loader
+    except yaml.YAMLError:
+        return yaml.safe_load(text)
 
 
 def _config(data: bytes) -> dict | None:
