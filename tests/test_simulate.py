@@ -140,3 +140,32 @@ def test_a_simulation_that_diverges_is_refused_with_a_reason_not_a_math_error(sc
             np.errstate(all='ignore'), warnings.catch_warnings():
         warnings.simplefilter('ignore', RuntimeWarning)
         simulate(np.full(2000, 0.7), effects={name: 40.0})
+
+
+def test_rates_without_friction_skip_the_tanh_and_equal_the_full_formula_bit_for_bit():
+    """s25: with no Coulomb friction the compiled rates skip its tanh (a quarter of the closed loop's time); the
+    pendulum's rate equals the formula with the zero term, sign bits included, on states with zeros of both signs
+    and rates of both signs (the damping is never 0 in a rig)."""
+    import math
+
+    from aeropend_core.model.parameters import DEFAULT_PARAMETERS as P
+    from aeropend_core.sim.simulate import _rig_rates
+    c = np.array([[P.armature_resistance, P.armature_inductance, P.back_emf_constant, P.torque_constant,
+                   P.motor_inertia, P.motor_friction, P.propeller_torque_coefficient, P.gear_ratio,
+                   P.thrust_coefficient, P.gravity_stiffness, P.damping, P.lever_per_inertia]])
+    rng = np.random.default_rng(5)
+    values = [0.0, -0.0, 1e-300, -1e-300, 0.3, -0.3, 2.0, -2.0]
+    checked = 0
+    for _ in range(400):
+        angle, rate, speed, lagged = (values[k] if k < len(values) else rng.normal()
+                                      for k in rng.integers(0, len(values) + 2, 4))
+        for g, lag in ((0.0, 0.0), (1.0, 0.0), (1.0, 0.1)):
+            rates = _rig_rates(c, 0, 3.0 * g, g, 0.1, speed * 300.0, angle, rate, lagged, 0.0, 0.0, 0.0, lag, 0.01)
+            prop = speed * 300.0 / P.gear_ratio
+            prop_sq = prop * abs(prop)
+            thrust = lagged if lag > 0 else g * P.thrust_coefficient * prop_sq
+            full = (-P.gravity_stiffness * math.sin(angle) - P.damping * rate + P.lever_per_inertia * thrust
+                    - 0.0 * math.tanh(rate / 0.01) - 0.0 * rate * abs(rate) - 0.0 * angle)
+            assert rates[3] == full and math.copysign(1.0, rates[3]) == math.copysign(1.0, full), (angle, rate)
+            checked += 1
+    assert checked == 1200

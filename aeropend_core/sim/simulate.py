@@ -43,11 +43,14 @@ def _rig_rates(constants, row, va, g, current, speed, angle, rate, lagged, rate_
     prop_sq = prop * abs(prop)
     thrust_now = g * kq * prop_sq
     thrust = lagged if lag else thrust_now
+    # no Coulomb friction: its term is a zero (tanh skipped); x - 0 * t = x - 0, also for a zero x, as the rate is
+    # never -0 (the state starts at +0 and only sums) and -0 - damping * rate needs rate = 0 (the damping is not 0)
+    friction = rate_sign * math.tanh(rate / smoothing) if rate_sign != 0.0 else 0.0
     return ((va - ra * current - kw * speed) / la,
             (kt * current - fr * speed - kd * prop_sq / gear) / jm,
             rate,
             (-grav * math.sin(angle) - damp * rate + lever * thrust
-             - rate_sign * math.tanh(rate / smoothing) - rate_square * rate * abs(rate)
+             - friction - rate_square * rate * abs(rate)
              - angle_linear * angle),
             (thrust_now - lagged) / lag_time_constant if lag else 0.0)
 
