@@ -32,7 +32,7 @@ import numpy as np
 from aeropend_core.control.law import PidGains, law_step
 from aeropend_core.control.linear import Linearisation, linearise
 from aeropend_core.control.loop import (ClosedLoopRecord, FeedforwardMap, feedforward_per_sample, noise_draws,
-                                        simulate_loop)
+                                        simulate_loop, simulate_loops)
 from aeropend_core.control.metrics import StepMetrics, Template, schedule_metrics
 from aeropend_core.control.nelder_mead import nelder_mead
 from aeropend_core.control.reference import ReferenceSchedule, design_schedule
@@ -206,20 +206,29 @@ THRUST_TOLERANCE = (0.8, 1.25)
 
 def _nonlinear_cost(log_gains, base: PidGains, template: Template, margin: float, schedule: ReferenceSchedule,
                     reference, feedforward_values, parameters, effects, noise, seed, sample_time, duty_cap,
-                    angle_sigma, factors, pool=None):
+                    angle_sigma, factors, pool=None, runs=None):
+    """The search's cost of `log_gains` over the rigs of `factors`; `runs`: their closed loops already simulated
+    (the grid screen's, stepped together: :func:`_screen`), else simulated here."""
     gains = _gains(log_gains, base, float(np.max(reference)))
 
-    def one(factor):
-        rig = parameters.scaled(lever_per_inertia=factor)
-        run = simulate_loop(gains, reference, feedforward_values, rig, effects, noise, seed,
-                            sample_time=sample_time, duty_limit=duty_cap)
+    def judged(run):
         if not np.all(np.isfinite(run.angle)) or run.tripped.any():
             return None
         return sum(_step_cost(metrics, template, margin)
                    for metrics in schedule_metrics(run.time, run.angle, run.duty, schedule))
 
+    def one(factor):
+        rig = parameters.scaled(lever_per_inertia=factor)
+        return judged(simulate_loop(gains, reference, feedforward_values, rig, effects, noise, seed,
+                                    sample_time=sample_time, duty_limit=duty_cap))
+
     # the compiled loop releases the GIL: the rigs of the thrust tolerance run side by side
-    costs = list(pool.map(one, factors)) if pool is not None and len(factors) > 1 else [one(f) for f in factors]
+    if runs is not None:
+        costs = [judged(run) for run in runs]
+    elif pool is not None and len(factors) > 1:
+        costs = list(pool.map(one, factors))
+    else:
+        costs = [one(f) for f in factors]
     if any(cost is None for cost in costs):
         return 1e6
     cost = float(sum(costs))
@@ -300,13 +309,15 @@ def _search(pool, linear_x, base, template, schedule, reference, feedforward, fe
     searched_reference = reference[:n_searched]
     searched_feedforward = feedforward_values[:n_searched]
 
-    def cost(point, factors=factors, margin=margin):
+    def cost(point, factors=factors, margin=margin, runs=None):
         return _nonlinear_cost(point, base, template, margin, searched, searched_reference, searched_feedforward,
-                               parameters, effects, noise, seed, sample_time, duty_cap, angle_sigma, factors, pool)
+                               parameters, effects, noise, seed, sample_time, duty_cap, angle_sigma, factors, pool,
+                               runs)
 
     grid = [linear_x + np.log([p_scale, i_scale, d_scale, 1.0]) for p_scale in (0.35, 0.6, 1.0, 1.6)
             for i_scale in (0.1, 0.3, 1.0, 3.0) for d_scale in (0.3, 1.0, 3.0)]
-    screen = list(pool.map(lambda point: cost(point, factors=(1.0,)), grid))
+    screen = _screen(grid, cost, pool, base, searched_reference, searched_feedforward, parameters, effects, noise,
+                     seed, sample_time, duty_cap)
     order = sorted(range(len(grid)), key=lambda index: screen[index])
     # the setpoint weight b: fixed choices tried on the three best points, then held through Nelder-Mead
     screened = [np.append(grid[index], weight) for index in order[:3] for weight in SETPOINT_WEIGHTS]
@@ -367,6 +378,29 @@ def _search(pool, linear_x, base, template, schedule, reference, feedforward, fe
             return alone
     misses = best.misses()
     raise TemplateNotMet(best, misses)
+
+
+def _screen(points, cost, pool, base, reference, feedforward_values, parameters, effects, noise, seed, sample_time,
+            duty_cap) -> list[float]:
+    """``cost(point, factors=(1.0,))`` of each point (the model alone), in order: with built-in effects the points'
+    closed loops go in one group per core, each group one compiled call (:func:`simulate_loops`: each loop as it
+    is alone, in fewer CPU seconds), the groups on `pool`'s threads."""
+    from aeropend_core.model.effects import get_effect, resolve_effects
+    if not all(get_effect(name).compiled for name in resolve_effects(effects)):
+        return list(pool.map(lambda point: cost(point, factors=(1.0,)), points))
+    rig = parameters.scaled(lever_per_inertia=1.0)
+    peak = float(np.max(reference))
+    count = len(points)
+    parts = max(1, min(os.cpu_count() or 1, DESIGN_THREADS, count))
+    edges = [round(count * j / parts) for j in range(parts + 1)]
+
+    def group(bounds):
+        first, stop = bounds
+        runs = simulate_loops([(_gains(points[k], base, peak), rig, seed) for k in range(first, stop)], reference,
+                              feedforward_values, effects, noise, sample_time=sample_time, duty_limit=duty_cap)
+        return [cost(points[k], factors=(1.0,), runs=[run]) for k, run in zip(range(first, stop), runs)]
+
+    return [value for values in pool.map(group, zip(edges[:-1], edges[1:])) for value in values]
 
 
 def _missed_text(misses: Mapping[str, float], by: str = 'missed by') -> str:
