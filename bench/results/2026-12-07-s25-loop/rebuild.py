@@ -42,6 +42,8 @@ print("first model", model.effects, model.thrust_tolerance, "row:", row["first_m
 controller, outcome, _ = cl.design_on(model, "open-loop diagnosis --add")
 gains = PidGains(**row["nominal_gains"])
 print("design", outcome, "gains as the row's:", controller.gains == gains, flush=True)
+print("predicted", [(round(m["overshoot"], 3), round(m["settling_time"], 3), round(m["steady_state_error"], 3))
+                    for m in controller.design["predicted_steps"]], "notes", controller.design["notes"], flush=True)
 controller = Controller(gains, model.parameters, model.effects, cl.TEMPLATE, "open-loop diagnosis --add",
                         controller.design)
 run = cl.run_on_truth(controller, controller.schedule, parameters, effects, seed)
