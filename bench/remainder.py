@@ -103,7 +103,18 @@ def run(arguments: tuple[int, int, int]) -> dict:
                         for note in found.notes if ' is not named: ' in note]
                + [note.split(' is named although')[0] + ': named by the joint refits'
                   for note in found.notes if ' is named although the model doubt' in note],
-               seconds=round(time.perf_counter() - started, 1))
+               seconds=round(time.perf_counter() - started, 1),
+               # why each effect was named or not (false alarms are explained from these): its numbers with the
+               # doubts, the candidates judged against the modelled remainder, the terms refitted beside the set
+               found_detail=[f.to_dict() for f in found.found],
+               remainder_material=bool(found.remainder.material) if found.remainder is not None else None,
+               modelled=[(c.effect, c.modelled.sentence(), c.significant) for c in found.candidates
+                         if c.modelled is not None],
+               terms=[(t.term.expression, t.status, {k: v for k, v in t.parameter_shifts.items()
+                                                     if k in {p for f in found.found for p in f.parameters}})
+                      for t in (found.discovery.terms if found.discovery is not None else [])
+                      if t.status != 'not_proven' or t.parameter_shifts],
+               named_notes=[note[:600] for note in found.notes if any(note.startswith(f.effect) for f in found.found)])
     row['effects'] = {k: v for k, v in row['effects'].items()}
     return row
 
