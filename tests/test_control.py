@@ -690,3 +690,16 @@ def test_check_and_linearisation_pages_are_self_contained(tmp_path, nominal_desi
                                  if s['measured_misses']}
     assert fragment.startswith('<section class="aeropend-control-check">') and 'Verdict: ' in fragment
     assert 'http://' not in fragment and '<script' not in fragment
+
+
+def test_schedule_metrics_equal_each_step_measured_alone():
+    """schedule_metrics computes the record's sample spacing once for all its steps (s25; it was a median over the
+    whole record per step): each step's metrics equal step_metrics' own, computed with nothing given."""
+    schedule = ReferenceSchedule.steps_between([25, 45, 30], hold=2.0, start_hold=0.5)
+    run = simulate_loop(PidGains(p=1.2, i=0.6, d=0.15), schedule.reference(), noise=MeasurementNoise(psnr_db=40.0),
+                        seed=4, duty_limit=0.8)
+    together = schedule_metrics(run.time, run.angle, run.duty, schedule)
+    alone = [step_metrics(run.time, run.angle, run.duty, start, end, before, after)
+             for start, end, before, after in schedule.step_times() if before != after]
+    assert len(together) == len(alone) == 3
+    assert [m.as_dict() for m in together] == [m.as_dict() for m in alone]

@@ -179,12 +179,13 @@ def noise_sigma(angle: np.ndarray) -> float:
 
 def step_metrics(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, start: float, end: float,
                  initial: float, target: float, angle_count: float = ANGLE_LSB,
-                 sigma: float | None = None) -> StepMetrics:
+                 sigma: float | None = None, sample_time: float | None = None) -> StepMetrics:
     """Metrics of the step from `initial` to `target` [rad] at `start` [s], held until `end` [s].
 
     `time` [s], `angle` [rad], `duty` [fraction] are the record's samples (at least the step's). `sigma` [rad] is
     the raw angle's noise (default: measured on the hold's last 20 %); `angle_count` [rad] one count of the angle
-    sensor.
+    sensor; `sample_time` [s] the median spacing of `time` (given by :func:`schedule_metrics`, which computes it
+    once for all its steps; None: computed here).
     """
     time = np.asarray(time, dtype=float)
     inside = (time >= start - 1e-9) & (time < end - 1e-9)
@@ -194,7 +195,8 @@ def step_metrics(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, start: f
     y = np.asarray(angle, dtype=float)[inside]
     u = np.asarray(duty, dtype=float)[inside]
     hold = end - start
-    sample_time = float(np.median(np.diff(time))) if time.size > 1 else 0.0
+    if sample_time is None:
+        sample_time = float(np.median(np.diff(time))) if time.size > 1 else 0.0
     window = max(1, int(round(SMOOTHING_TIME / sample_time))) if sample_time > 0 else 1
     raw = y
     y = moving_mean(raw, window, ends='shrink')
@@ -240,8 +242,9 @@ def schedule_metrics(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, sche
     if time.size == 0:
         return []
     results = []
+    sample_time = float(np.median(np.diff(time))) if time.size > 1 else 0.0     # once, not once a step
     for start, end, before, after in schedule.step_times():
         if end > time[-1] + 1.5 * (time[1] - time[0] if time.size > 1 else 0.0) or before == after:
             continue
-        results.append(step_metrics(time, angle, duty, start, end, before, after, angle_count, sigma))
+        results.append(step_metrics(time, angle, duty, start, end, before, after, angle_count, sigma, sample_time))
     return results
