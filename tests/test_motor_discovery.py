@@ -167,3 +167,63 @@ def test_a_screening_value_is_shown_without_a_plus_minus_and_says_why():
     assert motor.coefficient()[1] != motor.coefficient()[1] and motor.to_dict()['parameters'][
         f'motor_{MOTOR_VOCABULARY[1].slug}_coefficient']['sigma'] is None
     assert 'chosen for their size' in '\n'.join(motor_lines(outcome)) and '&plusmn; 0.5' not in motor_html(outcome)
+
+
+def _current_jacobian(x, voltage, switch, sample_time):
+    """d current / d observer parameter [A per unit], forward differences (the fit's own Jacobian's shape)."""
+    zero = np.zeros(voltage.size)
+    current, _ = _simulate(x, -1, voltage, zero, switch, sample_time)
+    columns = []
+    for i in range(7):
+        step = 1e-6 * max(abs(x[i]), 1e-4)
+        moved = x.copy()
+        moved[i] += step
+        columns.append((_simulate(moved, -1, voltage, zero, switch, sample_time)[0] - current) / step)
+    return np.column_stack(columns)
+
+
+def test_the_level_ensemble_estimates_the_level_by_level_spread():
+    # 100 stepped Va levels: both ways are affordable; the seeded ensemble of 64 members must give each parameter's
+    # variance within 3 of its relative standard errors (sqrt(2/64) = 18 %) of the level-by-level sum
+    from aeropend_core.stats import input_covariance
+    rng = np.random.default_rng(5)
+    voltage = np.repeat(rng.uniform(0.5, 2.0, 100), 60)
+    x = np.array([1.1, 2e-3, 30.0, 2.0, 0.5, 0.0, 0.0, 0.0])
+    switch, zero, sample_time = np.ones(voltage.size), np.zeros(voltage.size), 1 / 490
+    bounds = motor_discovery._intervals(voltage)
+    level_sigma = np.full(len(bounds) - 1, 0.03)
+    jacobian = _current_jacobian(x, voltage, switch, sample_time)
+    one_by_one = motor_discovery._level_changes(x, -1, voltage, zero, switch, sample_time, level_sigma, bounds)
+    ensemble = motor_discovery._level_ensemble(x, -1, voltage, zero, switch, sample_time, level_sigma, bounds)
+    assert ensemble.shape == (motor_discovery.LEVEL_MEMBERS, voltage.size)
+    exact = np.diag(input_covariance(jacobian, one_by_one)) * one_by_one.shape[0]
+    estimated = np.diag(input_covariance(jacobian, ensemble))
+    assert np.all(exact > 0)
+    np.testing.assert_array_less(np.abs(estimated / exact - 1.0), 3 * np.sqrt(2 / motor_discovery.LEVEL_MEMBERS))
+
+
+def test_a_va_that_changes_at_every_sample_is_fitted_without_a_levels_by_samples_matrix():
+    # A chirp's Va has as many levels as samples: (levels, n) would be 8,000 x 8,000 float64 = 512 MB here (6.4 GiB
+    # for 60 s at 490 Hz); the fit's covariance takes the ensemble's way and stays far below that
+    import tracemalloc
+    n, sample_time = 8000, 1 / 490
+    time = np.arange(n) * sample_time
+    voltage = 1.2 + 0.6 * np.sin(2 * np.pi * (0.2 + 0.3 * time) * time)
+    x = np.array([1.1, 2e-3, 30.0, 2.0, 0.5, 0.0, 0.0, 0.0])
+    switch, zero = np.ones(n), np.zeros(n)
+    current, _ = _simulate(x, -1, voltage, zero, switch, sample_time)
+    measured = current + np.random.default_rng(3).normal(0.0, 0.005, n)
+    prep = SimpleNamespace(armature_current=measured, sample_time=sample_time)
+    index = np.arange(n)
+    train, heldout = (index >= 2) & (index < 6000), index >= 6000
+    level_sigma = np.full(n, 1.2533 * 0.01)
+    assert (len(motor_discovery._intervals(voltage)) - 1) * n > motor_discovery.LEVELS_ONE_BY_ONE
+    tracemalloc.start()
+    try:
+        fit = motor_discovery._fit(prep, x[:7], -1, 0.0, voltage, zero, switch, train, heldout, level_sigma)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 100e6, peak
+    assert np.all(np.isfinite(fit.covariance)) and np.all(np.diag(fit.covariance) > 0)
+    np.testing.assert_allclose(fit.solution[:5], x[:5], rtol=0.05)

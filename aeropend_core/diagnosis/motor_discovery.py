@@ -30,7 +30,9 @@ a second one). A record longer than :data:`WINDOW_SECONDS` is searched on a wind
 then not refitted).
 
 The coefficient's σ is a sandwich with the scores summed over each interval of one Va level, plus the spread the
-stepped Va levels' own errors cause (:func:`_fit`); bench/bench_motor_coverage.py checks it against known truth.
+stepped Va levels' own errors cause (:func:`_fit`: level by level, or by a seeded ensemble of all levels moved at
+once where Va has too many levels to move one by one, e.g. a chirp); bench/bench_motor_coverage.py checks it
+against known truth.
 """
 from __future__ import annotations
 
@@ -294,6 +296,31 @@ def _intervals(voltage: np.ndarray) -> np.ndarray:
     return np.concatenate(([0], np.flatnonzero(np.diff(voltage) != 0) + 1, [voltage.size]))
 
 
+#: Above this many numbers (levels x samples) the levels' errors are propagated by :func:`_level_ensemble`, not level
+#: by level: a Va that changes at every sample (a chirp) has as many levels as samples, and (levels, n) would take
+#: gigabytes (29,400 x 29,400 for 60 s at 490 Hz).
+LEVELS_ONE_BY_ONE = 12_000_000
+#: Members of :func:`_level_ensemble` (its variance's relative standard error is sqrt(2 / members), 18 %).
+LEVEL_MEMBERS = 64
+
+
+def _level_ensemble(x, code, voltage, slow, switch, sample_time, level_sigma, bounds):
+    """Change of the current [A], shape (LEVEL_MEMBERS, n), when every Va interval's level is moved at once by its
+    own draw of N(0, `level_sigma` [V]) (a fixed seed, so the diagnosis repeats).
+
+    The levels' errors are independent and small, so their effects on the current add: the mean over members of
+    the parameters' moves ``dz dz'`` estimates the sum over levels that :func:`_level_changes` computes one by one,
+    with a cost of LEVEL_MEMBERS runs of the observer however many levels there are."""
+    current, _ = _simulate(x, code, voltage, slow, switch, sample_time)
+    level = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
+    rng = np.random.default_rng(20261207)
+    changes = np.empty((LEVEL_MEMBERS, voltage.size))
+    for k in range(LEVEL_MEMBERS):
+        moved = voltage + (rng.standard_normal(len(bounds) - 1) * level_sigma)[level]
+        changes[k] = _simulate(x, code, moved, slow, switch, sample_time)[0] - current
+    return changes
+
+
 def _level_changes(x, code, voltage, slow, switch, sample_time, level_sigma, bounds):
     """d current / d level of each Va interval times its level's standard error [A], shape (levels, n).
 
@@ -353,9 +380,12 @@ def _fit(prep, x0, code, coefficient, voltage, slow, switch, train, heldout, lev
     bounds = _intervals(voltage)
     labels = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))[train]
     covariance_z = hac_covariance(result.jac, r, groups=labels, width=r.size)
-    if level_sigma is not None:
+    if level_sigma is not None and (len(bounds) - 1) * voltage.size <= LEVELS_ONE_BY_ONE:
         changes = _level_changes(x, code, voltage, slow, switch, prep.sample_time, level_sigma, bounds)[:, train]
         covariance_z = covariance_z + input_covariance(result.jac, changes) * changes.shape[0]
+    elif level_sigma is not None:       # the mean over members is already the sum over the levels
+        changes = _level_ensemble(x, code, voltage, slow, switch, prep.sample_time, level_sigma, bounds)[:, train]
+        covariance_z = covariance_z + input_covariance(result.jac, changes)
     covariance = covariance_z * np.outer(scale[:free], scale[:free])
     return MotorFitResult(x, current, emf, float(np.sqrt(np.mean(r ** 2))),
                           prep.armature_current[heldout] - current[heldout], effective_samples(r), covariance)
