@@ -288,7 +288,7 @@ def simulate_loops(runs, reference: np.ndarray, feedforward, effects=None, noise
                         p.thrust_coefficient, p.gravity_stiffness, p.damping, p.lever_per_inertia]
         law[d] = gains.coefficients(sample_time)
     quanta = np.array([CURRENT_LSB, ANGLE_LSB]) if noise is not None and noise.quantise else np.zeros(2)
-    # the duty-to-voltage fit is the first run's rig's (a loop's voltage is the rig's, not the model's)
+    # one duty-to-voltage fit for every run (the kernel takes one): runs on rigs with different fits are refused
     voltage_fits = {(p.duty_voltage_k0, p.duty_voltage_k1, p.duty_voltage_k2, p.duty_voltage_k3) for _g, p, _s in runs}
     if len(voltage_fits) > 1:
         raise ValueError('simulate_loops: the runs\' rigs must share the duty-to-voltage fit (k0..k3)')
