@@ -385,7 +385,11 @@ class _Problem:
 #: closed-loop diagnosis until a coverage benchmark of its own says better.
 COVERAGE_NOTE = ('the +- here are local (the least-squares Jacobian, inflated by the residual\'s correlation '
                  'length): on 9 simulated closed-loop records with a hidden 0.1-0.2 s thrust lag (40 dB, parameters '
-                 '+-15 %) the lag was within 2 sigma of the truth in 6; read them as the least doubt')
+                 '+-15 %) the lag was within 2 sigma of the truth in 6; read them as the least doubt. The loop is '
+                 'simulated from the reference without the measurement noise the law feeds back to the duty; where '
+                 'that noise moves the duty much (a large derivative gain), gravity and the thrust gain can be biased '
+                 'beyond them (simulated 40 dB loops with a dead zone: both x1.37 with d = 0.13; the thrust gain '
+                 '4.2 sigma off on another): an open-loop record decides them')
 #: Sigmas from zero every parameter of an effect must be for a BIC gain short of decisive to count.
 SIGNIFICANT = 4.0
 
