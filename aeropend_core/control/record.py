@@ -39,6 +39,7 @@ import numpy as np
 from aeropend_core.control.controller_file import Controller
 from aeropend_core.control.reference import ReferenceSchedule
 from aeropend_core.errors import AeropendError
+from aeropend_core.io.inputs import load_yaml_text
 from aeropend_core.model.parameters import SAMPLE_TIME
 
 #: Topic names in the default graph (a bag of rig NAME holds ``/NAME/aeropend/...``; one rig per bag).
@@ -242,26 +243,13 @@ def _one_topic(topics: dict[str, str], name: str, path: Path) -> str | None:
     return found[0] if found else None
 
 
-def _safe_yaml(text: str, where: str):
-    """YAML text carried in a bag, within the project's limits (size, depth, aliases); AeropendError or
-    yaml.YAMLError when it cannot be read."""
-    import yaml
-
-    from aeropend_core.io.inputs import check_yaml_text
-    check_yaml_text(text, where)
-    try:                        # libyaml's parser (~15x faster; the same safe constructor), PyYAML's where it refuses
-        return yaml.load(text, Loader=getattr(yaml, 'CSafeLoader', yaml.SafeLoader))  # noqa: S506 - a safe loader
-    except yaml.YAMLError:
-        return yaml.safe_load(text)
-
-
 def _config(data: bytes) -> dict | None:
     """A configuration message (std_msgs/String CDR: 4 bytes header, u32 length, text with its NUL) as a dict."""
     import yaml
     try:
         (length,) = struct.unpack_from('<I', data, 4)
         text = data[8:8 + length].rstrip(b'\x00').decode('utf-8')
-        config = _safe_yaml(text, 'a controller configuration message')
+        config = load_yaml_text(text, 'a controller configuration message')
     except (struct.error, UnicodeDecodeError, yaml.YAMLError, AeropendError):
         return None
     return config if isinstance(config, dict) else None
@@ -272,7 +260,7 @@ def _controller(metadata: dict[str, str], configs: list[dict], path: Path) -> Co
     text = metadata.get('aeropend.controller_yaml')
     if text:
         try:
-            return Controller.from_dict(_safe_yaml(text, f'the controller in {path}'), f'the controller in {path}')
+            return Controller.from_dict(load_yaml_text(text, f'the controller in {path}'), f'the controller in {path}')
         except (yaml.YAMLError, AeropendError):
             pass
     for config in reversed(configs):                # the gains alone (no model): the last configuration's
@@ -292,7 +280,7 @@ def _schedule(metadata: dict[str, str], configs: list[dict], path: Path) -> Refe
     text = metadata.get('aeropend.reference_yaml')
     if text:
         try:
-            return ReferenceSchedule.from_mapping(_safe_yaml(text, f'the schedule in {path}'),
+            return ReferenceSchedule.from_mapping(load_yaml_text(text, f'the schedule in {path}'),
                                                   f'the reference schedule in {path}')
         except (yaml.YAMLError, AeropendError):
             pass

@@ -216,17 +216,15 @@ def bag_information(path: str | os.PathLike) -> dict:
     """metadata.yaml's ``rosbag2_bagfile_information`` of a bag folder (or of the folder of a ``.mcap`` file), read
     once with libyaml when present (a big bag's metadata takes pure-Python YAML a tenth of a second); {} when there
     is none or it is unreadable."""
-    from aeropend_core.io.inputs import YAML_MAX_BYTES, check_yaml_text, read_input_text
+    from aeropend_core.io.inputs import YAML_MAX_BYTES, load_yaml_text, read_input_text
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     meta = folder / 'metadata.yaml'
     if not meta.is_file():
         return {}
-    loader = getattr(yaml, 'CSafeLoader', yaml.SafeLoader)
     try:
         text = read_input_text(meta, 'metadata file', YAML_MAX_BYTES)
-        check_yaml_text(text, f'metadata file {meta}')
-        info = yaml.load(text, Loader=loader)['rosbag2_bagfile_information']   # noqa: S506 - a safe loader
+        info = load_yaml_text(text, f'metadata file {meta}')['rosbag2_bagfile_information']
     except (yaml.YAMLError, KeyError, TypeError, OSError, AeropendError):
         return {}
     return info if isinstance(info, dict) else {}
