@@ -1,7 +1,7 @@
 """Closed-loop simulation: the rig simulator's code driven sample by sample by the controller law.
 
-Two paths, as the simulator's: the *compiled* one (built-in effects) runs the simulator's RK4 (the sub-steps of
-:func:`aeropend_core.sim.simulate._rig_kernel` on its rates, :func:`~aeropend_core.sim.simulate._rig_rates`) one
+Two paths, as the simulator's: the *compiled* one (built-in effects) runs the simulator's RK4
+(:func:`aeropend_core.sim.simulate._rk4_sample`, the one :func:`~aeropend_core.sim.simulate._rig_kernel` runs) one
 sample at a time inside a numba loop with the law compiled from the same source (:func:`law_step`) and the
 measurement chain (offset, the sensor filter's coefficients of :mod:`aeropend_core.model.sensor_filter`, noise,
 10-bit rounding): ~2 us a sample; several loops (noise draws, rigs) step together in one call
@@ -33,7 +33,7 @@ from aeropend_core.model.parameters import DEFAULT_PARAMETERS, SAMPLE_TIME, RigP
 from aeropend_core.model.sensor_filter import MIN_DELAY
 from aeropend_core.model.sensor_filter import coefficients as filter_coefficients
 from aeropend_core.sim.noise import ANGLE_LSB, CURRENT_LSB, FULL_SCALE, MeasurementNoise, sigma_for_psnr
-from aeropend_core.sim.simulate import SUBSTEPS, RigSimulator, _rig_rates
+from aeropend_core.sim.simulate import SUBSTEPS, RigSimulator, _rk4_sample
 
 _law = numba.njit(cache=True)(law_step)
 
@@ -41,9 +41,9 @@ _law = numba.njit(cache=True)(law_step)
 @numba.njit(cache=True, nogil=True)
 def _loop_kernel(constants, voltage_fit, law, law_state, reference, feedforward, kinds, filter_b, filter_a,
                  noise, quanta, duty_limit, state, sample_time, out):
-    """Closed loops, compiled, several side by side: per sample the rig over one period (the simulator's RK4 of
-    :func:`~aeropend_core.sim.simulate._rig_kernel` on its :func:`~aeropend_core.sim.simulate._rig_rates`), the
-    measured angle, then the law. The loops are independent (each its own rig, law and noise) and each computes
+    """Closed loops, compiled, several side by side: per sample the rig over one period (the simulator's RK4,
+    :func:`~aeropend_core.sim.simulate._rk4_sample`, the loops' stages interleaved), the measured angle, then the
+    law. The loops are independent (each its own rig, law and noise) and each computes
     exactly what it computes alone; stepping them together lets the processor overlap their arithmetic (~1.5x
     fewer CPU seconds a loop with 20 than one by one).
 
@@ -82,22 +82,7 @@ def _loop_kernel(constants, voltage_fit, law, law_state, reference, feedforward,
             gate[d] = 1.0 if va >= kinds[5] else 0.0
             for j in range(5):
                 start[d, j] = x[d, j]
-        for _ in range(SUBSTEPS):          # _rig_kernel's RK4, the loops' stages interleaved
-            for stage in range(4):
-                for d in range(m):
-                    if stage == 0:
-                        for j in range(5):
-                            xt[d, j] = x[d, j]
-                    else:
-                        factor = h if stage == 3 else 0.5 * h
-                        for j in range(5):
-                            xt[d, j] = x[d, j] + factor * k[stage - 1, d, j]
-                    k[stage, d, 0], k[stage, d, 1], k[stage, d, 2], k[stage, d, 3], k[stage, d, 4] = _rig_rates(
-                        constants, d, volts[d], gate[d], xt[d, 0], xt[d, 1], xt[d, 2], xt[d, 3], xt[d, 4], kinds[0],
-                        kinds[1], kinds[2], kinds[3], kinds[4])
-            for d in range(m):
-                for j in range(5):
-                    x[d, j] += h / 6.0 * (k[0, d, j] + 2.0 * k[1, d, j] + 2.0 * k[2, d, j] + k[3, d, j])
+        _rk4_sample(constants, volts, gate, x, k, xt, h, kinds[0], kinds[1], kinds[2], kinds[3], kinds[4])
         for d in range(m):
             true_angle = start[d, 2]
             angle = true_angle + kinds[6]

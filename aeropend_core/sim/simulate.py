@@ -55,10 +55,38 @@ def _rig_rates(constants, row, va, g, current, speed, angle, rate, lagged, rate_
             (thrust_now - lagged) / lag_time_constant if lag else 0.0)
 
 
+@numba.njit(cache=True, nogil=True, inline='always')
+def _rk4_sample(constants, volts, gate, x, k, xt, h, rate_sign, rate_square, angle_linear, lag_time_constant,
+                smoothing):
+    """Advance m rigs over one sample: SUBSTEPS classical RK4 steps of size `h` [s] on :func:`_rig_rates`, the
+    input held (`volts` [V], `gate` (m,): each rig's armature voltage and thrust gate), the rigs' stages
+    interleaved. The one copy of the integrator that :func:`_rig_kernel` (m = 1) and the closed loop's batched
+    kernel (:mod:`aeropend_core.control.loop`) run. `constants` (m, 12); `x` (m, 5) the states, updated in place;
+    `k` (4, m, 5) and `xt` (m, 5) scratch; the effect coefficients as :func:`_rig_kernel`'s."""
+    m = x.shape[0]
+    for _ in range(SUBSTEPS):
+        for stage in range(4):
+            for d in range(m):
+                if stage == 0:
+                    for j in range(5):
+                        xt[d, j] = x[d, j]
+                else:
+                    factor = h if stage == 3 else 0.5 * h
+                    for j in range(5):
+                        xt[d, j] = x[d, j] + factor * k[stage - 1, d, j]
+                k[stage, d, 0], k[stage, d, 1], k[stage, d, 2], k[stage, d, 3], k[stage, d, 4] = _rig_rates(
+                    constants, d, volts[d], gate[d], xt[d, 0], xt[d, 1], xt[d, 2], xt[d, 3], xt[d, 4], rate_sign,
+                    rate_square, angle_linear, lag_time_constant, smoothing)
+        for d in range(m):
+            for j in range(5):
+                x[d, j] += h / 6.0 * (k[0, d, j] + 2.0 * k[1, d, j] + 2.0 * k[2, d, j] + k[3, d, j])
+
+
 @numba.njit(cache=True, nogil=True)
 def _rig_kernel(constants, voltage, gate, state, sample_time, rate_sign, rate_square, angle_linear,
                 lag_time_constant, smoothing, states_out):
-    """Full rig model, RK4 with SUBSTEPS fixed sub-steps per sample, input held over each sample.
+    """Full rig model, RK4 with SUBSTEPS fixed sub-steps per sample (:func:`_rk4_sample`, one rig), input held over
+    each sample.
 
     constants: Ra, La, Kw, Kt, Jm, F, Kd, N1/N2, Kq, mgd/J, c/J, L/J. State: Ia, w1, y, W, lagged thrust.
     Compiled effects enter as the coefficients of the generic kernel kinds (``KERNEL_KINDS`` of the catalog):
@@ -67,29 +95,21 @@ def _rig_kernel(constants, voltage, gate, state, sample_time, rate_sign, rate_sq
     """
     h = sample_time / SUBSTEPS
     table = constants.reshape((1, constants.shape[0]))
-    x = state.copy()
-    k = np.empty((4, 5))
-    xt = np.empty(5)
+    x = np.empty((1, 5))
+    for j in range(5):
+        x[0, j] = state[j]
+    k = np.empty((4, 1, 5))
+    xt = np.empty((1, 5))
+    volts = np.empty(1)
+    held_gate = np.empty(1)
     for i in range(voltage.shape[0]):
         for j in range(5):
-            states_out[i, j] = x[j]
-        va = voltage[i]
-        g = gate[i]
-        for _ in range(SUBSTEPS):
-            for stage in range(4):
-                if stage == 0:
-                    for j in range(5):
-                        xt[j] = x[j]
-                else:
-                    factor = h if stage == 3 else 0.5 * h
-                    for j in range(5):
-                        xt[j] = x[j] + factor * k[stage - 1, j]
-                k[stage, 0], k[stage, 1], k[stage, 2], k[stage, 3], k[stage, 4] = _rig_rates(
-                    table, 0, va, g, xt[0], xt[1], xt[2], xt[3], xt[4], rate_sign, rate_square, angle_linear,
-                    lag_time_constant, smoothing)
-            for j in range(5):
-                x[j] += h / 6.0 * (k[0, j] + 2.0 * k[1, j] + 2.0 * k[2, j] + k[3, j])
-    return x
+            states_out[i, j] = x[0, j]
+        volts[0] = voltage[i]
+        held_gate[0] = gate[i]
+        _rk4_sample(table, volts, held_gate, x, k, xt, h, rate_sign, rate_square, angle_linear, lag_time_constant,
+                    smoothing)
+    return x[0].copy()
 
 
 #: Measured signals, in the CSV/bag column order, with their units.
