@@ -51,6 +51,7 @@ from aeropend_core.diagnosis.evidence import TermEvidence, finite_or_none, scree
 from aeropend_core.diagnosis.motor_terms import MOTOR_VOCABULARY, AddedMotorTerm, MotorTerm
 from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.signals.filters import first_order_lag
+from aeropend_core.signals.motor import interval_of_samples, moved_levels
 from aeropend_core.stats import diebold_mariano, effective_samples, hac_covariance, input_covariance
 
 #: Time constant [s] of the dissipated-power proxy (the winding's thermal lag; tens of seconds for a small motor).
@@ -312,11 +313,11 @@ def _level_ensemble(x, code, voltage, slow, switch, sample_time, level_sigma, bo
     the parameters' moves ``dz dz'`` estimates the sum over levels that :func:`_level_changes` computes one by one,
     with a cost of LEVEL_MEMBERS runs of the observer however many levels there are."""
     current, _ = _simulate(x, code, voltage, slow, switch, sample_time)
-    level = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
+    level = interval_of_samples(bounds)
     rng = np.random.default_rng(20261207)
     changes = np.empty((LEVEL_MEMBERS, voltage.size))
     for k in range(LEVEL_MEMBERS):
-        moved = voltage + (rng.standard_normal(len(bounds) - 1) * level_sigma)[level]
+        moved = moved_levels(voltage, level_sigma, level, rng)
         changes[k] = _simulate(x, code, moved, slow, switch, sample_time)[0] - current
     return changes
 
@@ -378,7 +379,7 @@ def _fit(prep, x0, code, coefficient, voltage, slow, switch, train, heldout, lev
     current, emf = _simulate(x, code, voltage, slow, switch, prep.sample_time)
     r = result.fun
     bounds = _intervals(voltage)
-    labels = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))[train]
+    labels = interval_of_samples(bounds)[train]
     covariance_z = hac_covariance(result.jac, r, groups=labels, width=r.size)
     if level_sigma is not None and (len(bounds) - 1) * voltage.size <= LEVELS_ONE_BY_ONE:
         changes = _level_changes(x, code, voltage, slow, switch, prep.sample_time, level_sigma, bounds)[:, train]

@@ -592,6 +592,20 @@ FALLBACK_MARGIN = 0.5
 ENSEMBLE_SIZE = 16
 
 
+def moved_levels(voltage: np.ndarray, level_sigma: np.ndarray, interval: np.ndarray,
+                 rng: np.random.Generator) -> np.ndarray:
+    """`voltage` [V] with every input interval's level moved at once by its own draw of N(0, `level_sigma` [V]).
+
+    `interval` gives each sample's interval (as :func:`interval_of_samples`); one standard-normal draw per interval
+    is taken from `rng`, so callers that interleave other draws keep their sequence."""
+    return voltage + (rng.standard_normal(level_sigma.size) * level_sigma)[interval]
+
+
+def interval_of_samples(bounds: np.ndarray) -> np.ndarray:
+    """Each sample's input interval (0, 1, ...) for interval `bounds` [samples] ``[0, ..., n]``."""
+    return np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
+
+
 def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.ndarray, current: np.ndarray,
                       step_indices: np.ndarray, sample_time: float, count: int = ENSEMBLE_SIZE,
                       seed: int = 0, with_errors: bool = False, blocks: np.ndarray | None = None):
@@ -673,7 +687,7 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
                      for i in range(x.size)])
     inverse = np.linalg.pinv(gram)
     bounds = np.concatenate(([0], np.asarray(step_indices if blocks is None else blocks, dtype=int), [n]))
-    block = np.repeat(np.arange(len(bounds) - 1), np.diff(bounds))
+    block = interval_of_samples(bounds)
     lengths = np.maximum(np.diff(bounds), 1)
     level_sigma = 1.2533 * noise_rms(np.asarray(measured_voltage, dtype=float)) / np.sqrt(lengths)
     rng = np.random.default_rng(seed)
@@ -681,7 +695,7 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
     level_changes = np.zeros((count, x.size))
     for k in range(count):
         signs = rng.choice((-1.0, 1.0), size=len(lengths))
-        shifted_voltage = voltage + (rng.standard_normal(len(lengths)) * level_sigma)[block]
+        shifted_voltage = moved_levels(voltage, level_sigma, block, rng)
         redrawn = modelled + signs[block] * residual
         moved, member = _predict(kind, x, shifted_voltage, sample_time, switch)
         target = (redrawn - moved)[used]
@@ -767,4 +781,5 @@ def _rate_ratios_from_steady_states(voltage, emf, step_indices, sample_time) -> 
     return tuple(max(float(r), 0.0) for r in ratios)
 
 
-__all__ = ['MotorFit', 'fit_motor', 'refit_shared', 'back_emf_ensemble', 'PARAMETER_NAMES', 'PARAMETER_UNITS']
+__all__ = ['MotorFit', 'fit_motor', 'refit_shared', 'back_emf_ensemble', 'interval_of_samples', 'moved_levels',
+           'PARAMETER_NAMES', 'PARAMETER_UNITS']
