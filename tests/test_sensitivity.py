@@ -183,3 +183,35 @@ def test_the_jacobian_of_a_stretch_is_the_one_computed_over_the_whole_record(eff
     assert np.array_equal(windowed[0], whole[0])
     for mine, theirs in zip(windowed[1], whole[1]):
         assert np.array_equal(mine, theirs)
+
+
+def test_rates_without_friction_skip_the_tanh_and_equal_the_full_formula_bit_for_bit():
+    """s26: without dry friction (fc = 0) the output-error and sensitivity kernels skip its tanh
+    (:func:`aeropend_core.diagnosis.sensitivity.friction_term`). The rate sum equals the formula with the zero term
+    fc tanh(w / smooth), sign bits included, on states with zeros of both signs, a zero or tiny damping (products
+    that underflow), a gated
+    thrust of either zero; and the term is computed as before where fc is not 0."""
+    import math
+
+    import numba
+
+    from aeropend_core.diagnosis.sensitivity import friction_term
+
+    @numba.njit
+    def both(a, y, b, w, t, fc, cd, kc, smooth):
+        skipped = -a * math.sin(y) - b * w + t - friction_term(fc, w, smooth) - cd * w * abs(w) - kc * y
+        full = -a * math.sin(y) - b * w + t - fc * math.tanh(w / smooth) - cd * w * abs(w) - kc * y
+        return skipped, full
+
+    values = [0.0, -0.0, 1e-300, -1e-300, 5e-324, -5e-324, 0.3, -0.3, 2.0, -2.0]
+    rng = np.random.default_rng(7)
+    checked = 0
+    for _ in range(3000):
+        y, w, t = (values[k] if k < len(values) else rng.normal() for k in rng.integers(0, len(values) + 2, 3))
+        a, b, cd, kc = (float(rng.choice([0.0, 0.0, 130.0, 0.4, 1e-300])) for _ in range(4))
+        for fc in (0.0, -0.0, 3.0):
+            skipped, full = both(a, y, b, w, t, fc, cd, kc, oe.FRICTION_SMOOTHING)
+            assert skipped == full or (math.isnan(skipped) and math.isnan(full)), (a, y, b, w, t, fc)
+            assert math.copysign(1.0, skipped) == math.copysign(1.0, full), (a, y, b, w, t, fc)
+            checked += 1
+    assert checked == 9000

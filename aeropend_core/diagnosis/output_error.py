@@ -37,7 +37,7 @@ from aeropend_core.model.effects import (FRICTION_SMOOTHING, KERNEL_KINDS, PENDU
                                          kernel_parameter, wants_thrust)
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.diagnosis.parallel import in_segment_chunks, map_in_order, workers_for
-from aeropend_core.diagnosis.sensitivity import EXACT_COLUMNS, sensitivity_kernel
+from aeropend_core.diagnosis.sensitivity import EXACT_COLUMNS, friction_term, sensitivity_kernel
 from aeropend_core.diagnosis.term_kernel import term_value
 from aeropend_core.diagnosis.user_kernel import EXTRA_TYPE, compiled_user_terms, no_extra
 from aeropend_core.model.sensor_filter import filter_angle
@@ -148,7 +148,7 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 # RK4 on (y, w, f)
                 t1 = f if lag_on else u0
                 dy1 = w
-                dw1 = -a * math.sin(y) - b * w + t1 - fc * math.tanh(w / smooth) - cd * w * abs(w) - kc * y
+                dw1 = -a * math.sin(y) - b * w + t1 - friction_term(fc, w, smooth) - cd * w * abs(w) - kc * y
                 dw1 += c * term_value(term_code, y, w, t1)
                 if extra_on:
                     dw1 += extra(y, w, t1, theta[row])
@@ -158,7 +158,7 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 f2 = f + 0.5 * h * df1
                 t2 = f2 if lag_on else u1
                 dy2 = w2
-                dw2 = -a * math.sin(y2) - b * w2 + t2 - fc * math.tanh(w2 / smooth) - cd * w2 * abs(w2) - kc * y2
+                dw2 = -a * math.sin(y2) - b * w2 + t2 - friction_term(fc, w2, smooth) - cd * w2 * abs(w2) - kc * y2
                 dw2 += c * term_value(term_code, y2, w2, t2)
                 if extra_on:
                     dw2 += extra(y2, w2, t2, theta[row])
@@ -168,7 +168,7 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 f3 = f + 0.5 * h * df2
                 t3 = f3 if lag_on else u1
                 dy3 = w3
-                dw3 = -a * math.sin(y3) - b * w3 + t3 - fc * math.tanh(w3 / smooth) - cd * w3 * abs(w3) - kc * y3
+                dw3 = -a * math.sin(y3) - b * w3 + t3 - friction_term(fc, w3, smooth) - cd * w3 * abs(w3) - kc * y3
                 dw3 += c * term_value(term_code, y3, w3, t3)
                 if extra_on:
                     dw3 += extra(y3, w3, t3, theta[row])
@@ -178,7 +178,7 @@ def _simulate_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop, 
                 f4 = f + h * df3
                 t4 = f4 if lag_on else u2
                 dy4 = w4
-                dw4 = -a * math.sin(y4) - b * w4 + t4 - fc * math.tanh(w4 / smooth) - cd * w4 * abs(w4) - kc * y4
+                dw4 = -a * math.sin(y4) - b * w4 + t4 - friction_term(fc, w4, smooth) - cd * w4 * abs(w4) - kc * y4
                 dw4 += c * term_value(term_code, y4, w4, t4)
                 if extra_on:
                     dw4 += extra(y4, w4, t4, theta[row])

@@ -34,6 +34,17 @@ _F1, _F2, _I1 = numba.float64[::1], numba.float64[:, ::1], numba.int64[::1]
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
+def friction_term(fc, w, smooth):
+    """Dry friction's acceleration fc tanh(w / smooth) [rad/s^2]; +0.0 without friction (fc = +0), its tanh skipped.
+
+    Exact in the rates it is subtracted from: +0 tanh(.) is a zero of the sign of w, and x - (-0) differs from
+    x - 0 only for x = -0, which the rate sum -a sin y - b w + t never is when w <= -0 (-b w is then positive or
+    +0, and a sum with a nonzero or +0 term is not -0), as in the simulator (sim/simulate._rig_rates). A -0
+    coefficient keeps the product (its zero has the other sign)."""
+    return 0.0 if fc == 0.0 and math.copysign(1.0, fc) > 0.0 else fc * math.tanh(w / smooth)
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
 def _thrust_derivative(col, k, e, current, gate):
     """d (k e|e| gate) / d theta[col] with e = Va - R Ia: thrust gain (2) and armature resistance (3); else 0."""
     if col == 2:
@@ -45,13 +56,15 @@ def _thrust_derivative(col, k, e, current, gate):
 
 @numba.njit(cache=True, nogil=True, inline='always')
 def _stage(y, w, f, u, du, sy, sw, sf, cols, m, a, b, fc, cd, kc, tau, tau_free, smooth, stiff_friction, lag_on,
-           ky, kw, kf):
+           ky, kw, kf, need_tanh):
     """One RK4 stage's derivative of (y, W, f) and of their sensitivities (written into ky, kw, kf).
 
-    `u` is the stage's thrust input [rad/s^2] and `du` its derivative per tracked column; returns (dy, dW, df)."""
+    `u` is the stage's thrust input [rad/s^2] and `du` its derivative per tracked column; returns (dy, dW, df).
+    Without `need_tanh` (no friction, its coefficient not tracked) the tanh is skipped as in :func:`friction_term`:
+    fc tanh and fc sech^2 are zeros of the same signs either way."""
     t = f if lag_on else u
     q = w / smooth
-    th = math.tanh(q)
+    th = math.tanh(q) if need_tanh else 0.0
     sech2 = 1.0 - th * th
     dw = -a * math.sin(y) - b * w + t - fc * th - cd * w * abs(w) - kc * y
     df = (u - f) / tau
@@ -139,9 +152,12 @@ def sensitivity_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop
     smooth = fc * h / friction_stability if stiff_friction else friction_smoothing
     m_cols = cols.shape[0]
     m = m_cols + 2                       # the tracked columns, then the initial angle and rate
+    need_tanh = not (fc == 0.0 and math.copysign(1.0, fc) > 0.0)      # as friction_term: a +0 coefficient skips it
     track = np.empty(m, dtype=np.int64)
     for c in range(m_cols):
         track[c] = cols[c]
+        if cols[c] == 4:
+            need_tanh = True
     track[m_cols] = -1
     track[m_cols + 1] = -2
     sy = np.zeros(m)
@@ -223,25 +239,25 @@ def sensitivity_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop
                 du1[c] = _thrust_derivative(track[c], k, e1, current[i + 1], g1)
                 du2[c] = _thrust_derivative(track[c], k, e2, current[i + 2], g_second)
             dy1, dw1, df1 = _stage(y, w, f, u0, du0, sy, sw, sf, track, m, a, b, fc, cd, kc, tau, tau_free, smooth,
-                                   stiff_friction, lag_on, k1y, k1w, k1f)
+                                   stiff_friction, lag_on, k1y, k1w, k1f, need_tanh)
             _stage_point(sy, sw, sf, k1y, k1w, k1f, 0.5 * h, m, ty, tw, tf)
             y2 = y + 0.5 * h * dy1
             w2 = w + 0.5 * h * dw1
             f2 = f + 0.5 * h * df1
             dy2, dw2, df2 = _stage(y2, w2, f2, u1, du1, ty, tw, tf, track, m, a, b, fc, cd, kc, tau, tau_free,
-                                   smooth, stiff_friction, lag_on, k2y, k2w, k2f)
+                                   smooth, stiff_friction, lag_on, k2y, k2w, k2f, need_tanh)
             _stage_point(sy, sw, sf, k2y, k2w, k2f, 0.5 * h, m, ty, tw, tf)
             y3 = y + 0.5 * h * dy2
             w3 = w + 0.5 * h * dw2
             f3 = f + 0.5 * h * df2
             dy3, dw3, df3 = _stage(y3, w3, f3, u1, du1, ty, tw, tf, track, m, a, b, fc, cd, kc, tau, tau_free,
-                                   smooth, stiff_friction, lag_on, k3y, k3w, k3f)
+                                   smooth, stiff_friction, lag_on, k3y, k3w, k3f, need_tanh)
             _stage_point(sy, sw, sf, k3y, k3w, k3f, h, m, ty, tw, tf)
             y4 = y + h * dy3
             w4 = w + h * dw3
             f4 = f + h * df3
             dy4, dw4, df4 = _stage(y4, w4, f4, u2, du2, ty, tw, tf, track, m, a, b, fc, cd, kc, tau, tau_free,
-                                   smooth, stiff_friction, lag_on, k4y, k4w, k4f)
+                                   smooth, stiff_friction, lag_on, k4y, k4w, k4f, need_tanh)
             y = y + h / 6.0 * (dy1 + 2.0 * dy2 + 2.0 * dy3 + dy4)
             w = w + h / 6.0 * (dw1 + 2.0 * dw2 + 2.0 * dw3 + dw4)
             for c in range(m):
@@ -254,4 +270,4 @@ def sensitivity_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop
             i += stride
 
 
-__all__ = ['EXACT_COLUMNS', 'sensitivity_kernel']
+__all__ = ['EXACT_COLUMNS', 'friction_term', 'sensitivity_kernel']
