@@ -189,8 +189,7 @@ def test_rates_without_friction_skip_the_tanh_and_equal_the_full_formula_bit_for
     """s26: without dry friction (fc = 0) the output-error and sensitivity kernels skip its tanh
     (:func:`aeropend_core.diagnosis.sensitivity.friction_term`). The rate sum equals the formula with the zero term
     fc tanh(w / smooth), sign bits included, on states with zeros of both signs, a zero or tiny damping (products
-    that underflow), a gated
-    thrust of either zero; and the term is computed as before where fc is not 0."""
+    that underflow) and a gated thrust of either zero; and a nonzero or -0 coefficient keeps the product."""
     import math
 
     import numba

@@ -569,25 +569,25 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
             initials.append(initial)
         return np.array(rows), np.array(initials)
 
-    cache = {}
+    cache, exact = {}, exact_columns(structure, free)
 
     def residuals(z):
         key = z.tobytes()
         if key not in cache:
             rows, initials = rows_for([z])
             cache.clear()
-            cache[key] = _bounded(data.simulate(structure, rows, initials)[0, residual_index] - measured)
-        return cache[key]
-
-    exact = exact_columns(structure, free)
+            # exact sensitivities: their pass simulates the same numbers; its Jacobian is asked at each accepted point
+            cache[key] = (_exact_jacobian(data, structure, rows[0], initials[0], exact, scale, measured)[::-1]
+                          if exact is not None else
+                          (_bounded(data.simulate(structure, rows, initials)[0, residual_index] - measured),))
+        return cache[key][0]
 
     def jacobian(z):
         r0 = residuals(z)
         seg = data.segment_of_residual
         if exact is not None:
             # exact sensitivities in one pass (aeropend_core.diagnosis.sensitivity); differences for the rest
-            rows, initials = rows_for([z])
-            dense, initial = _exact_jacobian(data, structure, rows[0], initials[0], exact, scale, measured)
+            initial, dense = cache[z.tobytes()][1:]
             differenced = [i for i in range(n_free) if exact[i] < 0]
             if differenced:
                 step = 1e-6 * np.maximum(np.abs(z), 1.0)
@@ -733,10 +733,10 @@ def _kernel_window(data: SegmentedData, structure: Structure, row: np.ndarray) -
 
 def _exact_jacobian(data: SegmentedData, structure: Structure, row: np.ndarray, initial: np.ndarray,
                     exact: np.ndarray, scale: np.ndarray, measured: np.ndarray) -> tuple[np.ndarray, list]:
-    """(d residual / d free parameter (scaled), [d residual / d initial angle, d residual / d initial rate (scaled)])
-    from one pass of :func:`aeropend_core.diagnosis.sensitivity.sensitivity_kernel`; columns of differenced
-    parameters are left zero. Rows where the residual is clipped (a diverging trial) have zero derivative, as the
-    clipped residual has."""
+    """(d residual / d free parameter (scaled), [d residual / d initial angle, d residual / d initial rate (scaled)],
+    the bounded residuals [rad]) from one pass of :func:`aeropend_core.diagnosis.sensitivity.sensitivity_kernel`;
+    columns of differenced parameters are left zero. Rows where the residual is clipped (a diverging trial) have
+    zero derivative, as the clipped residual has."""
     tracked = np.array(sorted({int(c) for c in exact if c >= 0}), dtype=np.int64)
     # on the window its segments cover: a drift stretch of a long record fills no arrays of the record's length
     lo, hi = _kernel_window(data, structure, row)
@@ -762,7 +762,7 @@ def _exact_jacobian(data: SegmentedData, structure: Structure, row: np.ndarray, 
     initial_columns = [d_initial[index, j] * IC_SCALE[j] for j in range(2)]
     dense = np.where(inside[:, None] & np.isfinite(dense), dense, 0.0)
     initial_columns = [np.where(inside & np.isfinite(c), c, 0.0) for c in initial_columns]
-    return dense, initial_columns
+    return dense, initial_columns, _bounded(raw)
 
 
 #: A simulation that diverges (unstable parameter trial) is scored as this many radians off, so the optimiser
