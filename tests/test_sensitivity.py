@@ -214,3 +214,21 @@ def test_rates_without_friction_skip_the_tanh_and_equal_the_full_formula_bit_for
             assert math.copysign(1.0, skipped) == math.copysign(1.0, full), (a, y, b, w, t, fc)
             checked += 1
     assert checked == 9000
+
+
+@pytest.mark.parametrize('lag_on, gate_on, friction', [(False, False, 0.0), (True, True, 0.5), (True, False, 20.0),
+                                                       (False, True, 0.0), (True, True, 0.0)])
+def test_the_sensitivity_pass_simulates_the_simulations_numbers_bit_for_bit(lag_on, gate_on, friction):
+    """s26: a fit with exact sensitivities takes its residuals from the sensitivity pass (one kernel call where a
+    simulation and a pass were two): its simulated angle must be the simulation kernel's, bit for bit, with a gate
+    that cuts negative drive voltages (zeros of both signs in the thrust) and a lag whose run-in starts gated."""
+    rng = np.random.default_rng(11)
+    voltage, current = _inputs(4000, seed=6)
+    voltage = voltage - 0.8                                 # some levels below 0 V: gated thrust of sign -0
+    segments = [(0, 1500), (1500, 2900), (2900, 4000)]
+    theta = np.array([130.0, 2.0, 140.0, 1.0, friction, 0.01, 0.3, 0.02, 0.05, 0.4])
+    initial = rng.normal(0.0, 0.2, (len(segments), 2))
+    simulated = _simulate(theta, voltage, current, segments, initial, lag_on, gate_on)
+    passed, _, _ = _sensitivities(theta, voltage, current, segments, initial, lag_on, gate_on, [0, 1, 2, 3, 8])
+    assert np.isfinite(simulated).sum() > 1500
+    assert np.array_equal(simulated.view(np.int64), passed.view(np.int64))
