@@ -66,10 +66,11 @@ def test_the_check_gives_the_predicted_settling_range_over_noise_draws_and_a_run
         for step in result.steps:
             low, high, draws, _ = step.settling_range
             assert draws == 20 and low <= step.predicted.settling_time <= high
+            assert low <= step.settling_median <= high
             total += 1
             inside += bool(step.settling_in_range)
         data = result.to_dict()['steps'][0]['predicted_settling_range']
-        assert data['draws'] == 20 and data['shortest_s'] <= data['longest_s']
+        assert data['draws'] == 20 and data['shortest_s'] <= data['median_s'] <= data['longest_s']
     assert total == 18 and inside >= 16
     lagged = run({'thrust_lag': {'time_constant': 0.2}}, 100)
     result = check_record(lagged.time, lagged.angle, lagged.duty, controller, schedule, seed=7)
@@ -98,7 +99,7 @@ def test_the_feedforward_taken_once_per_reference_value_gives_the_loop_of_the_pe
 def test_the_shared_noise_draws_give_each_seeds_run_and_the_checks_ranges_of_those_seeds():
     """loop.noise_draws (s24: the one helper behind the design's noise edge and the check's range) gives, in seed
     order and on threads, what one simulate_loop and schedule_metrics per seed give; settling_ranges over the same
-    seeds is their shortest and longest settling, draw count and unsettled count."""
+    seeds is their shortest and longest settling, draw count, unsettled count and median."""
     from concurrent.futures import ThreadPoolExecutor
 
     from aeropend_core.control.check import settling_ranges
@@ -127,8 +128,9 @@ def test_the_shared_noise_draws_give_each_seeds_run_and_the_checks_ranges_of_tho
     ranges = settling_ranges(_gains(), reference, feedforward, DEFAULT_PARAMETERS, {}, noise, schedule, seeds,
                              duty_limit=0.8)
     assert len(ranges) == 2
-    for index, (start, (low, high, draws, unsettled)) in enumerate(sorted(ranges.items())):
+    for index, (start, (low, high, draws, unsettled, median)) in enumerate(sorted(ranges.items())):
         times = [metrics[index].settling_time for _run, metrics in alone]
         assert math.isclose(start, round(alone[0][1][index].start, 6))
         assert (low, high, draws) == (min(times), max(times), len(seeds))
+        assert math.isclose(median, (sorted(times)[1] + sorted(times)[2]) / 2)        # four draws: the middle two
         assert unsettled == sum(not metrics[index].settled for _run, metrics in alone)
