@@ -355,6 +355,9 @@ def catalog_stage(prepared: Prepared, compared: Compared, say: Say) -> CatalogRe
                              f'significant.')
                 model, base = reduced_model, reduced
                 steps = [(c, g) for c, g in steps if c.effect != earlier.effect]
+                # judged with other effects still missing: the replacement is judged again on the final model
+                # (second-rig seed 64037: a filter replaced by a lag before a cable torque was added)
+                steps[-1][1].append(earlier.effect)
     # Confounding judged in an early round, with other effects still missing, is judged again on the final model.
     for position, (chosen, rivals) in enumerate(steps):
         still = []
