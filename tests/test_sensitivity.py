@@ -232,3 +232,30 @@ def test_the_sensitivity_pass_simulates_the_simulations_numbers_bit_for_bit(lag_
     passed, _, _ = _sensitivities(theta, voltage, current, segments, initial, lag_on, gate_on, [0, 1, 2, 3, 8])
     assert np.isfinite(simulated).sum() > 1500
     assert np.array_equal(simulated.view(np.int64), passed.view(np.int64))
+
+
+def test_the_block_jacobian_is_the_coo_forms_bit_for_bit():
+    """s26: a long record's sparse Jacobian is built in compressed-row form directly
+    (:func:`aeropend_core.diagnosis.jacobian_blocks.block_jacobian`); it must be the COO form's (the code before)
+    once converted: the same entries in the same order, so LSMR's products, and the fit, are the same bit for bit."""
+    from scipy import sparse
+
+    from aeropend_core.diagnosis.jacobian_blocks import block_jacobian
+
+    rng = np.random.default_rng(2)
+    m, p, n_seg = 700, 5, 9
+    seg = np.sort(rng.integers(0, n_seg, m))
+    dense = rng.normal(size=(m, p))
+    dense[rng.random((m, p)) < 0.05] = 0.0                 # explicit zeros (clipped rows) stay entries
+    dense[3, 1] = -0.0
+    initial = [rng.normal(size=m), rng.normal(size=m)]
+    n = p + 2 * n_seg
+    columns = np.concatenate([np.tile(np.arange(p), m), p + 2 * seg, p + 2 * seg + 1])
+    rows = np.concatenate([np.repeat(np.arange(m), p), np.arange(m), np.arange(m)])
+    before = sparse.csr_array((np.concatenate([dense.ravel(), initial[0], initial[1]]), (rows, columns)), shape=(m, n))
+    after = block_jacobian(dense, initial, seg, n)
+    assert after.shape == before.shape and after.nnz == before.nnz == m * (p + 2)
+    assert np.array_equal(after.indptr, before.indptr) and np.array_equal(after.indices, before.indices)
+    assert np.array_equal(after.data.view(np.int64), before.data.view(np.int64))
+    x, y = rng.normal(size=n), rng.normal(size=m)
+    assert np.array_equal(after @ x, before @ x) and np.array_equal(after.T @ y, before.T @ y)

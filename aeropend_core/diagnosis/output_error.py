@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
-from scipy import sparse
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
@@ -36,6 +35,7 @@ from aeropend_core.errors import AeropendError, InsufficientDataError
 from aeropend_core.model.effects import (FRICTION_SMOOTHING, KERNEL_KINDS, PENDULUM, find_parameter, get_effect,
                                          kernel_parameter, wants_thrust)
 from aeropend_core.model.names import NOMINAL_PARAMETERS
+from aeropend_core.diagnosis.jacobian_blocks import block_jacobian
 from aeropend_core.diagnosis.parallel import in_segment_chunks, map_in_order, workers_for
 from aeropend_core.diagnosis.sensitivity import EXACT_COLUMNS, friction_term, sensitivity_kernel
 from aeropend_core.diagnosis.term_kernel import term_value
@@ -612,13 +612,7 @@ def fit_output_error(data: SegmentedData, structure: Structure, start: dict[str,
             dense = ((predictions[:n_free] - r0) / step[:n_free, None]).T            # (residuals, parameters)
             initial = [(predictions[n_free + j] - r0) / step[n_free + 2 * seg + j] for j in range(2)]
         if sparse_jacobian:
-            # [parameters | block-diagonal initial states]: a segment's initial state moves only its residuals
-            m = len(r0)
-            columns = np.concatenate([np.tile(np.arange(n_free), m),
-                                      n_free + 2 * seg, n_free + 2 * seg + 1])
-            rows_index = np.concatenate([np.repeat(np.arange(m), n_free), np.arange(m), np.arange(m)])
-            values = np.concatenate([dense.ravel(), initial[0], initial[1]])
-            return sparse.csr_array((values, (rows_index, columns)), shape=(m, len(z)))
+            return block_jacobian(dense, initial, seg, len(z))     # [parameters | block-diagonal initial states]
         jac = np.zeros((len(r0), len(z)))
         jac[:, :n_free] = dense
         for j in range(2):
@@ -754,13 +748,13 @@ def _exact_jacobian(data: SegmentedData, structure: Structure, row: np.ndarray, 
     index = data.residual_index - lo
     raw = out[0, index] - measured
     inside = np.isfinite(raw) & (np.abs(raw) < DIVERGED_RESIDUAL)
-    position = {int(c): j for j, c in enumerate(tracked)}
+    position, gathered = {int(c): j for j, c in enumerate(tracked)}, d_columns[index]     # one gather of the rows
     dense = np.zeros((len(index), len(exact)))
     for i, column in enumerate(exact):
         if column >= 0:
-            dense[:, i] = d_columns[index, position[int(column)]] * scale[i]
+            dense[:, i] = gathered[:, position[int(column)]] * scale[i]
     initial_columns = [d_initial[index, j] * IC_SCALE[j] for j in range(2)]
-    dense = np.where(inside[:, None] & np.isfinite(dense), dense, 0.0)
+    dense[~(inside[:, None] & np.isfinite(dense))] = 0.0
     initial_columns = [np.where(inside & np.isfinite(c), c, 0.0) for c in initial_columns]
     return dense, initial_columns, _bounded(raw)
 
