@@ -40,7 +40,7 @@ _law = numba.njit(cache=True)(law_step)
 
 @numba.njit(cache=True, nogil=True)
 def _loop_kernel(constants, voltage_fit, law, law_state, reference, feedforward, kinds, filter_b, filter_a,
-                 noise, quanta, duty_limit, state, sample_time, out):
+                 noise, quanta, duty_limit, state, sample_time, out, law_noise):
     """Closed loops, compiled, several side by side: per sample the rig over one period (the simulator's RK4,
     :func:`~aeropend_core.sim.simulate._rk4_sample`, the loops' stages interleaved), the measured angle, then the
     law. The loops are independent (each its own rig, law and noise) and each computes
@@ -52,7 +52,9 @@ def _loop_kernel(constants, voltage_fit, law, law_state, reference, feedforward,
     feedforward [duty] (n,): shared; kinds: rate_sign, rate_square, angle_linear, lag time [s], friction smoothing
     [rad/s], dead-zone threshold [V], angle offset [rad]; filter_b/filter_a: the sensor filter (empty: none);
     noise (m, n, 3): Va [V], Ia [A], angle [rad] noise; quanta: current and angle counts [A, rad] (0: no rounding);
-    state (m, 5): each rig's initial state, updated to its final one.
+    state (m, 5): each rig's initial state, updated to its final one; law_noise (m, n) [rad]: added to the angle
+    the law reads only, not to the state nor to the measured angle written out (the noise a record fed back:
+    :func:`simulate_loops`); shape (0, 0): none.
     out (m, n, 10): duty applied, unsaturated, integral, tripped, measured angle, Va, Ia, true angle, true rate,
     motor speed.
     """
@@ -60,6 +62,7 @@ def _loop_kernel(constants, voltage_fit, law, law_state, reference, feedforward,
     n = reference.shape[0]
     h = sample_time / SUBSTEPS
     filtered = filter_b.shape[0] == 3
+    fed = law_noise.shape[0] > 0
     z0 = np.zeros(m)
     z1 = np.zeros(m)
     applied = np.zeros(m)
@@ -100,7 +103,8 @@ def _loop_kernel(constants, voltage_fit, law, law_state, reference, feedforward,
                 angle = np.round(angle / quanta[1]) * quanta[1]
             if quanta[0] > 0.0:
                 current = np.round(current / quanta[0]) * quanta[0]
-            next_duty = _law(law[d], law_state[d], reference[i], feedforward[i], angle)
+            read = angle + law_noise[d, i] if fed else angle
+            next_duty = _law(law[d], law_state[d], reference[i], feedforward[i], read)
             if next_duty > duty_limit:
                 next_duty = duty_limit
             if next_duty < 0.0:
@@ -229,18 +233,24 @@ def feedforward_per_sample(feedforward, reference: np.ndarray) -> np.ndarray:
 
 
 def _simulate_compiled(gains, reference, feedforward, parameters, effects, noise, seed, initial_angle, sample_time,
-                       duty_limit) -> ClosedLoopRecord:
+                       duty_limit, law_noise=None) -> ClosedLoopRecord:
     return simulate_loops([(gains, parameters, seed)], reference, feedforward, effects, noise, initial_angle,
-                          sample_time, duty_limit)[0]
+                          sample_time, duty_limit, law_noise)[0]
 
 
 def simulate_loops(runs, reference: np.ndarray, feedforward, effects=None, noise: MeasurementNoise | None = None,
                    initial_angle: float = 0.0, sample_time: float = SAMPLE_TIME,
-                   duty_limit: float = 1.0) -> list[ClosedLoopRecord]:
+                   duty_limit: float = 1.0, law_noise: np.ndarray | None = None) -> list[ClosedLoopRecord]:
     """Several closed loops on one compiled call, one per (gains, parameters, seed) of `runs`, each the record
     :func:`simulate_loop` gives for it alone (compiled path; tests/test_control_loop.py compares them bit for bit):
     the same reference [rad per sample], feedforward (a function of the reference, or one duty per sample),
-    effects (built-in, compiled ones only), noise, initial angle [rad], sample time [s] and duty cap [fraction]."""
+    effects (built-in, compiled ones only), noise, initial angle [rad], sample time [s] and duty cap [fraction].
+
+    `law_noise` [rad], shape (n,) for every run or (len(runs), n): a sequence added to the angle the law reads and
+    to nothing else (not the state, not the angle recorded): a record's own measurement noise fed back, so the
+    simulated duty carries the jitter the rig's did (:func:`~aeropend_core.control.loop_diagnosis.fed_back_noise`).
+    None: the law reads the simulated measured angle alone. Not rounded to the angle's counts: the rounding makes
+    the fits' cost step in the parameters and stops the optimiser short of the truth (s26)."""
     runs = list(runs)
     reference = np.asarray(reference, dtype=float).ravel()
     n = reference.size
@@ -287,10 +297,18 @@ def simulate_loops(runs, reference: np.ndarray, feedforward, effects=None, noise
     state = np.zeros((m, 5))
     state[:, 2] = initial_angle
     law_state = np.stack([new_state() for _ in runs]) if runs else np.zeros((0, 6))
+    if law_noise is None:
+        law_values = np.zeros((0, 0))
+    else:
+        law_values = np.asarray(law_noise, dtype=float)
+        if law_values.shape not in ((n,), (m, n)) or not np.all(np.isfinite(law_values)):
+            raise ValueError(f'law_noise must be finite, shape ({n},) for every run or ({m}, {n}), got '
+                             f'{law_values.shape}')
+        law_values = np.ascontiguousarray(np.broadcast_to(law_values, (m, n)))
     out = np.empty((m, n, 10))
     if m:
         _loop_kernel(constants, voltage_fit, law, law_state, reference, feedforward_values, kinds, filter_b, filter_a,
-                     noise_values, quanta, float(duty_limit), state, float(sample_time), out)
+                     noise_values, quanta, float(duty_limit), state, float(sample_time), out, law_values)
     time = np.arange(n) * sample_time
     return [ClosedLoopRecord(time=time.copy(), reference=reference.copy(), feedforward=feedforward_values.copy(),
                              duty=o[:, 0].copy(), unsaturated=o[:, 1].copy(), integral=o[:, 2].copy(),
@@ -305,7 +323,7 @@ def simulate_loop(gains: PidGains, reference: np.ndarray, feedforward: Callable[
                   effects: Mapping[str, Mapping[str, float] | float] | None = None,
                   noise: MeasurementNoise | None = None, seed: int | None = None, initial_angle: float = 0.0,
                   sample_time: float = SAMPLE_TIME, duty_limit: float = 1.0,
-                  method: str = 'auto') -> ClosedLoopRecord:
+                  method: str = 'auto', law_noise: np.ndarray | None = None) -> ClosedLoopRecord:
     """Simulate the closed loop on a whole reference [rad per sample] from rest at `initial_angle` [rad].
 
     >>> from aeropend_core.control.law import PidGains
@@ -316,6 +334,8 @@ def simulate_loop(gains: PidGains, reference: np.ndarray, feedforward: Callable[
     `feedforward`: a function of the reference [rad -> duty], or (compiled path) one duty per sample.
 
     `method`: 'compiled' (built-in effects, ~1 us a sample), 'streaming' (any effect, ~30 us a sample) or 'auto'.
+
+    `law_noise` [rad per sample]: added to the angle the law reads only (compiled path; :func:`simulate_loops`).
     """
     resolved = resolve_effects(effects)
     compiled = all(get_effect(name).compiled for name in resolved)
@@ -325,7 +345,9 @@ def simulate_loop(gains: PidGains, reference: np.ndarray, feedforward: Callable[
         return _simulate_compiled(gains, np.asarray(reference, dtype=float).ravel(),
                                   FeedforwardMap() if feedforward is None else feedforward, parameters, resolved,
                                   noise, seed, initial_angle,
-                                  sample_time, duty_limit)
+                                  sample_time, duty_limit, law_noise)
+    if law_noise is not None:
+        raise ValueError('law_noise runs on the compiled loop only (built-in effects)')
     simulation = ClosedLoopSimulation(gains, feedforward, parameters, effects, noise, seed, initial_angle,
                                       sample_time, duty_limit)
     return simulation.advance(reference)

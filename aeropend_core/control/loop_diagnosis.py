@@ -19,13 +19,19 @@ so each model is simulated *in closed loop* from the logged reference and compar
    thrust lag and the sensor's filter give the same loop gain: the current, or an open-loop segment, separates
    them).
 
-The ± of each parameter is the local least-squares standard error, inflated by the residual's correlation length.
+The loop is simulated with the record's own angle noise fed to the law (:func:`fed_back_noise`: the measured angle
+minus its 15 Hz zero-phase low-pass), not noise-free: the law feeds that noise to the duty, and where the duty's jitter
+crosses a nonlinearity (the dead zone's gate, the duty clamp, a lag's oscillation) the noise-free loop is biased
+(s25: gravity and the thrust gain x1.37 on a dead-zone record with d = 0.13; s26: 131.74 and 141.39 for 131.75 and
+142.00 with the noise fed back). The compared output is the simulated angle without that noise, so the residual keeps
+the whole measurement noise and "beyond the noise" means what it did.
+
+The ± of each parameter is the local least-squares standard error, inflated by the residual's correlation length,
+widened (in quadrature) by half the spread of refits with the noise estimated at :data:`FED_BACK_SPREAD` Hz.
 A threshold that gates samples (the dead zone's) gets none in what is reported: the cost steps where it gates a sample,
 so its local standard error measures no doubt (a fit of 1.196 ± 0.0099 V for a 0.933 V truth, s24); the decisions
 still read it. Where the controller's model already holds that threshold (an added effect with its value, from the
-open-loop diagnosis), the fits **hold** it there (:data:`HELD_NOTE`): the simulation from the reference leaves out the
-measurement noise the law feeds back, and where that noise moves the duty across the gate the noise-free loop is
-biased (s25: on that record the true parameters fit best near 1.1 V noise-free, at 0.93 V with the noise in the loop).
+open-loop diagnosis), the fits **hold** it there (:data:`HELD_NOTE`).
 """
 from __future__ import annotations
 
@@ -35,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.signal import butter, sosfiltfilt
 
 from aeropend_core.control.law import PidGains, law_step, new_state
 from aeropend_core.control.loop import simulate_loop
@@ -58,6 +65,32 @@ SEPARATED_BY = {frozenset({'thrust_lag_time', 'measured_lowpass'}):
                 'current (motor side) or an open-loop segment (duty steps with the loop open) separates them'}
 #: The shortest lag a fit may reach [s]: the closed loop's integrator needs a lag above a few samples.
 SHORTEST_LAG = 0.005
+#: Cut-off [Hz] of the zero-phase low-pass whose residue estimates the measurement noise the law fed back
+#: (:func:`fed_back_noise`): above the closed loop's motion on this rig (the pendulum's natural frequency ~1.8 Hz, a
+#: 2 s settling template, loop bandwidths of a few Hz, the motor pole ~5-10 Hz) so the motion stays in the low-pass, and
+#: low against the 245 Hz Nyquist frequency so the residue holds ~94 % of a white noise's power.
+FED_BACK_CUTOFF = 15.0
+#: Order of that Butterworth low-pass.
+FED_BACK_ORDER = 4
+#: Other cut-offs [Hz] the reported models are refitted at: half the range of the three fits is added (in
+#: quadrature) to each parameter's sigma, the doubt of the noise estimate (the noise below the cut-off is not fed
+#: back; on one test record the thrust gain moved 0.5 % between 10 and 25 Hz, 4 local sigmas).
+FED_BACK_SPREAD = (10.0, 25.0)
+
+
+def fed_back_noise(angle: np.ndarray, sample_time: float = SAMPLE_TIME,
+                   cutoff: float = FED_BACK_CUTOFF) -> np.ndarray | None:
+    """The measurement noise a closed-loop record's law read [rad per sample], estimated as the measured angle
+    [rad] minus its zero-phase Butterworth low-pass at `cutoff` [Hz] (order :data:`FED_BACK_ORDER`): the fits
+    feed it to the simulated law (:func:`~aeropend_core.control.loop.simulate_loops`' ``law_noise``) so the
+    simulated duty carries the rig's jitter. None where the Nyquist frequency is under twice the cut-off (the
+    loop's motion and the noise are not apart) or the record is too short to filter."""
+    angle = np.asarray(angle, dtype=float)
+    nyquist = 0.5 / sample_time
+    if nyquist < 2.0 * cutoff or angle.size <= 6 * (FED_BACK_ORDER + 1):
+        return None
+    sections = butter(FED_BACK_ORDER, cutoff, fs=1.0 / sample_time, output='sos')
+    return angle - sosfiltfilt(sections, angle)
 
 
 def catalog_candidates() -> tuple[str, ...]:
@@ -233,12 +266,10 @@ STEP_COST_NOTE = ('{names}: no +- is given: in closed loop the fit\'s cost steps
 
 #: Said when a gating threshold is held at the controller model's value (s25, bench/results/2026-12-07-s25-loop).
 HELD_NOTE = ('{names}: held at the controller model\'s value ({values}; its doubt is that model\'s, from the record '
-             'it was identified on), not fitted here: the closed loop is simulated from the reference without the '
-             'measurement noise the law feeds back, and that noise moves the duty across the threshold: the '
-             'noise-free loop fits it biased (on a simulated 0.933 V dead zone the true parameters fit best near '
-             '1.1 V noise-free, at the truth with the noise in the loop; the free fit gave 1.196 V); the gravity and '
-             'thrust gain fitted beside it share that bias, more with a large derivative gain (a loop at 40 dB '
-             'with d = 0.13: both x1.37, their ratio 4.5 % off, the local +- far smaller)')
+             'it was identified on), not fitted here: the closed loop\'s cost steps wherever the threshold gates a '
+             'sample, and a fit of it stays near where it starts (s25: with the record\'s noise fed back, a fit '
+             'started at 0.6 V stayed there for a 0.9 V truth; without it, the noise-free loop fitted 1.196 V for '
+             '0.933 V): an open-loop record with steps through the threshold decides it')
 
 
 def _held_values(effects: Mapping[str, Mapping[str, float]], add: Sequence[str]) -> dict[str, dict[str, float]]:
@@ -291,8 +322,10 @@ def _correlation_length(residual: np.ndarray) -> float:
 class _Problem:
     """The closed-loop output-error problem of one record."""
 
-    def __init__(self, gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free):
+    def __init__(self, gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free,
+                 law_noise=None):
         self.free = tuple(free)
+        self.law_noise = law_noise
         self.gains, self.reference, self.feedforward, self.angle = gains, reference, feedforward, angle
         self.duty_limit, self.sample_time, self.parameters = duty_limit, sample_time, parameters
         self.split = int(TRAIN_SHARE * angle.size)
@@ -300,13 +333,14 @@ class _Problem:
 
     def simulate(self, parameters, effects) -> np.ndarray:
         run = simulate_loop(self.gains, self.reference, self.feedforward, parameters, effects, None, None,
-                            self.initial_angle, self.sample_time, self.duty_limit, method='compiled')
+                            self.initial_angle, self.sample_time, self.duty_limit, method='compiled',
+                            law_noise=self.law_noise)
         return run.angle
 
     def fit(self, effects: Mapping[str, Mapping[str, float]], noise: float,
-            held: Mapping[str, Mapping[str, float]] | None = None) -> LoopFit:
+            held: Mapping[str, Mapping[str, float]] | None = None, multistart: bool = True) -> LoopFit:
         """Fit the free pendulum parameters and `effects`' parameters, those in `held` ({effect: {parameter:
-        value}}) kept at their value."""
+        value}}) kept at their value; `multistart` False: from the given start only (:func:`_starts`' first)."""
         held = {name: dict(values) for name, values in (held or {}).items() if name in effects}
         effects = resolve_effects({name: {parameter.name: values.get(parameter.name, parameter.start_value)
                                           for parameter in get_effect(name).parameters}
@@ -353,7 +387,8 @@ class _Problem:
             return np.where(np.isfinite(difference), difference, 10.0)
 
         result = None
-        for start in _starts(starts, effect_slots, n_free, lower, upper, typical):
+        for start in (_starts(starts, effect_slots, n_free, lower, upper, typical) if multistart
+                      else [np.array(starts)]):
             trial = least_squares(residual, start, bounds=(lower, upper), x_scale=np.array(scales),
                                   diff_step=1e-3, max_nfev=80, method='trf')
             if result is None or trial.cost < result.cost:
@@ -383,13 +418,23 @@ class _Problem:
 
 #: What the +- of a closed-loop fit has been measured to mean (bench/closed_loop.py, 2026-12-06): said with every
 #: closed-loop diagnosis until a coverage benchmark of its own says better.
-COVERAGE_NOTE = ('the +- here are local (the least-squares Jacobian, inflated by the residual\'s correlation '
-                 'length): on 9 simulated closed-loop records with a hidden 0.1-0.2 s thrust lag (40 dB, parameters '
-                 '+-15 %) the lag was within 2 sigma of the truth in 6; read them as the least doubt. The loop is '
-                 'simulated from the reference without the measurement noise the law feeds back to the duty; where '
-                 'that noise moves the duty much (a large derivative gain), gravity and the thrust gain can be biased '
-                 'beyond them (simulated 40 dB loops with a dead zone: both x1.37 with d = 0.13; the thrust gain '
-                 '4.2 sigma off on another): an open-loop record decides them')
+COVERAGE_NOTE = ('the loop is simulated from the reference with the record\'s own angle noise fed to the law (the '
+                 'measured angle minus its 15 Hz zero-phase low-pass), so the simulated duty carries the jitter the '
+                 'rig\'s did; the +- are local (the least-squares Jacobian, inflated by the residual\'s correlation '
+                 'length), widened by the spread of refits with the noise estimated at 10 and 25 Hz. On 50 '
+                 'simulated 40 dB loops (s26, '
+                 'parameters +-15 %, the structure told) they were more accurate than the noise-free loop\'s (median '
+                 'error of a 0.1-0.2 s lag 2.0 % for 5.9 %, of the thrust gain beside it 1.2 % for 3.7 %) but their '
+                 '+- cover less: within 2 sigma 106 of 130 parameters (the '
+                 'noise-free loop\'s 114, with +- up to 100 % of a lag); beside a dead zone gravity 5 and the thrust '
+                 'gain 4 of 10 (the threshold\'s gate makes the cost step), an angle offset 3 of 10: read them as the '
+                 'least doubt; an open-loop record decides gravity and the thrust gain')
+#: Said when the loop is simulated without the record's noise (``feed_back_noise=False``, the method before s26).
+NOISE_FREE_NOTE = ('the +- here are local (the least-squares Jacobian, inflated by the residual\'s correlation '
+                   'length). The loop is simulated from the reference without the measurement noise the law feeds '
+                   'back to the duty; where that noise moves the duty much (a large derivative gain), gravity and the '
+                   'thrust gain can be biased beyond them (simulated 40 dB loops with a dead zone: both x1.37 with '
+                   'd = 0.13; the thrust gain 4.2 sigma off on another): an open-loop record decides them')
 #: Sigmas from zero every parameter of an effect must be for a BIC gain short of decisive to count.
 SIGNIFICANT = 4.0
 
@@ -414,16 +459,33 @@ def _starts(starts, effect_slots, n_free, lower, upper, typical):
                 yield other
 
 
+def _widen_by_cutoff(fit: LoopFit, others: Sequence[_Problem], noise: float,
+                     held: Mapping[str, Mapping[str, float]]) -> None:
+    """Refit `fit`'s model with the noise estimated at the other cut-offs (:data:`FED_BACK_SPREAD`; `others`, each
+    started at `fit`'s values) and add half the range of the fitted values to each sigma, in quadrature."""
+    values = [fit.values]
+    for other in others:
+        other.parameters = fit.parameters
+        values.append(other.fit(fit.effects, noise, held, multistart=False).values)
+    for name, sigma in fit.sigmas.items():
+        if name in fit.held or not math.isfinite(sigma):
+            continue
+        spread = 0.5 * (max(v[name] for v in values) - min(v[name] for v in values))
+        fit.sigmas[name] = math.hypot(sigma, spread)
+
+
 def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, reference: np.ndarray,
                   feedforward: np.ndarray, gains: PidGains, duty_limit: float,
                   parameters: RigParameters = DEFAULT_PARAMETERS, add: Sequence[str] = (),
                   candidates: Sequence[str] | None = None, sample_time: float = SAMPLE_TIME,
                   free: Sequence[str] = DEFAULT_FREE,
-                  model_effects: Mapping[str, Mapping[str, float]] | None = None) -> LoopDiagnosis:
+                  model_effects: Mapping[str, Mapping[str, float]] | None = None,
+                  feed_back_noise: bool = True) -> LoopDiagnosis:
     """Diagnose a closed-loop record (arrays of shape (n,): time [s], measured angle [rad], applied duty, reference
     [rad], the feedforward played [duty]); `gains` the law that ran, `duty_limit` the duty cap it ran under;
     `model_effects` the effects of the model the controller was designed on ({effect: {parameter: value}}, SI): an
-    added effect's gating threshold found there is held at its value (:data:`HELD_NOTE`)."""
+    added effect's gating threshold found there is held at its value (:data:`HELD_NOTE`). `feed_back_noise`: the
+    simulated law reads the record's own noise (:func:`fed_back_noise`); False: the noise-free loop (before s26)."""
     angle = np.asarray(angle, dtype=float)
     if angle.size < int(10.0 / sample_time):
         raise AeropendError(f'the closed-loop record has {angle.size * sample_time:.1f} s; the closed-loop '
@@ -438,10 +500,15 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
     max_error, mismatches = replay(gains, reference, feedforward, angle, np.asarray(duty, dtype=float), duty_limit,
                                    sample_time)
     noise = noise_sigma(angle)
-    problem = _Problem(gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free)
+    law_noise = fed_back_noise(angle, sample_time) if feed_back_noise else None
+    problem = _Problem(gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free, law_noise)
+    others = [_Problem(gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free, other)
+              for other in (fed_back_noise(angle, sample_time, cutoff) for cutoff in FED_BACK_SPREAD)
+              if law_noise is not None and other is not None]
     base_effects = {name: {} for name in add}
     held = _held_values(model_effects or {}, add)
     base = problem.fit(base_effects, noise, held)
+    _widen_by_cutoff(base, others, noise, held)
     fits = []
     n_effective = problem.split / _correlation_length(
         problem.simulate(base.parameters, base.effects)[:problem.split] - angle[:problem.split])
@@ -464,6 +531,7 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
         material = best.beyond_noise <= (1 - MATERIAL_SHARE) * base.beyond_noise
         if decisive and material:
             named = next(iter(set(best.effects) - set(add)))
+            _widen_by_cutoff(best, others, noise, held)
             verdict = 'missing_effect'
             for other in fits[1:]:
                 if other.test_rms - best.test_rms <= TIE * base.beyond_noise and other.delta_bic < DECISIVE_BIC:
@@ -482,7 +550,7 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
     notes.append('closed-loop data excite the rig only as much as the controller lets them: parameters the '
                  'loop holds still (the static thrust map near one angle) are less sure than in an open-loop '
                  'record of the same length')
-    notes.append(COVERAGE_NOTE)
+    notes.append(COVERAGE_NOTE if law_noise is not None else NOISE_FREE_NOTE)
     if held:
         names = [parameter for values in held.values() for parameter in values]
         notes.append(HELD_NOTE.format(names=', '.join(names), values=', '.join(
