@@ -358,6 +358,15 @@ def catalog_stage(prepared: Prepared, compared: Compared, say: Say) -> CatalogRe
                 # judged with other effects still missing: the replacement is judged again on the final model
                 # (second-rig seed 64037: a filter replaced by a lag before a cable torque was added)
                 steps[-1][1].append(earlier.effect)
+    # A named effect is judged against each catalog neighbour it can be mistaken for (an effect whose record names
+    # the experiment separating the two) on the final model, even when the neighbour was never a close rival in a
+    # round (second-rig seed 64067: a cable torque named for an angle offset, the offset never close when tried).
+    candidates_left = {entry.name for entry in pool} - set(model)
+    for chosen, rivals in steps:
+        rivals.extend(other for other in sorted(candidates_left) if other not in rivals
+                      and other in CATALOG and chosen.effect in CATALOG
+                      and (chosen.effect in CATALOG[other].separated_from
+                           or other in CATALOG[chosen.effect].separated_from))
     # Confounding judged in an early round, with other effects still missing, is judged again on the final model.
     for position, (chosen, rivals) in enumerate(steps):
         still = []
