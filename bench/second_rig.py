@@ -7,7 +7,9 @@ carry no effect (false alarms), the others each catalog effect with probability 
 thrust lag 0.05-0.3 s, the sizes in ``second_rig.EFFECT_RANGES``). Per record:
 
 * ``aeropend diagnose`` (in process, the full search): the effects named. A **wrong effect** is one named (not
-  marked confounded) that the record does not carry; a lag or filter named wrongly beside the other one truly
+  marked confounded with another effect, nor with a discovered term that explains the record as well in its place:
+  the verdict then says "EFFECT or, in its place, the term ...", counted as confounded since s26) that the record
+  does not carry; a lag or filter named wrongly beside the other one truly
   present is counted as **from a wrong basin** too (the issue's "angle filter plus a shorter lag"). On effect-free
   records any verdict but ``nothing_missing`` is a false alarm.
 * the fit told the true structure (``--add`` every true effect, no further search): every nominal and effect
@@ -75,6 +77,7 @@ def run(seed: int, search: bool = True, excitation: str = 'mixed', inputs_psnr: 
     from threadpoolctl import threadpool_limits
 
     from aeropend_core.diagnosis.diagnose import diagnose
+    from aeropend_core.present.discovery_text import lookalike_terms
     kinds = _effects_of_kind()
     recording, rig_record = record(seed, excitation, inputs_psnr)
     truth_effects = sorted({kinds[k][0] for k in rig_record.truth if k in kinds})
@@ -92,8 +95,11 @@ def run(seed: int, search: bool = True, excitation: str = 'mixed', inputs_psnr: 
                 'seconds': round(time.perf_counter() - started, 1)}
     with threadpool_limits(1):
         found = diagnose(recording) if search else None
-    named = [f.effect for f in found.found if not f.confounded_with] if found else []
-    confounded = [f.effect for f in found.found if f.confounded_with] if found else []
+    # confounded: with another catalog effect, or with a discovered term outside the catalog that explains the record
+    # as well in its place (the verdict says "EFFECT or, in its place, the term ...": not named with confidence)
+    twins = lookalike_terms(found.discovery) if found else {}
+    named = [f.effect for f in found.found if not f.confounded_with and f.effect not in twins] if found else []
+    confounded = [f.effect for f in found.found if f.confounded_with or f.effect in twins] if found else []
     wrong = [name for name in named if name not in truth_effects]
     values, errors = told.reported_parameters(told.current), told.reported_errors(told.current)
     z = {}
