@@ -103,8 +103,9 @@ def test_emulator_runs_the_closed_loop_like_the_firmware():
 
         # The watchdog (0.3 s): silence cuts the duty and halts the law; a keep-alive does not restart it.
         link.write(P.encode_command(P.SET_WATCHDOG, 0.3))
-        new = device.read(2.0, until=lambda ms: sum(isinstance(m, P.ControlSampleFrame)
-                                                    and m.flags & P.FLAG_WATCHDOG_TRIPPED for m in ms) > 30)
+        # (waits for the condition: at load ~9 the emulator's frames came later than 2 s, s26)
+        new = device.read(30.0, until=lambda ms: sum(isinstance(m, P.ControlSampleFrame)
+                                                     and m.flags & P.FLAG_WATCHDOG_TRIPPED for m in ms) > 30)
         cut = [m for m in new if isinstance(m, P.ControlSampleFrame) and m.flags & P.FLAG_WATCHDOG_TRIPPED]
         assert len(cut) > 30 and all(m.duty_q16 == 0 for m in cut[1:])
         new = [m for m in keep_alive(device, 0.3) if isinstance(m, P.ControlSampleFrame)]
