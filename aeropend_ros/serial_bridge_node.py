@@ -745,7 +745,7 @@ class SerialBridgeNode(BridgeControl, Node):
         elif not clock.rate_verified:
             doubts.append(f'device clock rate not verified yet ({clock.rate_error * 1e6:+.0f} ppm ± '
                           f'{min(clock.rate_error_bound, 9.99) * 1e6:.0f} ppm so far; needs ~3 s)')
-        elif abs(clock.rate_error) + clock.rate_error_bound > clock.max_drift:
+        elif not clock.rate_within:
             # not a fault, not shown within the tolerance either (a reader falling behind widens the bound)
             doubts.append(f'device clock rate not decided yet ({clock.rate_error * 1e6:+.0f} ppm ± '
                           f'{min(clock.rate_error_bound, 9.99) * 1e6:.0f} ppm spans the edge of its '

@@ -122,6 +122,16 @@ def test_a_device_clock_within_tolerance_is_no_fault(rate_error):
     assert clock.host_steps == []
 
 
+def test_a_device_clock_is_within_its_tolerance_only_once_its_bound_shows_it():
+    """rate_within: verified and inside max_drift by more than the bound (the bridge's OK); a fault never is, nor a
+    rate not yet verified."""
+    exact, *_ = clock_run(0.0, seconds=30.0)
+    assert exact.rate_within and abs(exact.rate_error) + exact.rate_error_bound <= exact.max_drift
+    slow, *_ = clock_run(0.015)
+    assert slow.rate_fault and not slow.rate_within
+    assert not SampleClock(P.SAMPLE_PERIOD).rate_within
+
+
 @pytest.mark.parametrize('step', [-3600.0, +3600.0, -1.0, +1.0])
 def test_a_host_clock_step_is_detected_and_the_stamps_stay_on_the_device_clock(step):
     clock, acquisition, stamps, raised = clock_run(0.002, step_at=8.0, step=step)

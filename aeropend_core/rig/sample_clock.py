@@ -155,6 +155,12 @@ class SampleClock:
             return abs(self.rate_error) - self._raw_bound > self.max_drift
         return self._coarse_fault
 
+    @property
+    def rate_within(self) -> bool:
+        """True when the measured rate is inside ``max_drift`` by more than its uncertainty: shown good, not only
+        "not a fault" (a rate whose +- spans the tolerance's edge is neither)."""
+        return self.rate_verified and abs(self.rate_error) + self._raw_bound <= self.max_drift
+
     def stamp(self, sequence: int, arrival: float) -> float:
         """Acquisition time [s, host clock] of sample `sequence` that arrived at host time `arrival` [s].
 
