@@ -502,9 +502,10 @@ def diagnose_loop(time: np.ndarray, angle: np.ndarray, duty: np.ndarray, referen
     noise = noise_sigma(angle)
     law_noise = fed_back_noise(angle, sample_time) if feed_back_noise else None
     problem = _Problem(gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free, law_noise)
+    # the refits that widen the +- by the noise estimate's cut-off (none for the noise-free loop)
     others = [_Problem(gains, reference, feedforward, angle, duty_limit, sample_time, parameters, free, other)
               for other in (fed_back_noise(angle, sample_time, cutoff) for cutoff in FED_BACK_SPREAD)
-              if law_noise is not None and other is not None]
+              if other is not None] if law_noise is not None else []
     base_effects = {name: {} for name in add}
     held = _held_values(model_effects or {}, add)
     base = problem.fit(base_effects, noise, held)
