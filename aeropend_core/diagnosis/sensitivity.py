@@ -34,6 +34,12 @@ _F1, _F2, _I1 = numba.float64[::1], numba.float64[:, ::1], numba.int64[::1]
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
+def _without_friction(fc):
+    """Whether the dry-friction coefficient is +0 (not -0: its zero has the other sign), so its tanh can be skipped."""
+    return fc == 0.0 and math.copysign(1.0, fc) > 0.0
+
+
+@numba.njit(cache=True, nogil=True, inline='always')
 def friction_term(fc, w, smooth):
     """Dry friction's acceleration fc tanh(w / smooth) [rad/s^2]; +0.0 without friction (fc = +0), its tanh skipped.
 
@@ -41,7 +47,7 @@ def friction_term(fc, w, smooth):
     x - 0 only for x = -0, which the rate sum -a sin y - b w + t never is when w <= -0 (-b w is then positive or
     +0, and a sum with a nonzero or +0 term is not -0), as in the simulator (sim/simulate._rig_rates). A -0
     coefficient keeps the product (its zero has the other sign)."""
-    return 0.0 if fc == 0.0 and math.copysign(1.0, fc) > 0.0 else fc * math.tanh(w / smooth)
+    return 0.0 if _without_friction(fc) else fc * math.tanh(w / smooth)
 
 
 @numba.njit(cache=True, nogil=True, inline='always')
@@ -152,7 +158,7 @@ def sensitivity_kernel(theta, voltage, current, gate_signal, seg_start, seg_stop
     smooth = fc * h / friction_stability if stiff_friction else friction_smoothing
     m_cols = cols.shape[0]
     m = m_cols + 2                       # the tracked columns, then the initial angle and rate
-    need_tanh = not (fc == 0.0 and math.copysign(1.0, fc) > 0.0)      # as friction_term: a +0 coefficient skips it
+    need_tanh = not _without_friction(fc)      # as friction_term: a +0 coefficient skips it
     track = np.empty(m, dtype=np.int64)
     for c in range(m_cols):
         track[c] = cols[c]
