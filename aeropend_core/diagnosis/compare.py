@@ -445,7 +445,8 @@ def _rank_thresholds(prep: PreparedRecord, data: SegmentedData, structure: Struc
             rows = np.array([structure.row({**start_values, **fixed_base, gate: float(thresholds[i])})
                              for i, start_values in chunk])
             simulated = data.simulate(structure, rows, np.repeat(initial[None], len(rows), axis=0))[:, index]
-            rms = np.sqrt(np.mean((simulated - measured) ** 2, axis=1))
+            with np.errstate(over='ignore', invalid='ignore'):  # a diverged trial scores inf below, quietly
+                rms = np.sqrt(np.mean((simulated - measured) ** 2, axis=1))
             for (i, start_values), value in zip(chunk, rms):
                 scored.setdefault(i, []).append((float(value) if np.isfinite(value) else np.inf,
                                                  float(thresholds[i]), start_values))
