@@ -118,3 +118,23 @@ def test_a_lookalike_term_puts_the_parameter_that_decides_first():
     term.differing = {}
     assert 'Next: record an experiment that may separate them (aeropend run --until-decided)' in plain_verdict(
         diagnosis(f), 'cable.csv')
+
+
+def test_a_lookalike_whose_size_reaches_zero_is_offered_only_as_a_stand_in():
+    """Second-rig record 64098 (dry friction alone): the verdict said "quadratic_drag or the term
+    abs(rate)^0.5*sign(rate)" with the drag 0.154 +- 0.20, yet advised the drag as "the model to use". The advice now
+    carries the size, and one within 2 sigma of zero is said unmeasured and offered only as a stand-in."""
+    term = SimpleNamespace(status='confounded', confounded_with=['quadratic_drag'],
+                           term=SimpleNamespace(expression='abs(rate)^0.5*sign(rate)'), differing={})
+    drag = SimpleNamespace(effect='quadratic_drag', parameters={'drag_coefficient': 0.154},
+                           standard_errors={'drag_coefficient': 0.20}, confounded_with=(), share_removed=0.6,
+                           share_measurable=1.0, excess_before=0.004, excess_after=0.001)
+    f = facts('confounded', found=(drag,), discovery=SimpleNamespace(terms=[term]), excess_current=0.004,
+              excess_final=0.001)
+    text = plain_verdict(diagnosis(f), 'rig.csv')
+    assert 'quadratic_drag drag_coefficient 0.154 +- 0.2' in text, text
+    assert 'within 2 sigma of zero' in text and 'only as a stand-in' in text and 'model to use' not in text, text
+    drag.standard_errors = {'drag_coefficient': 0.02}
+    text = plain_verdict(diagnosis(f), 'rig.csv')
+    assert 'is the model to use: aeropend diagnose rig.csv --add quadratic_drag' in text, text
+    assert 'zero' not in text, text

@@ -8,6 +8,7 @@ nothing that contradicts the evidence. Words only; the inputs are duck-typed (a
 """
 from __future__ import annotations
 
+import math
 import shlex
 
 from aeropend_core.model.effects import get_effect, parameter_unit
@@ -29,14 +30,34 @@ def _decide_lookalike(discovery) -> str:
             f'{parameter_unit(name)} with the term), or {experiment}')
 
 
+def _sizes(found) -> str:
+    """'time_constant 0.14 +- 0.0036 s': an effect's parameters +- 1 sigma in their SI units."""
+    units = {p.name: p.unit for p in get_effect(found.effect).parameters}
+    return ', '.join(f'{name} {value:.4g} +- {found.standard_errors.get(name, float("nan")):.2g} {units[name]}'
+                     for name, value in found.parameters.items())
+
+
 def _what(found) -> str:
     """'thrust_lag, time_constant 0.14 +- 0.0036 s (thrust builds up ...)': an effect, its size +- 1 sigma and what it
     is in words."""
-    entry = get_effect(found.effect)
-    units = {p.name: p.unit for p in entry.parameters}
-    sizes = ', '.join(f'{name} {value:.4g} +- {found.standard_errors.get(name, float("nan")):.2g} {units[name]}'
-                      for name, value in found.parameters.items())
-    return f'{found.effect}{", " + sizes if sizes else ""} ({entry.description})'
+    sizes = _sizes(found)
+    return f'{found.effect}{", " + sizes if sizes else ""} ({get_effect(found.effect).description})'
+
+
+def _spans_zero(found) -> bool:
+    """True when one of the effect's parameters is within 2 sigma of zero (its size is not pinned by the record)."""
+    return any(abs(value) < 2.0 * found.standard_errors.get(name, math.inf)
+               for name, value in found.parameters.items())
+
+
+def _catalog_stand_in(found: list, command: str) -> str:
+    """The look-alike verdict's advice for the meantime: the catalog's effect with its size, said unpinned when a
+    parameter's ± reaches zero (then the model with it is only the better-fitting stand-in, not a measured size)."""
+    sizes = '; '.join(f'{f.effect} {_sizes(f)}' for f in found)
+    if any(_spans_zero(f) for f in found):
+        return (f'until then the catalog\'s effect ({sizes}) fits best, but its size is within 2 sigma of zero, so '
+                f'this record does not measure it: {command} only as a stand-in')
+    return f'until then the catalog\'s effect ({sizes}) is the model to use: {command}'
 
 
 def _next_command(source: str | None, effects, report: bool = False) -> str:
@@ -92,8 +113,7 @@ def plain_verdict(diagnosis, source: str | None = None, report: bool = False) ->
         return (f'One of {alike} is missing (with {", ".join(f.effect for f in facts.found)} the error beyond the '
                 f'{noise} noise falls from {facts.excess_current * 1e3:.2f} to {facts.excess_final * 1e3:.2f} mrad, '
                 'and the term in its place explains the record as well), but this record cannot tell which. Next: '
-                f'{_decide_lookalike(facts.discovery)}; until then the catalog\'s effect is the model to use: '
-                f'{command}.' + rate)
+                f'{_decide_lookalike(facts.discovery)}; {_catalog_stand_in(facts.found, command)}.' + rate)
     if verdict in ('effect_found', 'confounded') and facts.found:
         what = '; '.join(_what(f) for f in facts.found)
         command = _next_command(source, given + [f.effect for f in facts.found], report)
