@@ -1,10 +1,12 @@
 """Results present themselves (issue #44): ``summary()``, ``as_text()``, ``as_html()`` and ``to_dict()`` on the result
 objects, equal to what the verbs print, which are thin wrappers around them; the outputs of ``diagnose`` and
-``identify`` on the sample records byte-identical to the tree before the change (tests/data/outputs_908db1e, written
-by bench/outputs_identical.py at 908db1e)."""
+``identify`` on the sample records the same as in the tree before the change (tests/data/outputs_908db1e, written
+by bench/outputs_identical.py at 908db1e): byte for byte on the machine that wrote them, and on another CPU the same
+words and structure with every number within a stated relative tolerance."""
 from __future__ import annotations
 
 import json
+import math
 import re
 from pathlib import Path
 
@@ -113,14 +115,79 @@ QUICK = {
 }
 
 
+#: How far a number may move from the stored output [-, relative]. The outputs were written on another machine: a CPU
+#: with other vector units (AVX-512) or another BLAS kernel adds in another order, which moves the last digits (seen
+#: on an AMD EPYC with AVX-512: 1e-11 in `identify`, up to 6e-7 in statistics of a fit at the 1e-13 rad^2 level).
+#: Any change of method moves numbers far more; verdicts, names and words must stay exactly the same.
+RELATIVE = 1e-5
+NUMBER = re.compile(r'[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?')
+
+
+def _last_digit(token: str) -> float:
+    """The value of one unit in the last printed digit of a number as printed ('6.085e-05' -> 1e-08)."""
+    mantissa, _, exponent = token.lower().partition('e')
+    decimals = len(mantissa.partition('.')[2])
+    return 10.0 ** (int(exponent or 0) - decimals)
+
+
+def assert_text_matches(got: str, expected: str, where: str, values: bool = True) -> None:
+    """The same words; each number within RELATIVE or one unit of its last printed digit (`values`: else only there)."""
+    assert NUMBER.sub('#', got) == NUMBER.sub('#', expected), where
+    for a, b in zip(NUMBER.findall(got), NUMBER.findall(expected)):
+        assert not values or abs(float(a) - float(b)) <= max(RELATIVE * abs(float(b)), _last_digit(b)), (where, a, b)
+
+
+def assert_outputs_match(got, expected, where: str = '', values: bool = True) -> None:
+    """JSON documents equal in structure, words and flags, numbers within RELATIVE. Inside an object whose
+    ``standard_errors`` hold a None (no ±: the record does not determine that parameter, e.g. a 22 Hz log's angle
+    filter delay, 6e-5 s on one CPU and 9e-5 s on another) the numbers are not reproducible and only their presence
+    is compared."""
+    if isinstance(expected, dict):
+        assert isinstance(got, dict) and list(got) == list(expected), (where, list(got), list(expected))
+        values = values and None not in (expected.get('standard_errors') or {}).values()
+        for key in expected:
+            assert_outputs_match(got[key], expected[key], f'{where}/{key}', values)
+    elif isinstance(expected, list):
+        assert isinstance(got, list) and len(got) == len(expected), where
+        for index, (a, b) in enumerate(zip(got, expected)):
+            assert_outputs_match(a, b, f'{where}[{index}]', values)
+    elif isinstance(expected, str):
+        assert isinstance(got, str), where
+        assert_text_matches(got, expected, where, values)
+    elif isinstance(expected, bool) or expected is None:
+        assert got is expected, (where, got, expected)
+    else:
+        assert isinstance(got, (int, float)) and not isinstance(got, bool), (where, got)
+        assert not values or math.isclose(got, expected, rel_tol=RELATIVE), (where, got, expected)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize('name', sorted(QUICK))
-def test_outputs_are_byte_identical_to_the_tree_before(name, capsys, monkeypatch, scoped_catalog):
-    """The verbs' text and JSON did not change when they became wrappers (the wall-clock time masked)."""
+def test_outputs_are_the_tree_before(name, capsys, monkeypatch, scoped_catalog):
+    """The verbs' text and JSON did not change when they became wrappers (the wall-clock time masked): the same
+    words, verdicts and structure, every number within RELATIVE of the stored one."""
     monkeypatch.chdir(ROOT)
     assert cli_main(QUICK[name]) == 0
     got = _masked(capsys.readouterr().out)
-    assert got == (EXPECTED / name).read_text(encoding='utf-8')
+    expected = (EXPECTED / name).read_text(encoding='utf-8')
+    if name.endswith('.json'):
+        assert_outputs_match(json.loads(got), json.loads(expected))
+    else:
+        assert_text_matches(got, expected, name)
+
+
+def test_the_comparison_of_outputs_catches_a_changed_number_word_or_structure():
+    """The tolerant comparison still fails on what a change of method moves."""
+    stored = {'verdict': 'effect_found', 'parameters': {'gravity_stiffness': 131.75}, 'text': 'offset 0.0502 rad',
+              'candidates': [{'standard_errors': {'filter_delay': None}, 'parameters': {'filter_delay': 9.1e-05}}]}
+    same = json.loads(json.dumps(stored))
+    same['parameters']['gravity_stiffness'] *= 1 + 1e-9
+    same['candidates'][0]['parameters']['filter_delay'] = 6.1e-05    # undetermined: its value is not compared
+    assert_outputs_match(same, stored)
+    for change in ({'verdict': 'nothing_missing'}, {'parameters': {'gravity_stiffness': 131.76}},
+                   {'text': 'offset 0.0512 rad'}, {'text': 'cable 0.0502 rad'}, {'parameters': {}}):
+        with pytest.raises(AssertionError):
+            assert_outputs_match({**same, **change}, stored)
 
 
 def test_the_stored_expected_outputs_are_complete():
