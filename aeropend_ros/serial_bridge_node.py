@@ -671,7 +671,7 @@ class SerialBridgeNode(BridgeControl, Node):
             'last_sequence': str(self._last_sequence if self._last_sequence is not None else -1),
             'device_talking': str(self._device_spoke),
             'clock_rate_error_ppm': f'{self.clock_model.rate_error * 1e6:.1f}',
-            'clock_rate_error_bound_ppm': f'{min(self.clock_model.rate_error_bound, 9.99) * 1e6:.1f}',
+            'clock_rate_error_bound_ppm': f'{self.clock_model.rate_error_bound_ppm:.1f}',
             'clock_rate_verified': str(self.clock_model.rate_verified),
             'clock_max_drift_ppm': f'{self.clock_model.max_drift * 1e6:.0f}',
             'host_clock_steps': str(len(self.clock_model.host_steps)),
@@ -744,11 +744,11 @@ class SerialBridgeNode(BridgeControl, Node):
             doubts.append(f'{self._rate_text()}: checking (withheld if it lasts {CLOCK_FAULT_PERSIST:g} s)')
         elif not clock.rate_verified:
             doubts.append(f'device clock rate not verified yet ({clock.rate_error * 1e6:+.0f} ppm ± '
-                          f'{min(clock.rate_error_bound, 9.99) * 1e6:.0f} ppm so far; needs ~3 s)')
+                          f'{clock.rate_error_bound_ppm:.0f} ppm so far; needs ~3 s)')
         elif not clock.rate_within:
             # not a fault, not shown within the tolerance either (a reader falling behind widens the bound)
             doubts.append(f'device clock rate not decided yet ({clock.rate_error * 1e6:+.0f} ppm ± '
-                          f'{min(clock.rate_error_bound, 9.99) * 1e6:.0f} ppm spans the edge of its '
+                          f'{clock.rate_error_bound_ppm:.0f} ppm spans the edge of its '
                           f'±{clock.max_drift * 1e6:.0f} ppm tolerance)')
         doubts += self._command_doubts()
         if doubts:

@@ -130,6 +130,9 @@ def test_a_device_clock_is_within_its_tolerance_only_once_its_bound_shows_it():
     slow, *_ = clock_run(0.015)
     assert slow.rate_fault and not slow.rate_within
     assert not SampleClock(P.SAMPLE_PERIOD).rate_within
+    # shown in ppm: the measured bound, and a capped figure (not 'inf ppm') before any measurement
+    assert exact.rate_error_bound_ppm == pytest.approx(exact.rate_error_bound * 1e6)
+    assert SampleClock(P.SAMPLE_PERIOD).rate_error_bound_ppm == pytest.approx(9.99e6)
 
 
 @pytest.mark.parametrize('step', [-3600.0, +3600.0, -1.0, +1.0])

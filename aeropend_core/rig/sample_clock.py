@@ -149,6 +149,11 @@ class SampleClock:
         return self._raw_bound
 
     @property
+    def rate_error_bound_ppm(self) -> float:
+        """:attr:`rate_error_bound` in ppm for display, at most 9.99e6 (inf before any measurement) [ppm]."""
+        return min(self._raw_bound, 9.99) * 1e6
+
+    @property
     def rate_fault(self) -> bool:
         """True when the measured rate is outside ``max_drift`` by more than its uncertainty."""
         if self.rate_verified:
