@@ -338,15 +338,18 @@ class _Problem:
         return run.angle
 
     def fit(self, effects: Mapping[str, Mapping[str, float]], noise: float,
-            held: Mapping[str, Mapping[str, float]] | None = None, multistart: bool = True) -> LoopFit:
+            held: Mapping[str, Mapping[str, float]] | None = None, multistart: bool = True,
+            start: RigParameters | None = None) -> LoopFit:
         """Fit the free pendulum parameters and `effects`' parameters, those in `held` ({effect: {parameter:
-        value}}) kept at their value; `multistart` False: from the given start only (:func:`_starts`' first)."""
+        value}}) kept at their value; `multistart` False: from the given start only (:func:`_starts`' first).
+        `start`: the pendulum parameters to start from and bound around (default: the problem's)."""
         held = {name: dict(values) for name, values in (held or {}).items() if name in effects}
         effects = resolve_effects({name: {parameter.name: values.get(parameter.name, parameter.start_value)
                                           for parameter in get_effect(name).parameters}
                                    for name, values in effects.items()})
         names = list(self.free)
-        starts = [getattr(self.parameters, name) for name in names]
+        start_parameters = start if start is not None else self.parameters
+        starts = [getattr(start_parameters, name) for name in names]
         lower = [BASE_BOUNDS[0] * value for value in starts]
         upper = [BASE_BOUNDS[1] * value for value in starts]
         scales = list(starts)
@@ -374,7 +377,7 @@ class _Problem:
         n_free = len(self.free)
 
         def model(x):
-            parameters = self.parameters.replace(**dict(zip(self.free, x[:n_free])))
+            parameters = start_parameters.replace(**dict(zip(self.free, x[:n_free])))
             chosen = {name: dict(held.get(name, {})) for name in effects}
             for (effect_name, parameter_name), value in zip(effect_slots, x[n_free:]):
                 chosen[effect_name][parameter_name] = float(value)
@@ -465,8 +468,7 @@ def _widen_by_cutoff(fit: LoopFit, others: Sequence[_Problem], noise: float,
     started at `fit`'s values) and add half the range of the fitted values to each sigma, in quadrature."""
     values = [fit.values]
     for other in others:
-        other.parameters = fit.parameters
-        values.append(other.fit(fit.effects, noise, held, multistart=False).values)
+        values.append(other.fit(fit.effects, noise, held, multistart=False, start=fit.parameters).values)
     for name, sigma in fit.sigmas.items():
         if name in fit.held or not math.isfinite(sigma):
             continue
