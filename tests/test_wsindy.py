@@ -426,3 +426,27 @@ def test_sandwich_block_sums_are_those_of_add_at():
         meat += sums.T @ sums
     expected = (sigma2 * bread / sigma2) @ (meat / len(shifts)) @ (sigma2 * bread / sigma2) * rows / (rows - sel.size)
     assert np.array_equal(got, expected)
+
+
+def test_equations_fitted_on_threads_equal_the_sequential_fits(pendulum, monkeypatch):
+    """fit_weak_sindy fits the equations of a call on EQUATION_WORKERS threads: the answer is the same bit for bit
+    whatever the number of workers (coefficients, standard errors, covariances, λ), in the equations' order."""
+    from aeropend_core.wsindy import weak_form
+    t, u, y, w = pendulum
+    rng = np.random.default_rng(7)
+    data = {'angle': noisy(y, 40, rng), 'rate': noisy(w, 40, rng), 'u': u}
+    equations = [second_order(),
+                 Equation('rate', (lib.sine('angle'), lib.variable('rate'), lib.product('u', 'u', hold=True),
+                                   lib.variable('angle'), lib.constant())),
+                 Equation('angle', (lib.variable('rate'), lib.variable('angle'), lib.constant()))]
+    fits = {}
+    for workers in (1, 2, 3):
+        monkeypatch.setattr(weak_form, 'EQUATION_WORKERS', workers)
+        fits[workers] = fit_weak_sindy(t, data, equations)
+    for workers in (2, 3):
+        for one, other in zip(fits[1].equations, fits[workers].equations):
+            assert one.name == other.name
+            assert one.coefficients == other.coefficients and one.standard_errors == other.standard_errors
+            assert np.array_equal(one.covariance, other.covariance)
+            assert one.threshold == other.threshold or (np.isnan(one.threshold) and np.isnan(other.threshold))
+    assert fits[1]['rate'].coefficients                                   # the test compares real fits

@@ -57,8 +57,10 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import os
 import statistics
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -352,6 +354,10 @@ class WeakSindyOptions:
         return dataclasses.replace(self, **changes) if changes else self
 
 
+#: Threads fitting the equations of one call side by side (at most the machine's cores).
+EQUATION_WORKERS = 2
+
+
 def _single_threaded_blas(func):
     """Run ``func`` with BLAS limited to one thread: the products here are small (tens of terms × a few hundred
     rows), and on a 2-core machine a multithreaded BLAS spends more time synchronising than computing (44 ms vs
@@ -434,7 +440,14 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], options: WeakSi
 
     cache: dict = {}   # library columns, Jacobians and noise levels shared by the equations (terms keyed by name)
     options = (options or WeakSindyOptions()).replace(**option_changes)
-    fits = [_fit_equation(eq, segments, excludes, dt, cache, options) for eq in equations]
+    workers = min(EQUATION_WORKERS, os.cpu_count() or 1, len(equations))
+    if workers <= 1:
+        fits = [_fit_equation(eq, segments, excludes, dt, cache, options) for eq in equations]
+    else:
+        # the equations are independent (their shared cache holds pure functions of the data: a value two threads
+        # make at once is the same value); NumPy, LAPACK and the numba kernels release the GIL
+        with ThreadPoolExecutor(workers) as pool:
+            fits = list(pool.map(lambda eq: _fit_equation(eq, segments, excludes, dt, cache, options), equations))
     return WeakSindyResult(tuple(fits))
 
 
