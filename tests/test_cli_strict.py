@@ -241,3 +241,17 @@ def test_help_reads_no_distribution_metadata(capsys, monkeypatch):
     monkeypatch.setattr(importlib.metadata, 'packages_distributions', refuse)
     status, out, _ = call(capsys, '--help')
     assert status == 0 and out.startswith('usage: aeropend')
+
+
+def test_a_core_verb_is_parsed_without_scanning_the_entry_points(monkeypatch):
+    """A core verb's command line reads no distribution's metadata (a plugin cannot replace a core verb): the
+    scan and importlib.metadata cost ~0.05-0.1 s of every `aeropend control check`."""
+    import aeropend_core.cli as cli
+
+    def scanned():
+        raise AssertionError('the entry points were scanned for a core verb')
+    monkeypatch.setattr(cli, '_verb_entry_points', scanned)
+    parser, args = cli.parse_arguments(['effects'])
+    assert args.verb == 'effects' and parser.prog == 'aeropend effects'
+    with pytest.raises(AssertionError, match='scanned'):
+        cli.parse_arguments(['no-such-verb'])

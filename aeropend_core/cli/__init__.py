@@ -251,6 +251,10 @@ def verb_parser(verb: str, sub=None, help_text: str | None = None, module_name: 
 def parse_arguments(argv: list[str]) -> tuple[argparse.ArgumentParser, argparse.Namespace]:
     """(parser, namespace) of a command line; a verb's mistakes are answered by that verb's parser (its usage, one
     error line with a suggestion, exit 2), an unknown verb with the closest verb."""
+    if argv and argv[0] in VERBS:       # a core verb: all_verbs() keeps the core's, so no entry point is scanned
+        module_name, help_text = VERBS[argv[0]]
+        parser = verb_parser(argv[0], help_text=help_text, module_name=module_name)
+        return parser, parser.parse_args(argv[1:])
     verbs = all_verbs()
     if argv and argv[0] in verbs:
         parser = verb_parser(argv[0])
