@@ -214,19 +214,34 @@ def test_a_discovered_terms_refit_that_stops_short_of_the_model_without_it_is_re
     cos(2*angle) started at c = -1244 1/s^2 stayed there (the angle 3.7 rad RMS off, the training residual far above
     the model without the term, which is the same model at c = 0) and reported -1244 +- 0.00007, 17 million sigma
     from 0. A refit that fits worse than the nested model is started again from c = 0 (here twice); every refitted
-    term that is not a confounded lookalike must then cover 0 within 3 sigma."""
+    term that is not a confounded lookalike must then cover 0 within 3 sigma.
+
+    Which refit stops short depends on the CPU's rounding (on the machine that found it two of seed 701's did; on an
+    AMD EPYC with AVX-512 none did), so every screening coefficient is moved far out (1e4 in the term's unit, its
+    sign kept) before the refit: a start no basin near the nested optimum holds, on any machine."""
     from aeropend_core.diagnosis import discovery
     from aeropend_core.diagnosis.diagnose import diagnose
     from aeropend_core.io.log_profile import import_log, load_profile
     restarts = []
-    short = discovery._short_of_nested
+    short, prove = discovery._short_of_nested, discovery._prove
 
     def counted(augmented, base):
         if short(augmented, base):
             restarts.append(augmented.fit.residual_rms)
             return True
         return False
+
+    recovered = []
+
+    def far_start(prep, base, model, fixed, entry, *rest):
+        entry.weak_coefficient = math.copysign(1e4, entry.weak_coefficient or 1.0)
+        before = len(restarts)
+        refit = prove(prep, base, model, fixed, entry, *rest)
+        if len(restarts) > before and refit is not None:     # fell short, was started again and gave an estimate
+            recovered.append(entry.term.expression)
+        return refit
     monkeypatch.setattr(discovery, '_short_of_nested', counted)
+    monkeypatch.setattr(discovery, '_prove', far_start)
     # seed 701: two refits restart here. Seed 708 did until s22, but only because the quality gate 'repaired' a
     # true sample of the current's decay after a duty step to 0 at 45.03 s (its message named the kept 1.19 A kick
     # at 1.03 s instead, fixed in s23); the gate now keeps it, and no refit falls short on that log.
@@ -236,6 +251,7 @@ def test_a_discovered_terms_refit_that_stops_short_of_the_model_without_it_is_re
     columns, _ = import_log(tmp_path / 'log.csv', load_profile(tmp_path / 'profile.yaml'))
     result = diagnose(from_columns(columns, source='log.csv'))
     assert restarts, 'no refit fell short of the nested model on this log: the test does not test the restart'
+    assert recovered, 'no refit that fell short was started again to an estimate'
     refitted = [t for t in result.discovery.terms if t.refitted and t.status == 'not_proven']
     assert refitted, [t.to_dict() for t in result.discovery.terms]
     for term in refitted:
