@@ -258,10 +258,11 @@ def _judge_pair(prep: PreparedRecord, model: tuple[str, ...], final: Comparison,
     be fitted). Each side's evidence is the better-fitting model that holds it (:func:`_holding`): without that,
     a 20 ms angle filter chosen second to a thrust lag was reported with the lag as 'both' (the lag at its 5 ms
     bound)."""
-    try:
-        swapped = compare(prep, tuple(n for n in model if n != chosen) + (rival,), start=final.parameters,
-                          fixed=dict(fixed))
-        both = compare(prep, model + (rival,), start=final.parameters, fixed=dict(fixed))
+    from aeropend_core.diagnosis.parallel import map_in_order, workers_for
+    models = (tuple(n for n in model if n != chosen) + (rival,), model + (rival,))
+    try:        # the two fits are independent (both start from the final model's values): side by side
+        swapped, both = map_in_order(lambda effects: compare(prep, effects, start=final.parameters,
+                                                             fixed=dict(fixed)), models, workers_for(len(prep.angle)))
     except InsufficientDataError:
         return 'interchangeable', None
     chosen_adds = assess(prep, swapped, _holding(both, final), chosen, True).significant
@@ -471,10 +472,14 @@ def discovery_stage(prepared: Prepared, catalog: CatalogResult, enabled: bool, s
     """Search the pendulum's and the motor's equations for terms outside the model (when `enabled`)."""
     if not enabled:
         return Discovered()
-    pendulum = pendulum_discovery(prepared, catalog, say)
-    # ---- the motor equation, where the armature current is measured (records without it: said so)
     from aeropend_core.diagnosis.motor_discovery import discover_motor, pendulum_with_term
-    motor = discover_motor(catalog.prep, say)
+    from aeropend_core.diagnosis.parallel import locked, map_in_order, workers_for
+    say_one = locked(say)
+    # the pendulum's equation and the motor's (where the armature current is measured; records without it: said so)
+    # are searched independently: side by side on the cores (the same numbers)
+    pendulum, motor = map_in_order(lambda search: search(), (lambda: pendulum_discovery(prepared, catalog, say_one),
+                                                             lambda: discover_motor(catalog.prep, say_one)),
+                                   workers_for(len(catalog.prep.angle)))
     corrected = None
     if motor.proven:
         say('discovery: refitting the pendulum with the thrust input of the corrected motor observer')
