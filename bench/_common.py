@@ -302,6 +302,21 @@ def machine_info() -> dict:
             'python': platform.python_version(), 'ros_distro': os.environ.get('ROS_DISTRO'), 'versions': versions}
 
 
+def named_and_confounded(found) -> tuple[list[str], list[str]]:
+    """(the effects a diagnosis names with confidence, the effects it names only as confounded) [effect names].
+
+    Confounded: with another catalog effect (``Found.confounded_with``), or with a discovered term outside the
+    catalog that explains the record as well in the effect's place (the verdict then says "EFFECT or, in its place,
+    the term ...; ... this data cannot tell which": not named with confidence). Counted so since s26 by
+    bench/second_rig.py and since s27 by bench/remainder.py (one predicate for both).
+    """
+    from aeropend_core.present.discovery_text import lookalike_terms
+    twins = lookalike_terms(found.discovery)
+    named = [f.effect for f in found.found if not f.confounded_with and f.effect not in twins]
+    confounded = [f.effect for f in found.found if f.confounded_with or f.effect in twins]
+    return named, confounded
+
+
 def spawn_map(function: Callable, jobs: list, workers: int, each: Callable | None = None) -> tuple[list, float]:
     """(`function` applied to each job on `workers` spawned processes, in order; the wall time [s] it took).
     `each`, when given, is called with every row as it arrives (a long run shows its progress)."""

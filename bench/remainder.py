@@ -6,8 +6,9 @@ Two sets of 60 s records (Latin-hypercube steps, nominal parameters moved by [0.
   0.02-0.04 rad, a thrust lag of 0.08-0.2 s, a dead zone of 0.5-0.8 V) beside one remainder outside the catalog
   (bench/local_effects.py: a torque in a 10 deg band of angles, 2-3 rad/s^2; a torque rippling with the angle,
   1-2 rad/s^2; a thrust loss of 25-35 % above a knee; a dry friction of 4-6 rad/s^2 in a 10 deg band). Counted: the
-  catalog effect named as present (in the selected set, not confounded), and no other catalog effect named; the
-  verdict's words say what is left unexplained.
+  catalog effect named as present (in the selected set, not confounded with another effect nor with a discovered
+  term that explains the record as well in its place: ``_common.named_and_confounded``, bench/second_rig.py's
+  count; here since s27), and no other catalog effect named; the verdict's words say what is left unexplained.
 - **remainder only** (40): one of the same remainders alone. Any catalog effect named (not confounded) is a false
   alarm (target <= 1).
 
@@ -28,7 +29,7 @@ ROOT = Path(__file__).resolve().parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from _common import add_json_argument, figure, spawn_map, write_json  # noqa: E402
+from _common import add_json_argument, figure, named_and_confounded, spawn_map, write_json  # noqa: E402
 
 SEED_BASE = 41_000
 CATALOG_EFFECTS = ('coulomb_friction', 'angle_offset', 'thrust_lag', 'dead_zone')
@@ -85,7 +86,7 @@ def run(arguments: tuple[int, int, int]) -> dict:
     started = time.perf_counter()
     with threadpool_limits(1):
         found = diagnose(recording)
-    present = [f.effect for f in found.found if not f.confounded_with]
+    present, confounded = named_and_confounded(found)
     true = row['true_effect']
     estimate = next((f for f in found.found if f.effect == true), None)
     z = None
@@ -95,7 +96,8 @@ def run(arguments: tuple[int, int, int]) -> dict:
         truth = row['effects'][true]
         z = round((value - truth) / sigma, 2) if sigma > 0 else None
     lost = sorted(c.effect for c in found.candidates if c.lost_to_remainder)     # first round: lost to the remainder
-    row.update(verdict=found.verdict, named=found.missing_effects, present=present, lost_to_remainder=lost,
+    row.update(verdict=found.verdict, named=found.missing_effects, present=present, confounded=confounded,
+               lost_to_remainder=lost,
                correct=(true in present and set(present) <= {true}) if true else not present,
                z=z, remaining_mrad=round(excess_error(found.final.rms_error, found.final.noise_rms) * 1e3, 2),
                noise_mrad=round(found.noise_rms * 1e3, 2), message=verdict_of(found)[:400],

@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from _common import add_json_argument, figure, write_json  # noqa: E402
+from _common import add_json_argument, figure, named_and_confounded, write_json  # noqa: E402
 
 SEED_BASE = 40000
 NOMINAL = ('gravity_stiffness', 'damping', 'thrust_gain', 'armature_resistance')
@@ -77,7 +77,6 @@ def run(seed: int, search: bool = True, excitation: str = 'mixed', inputs_psnr: 
     from threadpoolctl import threadpool_limits
 
     from aeropend_core.diagnosis.diagnose import diagnose
-    from aeropend_core.present.discovery_text import lookalike_terms
     kinds = _effects_of_kind()
     recording, rig_record = record(seed, excitation, inputs_psnr)
     truth_effects = sorted({kinds[k][0] for k in rig_record.truth if k in kinds})
@@ -97,9 +96,7 @@ def run(seed: int, search: bool = True, excitation: str = 'mixed', inputs_psnr: 
         found = diagnose(recording) if search else None
     # confounded: with another catalog effect, or with a discovered term outside the catalog that explains the record
     # as well in its place (the verdict says "EFFECT or, in its place, the term ...": not named with confidence)
-    twins = lookalike_terms(found.discovery) if found else {}
-    named = [f.effect for f in found.found if not f.confounded_with and f.effect not in twins] if found else []
-    confounded = [f.effect for f in found.found if f.confounded_with or f.effect in twins] if found else []
+    named, confounded = named_and_confounded(found) if found else ([], [])
     wrong = [name for name in named if name not in truth_effects]
     values, errors = told.reported_parameters(told.current), told.reported_errors(told.current)
     z = {}
