@@ -49,6 +49,9 @@ SPAN_CORRELATION = 0.95
 CONFOUNDING_FACTOR = 1.3
 #: At most this many surviving terms are refitted by output error (strongest weak-form evidence first).
 MAX_REFITS = 3
+#: Knee terms of the thrust curve, refitted beside a chosen catalog set whatever their rank (a lower thrust gain plus
+#: an offset imitates a knee); beyond the rank they enter its model doubt only when significant (docs/diagnosis.md).
+SHAPE_TERMS = ('thrust^2', 'thrust*angle')
 #: Family-wise significance of the weak-form selection (Bonferroni over the free candidate terms).
 SIGNIFICANCE = 0.01
 #: Half-width of the weak-form test functions [s]: about a quarter of the pendulum's period (~0.55 s here).
@@ -441,9 +444,8 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         fit, kept = weak_discrepancy(segments, terms, prep.noise_rms, prep.sample_time)
     except (InsufficientDataError, AeropendError, np.linalg.LinAlgError) as error:
         return Discovery([], note=f'the weak-form regression failed: {error}')
-    # ranked by the model-based sigma, as the weak form's own significance guard selects terms: the reported
-    # (sandwich) sigma of a discrepancy regression is dominated by its structured residual and ranks erratically
-    # ((value, ranking sigma, reported sigma): the sandwich sigma is the one reported, as the weak form says)
+    # ranked by the model-based sigma, as the weak form's significance guard selects terms: the sandwich sigma of a
+    # discrepancy regression, dominated by its structured residual, ranks erratically (it is the one reported)
     chosen = [(name, (value, fit.model_standard_errors.get(name, math.nan), fit.standard_errors.get(name, math.nan)))
               for name, value in fit.coefficients.items() if name not in kept]
     # Each term alone (with the sensitivities kept): nearly collinear terms split the evidence in the joint
@@ -457,11 +459,12 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
     order = dict(chosen)
     for name, row in screened.items():
         order.setdefault(name, row)
-    # terms that stand out alone first (by their own t), then the joint selection's others (artefacts of collinearity
-    # more often than not)
+    # terms that stand out alone first (by their own t), then the joint selection's others (collinearity artefacts)
     ranked = sorted(order.items(), key=lambda kv: (kv[0] not in screened,
                                                    -_strength(*screened.get(kv[0], kv[1])[:2])))
     by_expression = {t.expression: t for t in terms}
+    shape = [name for name in SHAPE_TERMS if catalog_set and name in by_expression]     # refitted whatever their rank
+    ranked += [(name, (0.0, math.nan, math.nan)) for name in shape if name not in order]
     found: list[DiscoveredTerm] = []
     excess_now = excess_error(base.rms_error, prep.noise_rms)
     doubt = screening_doubt(excess_now, prep.noise_rms, 'mrad', 1e3)
@@ -480,7 +483,8 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
             entry.why_not = ('a term of time, a lag or heating: the output-error model cannot simulate it, so it is '
                              'not proven; see the drift test and the catalog\'s thrust-lag effect')
             continue
-        if refits >= MAX_REFITS:
+        beyond = name in shape and (refits >= MAX_REFITS or name not in order)      # refitted beyond the rank
+        if refits >= MAX_REFITS and not beyond:
             entry.why_not = f'not refitted: weaker weak-form evidence than the {MAX_REFITS} terms refitted before it'
             continue
         refits += 1
@@ -495,6 +499,8 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
         lookalike = _span(term, segments, model) if entry.status == 'proven' else None
         if lookalike:
             _against_catalog(prep, base, model, fixed, entry, lookalike)
+        if beyond and entry.status == 'not_proven':     # no evidence for this shape: not part of the model doubt
+            entry.parameter_shifts, entry.parameter_sigmas = {}, {}
     at_cap: list[dict] = []
     if catalog_set and without_set is not None and not any(f.status in ('proven', 'confounded') for f in found):
         lookalike = _set_lookalike(prep, base, model, fixed, catalog_set, without_set, say, at_cap=at_cap)
