@@ -100,3 +100,19 @@ def test_the_verdict_beside_a_remainder_says_the_share_explained_what_is_left_an
     assert 'present beside a remainder' in text and 'It explains 75 %' in text and '10.00 mrad beyond the noise' in text
     assert 'correlated over 0.42 s' in text and 'below 0.8 Hz (slow' in text
     assert 'correlated over' not in verdict_message('unexplained', **words)
+
+
+def test_beside_a_remainder_an_effect_confounded_with_its_catalog_neighbour_is_not_said_to_hold():
+    """s27 remainder bench, 41009: a thrust lag confounded with the angle filter read "present beside a remainder
+    ...: thrust_lag ...; it holds" while the diagnosis did not name it. Now it says one of the two, not which."""
+    from aeropend_core.present.verdict_text import verdict_message
+    lag = Found('thrust_lag', {'time_constant': 0.09}, {'time_constant': 0.01}, 0.02, 0.01, 0.75, 9.0, 3.0,
+                confounded_with=['angle_filter'])
+    offset = Found('angle_offset', {'angle_offset': -0.02315}, {'angle_offset': 0.0094}, 0.02, 0.01, 0.75, 27.0, 5.0)
+    words = dict(noise_rms=0.005, excess_current=0.02, excess_final=0.01, within_noise=0.0025,
+                 structure=[{'signature': 'sin(angle)', 'correlation': 0.4}])
+    text = verdict_message('unexplained', found=[lag], **words)
+    assert 'one of thrust_lag or angle_filter' in text and 'cannot tell which' in text, text
+    assert 'holds' not in text, text
+    text = verdict_message('unexplained', found=[offset, lag], **words)
+    assert 'angle_offset' in text and 'it holds; also one of thrust_lag or angle_filter' in text, text

@@ -103,8 +103,14 @@ def verdict_message(verdict: str, *, found: Sequence, noise_rms: float, excess_c
         message = f'{sizes} {verb} part of the error. ' if found else ''
     elif verdict == 'unexplained' and found:
         explained = 1.0 - (excess_final / excess_current) ** 2 if excess_current > 0 else float('nan')
-        message = (f'present beside a remainder outside the catalog: {sizes}; judged against that remainder '
-                   f'modelled as a disturbance, {"they hold" if len(found) > 1 else "it holds"}. '
+        # an effect confounded with another catalog effect is not said to hold: one of the two is there
+        held = (f'{"; ".join(size_text(f) for f in pinned)}; judged against that remainder modelled as a '
+                f'disturbance, {"they hold" if len(pinned) > 1 else "it holds"}' if pinned else '')
+        undecided = ' and '.join(f'one of {" or ".join([f.effect, *f.confounded_with])} ({size_text(f)})'
+                                 for f in unsure)
+        message = (f'present beside a remainder outside the catalog: {held}'
+                   + (f'{"; also " if pinned else ""}{undecided}, but this data cannot tell which' if unsure
+                      else '') + '. '
                    f'{"Together they explain" if len(found) > 1 else "It explains"} {max(explained, 0.0) * 100:.0f} % '
                    f'of the mean-square error beyond the noise, with {excess_final * 1e3:.2f} mrad beyond the noise '
                    f'({noise_text}) left unexplained, that no catalog effect explains (outside the catalog)'
