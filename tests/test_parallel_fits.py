@@ -164,3 +164,41 @@ def test_a_forked_child_runs_split_kernels_on_threads_of_its_own(monkeypatch):
             os._exit(0 if forgotten and parallel._kernel_pool is not None else 1)
     _, status = os.waitpid(pid, 0)
     assert os.waitstatus_to_exitcode(status) == 0
+
+
+def test_the_motor_observer_and_its_ensemble_are_the_same_with_one_and_two_workers(monkeypatch):
+    """The observer's Jacobian columns and the back-EMF ensemble's members are simulated on the worker threads
+    (signals.motor, issue 41): the fit, its back-EMF, the members and the standard errors with two workers equal
+    those of one bit for bit, and with two workers the kernel ran on two threads."""
+    from aeropend_core.signals import motor
+    from aeropend_core.signals.preprocess import detect_steps, piecewise_constant
+    from aeropend_core.sim.excitation import lhc_schedule
+    from aeropend_core.sim.noise import MeasurementNoise
+    from aeropend_core.sim.simulate import simulate
+    duty = lhc_schedule(20.0, duty_range=(0.0, 0.7), duty_cap=0.7, seed=11).duty(duration=20.0)
+    record = simulate(duty, noise=MeasurementNoise(40.0, True), seed=12)
+    steps = detect_steps(record.armature_voltage, record.sample_time)
+    voltage = piecewise_constant(record.armature_voltage, steps)
+    threads: set[str] = set()
+    kernel = motor._motor_kernel
+
+    def spying(*args):
+        threads.add(threading.current_thread().name)
+        return kernel(*args)
+    monkeypatch.setattr(motor, '_motor_kernel', spying)
+    results = {}
+    for workers in (1, 2):
+        monkeypatch.setenv(WORKERS_VARIABLE, str(workers))
+        threads.clear()
+        fit = motor.fit_motor(voltage, record.armature_current, steps, record.sample_time)
+        members, errors = motor.back_emf_ensemble(fit, voltage, record.armature_voltage, record.armature_current,
+                                                  steps, record.sample_time, with_errors=True)
+        results[workers] = (fit, members, errors, set(threads))
+    one, two = results[1], results[2]
+    assert one[0].kind == 'inductance' and one[1] is not None
+    assert one[3] == {threading.current_thread().name}
+    assert len({name for name in two[3] if name.startswith('aeropend-fit')}) == 2
+    assert one[0].parameters == two[0].parameters and one[0].solution == two[0].solution
+    np.testing.assert_array_equal(one[0].back_emf, two[0].back_emf)
+    np.testing.assert_array_equal(one[1], two[1])
+    assert one[2] == two[2]

@@ -31,6 +31,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
+from aeropend_core.diagnosis.parallel import default_workers, map_in_order
 from aeropend_core.signals.preprocess import noise_rms, settling_samples
 
 PARAMETER_NAMES = ('motor_drive_rate', 'motor_friction_rate', 'motor_drag_rate', 'motor_resistance')
@@ -503,14 +504,17 @@ def _fit_with_inductance(voltage, current, keep, sample_time, start: MotorFit, i
         step = 1e-6 * np.maximum(np.abs(z), 1.0)
         rows = np.tile(z, (len(z) + 1, 1))
         rows[1:] += np.diag(step)
-        # one row at a time (the same numbers): memory of two records' length, not two per parameter
+        # one row per kernel call (the same numbers): memory of two records' length per worker, not two per parameter;
+        # the columns on the machine's cores (the kernel is nogil; each call writes only its own column)
         held, modelled = last.get(z.tobytes(), (None, None))
         if modelled is None or held is not switch:
             modelled = model(rows[:1] * scale)[0][0]
         base = _bounded(modelled[use])
         jac = np.empty((base.size, len(z)))
-        for i in range(len(z)):
+
+        def column(i):
             jac[:, i] = (_bounded(model(rows[i + 1:i + 2] * scale)[0][0, use]) - base) / step[i]
+        map_in_order(column, range(len(z)))
         return jac
 
     lower = np.array([1e-3, 1e-5, 0.0, 0.0, 0.0, -np.inf, -np.inf]) / scale
@@ -675,12 +679,14 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
     steps = 1e-6 * np.maximum(np.abs(x), 1e-4)
     jacobian = np.empty((int(used.sum()), x.size), dtype=np.float32)
     emf_jacobian = np.empty((n, x.size), dtype=np.float32)
-    for i in range(x.size):
+
+    def column(i):                  # on the machine's cores, each call writing only its own columns
         shifted = x.copy()
         shifted[i] += steps[i]
         shifted_current, shifted_emf = _predict(kind, shifted, voltage, sample_time, switch)
         jacobian[:, i] = (shifted_current - modelled)[used] / steps[i]
         emf_jacobian[:, i] = (shifted_emf - emf) / steps[i]
+    map_in_order(column, range(x.size))
     if not (np.all(np.isfinite(jacobian)) and np.all(np.isfinite(emf_jacobian))):
         return (None, {}) if with_errors else None
     gram = np.array([[np.dot(jacobian[:, i].astype(float), jacobian[:, j]) for j in range(x.size)]
@@ -693,11 +699,16 @@ def back_emf_ensemble(fit: MotorFit, voltage: np.ndarray, measured_voltage: np.n
     rng = np.random.default_rng(seed)
     members = np.empty((count, n), dtype=np.float32)
     level_changes = np.zeros((count, x.size))
-    for k in range(count):
-        signs = rng.choice((-1.0, 1.0), size=len(lengths))
-        shifted_voltage = moved_levels(voltage, level_sigma, block, rng)
+
+    def simulated():        # members drawn in order (the same draws), simulated one per core at a time
+        chunk = default_workers()
+        for first in range(0, count, chunk):
+            drawn = [(rng.choice((-1.0, 1.0), size=len(lengths)), moved_levels(voltage, level_sigma, block, rng))
+                     for _ in range(min(chunk, count - first))]
+            predicted = map_in_order(lambda draw: _predict(kind, x, draw[1], sample_time, switch), drawn)
+            yield from ((signs, *result) for (signs, _), result in zip(drawn, predicted))
+    for k, (signs, moved, member) in enumerate(simulated()):
         redrawn = modelled + signs[block] * residual
-        moved, member = _predict(kind, x, shifted_voltage, sample_time, switch)
         target = (redrawn - moved)[used]
         change = inverse @ np.array([np.dot(jacobian[:, i].astype(float), target) for i in range(x.size)])
         level_target = (modelled - moved)[used]
