@@ -107,7 +107,12 @@ def test_a_hardening_cubic_is_not_named_as_a_cable_with_confidence():
 
 
 @pytest.mark.slow
-def test_a_cable_a_cubic_imitates_stays_named_and_the_cubic_is_said_beside_it():
+def test_a_cable_a_cubic_imitates_stays_named_and_the_cubic_is_said_beside_it(monkeypatch):
+    """Since s27 the thrust curve's knee terms are refitted beside every catalog set, and on this record thrust^2
+    explains it as well as the cable (so the verdict stays 'not with confidence', with that term said instead); they
+    are left out here so that the in-place imitator (the cubic, mapped from the cable) is what is tested."""
+    from aeropend_core.diagnosis import discovery
+    monkeypatch.setattr(discovery, 'SHAPE_TERMS', ())
     truth = 30.0
     result = diagnose(_record({'cable_torque': truth}, seed=43100))
     assert result.missing_effect == 'cable_torque' and result.to_dict()['add'] == ['cable_torque']
@@ -128,3 +133,20 @@ def test_an_offset_nothing_imitates_stays_named_with_confidence():
     assert result.found[0].parameters['angle_offset'] == pytest.approx(truth, rel=0.1)
     assert _lookalike(result, 'angle_offset') is None
     assert 'Not with confidence' not in verdict_of(result)
+
+
+def test_a_knee_term_refitted_without_screening_shows_no_number_when_its_refit_gives_none():
+    """The thrust curve's knee terms are refitted beside a catalog set whatever their weak-form rank (s27); one the
+    weak form never screened has no screening value: it starts its refit at 0, and when the refit gives no estimate
+    the text, the report and the JSON show none (not '0 (weak-form screening value, no +-)')."""
+    from aeropend_core.present.discovery_text import discovery_html, term_text
+    term = DiscoveredTerm(term=find_term('thrust^2'), status='not_proven', weak_coefficient=np.nan,
+                          weak_sigma=np.nan, weak_doubt='screening values carry no +- here',
+                          why_not='the refit did not converge')
+    assert term.refit_start == 0.0 and not term.refitted
+    assert 'no estimate' in term_text(term) and '0 ' not in term_text(term).split('c = ')[1], term_text(term)
+    assert term.to_dict()['parameters'][f'{term_effect(term.term)}_coefficient']['value'] is None
+    assert 'not screened by the weak form' in discovery_html(Discovery([term]), 0.005)
+    screened = DiscoveredTerm(term=find_term('thrust^2'), status='not_proven', weak_coefficient=-0.0014,
+                              weak_sigma=0.0001)
+    assert screened.refit_start == -0.0014 and '-0.0014 +- 0.0001' in term_text(screened), term_text(screened)

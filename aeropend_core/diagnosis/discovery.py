@@ -464,7 +464,7 @@ def discover(prep: PreparedRecord, base: Comparison, model: tuple[str, ...], fix
                                                    -_strength(*screened.get(kv[0], kv[1])[:2])))
     by_expression = {t.expression: t for t in terms}
     shape = [name for name in SHAPE_TERMS if catalog_set and name in by_expression]     # refitted whatever their rank
-    ranked += [(name, (0.0, math.nan, math.nan)) for name in shape if name not in order]
+    ranked += [(name, (math.nan, math.nan, math.nan)) for name in shape if name not in order]   # not screened
     found: list[DiscoveredTerm] = []
     excess_now = excess_error(base.rms_error, prep.noise_rms)
     doubt = screening_doubt(excess_now, prep.noise_rms, 'mrad', 1e3)
@@ -699,7 +699,7 @@ def _instead_of_set(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set
     parameter = f'{name}_coefficient'
     kept = tuple(n for n in model if n not in catalog_set)
     try:
-        swapped = compare(prep, kept + (name,), start={**without_set.parameters, parameter: entry.weak_coefficient},
+        swapped = compare(prep, kept + (name,), start={**without_set.parameters, parameter: entry.refit_start},
                           fixed=dict(fixed))
     except InsufficientDataError:
         return
@@ -724,11 +724,11 @@ def _prove(prep, base, model, fixed, entry: DiscoveredTerm, catalog_set, without
     """Refit with the term and judge it (sets `entry`); returns the refitted model (None: not testable)."""
     name = term_effect(entry.term)
     parameter = f'{name}_coefficient'
-    start = {**base.parameters, parameter: entry.weak_coefficient}
+    start = {**base.parameters, parameter: entry.refit_start}
     try:
         augmented = compare(prep, model + (name,), start=start, fixed=dict(fixed),
                             initial_states=base.fit.initial_states)
-        if _short_of_nested(augmented, base) and entry.weak_coefficient != 0.0:
+        if _short_of_nested(augmented, base) and entry.refit_start != 0.0:
             # the model with the term at c = 0 is the base: a refit that fits the training part worse than the base
             # stopped in another basin (a screening coefficient of -1244 1/s^2 kept, sigma 7e-5, the angle 3.7 rad
             # off), so its coefficient and sigma are no estimate; started from the base, it finds the nested optimum

@@ -24,7 +24,8 @@ class TermEvidence:
     status : str
         ``'proven'``, ``'not_proven'`` (``why_not`` says why), or an equation's own (``'catalog'``, ``'confounded'``).
     weak_coefficient, weak_sigma : float [unit of the term]
-        The weak-form screening's coefficient and its sandwich 1-sigma (benchmarks; reported only without doubt).
+        The weak-form screening's coefficient and its sandwich 1-sigma (benchmarks; reported only without doubt);
+        nan for a term refitted without being screened (the thrust curve's knee terms beside a catalog set).
     weak_doubt : str
         Why the screening coefficient is given without a +- (:func:`screening_doubt`; '' : its sigma is given).
     value, sigma : float [unit of the term]
@@ -56,6 +57,11 @@ class TermEvidence:
     delta_bic: float = math.nan
     dm_statistic: float = math.nan
     why_not: str = ''
+
+    @property
+    def refit_start(self) -> float:
+        """The coefficient an output-error refit starts from [unit of the term]: the screening's, 0 when unscreened."""
+        return self.weak_coefficient if math.isfinite(self.weak_coefficient) else 0.0
 
     @property
     def refitted(self) -> bool:

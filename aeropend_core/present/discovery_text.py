@@ -66,6 +66,8 @@ def _coefficient(term) -> tuple[float, float]:
 def _value_text(term) -> str:
     """'value +- sigma UNIT', or 'value UNIT (weak-form screening value, no +-)' when it has no sigma."""
     value, sigma = _coefficient(term)
+    if not math.isfinite(value):
+        return f'no estimate [{term.term.unit}] (not screened by the weak form, and its refit gave none)'
     if not math.isfinite(sigma):
         return f'{value:.4g} {term.term.unit} ({"weak-form screening value, " if term.doubt else ""}no +-)'
     return f'{value:.4g} +- {sigma:.2g} {term.term.unit}'
@@ -301,6 +303,8 @@ def _html_number(value: float, digits: int = 2, scale: float = 1.0, suffix: str 
 
 def _coefficient_html(term) -> str:
     value, sigma = _coefficient(term)
+    if not math.isfinite(value):
+        return '&mdash; <small>(not screened by the weak form, and its refit gave none)</small>'
     estimator = '' if math.isfinite(term.value) else ' <small>(weak form only)</small>'
     sigma_text = (f' &plusmn; {sigma:.2g}' if math.isfinite(sigma) else
                   ' <small>(screening value, no &plusmn;)</small>' if term.doubt else ' &plusmn; unknown')
