@@ -1,4 +1,4 @@
-"""The candidates of a search round fitted side by side (aeropend_core.diagnosis.parallel, issue 41): the answer does
+"""The candidates of a search round fitted side by side (aeropend_core.parallel, issue 41): the answer does
 not depend on the number of workers.
 
 The diagnosis with one worker is the old code path (the candidates one after the other); with two the fits run on
@@ -12,7 +12,7 @@ import threading
 import numpy as np
 import pytest
 
-from aeropend_core.diagnosis.parallel import WORKERS_VARIABLE, default_workers, map_in_order
+from aeropend_core.parallel import WORKERS_VARIABLE, default_workers, map_in_order
 from aeropend_core.errors import AeropendError
 
 
@@ -149,7 +149,7 @@ def test_a_forked_child_runs_split_kernels_on_threads_of_its_own(monkeypatch):
     import os
     import signal
 
-    from aeropend_core.diagnosis import parallel
+    from aeropend_core import parallel
     monkeypatch.setenv(WORKERS_VARIABLE, '2')
     seen = []
     parallel.in_segment_chunks(lambda a, b: seen.append((a, b)), [0, 5000], [5000, 10000])   # the pool exists

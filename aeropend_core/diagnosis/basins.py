@@ -161,7 +161,7 @@ def search_lag_basins(prep, fit_from: Callable, values: dict[str, float], parame
                  'damping': float(max(damping, 0.1)), 'thrust_gain': float(gain)}
         tried.append(value)
         starts.append(start)
-    from aeropend_core.diagnosis.parallel import map_in_order, workers_for  # the starts do not depend on the fits
+    from aeropend_core.parallel import map_in_order, workers_for  # the starts do not depend on the fits
     fits = [local_fit, *map_in_order(fit_from, starts, workers=workers_for(len(prep.angle)))]
     order = sorted(range(len(fits)), key=lambda i: fits[i].residual_rms)
     best = fits[order[0]]

@@ -18,7 +18,7 @@ import numpy as np
 from scipy import special
 
 from aeropend_core.diagnosis.output_error import SegmentedData, fit_output_error
-from aeropend_core.diagnosis.parallel import map_in_order, workers_for
+from aeropend_core.parallel import map_in_order, workers_for
 from aeropend_core.errors import InsufficientDataError
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 

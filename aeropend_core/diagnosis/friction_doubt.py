@@ -22,7 +22,7 @@ import numpy as np
 
 from aeropend_core.diagnosis.compare import Comparison, PreparedRecord
 from aeropend_core.diagnosis.output_error import FRICTION_STABILITY, STRIDE, OutputErrorFit, fit_output_error
-from aeropend_core.diagnosis.parallel import map_in_order, workers_for
+from aeropend_core.parallel import map_in_order, workers_for
 from aeropend_core.model.effects import FRICTION_SMOOTHING, kernel_parameter
 
 #: The smoothing rate is varied by this factor both ways (w0 / 2 and 2 w0): 5 and 20 mrad/s around the catalog's 10.

@@ -36,7 +36,7 @@ from aeropend_core.model.effects import (FRICTION_SMOOTHING, KERNEL_KINDS, PENDU
                                          kernel_parameter, wants_thrust)
 from aeropend_core.model.names import NOMINAL_PARAMETERS
 from aeropend_core.diagnosis.jacobian_blocks import block_jacobian
-from aeropend_core.diagnosis.parallel import in_segment_chunks, map_in_order, workers_for
+from aeropend_core.parallel import in_segment_chunks, map_in_order, workers_for
 from aeropend_core.diagnosis.sensitivity import EXACT_COLUMNS, friction_term, sensitivity_kernel
 from aeropend_core.diagnosis.term_kernel import term_value
 from aeropend_core.diagnosis.user_kernel import EXTRA_TYPE, compiled_user_terms, no_extra

@@ -258,7 +258,7 @@ def _judge_pair(prep: PreparedRecord, model: tuple[str, ...], final: Comparison,
     be fitted). Each side's evidence is the better-fitting model that holds it (:func:`_holding`): without that,
     a 20 ms angle filter chosen second to a thrust lag was reported with the lag as 'both' (the lag at its 5 ms
     bound)."""
-    from aeropend_core.diagnosis.parallel import map_in_order, workers_for
+    from aeropend_core.parallel import map_in_order, workers_for
     models = (tuple(n for n in model if n != chosen) + (rival,), model + (rival,))
     try:        # the two fits are independent (both start from the final model's values): side by side
         swapped, both = map_in_order(lambda effects: compare(prep, effects, start=final.parameters,
@@ -276,9 +276,9 @@ def _judge_pair(prep: PreparedRecord, model: tuple[str, ...], final: Comparison,
 
 def _try_round(search, base: Comparison, model: tuple[str, ...], names: list[str], held, say: Say,
                round_number: int) -> list[Candidate]:
-    """Each of `names` tried on top of `model`, the fits side by side (:mod:`aeropend_core.diagnosis.parallel`);
+    """Each of `names` tried on top of `model`, the fits side by side (:mod:`aeropend_core.parallel`);
     the candidates in the order of `names`, the same whatever the number of workers."""
-    from aeropend_core.diagnosis.parallel import locked, map_in_order, workers_for
+    from aeropend_core.parallel import locked, map_in_order, workers_for
     say_one = locked(say)
 
     def attempt(numbered: tuple[int, str]) -> Candidate:
@@ -473,7 +473,7 @@ def discovery_stage(prepared: Prepared, catalog: CatalogResult, enabled: bool, s
     if not enabled:
         return Discovered()
     from aeropend_core.diagnosis.motor_discovery import discover_motor, pendulum_with_term
-    from aeropend_core.diagnosis.parallel import locked, map_in_order, workers_for
+    from aeropend_core.parallel import locked, map_in_order, workers_for
     say_one = locked(say)
     # the pendulum's equation and the motor's (where the armature current is measured; records without it: said so)
     # are searched independently: side by side on the cores (the same numbers)

@@ -31,7 +31,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
-from aeropend_core.diagnosis.parallel import default_workers, map_in_order
+from aeropend_core.parallel import default_workers, map_in_order
 from aeropend_core.signals.preprocess import noise_rms, settling_samples
 
 PARAMETER_NAMES = ('motor_drive_rate', 'motor_friction_rate', 'motor_drag_rate', 'motor_resistance')

@@ -57,10 +57,8 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import os
 import statistics
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -68,6 +66,7 @@ from scipy import linalg, special
 from threadpoolctl import ThreadpoolController
 
 from aeropend_core.errors import AeropendError, InsufficientDataError
+from aeropend_core.parallel import default_workers, map_in_order
 from aeropend_core.wsindy.library import Term
 from aeropend_core.wsindy.noise_model import (
     _cached,
@@ -354,7 +353,7 @@ class WeakSindyOptions:
         return dataclasses.replace(self, **changes) if changes else self
 
 
-#: Threads fitting the equations of one call side by side (at most the machine's cores).
+#: Threads fitting the equations of one call side by side (at most AEROPEND_WORKERS or the cores: parallel.py).
 EQUATION_WORKERS = 2
 
 
@@ -440,14 +439,11 @@ def fit_weak_sindy(time, signals, equations: Sequence[Equation], options: WeakSi
 
     cache: dict = {}   # library columns, Jacobians and noise levels shared by the equations (terms keyed by name)
     options = (options or WeakSindyOptions()).replace(**option_changes)
-    workers = min(EQUATION_WORKERS, os.cpu_count() or 1, len(equations))
-    if workers <= 1:
-        fits = [_fit_equation(eq, segments, excludes, dt, cache, options) for eq in equations]
-    else:
-        # the equations are independent (their shared cache holds pure functions of the data: a value two threads
-        # make at once is the same value); NumPy, LAPACK and the numba kernels release the GIL
-        with ThreadPoolExecutor(workers) as pool:
-            fits = list(pool.map(lambda eq: _fit_equation(eq, segments, excludes, dt, cache, options), equations))
+    # the equations are independent (their shared cache holds pure functions of the data: a value two threads make
+    # at once is the same value); NumPy, LAPACK and the numba kernels release the GIL. AEROPEND_WORKERS and a map
+    # already inside a worker (a diagnosis's round) are respected as by every other side-by-side map
+    fits = map_in_order(lambda eq: _fit_equation(eq, segments, excludes, dt, cache, options), equations,
+                        min(EQUATION_WORKERS, default_workers()))
     return WeakSindyResult(tuple(fits))
 
 

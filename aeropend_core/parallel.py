@@ -1,4 +1,5 @@
-"""Independent fits side by side on the machine's cores: the candidates of one round of the catalog search.
+"""Independent work side by side on the machine's cores: the candidates of one round of the catalog search, the
+motor observer's simulations, the weak form's equations (a leaf: signals, wsindy and diagnosis all call it).
 
 Each candidate's output-error fit spends most of its time in the compiled simulation kernel
 (:func:`aeropend_core.diagnosis.output_error._simulate_kernel`, compiled ``nogil``), so threads of one process
